@@ -1,0 +1,524 @@
+"""Batched SO(3) / SE(3) maps, conversions and distances.
+
+Every function takes tensors with any leading (batch) dimensions, works in float32 and float64 on
+any device, and is safe under autograd: gradients are finite at the identity and near 180 degrees.
+
+Conventions (see DESIGN.md):
+
+- A pose is a 4x4 camera-to-world matrix ``T_w_c``; camera axes x right, y down, z forward.
+- se(3) vectors are ``xi = (rho, omega)``: ``Exp(xi) = [[exp(omega^), V(omega) rho], [0, 1]]``.
+- Euler angles are ``(yaw, pitch, roll)`` in radians with ``R = Ry(yaw) @ Rx(pitch) @ Rz(roll)``,
+  i.e. rotations about the camera's y (down), x (right) and z (forward) axes.
+- Quaternions are ``(w, x, y, z)``; conversions from matrices return the canonical sign ``w >= 0``.
+- 6-D rotations are the first two columns of the matrix, ``(c1, c2)``, mapped back by Gram-Schmidt.
+
+RoMa does the rotation maths it already does well (rotation vectors, quaternions, Euler angles,
+Gram-Schmidt, Procrustes). Written here is only what it lacks: the SE(3) exponential and logarithm
+(the V matrix and its inverse), and a geodesic angle that is accurate and has finite gradients both at
+0 and at pi (``roma.rotmat_geodesic_distance`` uses an arcsine, whose gradient is infinite at pi).
+
+Run ``python -m lossvo.geometry`` to print which metric axioms each rotation distance satisfies.
+"""
+
+from __future__ import annotations
+
+import math
+
+import roma
+import torch
+from torch import Tensor
+
+EULER_CONVENTION = "YXZ"
+"""RoMa's name for R = Ry(yaw) @ Rx(pitch) @ Rz(roll) (intrinsic rotations about y, then x, then z)."""
+
+_SQRT2 = math.sqrt(2.0)
+
+
+def _check_shape(x: Tensor, tail: tuple[int, ...], name: str) -> None:
+    """Raise a ValueError unless ``x`` has shape ``(..., *tail)``."""
+    if x.dim() < len(tail) or tuple(x.shape[x.dim() - len(tail) :]) != tail:
+        expected = "(..., " + ", ".join(map(str, tail)) + ")"
+        raise ValueError(f"{name} must have shape {expected}, got {tuple(x.shape)}")
+
+
+# --------------------------------------------------------------------------------------------------
+# so(3): hat / vee, exponential and logarithm
+# --------------------------------------------------------------------------------------------------
+
+
+def hat(v: Tensor) -> Tensor:
+    """Skew-symmetric matrix of a vector: ``hat(v) @ u == cross(v, u)``.
+
+    Args:
+        v: (..., 3) vectors.
+    Returns:
+        (..., 3, 3) skew-symmetric matrices.
+    """
+    _check_shape(v, (3,), "v")
+    x, y, z = v.unbind(-1)
+    zero = torch.zeros_like(x)
+    rows = (zero, -z, y, z, zero, -x, -y, x, zero)
+    return torch.stack(rows, dim=-1).unflatten(-1, (3, 3))
+
+
+def vee(W: Tensor) -> Tensor:
+    """Vector of a skew-symmetric matrix (inverse of :func:`hat`); uses the skew part of ``W``.
+
+    Args:
+        W: (..., 3, 3) matrices.
+    Returns:
+        (..., 3) vectors.
+    """
+    _check_shape(W, (3, 3), "W")
+    return 0.5 * torch.stack(
+        (W[..., 2, 1] - W[..., 1, 2], W[..., 0, 2] - W[..., 2, 0], W[..., 1, 0] - W[..., 0, 1]), dim=-1
+    )
+
+
+def so3_exp(omega: Tensor) -> Tensor:
+    """Exponential map so(3) -> SO(3) (Rodrigues), ``R = exp(hat(omega))``.
+
+    Args:
+        omega: (..., 3) rotation vectors (axis times angle, radians).
+    Returns:
+        (..., 3, 3) rotation matrices.
+    """
+    _check_shape(omega, (3,), "omega")
+    return roma.rotvec_to_rotmat(omega)
+
+
+def so3_log(R: Tensor) -> Tensor:
+    """Logarithm map SO(3) -> so(3), the rotation vector with angle in [0, pi].
+
+    Robust near 0 and pi (RoMa goes through Markley's quaternion extraction and an atan2).
+
+    Args:
+        R: (..., 3, 3) rotation matrices.
+    Returns:
+        (..., 3) rotation vectors.
+    """
+    _check_shape(R, (3, 3), "R")
+    return roma.rotmat_to_rotvec(R)
+
+
+# --------------------------------------------------------------------------------------------------
+# SE(3): exponential and logarithm (RoMa has no SE(3) Lie algebra maps)
+# --------------------------------------------------------------------------------------------------
+
+
+# Taylor coefficients in s = theta^2 of b, c, d below (the first five terms of each series).
+_B_SERIES = (1 / 2, -1 / 24, 1 / 720, -1 / 40320, 1 / 3628800)
+_C_SERIES = (1 / 6, -1 / 120, 1 / 5040, -1 / 362880, 1 / 39916800)
+_D_SERIES = (1 / 12, 1 / 720, 1 / 30240, 1 / 1209600, 1 / 47900160)
+
+
+_SERIES_BELOW = 0.28
+"""Angle (radians) below which b, c, d use their series; they are always evaluated in float64.
+
+The closed forms of c and d lose about ``6 eps / t^2`` to cancellation; the five-term series drop
+about ``t^10 / 1.6e8`` (d converges slowest). Both are about 2e-14 at t = 0.28 in float64, far below
+float32's epsilon, which is why float32 inputs get float64 coefficients too (it costs one scalar
+per pose).
+"""
+
+
+def _polyval(coefficients: tuple[float, ...], s: Tensor) -> Tensor:
+    """``sum_i coefficients[i] * s**i`` by Horner's rule."""
+    out = torch.full_like(s, coefficients[-1])
+    for c in reversed(coefficients[:-1]):
+        out = out * s + c
+    return out
+
+
+def _v_coefficients(theta2: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Coefficients of ``V = I + b W + c W^2`` and ``V^-1 = I - W/2 + d W^2`` for ``W = hat(omega)``.
+
+    ``b = (1 - cos t) / t^2``, ``c = (t - sin t) / t^3``, ``d = (1 - (t/2) cot(t/2)) / t^2`` with
+    ``t = |omega|``: a Taylor series in ``t^2`` near zero (also keeps gradients finite at zero, where
+    ``t = sqrt(t^2)`` is not differentiable), the closed form elsewhere. The closed-form branch is fed
+    a dummy ``t = 1`` where the series is used, so it never divides by zero.
+
+    Args:
+        theta2: (...) squared rotation angles ``|omega|^2``.
+    Returns:
+        b, c, d: (...) tensors.
+    """
+    dtype = theta2.dtype
+    theta2 = theta2.double()
+    small = theta2 < _SERIES_BELOW**2
+    t2 = torch.where(small, torch.ones_like(theta2), theta2)
+    t = torch.sqrt(t2)
+    half = 0.5 * t
+    b_closed = 0.5 * (torch.sin(half) / half) ** 2  # = (1 - cos t) / t^2 without cancellation
+    c_closed = (t - torch.sin(t)) / (t2 * t)
+    d_closed = (1.0 - half * torch.cos(half) / torch.sin(half)) / t2
+    return (
+        torch.where(small, _polyval(_B_SERIES, theta2), b_closed).to(dtype),
+        torch.where(small, _polyval(_C_SERIES, theta2), c_closed).to(dtype),
+        torch.where(small, _polyval(_D_SERIES, theta2), d_closed).to(dtype),
+    )
+
+
+def so3_left_jacobian(omega: Tensor) -> Tensor:
+    """The V matrix of the SE(3) exponential (left Jacobian of SO(3)): ``t = V(omega) rho``.
+
+    Args:
+        omega: (..., 3) rotation vectors.
+    Returns:
+        (..., 3, 3) matrices.
+    """
+    _check_shape(omega, (3,), "omega")
+    b, c, _ = _v_coefficients((omega * omega).sum(-1))
+    W = hat(omega)
+    eye = torch.eye(3, dtype=omega.dtype, device=omega.device)
+    return eye + b[..., None, None] * W + c[..., None, None] * (W @ W)
+
+
+def so3_left_jacobian_inv(omega: Tensor) -> Tensor:
+    """Inverse of :func:`so3_left_jacobian`, valid for rotation angles below 2 pi.
+
+    Args:
+        omega: (..., 3) rotation vectors.
+    Returns:
+        (..., 3, 3) matrices.
+    """
+    _check_shape(omega, (3,), "omega")
+    _, _, d = _v_coefficients((omega * omega).sum(-1))
+    W = hat(omega)
+    eye = torch.eye(3, dtype=omega.dtype, device=omega.device)
+    return eye - 0.5 * W + d[..., None, None] * (W @ W)
+
+
+def se3_exp(xi: Tensor) -> Tensor:
+    """True exponential map se(3) -> SE(3): ``R = exp(hat(omega))``, ``t = V(omega) rho``.
+
+    Equal to ``torch.linalg.matrix_exp`` of the 4x4 twist ``[[hat(omega), rho], [0, 0]]``.
+
+    Args:
+        xi: (..., 6) twists ``(rho, omega)``; rho in metres, omega in radians.
+    Returns:
+        (..., 4, 4) poses.
+    """
+    _check_shape(xi, (6,), "xi")
+    rho, omega = xi[..., :3], xi[..., 3:]
+    t = (so3_left_jacobian(omega) @ rho[..., None])[..., 0]
+    return make_pose(so3_exp(omega), t)
+
+
+def se3_log(T: Tensor) -> Tensor:
+    """Logarithm map SE(3) -> se(3), inverse of :func:`se3_exp` (rotation angle in [0, pi]).
+
+    Args:
+        T: (..., 4, 4) poses.
+    Returns:
+        (..., 6) twists ``(rho, omega)``.
+    """
+    _check_shape(T, (4, 4), "T")
+    omega = so3_log(T[..., :3, :3])
+    rho = (so3_left_jacobian_inv(omega) @ T[..., :3, 3:])[..., 0]
+    return torch.cat((rho, omega), dim=-1)
+
+
+# --------------------------------------------------------------------------------------------------
+# Rotation parameterisations
+# --------------------------------------------------------------------------------------------------
+
+
+def euler_to_matrix(angles: Tensor) -> Tensor:
+    """Euler angles to rotation matrices, ``R = Ry(yaw) @ Rx(pitch) @ Rz(roll)``.
+
+    Args:
+        angles: (..., 3) ``(yaw, pitch, roll)`` in radians (any real values).
+    Returns:
+        (..., 3, 3) rotation matrices.
+    """
+    _check_shape(angles, (3,), "angles")
+    return roma.euler_to_rotmat(EULER_CONVENTION, angles)
+
+
+def matrix_to_euler(R: Tensor) -> Tensor:
+    """Rotation matrices to Euler angles, the inverse of :func:`euler_to_matrix`.
+
+    Args:
+        R: (..., 3, 3) rotation matrices.
+    Returns:
+        (..., 3) ``(yaw, pitch, roll)`` with yaw, roll in [-pi, pi] and pitch in [-pi/2, pi/2]
+        (at pitch = +-pi/2, gimbal lock, roll is set to 0).
+    """
+    _check_shape(R, (3, 3), "R")
+    return roma.rotmat_to_euler(EULER_CONVENTION, R)
+
+
+def quat_canonical(q: Tensor) -> Tensor:
+    """The sign of each quaternion that has ``w >= 0`` (q and -q are the same rotation).
+
+    Args:
+        q: (..., 4) quaternions ``(w, x, y, z)``.
+    Returns:
+        (..., 4) quaternions with non-negative w.
+    """
+    _check_shape(q, (4,), "q")
+    return torch.where(q[..., :1] < 0, -q, q)
+
+
+def quat_normalize(q: Tensor, eps: float = 1e-8) -> Tensor:
+    """Unit quaternions from raw network outputs; the identity where ``|q| < eps``.
+
+    A zero output carries no rotation, so it decodes to no rotation; its gradient is then zero
+    instead of the ``1/eps``-sized one a clamped division would give. NaN inputs stay NaN.
+
+    Args:
+        q: (..., 4) quaternions ``(w, x, y, z)``, any norm.
+        eps: norm below which the identity is returned.
+    Returns:
+        (..., 4) unit quaternions.
+    """
+    _check_shape(q, (4,), "q")
+    norm = torch.linalg.vector_norm(q, dim=-1, keepdim=True)
+    identity = torch.zeros_like(q)
+    identity[..., 0] = 1.0
+    return torch.where(norm < eps, identity, q / norm.clamp_min(eps))
+
+
+def quat_to_matrix(q: Tensor) -> Tensor:
+    """Unit quaternions to rotation matrices (no normalisation; see :func:`quat_normalize`).
+
+    Args:
+        q: (..., 4) unit quaternions ``(w, x, y, z)``.
+    Returns:
+        (..., 3, 3) rotation matrices.
+    """
+    _check_shape(q, (4,), "q")
+    return roma.unitquat_to_rotmat(roma.quat_wxyz_to_xyzw(q))
+
+
+def matrix_to_quat(R: Tensor) -> Tensor:
+    """Rotation matrices to canonical unit quaternions (``w >= 0``).
+
+    Args:
+        R: (..., 3, 3) rotation matrices.
+    Returns:
+        (..., 4) unit quaternions ``(w, x, y, z)``.
+    """
+    _check_shape(R, (3, 3), "R")
+    return quat_canonical(roma.quat_xyzw_to_wxyz(roma.rotmat_to_unitquat(R)))
+
+
+def sixd_to_matrix(x: Tensor, eps: float = 1e-12) -> Tensor:
+    """6-D representation (two columns) to rotation matrices by Gram-Schmidt (Zhou et al. 2019).
+
+    Args:
+        x: (..., 6) the first and second column ``(c1, c2)``, any norms, not parallel.
+        eps: norm clamp that keeps gradients finite for degenerate (zero or parallel) columns.
+    Returns:
+        (..., 3, 3) rotation matrices whose first column is ``c1 / |c1|``.
+    """
+    _check_shape(x, (6,), "x")
+    return roma.special_gramschmidt(torch.stack((x[..., :3], x[..., 3:]), dim=-1), epsilon=eps)
+
+
+def matrix_to_sixd(R: Tensor) -> Tensor:
+    """Rotation matrices to their 6-D representation (first two columns).
+
+    Args:
+        R: (..., 3, 3) rotation matrices.
+    Returns:
+        (..., 6) ``(c1, c2)``.
+    """
+    _check_shape(R, (3, 3), "R")
+    return torch.cat((R[..., :, 0], R[..., :, 1]), dim=-1)
+
+
+def orthonormalize(R: Tensor) -> Tensor:
+    """Nearest rotation matrix in the Frobenius sense (SVD / special Procrustes).
+
+    Args:
+        R: (..., 3, 3) approximately orthonormal matrices (e.g. after chaining many poses).
+    Returns:
+        (..., 3, 3) rotation matrices.
+    """
+    _check_shape(R, (3, 3), "R")
+    return roma.special_procrustes(R)
+
+
+# --------------------------------------------------------------------------------------------------
+# 4x4 poses
+# --------------------------------------------------------------------------------------------------
+
+
+def make_pose(R: Tensor, t: Tensor) -> Tensor:
+    """Assemble homogeneous poses ``[[R, t], [0, 1]]``.
+
+    Args:
+        R: (..., 3, 3) rotations.
+        t: (..., 3) translations.
+    Returns:
+        (..., 4, 4) poses.
+    """
+    _check_shape(R, (3, 3), "R")
+    _check_shape(t, (3,), "t")
+    top = torch.cat((R, t[..., None]), dim=-1)
+    bottom = torch.zeros_like(top[..., :1, :])
+    bottom[..., 0, 3] = 1.0
+    return torch.cat((top, bottom), dim=-2)
+
+
+def pose_inverse(T: Tensor) -> Tensor:
+    """Inverse of rigid poses, ``[[R^T, -R^T t], [0, 1]]`` (exact, no general matrix inverse).
+
+    Args:
+        T: (..., 4, 4) poses.
+    Returns:
+        (..., 4, 4) inverse poses.
+    """
+    _check_shape(T, (4, 4), "T")
+    Rt = T[..., :3, :3].transpose(-1, -2)
+    return make_pose(Rt, -(Rt @ T[..., :3, 3:])[..., 0])
+
+
+def compose(T_a: Tensor, T_b: Tensor) -> Tensor:
+    """Composition ``T_a @ T_b`` (apply T_b, then T_a), broadcasting leading dimensions.
+
+    Args:
+        T_a, T_b: (..., 4, 4) poses.
+    Returns:
+        (..., 4, 4) poses.
+    """
+    _check_shape(T_a, (4, 4), "T_a")
+    _check_shape(T_b, (4, 4), "T_b")
+    return T_a @ T_b
+
+
+def relative_pose(T_a: Tensor, T_b: Tensor) -> Tensor:
+    """Pose of frame b seen from frame a, ``inv(T_a) @ T_b``, computed in float64.
+
+    Args:
+        T_a, T_b: (..., 4, 4) camera-to-world poses.
+    Returns:
+        (..., 4, 4) relative poses in the promoted dtype of the inputs.
+    """
+    _check_shape(T_a, (4, 4), "T_a")
+    _check_shape(T_b, (4, 4), "T_b")
+    out_dtype = torch.promote_types(T_a.dtype, T_b.dtype)
+    return (pose_inverse(T_a.double()) @ T_b.double()).to(out_dtype)
+
+
+def consecutive_relative_poses(T_w: Tensor) -> Tensor:
+    """Relative poses between consecutive frames, ``inv(T_w[k]) @ T_w[k+1]``, in float64.
+
+    Args:
+        T_w: (..., N, 4, 4) camera-to-world poses of a sequence, N >= 1.
+    Returns:
+        (..., N-1, 4, 4) relative poses in the dtype of ``T_w``.
+    """
+    _check_shape(T_w, (4, 4), "T_w")
+    if T_w.dim() < 3:
+        raise ValueError(f"T_w must have shape (..., N, 4, 4), got {tuple(T_w.shape)}")
+    return relative_pose(T_w[..., :-1, :, :], T_w[..., 1:, :, :])
+
+
+# --------------------------------------------------------------------------------------------------
+# Distances
+# --------------------------------------------------------------------------------------------------
+
+
+def rotation_angle(R: Tensor) -> Tensor:
+    """Rotation angle in [0, pi] of rotation matrices, ``atan2(sin, cos)``.
+
+    ``sin`` comes from the skew part (``|R - R^T|_F = 2 sqrt(2) sin``) and ``cos`` from the trace, so
+    the angle is accurate to rounding everywhere (no arccos floor near 0, no arcsine blow-up near
+    pi) and the gradient is finite everywhere, including at 0 and pi.
+
+    Args:
+        R: (..., 3, 3) rotation matrices.
+    Returns:
+        (...) angles in radians.
+    """
+    _check_shape(R, (3, 3), "R")
+    sin_2sqrt2 = torch.linalg.matrix_norm(R - R.transpose(-1, -2))
+    trace = R.diagonal(dim1=-2, dim2=-1).sum(-1)
+    return torch.atan2(sin_2sqrt2, _SQRT2 * (trace - 1.0))
+
+
+def so3_geodesic_distance(R_a: Tensor, R_b: Tensor) -> Tensor:
+    """Geodesic (angular) distance ``angle(R_a^T R_b)`` on SO(3), in [0, pi].
+
+    Args:
+        R_a, R_b: (..., 3, 3) rotation matrices.
+    Returns:
+        (...) angles in radians.
+    """
+    _check_shape(R_a, (3, 3), "R_a")
+    _check_shape(R_b, (3, 3), "R_b")
+    return rotation_angle(R_a.transpose(-1, -2) @ R_b)
+
+
+def so3_chordal_distance(R_a: Tensor, R_b: Tensor) -> Tensor:
+    """Chordal distance ``|R_a - R_b|_F = 2 sqrt(2) sin(angle / 2)``, in [0, 2 sqrt(2)].
+
+    Args:
+        R_a, R_b: (..., 3, 3) rotation matrices.
+    Returns:
+        (...) distances.
+    """
+    _check_shape(R_a, (3, 3), "R_a")
+    _check_shape(R_b, (3, 3), "R_b")
+    return torch.linalg.matrix_norm(R_a - R_b)
+
+
+def euler_distance(a: Tensor, b: Tensor) -> Tensor:
+    """Euclidean distance between Euler-angle vectors, ``|a - b|`` (radians).
+
+    Not a function of the rotations alone: yaw and yaw + 2 pi are one rotation at distance 2 pi.
+
+    Args:
+        a, b: (..., 3) ``(yaw, pitch, roll)``.
+    Returns:
+        (...) distances.
+    """
+    _check_shape(a, (3,), "a")
+    _check_shape(b, (3,), "b")
+    return torch.linalg.vector_norm(a - b, dim=-1)
+
+
+def quat_distance(q_a: Tensor, q_b: Tensor) -> Tensor:
+    """Sign-invariant quaternion distance ``min(|q_a - q_b|, |q_a + q_b|)``, in [0, sqrt(2)].
+
+    Args:
+        q_a, q_b: (..., 4) unit quaternions ``(w, x, y, z)``.
+    Returns:
+        (...) distances; NaN in, NaN out.
+    """
+    _check_shape(q_a, (4,), "q_a")
+    _check_shape(q_b, (4,), "q_b")
+    return torch.minimum(
+        torch.linalg.vector_norm(q_a - q_b, dim=-1), torch.linalg.vector_norm(q_a + q_b, dim=-1)
+    )
+
+
+def se3_chordal_distance(T_a: Tensor, T_b: Tensor, weight: float = 1.0) -> Tensor:
+    """Chordal distance on SE(3), ``sqrt(|t_a - t_b|^2 + weight |R_a - R_b|_F^2)``.
+
+    With ``weight = 1`` this is the Frobenius norm of ``T_a - T_b``; the chordal loss is its square
+    with ``weight = k3``.
+
+    Args:
+        T_a, T_b: (..., 4, 4) poses.
+        weight: non-negative weight of the rotation part.
+    Returns:
+        (...) distances.
+    """
+    _check_shape(T_a, (4, 4), "T_a")
+    _check_shape(T_b, (4, 4), "T_b")
+    if not weight >= 0:
+        raise ValueError(f"weight must be >= 0, got {weight}")
+    dt = T_a[..., :3, 3] - T_b[..., :3, 3]
+    dR = (T_a[..., :3, :3] - T_b[..., :3, :3]).flatten(-2)
+    # One vector norm (not sqrt of a sum) so that the gradient at zero distance is finite.
+    return torch.linalg.vector_norm(torch.cat((dt, math.sqrt(weight) * dR), dim=-1), dim=-1)
+
+
+if __name__ == "__main__":
+    from lossvo.axioms import main
+
+    main()

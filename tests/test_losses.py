@@ -1,0 +1,244 @@
+"""lossvo.losses: zero at the target, hand-computed values, gradients, sign invariance, bad input."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from hydra.utils import instantiate
+
+from lossvo import geometry as g
+from lossvo.losses import ChordalLoss, EulerLoss, GeodesicLoss, PoseLoss, QuaternionLoss, SixDLoss
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
+LOSSES = [EulerLoss, QuaternionLoss, ChordalLoss, GeodesicLoss, SixDLoss]
+KEYS = {"loss", "trans_loss", "rot_loss", "trans_err_m", "rot_err_rad"}
+NEAR_PI = math.radians(179.9)
+
+
+def targets(
+    B: int = 4, T: int = 5, seed: int = 0, max_angle: float = NEAR_PI, dtype: torch.dtype = torch.float32
+) -> torch.Tensor:
+    """(B, T, 4, 4) relative poses: random rotations up to ``max_angle``, plus identity."""
+    gen = torch.Generator().manual_seed(seed)
+    axis = torch.randn(B, T, 3, generator=gen, dtype=torch.float64)
+    angle = max_angle * torch.rand(B, T, 1, generator=gen, dtype=torch.float64)
+    angle[0, 0] = 0.0
+    angle[0, 1] = max_angle
+    R = g.so3_exp(axis / axis.norm(dim=-1, keepdim=True) * angle)
+    t = torch.randn(B, T, 3, generator=gen, dtype=torch.float64)
+    return g.make_pose(R, t).to(dtype)
+
+
+def pose(R: torch.Tensor, t: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> torch.Tensor:
+    """(1, 1, 4, 4) float64 pose from a 3x3 rotation and a translation."""
+    return g.make_pose(R, torch.tensor(t, dtype=torch.float64))[None, None]
+
+
+def rot(axis: int, angle: float) -> torch.Tensor:
+    omega = torch.zeros(3, dtype=torch.float64)
+    omega[axis] = angle
+    return g.so3_exp(omega)
+
+
+def p(*values: float) -> torch.Tensor:
+    """(1, 1, D) float64 prediction."""
+    return torch.tensor(values, dtype=torch.float64)[None, None]
+
+
+# -- parameterisation -------------------------------------------------------------------------------
+
+
+def test_head_sizes_and_default_weights() -> None:
+    assert [(c.dim, c().k) for c in LOSSES] == [(6, 100.0), (7, 14.0), (6, 153.0), (6, 100.0), (9, 153.0)]
+
+
+@pytest.mark.parametrize("cls", LOSSES)
+def test_decode_encode_round_trip(cls: type[PoseLoss]) -> None:
+    loss = cls()
+    target = targets(dtype=torch.float64)
+    torch.testing.assert_close(loss.decode(loss.encode(target)), target, atol=1e-12, rtol=0)
+
+
+@pytest.mark.parametrize("cls", LOSSES)
+def test_zero_loss_at_the_target(cls: type[PoseLoss]) -> None:
+    loss = cls()
+    target = targets()
+    out = loss(loss.encode(target), target)
+    assert set(out) == KEYS
+    for key, value in out.items():
+        assert value.shape == ()
+        assert value.item() == pytest.approx(0.0, abs=1e-6), key
+
+
+# -- hand-computed examples -------------------------------------------------------------------------
+
+
+def test_euler_hand_example() -> None:
+    # pred: no motion; target: t = (1, 2, 2), yaw 0.5 rad. 9 + 100 * 0.25 = 34.
+    out = EulerLoss()(p(0, 0, 0, 0, 0, 0), pose(rot(1, 0.5), (1.0, 2.0, 2.0)))
+    assert out["trans_loss"].item() == pytest.approx(9.0)
+    assert out["rot_loss"].item() == pytest.approx(0.25)
+    assert out["loss"].item() == pytest.approx(34.0)
+    assert out["trans_err_m"].item() == pytest.approx(3.0)
+    assert out["rot_err_rad"].item() == pytest.approx(0.5)
+
+
+def test_euler_targets_are_angles_of_the_relative_rotation() -> None:
+    # Ry(0.2) Rx(0.1) Rz(-0.3) has Euler angles (0.2, 0.1, -0.3): a zero-loss prediction.
+    R = rot(1, 0.2) @ rot(0, 0.1) @ rot(2, -0.3)
+    assert EulerLoss()(p(0, 0, 0, 0.2, 0.1, -0.3), pose(R))["loss"].item() == pytest.approx(0.0, abs=1e-20)
+
+
+def test_quaternion_hand_example() -> None:
+    # pred identity (w = 1); target 90 deg about z: q = (cos 45, 0, 0, sin 45);
+    # |q - q^|^2 = (1 - sqrt(2)/2)^2 + 1/2 = 2 - sqrt(2).
+    out = QuaternionLoss()(p(0, 0, 0, 1, 0, 0, 0), pose(rot(2, math.pi / 2)))
+    assert out["rot_loss"].item() == pytest.approx(2 - math.sqrt(2))
+    assert out["loss"].item() == pytest.approx(14 * (2 - math.sqrt(2)))
+    assert out["rot_err_rad"].item() == pytest.approx(math.pi / 2)
+
+
+def test_chordal_hand_example() -> None:
+    # xi = (rho = (1, 0, 0), omega = (0, 0, pi/2)): R = Rz(90 deg), t = V rho = (2/pi, 2/pi, 0).
+    loss = ChordalLoss()
+    xi = p(1, 0, 0, 0, 0, math.pi / 2)
+    expected = pose(rot(2, math.pi / 2), (2 / math.pi, 2 / math.pi, 0.0))
+    torch.testing.assert_close(loss.decode(xi), expected, atol=1e-15, rtol=0)
+    # Against the identity: |t|^2 = 8 / pi^2 and |Rz(90) - I|_F^2 = 4.
+    out = loss(xi, pose(torch.eye(3, dtype=torch.float64)))
+    assert out["trans_loss"].item() == pytest.approx(8 / math.pi**2)
+    assert out["rot_loss"].item() == pytest.approx(4.0)
+    assert out["loss"].item() == pytest.approx(8 / math.pi**2 + 153 * 4)
+
+
+def test_geodesic_hand_example() -> None:
+    out = GeodesicLoss()(p(0, 0, 0, 0, 0.3, 0), pose(torch.eye(3, dtype=torch.float64)))
+    assert out["rot_loss"].item() == pytest.approx(0.09)
+    assert out["loss"].item() == pytest.approx(9.0)
+
+
+def test_sixd_hand_example() -> None:
+    # Columns (2, 0, 0) and (1, 3, 0) orthonormalise to the identity; target Rz(90): |I - Rz|_F^2 = 4.
+    out = SixDLoss()(p(0, 0, 1, 2, 0, 0, 1, 3, 0), pose(rot(2, math.pi / 2)))
+    assert out["trans_loss"].item() == pytest.approx(1.0)
+    assert out["rot_loss"].item() == pytest.approx(4.0)
+    assert out["loss"].item() == pytest.approx(1 + 153 * 4)
+
+
+def test_loss_is_mean_over_pairs() -> None:
+    gen = torch.Generator().manual_seed(3)
+    for cls in LOSSES:
+        loss = cls(k=7.0)
+        pred = torch.randn(3, 4, cls.dim, generator=gen, dtype=torch.float64)
+        target = targets(3, 4, dtype=torch.float64)
+        per_pair = [loss(pred[b, t], target[b, t])["loss"] for b in range(3) for t in range(4)]
+        assert loss(pred, target)["loss"].item() == pytest.approx(torch.stack(per_pair).mean().item())
+
+
+# -- gradients and sign invariance ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("cls", LOSSES)
+def test_gradients_finite_at_identity_and_near_pi(cls: type[PoseLoss]) -> None:
+    loss = cls()
+    target = targets()  # contains an identity and a 179.9 deg target
+    gen = torch.Generator().manual_seed(1)
+    for pred in (torch.zeros(4, 5, cls.dim), loss.encode(target), torch.randn(4, 5, cls.dim, generator=gen)):
+        pred = pred.clone().requires_grad_()
+        loss(pred, target)["loss"].backward()
+        assert torch.isfinite(pred.grad).all()
+
+
+def test_quaternion_zero_output_has_finite_gradient() -> None:
+    pred = torch.zeros(2, 3, 7, requires_grad=True)
+    out = QuaternionLoss()(pred, targets(2, 3))
+    out["loss"].backward()
+    assert torch.isfinite(out["loss"]) and torch.isfinite(pred.grad).all()
+
+
+def test_quaternion_sign_invariance() -> None:
+    loss = QuaternionLoss()
+    target = targets()
+    pred = torch.randn(4, 5, 7, generator=torch.Generator().manual_seed(2))
+    flipped = torch.cat((pred[..., :3], -pred[..., 3:]), dim=-1)
+    a, b = loss(pred, target), loss(flipped, target)
+    for key in KEYS:
+        assert a[key].item() == b[key].item(), key
+
+
+# -- dtypes and precision ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("cls", LOSSES)
+def test_bf16_autocast_does_not_reach_the_loss(cls: type[PoseLoss]) -> None:
+    loss = cls()
+    target = targets()
+    pred = torch.randn(4, 5, cls.dim, generator=torch.Generator().manual_seed(4))
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        out = loss(pred, target)
+    assert out["loss"].dtype == torch.float32
+    assert out["loss"].item() == loss(pred, target)["loss"].item()
+
+
+def test_yardsticks_carry_no_gradient() -> None:
+    pred = torch.randn(2, 3, 6, requires_grad=True)
+    out = ChordalLoss()(pred, targets(2, 3))
+    assert not out["trans_err_m"].requires_grad and not out["rot_err_rad"].requires_grad
+
+
+# -- bad input --------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("cls", LOSSES)
+def test_non_finite_predictions_give_non_finite_losses(cls: type[PoseLoss]) -> None:
+    for bad in (float("nan"), float("inf")):
+        for column in range(cls.dim):  # in the translation and in every rotation output
+            pred = torch.zeros(2, 3, cls.dim)
+            pred[1, 2, column] = bad
+            assert not torch.isfinite(cls()(pred, targets(2, 3))["loss"]), (bad, column)
+
+
+@pytest.mark.parametrize("cls", LOSSES)
+def test_wrong_shapes_raise_value_errors(cls: type[PoseLoss]) -> None:
+    loss, target = cls(), targets(2, 3)
+    with pytest.raises(
+        ValueError, match=rf"expects pred of shape \(\.\.\., {cls.dim}\), got \(2, 3, {cls.dim + 1}\)"
+    ):
+        loss(torch.zeros(2, 3, cls.dim + 1), target)
+    with pytest.raises(ValueError, match=r"expects target of shape \(\.\.\., 4, 4\), got \(2, 3, 3, 4\)"):
+        loss(torch.zeros(2, 3, cls.dim), target[..., :3, :])
+    with pytest.raises(ValueError, match=r"expected target of shape \(2, 4, 4, 4\)"):
+        loss(torch.zeros(2, 4, cls.dim), target)
+    with pytest.raises(ValueError, match=rf"expects pred of shape \(\.\.\., {cls.dim}\)"):
+        loss.decode(torch.zeros(5, cls.dim + 2))
+
+
+@pytest.mark.parametrize("k", [-1.0, float("nan"), float("inf"), "100", True])
+def test_invalid_weight_is_rejected(k: object) -> None:
+    with pytest.raises(ValueError, match="EulerLoss: k must be a finite number >= 0"):
+        EulerLoss(k=k)
+
+
+# -- Hydra ------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("name", "cls"),
+    [
+        ("euler", EulerLoss),
+        ("quat", QuaternionLoss),
+        ("chordal", ChordalLoss),
+        ("geodesic", GeodesicLoss),
+        ("sixd", SixDLoss),
+    ],
+)
+def test_hydra_loss_group(name: str, cls: type[PoseLoss]) -> None:
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        default = instantiate(compose(overrides=[f"+loss={name}"]).loss)
+        tuned = instantiate(compose(overrides=[f"+loss={name}", "loss.k=50"]).loss)
+    assert type(default) is cls and default.k == cls.default_k
+    assert type(tuned) is cls and tuned.k == 50.0
