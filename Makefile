@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv test test-all lint format bench clean
+.PHONY: venv test test-all lint format bench sweep clean
 
 venv: $(STAMP)
 
@@ -33,6 +33,11 @@ test-all: lint
 
 bench: venv
 	$(PY) benchmarks/losses.py
+	$(PY) benchmarks/data_loading.py
+
+# The study's three-way comparison on the embedded synthetic dataset (rendered on first use).
+sweep: venv
+	$(PY) -m lossvo.train -m loss=euler,quat,chordal
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .hypothesis src/*.egg-info

@@ -1,0 +1,1 @@
+"""Datasets in the KITTI odometry layout: the KITTI reader and the synthetic renderer that writes one."""

@@ -1,0 +1,320 @@
+"""LightningDataModules for KITTI odometry and for the embedded synthetic KITTI-layout dataset.
+
+A sample is a window of ``seq_len`` consecutive frames and its ``seq_len - 1`` relative-pose targets;
+the batches the model receives are::
+
+    frames:  (B, seq_len, 3, H, W) float32, normalised per channel
+    targets: (B, seq_len - 1, 4, 4) float32, inv(T_w_k) @ T_w_{k+1} computed in float64
+
+The loaders carry frames as uint8 (a window is one copy out of the memory map) and the DataModule
+normalises them on the training device in ``on_after_batch_transfer``, Lightning's hook for this.
+
+Training windows start every ``stride`` frames; validation and test windows overlap by exactly one frame,
+so that every consecutive pair of a sequence is seen exactly once. ``prepare_data`` checks the dataset
+(one clear error naming the file) and builds the frame cache (:mod:`lossvo.data.frame_cache`) before
+anything trains. Normalisation statistics come from the training sequences only, or are FlowNet's
+``x / 255 - 0.5`` when its weights are used.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Mapping
+from collections.abc import Sequence as Seq
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import torch
+from filelock import FileLock
+from torch.utils.data import DataLoader, Dataset
+
+from lossvo.atomic import write_text_atomic
+from lossvo.data import frame_cache, synthetic
+from lossvo.data.kitti import Sequence, find_root, load_sequence
+
+PAPER_TRAIN = ("00", "02", "03", "04", "05", "06", "08")
+PAPER_VAL = ("07", "09")
+PAPER_TEST = ("00", "01", "02", "03", "04", "05", "06", "07", "08", "09", "10")
+NORMALIZATIONS = ("dataset", "flownet")
+
+
+def _names(value: str | int | Seq, key: str) -> tuple[str, ...]:
+    """Sequence names from a config value: ["00", "07"], "00,07" or [0, 7] (Hydra turns 07 into 7)."""
+    items = value.split(",") if isinstance(value, str) else list(value)
+    names = []
+    for item in items:
+        text = f"{item:02d}" if isinstance(item, int) and not isinstance(item, bool) else str(item).strip()
+        if not text:
+            raise ValueError(f"data.{key}: empty sequence name in {value!r}")
+        names.append(text)
+    return tuple(names)
+
+
+class WindowDataset(Dataset):
+    """Windows of consecutive cached frames with their relative-pose targets.
+
+    Items are ``(frames (seq_len, 3, H, W) uint8, targets (seq_len - 1, 4, 4) float32)``: a window
+    costs one memory copy. Conversion to float, normalisation and augmentation happen per batch on the
+    training device (:meth:`KittiDataModule.on_after_batch_transfer`), which also moves 4x fewer bytes
+    to the GPU. The memory maps are opened lazily in each process (a pickled memmap would be copied
+    whole into every DataLoader worker).
+    """
+
+    def __init__(self, cache_files: list[Path], targets: list[np.ndarray], seq_len: int, stride: int) -> None:
+        self.cache_files = cache_files
+        self.targets = [torch.from_numpy(t.astype(np.float32)) for t in targets]
+        self.seq_len = seq_len
+        self.index = self._windows([len(t) + 1 for t in targets], seq_len, stride)
+        self._frames: list[np.ndarray] | None = None
+
+    @staticmethod
+    def _windows(lengths: list[int], seq_len: int, stride: int) -> np.ndarray:
+        """(M, 2) (sequence, start frame) of every window. With stride = seq_len - 1 (evaluation) a
+        last, overlapping window is added where needed, so every pair of a sequence is covered."""
+        rows = []
+        for i, n in enumerate(lengths):
+            if n < seq_len:
+                continue
+            starts = np.arange(0, n - seq_len + 1, stride)
+            if starts[-1] != n - seq_len and stride == seq_len - 1:
+                starts = np.append(starts, n - seq_len)
+            rows.append(np.stack((np.full_like(starts, i), starts), axis=1))
+        return np.concatenate(rows) if rows else np.zeros((0, 2), dtype=np.int64)
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_frames": None}
+
+    @property
+    def frames(self) -> list[np.ndarray]:
+        if self._frames is None:
+            self._frames = [np.load(f, mmap_mode="r") for f in self.cache_files]
+        return self._frames
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __getitem__(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
+        seq, start = (int(v) for v in self.index[i])
+        window = torch.from_numpy(np.array(self.frames[seq][start : start + self.seq_len]))  # one copy
+        return window, self.targets[seq][start : start + self.seq_len - 1]
+
+
+def jitter(frames: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+    """Brightness and contrast jitter, one draw per window (keeps the window's pairs consistent).
+
+    Args:
+        frames: (B, L, 3, H, W) float in [0, 255].
+    Returns:
+        (B, L, 3, H, W) float in [0, 255].
+    """
+    gain, bias = (torch.rand(2, frames.shape[0], 1, 1, 1, 1, generator=generator) - 0.5).to(frames.device)
+    return ((frames - 127.5) * (1.0 + 0.4 * gain) + 127.5 + 50.0 * bias).clamp(0.0, 255.0)
+
+
+class KittiDataModule(L.LightningDataModule):
+    """KITTI odometry (or any dataset in its layout): cached frames, windows, paper split by default.
+
+    Args:
+        root: folder holding ``sequences/`` and ``poses/`` (or the folder holding ``dataset/``).
+        train, val, test: sequence names (``["00", "02"]`` or ``"00,02"``).
+        height, width: frame size in pixels after resizing (area interpolation).
+        seq_len: frames per window (``seq_len - 1`` frame pairs).
+        stride: frames between the starts of consecutive training windows.
+        batch_size, num_workers: DataLoader settings.
+        cache_dir: where frames are cached; default ``$LOSSVO_CACHE`` or ``~/.cache/lossvo``.
+        normalization: ``"dataset"`` (per-channel mean/std of the training sequences) or ``"flownet"``.
+        augment: photometric jitter on training windows.
+    """
+
+    def __init__(
+        self,
+        root: str,
+        train: Seq[str] | str = PAPER_TRAIN,
+        val: Seq[str] | str = PAPER_VAL,
+        test: Seq[str] | str = PAPER_TEST,
+        height: int = 184,
+        width: int = 608,
+        seq_len: int = 7,
+        stride: int = 1,
+        batch_size: int = 8,
+        num_workers: int = 2,
+        cache_dir: str | None = None,
+        normalization: str = "dataset",
+        augment: bool = False,
+        pin_memory: bool = False,
+    ) -> None:
+        super().__init__()
+        self.root = Path(root).expanduser()
+        self.splits = {
+            "train": _names(train, "train"),
+            "val": _names(val, "val"),
+            "test": _names(test, "test"),
+        }
+        for key, value in (("height", height), ("width", width)):
+            if not isinstance(value, int) or value < 16:
+                raise ValueError(f"data.{key}: expected an integer >= 16 pixels, got {value!r}")
+        if not isinstance(seq_len, int) or seq_len < 2:
+            raise ValueError(f"data.seq_len: expected an integer >= 2 frames, got {seq_len!r}")
+        if not isinstance(stride, int) or stride < 1:
+            raise ValueError(f"data.stride: expected an integer >= 1, got {stride!r}")
+        if normalization not in NORMALIZATIONS:
+            raise ValueError(f"data.normalization: expected one of {NORMALIZATIONS}, got {normalization!r}")
+        if not self.splits["train"]:
+            raise ValueError("data.train: expected at least one training sequence")
+        self.height, self.width, self.seq_len, self.stride = height, width, seq_len, stride
+        self.batch_size, self.num_workers, self.pin_memory = batch_size, num_workers, pin_memory
+        self.cache_dir = Path(cache_dir).expanduser() if cache_dir else frame_cache.default_cache_dir()
+        self.normalization, self.augment = normalization, augment
+        self.sequences: dict[str, Sequence] = {}
+        self.mean = self.std = None
+        self.datasets: dict[str, WindowDataset] = {}
+
+    # -- preparation: check everything, build the cache, compute statistics --------------------------
+
+    @property
+    def all_names(self) -> list[str]:
+        return sorted(set().union(*self.splits.values()))
+
+    def _load_metadata(self) -> Path:
+        root = find_root(self.root)
+        self.sequences = {name: load_sequence(root, name) for name in self.all_names}
+        return root
+
+    def cache_path(self) -> Path:
+        return frame_cache.cache_folder(self.cache_dir, find_root(self.root), self.height, self.width)
+
+    def prepare_data(self) -> None:
+        """Check the dataset and build the frame cache and the normalisation statistics (once)."""
+        self._load_metadata()
+        folder = self.cache_path()
+        frames = {
+            n: frame_cache.ensure_frames(folder, s, self.height, self.width)
+            for n, s in self.sequences.items()
+        }
+        self._stats(folder, frames)
+
+    def _stats_path(self, folder: Path) -> Path:
+        key = hashlib.sha1(",".join(self.splits["train"]).encode()).hexdigest()[:10]
+        return folder / f"stats-{key}.json"
+
+    def _stats(self, folder: Path, frames: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """Per-channel mean/std of the training sequences (cached with the frames), or FlowNet's."""
+        if self.normalization == "flownet":
+            return np.full(3, 0.5), np.ones(3)  # (x/255 - 0.5) / 1
+        path = self._stats_path(folder)
+        sources = {
+            n: json.loads(frame_cache.files(folder, n)[1].read_text())["source"] for n in self.splits["train"]
+        }
+        try:
+            saved = json.loads(path.read_text())
+            if saved["sources"] == sources:
+                return np.array(saved["mean"]), np.array(saved["std"])
+        except (OSError, ValueError, KeyError):
+            pass
+        mean, std = frame_cache.channel_stats([frames[n] for n in self.splits["train"]])
+        write_text_atomic(path, json.dumps({"train": self.splits["train"], "sources": sources,
+                                            "mean": mean.tolist(), "std": std.tolist()}))  # fmt: skip
+        return mean, std
+
+    def setup(self, stage: str | None = None) -> None:
+        """Open the cache (rebuilding anything missing or stale) and build the split datasets."""
+        if self.datasets:
+            return
+        self._load_metadata()
+        folder = self.cache_path()
+        frames = {
+            n: frame_cache.ensure_frames(folder, s, self.height, self.width)
+            for n, s in self.sequences.items()
+        }
+        self.mean, self.std = self._stats(folder, frames)
+        for split, names in self.splits.items():
+            stride = self.stride if split == "train" else self.seq_len - 1
+            self.datasets[split] = WindowDataset(
+                [frame_cache.files(folder, n)[0] for n in names], [self.sequences[n].targets for n in names],
+                self.seq_len, stride,
+            )  # fmt: skip
+        if len(self.datasets["train"]) == 0:
+            shortest = min(len(self.sequences[n].images) for n in self.splits["train"])
+            raise ValueError(f"data.seq_len: {self.seq_len} frames is longer than every training sequence "
+                             f"(shortest: {shortest} frames)")  # fmt: skip
+
+    # -- loaders --------------------------------------------------------------------------------------
+
+    def _loader(self, split: str, shuffle: bool) -> DataLoader:
+        return DataLoader(
+            self.datasets[split], batch_size=self.batch_size, shuffle=shuffle, num_workers=self.num_workers,
+            pin_memory=self.pin_memory, persistent_workers=self.num_workers > 0,
+        )  # fmt: skip
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader("train", shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader("val", shuffle=False)
+
+    def test_dataloader(self) -> DataLoader:
+        return self._loader("test", shuffle=False)
+
+    # -- whole sequences (evaluation) -----------------------------------------------------------------
+
+    def normalize(self, frames: torch.Tensor) -> torch.Tensor:
+        """uint8 frames (..., 3, H, W) -> float32 ``(x / 255 - mean) / std``, per channel."""
+        mean = torch.as_tensor(self.mean, dtype=torch.float32, device=frames.device).view(3, 1, 1)
+        std = torch.as_tensor(self.std, dtype=torch.float32, device=frames.device).view(3, 1, 1)
+        return frames.float().mul_(1.0 / (255.0 * std)).sub_(mean / std)  # in place: one pass less
+
+    def on_after_batch_transfer(self, batch: tuple[torch.Tensor, torch.Tensor], dataloader_idx: int):
+        """On the training device: uint8 windows -> normalised float32, jittered when augmenting."""
+        frames, targets = batch
+        if self.augment and self.trainer is not None and self.trainer.training:
+            frames = jitter(frames.float()).round()
+        return self.normalize(frames), targets
+
+    def sequence_frames(self, name: str) -> np.ndarray:
+        """(N, 3, H, W) uint8 RGB cached frames of one sequence (memory map; every frame, in order)."""
+        self.setup()
+        return np.load(frame_cache.files(self.cache_path(), name)[0], mmap_mode="r")
+
+    def sequence_poses(self, name: str) -> np.ndarray:
+        """(N, 4, 4) float64 ground-truth camera-to-world poses of one sequence."""
+        self.setup()
+        return self.sequences[name].poses
+
+
+class SyntheticDataModule(KittiDataModule):
+    """The embedded synthetic KITTI-layout dataset, rendered into ``root`` on first use.
+
+    Args:
+        root: where the dataset is (or will be) written; default ``<cache_dir>/synthetic``.
+        frames: frames per sequence (None: the generator's defaults).
+        render_height, render_width: resolution the generator writes (None: its default).
+        seed: the generator's seed (a different seed is a different set of worlds and routes).
+        Other arguments as :class:`KittiDataModule`.
+    """
+
+    def __init__(self, root: str | None = None, frames: int | dict[str, int] | None = None,
+                 render_height: int | None = None, render_width: int | None = None,
+                 seed: int = 0, **kwargs) -> None:  # fmt: skip
+        cache_dir = kwargs.get("cache_dir")
+        base = Path(cache_dir).expanduser() if cache_dir else frame_cache.default_cache_dir()
+        super().__init__(root=str(root or base / "synthetic"), **kwargs)
+        self.generator_args = {"frames": dict(frames) if isinstance(frames, Mapping) else frames,
+                               "height": render_height or synthetic.DEFAULT_HEIGHT,
+                               "width": render_width or synthetic.DEFAULT_WIDTH, "seed": seed}  # fmt: skip
+
+    def _ensure_rendered(self) -> None:
+        """Render the dataset unless it is there; the lock lets parallel sweep jobs share it."""
+        self.root.mkdir(parents=True, exist_ok=True)
+        with FileLock(self.root.parent / f".{self.root.name}.lock"):
+            synthetic.ensure_dataset(self.root, sequences=self.all_names, **self.generator_args)
+
+    def prepare_data(self) -> None:
+        self._ensure_rendered()
+        super().prepare_data()
+
+    def setup(self, stage: str | None = None) -> None:
+        if not self.datasets:
+            self._ensure_rendered()
+        super().setup(stage)

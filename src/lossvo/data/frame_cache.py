@@ -1,0 +1,176 @@
+"""Resized frames of a sequence, decoded once and memory-mapped afterwards.
+
+``prepare_data`` decodes every PNG of a sequence once, resizes it to the configured (H, W) with area
+interpolation and stores the frames as one uint8 ``.npy`` (N, 3, H, W) RGB file per sequence
+(channels first, as the network reads them, so that a window is one contiguous slice), next to
+a small JSON manifest. Training and evaluation then read windows straight from the memory map: no
+epoch decodes a PNG. The manifest records what the cache was built from (frame names, sizes, mtimes)
+and is written last, so a cache from an interrupted run, a truncated file or a changed dataset is
+detected and rebuilt, never read as garbage.
+
+numpy's memmap and OpenCV do this well; what no library does is the KITTI-specific bookkeeping
+(which frames, which size, whether the cache is complete), which is what this module holds.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import cv2
+import numpy as np
+from filelock import FileLock
+from tqdm import tqdm
+
+from lossvo.atomic import write_text_atomic
+from lossvo.data.kitti import KittiFormatError, Sequence, check_png
+
+log = logging.getLogger(__name__)
+
+CACHE_VERSION = 2
+
+
+def default_cache_dir() -> Path:
+    """``$LOSSVO_CACHE`` if set, else ``~/.cache/lossvo``."""
+    return Path(os.environ.get("LOSSVO_CACHE", Path.home() / ".cache" / "lossvo")).expanduser()
+
+
+def cache_folder(cache_dir: str | os.PathLike, root: Path, height: int, width: int) -> Path:
+    """Folder of one dataset root's frames at one size: ``cache_dir/frames/<root>-<hash>/<H>x<W>``."""
+    resolved = str(Path(root).resolve())
+    digest = hashlib.sha1(resolved.encode()).hexdigest()[:10]
+    return Path(cache_dir) / "frames" / f"{Path(resolved).name}-{digest}" / f"{height}x{width}"
+
+
+def _fingerprint(seq: Sequence) -> dict:
+    """What the cache depends on: frame names, total size and latest modification time."""
+    stats = [p.stat() for p in seq.images]
+    return {
+        "frames": [p.name for p in seq.images],
+        "bytes": sum(s.st_size for s in stats),
+        "mtime_ns": max(s.st_mtime_ns for s in stats),
+    }
+
+
+def files(folder: Path, name: str) -> tuple[Path, Path]:
+    """The frames file (.npy) and the manifest (.json) of sequence ``name`` in a cache folder."""
+    return folder / f"{name}.npy", folder / f"{name}.json"
+
+
+def open_frames(folder: Path, seq: Sequence, height: int, width: int) -> np.ndarray | None:
+    """The cached (N, 3, H, W) uint8 RGB frames of ``seq`` as a read-only memory map, or None if the cache
+    is missing, incomplete or stale (it is then rebuilt by :func:`build_frames`)."""
+    data, manifest = files(folder, seq.name)
+    try:
+        meta = json.loads(manifest.read_text())
+        frames = np.load(data, mmap_mode="r")
+    except (OSError, ValueError) as e:
+        if manifest.exists() or data.exists():
+            log.warning("frame cache %s is unreadable (%s): rebuilding", data, e)
+        return None
+    expected = (len(seq.images), 3, height, width)
+    if (
+        meta.get("version") != CACHE_VERSION
+        or meta.get("source") != _fingerprint(seq)
+        or frames.shape != expected
+        or frames.dtype != np.uint8
+    ):
+        log.warning("frame cache %s is stale or incomplete: rebuilding", data)
+        return None
+    return frames
+
+
+def _read_frame(path: Path, height: int, width: int) -> tuple[np.ndarray, tuple[int, int]]:
+    """Decode one PNG (checked complete first), resize it: (3, height, width) RGB uint8."""
+    check_png(path)
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise KittiFormatError(f"{path}: unreadable image (OpenCV could not decode it)")
+    size = image.shape[:2]
+    # OpenCV sizes are (width, height); the swap is a classic bug, hence the explicit names.
+    resized = cv2.resize(image, dsize=(width, height), interpolation=cv2.INTER_AREA)
+    return cv2.cvtColor(resized, cv2.COLOR_BGR2RGB).transpose(2, 0, 1), size
+
+
+def build_frames(
+    folder: Path, seq: Sequence, height: int, width: int, workers: int = 4, progress: bool = True
+) -> np.ndarray:
+    """Decode, resize and store every frame of ``seq``; return the memory map.
+
+    Raises:
+        KittiFormatError: an unreadable or truncated PNG, or frames of differing sizes (naming the file).
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    data, manifest = files(folder, seq.name)
+    manifest.unlink(missing_ok=True)  # the manifest marks a complete cache; none while writing
+    tmp = data.with_name(f".{data.name}.{os.getpid()}.tmp")
+    out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.uint8, shape=(len(seq.images), 3, height, width))
+    try:
+        first_size = None
+        with ThreadPoolExecutor(workers) as pool:  # OpenCV releases the GIL while decoding
+            jobs = pool.map(lambda p: _read_frame(p, height, width), seq.images)
+            bar = tqdm(jobs, total=len(seq.images), desc=f"caching {seq.name} at {height}x{width}",
+                       unit="frame", disable=not progress, leave=False)  # fmt: skip
+            for i, (frame, size) in enumerate(bar):
+                first_size = first_size or size
+                if size != first_size:
+                    raise KittiFormatError(
+                        f"{seq.images[i]}: image is {size[1]}x{size[0]} (WxH) but the sequence's first "
+                        f"frame is {first_size[1]}x{first_size[0]}: expected one size per sequence"
+                    )
+                out[i] = frame
+        out.flush()
+        del out
+        os.replace(tmp, data)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    meta = {"version": CACHE_VERSION, "sequence": seq.name, "shape": [len(seq.images), 3, height, width],
+            "source_size_hw": list(first_size), "source": _fingerprint(seq)}  # fmt: skip
+    write_text_atomic(manifest, json.dumps(meta))
+    return np.load(data, mmap_mode="r")
+
+
+def ensure_frames(
+    folder: Path, seq: Sequence, height: int, width: int, workers: int = 4, progress: bool = True
+) -> np.ndarray:
+    """The cached frames of ``seq``, building them if missing, incomplete or stale.
+
+    A file lock makes concurrent jobs (a parallel sweep sharing one cache) build each sequence once.
+    """
+    frames = open_frames(folder, seq, height, width)
+    if frames is not None:
+        return frames
+    folder.mkdir(parents=True, exist_ok=True)
+    with FileLock(folder / f".{seq.name}.lock"):
+        frames = open_frames(folder, seq, height, width)  # another job may have built it meanwhile
+        if frames is None:
+            frames = build_frames(folder, seq, height, width, workers, progress)
+    return frames
+
+
+def channel_stats(frames: list[np.ndarray], chunk: int = 256) -> tuple[np.ndarray, np.ndarray]:
+    """Per-channel mean and standard deviation of uint8 RGB frames, in [0, 1] units.
+
+    Args:
+        frames: arrays (N_i, 3, H, W) uint8 (memory maps), e.g. every training sequence.
+        chunk: frames per step, to bound memory.
+    Returns:
+        mean (3,), std (3,) float64.
+    """
+    total = np.zeros(3)
+    total_sq = np.zeros(3)
+    count = 0
+    for array in frames:
+        for start in range(0, len(array), chunk):
+            block = np.asarray(array[start : start + chunk], dtype=np.float64) / 255.0
+            total += block.sum(axis=(0, 2, 3))
+            total_sq += np.square(block).sum(axis=(0, 2, 3))
+            count += block.shape[0] * block.shape[2] * block.shape[3]
+    mean = total / count
+    std = np.sqrt(np.maximum(total_sq / count - mean**2, 0.0))
+    return mean, np.maximum(std, 1e-6)

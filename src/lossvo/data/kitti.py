@@ -1,0 +1,291 @@
+"""The KITTI odometry format: pose files, calibration, timestamps, image lists, relative targets.
+
+Layout (the same for real KITTI and for lossvo's synthetic dataset)::
+
+    ROOT/sequences/NN/image_2/000000.png ...   left colour camera (the one used)
+    ROOT/sequences/NN/calib.txt                 P0..P3 (3x4 projections), Tr (3x4)
+    ROOT/sequences/NN/times.txt                 one timestamp (s) per frame
+    ROOT/poses/NN.txt                           12 floats per frame: the 3x4 [R | t] of T_w_c, row-major
+
+ROOT may also be the folder that holds ``dataset/``. Sequences without a pose file (KITTI 11-21) are
+usable for inference only. Every reader fails with one ``KittiFormatError`` naming the file, the line
+(1-based) where there is one, and what was expected.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from lossvo import geometry
+from lossvo.atomic import write_text_atomic
+
+ORTHONORMAL_TOLERANCE = 1e-3
+"""Largest |R^T R - I| entry accepted in a pose file (KITTI stores 7 to 9 significant digits)."""
+
+_PNG_END = b"IEND\xaeB`\x82"
+
+
+class KittiFormatError(ValueError):
+    """A file or folder that does not follow the KITTI odometry layout."""
+
+
+def _where(path: Path, line: int | None = None) -> str:
+    return f"{path}:{line}" if line is not None else str(path)
+
+
+# --------------------------------------------------------------------------------------------------
+# Root and sequences
+# --------------------------------------------------------------------------------------------------
+
+
+def find_root(root: str | os.PathLike) -> Path:
+    """The folder holding ``sequences/``: ``root`` itself or ``root/dataset``.
+
+    Raises:
+        KittiFormatError: if neither holds a ``sequences`` folder.
+    """
+    root = Path(root).expanduser()
+    if not root.is_dir():
+        raise KittiFormatError(f"{root}: dataset root does not exist (expected a KITTI odometry folder)")
+    for candidate in (root, root / "dataset"):
+        if (candidate / "sequences").is_dir():
+            return candidate
+    raise KittiFormatError(
+        f"{root}: not a KITTI odometry root: expected {root}/sequences/NN/image_2 and {root}/poses/NN.txt "
+        f"(or the same under {root}/dataset)"
+    )
+
+
+def list_sequences(root: Path) -> list[str]:
+    """Names of the sequences under ``root/sequences`` (sorted)."""
+    return sorted(p.name for p in (root / "sequences").iterdir() if p.is_dir())
+
+
+def sequence_dir(root: Path, name: str) -> Path:
+    """``root/sequences/name``; raises KittiFormatError naming the missing folder and what exists."""
+    path = root / "sequences" / name
+    if not path.is_dir():
+        available = ", ".join(list_sequences(root)) or "none"
+        raise KittiFormatError(f"{path}: sequence {name!r} not found (available: {available})")
+    return path
+
+
+def pose_path(root: Path, name: str) -> Path:
+    return root / "poses" / f"{name}.txt"
+
+
+def image_paths(root: Path, name: str, camera: str = "image_2") -> list[Path]:
+    """Sorted frame paths of one sequence's camera folder.
+
+    Raises:
+        KittiFormatError: if the folder is missing or holds no PNG files.
+    """
+    folder = sequence_dir(root, name) / camera
+    paths = sorted(folder.glob("*.png")) if folder.is_dir() else []
+    if not paths:
+        raise KittiFormatError(f"{folder}: expected PNG frames 000000.png, 000001.png, ... (found none)")
+    return paths
+
+
+def check_png(path: Path) -> None:
+    """Raise KittiFormatError if ``path`` is not a complete PNG file (missing, truncated, not PNG)."""
+    try:
+        with path.open("rb") as f:
+            head = f.read(8)
+            f.seek(max(0, path.stat().st_size - 12))
+            tail = f.read()
+    except OSError as e:
+        raise KittiFormatError(f"{path}: unreadable image ({e.strerror})") from None
+    if head != b"\x89PNG\r\n\x1a\n" or _PNG_END not in tail:
+        raise KittiFormatError(f"{path}: not a complete PNG file (truncated or corrupt)")
+
+
+# --------------------------------------------------------------------------------------------------
+# Pose files
+# --------------------------------------------------------------------------------------------------
+
+
+def _parse_numbers(path: Path, line_no: int, line: str, count: int) -> list[float]:
+    fields = line.split()
+    if len(fields) != count:
+        raise KittiFormatError(f"{_where(path, line_no)}: expected {count} numbers, got {len(fields)}")
+    try:
+        values = [float(v) for v in fields]
+    except ValueError:
+        bad = next(v for v in fields if not _is_float(v))
+        raise KittiFormatError(f"{_where(path, line_no)}: expected {count} numbers, got {bad!r}") from None
+    if not all(np.isfinite(values)):
+        raise KittiFormatError(f"{_where(path, line_no)}: expected finite numbers, got {line.strip()!r}")
+    return values
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def read_poses(path: str | os.PathLike) -> np.ndarray:
+    """Read a KITTI pose file.
+
+    Args:
+        path: ``poses/NN.txt``, one pose per line: 12 numbers, the row-major 3x4 ``[R | t]`` of T_w_c.
+    Returns:
+        (N, 4, 4) float64 camera-to-world poses.
+    Raises:
+        KittiFormatError: naming the file and line for a missing file, a line without 12 numbers, or a
+            rotation block far from orthonormal.
+    """
+    path = Path(path)
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as e:
+        raise KittiFormatError(f"{path}: cannot read pose file ({e.strerror})") from None
+    rows = [(i, line) for i, line in enumerate(lines, start=1) if line.strip()]
+    if not rows:
+        raise KittiFormatError(f"{path}: empty pose file (expected one line of 12 numbers per frame)")
+    values = np.array([_parse_numbers(path, i, line, 12) for i, line in rows], dtype=np.float64)
+    poses = np.zeros((len(values), 4, 4))
+    poses[:, :3, :] = values.reshape(-1, 3, 4)
+    poses[:, 3, 3] = 1.0
+    _check_rotations(path, poses[:, :3, :3], [i for i, _ in rows])
+    return poses
+
+
+def _check_rotations(path: Path, R: np.ndarray, line_numbers: list[int]) -> None:
+    error = np.abs(R.transpose(0, 2, 1) @ R - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(R)
+    bad = np.flatnonzero((error > ORTHONORMAL_TOLERANCE) | (det < 0))
+    if bad.size:
+        k = bad[0]
+        raise KittiFormatError(
+            f"{_where(path, line_numbers[k])}: rotation block is not a rotation "
+            f"(max |RᵀR − I| = {error[k]:.2g}, det = {det[k]:.4g}; expected orthonormal, det +1)"
+        )
+
+
+def write_poses(path: str | os.PathLike, poses: np.ndarray | torch.Tensor) -> None:
+    """Write (N, 4, 4) or (N, 3, 4) poses as a KITTI pose file, atomically (temp file + rename)."""
+    poses = np.asarray(poses.detach().cpu() if isinstance(poses, torch.Tensor) else poses, dtype=np.float64)
+    if poses.ndim != 3 or poses.shape[1:] not in ((4, 4), (3, 4)):
+        raise ValueError(f"poses must have shape (N, 4, 4) or (N, 3, 4), got {poses.shape}")
+    text = "\n".join(" ".join(f"{v:.9e}" for v in row) for row in poses[:, :3, :].reshape(-1, 12))
+    write_text_atomic(Path(path), text + "\n")
+
+
+def relative_targets(poses: np.ndarray) -> np.ndarray:
+    """Relative poses between consecutive frames, ``inv(T_w_k) @ T_w_{k+1}``, in float64.
+
+    Args:
+        poses: (N, 4, 4) camera-to-world poses.
+    Returns:
+        (N - 1, 4, 4) float64 relative poses (frame k+1 seen from frame k).
+    """
+    return geometry.consecutive_relative_poses(torch.from_numpy(np.asarray(poses, np.float64))).numpy()
+
+
+# --------------------------------------------------------------------------------------------------
+# Calibration and timestamps
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Calib:
+    """KITTI calibration: 3x4 projection matrices P0..P3 (P2 = left colour camera), and Tr if given."""
+
+    P: dict[str, np.ndarray]
+    Tr: np.ndarray | None
+
+    @property
+    def K(self) -> np.ndarray:
+        """(3, 3) intrinsics of the left colour camera (image_2), from P2."""
+        return self.P["P2"][:, :3].copy()
+
+
+def read_calib(path: str | os.PathLike) -> Calib:
+    """Read ``calib.txt`` (lines ``P0: 12 numbers`` ... ``Tr: 12 numbers``).
+
+    Raises:
+        KittiFormatError: naming the file (and line) if it is unreadable, malformed or lacks P2.
+    """
+    path = Path(path)
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as e:
+        raise KittiFormatError(f"{path}: cannot read calibration ({e.strerror})") from None
+    entries: dict[str, np.ndarray] = {}
+    for i, line in enumerate(lines, start=1):
+        if not line.strip():
+            continue
+        key, sep, rest = line.partition(":")
+        if not sep:
+            raise KittiFormatError(f"{_where(path, i)}: expected 'KEY: 12 numbers', got {line.strip()!r}")
+        entries[key.strip()] = np.array(_parse_numbers(path, i, rest, 12)).reshape(3, 4)
+    if "P2" not in entries:
+        raise KittiFormatError(f"{path}: no P2 (expected a line 'P2: 12 numbers' for the image_2 camera)")
+    return Calib({k: v for k, v in entries.items() if k.startswith("P")}, entries.get("Tr"))
+
+
+def read_times(path: str | os.PathLike) -> np.ndarray:
+    """Read ``times.txt``: (N,) float64 timestamps in seconds, one per line."""
+    path = Path(path)
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as e:
+        raise KittiFormatError(f"{path}: cannot read timestamps ({e.strerror})") from None
+    rows = [(i, line) for i, line in enumerate(lines, start=1) if line.strip()]
+    return np.array([_parse_numbers(path, i, line, 1)[0] for i, line in rows], dtype=np.float64)
+
+
+# --------------------------------------------------------------------------------------------------
+# A whole sequence
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Sequence:
+    """One sequence: frame paths, camera-to-world poses (None if the sequence has no pose file), calib."""
+
+    name: str
+    images: list[Path]
+    poses: np.ndarray | None
+    calib: Calib
+
+    @property
+    def targets(self) -> np.ndarray:
+        """(N - 1, 4, 4) float64 relative poses between consecutive frames."""
+        if self.poses is None:
+            raise KittiFormatError(f"sequence {self.name} has no pose file: it is usable for inference only")
+        return relative_targets(self.poses)
+
+
+def load_sequence(root: str | os.PathLike, name: str, require_poses: bool = True) -> Sequence:
+    """Read and check one sequence's metadata (frame list, poses, calibration); no image is decoded.
+
+    Raises:
+        KittiFormatError: missing sequence, pose file (when required) or calib; pose count != frame count.
+    """
+    root = find_root(root)
+    images = image_paths(root, name)
+    calib = read_calib(sequence_dir(root, name) / "calib.txt")
+    path = pose_path(root, name)
+    if not path.is_file():
+        if require_poses:
+            raise KittiFormatError(
+                f"{path}: no pose file for sequence {name} (needed for training/evaluation)"
+            )
+        return Sequence(name, images, None, calib)
+    poses = read_poses(path)
+    if len(poses) != len(images):
+        raise KittiFormatError(
+            f"{path}: {len(poses)} poses but {len(images)} frames in {images[0].parent} "
+            "(expected one pose per frame)"
+        )
+    return Sequence(name, images, poses, calib)

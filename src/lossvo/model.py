@@ -1,0 +1,381 @@
+"""DeepVO (Wang et al., ICRA 2017) and FlowNetS weight loading.
+
+The network maps a window of ``L`` consecutive frames to one relative-pose vector per frame pair:
+
+    frames (B, L, 3, H, W)  ->  pairs (B, L-1, 6, H, W)         frames k and k+1 stacked on channels
+                            ->  encoder (B*(L-1), C6, H6, W6)    FlowNetS conv1..conv6, one batched call
+                            ->  LSTM (B, L-1, hidden_size)       over the L-1 pairs of each window
+                            ->  head (B, L-1, out_dim)           [t (3), r (D)] as in lossvo.losses
+
+``H6 = ceil(H / 64)``, ``W6 = ceil(W / 64)`` and ``C6 = round(1024 * width_mult)``, so the LSTM input has
+``C6 * H6 * W6`` features (flattened in (C, H, W) order): 1024 * 3 * 10 = 30720 at the paper's 184x608,
+256 * 1 * 4 = 1024 for ``width_mult=0.25`` at 64x208.
+
+Encoder. FlowNetS's contracting part (Dosovitskiy et al. 2015): nine ``conv -> BatchNorm -> LeakyReLU(0.1)
+-> Dropout`` blocks named like FlowNetPytorch's (``encoder.conv1.0.weight`` is its ``conv1.0.weight``), so
+:func:`load_flownet` can initialise it from ``flownets_bn_*.pth.tar``. With ``batch_norm=False`` the convs
+get a bias and index 1 is an identity, which matches the non-BN ``flownets_*.pth.tar`` keys instead.
+Dropout follows DeepVO-pytorch: ``conv_dropout`` (0.2) after conv1..conv5_1, ``conv6_dropout`` (0.5) after
+conv6.
+
+Input range. FlowNetS was trained on ``img / 255 - 0.5``; with its weights the data module must use
+``normalization: flownet`` (``lossvo.train`` switches it when ``model.flownet`` is set).
+
+Recurrent state. Training resets the LSTM state for every window (``forward``). For a full sequence,
+:meth:`DeepVO.forward_with_state` can carry the state from one chunk to the next (chunks that overlap by
+one frame, so that no pair is lost: frames ``[0, k]`` then ``[k, L-1]``) or start each chunk afresh.
+Either way call ``model.eval()`` first: dropout and batch statistics are training-only.
+
+Initialisation (documented, as in DeepVO-pytorch where it has one):
+
+- convs: Kaiming normal for LeakyReLU(0.1) (fan-in); BatchNorm weight 1, bias 0;
+- LSTM: Xavier-uniform input weights and orthogonal recurrent weights (per gate), biases 0 except the
+  forget gate's, which is 1 (``bias_hh``; PyTorch adds ``bias_ih + bias_hh``);
+- head: weights normal with std 1e-3 (small, but not zero, so that gradients reach the LSTM and the
+  encoder from the first step) and the bias set to :func:`identity_output` -- the output that decodes
+  to "no motion" in every parameterisation of :mod:`lossvo.losses` -- so the initial prediction is close
+  to the identity pose for each loss. (An all-zero output would decode to the identity for Euler,
+  se(3) and quaternion heads too, but it is a degenerate point for the quaternion's normalisation and the
+  6-D Gram-Schmidt, where the rotation would get no gradient; starting at ``w = 1`` avoids that.)
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import warnings
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+from torch import Tensor, nn
+
+log = logging.getLogger(__name__)
+
+LSTMState = tuple[Tensor, Tensor]
+"""(h, c), each (lstm_layers, B, hidden_size)."""
+
+# FlowNetS contracting part: (name, in_channels, out_channels, kernel, stride); channels before width_mult.
+FLOWNETS_ENCODER: tuple[tuple[str, int, int, int, int], ...] = (
+    ("conv1", 6, 64, 7, 2),
+    ("conv2", 64, 128, 5, 2),
+    ("conv3", 128, 256, 5, 2),
+    ("conv3_1", 256, 256, 3, 1),
+    ("conv4", 256, 512, 3, 2),
+    ("conv4_1", 512, 512, 3, 1),
+    ("conv5", 512, 512, 3, 2),
+    ("conv5_1", 512, 512, 3, 1),
+    ("conv6", 512, 1024, 3, 2),
+)
+TOTAL_STRIDE = 64
+"""Product of the encoder's strides: conv6 features are (ceil(H / 64), ceil(W / 64))."""
+MIN_SIZE = TOTAL_STRIDE
+
+
+def identity_output(out_dim: int) -> Tensor:
+    """The head output (out_dim,) that decodes to the identity pose in :mod:`lossvo.losses`.
+
+    Layout ``[t (3), r (D)]``: zeros for the 6-D heads (Euler angles, se(3), rotation vector), ``w = 1``
+    for the quaternion ``(w, x, y, z)`` head (7), the first two columns of the identity for the 6-D
+    rotation head (9). Other sizes get zeros.
+    """
+    out = torch.zeros(out_dim)
+    if out_dim == 7:
+        out[3] = 1.0
+    elif out_dim == 9:
+        out[3] = 1.0  # first column (1, 0, 0)
+        out[7] = 1.0  # second column (0, 1, 0)
+    return out
+
+
+def _check_int(name: str, value: object, minimum: int, why: str = "") -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ValueError(f"model.{name}: expected an integer >= {minimum}{why}, got {value!r}")
+    return value
+
+
+def _check_float(name: str, value: object, low: float, high: float, high_open: bool, what: str) -> float:
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if ok:
+        ok = low <= value < high if high_open else low < value <= high
+    if not ok:
+        raise ValueError(f"model.{name}: expected {what}, got {value!r}")
+    return float(value)  # type: ignore[arg-type]
+
+
+def _dropout(name: str, value: object) -> float:
+    return _check_float(name, value, 0.0, 1.0, True, "a probability in [0, 1)")
+
+
+def _conv_block(c_in: int, c_out: int, kernel: int, stride: int, batch_norm: bool, p: float) -> nn.Sequential:
+    """FlowNetPytorch's ``conv()`` block plus dropout: indices 0 conv, 1 BN (or identity), 2 act, 3 drop."""
+    return nn.Sequential(
+        nn.Conv2d(c_in, c_out, kernel, stride=stride, padding=(kernel - 1) // 2, bias=not batch_norm),
+        nn.BatchNorm2d(c_out) if batch_norm else nn.Identity(),
+        nn.LeakyReLU(0.1, inplace=True),
+        nn.Dropout(p),
+    )
+
+
+class DeepVO(nn.Module):
+    """DeepVO: FlowNetS encoder on stacked frame pairs, a stacked LSTM over the pairs, a linear head.
+
+    Args:
+        out_dim: head size, one vector per frame pair (the loss's ``dim``: 6, 7 or 9).
+        height, width: input image size in pixels (sizes the LSTM input); each >= 64.
+        width_mult: multiplier of the encoder's channel counts (1 = FlowNetS; needed for its weights).
+        hidden_size: LSTM hidden units per layer (DeepVO: 1000).
+        lstm_layers: stacked LSTM layers (DeepVO: 2).
+        conv_dropout: dropout after conv1 .. conv5_1 (DeepVO-pytorch: 0.2).
+        conv6_dropout: dropout after conv6 (DeepVO-pytorch: 0.5).
+        lstm_dropout: dropout between LSTM layers (ignored with one layer).
+        head_dropout: dropout on the LSTM output, before the head (DeepVO-pytorch: 0.5).
+        batch_norm: BatchNorm after each conv (FlowNetS-BN; the convs then have no bias).
+        flownet: optional path to a FlowNetPytorch checkpoint loaded into the encoder (:func:`load_flownet`);
+            needs ``width_mult=1`` and ``normalization: flownet`` input.
+    """
+
+    def __init__(
+        self,
+        out_dim: int,
+        height: int,
+        width: int,
+        width_mult: float = 1.0,
+        hidden_size: int = 1000,
+        lstm_layers: int = 2,
+        conv_dropout: float = 0.2,
+        conv6_dropout: float = 0.5,
+        lstm_dropout: float = 0.5,
+        head_dropout: float = 0.5,
+        batch_norm: bool = True,
+        flownet: str | Path | None = None,
+    ) -> None:
+        super().__init__()
+        why = f" so that conv6 (stride {TOTAL_STRIDE}) has at least 1 {{}}"
+        self.out_dim = _check_int("out_dim", out_dim, 1)
+        self.height = _check_int("height", height, MIN_SIZE, why.format("row"))
+        self.width = _check_int("width", width, MIN_SIZE, why.format("column"))
+        self.width_mult = _check_float("width_mult", width_mult, 0.0, 16.0, False, "a number in (0, 16]")
+        self.hidden_size = _check_int("hidden_size", hidden_size, 1)
+        self.lstm_layers = _check_int("lstm_layers", lstm_layers, 1)
+        conv_p = _dropout("conv_dropout", conv_dropout)
+        conv6_p = _dropout("conv6_dropout", conv6_dropout)
+        lstm_p = _dropout("lstm_dropout", lstm_dropout)
+        head_p = _dropout("head_dropout", head_dropout)
+        if not isinstance(batch_norm, bool):
+            raise ValueError(f"model.batch_norm: expected true or false, got {batch_norm!r}")
+        if flownet is not None and not isinstance(flownet, (str, Path)):
+            raise ValueError(f"model.flownet: expected a path or null, got {flownet!r}")
+
+        blocks: OrderedDict[str, nn.Module] = OrderedDict()
+        for name, c_in, c_out, kernel, stride in FLOWNETS_ENCODER:
+            c_in = c_in if name == "conv1" else self._channels(c_in)
+            p = conv6_p if name == "conv6" else conv_p
+            blocks[name] = _conv_block(c_in, self._channels(c_out), kernel, stride, batch_norm, p)
+        self.encoder = nn.Sequential(blocks)
+
+        self.feature_shape: tuple[int, int, int] = (
+            self._channels(FLOWNETS_ENCODER[-1][2]),
+            -(-self.height // TOTAL_STRIDE),
+            -(-self.width // TOTAL_STRIDE),
+        )
+        """(C6, H6, W6) of the conv6 features of one pair."""
+        self.lstm_input_size = math.prod(self.feature_shape)
+        self.lstm = nn.LSTM(
+            self.lstm_input_size,
+            self.hidden_size,
+            num_layers=self.lstm_layers,
+            batch_first=True,
+            dropout=lstm_p if self.lstm_layers > 1 else 0.0,
+        )
+        self.head_dropout = nn.Dropout(head_p)
+        self.head = nn.Linear(self.hidden_size, self.out_dim)
+        self.reset_parameters()
+
+        if flownet is not None:
+            report = load_flownet(self, flownet)
+            log.info("DeepVO encoder from FlowNet checkpoint %s: %s", flownet, report.summary())
+
+    def _channels(self, c: int) -> int:
+        return max(1, round(c * self.width_mult))
+
+    @torch.no_grad()
+    def reset_parameters(self) -> None:
+        """Initialise every layer as described in the module docstring."""
+        for m in self.encoder.modules():
+            if isinstance(m, nn.Conv2d):
+                nn.init.kaiming_normal_(m.weight, a=0.1, nonlinearity="leaky_relu")
+                if m.bias is not None:
+                    nn.init.zeros_(m.bias)
+            elif isinstance(m, nn.BatchNorm2d):
+                m.reset_running_stats()
+                nn.init.ones_(m.weight)
+                nn.init.zeros_(m.bias)
+        n = self.hidden_size
+        for name, param in self.lstm.named_parameters():
+            if name.startswith("weight_ih"):
+                for gate in param.split(n):  # PyTorch gate order: input, forget, cell, output
+                    nn.init.xavier_uniform_(gate)
+            elif name.startswith("weight_hh"):
+                for gate in param.split(n):
+                    nn.init.orthogonal_(gate)
+            elif name.startswith("bias"):
+                nn.init.zeros_(param)
+                if name.startswith("bias_hh"):
+                    param[n : 2 * n] = 1.0
+        nn.init.normal_(self.head.weight, std=1e-3)
+        self.head.bias.copy_(identity_output(self.out_dim))
+
+    def extra_repr(self) -> str:
+        return (
+            f"out_dim={self.out_dim}, size=({self.height}, {self.width}), width_mult={self.width_mult:g}, "
+            f"feature_shape={self.feature_shape}"
+        )
+
+    def _check_frames(self, frames: Tensor) -> None:
+        expected = f"(B, L >= 2, 3, {self.height}, {self.width})"
+        if not isinstance(frames, Tensor):
+            raise ValueError(f"DeepVO expects frames as a tensor of shape {expected}, got {type(frames)}")
+        shape = tuple(frames.shape)
+        if (
+            frames.dim() != 5
+            or shape[1] < 2
+            or shape[2] != 3
+            or shape[3:] != (self.height, self.width)
+            or shape[0] < 1
+        ):
+            raise ValueError(f"DeepVO expects frames of shape {expected}, got {shape}")
+        if not frames.is_floating_point():
+            raise ValueError(f"DeepVO expects normalised floating-point frames, got dtype {frames.dtype}")
+
+    def features(self, frames: Tensor) -> Tensor:
+        """Flattened conv6 features (B, L-1, lstm_input_size) of the consecutive pairs of ``frames``.
+
+        Pair k stacks frames k and k+1 on the channel axis (frame k first); the encoder runs once on all
+        B * (L-1) pairs.
+        """
+        self._check_frames(frames)
+        B, L = frames.shape[:2]
+        pairs = torch.cat((frames[:, :-1], frames[:, 1:]), dim=2)  # (B, L-1, 6, H, W)
+        feats = self.encoder(pairs.reshape(B * (L - 1), 6, self.height, self.width))
+        return feats.reshape(B, L - 1, self.lstm_input_size)
+
+    def forward_with_state(self, frames: Tensor, state: LSTMState | None = None) -> tuple[Tensor, LSTMState]:
+        """Outputs and the final LSTM state, starting from ``state`` (zeros when None).
+
+        Args:
+            frames: (B, L, 3, H, W) normalised images, L >= 2.
+            state: (h, c), each (lstm_layers, B, hidden_size), e.g. from the previous chunk.
+
+        Returns:
+            (B, L-1, out_dim) outputs, one per pair (k, k+1), and the state after the last pair.
+        """
+        hidden, state = self.lstm(self.features(frames), state)
+        return self.head(self.head_dropout(hidden)), state
+
+    def forward(self, frames: Tensor, state: LSTMState | None = None) -> Tensor:
+        """Outputs (B, L-1, out_dim) for frames (B, L, 3, H, W); the LSTM starts from ``state`` or zeros."""
+        return self.forward_with_state(frames, state)[0]
+
+
+@dataclass(frozen=True)
+class LoadReport:
+    """What :func:`load_flownet` did, by state-dict key (without the ``encoder.`` prefix).
+
+    ``missing``: encoder keys the file lacks (``num_batches_tracked`` counters are not listed);
+    ``unexpected``: file keys the encoder lacks (the FlowNetS decoder, or other architectures' convs);
+    ``mismatched``: (key, shape in the file, shape in the encoder) -- same name, different shape, not loaded.
+    """
+
+    loaded: list[str] = field(default_factory=list)
+    missing: list[str] = field(default_factory=list)
+    unexpected: list[str] = field(default_factory=list)
+    mismatched: list[tuple[str, tuple[int, ...], tuple[int, ...]]] = field(default_factory=list)
+
+    def summary(self) -> str:
+        return (
+            f"{len(self.loaded)} loaded, {len(self.missing)} missing, {len(self.unexpected)} unexpected, "
+            f"{len(self.mismatched)} mismatched"
+        )
+
+
+def _read_state_dict(path: Path) -> dict[str, Tensor]:
+    if not path.is_file():
+        raise FileNotFoundError(f"FlowNet checkpoint not found: {path}")
+    try:
+        obj = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:
+        raise ValueError(
+            f"FlowNet checkpoint {path} could not be loaded with torch.load(weights_only=True): {e}"
+        ) from e
+    if isinstance(obj, dict) and isinstance(obj.get("state_dict"), dict):
+        obj = obj["state_dict"]
+    if not isinstance(obj, dict) or not obj or not all(isinstance(v, Tensor) for v in obj.values()):
+        raise ValueError(
+            f"FlowNet checkpoint {path} holds no state dict (expected a dict with key 'state_dict' or a "
+            f"bare name -> tensor dict), got {type(obj).__name__}"
+        )
+    prefix = "module."  # saved from DataParallel
+    if all(k.startswith(prefix) for k in obj):
+        obj = {k[len(prefix) :]: v for k, v in obj.items()}
+    return obj
+
+
+@torch.no_grad()
+def load_flownet(model: DeepVO, path: str | Path) -> LoadReport:
+    """Initialise ``model.encoder`` from a FlowNetPytorch FlowNetS checkpoint, by name with shape checks.
+
+    The file is ``torch.save({'epoch', 'arch', 'state_dict', 'div_flow', ...})`` as FlowNetPytorch writes
+    it (``flownets_bn_EPE2.459.pth.tar`` for ``batch_norm=True``), or a bare state dict. Keys are
+    ``conv1.0.weight``, ``conv1.1.{weight,bias,running_mean,running_var}``, ... ``conv6.*``; the decoder
+    (``deconv*``, ``predict_flow*``, ``upsampled_flow*``) is reported as unexpected. A tensor whose shape
+    differs is skipped with a warning. The weights expect inputs ``img / 255 - 0.5``
+    (``normalization: flownet``).
+
+    Raises:
+        FileNotFoundError: no file at ``path``.
+        ValueError: the file cannot be read with ``weights_only=True``, holds no state dict, or no tensor
+            matches the encoder (by name and shape).
+    """
+    path = Path(path)
+    source = _read_state_dict(path)
+    target = model.encoder.state_dict()
+    loaded: list[str] = []
+    mismatched: list[tuple[str, tuple[int, ...], tuple[int, ...]]] = []
+    for key, value in source.items():
+        if key not in target:
+            continue
+        if value.shape != target[key].shape:
+            mismatched.append((key, tuple(value.shape), tuple(target[key].shape)))
+            continue
+        loaded.append(key)
+    missing = [k for k in target if k not in source and not k.endswith("num_batches_tracked")]
+    unexpected = [k for k in source if k not in target]
+    report = LoadReport(loaded=loaded, missing=missing, unexpected=unexpected, mismatched=mismatched)
+
+    if not any(not k.endswith("num_batches_tracked") for k in loaded):  # a counter is not a match
+        loaded = []
+        if mismatched:
+            raise ValueError(
+                f"FlowNet checkpoint {path}: nothing matches the encoder -- all {len(mismatched)} tensors "
+                f"with matching names have different shapes (e.g. {mismatched[0][0]}: file "
+                f"{mismatched[0][1]} vs model {mismatched[0][2]}); FlowNetS weights need width_mult=1 "
+                f"(model has width_mult={model.width_mult:g})"
+            )
+        raise ValueError(
+            f"FlowNet checkpoint {path}: nothing matches the encoder -- none of its {len(source)} keys "
+            f"(e.g. {next(iter(source))!r}) is an encoder key such as 'conv1.0.weight'"
+        )
+    for key in loaded:
+        target[key].copy_(source[key])  # state_dict tensors share storage with the parameters
+    if mismatched:
+        details = "; ".join(f"{k}: file {a} vs model {b}" for k, a, b in mismatched)
+        warnings.warn(
+            f"FlowNet checkpoint {path}: {len(mismatched)} tensor(s) with a different shape were not "
+            f"loaded: {details}",
+            stacklevel=2,
+        )
+    if missing:
+        log.warning("FlowNet checkpoint %s lacks %d encoder tensor(s): %s", path, len(missing), missing)
+    return report

@@ -1,0 +1,110 @@
+"""The LightningModule: a VO network trained with one pose loss.
+
+The module is built from plain config dictionaries (Hydra ``_target_`` style), and those dictionaries
+are its hyperparameters: a checkpoint holds only primitives and reloads with torch's default
+``weights_only`` loading, and ``VOModule.load_from_checkpoint(path)`` rebuilds the same network and
+loss without Hydra. Every key the loss returns is logged per epoch as ``train/<key>`` and
+``val/<key>`` (``loss``, ``trans_loss``, ``rot_loss``, ``trans_err_m``, ``rot_err_rad``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import lightning as L
+import torch
+from hydra.utils import instantiate
+from torch import Tensor
+
+from lossvo.losses import PoseLoss
+
+
+class NonFiniteLossError(FloatingPointError):
+    """The loss went NaN or infinite; the message names the step, the batch and the term."""
+
+
+class VOModule(L.LightningModule):
+    """A visual-odometry network and its pose loss.
+
+    Args:
+        model: config of the network (``_target_`` and arguments), e.g. :class:`lossvo.model.DeepVO`;
+            it maps frames (B, L, 3, H, W) to outputs (B, L-1, loss.dim).
+        loss: config of a :class:`lossvo.losses.PoseLoss`.
+        optimizer: config of a partial optimiser (``_partial_: true``), called with the parameters.
+        scheduler: optional config of a partial LR scheduler, called with the optimiser; stepped per
+            epoch and given ``val/loss`` when it needs a metric (ReduceLROnPlateau).
+    """
+
+    def __init__(
+        self,
+        model: dict[str, Any],
+        loss: dict[str, Any],
+        optimizer: dict[str, Any],
+        scheduler: dict[str, Any] | None = None,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        self.loss: PoseLoss = instantiate(loss)
+        self.model = instantiate(model)
+
+    def forward(self, frames: Tensor) -> Tensor:
+        """Network output (B, L-1, dim) for frames (B, L, 3, H, W)."""
+        return self.model(frames)
+
+    def decode(self, pred: Tensor) -> Tensor:
+        """Relative poses (..., 4, 4) from network outputs (..., dim)."""
+        return self.loss.decode(pred)
+
+    # -- steps ----------------------------------------------------------------------------------------
+
+    def _step(self, batch: tuple[Tensor, Tensor], batch_idx: int, stage: str) -> Tensor:
+        frames, targets = batch
+        pred = self(frames)
+        out = self.loss(pred, targets)
+        if stage == "train":
+            self._check_finite(out, pred, batch_idx)
+        self.log_dict(
+            {f"{stage}/{key}": value for key, value in out.items()},
+            on_step=False, on_epoch=True, batch_size=frames.shape[0], sync_dist=stage != "train",
+        )  # fmt: skip
+        if stage == "train":
+            self.log("loss", out["loss"], on_step=True, on_epoch=False, prog_bar=True, logger=False)
+        return out["loss"]
+
+    def training_step(self, batch: tuple[Tensor, Tensor], batch_idx: int) -> Tensor:
+        return self._step(batch, batch_idx, "train")
+
+    def validation_step(self, batch: tuple[Tensor, Tensor], batch_idx: int) -> Tensor:
+        return self._step(batch, batch_idx, "val")
+
+    def test_step(self, batch: tuple[Tensor, Tensor], batch_idx: int) -> Tensor:
+        return self._step(batch, batch_idx, "test")
+
+    def _check_finite(self, out: dict[str, Tensor], pred: Tensor, batch_idx: int) -> None:
+        """Stop the run at the first non-finite loss, naming the step, batch, term and its cause."""
+        if torch.isfinite(out["loss"]):
+            return
+        terms = [k for k in ("trans_loss", "rot_loss") if not torch.isfinite(out[k])]
+        cause = (
+            "the network output is non-finite"
+            if not torch.isfinite(pred).all()
+            else "the network output is finite, so the loss computation overflowed"
+        )
+        raise NonFiniteLossError(
+            f"non-finite loss at epoch {self.current_epoch}, global step {self.global_step}, "
+            f"batch {batch_idx}: "
+            f"{', '.join(terms) or 'loss'} = {', '.join(f'{out[k].item()}' for k in terms or ['loss'])} "
+            f"({cause}; try a lower learning rate, gradient clipping or loss.k)"
+        )
+
+    # -- optimisation ---------------------------------------------------------------------------------
+
+    def configure_optimizers(self) -> Any:
+        optimizer = instantiate(self.hparams.optimizer)(params=self.parameters())
+        if not self.hparams.scheduler:
+            return optimizer
+        scheduler = instantiate(self.hparams.scheduler)(optimizer=optimizer)
+        return {
+            "optimizer": optimizer,
+            "lr_scheduler": {"scheduler": scheduler, "interval": "epoch", "monitor": "val/loss"},
+        }

@@ -1,0 +1,154 @@
+"""Training entry point: ``python -m lossvo.train [overrides]``, sweeps with ``-m``.
+
+Examples::
+
+    python -m lossvo.train                                   # chordal loss, embedded synthetic data
+    python -m lossvo.train -m loss=euler,quat,chordal        # the study's three-way comparison
+    python -m lossvo.train -m loss=euler,quat,chordal seed=0,1,2 hydra/launcher=joblib
+    python -m lossvo.train experiment=paper data.root=/data/kitti trainer=gpu
+
+A run writes to ``outputs/runs/<time>/``, a sweep job to ``outputs/multirun/<time>/<num>_<overrides>/``:
+the resolved config (``.hydra/``), ``checkpoints/`` (best on ``val/loss`` and last), ``metrics.csv``.
+Everything (data, network, loss, loggers, callbacks, trainer) is instantiated before training starts,
+so a wrong name or argument fails at once with Hydra's or the class's message.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+import hydra
+import lightning as L
+from hydra.core.hydra_config import HydraConfig
+from hydra.utils import get_class, instantiate
+from lightning.pytorch.callbacks import Callback, ProgressBar
+from lightning.pytorch.loggers import Logger, WandbLogger
+from omegaconf import DictConfig, OmegaConf
+
+from lossvo.atomic import write_text_atomic
+from lossvo.model import load_flownet
+from lossvo.module import VOModule
+
+log = logging.getLogger("lossvo")
+
+CONFIG_DIR = str(Path(__file__).resolve().parents[2] / "conf")
+
+
+def _dim_of(target: str) -> int:
+    """Head size of a loss class given its ``_target_`` (the model's ``out_dim`` interpolates this)."""
+    return int(get_class(target).dim)
+
+
+def _path_safe(text: str) -> str:
+    """A sweep job's folder name from its overrides: '/' would nest folders, so it becomes '_'."""
+    return str(text).replace("/", "_")
+
+
+def register_resolvers() -> None:
+    """OmegaConf resolvers used by lossvo's configs (idempotent)."""
+    for name, fn in (("dim_of", _dim_of), ("path_safe", _path_safe)):
+        if not OmegaConf.has_resolver(name):
+            OmegaConf.register_new_resolver(name, fn)
+
+
+register_resolvers()
+
+
+def _instantiate_group(group: DictConfig | None, name: str) -> list[Any]:
+    """Instantiate every entry of a dict-of-configs group (callbacks, logger); each needs a _target_."""
+    objects = []
+    for key, entry in (group or {}).items():
+        if entry is None:  # switched off with `callbacks.key=null`
+            continue
+        if not isinstance(entry, DictConfig) or "_target_" not in entry:
+            raise ValueError(f"{name}.{key}: expected a config with a _target_, got {entry!r}")
+        objects.append(instantiate(entry))
+    return objects
+
+
+def _container(cfg: DictConfig) -> dict[str, Any]:
+    return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
+
+
+def build(cfg: DictConfig) -> tuple[L.LightningDataModule, VOModule, L.Trainer]:
+    """Data, module and trainer from a composed config; nothing is trained yet."""
+    if cfg.model.get("flownet"):
+        # FlowNetS weights were trained on img/255 - 0.5; the dataset statistics would not match them.
+        cfg.data.normalization = "flownet"
+    datamodule = instantiate(cfg.data)
+    # The FlowNet file initialises the encoder once, here; it is kept out of the module's
+    # hyperparameters so that a checkpoint reloads without that file.
+    model_cfg = _container(cfg.model)
+    flownet = model_cfg.pop("flownet", None)
+    module = VOModule(
+        model=model_cfg,
+        loss=_container(cfg.loss),
+        optimizer=_container(cfg.optimizer),
+        scheduler=_container(cfg.scheduler) if cfg.get("scheduler") else None,
+    )
+    if flownet:
+        log.info("FlowNetS initialisation: %s", load_flownet(module.model, flownet).summary())
+    callbacks: list[Callback] = _instantiate_group(cfg.get("callbacks"), "callbacks")
+    loggers: list[Logger] = _instantiate_group(cfg.get("logger"), "logger")
+    trainer = instantiate(
+        cfg.trainer,
+        callbacks=callbacks,
+        logger=loggers or False,
+        enable_progress_bar=any(isinstance(c, ProgressBar) for c in callbacks),
+    )
+    return datamodule, module, trainer
+
+
+def train(cfg: DictConfig) -> dict[str, float]:
+    """Seed, build, fit; returns the final callback metrics (floats)."""
+    if cfg.get("seed") is not None:  # seed 0 is a seed
+        L.seed_everything(cfg.seed, workers=True)
+    datamodule, module, trainer = build(cfg)
+    resolved = _container(cfg)
+    for logger in trainer.loggers:
+        logger.log_hyperparams(resolved)
+    try:
+        trainer.fit(module, datamodule=datamodule, ckpt_path=cfg.get("ckpt_path"))
+    finally:
+        _finish_wandb(trainer)
+    return {k: float(v) for k, v in trainer.callback_metrics.items()}
+
+
+def _finish_wandb(trainer: L.Trainer) -> None:
+    """One W&B run per sweep job: close it so the next job in this process starts a new one."""
+    if any(isinstance(logger, WandbLogger) for logger in trainer.loggers):
+        import wandb
+
+        wandb.finish()
+
+
+def write_status(out_dir: Path, status: str, **details: Any) -> None:
+    """``status.json`` in a job folder: completed or failed (with the error), for the sweep report."""
+    write_text_atomic(out_dir / "status.json", json.dumps({"status": status, **details}, indent=2) + "\n")
+
+
+@hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")
+def main(cfg: DictConfig) -> float | None:
+    """Hydra entry point; returns ``cfg.optimized_metric`` for hyperparameter sweepers.
+
+    A failing job writes ``status.json`` with its error and re-raises: Hydra reports it, and a sweep's
+    other jobs (finished or still to come) keep their outputs.
+    """
+    out_dir = Path(HydraConfig.get().runtime.output_dir)
+    log.info("output: %s", out_dir)
+    write_status(out_dir, "running")
+    try:
+        metrics = train(cfg)
+    except Exception as e:
+        write_status(out_dir, "failed", error=f"{type(e).__name__}: {e}")
+        log.error("job failed: %s: %s", type(e).__name__, e)
+        raise
+    write_status(out_dir, "completed", metrics=metrics)
+    return metrics.get(cfg.get("optimized_metric", "val/loss"))
+
+
+if __name__ == "__main__":
+    main()

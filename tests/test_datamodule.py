@@ -1,0 +1,198 @@
+"""lossvo.data.datamodule and frame_cache: windows, targets, cache reuse and repair, statistics."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from types import SimpleNamespace
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from lossvo.data import frame_cache, kitti
+from lossvo.data.datamodule import KittiDataModule, SyntheticDataModule, jitter
+
+
+def make_dm(root: Path, cache: Path, **kwargs) -> KittiDataModule:
+    args = {"train": ["00", "01"], "val": ["02"], "test": ["00", "01", "02"], "height": 32, "width": 96,
+            "seq_len": 4, "batch_size": 3, "num_workers": 0, "cache_dir": str(cache)} | kwargs  # fmt: skip
+    dm = KittiDataModule(str(root), **args)
+    dm.prepare_data()
+    dm.setup("fit")
+    return dm
+
+
+def test_windows_and_targets(tiny_kitti: Path, tmp_path: Path) -> None:
+    dm = make_dm(tiny_kitti, tmp_path)
+    batch = next(iter(dm.train_dataloader()))
+    assert batch[0].shape == (3, 4, 3, 32, 96) and batch[0].dtype == torch.uint8  # as loaded
+    frames, targets = dm.on_after_batch_transfer(batch, 0)  # as the model receives it
+    assert frames.shape == (3, 4, 3, 32, 96) and frames.dtype == torch.float32
+    assert targets.shape == (3, 3, 4, 4) and targets.dtype == torch.float32
+    # stride 1: 10 - 4 + 1 windows per training sequence
+    assert len(dm.datasets["train"]) == 2 * 7
+    _, y = dm.datasets["train"][8]  # sequence 01, window starting at frame 1
+    poses = kitti.read_poses(tiny_kitti / "poses" / "01.txt")
+    expected = np.linalg.inv(poses[1:4]) @ poses[2:5]
+    np.testing.assert_allclose(y.numpy(), expected, atol=1e-6)
+
+
+def test_frames_are_area_resized_rgb_in_h_w_order(tiny_kitti: Path, tmp_path: Path) -> None:
+    dm = make_dm(tiny_kitti, tmp_path)
+    cached = dm.sequence_frames("02")
+    assert cached.shape == (10, 3, 32, 96) and cached.dtype == np.uint8
+    bgr = cv2.imread(str(tiny_kitti / "sequences" / "02" / "image_2" / "000003.png"))
+    expected = cv2.cvtColor(cv2.resize(bgr, (96, 32), interpolation=cv2.INTER_AREA), cv2.COLOR_BGR2RGB)
+    np.testing.assert_array_equal(cached[3], expected.transpose(2, 0, 1))
+    x, _ = dm.datasets["val"][0]
+    assert x.shape == (4, 3, 32, 96)
+    np.testing.assert_array_equal(x.numpy(), cached[0:4])
+
+
+def test_validation_sees_every_pair_exactly_once(tiny_kitti: Path, tmp_path: Path) -> None:
+    dm = make_dm(tiny_kitti, tmp_path)
+    ds = dm.datasets["val"]  # 10 frames, windows of 4 frames: starts 0, 3, 6 cover pairs 0..8
+    starts = ds.index[:, 1].tolist()
+    pairs = [p for s in starts for p in range(s, s + 3)]
+    assert sorted(pairs) == list(range(9))
+    ys = torch.cat([ds[i][1] for i in range(len(ds))])
+    targets = kitti.relative_targets(kitti.read_poses(tiny_kitti / "poses" / "02.txt"))
+    np.testing.assert_allclose(ys.numpy(), targets, atol=1e-6)
+
+
+def test_statistics_come_from_the_training_split(tiny_kitti: Path, tmp_path: Path) -> None:
+    dm = make_dm(tiny_kitti, tmp_path)
+    train = np.concatenate([dm.sequence_frames(n) for n in ("00", "01")]).astype(np.float64) / 255
+    np.testing.assert_allclose(dm.mean, train.mean(axis=(0, 2, 3)), rtol=1e-9)
+    np.testing.assert_allclose(dm.std, train.std(axis=(0, 2, 3)), rtol=1e-6)
+    other = make_dm(tiny_kitti, tmp_path, train=["02"], val=["00"])
+    assert not np.allclose(other.mean, dm.mean)
+    flownet = make_dm(tiny_kitti, tmp_path, normalization="flownet")
+    x, _ = flownet.datasets["train"][0]
+    torch.testing.assert_close(flownet.normalize(x), x.float() / 255.0 - 0.5)
+    normalized = dm.normalize(torch.cat([dm.datasets["train"][i][0] for i in (0, 7)]))  # both sequences
+    assert normalized.mean().abs() < 0.5 and normalized.dtype == torch.float32
+
+
+def test_cache_is_reused_without_decoding(tiny_kitti: Path, tmp_path: Path, monkeypatch) -> None:
+    make_dm(tiny_kitti, tmp_path)
+
+    def no_decoding(*args, **kwargs):
+        raise AssertionError("a PNG was decoded although the cache is complete")
+
+    monkeypatch.setattr(cv2, "imread", no_decoding)
+    dm = make_dm(tiny_kitti, tmp_path)
+    assert len(dm.datasets["train"]) > 0
+
+
+@pytest.mark.parametrize("damage", ["truncate", "drop_manifest", "garbage"])
+def test_corrupt_cache_is_rebuilt(tiny_kitti: Path, tmp_path: Path, damage: str) -> None:
+    dm = make_dm(tiny_kitti, tmp_path)
+    good = np.array(dm.sequence_frames("01"))
+    data, manifest = frame_cache.files(dm.cache_path(), "01")
+    if damage == "truncate":  # an interrupted write
+        data.write_bytes(data.read_bytes()[: data.stat().st_size // 2])
+    elif damage == "drop_manifest":
+        manifest.unlink()
+    else:
+        data.write_bytes(b"not a numpy file")
+    rebuilt = make_dm(tiny_kitti, tmp_path)
+    np.testing.assert_array_equal(rebuilt.sequence_frames("01"), good)
+    assert json.loads(manifest.read_text())["shape"] == [10, 3, 32, 96]
+
+
+def test_changed_dataset_invalidates_the_cache(kitti_copy: Path, tmp_path: Path) -> None:
+    dm = make_dm(kitti_copy, tmp_path)
+    before = np.array(dm.sequence_frames("00")[5])
+    src = kitti_copy / "sequences" / "00" / "image_2"
+    (src / "000005.png").write_bytes((src / "000006.png").read_bytes())
+    after = make_dm(kitti_copy, tmp_path).sequence_frames("00")[5]
+    assert not np.array_equal(before, after)
+
+
+def test_workers_load_the_same_windows(tiny_kitti: Path, tmp_path: Path) -> None:
+    dm = make_dm(tiny_kitti, tmp_path)
+    worker_dm = make_dm(tiny_kitti, tmp_path, num_workers=1)
+    a = torch.cat([x for x, _ in dm.val_dataloader()])
+    b = torch.cat([x for x, _ in worker_dm.val_dataloader()])
+    torch.testing.assert_close(a, b)
+
+
+def test_augmentation_only_when_asked_and_only_in_training(tiny_kitti: Path, tmp_path: Path) -> None:
+    batch = next(iter(make_dm(tiny_kitti, tmp_path).val_dataloader()))
+    plain = make_dm(tiny_kitti, tmp_path).normalize(batch[0])
+    for augment, training in ((True, True), (True, False), (False, True)):
+        dm = make_dm(tiny_kitti, tmp_path, augment=augment)
+        dm.trainer = SimpleNamespace(training=training)
+        frames, _ = dm.on_after_batch_transfer(batch, 0)
+        assert torch.equal(frames, plain) != (augment and training)
+
+
+def test_jitter_is_one_draw_per_window() -> None:
+    frames = torch.full((4, 3, 3, 8, 8), 100.0)
+    out = jitter(frames, torch.Generator().manual_seed(0))
+    per_window = out.flatten(1)
+    assert (per_window == per_window[:, :1]).all()  # constant input stays constant within a window
+    assert len(per_window[:, 0].unique()) == 4  # but differs between windows
+
+
+# -- bad input --------------------------------------------------------------------------------------
+
+
+def test_differing_image_sizes(kitti_copy: Path, tmp_path: Path) -> None:
+    path = kitti_copy / "sequences" / "01" / "image_2" / "000007.png"
+    cv2.imwrite(str(path), np.zeros((40, 100, 3), np.uint8))
+    with pytest.raises(
+        kitti.KittiFormatError, match=r"000007\.png: image is 100x40 \(WxH\) but the sequence's first"
+    ):
+        make_dm(kitti_copy, tmp_path)
+
+
+def test_truncated_png_fails_before_training(kitti_copy: Path, tmp_path: Path) -> None:
+    path = kitti_copy / "sequences" / "02" / "image_2" / "000002.png"
+    path.write_bytes(path.read_bytes()[:-20])
+    with pytest.raises(kitti.KittiFormatError, match=r"000002\.png: not a complete PNG file"):
+        make_dm(kitti_copy, tmp_path)
+
+
+def test_missing_sequence_is_named(tiny_kitti: Path, tmp_path: Path) -> None:
+    with pytest.raises(kitti.KittiFormatError, match=r"sequence '05' not found"):
+        make_dm(tiny_kitti, tmp_path, val=["05"])
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"seq_len": 1}, r"data\.seq_len: expected an integer >= 2"),
+        ({"height": 8}, r"data\.height: expected an integer >= 16"),
+        ({"stride": 0}, r"data\.stride: expected an integer >= 1"),
+        ({"normalization": "imagenet"}, r"data\.normalization: expected one of"),
+        ({"train": []}, r"data\.train: expected at least one"),
+    ],
+)
+def test_bad_settings(tiny_kitti: Path, tmp_path: Path, kwargs: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        make_dm(tiny_kitti, tmp_path, **kwargs)
+
+
+def test_window_longer_than_sequences(tiny_kitti: Path, tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match=r"data\.seq_len: 11 frames is longer than every training sequence"):
+        make_dm(tiny_kitti, tmp_path, seq_len=11)
+
+
+def test_sequence_names_from_hydra_integers(tiny_kitti: Path, tmp_path: Path) -> None:
+    dm = make_dm(tiny_kitti, tmp_path, train=[0, 1], val="02", test=[2])
+    assert dm.splits == {"train": ("00", "01"), "val": ("02",), "test": ("02",)}
+
+
+def test_synthetic_datamodule_renders_on_first_use(tmp_path: Path) -> None:
+    dm = SyntheticDataModule(root=str(tmp_path / "synth"), frames=6, render_height=48, render_width=160,
+                             train=["00"], val=["01"], test=["01"], height=32, width=96, seq_len=3,
+                             num_workers=0, cache_dir=str(tmp_path / "cache"))  # fmt: skip
+    dm.prepare_data()
+    dm.setup("fit")
+    assert (tmp_path / "synth" / "poses" / "00.txt").is_file()
+    x, y = next(iter(dm.train_dataloader()))
+    assert x.shape[1:] == (3, 3, 32, 96) and y.shape[1:] == (2, 4, 4)

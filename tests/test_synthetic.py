@@ -1,0 +1,300 @@
+"""The synthetic KITTI-layout dataset: geometry checked independently with ORB + the essential matrix,
+file formats, determinism, motion statistics, the command line and ensure_dataset's caching.
+
+Poses and calibration are read here with a few lines of numpy on purpose (not with lossvo.data.kitti),
+so that the check is independent of the project's own readers.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from lossvo.data import synthetic
+
+GEOMETRY_SEQUENCES = ("00", "07", "08")  # 07 and 08 turn sharply within their first 40 frames
+GEOMETRY_FRAMES = 40
+
+
+# --------------------------------------------------------------------------------------------------
+# Independent readers
+# --------------------------------------------------------------------------------------------------
+
+
+def read_poses(path: Path) -> np.ndarray:
+    """KITTI poses file -> (N, 4, 4) float64 T_w_c."""
+    rows = np.array([[float(v) for v in line.split()] for line in path.read_text().splitlines()])
+    assert rows.shape[1] == 12, f"{path}: expected 12 floats a line"
+    poses = np.tile(np.eye(4), (len(rows), 1, 1))
+    poses[:, :3] = rows.reshape(-1, 3, 4)
+    return poses
+
+
+def read_calib(path: Path) -> dict[str, np.ndarray]:
+    """KITTI calib.txt -> {name: (12,) float64}."""
+    calib = {}
+    for line in path.read_text().splitlines():
+        name, values = line.split(":", 1)
+        calib[name] = np.array([float(v) for v in values.split()])
+    return calib
+
+
+def angle_deg(R: np.ndarray) -> float:
+    """Rotation angle of a 3x3 rotation matrix, degrees."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
+
+
+# --------------------------------------------------------------------------------------------------
+# Fixtures
+# --------------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small dataset at the default resolution: 3 sequences of 40 frames."""
+    out = tmp_path_factory.mktemp("synthetic")
+    return synthetic.generate(out, GEOMETRY_SEQUENCES, GEOMETRY_FRAMES, progress=False, workers=2)
+
+
+# --------------------------------------------------------------------------------------------------
+# 1. Geometry: ORB + essential matrix recover the written relative poses
+# --------------------------------------------------------------------------------------------------
+
+
+def relative_pose_errors(root: Path, sequence: str) -> tuple[np.ndarray, np.ndarray]:
+    """Per consecutive pair: rotation error (deg) and translation-direction error (deg) of ORB + 5-point."""
+    K = read_calib(root / "sequences" / sequence / "calib.txt")["P2"].reshape(3, 4)[:, :3]
+    poses = read_poses(root / "poses" / f"{sequence}.txt")
+    files = sorted((root / "sequences" / sequence / "image_2").glob("*.png"))
+    images = [cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) for f in files]
+    # 128-pixel-high frames: a 15-pixel border and patch instead of ORB's default 31 keep most of the image.
+    orb = cv2.ORB_create(nfeatures=2000, edgeThreshold=15, patchSize=15)
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
+    features = [orb.detectAndCompute(img, None) for img in images]
+    rot, trans = [], []
+    for k in range(len(images) - 1):
+        (kp1, des1), (kp2, des2) = features[k], features[k + 1]
+        matches = matcher.match(des1, des2)
+        p1 = np.array([kp1[m.queryIdx].pt for m in matches], np.float64)
+        p2 = np.array([kp2[m.trainIdx].pt for m in matches], np.float64)
+        E, mask = cv2.findEssentialMat(p1, p2, K, method=cv2.RANSAC, prob=0.999, threshold=0.5)
+        _, R, t, _ = cv2.recoverPose(E[:3], p1, p2, K, mask=mask)
+        T_rel = np.linalg.inv(poses[k]) @ poses[k + 1]  # frame k+1 seen from frame k
+        R_true = T_rel[:3, :3].T  # recoverPose maps frame-k points to frame k+1: x2 = R x1 + t
+        t_true = -T_rel[:3, :3].T @ T_rel[:3, 3]
+        rot.append(angle_deg(R @ R_true.T))
+        cos = t.ravel() @ t_true / (np.linalg.norm(t) * np.linalg.norm(t_true))
+        trans.append(float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))))
+    return np.array(rot), np.array(trans)
+
+
+@pytest.mark.parametrize("sequence", GEOMETRY_SEQUENCES)
+def test_orb_essential_matrix_recovers_written_poses(dataset: Path, sequence: str) -> None:
+    rot, trans = relative_pose_errors(dataset, sequence)
+    report = (
+        f"{sequence}: median errors: rotation {np.median(rot):.3f} deg, direction {np.median(trans):.2f} deg"
+    )
+    print(report)
+    assert len(rot) == GEOMETRY_FRAMES - 1
+    assert np.median(rot) <= 0.3, report
+    assert np.median(trans) <= 5.0, report
+
+
+# --------------------------------------------------------------------------------------------------
+# 2. Layout and formats
+# --------------------------------------------------------------------------------------------------
+
+
+def test_layout_and_formats(dataset: Path) -> None:
+    h, w = synthetic.DEFAULT_HEIGHT, synthetic.DEFAULT_WIDTH
+    for seq in GEOMETRY_SEQUENCES:
+        seq_dir = dataset / "sequences" / seq
+        files = sorted((seq_dir / "image_2").glob("*.png"))
+        assert [f.name for f in files] == [f"{k:06d}.png" for k in range(GEOMETRY_FRAMES)]
+
+        lines = (dataset / "poses" / f"{seq}.txt").read_text().splitlines()
+        assert len(lines) == GEOMETRY_FRAMES and all(len(line.split()) == 12 for line in lines)
+        poses = read_poses(dataset / "poses" / f"{seq}.txt")
+        np.testing.assert_allclose(poses[0], np.eye(4), atol=1e-12)
+        R = poses[:, :3, :3]
+        np.testing.assert_allclose(R @ R.transpose(0, 2, 1), np.broadcast_to(np.eye(3), R.shape), atol=1e-8)
+        np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-8)
+
+        times = [float(v) for v in (seq_dir / "times.txt").read_text().split()]
+        np.testing.assert_allclose(times, np.arange(GEOMETRY_FRAMES) * 0.1, atol=1e-9)
+        assert (seq_dir / "times.txt").read_text().startswith("0.000000e+00\n1.000000e-01\n")
+
+        calib = read_calib(seq_dir / "calib.txt")
+        assert list(calib) == ["P0", "P1", "P2", "P3", "Tr"]
+        assert all(v.shape == (12,) for v in calib.values())
+        P2 = calib["P2"].reshape(3, 4)
+        np.testing.assert_allclose(P2[:, 3], 0.0)
+        np.testing.assert_allclose(P2[:, :3], synthetic.intrinsics(h, w))
+        assert abs(P2[0, 0] - 718.856 * w / 1241) < 1e-6 and abs(P2[1, 1] - 718.856 * h / 376) < 1e-6
+
+        for f in files[:: GEOMETRY_FRAMES // 4]:
+            img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+            assert img.shape == (h, w, 3) and img.dtype == np.uint8
+            assert img.std() > 20  # textured, not constant
+            assert np.abs(img[..., 0].astype(int) - img[..., 2]).mean() > 2  # colour, not grey
+
+    manifest = json.loads((dataset / synthetic.MANIFEST).read_text())
+    assert manifest["height"] == h and manifest["width"] == w and manifest["seed"] == 0
+    assert manifest["frames"] == dict.fromkeys(GEOMETRY_SEQUENCES, GEOMETRY_FRAMES)
+    assert not list(dataset.glob(".tmp*"))
+
+
+# --------------------------------------------------------------------------------------------------
+# 3. Determinism
+# --------------------------------------------------------------------------------------------------
+
+
+def tree_bytes(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def test_same_seed_same_bytes_and_sequences_differ(tmp_path: Path, dataset: Path) -> None:
+    a = synthetic.generate(tmp_path / "a", ["03"], 4, progress=False, workers=1)
+    b = synthetic.generate(tmp_path / "b", ["04", "03"], 4, progress=False, workers=2)  # in a worker process
+    assert tree_bytes(a / "sequences/03") == tree_bytes(b / "sequences/03")
+    assert (a / "poses/03.txt").read_bytes() == (b / "poses/03.txt").read_bytes()
+    c = synthetic.generate(tmp_path / "c", ["03"], 4, seed=1, progress=False, workers=1)
+    assert (c / "sequences/03/image_2/000000.png").read_bytes() != (
+        a / "sequences/03/image_2/000000.png"
+    ).read_bytes()
+
+    first = [cv2.imread(str(dataset / f"sequences/{s}/image_2/000000.png")) for s in GEOMETRY_SEQUENCES]
+    assert all(np.abs(x.astype(int) - y).mean() > 10 for x, y in itertools.pairwise(first))
+    routes = [read_poses(dataset / "poses" / f"{s}.txt")[:, :3, 3] for s in GEOMETRY_SEQUENCES]
+    assert all(np.abs(x - y).max() > 1.0 for x, y in itertools.pairwise(routes))
+
+
+# --------------------------------------------------------------------------------------------------
+# 4. Motion statistics
+# --------------------------------------------------------------------------------------------------
+
+
+def yaw_deg(poses: np.ndarray) -> np.ndarray:
+    """Heading (deg, unwrapped) of the camera's forward axis projected on the ground plane."""
+    return np.degrees(np.unwrap(np.arctan2(poses[:, 0, 2], poses[:, 2, 2])))
+
+
+def test_motion_statistics_of_the_default_routes(dataset: Path) -> None:
+    sharp = []
+    for seq, n in synthetic.DEFAULT_FRAMES.items():
+        poses = synthetic.sequence_route(seq, n)
+        steps = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)
+        assert 0.7 <= steps.mean() <= 1.3, (seq, steps.mean())
+        assert steps.min() > 0.3
+        height = synthetic.CAMERA_HEIGHT - poses[:, 1, 3]  # ground is y = +1.65, y points down
+        assert np.abs(height - 1.65).max() < 0.1
+        tilt = np.degrees(np.arccos(np.clip(poses[:, 1, 1], -1, 1)))  # camera y axis vs world down
+        assert tilt.max() < 2.5
+        yaw = yaw_deg(poses)
+        sharp.append(np.abs(yaw[20:] - yaw[:-20]).max() >= 60)
+    assert sum(sharp) >= len(sharp) // 2, sharp
+
+    for seq in GEOMETRY_SEQUENCES:  # the written poses are these routes
+        written = read_poses(dataset / "poses" / f"{seq}.txt")
+        np.testing.assert_allclose(written, synthetic.sequence_route(seq, GEOMETRY_FRAMES), atol=1e-6)
+    yaws = [yaw_deg(read_poses(dataset / "poses" / f"{s}.txt")) for s in GEOMETRY_SEQUENCES]
+    assert any(np.abs(y[20:] - y[:-20]).max() >= 60 for y in yaws)
+
+
+# --------------------------------------------------------------------------------------------------
+# 5. Command line
+# --------------------------------------------------------------------------------------------------
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "lossvo.data.synthetic", *args], capture_output=True, text=True
+    )
+
+
+def test_cli_writes_a_dataset(tmp_path: Path) -> None:
+    proc = run_cli("--out", str(tmp_path / "d"), "--sequences", "00", "--frames", "5", "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    assert len(list((tmp_path / "d/sequences/00/image_2").glob("*.png"))) == 5
+    assert len((tmp_path / "d/poses/00.txt").read_text().splitlines()) == 5
+    assert (tmp_path / "d" / synthetic.MANIFEST).is_file()
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--sequences", "0x"], "--sequences: expected two-digit sequence numbers like 00,07, got '0x'"),
+        (["--sequences", "00,7"], "--sequences: expected two-digit"),
+        (["--frames", "1"], "--frames: must be >= 2"),
+        (["--height", "16"], "--height: must be between 32"),
+        (["--width", "abc"], "--width"),
+    ],
+)
+def test_cli_bad_values_give_one_line_errors(tmp_path: Path, args: list[str], message: str) -> None:
+    proc = run_cli("--out", str(tmp_path / "d"), *args)
+    assert proc.returncode != 0
+    assert message in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert not (tmp_path / "d").exists()
+
+
+# --------------------------------------------------------------------------------------------------
+# 6. ensure_dataset and interrupted runs
+# --------------------------------------------------------------------------------------------------
+
+
+def test_ensure_dataset_generates_once_and_again_on_new_parameters(tmp_path: Path) -> None:
+    params = {"sequences": ["04"], "frames": 3, "progress": False, "workers": 1}
+    root = synthetic.ensure_dataset(tmp_path, **params)
+    manifest, image = root / synthetic.MANIFEST, root / "sequences/04/image_2/000000.png"
+    stamps = (manifest.stat().st_mtime_ns, image.stat().st_mtime_ns)
+
+    assert synthetic.ensure_dataset(tmp_path, **params) == root
+    assert (manifest.stat().st_mtime_ns, image.stat().st_mtime_ns) == stamps
+
+    synthetic.ensure_dataset(tmp_path, **{**params, "frames": 4})
+    assert len(list((root / "sequences/04/image_2").glob("*.png"))) == 4
+    assert json.loads(manifest.read_text())["frames"] == {"04": 4}
+    assert image.stat().st_mtime_ns != stamps[1]
+
+    synthetic.ensure_dataset(tmp_path, **{**params, "frames": 4, "height": 64, "width": 208})
+    assert cv2.imread(str(image)).shape == (64, 208, 3)
+
+
+def test_interrupted_run_leaves_no_complete_looking_sequence(tmp_path: Path, monkeypatch) -> None:
+    calls = []
+
+    def failing_render(self, T_w_c, rng):
+        calls.append(1)
+        if len(calls) > 2:
+            raise KeyboardInterrupt
+        return np.zeros((*self.size, 3), np.uint8)
+
+    monkeypatch.setattr(synthetic.Renderer, "render", failing_render)
+    with pytest.raises(KeyboardInterrupt):
+        synthetic.generate(tmp_path, ["05"], 4, progress=False, workers=1)
+    assert not (tmp_path / synthetic.MANIFEST).exists()
+    assert not (tmp_path / "sequences/05").exists() and not (tmp_path / "poses/05.txt").exists()
+    assert not list(tmp_path.glob(".tmp*"))
+    monkeypatch.undo()
+
+    synthetic.ensure_dataset(tmp_path, ["05"], 3, progress=False, workers=1)
+    assert len(list((tmp_path / "sequences/05/image_2").glob("*.png"))) == 3
+
+
+def test_bad_parameters_raise_value_errors(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="two-digit"):
+        synthetic.generate(tmp_path, ["7"], 3)
+    with pytest.raises(ValueError, match="frames"):
+        synthetic.generate(tmp_path, ["07"], 1)
+    with pytest.raises(ValueError, match="height"):
+        synthetic.generate(tmp_path, ["07"], 3, height=8)
+    assert not list(tmp_path.iterdir())

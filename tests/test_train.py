@@ -1,0 +1,97 @@
+"""Training: fast_dev_run per loss (in process), checkpoints reload, bad configs fail at start."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, open_dict
+
+from lossvo import train
+from lossvo.module import NonFiniteLossError, VOModule
+
+
+def tiny_overrides(root: Path, cache: Path) -> list[str]:
+    """The tiny synthetic dataset through the real KITTI reader, a very small DeepVO, CSV logging."""
+    return [
+        "data=kitti", f"data.root={root}", f"data.cache_dir={cache}", "data.train=[00,01]", "data.val=[02]",
+        "data.test=[02]", "data.height=64", "data.width=96", "data.seq_len=3", "data.batch_size=4",
+        "data.num_workers=0", "model.width_mult=0.0625", "model.hidden_size=16",
+        "trainer.log_every_n_steps=1",
+    ]  # fmt: skip
+
+
+def compose_train(overrides: list[str], out: Path) -> DictConfig:
+    """Compose conf/train.yaml as `python -m lossvo.train` would, with its output folder set to ``out``."""
+    with initialize_config_dir(config_dir=train.CONFIG_DIR, version_base="1.3"):
+        cfg = compose("train", overrides=overrides, return_hydra_config=True)
+    with open_dict(cfg):
+        cfg.hydra.runtime.output_dir = str(out)
+        cfg.hydra.job.num = 0
+    HydraConfig.instance().set_config(cfg)
+    with open_dict(cfg):
+        del cfg.hydra
+    return cfg
+
+
+@pytest.mark.parametrize("loss", ["euler", "quat", "chordal", "geodesic", "sixd"])
+def test_fast_dev_run_for_every_loss(tiny_kitti: Path, tmp_path: Path, loss: str) -> None:
+    overrides = [*tiny_overrides(tiny_kitti, tmp_path / "cache"), f"loss={loss}", "+trainer.fast_dev_run=1"]
+    cfg = compose_train(overrides, tmp_path / "run")
+    metrics = train.train(cfg)
+    assert {"train/loss", "val/loss", "val/rot_err_rad", "val/trans_err_m"} <= set(metrics)
+    assert all(torch.isfinite(torch.tensor(v)) for v in metrics.values())
+
+
+def test_checkpoint_reloads_with_weights_only(tiny_kitti: Path, tmp_path: Path) -> None:
+    overrides = [*tiny_overrides(tiny_kitti, tmp_path / "cache"), "loss=quat", "trainer.max_epochs=1"]
+    cfg = compose_train(overrides, tmp_path / "run")
+    train.train(cfg)
+    ckpt = tmp_path / "run" / "checkpoints" / "best.ckpt"
+    assert ckpt.is_file() and (tmp_path / "run" / "checkpoints" / "last.ckpt").is_file()
+    torch.load(ckpt, map_location="cpu")  # torch's default: weights_only=True
+    module = VOModule.load_from_checkpoint(ckpt, map_location="cpu", weights_only=True)
+    assert module.loss.dim == 7 and module.loss.k == 14.0
+    frames = torch.rand(2, 3, 3, 64, 96)
+    module.eval()
+    assert module(frames).shape == (2, 2, 7)
+    metrics_csv = tmp_path / "run" / "metrics.csv"
+    assert "val/rot_err_rad" in metrics_csv.read_text().splitlines()[0]
+
+
+def test_head_size_follows_the_loss(tiny_kitti: Path, tmp_path: Path) -> None:
+    for loss, dim in (("euler", 6), ("quat", 7), ("sixd", 9)):
+        cfg = compose_train([*tiny_overrides(tiny_kitti, tmp_path), f"loss={loss}"], tmp_path / "run")
+        assert cfg.model.out_dim == dim
+
+
+def test_non_finite_loss_names_step_batch_and_term(tiny_kitti: Path, tmp_path: Path) -> None:
+    overrides = [*tiny_overrides(tiny_kitti, tmp_path / "cache"), "loss=euler", "optimizer.lr=1e30",
+                 "trainer.max_epochs=3", "callbacks.model_checkpoint=null"]  # fmt: skip
+    cfg = compose_train(overrides, tmp_path / "run")
+    expected = r"non-finite loss at epoch \d+, global step \d+, batch \d+: trans_loss, rot_loss = nan"
+    with pytest.raises(NonFiniteLossError, match=expected):
+        train.train(cfg)
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("loss=eular", "Could not find 'loss/eular'"),
+        ("model=deepvo_tiny", "Could not find 'model/deepvo_tiny'"),
+        ("loss.kk=3", "Could not override 'loss.kk'"),
+        ("data.hieght=3", "Could not override 'data.hieght'"),
+    ],
+)
+def test_bad_names_fail_with_hydra_message(tmp_path: Path, override: str, message: str) -> None:
+    with pytest.raises(Exception, match=message):
+        compose_train([override], tmp_path)
+
+
+def test_callback_without_target_fails_before_training(tiny_kitti: Path, tmp_path: Path) -> None:
+    cfg = compose_train([*tiny_overrides(tiny_kitti, tmp_path), "+callbacks.oops.x=1"], tmp_path / "run")
+    with pytest.raises(ValueError, match=r"callbacks\.oops: expected a config with a _target_"):
+        train.build(cfg)
