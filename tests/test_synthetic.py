@@ -220,8 +220,10 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_cli_writes_a_dataset(tmp_path: Path) -> None:
-    proc = run_cli("--out", str(tmp_path / "d"), "--sequences", "00", "--frames", "5", "--quiet")
+    proc = run_cli("--out", str(tmp_path / "d"), "--sequences", "00", "--frames", "5")
     assert proc.returncode == 0, proc.stderr
+    size = sum(p.stat().st_size for p in (tmp_path / "d").rglob("*") if p.is_file() and p.suffix != ".json")
+    assert f"wrote {tmp_path / 'd'} in " in proc.stderr and f", {size / 1e6:.0f} MB" in proc.stderr
     assert len(list((tmp_path / "d/sequences/00/image_2").glob("*.png"))) == 5
     assert len((tmp_path / "d/poses/00.txt").read_text().splitlines()) == 5
     assert (tmp_path / "d" / synthetic.MANIFEST).is_file()

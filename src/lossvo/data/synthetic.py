@@ -1165,8 +1165,17 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     out = generate(args.out, counts, counts, args.height, args.width, args.seed, not args.quiet, args.workers)
     if not args.quiet:
-        print(f"synthetic: wrote {out} in {time.perf_counter() - start:.1f} s", file=sys.stderr)
+        size = dataset_size(out, counts)
+        elapsed = time.perf_counter() - start
+        print(f"synthetic: wrote {out} in {elapsed:.1f} s, {size / 1e6:.0f} MB", file=sys.stderr)
     return 0
+
+
+def dataset_size(root: Path, sequences: Iterable[str]) -> int:
+    """Bytes on disk of the given sequences' images, calibration, timestamps and pose files."""
+    files = [p for s in sequences for p in (root / "sequences" / s).rglob("*") if p.is_file()]
+    files += [root / "poses" / f"{s}.txt" for s in sequences]
+    return sum(p.stat().st_size for p in files if p.is_file())
 
 
 if __name__ == "__main__":
