@@ -114,9 +114,12 @@ def main() -> None:
     args = parser.parse_args()
     dataset = make_windows(args.windows)
     pairs = (args.epochs - 1) * args.windows * (dataset.tensors[0].shape[1] - 1)
-    params = sum(p.numel() for p in DeepVO(**{k: v for k, v in MODEL.items() if k != "_target_"}).parameters())
-    print(f"DeepVO {params / 1e6:.2f}M parameters, {args.windows} windows x 5 pairs, batch {args.batch_size}, "
-          f"{args.device}, torch {torch.__version__}, {torch.get_num_threads()} threads")  # fmt: skip
+    params = sum(
+        p.numel() for p in DeepVO(**{k: v for k, v in MODEL.items() if k != "_target_"}).parameters()
+    )
+    print(f"DeepVO {params / 1e6:.2f}M parameters, {args.windows} windows x 5 pairs, "
+          f"batch {args.batch_size}, {args.device}, torch {torch.__version__}, "
+          f"{torch.get_num_threads()} threads")  # fmt: skip
     bare = pairs / bare_seconds(dataset, args.epochs, args.batch_size, args.device)
     lightning = pairs / lightning_seconds(dataset, args.epochs, args.batch_size, args.device)
     print(f"bare PyTorch loop:      {bare:8.1f} pairs/s")

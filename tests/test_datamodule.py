@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 import torch
 
+from lossvo import geometry
 from lossvo.data import frame_cache, kitti
-from lossvo.data.datamodule import KittiDataModule, SyntheticDataModule, jitter
+from lossvo.data.datamodule import KittiDataModule, SyntheticDataModule, jitter, reverse_windows
 
 
 def make_dm(root: Path, cache: Path, **kwargs) -> KittiDataModule:
@@ -130,6 +131,41 @@ def test_augmentation_only_when_asked_and_only_in_training(tiny_kitti: Path, tmp
         assert torch.equal(frames, plain) != (augment and training)
 
 
+def test_windows_per_epoch_draws_a_fresh_subset(tiny_kitti: Path, tmp_path: Path) -> None:
+    dm = make_dm(tiny_kitti, tmp_path, windows_per_epoch=6, batch_size=2)
+    loader = dm.train_dataloader()
+    torch.manual_seed(0)
+    epochs = [torch.cat([targets for _, targets in loader]) for _ in range(2)]
+    assert [len(e) for e in epochs] == [6, 6]
+    assert not torch.equal(epochs[0], epochs[1])
+    assert len(make_dm(tiny_kitti, tmp_path, windows_per_epoch=1000).train_dataloader().sampler) == 14
+
+
+def test_reversed_windows_are_exact(tiny_kitti: Path) -> None:
+    poses = torch.from_numpy(kitti.read_poses(tiny_kitti / "poses" / "00.txt"))
+    frames = torch.arange(2 * 4).view(2, 4, 1, 1, 1).expand(2, 4, 3, 2, 2)  # frame index as pixel value
+    targets = torch.stack(
+        (geometry.consecutive_relative_poses(poses[0:4]), geometry.consecutive_relative_poses(poses[4:8]))
+    )
+    out_frames, out_targets = reverse_windows(frames, targets, torch.tensor([True, False]))
+    assert out_frames[0, :, 0, 0, 0].tolist() == [3, 2, 1, 0] and torch.equal(out_frames[1], frames[1])
+    # backwards, pair k goes from frame 3-k to frame 2-k: inv(T_w_{3-k}) @ T_w_{2-k}
+    expected = geometry.consecutive_relative_poses(poses[0:4].flip(0))
+    # (pose_inverse transposes R; the file's rotations are orthonormal to its 9 digits)
+    torch.testing.assert_close(out_targets[0], expected, atol=1e-9, rtol=0)
+    assert torch.equal(out_targets[1], targets[1])
+
+
+def test_reverse_only_in_training(tiny_kitti: Path, tmp_path: Path) -> None:
+    batch = next(iter(make_dm(tiny_kitti, tmp_path).val_dataloader()))
+    dm = make_dm(tiny_kitti, tmp_path, reverse=1.0)
+    dm.trainer = SimpleNamespace(training=True)
+    frames, _ = dm.on_after_batch_transfer(batch, 0)
+    torch.testing.assert_close(frames, dm.normalize(batch[0].flip(1)))
+    dm.trainer = SimpleNamespace(training=False)
+    assert torch.equal(dm.on_after_batch_transfer(batch, 0)[1], batch[1])
+
+
 def test_jitter_is_one_draw_per_window() -> None:
     frames = torch.full((4, 3, 3, 8, 8), 100.0)
     out = jitter(frames, torch.Generator().manual_seed(0))
@@ -170,6 +206,8 @@ def test_missing_sequence_is_named(tiny_kitti: Path, tmp_path: Path) -> None:
         ({"stride": 0}, r"data\.stride: expected an integer >= 1"),
         ({"normalization": "imagenet"}, r"data\.normalization: expected one of"),
         ({"train": []}, r"data\.train: expected at least one"),
+        ({"reverse": 1.5}, r"data\.reverse: expected a probability in \[0, 1\]"),
+        ({"windows_per_epoch": 0}, r"data\.windows_per_epoch: expected null or an integer >= 1"),
     ],
 )
 def test_bad_settings(tiny_kitti: Path, tmp_path: Path, kwargs: dict, message: str) -> None:

@@ -28,8 +28,9 @@ import lightning as L
 import numpy as np
 import torch
 from filelock import FileLock
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import DataLoader, Dataset, RandomSampler, Sampler
 
+from lossvo import geometry
 from lossvo.atomic import write_text_atomic
 from lossvo.data import frame_cache, synthetic
 from lossvo.data.kitti import Sequence, find_root, load_sequence
@@ -101,6 +102,25 @@ class WindowDataset(Dataset):
         return window, self.targets[seq][start : start + self.seq_len - 1]
 
 
+def reverse_windows(
+    frames: torch.Tensor, targets: torch.Tensor, which: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Play the selected windows backwards: frames in reverse order, and as targets the inverse
+    relative poses in reverse order (frame k seen from frame k+1), which is exact.
+
+    Args:
+        frames: (B, L, 3, H, W); targets: (B, L-1, 4, 4); which: (B,) bool, the windows to reverse.
+    Returns:
+        frames, targets of the same shapes.
+    """
+    which = which.to(frames.device)
+    backwards_targets = geometry.pose_inverse(targets).flip(1)
+    return (
+        torch.where(which.view(-1, 1, 1, 1, 1), frames.flip(1), frames),
+        torch.where(which.view(-1, 1, 1, 1), backwards_targets, targets),
+    )
+
+
 def jitter(frames: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
     """Brightness and contrast jitter, one draw per window (keeps the window's pairs consistent).
 
@@ -122,10 +142,14 @@ class KittiDataModule(L.LightningDataModule):
         height, width: frame size in pixels after resizing (area interpolation).
         seq_len: frames per window (``seq_len - 1`` frame pairs).
         stride: frames between the starts of consecutive training windows.
+        windows_per_epoch: if set, each epoch trains on this many windows drawn at random (without
+            replacement) from all training windows: short epochs that still see every part of the data.
         batch_size, num_workers: DataLoader settings.
         cache_dir: where frames are cached; default ``$LOSSVO_CACHE`` or ``~/.cache/lossvo``.
         normalization: ``"dataset"`` (per-channel mean/std of the training sequences) or ``"flownet"``.
         augment: photometric jitter on training windows.
+        reverse: probability of playing a training window backwards (frames in reverse order, targets
+            the inverse relative poses in reverse order): exact geometry, twice the motions.
     """
 
     def __init__(
@@ -143,7 +167,9 @@ class KittiDataModule(L.LightningDataModule):
         cache_dir: str | None = None,
         normalization: str = "dataset",
         augment: bool = False,
+        reverse: float = 0.0,
         pin_memory: bool = False,
+        windows_per_epoch: int | None = None,
     ) -> None:
         super().__init__()
         self.root = Path(root).expanduser()
@@ -165,8 +191,17 @@ class KittiDataModule(L.LightningDataModule):
             raise ValueError("data.train: expected at least one training sequence")
         self.height, self.width, self.seq_len, self.stride = height, width, seq_len, stride
         self.batch_size, self.num_workers, self.pin_memory = batch_size, num_workers, pin_memory
+        if windows_per_epoch is not None and (
+            not isinstance(windows_per_epoch, int) or windows_per_epoch < 1
+        ):
+            raise ValueError(
+                f"data.windows_per_epoch: expected null or an integer >= 1, got {windows_per_epoch!r}"
+            )
+        self.windows_per_epoch = windows_per_epoch
         self.cache_dir = Path(cache_dir).expanduser() if cache_dir else frame_cache.default_cache_dir()
-        self.normalization, self.augment = normalization, augment
+        if not 0.0 <= reverse <= 1.0:
+            raise ValueError(f"data.reverse: expected a probability in [0, 1], got {reverse!r}")
+        self.normalization, self.augment, self.reverse = normalization, augment, float(reverse)
         self.sequences: dict[str, Sequence] = {}
         self.mean = self.std = None
         self.datasets: dict[str, WindowDataset] = {}
@@ -242,20 +277,23 @@ class KittiDataModule(L.LightningDataModule):
 
     # -- loaders --------------------------------------------------------------------------------------
 
-    def _loader(self, split: str, shuffle: bool) -> DataLoader:
+    def _loader(self, split: str, sampler: Sampler | None = None) -> DataLoader:
         return DataLoader(
-            self.datasets[split], batch_size=self.batch_size, shuffle=shuffle, num_workers=self.num_workers,
+            self.datasets[split], batch_size=self.batch_size, sampler=sampler, num_workers=self.num_workers,
             pin_memory=self.pin_memory, persistent_workers=self.num_workers > 0,
         )  # fmt: skip
 
     def train_dataloader(self) -> DataLoader:
-        return self._loader("train", shuffle=True)
+        """Shuffled training windows; with ``windows_per_epoch``, a fresh random subset every epoch."""
+        dataset = self.datasets["train"]
+        count = min(self.windows_per_epoch or len(dataset), len(dataset))
+        return self._loader("train", RandomSampler(dataset, num_samples=count))
 
     def val_dataloader(self) -> DataLoader:
-        return self._loader("val", shuffle=False)
+        return self._loader("val")
 
     def test_dataloader(self) -> DataLoader:
-        return self._loader("test", shuffle=False)
+        return self._loader("test")
 
     # -- whole sequences (evaluation) -----------------------------------------------------------------
 
@@ -266,9 +304,13 @@ class KittiDataModule(L.LightningDataModule):
         return frames.float().mul_(1.0 / (255.0 * std)).sub_(mean / std)  # in place: one pass less
 
     def on_after_batch_transfer(self, batch: tuple[torch.Tensor, torch.Tensor], dataloader_idx: int):
-        """On the training device: uint8 windows -> normalised float32, jittered when augmenting."""
+        """On the training device: uint8 windows -> normalised float32; when training, jittered
+        (``augment``) and played backwards (``reverse``)."""
         frames, targets = batch
-        if self.augment and self.trainer is not None and self.trainer.training:
+        training = self.trainer is not None and self.trainer.training
+        if training and self.reverse > 0:
+            frames, targets = reverse_windows(frames, targets, torch.rand(frames.shape[0]) < self.reverse)
+        if training and self.augment:
             frames = jitter(frames.float()).round()
         return self.normalize(frames), targets
 
