@@ -193,6 +193,13 @@ def test_truncated_png_fails_before_training(kitti_copy: Path, tmp_path: Path) -
         make_dm(kitti_copy, tmp_path)
 
 
+def test_undecodable_png_fails_before_training(kitti_copy: Path, tmp_path: Path) -> None:
+    path = kitti_copy / "sequences" / "00" / "image_2" / "000001.png"
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + b"garbage" * 50 + b"\x00\x00\x00\x00IEND\xaeB`\x82")
+    with pytest.raises(kitti.KittiFormatError, match=r"000001\.png: unreadable image"):
+        make_dm(kitti_copy, tmp_path)
+
+
 def test_missing_sequence_is_named(tiny_kitti: Path, tmp_path: Path) -> None:
     with pytest.raises(kitti.KittiFormatError, match=r"sequence '05' not found"):
         make_dm(tiny_kitti, tmp_path, val=["05"])

@@ -34,7 +34,7 @@ EULER_CONVENTION = "YXZ"
 _SQRT2 = math.sqrt(2.0)
 
 
-def _check_shape(x: Tensor, tail: tuple[int, ...], name: str) -> None:
+def check_shape(x: Tensor, tail: tuple[int, ...], name: str) -> None:
     """Raise a ValueError unless ``x`` has shape ``(..., *tail)``."""
     if x.dim() < len(tail) or tuple(x.shape[x.dim() - len(tail) :]) != tail:
         expected = "(..., " + ", ".join(map(str, tail)) + ")"
@@ -54,7 +54,7 @@ def hat(v: Tensor) -> Tensor:
     Returns:
         (..., 3, 3) skew-symmetric matrices.
     """
-    _check_shape(v, (3,), "v")
+    check_shape(v, (3,), "v")
     x, y, z = v.unbind(-1)
     zero = torch.zeros_like(x)
     rows = (zero, -z, y, z, zero, -x, -y, x, zero)
@@ -69,7 +69,7 @@ def vee(W: Tensor) -> Tensor:
     Returns:
         (..., 3) vectors.
     """
-    _check_shape(W, (3, 3), "W")
+    check_shape(W, (3, 3), "W")
     return 0.5 * torch.stack(
         (W[..., 2, 1] - W[..., 1, 2], W[..., 0, 2] - W[..., 2, 0], W[..., 1, 0] - W[..., 0, 1]), dim=-1
     )
@@ -83,7 +83,7 @@ def so3_exp(omega: Tensor) -> Tensor:
     Returns:
         (..., 3, 3) rotation matrices.
     """
-    _check_shape(omega, (3,), "omega")
+    check_shape(omega, (3,), "omega")
     return roma.rotvec_to_rotmat(omega)
 
 
@@ -97,7 +97,7 @@ def so3_log(R: Tensor) -> Tensor:
     Returns:
         (..., 3) rotation vectors.
     """
-    _check_shape(R, (3, 3), "R")
+    check_shape(R, (3, 3), "R")
     return roma.rotmat_to_rotvec(R)
 
 
@@ -167,7 +167,7 @@ def so3_left_jacobian(omega: Tensor) -> Tensor:
     Returns:
         (..., 3, 3) matrices.
     """
-    _check_shape(omega, (3,), "omega")
+    check_shape(omega, (3,), "omega")
     b, c, _ = _v_coefficients((omega * omega).sum(-1))
     W = hat(omega)
     eye = torch.eye(3, dtype=omega.dtype, device=omega.device)
@@ -182,7 +182,7 @@ def so3_left_jacobian_inv(omega: Tensor) -> Tensor:
     Returns:
         (..., 3, 3) matrices.
     """
-    _check_shape(omega, (3,), "omega")
+    check_shape(omega, (3,), "omega")
     _, _, d = _v_coefficients((omega * omega).sum(-1))
     W = hat(omega)
     eye = torch.eye(3, dtype=omega.dtype, device=omega.device)
@@ -199,7 +199,7 @@ def se3_exp(xi: Tensor) -> Tensor:
     Returns:
         (..., 4, 4) poses.
     """
-    _check_shape(xi, (6,), "xi")
+    check_shape(xi, (6,), "xi")
     rho, omega = xi[..., :3], xi[..., 3:]
     t = (so3_left_jacobian(omega) @ rho[..., None])[..., 0]
     return make_pose(so3_exp(omega), t)
@@ -213,7 +213,7 @@ def se3_log(T: Tensor) -> Tensor:
     Returns:
         (..., 6) twists ``(rho, omega)``.
     """
-    _check_shape(T, (4, 4), "T")
+    check_shape(T, (4, 4), "T")
     omega = so3_log(T[..., :3, :3])
     rho = (so3_left_jacobian_inv(omega) @ T[..., :3, 3:])[..., 0]
     return torch.cat((rho, omega), dim=-1)
@@ -232,7 +232,7 @@ def euler_to_matrix(angles: Tensor) -> Tensor:
     Returns:
         (..., 3, 3) rotation matrices.
     """
-    _check_shape(angles, (3,), "angles")
+    check_shape(angles, (3,), "angles")
     return roma.euler_to_rotmat(EULER_CONVENTION, angles)
 
 
@@ -245,7 +245,7 @@ def matrix_to_euler(R: Tensor) -> Tensor:
         (..., 3) ``(yaw, pitch, roll)`` with yaw, roll in [-pi, pi] and pitch in [-pi/2, pi/2]
         (at pitch = +-pi/2, gimbal lock, roll is set to 0).
     """
-    _check_shape(R, (3, 3), "R")
+    check_shape(R, (3, 3), "R")
     return roma.rotmat_to_euler(EULER_CONVENTION, R)
 
 
@@ -257,7 +257,7 @@ def quat_canonical(q: Tensor) -> Tensor:
     Returns:
         (..., 4) quaternions with non-negative w.
     """
-    _check_shape(q, (4,), "q")
+    check_shape(q, (4,), "q")
     return torch.where(q[..., :1] < 0, -q, q)
 
 
@@ -273,7 +273,7 @@ def quat_normalize(q: Tensor, eps: float = 1e-8) -> Tensor:
     Returns:
         (..., 4) unit quaternions.
     """
-    _check_shape(q, (4,), "q")
+    check_shape(q, (4,), "q")
     norm = torch.linalg.vector_norm(q, dim=-1, keepdim=True)
     identity = torch.zeros_like(q)
     identity[..., 0] = 1.0
@@ -288,7 +288,7 @@ def quat_to_matrix(q: Tensor) -> Tensor:
     Returns:
         (..., 3, 3) rotation matrices.
     """
-    _check_shape(q, (4,), "q")
+    check_shape(q, (4,), "q")
     return roma.unitquat_to_rotmat(roma.quat_wxyz_to_xyzw(q))
 
 
@@ -300,7 +300,7 @@ def matrix_to_quat(R: Tensor) -> Tensor:
     Returns:
         (..., 4) unit quaternions ``(w, x, y, z)``.
     """
-    _check_shape(R, (3, 3), "R")
+    check_shape(R, (3, 3), "R")
     return quat_canonical(roma.quat_xyzw_to_wxyz(roma.rotmat_to_unitquat(R)))
 
 
@@ -313,7 +313,7 @@ def sixd_to_matrix(x: Tensor, eps: float = 1e-12) -> Tensor:
     Returns:
         (..., 3, 3) rotation matrices whose first column is ``c1 / |c1|``.
     """
-    _check_shape(x, (6,), "x")
+    check_shape(x, (6,), "x")
     return roma.special_gramschmidt(torch.stack((x[..., :3], x[..., 3:]), dim=-1), epsilon=eps)
 
 
@@ -325,7 +325,7 @@ def matrix_to_sixd(R: Tensor) -> Tensor:
     Returns:
         (..., 6) ``(c1, c2)``.
     """
-    _check_shape(R, (3, 3), "R")
+    check_shape(R, (3, 3), "R")
     return torch.cat((R[..., :, 0], R[..., :, 1]), dim=-1)
 
 
@@ -337,7 +337,7 @@ def orthonormalize(R: Tensor) -> Tensor:
     Returns:
         (..., 3, 3) rotation matrices.
     """
-    _check_shape(R, (3, 3), "R")
+    check_shape(R, (3, 3), "R")
     return roma.special_procrustes(R)
 
 
@@ -355,8 +355,8 @@ def make_pose(R: Tensor, t: Tensor) -> Tensor:
     Returns:
         (..., 4, 4) poses.
     """
-    _check_shape(R, (3, 3), "R")
-    _check_shape(t, (3,), "t")
+    check_shape(R, (3, 3), "R")
+    check_shape(t, (3,), "t")
     top = torch.cat((R, t[..., None]), dim=-1)
     bottom = torch.zeros_like(top[..., :1, :])
     bottom[..., 0, 3] = 1.0
@@ -371,7 +371,7 @@ def pose_inverse(T: Tensor) -> Tensor:
     Returns:
         (..., 4, 4) inverse poses.
     """
-    _check_shape(T, (4, 4), "T")
+    check_shape(T, (4, 4), "T")
     Rt = T[..., :3, :3].transpose(-1, -2)
     return make_pose(Rt, -(Rt @ T[..., :3, 3:])[..., 0])
 
@@ -384,8 +384,8 @@ def compose(T_a: Tensor, T_b: Tensor) -> Tensor:
     Returns:
         (..., 4, 4) poses.
     """
-    _check_shape(T_a, (4, 4), "T_a")
-    _check_shape(T_b, (4, 4), "T_b")
+    check_shape(T_a, (4, 4), "T_a")
+    check_shape(T_b, (4, 4), "T_b")
     return T_a @ T_b
 
 
@@ -397,8 +397,8 @@ def relative_pose(T_a: Tensor, T_b: Tensor) -> Tensor:
     Returns:
         (..., 4, 4) relative poses in the promoted dtype of the inputs.
     """
-    _check_shape(T_a, (4, 4), "T_a")
-    _check_shape(T_b, (4, 4), "T_b")
+    check_shape(T_a, (4, 4), "T_a")
+    check_shape(T_b, (4, 4), "T_b")
     out_dtype = torch.promote_types(T_a.dtype, T_b.dtype)
     return (pose_inverse(T_a.double()) @ T_b.double()).to(out_dtype)
 
@@ -411,7 +411,7 @@ def consecutive_relative_poses(T_w: Tensor) -> Tensor:
     Returns:
         (..., N-1, 4, 4) relative poses in the dtype of ``T_w``.
     """
-    _check_shape(T_w, (4, 4), "T_w")
+    check_shape(T_w, (4, 4), "T_w")
     if T_w.dim() < 3:
         raise ValueError(f"T_w must have shape (..., N, 4, 4), got {tuple(T_w.shape)}")
     return relative_pose(T_w[..., :-1, :, :], T_w[..., 1:, :, :])
@@ -434,7 +434,7 @@ def rotation_angle(R: Tensor) -> Tensor:
     Returns:
         (...) angles in radians.
     """
-    _check_shape(R, (3, 3), "R")
+    check_shape(R, (3, 3), "R")
     sin_2sqrt2 = torch.linalg.matrix_norm(R - R.transpose(-1, -2))
     trace = R.diagonal(dim1=-2, dim2=-1).sum(-1)
     return torch.atan2(sin_2sqrt2, _SQRT2 * (trace - 1.0))
@@ -448,8 +448,8 @@ def so3_geodesic_distance(R_a: Tensor, R_b: Tensor) -> Tensor:
     Returns:
         (...) angles in radians.
     """
-    _check_shape(R_a, (3, 3), "R_a")
-    _check_shape(R_b, (3, 3), "R_b")
+    check_shape(R_a, (3, 3), "R_a")
+    check_shape(R_b, (3, 3), "R_b")
     return rotation_angle(R_a.transpose(-1, -2) @ R_b)
 
 
@@ -461,8 +461,8 @@ def so3_chordal_distance(R_a: Tensor, R_b: Tensor) -> Tensor:
     Returns:
         (...) distances.
     """
-    _check_shape(R_a, (3, 3), "R_a")
-    _check_shape(R_b, (3, 3), "R_b")
+    check_shape(R_a, (3, 3), "R_a")
+    check_shape(R_b, (3, 3), "R_b")
     return torch.linalg.matrix_norm(R_a - R_b)
 
 
@@ -476,8 +476,8 @@ def euler_distance(a: Tensor, b: Tensor) -> Tensor:
     Returns:
         (...) distances.
     """
-    _check_shape(a, (3,), "a")
-    _check_shape(b, (3,), "b")
+    check_shape(a, (3,), "a")
+    check_shape(b, (3,), "b")
     return torch.linalg.vector_norm(a - b, dim=-1)
 
 
@@ -489,8 +489,8 @@ def quat_distance(q_a: Tensor, q_b: Tensor) -> Tensor:
     Returns:
         (...) distances; NaN in, NaN out.
     """
-    _check_shape(q_a, (4,), "q_a")
-    _check_shape(q_b, (4,), "q_b")
+    check_shape(q_a, (4,), "q_a")
+    check_shape(q_b, (4,), "q_b")
     return torch.minimum(
         torch.linalg.vector_norm(q_a - q_b, dim=-1), torch.linalg.vector_norm(q_a + q_b, dim=-1)
     )
@@ -508,8 +508,8 @@ def se3_chordal_distance(T_a: Tensor, T_b: Tensor, weight: float = 1.0) -> Tenso
     Returns:
         (...) distances.
     """
-    _check_shape(T_a, (4, 4), "T_a")
-    _check_shape(T_b, (4, 4), "T_b")
+    check_shape(T_a, (4, 4), "T_a")
+    check_shape(T_b, (4, 4), "T_b")
     if not weight >= 0:
         raise ValueError(f"weight must be >= 0, got {weight}")
     dt = T_a[..., :3, 3] - T_b[..., :3, 3]

@@ -1,0 +1,117 @@
+"""Trajectories: chaining relative poses into absolute ones, and TUM pose files.
+
+KITTI pose files are read and written by :mod:`lossvo.data.kitti` (``read_poses``, ``write_poses``).
+
+Chaining ``T_w_{k+1} = T_w_k @ T_k`` is a prefix product. Instead of a Python loop over N poses it is
+computed as a parallel (Hillis-Steele) scan: log2(N) batched matrix products, each over all poses at
+once, in float64, with the rotations re-orthonormalised after every level so that rounding never
+accumulates into non-rotations.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import roma
+import torch
+from torch import Tensor
+
+from lossvo import geometry
+from lossvo.atomic import write_text_atomic
+from lossvo.data.kitti import KittiFormatError
+
+
+def integrate(relative: Tensor, start: Tensor | None = None) -> Tensor:
+    """Absolute poses from relative ones: ``T_w_0 = start``, ``T_w_{k+1} = T_w_k @ T_k``.
+
+    Args:
+        relative: (N-1, 4, 4) relative poses ``T_k`` (frame k+1 seen from frame k).
+        start: (4, 4) first camera-to-world pose (e.g. the ground truth's first); default identity.
+    Returns:
+        (N, 4, 4) float64 camera-to-world poses with orthonormal rotations.
+    """
+    geometry.check_shape(relative, (4, 4), "relative")
+    if relative.dim() != 3:
+        raise ValueError(f"relative must have shape (N-1, 4, 4), got {tuple(relative.shape)}")
+    first = torch.eye(4, dtype=torch.float64, device=relative.device) if start is None else start.double()
+    geometry.check_shape(first, (4, 4), "start")
+    prefix = torch.cat((first[None], relative.double()))
+    shift = 1
+    while shift < len(prefix):  # log2(N) levels, each one batched product over all poses
+        combined = prefix[:-shift] @ prefix[shift:]
+        prefix = torch.cat((prefix[:shift], _reorthonormalize(combined)))
+        shift *= 2
+    return prefix
+
+
+def _reorthonormalize(T: Tensor) -> Tensor:
+    """(..., 4, 4) poses with their rotation blocks projected back onto SO(3)."""
+    return geometry.make_pose(geometry.orthonormalize(T[..., :3, :3]), T[..., :3, 3])
+
+
+# --------------------------------------------------------------------------------------------------
+# TUM files: "timestamp tx ty tz qx qy qz qw" per line
+# --------------------------------------------------------------------------------------------------
+
+
+def read_tum(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Read a TUM trajectory file (comment lines start with '#').
+
+    Returns:
+        times (N,) seconds and poses (N, 4, 4) float64 camera-to-world.
+    Raises:
+        KittiFormatError: naming the file and line for a line without 8 numbers or a zero quaternion.
+    """
+    path = Path(path)
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as e:
+        raise KittiFormatError(f"{path}: cannot read TUM file ({e.strerror})") from None
+    rows, numbers = [], []
+    for i, line in enumerate(lines, start=1):
+        if line.strip() and not line.lstrip().startswith("#"):
+            rows.append(i)
+            numbers.append(_tum_numbers(path, i, line))
+    if not rows:
+        raise KittiFormatError(f"{path}: no poses (expected lines 'timestamp tx ty tz qx qy qz qw')")
+    values = np.array(numbers)
+    norms = np.linalg.norm(values[:, 4:], axis=1)
+    if (bad := np.flatnonzero(norms < 1e-6)).size:
+        raise KittiFormatError(f"{path}:{rows[bad[0]]}: quaternion (qx qy qz qw) has zero norm")
+    quat_xyzw = torch.from_numpy(values[:, 4:] / norms[:, None])
+    R = roma.unitquat_to_rotmat(quat_xyzw)
+    poses = geometry.make_pose(R, torch.from_numpy(values[:, 1:4])).numpy()
+    return values[:, 0], poses
+
+
+def _tum_numbers(path: Path, line_no: int, line: str) -> list[float]:
+    fields = line.split()
+    try:
+        values = [float(v) for v in fields]
+    except ValueError:
+        values = []
+    if len(fields) != 8 or len(values) != 8 or not np.isfinite(values).all():
+        raise KittiFormatError(
+            f"{path}:{line_no}: expected 8 finite numbers 'timestamp tx ty tz qx qy qz qw', "
+            f"got {line.strip()!r}"
+        )
+    return values
+
+
+def write_tum(path: str | os.PathLike, times: np.ndarray | Tensor, poses: np.ndarray | Tensor) -> None:
+    """Write a TUM trajectory file atomically.
+
+    Args:
+        times: (N,) seconds.
+        poses: (N, 4, 4) camera-to-world poses.
+    """
+    poses_t = torch.as_tensor(np.asarray(poses, dtype=np.float64))
+    geometry.check_shape(poses_t, (4, 4), "poses")
+    times = np.asarray(times, dtype=np.float64).reshape(-1)
+    if poses_t.dim() != 3 or len(times) != len(poses_t):
+        raise ValueError(f"times {times.shape} and poses {tuple(poses_t.shape)} must be (N,) and (N, 4, 4)")
+    quat_xyzw = roma.rotmat_to_unitquat(geometry.orthonormalize(poses_t[:, :3, :3])).numpy()
+    table = np.column_stack((times, poses_t[:, :3, 3].numpy(), quat_xyzw))
+    write_text_atomic(Path(path), "\n".join(" ".join(f"{v:.9f}" for v in row) for row in table) + "\n")
