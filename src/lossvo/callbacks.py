@@ -2,6 +2,8 @@
 
 - :func:`progress` picks Lightning's Rich progress bar on a terminal and, when output goes to a file or
   a cluster log (no TTY), one plain summary line per epoch instead of thousands of redrawn bars.
+- :class:`TrajectoryValidation` integrates the whole validation sequences during fit and logs trajectory
+  errors (APE / RPE / KITTI), the numbers the study compares, next to the per-window losses.
 """
 
 from __future__ import annotations
@@ -11,7 +13,10 @@ import sys
 import time
 
 import lightning as L
+import torch
 from lightning.pytorch.callbacks import Callback, RichProgressBar
+
+from lossvo import metrics
 
 log = logging.getLogger("lossvo")
 
@@ -36,3 +41,69 @@ def progress(rich_on_tty: bool = True) -> Callback:
     if rich_on_tty and sys.stdout.isatty():
         return RichProgressBar()
     return EpochSummary()
+
+
+class TrajectoryValidation(Callback):
+    """Every ``every_n_epochs`` epochs, integrate the validation sequences and log trajectory errors.
+
+    Each validation sequence goes through :func:`lossvo.eval.predict_sequence` (eval mode, windows as in
+    training) and is chained from its first ground-truth pose; the errors are pooled over all validation
+    sequences and logged (so they land in ``metrics.csv``) as ``val/ape_trans_rmse``,
+    ``val/rpe_trans_rmse``, ``val/rpe_rot_rmse`` and, where the sequences hold at least one 100 m
+    segment, ``val/kitti_t_err`` (%) and ``val/kitti_r_err`` (deg / 100 m); without a segment those two are
+    not logged (never 0).
+
+    It uses ``trainer.datamodule`` and does nothing for a datamodule without ``sequence_frames``,
+    ``sequence_poses`` and ``normalize`` (e.g. a benchmark's dummy data), and nothing during the sanity
+    check.
+
+    Args:
+        every_n_epochs: run after the validation of every n-th epoch (>= 1).
+        align: APE alignment (:func:`lossvo.metrics.align`).
+        delta: RPE delta in frames.
+    """
+
+    def __init__(self, every_n_epochs: int = 1, align: metrics.AlignMode = "none", delta: int = 1) -> None:
+        if isinstance(every_n_epochs, bool) or not isinstance(every_n_epochs, int) or every_n_epochs < 1:
+            raise ValueError(f"every_n_epochs: expected an integer >= 1, got {every_n_epochs!r}")
+        self.every_n_epochs, self.align, self.delta = every_n_epochs, align, delta
+
+    @staticmethod
+    def _usable(datamodule: object) -> bool:
+        needed = ("sequence_frames", "sequence_poses", "normalize", "seq_len", "splits")
+        return datamodule is not None and all(hasattr(datamodule, name) for name in needed)
+
+    def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if trainer.sanity_checking or (trainer.current_epoch + 1) % self.every_n_epochs:
+            return
+        datamodule = trainer.datamodule
+        if not self._usable(datamodule) or not datamodule.splits.get("val"):
+            return
+        from lossvo.eval import predict_sequence
+        from lossvo.trajectory import integrate
+
+        ape, rpe = metrics.APE(align=self.align), metrics.RPE(delta=self.delta)
+        kitti = metrics.KittiOdometryError()
+        for name in datamodule.splits["val"]:
+            gt = datamodule.sequence_poses(name)
+            if gt is None:
+                continue
+            relative = predict_sequence(pl_module, datamodule.sequence_frames(name), datamodule.normalize,
+                                        datamodule.seq_len)  # fmt: skip
+            gt = torch.as_tensor(gt, dtype=torch.float64)
+            est = integrate(torch.from_numpy(relative), start=gt[0])
+            for metric in (ape, rpe, kitti):
+                metric.update(est, gt)
+        if not ape.trans:
+            return
+        ape_out, rpe_out, kitti_out = ape.compute(), rpe.compute(), kitti.compute()
+        values = {
+            "val/ape_trans_rmse": ape_out["trans"]["rmse"],
+            "val/rpe_trans_rmse": rpe_out["trans"]["rmse"],
+            "val/rpe_rot_rmse": rpe_out["rot_rad"]["rmse"],
+        }
+        if kitti_out["t_err_pct"] is not None:
+            values["val/kitti_t_err"] = kitti_out["t_err_pct"]
+            values["val/kitti_r_err"] = kitti_out["r_err_deg_per_100m"]
+        for key, value in values.items():
+            pl_module.log(key, torch.tensor(value, dtype=torch.float32), on_step=False, on_epoch=True)

@@ -55,6 +55,13 @@ class VOModule(L.LightningModule):
         """Relative poses (..., 4, 4) from network outputs (..., dim)."""
         return self.loss.decode(pred)
 
+    def predict_sequence(self, frames: Any, normalize: Any, seq_len: int, **kwargs: Any) -> Any:
+        """Relative poses (N-1, 4, 4) float64 of a whole sequence of uint8 frames (N, 3, H, W); see
+        :func:`lossvo.eval.predict_sequence` (eval mode, windows as in training, LSTM reset per window)."""
+        from lossvo.eval import predict_sequence
+
+        return predict_sequence(self, frames, normalize, seq_len, **kwargs)
+
     # -- steps ----------------------------------------------------------------------------------------
 
     def _step(self, batch: tuple[Tensor, Tensor], batch_idx: int, stage: str) -> Tensor:

@@ -8,7 +8,11 @@ Examples::
     python -m lossvo.train experiment=paper data.root=/data/kitti trainer=gpu
 
 A run writes to ``outputs/runs/<time>/``, a sweep job to ``outputs/multirun/<time>/<num>_<overrides>/``:
-the resolved config (``.hydra/``), ``checkpoints/`` (best on ``val/loss`` and last), ``metrics.csv``.
+the resolved config (``.hydra/``), ``checkpoints/`` (best on ``val/loss`` and last), ``metrics.csv``,
+and, from the best checkpoint evaluated on the test sequences after fitting
+(:func:`lossvo.eval.evaluate_run`), ``results.json``, ``trajectories/NN.txt`` and ``plots/NN.png``.
+``+evaluate=false`` skips that evaluation (it is also skipped for ``trainer.fast_dev_run``, which saves no
+checkpoint).
 Everything (data, network, loss, loggers, callbacks, trainer) is instantiated before training starts,
 so a wrong name or argument fails at once with Hydra's or the class's message.
 """
@@ -24,7 +28,7 @@ import hydra
 import lightning as L
 from hydra.core.hydra_config import HydraConfig
 from hydra.utils import get_class, instantiate
-from lightning.pytorch.callbacks import Callback, ProgressBar
+from lightning.pytorch.callbacks import Callback, ModelCheckpoint, ProgressBar
 from lightning.pytorch.loggers import Logger, WandbLogger
 from omegaconf import DictConfig, OmegaConf
 
@@ -112,9 +116,36 @@ def train(cfg: DictConfig) -> dict[str, float]:
         logger.log_hyperparams(resolved)
     try:
         trainer.fit(module, datamodule=datamodule, ckpt_path=cfg.get("ckpt_path"))
+        metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
+        if cfg.get("evaluate", True) and not trainer.fast_dev_run and trainer.is_global_zero:
+            evaluate_after_fit(trainer, module, datamodule)
     finally:
         _finish_wandb(trainer)
-    return {k: float(v) for k, v in trainer.callback_metrics.items()}
+    return metrics
+
+
+def evaluate_after_fit(trainer: L.Trainer, module: VOModule, datamodule: L.LightningDataModule) -> dict:
+    """Evaluate the best checkpoint (the last weights if there is none) on the test sequences, writing
+    ``results.json``, ``trajectories/`` and ``plots/`` into the job's output folder."""
+    from lossvo.eval import evaluate_run
+
+    out_dir = (
+        Path(HydraConfig.get().runtime.output_dir)
+        if HydraConfig.initialized()
+        else Path(trainer.default_root_dir)
+    )
+    best = next((c.best_model_path for c in trainer.callbacks if isinstance(c, ModelCheckpoint)
+                 and c.best_model_path and Path(c.best_model_path).is_file()), None)  # fmt: skip
+    device = trainer.strategy.root_device  # Lightning moves the module back to the CPU after fit
+    if best:
+        module = VOModule.load_from_checkpoint(best, map_location="cpu", weights_only=True)
+    else:
+        log.warning("no best checkpoint: evaluating the last weights")
+    module = module.to(device)
+    result = evaluate_run(module, datamodule, out_dir, list(datamodule.splits["test"]), checkpoint=best)
+    log.info("evaluation of %s on %s: %s", best or "the last weights", ", ".join(datamodule.splits["test"]),
+             out_dir / "results.json")  # fmt: skip
+    return result
 
 
 def _finish_wandb(trainer: L.Trainer) -> None:

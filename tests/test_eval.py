@@ -1,0 +1,246 @@
+"""Evaluation: whole-sequence inference, results.json / trajectories / plots, the CLI, the val callback."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from evo.tools import file_interface
+from torch import Tensor, nn
+
+from lossvo import geometry, metrics, train
+from lossvo.data.kitti import read_poses
+from lossvo.eval import evaluate_run, predict_sequence, window_starts
+from lossvo.module import VOModule
+from test_train import compose_train, tiny_overrides
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+class PairStub(nn.Module):
+    """Frames carry their index (every pixel = index); the output of pair (k, k+1) is (k, k+1) and
+    ``decode`` returns the true relative pose of that pair. Records the pairs it saw and its mode."""
+
+    def __init__(self, relative: Tensor) -> None:
+        super().__init__()
+        self.relative = relative
+        self.weight = nn.Parameter(torch.zeros(()))
+        self.seen: list[Tensor] = []
+        self.modes: list[bool] = []
+
+    def forward(self, frames: Tensor) -> Tensor:
+        self.modes.append(self.training)
+        index = frames[:, :, 0, 0, 0]  # (B, L)
+        out = torch.stack((index[:, :-1], index[:, 1:]), dim=-1)
+        self.seen.append(out.reshape(-1, 2))
+        return out
+
+    def decode(self, pred: Tensor) -> Tensor:
+        return self.relative[pred[..., 0].long()]
+
+
+def _random_poses(n: int, seed: int = 0) -> Tensor:
+    g = torch.Generator().manual_seed(seed)
+    rel = geometry.make_pose(
+        geometry.so3_exp(0.1 * torch.randn(n - 1, 3, generator=g, dtype=torch.float64)),
+        torch.randn(n - 1, 3, generator=g, dtype=torch.float64),
+    )
+    return rel
+
+
+@pytest.mark.parametrize(
+    ("n", "seq_len", "batch"), [(10, 3, 2), (11, 3, 16), (7, 7, 1), (8, 7, 4), (2, 5, 3)]
+)
+def test_predict_sequence_covers_every_pair_once(n: int, seq_len: int, batch: int) -> None:
+    relative = _random_poses(n)
+    stub = PairStub(relative)
+    frames = np.broadcast_to(np.arange(n, dtype=np.uint8)[:, None, None, None], (n, 3, 4, 5))
+    out = predict_sequence(stub, frames, lambda x: x.float(), seq_len, batch_windows=batch)
+    assert out.shape == (n - 1, 4, 4) and out.dtype == np.float64
+    np.testing.assert_array_equal(out, relative.numpy())
+    pairs = torch.cat(stub.seen)
+    assert sorted(pairs[:, 0].tolist()) == list(range(n - 1))  # each pair exactly once
+    assert (pairs[:, 1] == pairs[:, 0] + 1).all()
+    assert all(stop - start >= 2 for start, stop in window_starts(n, seq_len))
+
+
+def test_predict_sequence_uses_eval_mode_and_restores_it(tiny_kitti: Path, tmp_path: Path) -> None:
+    stub = PairStub(_random_poses(6))
+    frames = np.broadcast_to(np.arange(6, dtype=np.uint8)[:, None, None, None], (6, 3, 4, 5))
+    stub.train()
+    predict_sequence(stub, frames, lambda x: x.float(), 3)
+    assert stub.modes and not any(stub.modes) and stub.training
+    stub.eval()
+    predict_sequence(stub, frames, lambda x: x.float(), 3)
+    assert not stub.training
+
+    module = VOModule(
+        model={"_target_": "lossvo.model.DeepVO", "out_dim": 6, "height": 64, "width": 64,
+               "width_mult": 0.0625, "hidden_size": 8, "head_dropout": 0.9, "conv_dropout": 0.5},
+        loss={"_target_": "lossvo.losses.ChordalLoss"},
+        optimizer={"_target_": "torch.optim.Adam", "_partial_": True},
+    )  # fmt: skip
+    module.train()
+    images = np.random.default_rng(0).integers(0, 256, (9, 3, 64, 64), dtype=np.uint8)
+    a = predict_sequence(module, images, lambda x: x.float() / 255, 4)
+    b = predict_sequence(module, images, lambda x: x.float() / 255, 4)
+    np.testing.assert_array_equal(a, b)  # dropout off
+    assert module.training
+    # equal to per-window forward calls, LSTM reset per window
+    module.eval()
+    with torch.no_grad():
+        x = torch.from_numpy(images).float() / 255
+        windows = [module.decode(module(x[s:e][None]))[0] for s, e in window_starts(9, 4)]
+    np.testing.assert_allclose(a, torch.cat(windows).double().numpy(), atol=1e-5)
+    carried = module.predict_sequence(images, lambda x: x.float() / 255, 4, carry_state=True)
+    assert carried.shape == (8, 4, 4)
+
+
+@pytest.fixture(scope="module")
+def trained_run(tiny_kitti: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One epoch of training on the tiny dataset; the run folder."""
+    tmp = tmp_path_factory.mktemp("eval_run")
+    overrides = [*tiny_overrides(tiny_kitti, tmp / "cache"), "loss=quat", "trainer.max_epochs=1"]
+    cfg = compose_train(overrides, tmp / "run")
+    train.train(cfg)
+    return tmp / "run"
+
+
+def _check_outputs(run: Path, tiny_kitti: Path) -> dict:
+    result = json.loads((run / "results.json").read_text())
+    gt = read_poses(tiny_kitti / "poses" / "02.txt")
+    assert set(result["sequences"]) == {"02"}
+    assert result["loss"] == {"class": "QuaternionLoss", "k": 14.0}
+    entry = result["sequences"]["02"]
+    traj = run / "trajectories" / "02.txt"
+    est = read_poses(traj)
+    evo_poses = file_interface.read_kitti_poses_file(str(traj))
+    assert evo_poses.num_poses == len(gt) == len(est)
+    np.testing.assert_allclose(evo_poses.poses_se3[0], gt[0], atol=1e-8)
+    expected = metrics.evaluate(torch.from_numpy(gt), torch.from_numpy(est))
+    for part in ("ape", "rpe"):
+        for kind in ("trans", "rot_rad"):
+            for stat, value in entry[part][kind].items():
+                assert math.isfinite(value)
+                assert value == pytest.approx(expected[part][kind][stat], rel=1e-9, abs=1e-12)
+    assert entry["kitti"]["t_err_pct"] is None and "note" in entry["kitti"]  # 10 frames: no 100 m segment
+    assert result["overall"]["ape"]["trans"]["rmse"] == pytest.approx(entry["ape"]["trans"]["rmse"])
+    assert (run / "plots" / "02.png").stat().st_size > 1000
+    return result
+
+
+def test_training_writes_results_trajectories_and_plots(trained_run: Path, tiny_kitti: Path) -> None:
+    result = _check_outputs(trained_run, tiny_kitti)
+    assert result["checkpoint"] == str(trained_run / "checkpoints" / "best.ckpt")
+    header, *rows = list(csv.reader((trained_run / "metrics.csv").open()))
+    for key in ("val/ape_trans_rmse", "val/rpe_trans_rmse", "val/rpe_rot_rmse"):
+        assert key in header
+        values = [row[header.index(key)] for row in rows if row[header.index(key)]]
+        assert values and all(math.isfinite(float(v)) for v in values)
+    assert "val/kitti_t_err" not in header  # no segment: not logged, never 0
+
+
+def test_eval_cli_writes_the_same_files(trained_run: Path, tiny_kitti: Path, tmp_path: Path) -> None:
+    data = [o for o in tiny_overrides(tiny_kitti, trained_run.parent / "cache") if o.startswith("data")]
+    out = tmp_path / "eval"
+    ckpt = trained_run / "checkpoints" / "best.ckpt"
+    env = {**os.environ, "PYTHONPATH": str(REPO / "src")}
+    proc = subprocess.run(
+        [sys.executable, "-m", "lossvo.eval", f"ckpt_path={ckpt}", *data, "device=cpu",
+         f"hydra.run.dir={out}"],
+        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    result = _check_outputs(out, tiny_kitti)
+    trained = json.loads((trained_run / "results.json").read_text())
+    for kind in ("trans", "rot_rad"):
+        assert result["sequences"]["02"]["ape"][kind] == pytest.approx(
+            trained["sequences"]["02"]["ape"][kind]
+        )
+    assert (out / "trajectories" / "02.txt").read_text() == (
+        trained_run / "trajectories" / "02.txt"
+    ).read_text()
+
+
+def _eval_main(args: list[str], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture) -> tuple:
+    """``python -m lossvo.eval ARGS`` in process (a subprocess costs seconds of imports): (status, stderr)."""
+    from hydra.core.global_hydra import GlobalHydra
+
+    from lossvo import eval as lossvo_eval
+
+    monkeypatch.setattr(sys, "argv", ["lossvo.eval", *args])
+    try:
+        with pytest.raises(SystemExit) as exit_info:
+            lossvo_eval.main()
+    finally:
+        GlobalHydra.instance().clear()
+    return exit_info.value.code, capsys.readouterr().err
+
+
+def test_eval_cli_errors_are_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
+    out = f"hydra.run.dir={tmp_path / 'eval'}"
+    missing = tmp_path / "nope" / "best.ckpt"
+    status, err = _eval_main([f"ckpt_path={missing}", out], monkeypatch, capsys)
+    assert status == 2 and err.strip() == f"error: checkpoint not found: {missing}"
+    garbage = tmp_path / "garbage.ckpt"
+    garbage.write_bytes(b"not a checkpoint")
+    status, err = _eval_main([f"ckpt_path={garbage}", out], monkeypatch, capsys)
+    assert status == 2 and len(err.strip().splitlines()) == 1
+    assert err.startswith(f"error: {garbage}: cannot load")
+    status, err = _eval_main([out], monkeypatch, capsys)
+    assert status == 2 and err.strip() == "error: ckpt_path is required: python -m lossvo.eval ckpt_path=PATH"
+
+
+def test_sequence_without_ground_truth(trained_run: Path, tiny_kitti: Path, tmp_path: Path) -> None:
+    module = VOModule.load_from_checkpoint(trained_run / "checkpoints" / "best.ckpt", map_location="cpu")
+
+    class NoPoses:
+        def __init__(self, dm) -> None:
+            self.dm, self.seq_len = dm, dm.seq_len
+
+        def setup(self, stage=None) -> None:
+            self.dm.setup(stage)
+
+        def sequence_frames(self, name):
+            return self.dm.sequence_frames(name)
+
+        def sequence_poses(self, name):
+            return None
+
+        def normalize(self, x):
+            return self.dm.normalize(x)
+
+    from hydra.utils import instantiate
+
+    cfg = compose_train(tiny_overrides(tiny_kitti, trained_run.parent / "cache"), tmp_path / "x")
+    result = evaluate_run(module, NoPoses(instantiate(cfg.data)), tmp_path, ["02"])
+    assert "note" in result["sequences"]["02"] and "ape" not in result["sequences"]["02"]
+    assert "note" in result["overall"]
+    np.testing.assert_allclose(read_poses(tmp_path / "trajectories" / "02.txt")[0], np.eye(4), atol=1e-12)
+
+
+def test_trajectory_validation_skips_datamodules_without_sequences() -> None:
+    from types import SimpleNamespace
+
+    from lossvo.callbacks import TrajectoryValidation
+
+    class NoLog:
+        def log(self, *args, **kwargs):
+            raise AssertionError("nothing should be logged")
+
+    trainer = SimpleNamespace(sanity_checking=False, current_epoch=0, datamodule=object())
+    TrajectoryValidation().on_validation_epoch_end(trainer, NoLog())
+    trainer = SimpleNamespace(sanity_checking=False, current_epoch=0, datamodule=None)
+    TrajectoryValidation().on_validation_epoch_end(trainer, NoLog())
+    with pytest.raises(ValueError, match="every_n_epochs"):
+        TrajectoryValidation(every_n_epochs=0)
