@@ -200,6 +200,15 @@ def test_undecodable_png_fails_before_training(kitti_copy: Path, tmp_path: Path)
         make_dm(kitti_copy, tmp_path)
 
 
+def test_test_sequences_may_lack_poses(kitti_copy: Path, tmp_path: Path) -> None:
+    (kitti_copy / "poses" / "02.txt").unlink()
+    dm = make_dm(kitti_copy, tmp_path, val=["01"], test=["01", "02"])
+    assert dm.sequence_poses("02") is None and dm.sequence_frames("02").shape[0] == 10
+    assert len(dm.datasets["test"]) == 3  # the windows of 01 only
+    with pytest.raises(kitti.KittiFormatError, match=r"02\.txt: no pose file for sequence 02"):
+        make_dm(kitti_copy, tmp_path, val=["02"], test=["02"])
+
+
 def test_missing_sequence_is_named(tiny_kitti: Path, tmp_path: Path) -> None:
     with pytest.raises(kitti.KittiFormatError, match=r"sequence '05' not found"):
         make_dm(tiny_kitti, tmp_path, val=["05"])

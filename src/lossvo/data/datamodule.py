@@ -213,8 +213,12 @@ class KittiDataModule(L.LightningDataModule):
         return sorted(set().union(*self.splits.values()))
 
     def _load_metadata(self) -> Path:
+        """Read every sequence's metadata; only test sequences may lack poses (KITTI 11-21)."""
         root = find_root(self.root)
-        self.sequences = {name: load_sequence(root, name) for name in self.all_names}
+        labelled = set(self.splits["train"]) | set(self.splits["val"])
+        self.sequences = {
+            name: load_sequence(root, name, require_poses=name in labelled) for name in self.all_names
+        }
         return root
 
     def cache_path(self) -> Path:
@@ -266,6 +270,7 @@ class KittiDataModule(L.LightningDataModule):
         self.mean, self.std = self._stats(folder, frames)
         for split, names in self.splits.items():
             stride = self.stride if split == "train" else self.seq_len - 1
+            names = [n for n in names if self.sequences[n].poses is not None]  # test: labelled ones
             self.datasets[split] = WindowDataset(
                 [frame_cache.files(folder, n)[0] for n in names], [self.sequences[n].targets for n in names],
                 self.seq_len, stride,
@@ -319,8 +324,8 @@ class KittiDataModule(L.LightningDataModule):
         self.setup()
         return np.load(frame_cache.files(self.cache_path(), name)[0], mmap_mode="r")
 
-    def sequence_poses(self, name: str) -> np.ndarray:
-        """(N, 4, 4) float64 ground-truth camera-to-world poses of one sequence."""
+    def sequence_poses(self, name: str) -> np.ndarray | None:
+        """(N, 4, 4) float64 ground-truth camera-to-world poses of one sequence (None without a pose file)."""
         self.setup()
         return self.sequences[name].poses
 
