@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv test test-all lint format bench sweep clean
+.PHONY: venv test test-all lint format bench sweep report clean
 
 venv: $(STAMP)
 
@@ -35,9 +35,18 @@ bench: venv
 	$(PY) benchmarks/losses.py
 	$(PY) benchmarks/data_loading.py
 
-# The study's three-way comparison on the embedded synthetic dataset (rendered on first use).
+# The study's three-way comparison on the embedded synthetic dataset (rendered on first use), then its
+# report (tables, baselines, figures; prints the path of report.md). The sweep folder is named here, so
+# the report is of this sweep; it is written even when a job failed (it lists the failure), and make then
+# exits with the sweep's status.
+SWEEP_DIR := outputs/multirun/$(shell date +%Y-%m-%d_%H-%M-%S)
 sweep: venv
-	$(PY) -m lossvo.train -m loss=euler,quat,chordal
+	$(PY) -m lossvo.train -m loss=euler,quat,chordal hydra.sweep.dir=$(SWEEP_DIR); status=$$?; \
+	$(PY) -m lossvo.report $(SWEEP_DIR) || exit $$?; exit $$status
+
+# The report of the newest sweep under outputs/multirun (python -m lossvo.report SWEEP_DIR for another).
+report: venv
+	$(PY) -m lossvo.report --latest outputs/multirun
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .hypothesis src/*.egg-info

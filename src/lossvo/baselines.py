@@ -1,0 +1,465 @@
+"""Non-learned baselines for the sweep report, evaluated exactly as the networks are.
+
+Three estimators of the relative poses ``T_k = inv(T_w_k) @ T_w_{k+1}`` (frame k+1 seen from frame k) of a
+sequence, each integrated from the first ground-truth pose with :func:`lossvo.trajectory.integrate` and
+scored with :func:`lossvo.metrics.evaluate` (the same APE alignment and RPE delta as the jobs'
+``results.json``), so that their numbers sit in the same table as the networks':
+
+- ``zero motion``: identity relative poses (the camera never moves);
+- ``mean motion (train)``: the training sequences' mean relative pose at every step (mean translation,
+  chordal L2 mean rotation, i.e. the mean rotation matrix projected onto SO(3));
+- ``ORB+E (GT scale)``: classical monocular VO, ORB features matched between consecutive frames (mutual
+  nearest neighbours in Hamming distance, with a ratio test), ``cv2.findEssentialMat`` with RANSAC
+  (OpenCV's USAC variant, ``cv2.USAC_DEFAULT``: the same accuracy as ``cv2.RANSAC`` here at a fraction of
+  its time) and ``cv2.recoverPose``, with K from the sequence's calib.txt. Monocular VO has no metric
+  scale, so each translation is scaled to the ground-truth step length: an optimistic baseline, labelled
+  as such. A pair whose matches barely move (median below :data:`MIN_PARALLAX_PX`) gets no rotation and
+  a step straight ahead (standing still or creeping, the ground-truth step length decides). A pair with
+  too few matches or inliers takes the previous pair's motion (the training mean for the first pair),
+  rescaled the same way; the report counts these failures.
+
+Results are cached per (data config, sequence) in ``<cache_dir>/<key>.npz`` so that re-running a report
+costs nothing; the key covers everything the numbers depend on (dataset identity, training split, the
+sequence's files, alignment, delta, the ORB settings and :data:`VERSION`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import tempfile
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TypeVar
+
+import cv2
+import numpy as np
+import roma
+import torch
+
+from lossvo import metrics
+from lossvo.data.kitti import Sequence as KittiSequence
+from lossvo.data.kitti import find_root, load_sequence
+from lossvo.trajectory import integrate
+
+log = logging.getLogger("lossvo")
+T = TypeVar("T")
+
+ZERO, MEAN, ORB = "zero motion", "mean motion (train)", "ORB+E (GT scale)"
+NAMES: tuple[str, ...] = (ZERO, MEAN, ORB)
+VERSION = 1
+"""Bump when a baseline's computation changes: cached results then no longer match."""
+
+MIN_MATCHES = 8
+"""Fewest cross-checked ORB matches for which an essential matrix is attempted."""
+MIN_INLIERS = 12
+"""Fewest points that ``recoverPose`` must accept (in front of both cameras) for a pair to count."""
+MIN_PARALLAX_PX = 0.5
+"""Median displacement of the matches (pixels) below which a pair is taken as standing still."""
+STRAIGHT_AHEAD = np.array([[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]])
+"""Unit step along the camera's z axis (forward), no rotation."""
+MAX_HAMMING = 64
+"""Largest Hamming distance (of 256 bits) of an accepted ORB match."""
+RATIO = 0.9
+"""Lowe's ratio test: a match's distance must be below this fraction of the second-nearest one's."""
+RANSAC_THRESHOLD_PX = 0.5
+"""RANSAC inlier threshold for frames narrower than 640 pixels (1 pixel for larger ones, e.g. KITTI's)."""
+ORB_FEATURES = 500
+
+DATA_IDENTITY_IGNORED = frozenset(
+    {
+        "val",
+        "test",
+        "height",
+        "width",
+        "seq_len",
+        "stride",
+        "windows_per_epoch",
+        "batch_size",
+        "num_workers",
+        "normalization",
+        "augment",
+        "reverse",
+        "pin_memory",
+    }
+)
+"""Data config keys that change neither the frames on disk nor the training split's poses."""
+
+
+@dataclass
+class BaselineResult:
+    """One baseline on one sequence: trajectory (N, 4, 4) float64, metrics as in results.json, the
+    number of frame pairs for which the estimator failed and fell back (ORB only; 0 otherwise), and
+    whether it came from the cache."""
+
+    trajectory: np.ndarray
+    metrics: dict[str, Any]
+    failures: int = 0
+    cached: bool = False
+
+
+# --------------------------------------------------------------------------------------------------
+# Estimators: (N-1, 4, 4) float64 relative poses
+# --------------------------------------------------------------------------------------------------
+
+
+def zero_motion(n_pairs: int) -> np.ndarray:
+    """(n_pairs, 4, 4) identity relative poses."""
+    return np.broadcast_to(np.eye(4), (n_pairs, 4, 4)).copy()
+
+
+def mean_motion(targets: Sequence[np.ndarray]) -> np.ndarray:
+    """The mean relative pose of all consecutive pairs of the given sequences.
+
+    Args:
+        targets: per sequence, (N_i - 1, 4, 4) relative poses (e.g. ``Sequence.targets`` of the training
+            split).
+    Returns:
+        (4, 4) float64 pose: mean translation (metres) and chordal L2 mean rotation (the arithmetic mean
+        of the rotation matrices projected onto SO(3), roma's special Procrustes).
+    """
+    pairs = np.concatenate([np.asarray(t, dtype=np.float64) for t in targets])
+    rotation = roma.special_procrustes(torch.from_numpy(pairs[:, :3, :3].mean(axis=0))).numpy()
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = rotation, pairs[:, :3, 3].mean(axis=0)
+    return out
+
+
+def repeat_motion(motion: np.ndarray, n_pairs: int) -> np.ndarray:
+    """(n_pairs, 4, 4) copies of one (4, 4) relative pose."""
+    return np.broadcast_to(np.asarray(motion, dtype=np.float64), (n_pairs, 4, 4)).copy()
+
+
+def _orb(shape: tuple[int, ...]) -> cv2.ORB:
+    """An ORB detector for frames of ``shape``. Small frames (the synthetic 96x320) get a 15-pixel border
+    and patch instead of 31, which keeps most of the image usable, and 3 pyramid levels instead of 8
+    (the coarser levels of a 96-pixel image hold almost no features)."""
+    small = min(shape[:2]) < 300
+    patch = 15 if small else 31
+    return cv2.ORB_create(
+        nfeatures=ORB_FEATURES, edgeThreshold=patch, patchSize=patch, nlevels=3 if small else 8
+    )
+
+
+@dataclass
+class Features:
+    """ORB features of a sequence's N frames: per frame, points (M_i, 2) float64 pixel coordinates and
+    descriptors (M_i, 32) uint8; shape (H, W) of the frames."""
+
+    points: list[np.ndarray]
+    descriptors: list[np.ndarray]
+    shape: tuple[int, int]
+
+
+def orb_features(images: Sequence[Path]) -> Features:
+    """ORB keypoints and descriptors of each image, decoded as grayscale from the original PNGs."""
+    points, descriptors, orb, shape = [], [], None, (0, 0)
+    for path in images:
+        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if image is None:
+            raise ValueError(f"{path}: cannot decode image")
+        orb, shape = orb or _orb(image.shape), image.shape[:2]
+        keypoints, desc = orb.detectAndCompute(image, None)
+        points.append(cv2.KeyPoint_convert(keypoints).astype(np.float64).reshape(-1, 2))
+        descriptors.append(np.zeros((0, 32), np.uint8) if desc is None else desc)
+    return Features(points, descriptors, shape)
+
+
+def signed_bits(descriptors: np.ndarray) -> torch.Tensor:
+    """(M, 32) uint8 binary descriptors -> (M, 256) float32 bits mapped to ±1."""
+    return torch.from_numpy(np.unpackbits(descriptors, axis=1)).float().mul_(2.0).sub_(1.0)
+
+
+def mutual_matches(a: torch.Tensor, b: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+    """Cross-checked nearest-neighbour matches in Hamming distance, as one matrix product.
+
+    With bits mapped to ±1, the Hamming distance of 256-bit descriptors is ``(256 - a·b) / 2``. A match
+    (i, j) is mutual (j is i's nearest in ``b`` and i is j's nearest in ``a``), at most
+    :data:`MAX_HAMMING` bits apart, and passes Lowe's ratio test (nearest < :data:`RATIO` x second
+    nearest): fewer outliers, so RANSAC needs fewer iterations.
+
+    Args:
+        a: (M1, 256), b: (M2, 256) ±1 descriptors (:func:`signed_bits`).
+    Returns:
+        i (P,), j (P,) int64 indices into a and b.
+    """
+    if len(a) == 0 or len(b) < 2:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    similarity = a @ b.T  # (M1, M2) = 256 - 2 hamming
+    top, index = similarity.topk(2, dim=1)
+    nearest, second = (256.0 - top[:, 0]) / 2.0, (256.0 - top[:, 1]) / 2.0
+    forward = index[:, 0]
+    backward = similarity.argmax(dim=0)
+    good = (backward[forward] == torch.arange(len(a))) & (nearest <= MAX_HAMMING) & (nearest < RATIO * second)
+    i = torch.nonzero(good).flatten()
+    return i.numpy(), forward[i].numpy()
+
+
+def pair_motion(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, threshold: float) -> np.ndarray | None:
+    """Relative pose (frame 2 seen from frame 1) with a unit translation from matched points, or None.
+
+    ``recoverPose`` returns ``[R | t]`` mapping frame-1 points into frame 2 (``x2 = R x1 + t``); lossvo's
+    ``T_k`` is its inverse, ``[R^T | -R^T t]``.
+
+    Args:
+        p1, p2: (P, 2) float64 matched pixel coordinates in frames 1 and 2.
+        K: (3, 3) intrinsics.
+        threshold: RANSAC inlier threshold in pixels.
+    Returns:
+        (4, 4) float64 pose with ``|t| = 1`` (:data:`STRAIGHT_AHEAD` where the matches do not move), or
+        None (too few matches or inliers, degenerate geometry).
+    """
+    if len(p1) < MIN_MATCHES:
+        return None
+    if np.median(np.linalg.norm(p2 - p1, axis=1)) < MIN_PARALLAX_PX:  # no parallax: E is meaningless
+        return STRAIGHT_AHEAD.copy()
+    E, mask = cv2.findEssentialMat(p1, p2, K, method=cv2.USAC_DEFAULT, prob=0.999, threshold=threshold)
+    if E is None or E.shape[0] < 3:
+        return None
+    inliers, R, t, _ = cv2.recoverPose(E[:3], p1, p2, K, mask=mask)
+    if inliers < MIN_INLIERS:
+        return None
+    out = np.eye(4)
+    out[:3, :3] = R.T
+    out[:3, 3] = -R.T @ t.ravel()
+    return out
+
+
+def orb_essential(
+    images: Sequence[Path], K: np.ndarray, step_lengths: np.ndarray, fallback: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Monocular ORB + essential-matrix VO with ground-truth step lengths.
+
+    Args:
+        images: the sequence's N frame paths, in order.
+        K: (3, 3) intrinsics of those frames.
+        step_lengths: (N-1,) ground-truth translation norms |t_k| in metres.
+        fallback: (4, 4) motion used where the first pairs fail (e.g. :func:`mean_motion`).
+    Returns:
+        relative (N-1, 4, 4) float64 poses and failed (N-1,) bool, True where the pair fell back to the
+        previous pair's motion.
+    """
+    features = orb_features(images)
+    threshold = RANSAC_THRESHOLD_PX if features.shape[1] < 640 else 1.0
+    points, estimates = features.points, []
+    following = signed_bits(features.descriptors[0])
+    for k in range(len(points) - 1):  # OpenCV's solvers take one pair at a time
+        previous, following = following, signed_bits(features.descriptors[k + 1])
+        i, j = mutual_matches(previous, following)
+        estimates.append(pair_motion(points[k][i], points[k + 1][j], K, threshold))
+    failed = np.array([e is None for e in estimates], dtype=bool)
+    unit = np.stack([np.eye(4) if e is None else e for e in estimates]) if estimates else np.zeros((0, 4, 4))
+    unit = _fill_forward(unit, failed, _unit_translation(fallback))
+    return _with_step_lengths(unit, step_lengths), failed
+
+
+def _unit_translation(pose: np.ndarray) -> np.ndarray:
+    out = np.array(pose, dtype=np.float64)
+    norm = np.linalg.norm(out[:3, 3])
+    out[:3, 3] = out[:3, 3] / norm if norm > 0 else np.array([0.0, 0.0, 1.0])
+    return out
+
+
+def _fill_forward(poses: np.ndarray, failed: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """Each failed entry of (M, 4, 4) poses takes the last good one before it (``first`` if none)."""
+    good = np.where(failed, -1, np.arange(len(poses)))
+    last_good = np.maximum.accumulate(good) if len(good) else good
+    table = np.concatenate((first[None], poses))
+    return table[last_good + 1]
+
+
+def _with_step_lengths(unit: np.ndarray, step_lengths: np.ndarray) -> np.ndarray:
+    """(M, 4, 4) poses with unit translations scaled to (M,) lengths."""
+    out = unit.copy()
+    out[:, :3, 3] *= np.asarray(step_lengths, dtype=np.float64)[:, None]
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
+# Evaluation of one sequence
+# --------------------------------------------------------------------------------------------------
+
+
+def evaluate_relative(
+    relative: np.ndarray, gt: np.ndarray, align: metrics.AlignMode, delta: int
+) -> tuple[np.ndarray, dict[str, Any]]:
+    """Integrate (N-1, 4, 4) relative poses from ``gt[0]`` and score them against ``gt`` (N, 4, 4).
+
+    Returns:
+        trajectory (N, 4, 4) float64 and ``metrics.evaluate``'s dict (ape, rpe, kitti), as in results.json.
+    """
+    est = integrate(torch.from_numpy(relative), start=torch.from_numpy(gt[0]))
+    return est.numpy(), metrics.evaluate(torch.from_numpy(gt), est, align, delta)
+
+
+def sequence_baselines(
+    sequence: KittiSequence, train_mean: np.ndarray, align: metrics.AlignMode = "none", delta: int = 1
+) -> dict[str, BaselineResult]:
+    """All baselines on one sequence with ground truth.
+
+    Args:
+        sequence: a KITTI-layout sequence with poses (images, poses (N, 4, 4), calib).
+        train_mean: (4, 4) mean relative pose of the training split (:func:`mean_motion`).
+        align, delta: as the jobs' results.json.
+    Returns:
+        {baseline name: BaselineResult}, in the order of :data:`NAMES`.
+    """
+    gt = np.asarray(sequence.poses, dtype=np.float64)
+    targets = sequence.targets
+    steps = np.linalg.norm(targets[:, :3, 3], axis=1)
+    orb, failed = orb_essential(sequence.images, sequence.calib.K, steps, train_mean)
+    relatives = {ZERO: zero_motion(len(targets)), MEAN: repeat_motion(train_mean, len(targets)), ORB: orb}
+    out = {}
+    for name, relative in relatives.items():
+        trajectory, scores = evaluate_relative(relative, gt, align, delta)
+        out[name] = BaselineResult(trajectory, scores, int(failed.sum()) if name == ORB else 0)
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
+# Data config -> sequences, and the cache
+# --------------------------------------------------------------------------------------------------
+
+
+def load_datamodule(data_cfg: Any) -> Any:
+    """The job's datamodule (``hydra.utils.instantiate(cfg.data)``) with every sequence's metadata read;
+    the synthetic dataset is rendered first if it is not on disk. No frame cache is built."""
+    from hydra.utils import instantiate
+
+    datamodule = instantiate(data_cfg)
+    render = getattr(datamodule, "_ensure_rendered", None)
+    if render is not None:
+        render()
+    datamodule._load_metadata()
+    return datamodule
+
+
+def data_identity(data_cfg: Mapping[str, Any]) -> dict[str, Any]:
+    """The part of a data config that decides the frames on disk and the training split (a cache key)."""
+    return {k: v for k, v in sorted(data_cfg.items()) if k not in DATA_IDENTITY_IGNORED}
+
+
+def cache_key(identity: Mapping[str, Any], sequence: KittiSequence, align: str, delta: int) -> str:
+    """A file-name-safe key of one sequence's baselines: data identity, the sequence's files, settings."""
+    stats = [p.stat() for p in sequence.images]
+    files = {
+        "frames": len(stats),
+        "bytes": sum(s.st_size for s in stats),
+        "mtime_ns": max(s.st_mtime_ns for s in stats) if stats else 0,
+        "poses": hashlib.sha1(np.ascontiguousarray(sequence.poses).tobytes()).hexdigest(),
+        "K": np.asarray(sequence.calib.K).tolist(),
+    }
+    settings = [
+        VERSION,
+        ORB_FEATURES,
+        MIN_MATCHES,
+        MIN_INLIERS,
+        MIN_PARALLAX_PX,
+        MAX_HAMMING,
+        RANSAC_THRESHOLD_PX,
+    ]
+    blob = json.dumps([settings, dict(identity), files, align, delta], sort_keys=True, default=str)
+    return f"{sequence.name}-{hashlib.sha1(blob.encode()).hexdigest()[:16]}"
+
+
+def save_cached(path: Path, results: Mapping[str, BaselineResult]) -> None:
+    """Write one sequence's baselines to ``path`` (.npz) atomically (temp file + rename)."""
+    meta = {name: {"metrics": r.metrics, "failures": r.failures} for name, r in results.items()}
+    arrays = {f"trajectory_{i}": r.trajectory for i, r in enumerate(results.values())}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".npz")
+    os.close(fd)
+    try:
+        np.savez(tmp, meta=np.array(json.dumps({"names": list(results), "results": meta})), **arrays)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def load_cached(path: Path) -> dict[str, BaselineResult] | None:
+    """One sequence's baselines from ``path``, or None if it is missing or unreadable."""
+    try:
+        with np.load(path) as data:
+            meta = json.loads(str(data["meta"]))
+            return {
+                name: BaselineResult(
+                    np.asarray(data[f"trajectory_{i}"]),
+                    meta["results"][name]["metrics"],
+                    int(meta["results"][name]["failures"]),
+                    cached=True,
+                )
+                for i, name in enumerate(meta["names"])
+            }
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def _torch_single_threaded(fn: Callable[..., T]) -> Callable[..., T]:
+    """``fn`` run with torch on one thread (restored after). torch's thread count is a per-thread
+    (OpenMP) setting, so this wraps the function that runs in each worker thread."""
+
+    def run(*args: Any, **kwargs: Any) -> T:
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            torch.set_num_threads(threads)
+
+    return run
+
+
+def compute_baselines(
+    data_cfg: Any,
+    sequences: Sequence[str],
+    cache_dir: Path,
+    align: metrics.AlignMode = "none",
+    delta: int = 1,
+    n_jobs: int = 1,
+) -> dict[str, dict[str, BaselineResult]]:
+    """The baselines of the given sequences for one data config, from the cache where possible.
+
+    Args:
+        data_cfg: a job's resolved ``cfg.data`` (OmegaConf or dict).
+        sequences: names of sequences with ground truth (e.g. those of the jobs' results.json).
+        cache_dir: folder of the cached ``.npz`` results.
+        align, delta: as the jobs' results.json.
+        n_jobs: sequences computed in parallel (threads: OpenCV releases the GIL).
+    Returns:
+        {sequence: {baseline name: BaselineResult}}, in the order of ``sequences``.
+    """
+    from joblib import Parallel, delayed
+    from omegaconf import OmegaConf
+
+    datamodule = load_datamodule(data_cfg)
+    plain = OmegaConf.to_container(data_cfg, resolve=True) if OmegaConf.is_config(data_cfg) else data_cfg
+    identity = {**data_identity(plain), "resolved_root": str(Path(datamodule.root).resolve())}
+    train_mean = mean_motion([datamodule.sequences[n].targets for n in datamodule.splits["train"]])
+    loaded = {
+        n: datamodule.sequences.get(n) or load_sequence(find_root(datamodule.root), n) for n in sequences
+    }
+    paths = {n: cache_dir / f"{cache_key(identity, loaded[n], align, delta)}.npz" for n in sequences}
+    found = {n: load_cached(p) for n, p in paths.items()}
+    todo = [n for n in sequences if found[n] is None]
+    if todo:
+        log.info("baselines: computing %d sequence(s) (%s)", len(todo), ", ".join(todo))
+        todo.sort(key=lambda n: -len(loaded[n].images))  # longest first: balanced threads
+        # One sequence per thread, each with single-threaded torch and OpenCV: nested thread pools on a
+        # few cores are many times slower. OpenCV's setting is global, so it is made around the pool.
+        cv2_threads = cv2.getNumThreads()
+        cv2.setNumThreads(1)
+        try:
+            computed = Parallel(n_jobs=max(1, min(n_jobs, len(todo))), prefer="threads")(
+                delayed(_torch_single_threaded(sequence_baselines))(loaded[n], train_mean, align, delta)
+                for n in todo
+            )
+        finally:
+            cv2.setNumThreads(cv2_threads)
+        for name, result in zip(todo, computed, strict=True):
+            save_cached(paths[name], result)
+            found[name] = result
+    return {n: found[n] for n in sequences}

@@ -1,0 +1,380 @@
+"""The sweep report on a real (tiny) sweep: tables equal the jobs' results.json, bold marks the minimum,
+mean ± std over seeds, baselines equal an independent computation, damaged jobs are listed, bad input.
+
+One Hydra multirun (2 losses x 2 seeds on the tiny KITTI-layout dataset of tests/conftest.py) is trained
+once per module; every test reads it or a copy of it.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import re
+import shutil
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+from scipy.stats import wilcoxon
+
+from lossvo import metrics
+from lossvo.report import Job, label_jobs, main, make_report, parse_override, read_metrics_csv, varying_keys
+
+TINY = """# @package _global_
+defaults:
+  - override /data: kitti
+data:
+  root: {root}
+  cache_dir: {cache}
+  train: ["00", "01"]
+  val: ["02"]
+  test: ["00", "02"]
+  height: 64
+  width: 96
+  seq_len: 3
+  batch_size: 4
+  num_workers: 0
+model:
+  width_mult: 0.0625
+  hidden_size: 16
+trainer:
+  max_epochs: 1
+  num_sanity_val_steps: 0
+"""
+LOSSES = ("euler", "quat")
+SEEDS = (0, 1)
+SEQUENCES = ("00", "02")
+TRANSLATION = {"APE [m]": ("ape", "trans"), "RPE [m]": ("rpe", "trans")}
+ROTATION = {"APE [rad]": ("ape", "rot_rad"), "RPE [rad]": ("rpe", "rot_rad")}
+
+
+# --------------------------------------------------------------------------------------------------
+# Fixtures: one real sweep and its report
+# --------------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def sweep(tiny_kitti: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    base = tmp_path_factory.mktemp("report_sweep")
+    conf = base / "conf" / "experiment"
+    conf.mkdir(parents=True)
+    (conf / "tiny.yaml").write_text(TINY.format(root=tiny_kitti, cache=base / "cache"))
+    env = {**os.environ, "WANDB_SILENT": "true"}
+    command = [sys.executable, "-m", "lossvo.train", "-m", "--config-dir", str(base / "conf"),
+               "experiment=tiny", f"hydra.sweep.dir={base / 'multirun' / 'sweep'}",
+               f"loss={','.join(LOSSES)}", f"seed={','.join(map(str, SEEDS))}"]  # fmt: skip
+    result = subprocess.run(command, capture_output=True, text=True, env=env, cwd=base, timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    return base / "multirun" / "sweep"
+
+
+@pytest.fixture(scope="module")
+def report(sweep: Path) -> Path:
+    """The report folder of the sweep, with baselines."""
+    path = make_report(sweep, n_jobs=1)
+    assert path == sweep / "report" / "report.md"
+    return path.parent
+
+
+def job_results(sweep: Path) -> dict[tuple[str, int], dict]:
+    """{(loss, seed): results.json} read straight from the job folders' overrides and results."""
+    out = {}
+    for job in sweep.iterdir():
+        overrides_file = job / ".hydra" / "overrides.yaml"
+        if not overrides_file.is_file():
+            continue
+        overrides = dict(item.split("=", 1) for item in yaml.safe_load(overrides_file.read_text()))
+        out[(overrides["loss"], int(overrides["seed"]))] = json.loads((job / "results.json").read_text())
+    return out
+
+
+def read_table(path: Path) -> dict[str, dict[str, str]]:
+    """A report CSV as {sequence or "mean": {column header: cell}}."""
+    with path.open() as f:
+        return {row["sequence"]: row for row in csv.DictReader(f)}
+
+
+def rmse(results: dict, sequence: str, metric: tuple[str, str]) -> float:
+    return results["sequences"][sequence][metric[0]][metric[1]]["rmse"]
+
+
+def copy_sweep(sweep: Path, tmp_path: Path) -> Path:
+    return Path(shutil.copytree(sweep, tmp_path / "sweep", ignore=shutil.ignore_patterns("report")))
+
+
+# --------------------------------------------------------------------------------------------------
+# Tables
+# --------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("table", "metrics_of"), [("translation", TRANSLATION), ("rotation", ROTATION)])
+def test_cells_are_mean_and_sample_std_over_seeds_of_results_json(
+    sweep: Path, report: Path, table: str, metrics_of: dict
+) -> None:
+    results = job_results(sweep)
+    rows = read_table(report / "tables" / f"{table}.csv")
+    assert set(rows) == {*SEQUENCES, "mean"}
+    for loss in LOSSES:
+        for header, metric in metrics_of.items():
+            column = f"loss={loss} | {header}"
+            per_seed = np.array([[rmse(results[(loss, s)], q, metric) for q in SEQUENCES] for s in SEEDS])
+            for j, sequence in enumerate(SEQUENCES):
+                assert float(rows[sequence][column]) == pytest.approx(per_seed[:, j].mean(), rel=1e-12)
+                assert float(rows[sequence][f"{column} std"]) == pytest.approx(
+                    per_seed[:, j].std(ddof=1), rel=1e-9
+                )
+                assert rows[sequence][f"{column} n"] == str(len(SEEDS))
+            seed_means = per_seed.mean(axis=1)  # the mean row: each seed over the sequences, then over seeds
+            assert float(rows["mean"][column]) == pytest.approx(seed_means.mean(), rel=1e-12)
+            assert float(rows["mean"][f"{column} std"]) == pytest.approx(seed_means.std(ddof=1), rel=1e-9)
+
+
+def markdown_rows(report_md: str, title: str) -> tuple[list[str], dict[str, list[str]]]:
+    """Header and rows (by first cell) of the markdown table that follows ``## <title>``."""
+    section = report_md.split(f"## {title}", 1)[1].splitlines()
+    start = next(i for i, line in enumerate(section) if line.startswith("|"))
+    table = []
+    for line in section[start:]:
+        if not line.startswith("|"):
+            break
+        table.append([cell.strip() for cell in line.strip("|").split("|")])
+    header, body = table[0], table[2:]
+    return header, {row[0].strip("*"): row for row in body}
+
+
+def test_bold_marks_the_row_minimum_over_all_columns(report: Path) -> None:
+    text = (report / "report.md").read_text()
+    rows_csv = read_table(report / "tables" / "translation.csv")
+    header, rows = markdown_rows(text, "Table I")
+    latex = (report / "tables" / "translation.tex").read_text()
+    bold_seen = 0
+    for metric in TRANSLATION:
+        columns = [h for h in header if h.endswith(f": {metric}")]
+        assert len(columns) == len(LOSSES) + 3  # three baselines
+        for sequence in (*SEQUENCES, "mean"):
+            means = {c: float(rows_csv[sequence][c.replace(": ", " | ", 1)]) for c in columns}
+            best = min(means, key=means.get)
+            for c in columns:
+                cell = rows[sequence][header.index(c)]
+                assert cell.startswith("**") == (c == best), (sequence, c, cell, means)
+            bold_seen += 1
+    assert bold_seen == 2 * (len(SEQUENCES) + 1)
+    assert latex.count(r"\textbf{") == bold_seen
+    assert all(rule in latex for rule in (r"\toprule", r"\midrule", r"\bottomrule"))
+
+
+def test_pairwise_comparison_is_a_wilcoxon_test_over_seed_sequence_pairs(sweep: Path, report: Path) -> None:
+    results = job_results(sweep)
+    with (report / "tables" / "pairwise.csv").open() as f:
+        rows = {row["metric"]: row for row in csv.DictReader(f)}
+    a, b = (f"loss={loss}" for loss in LOSSES)
+    row = rows["APE trans RMSE [m]"]
+    assert (row["a"], row["b"]) == (a, b)
+    diff = np.array([rmse(results[(LOSSES[0], s)], q, ("ape", "trans")) - rmse(results[(LOSSES[1], s)], q,
+                     ("ape", "trans")) for s in SEEDS for q in SEQUENCES])  # fmt: skip
+    assert int(row["pairs"]) == len(SEEDS) * len(SEQUENCES)
+    assert float(row["median_diff"]) == pytest.approx(np.median(diff), rel=1e-12)
+    assert float(row["p_value"]) == pytest.approx(wilcoxon(diff).pvalue, rel=1e-9)
+    assert row["verdict"] == ("yes" if wilcoxon(diff).pvalue < 0.05 else "no")
+
+
+# --------------------------------------------------------------------------------------------------
+# Baselines, checked against independent computations
+# --------------------------------------------------------------------------------------------------
+
+
+def read_pose_file(path: Path) -> np.ndarray:
+    """KITTI poses (N, 4, 4) with plain numpy, independent of lossvo's reader."""
+    values = np.loadtxt(path).reshape(-1, 3, 4)
+    poses = np.tile(np.eye(4), (len(values), 1, 1))
+    poses[:, :3, :] = values
+    return poses
+
+
+def scores(gt: np.ndarray, est: np.ndarray) -> dict:
+    return metrics.evaluate(torch.from_numpy(gt), torch.from_numpy(est), "none", 1)
+
+
+def test_zero_and_mean_motion_baselines_equal_an_independent_computation(
+    tiny_kitti: Path, report: Path
+) -> None:
+    rows = read_table(report / "tables" / "translation.csv")
+    rot_rows = read_table(report / "tables" / "rotation.csv")
+    train = [read_pose_file(tiny_kitti / "poses" / f"{n}.txt") for n in ("00", "01")]
+    steps = np.concatenate([np.linalg.inv(p[:-1]) @ p[1:] for p in train])
+    u, _, vt = np.linalg.svd(steps[:, :3, :3].mean(axis=0))
+    mean_step = np.eye(4)
+    mean_step[:3, :3] = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    mean_step[:3, 3] = steps[:, :3, 3].mean(axis=0)
+    for sequence in SEQUENCES:
+        gt = read_pose_file(tiny_kitti / "poses" / f"{sequence}.txt")
+        standing = np.repeat(gt[:1], len(gt), axis=0)  # zero motion: the first pose forever
+        chained = [gt[0]]
+        for _ in range(len(gt) - 1):
+            chained.append(chained[-1] @ mean_step)
+        for name, est in (("zero motion", standing), ("mean motion (train)", np.stack(chained))):
+            expected = scores(gt, est)
+            for header, metric in TRANSLATION.items():
+                got = float(rows[sequence][f"{name} | {header}"])
+                assert got == pytest.approx(expected[metric[0]][metric[1]]["rmse"], rel=1e-6), (name, header)
+            for header, metric in ROTATION.items():
+                got = float(rot_rows[sequence][f"{name} | {header}"])
+                assert got == pytest.approx(expected[metric[0]][metric[1]]["rmse"], rel=1e-6, abs=1e-9)
+
+
+def test_orb_baseline_uses_gt_scale_and_beats_standing_still(report: Path) -> None:
+    rows = read_table(report / "tables" / "translation.csv")
+    rot = read_table(report / "tables" / "rotation.csv")
+    text = (report / "report.md").read_text()
+    failures = re.search(r"ORB\+E failed \(fell back\) on (\d+) of (\d+) frame pairs", text)
+    assert failures is not None and int(failures[2]) == 9 * len(SEQUENCES)
+    for sequence in SEQUENCES:
+        orb = float(rows[sequence]["ORB+E (GT scale) | RPE [m]"])
+        zero = float(rows[sequence]["zero motion | RPE [m]"])  # = the ground-truth step length
+        assert 0 < orb < 0.6 * zero, (sequence, orb, zero)  # right step lengths, roughly right directions
+        assert 0 < float(rot[sequence]["ORB+E (GT scale) | RPE [rad]"]) < 0.2
+
+
+def test_baselines_are_cached_per_sequence(sweep: Path, report: Path, tmp_path: Path) -> None:
+    out = tmp_path / "again"
+    shutil.copytree(report / "cache", out / "cache")
+    make_report(sweep, out, n_jobs=1, with_figures=False)
+    text = (out / "report.md").read_text()
+    assert f"{len(SEQUENCES)} of {len(SEQUENCES)} sequences from the report's `cache/`" in text
+    assert (out / "tables" / "translation.csv").read_text() == (
+        report / "tables" / "translation.csv"
+    ).read_text()
+
+
+# --------------------------------------------------------------------------------------------------
+# Partial and damaged sweeps, other sweep axes, single seed
+# --------------------------------------------------------------------------------------------------
+
+
+def test_failed_running_and_corrupt_jobs_are_listed_and_skipped(sweep: Path, tmp_path: Path) -> None:
+    copy = copy_sweep(sweep, tmp_path)
+    jobs = {job.name.split("_", 1)[0]: job for job in copy.iterdir() if job.is_dir()}
+    (jobs["1"] / "results.json").write_text('{"sequences": {"00": ')  # euler, seed 1: cut mid-write
+    status = {"status": "failed", "error": "RuntimeError: boom"}
+    (jobs["2"] / "status.json").write_text(json.dumps(status))  # quat, seed 0
+    metrics_csv = jobs["3"] / "metrics.csv"  # quat, seed 1: metrics.csv cut mid-line, results intact
+    metrics_csv.write_text(metrics_csv.read_text()[:-25])
+    running = copy / "4_experiment=tiny,loss=chordal,seed=0"
+    shutil.copytree(jobs["0"] / ".hydra", running / ".hydra")
+    (running / ".hydra" / "overrides.yaml").write_text("- experiment=tiny\n- loss=chordal\n- seed=0\n")
+    (running / "status.json").write_text('{"status": "running"}')
+
+    path = make_report(copy, with_baselines=False, with_figures=False)
+    text = path.read_text()
+    _, listed = markdown_rows(text, "Jobs")
+    assert "results.json: invalid JSON" in listed[f"`{jobs['1'].name}`"][4]
+    assert "failed: RuntimeError: boom" in listed[f"`{jobs['2'].name}`"][4]
+    assert (
+        listed[f"`{jobs['3'].name}`"][4] == "yes" and "metrics.csv line" in listed[f"`{jobs['3'].name}`"][5]
+    )
+    assert "still running" in listed[f"`{running.name}`"][4]
+    assert "5 job(s): 2 included, 3 skipped" in text
+
+    results = job_results(sweep)
+    rows = read_table(path.parent / "tables" / "translation.csv")
+    assert not any(h.startswith("loss=chordal") for h in rows["00"])  # a running job has no column
+    for loss, seed in (("euler", 0), ("quat", 1)):  # the one usable seed of each loss
+        for sequence in SEQUENCES:
+            assert float(rows[sequence][f"loss={loss} | APE [m]"]) == rmse(results[(loss, seed)], sequence,
+                                                                           ("ape", "trans"))  # fmt: skip
+            assert rows[sequence][f"loss={loss} | APE [m] n"] == "1"
+    assert "no seed-noise estimate" in text
+
+
+def test_single_seed_says_no_seed_noise_estimate(sweep: Path, tmp_path: Path) -> None:
+    copy = copy_sweep(sweep, tmp_path)
+    for job in copy.iterdir():
+        if job.is_dir() and "seed=1" in job.name:
+            shutil.rmtree(job)
+    text = make_report(copy, with_baselines=False, with_figures=False).read_text()
+    assert "One seed per configuration" in text and "no seed-noise estimate is available" in text
+    assert "n/a (one seed: no seed-noise estimate)" in text
+    assert " ± " not in markdown_rows(text, "Table I")[1]["00"][1]
+
+
+def test_columns_are_named_by_the_overrides_that_differ() -> None:
+    def job(*overrides: str) -> Job:
+        return Job(Path("job"), overrides=dict(parse_override(o) for o in overrides))
+
+    jobs = [job("loss=chordal", "loss.k=50", "seed=0", "trainer.max_epochs=3"),
+            job("loss=chordal", "loss.k=100", "seed=0", "trainer.max_epochs=3"),
+            job("loss=chordal", "loss.k=50", "seed=1", "trainer.max_epochs=3")]  # fmt: skip
+    assert varying_keys(jobs) == ["loss.k"]
+    label_jobs(jobs)
+    assert [j.label for j in jobs] == ["loss.k=50", "loss.k=100", "loss.k=50"]
+    jobs = [job("+evaluate=false", "loss=euler", "seed=0"), job("+evaluate=false", "loss=euler", "seed=1")]
+    label_jobs(jobs)  # only seeds differ: one configuration, named by its overrides
+    assert {j.label for j in jobs} == {"evaluate=false,loss=euler"}
+
+
+def test_truncated_metrics_csv_keeps_the_complete_rows(tmp_path: Path) -> None:
+    path = tmp_path / "metrics.csv"
+    path.write_text(
+        "epoch,step,train/loss,val/loss\n,0,,\n0,5,,2.0\n0,5,3.0,\n1,11,,1.5\n1,11,2.5,\n2,17,,1.2"
+        "\n2,17,2.2\n"  # the last row lost its last field
+    )
+    curves, notes = read_metrics_csv(path)
+    epochs, values = curves.series["val/loss"]
+    assert epochs.tolist() == [0, 1, 2] and values.tolist() == [2.0, 1.5, 1.2]
+    assert curves.series["train/loss"][1].tolist() == [3.0, 2.5]
+    assert len(notes) == 1 and "line 8" in notes[0]
+
+
+# --------------------------------------------------------------------------------------------------
+# Figures and the command line
+# --------------------------------------------------------------------------------------------------
+
+
+def png_size(path: Path) -> tuple[int, int]:
+    header = path.read_bytes()[:24]
+    assert header[:8] == b"\x89PNG\r\n\x1a\n", path
+    return struct.unpack(">II", header[16:24])
+
+
+def test_figures_are_pngs_of_every_sequence(report: Path) -> None:
+    figures = report / "figures"
+    names = sorted(p.name for p in figures.glob("*.png"))
+    assert names == sorted(["curves.png", "ape_trans_rmse.png", *(f"trajectory_{s}.png" for s in SEQUENCES)])
+    for name in names:
+        width, height = png_size(figures / name)
+        assert width > 300 and height > 200, (name, width, height)
+    text = (report / "report.md").read_text()
+    assert all(f"(figures/{name})" in text for name in names)
+
+
+@pytest.mark.parametrize("make_folder", ["missing", "empty", "no_config"])
+def test_not_a_sweep_is_a_one_line_error_with_status_2(tmp_path: Path, make_folder: str) -> None:
+    folder = tmp_path / "folder"
+    if make_folder != "missing":
+        folder.mkdir()
+    if make_folder == "no_config":
+        (folder / "0_loss=euler").mkdir()  # a job folder without .hydra/config.yaml
+    result = subprocess.run(
+        [sys.executable, "-m", "lossvo.report", str(folder)], capture_output=True, text=True
+    )
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and "expected" in lines[0], result.stderr
+    assert "Traceback" not in result.stderr and not (folder / "report").exists()
+
+
+def test_latest_reports_the_newest_sweep_and_prints_the_path(
+    sweep: Path, report: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "out"
+    assert main(["--latest", str(sweep.parent), "--out", str(out), "--no-baselines"]) == 0
+    assert capsys.readouterr().out.strip().splitlines()[-1] == str(out / "report.md")
+    rows = read_table(out / "tables" / "translation.csv")
+    assert not any(h.startswith("zero motion") for h in rows["00"])  # --no-baselines
+    assert "(`--no-baselines`)" in (out / "report.md").read_text()
