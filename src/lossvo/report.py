@@ -15,7 +15,8 @@ per run, ``SWEEP_DIR/<num>_<overrides>/``, with ``.hydra/{config,overrides}.yaml
 Configurations are named by the overrides that differ between jobs (``loss=euler`` vs ``loss=quat``, or
 ``loss.k=50`` vs ``loss.k=100``); ``seed`` is the replicate axis: with several seeds a cell is the mean ±
 sample standard deviation (ddof = 1) over seeds. Baselines (:mod:`lossvo.baselines`) are computed on the
-same sequences with the same alignment and RPE delta, and cached under ``<out>/cache/``.
+same sequences with the same alignment and RPE delta, and cached under ``<out>/cache/``. The tables are
+built and formatted in :mod:`lossvo.tables`, the figures drawn in :mod:`lossvo.figures`.
 
 Command line::
 
@@ -36,10 +37,9 @@ import logging
 import math
 import os
 import sys
-import tempfile
 import time
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from itertools import combinations
 from pathlib import Path
@@ -48,13 +48,27 @@ from typing import Any
 import numpy as np
 
 from lossvo.atomic import write_text_atomic
+from lossvo.figures import plot_ape_bars, plot_curves, plot_trajectories
+from lossvo.tables import (
+    BASELINE,
+    METRIC_PATHS,
+    NETWORK,
+    TABLES,
+    Column,
+    Table,
+    build_table,
+    fmt,
+    lookup,
+    md,
+    table_csv,
+    table_latex,
+    table_markdown,
+)
 
 log = logging.getLogger("lossvo")
 
 REPLICATE_KEY = "seed"
 SIGNIFICANCE = 0.05
-NETWORK, BASELINE = "network", "baseline"
-MEAN_ROW = "mean"
 
 
 class SweepError(ValueError):
@@ -312,21 +326,6 @@ def label_jobs(jobs: Sequence[Job]) -> None:
         job.label = ",".join(names) or "defaults"
 
 
-@dataclass
-class Column:
-    """One compared configuration (network) or baseline: its replicates' per-sequence metrics.
-
-    ``results[i]`` is ``{sequence: {"ape": ..., "rpe": ..., "kitti": ...}}`` of replicate ``i`` (a seed),
-    ``replicates[i]`` its name.
-    """
-
-    label: str
-    kind: str
-    replicates: list[str]
-    results: list[dict[str, dict[str, Any]]]
-    jobs: list[Job] = field(default_factory=list)
-
-
 def network_columns(jobs: Sequence[Job]) -> list[Column]:
     """One column per configuration (jobs with equal labels), replicates ordered by seed; only included
     jobs; in the order of the configurations' first job."""
@@ -357,245 +356,6 @@ def _sequence_metrics(results: dict[str, Any]) -> dict[str, dict[str, Any]]:
         for name, entry in results["sequences"].items()
         if isinstance(entry, dict) and "ape" in entry
     }
-
-
-# --------------------------------------------------------------------------------------------------
-# Tables
-# --------------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class TableSpec:
-    """What a table holds: ``metrics`` are (header, path into a sequence's results entry)."""
-
-    key: str
-    title: str
-    metrics: tuple[tuple[str, tuple[str, ...]], ...]
-
-
-TABLES = (
-    TableSpec(
-        "translation",
-        "Table I: translation RMSE (m)",
-        (("APE [m]", ("ape", "trans", "rmse")), ("RPE [m]", ("rpe", "trans", "rmse"))),
-    ),
-    TableSpec(
-        "rotation",
-        "Table II: rotation RMSE (rad)",
-        (("APE [rad]", ("ape", "rot_rad", "rmse")), ("RPE [rad]", ("rpe", "rot_rad", "rmse"))),
-    ),
-    TableSpec(
-        "kitti",
-        "Table III: KITTI odometry error (mean over 100-800 m segments)",
-        (("t_err [%]", ("kitti", "t_err_pct")), ("r_err [deg/100m]", ("kitti", "r_err_deg_per_100m"))),
-    ),
-)
-METRIC_PATHS = tuple(path for spec in TABLES for _, path in spec.metrics)
-
-
-def lookup(entry: Any, path: Sequence[str]) -> Any:
-    """``entry[path[0]][path[1]]...``, None where a key is missing."""
-    for key in path:
-        if not isinstance(entry, dict) or key not in entry:
-            return None
-        entry = entry[key]
-    return entry
-
-
-def samples(column: Column, path: Sequence[str], sequences: Sequence[str]) -> np.ndarray:
-    """(replicates, sequences) float64 values of one metric; NaN where missing (or no KITTI segment)."""
-    out = np.full((len(column.results), len(sequences)), np.nan)
-    for i, per_sequence in enumerate(column.results):
-        for j, name in enumerate(sequences):
-            value = lookup(per_sequence.get(name), path)
-            out[i, j] = float(value) if isinstance(value, (int, float)) else np.nan
-    return out
-
-
-@dataclass
-class Cell:
-    """A table cell: mean over replicates, sample std (ddof = 1; NaN for n < 2), n, bold flag."""
-
-    mean: float
-    std: float
-    n: int
-    best: bool = False
-
-    @classmethod
-    def of(cls, values: np.ndarray) -> Cell:
-        finite = values[np.isfinite(values)]
-        if finite.size == 0:
-            return cls(math.nan, math.nan, 0)
-        std = float(np.std(finite, ddof=1)) if finite.size > 1 else math.nan
-        return cls(float(np.mean(finite)), std, int(finite.size))
-
-
-@dataclass
-class Table:
-    """A filled table: ``cells[row][column][metric]``; rows are the sequences, then :data:`MEAN_ROW`."""
-
-    spec: TableSpec
-    columns: list[Column]
-    rows: list[str]
-    cells: list[list[list[Cell]]]
-    mean_over: list[str]
-
-
-def build_table(spec: TableSpec, columns: Sequence[Column], sequences: Sequence[str]) -> Table:
-    """Cells per sequence, a mean row and the bold marks.
-
-    The mean row averages each replicate over the sequences where every column has a value (so all
-    columns are averaged over the same sequences), then takes mean ± std over the replicates.
-    """
-    data = [[samples(c, path, sequences) for _, path in spec.metrics] for c in columns]  # (rep, seq) each
-    cells = [
-        [[Cell.of(data[c][m][:, s]) for m in range(len(spec.metrics))] for c in range(len(columns))]
-        for s in range(len(sequences))
-    ]
-    common = [
-        j
-        for j in range(len(sequences))
-        if all(
-            np.isfinite(data[c][m][:, j]).any() for c in range(len(columns)) for m in range(len(spec.metrics))
-        )
-    ]
-    mean_row = [
-        [Cell.of(_replicate_means(data[c][m], common)) for m in range(len(spec.metrics))]
-        for c in range(len(columns))
-    ]
-    table = Table(
-        spec, list(columns), [*sequences, MEAN_ROW], [*cells, mean_row], [sequences[j] for j in common]
-    )
-    mark_best(table)
-    return table
-
-
-def _replicate_means(values: np.ndarray, common: Sequence[int]) -> np.ndarray:
-    """(replicates,) mean of each replicate over the ``common`` sequences (NaN if one is missing)."""
-    if not common:
-        return np.full(len(values), np.nan)
-    return values[:, list(common)].mean(axis=1)
-
-
-def mark_best(table: Table) -> None:
-    """Bold the minimum mean of each row and metric, over all columns (networks and baselines)."""
-    for row in table.cells:
-        for m in range(len(table.spec.metrics)):
-            means = np.array([row[c][m].mean for c in range(len(table.columns))])
-            if np.isfinite(means).any():
-                best = np.nanmin(means)
-                for c in range(len(table.columns)):
-                    row[c][m].best = bool(means[c] == best)
-
-
-def fmt(x: float, digits: int = 4) -> str:
-    """A number with ``digits`` significant digits, fixed-point (no exponent between 1e-4 and 1e6)."""
-    if not math.isfinite(x):
-        return "n/a"
-    if x == 0:
-        return "0"
-    if not 1e-4 <= abs(x) < 1e6:
-        return f"{x:.{digits - 1}e}"
-    decimals = max(0, digits - 1 - math.floor(math.log10(abs(x))))
-    return f"{x:.{decimals}f}"
-
-
-def _cell_text(cell: Cell, bold: Callable[[str], str], pm: str, replicated: bool) -> str:
-    if cell.n == 0:
-        return "n/a"
-    text = bold(fmt(cell.mean)) if cell.best else fmt(cell.mean)
-    if replicated and cell.n > 1:
-        text += f"{pm}{fmt(cell.std, 2)}"
-    return text
-
-
-def _replicated(table: Table) -> bool:
-    return any(len(c.replicates) > 1 for c in table.columns)
-
-
-def md(text: str) -> str:
-    """Text for a markdown table cell: one line, ``|`` escaped (it would end the cell)."""
-    return " ".join(str(text).split()).replace("|", "\\|")
-
-
-def table_markdown(table: Table) -> str:
-    """The table as GitHub markdown, best cells in ``**bold**``."""
-    replicated = _replicated(table)
-    header = ["sequence"] + [
-        f"{md(c.label)}: {name}" for c in table.columns for name, _ in table.spec.metrics
-    ]
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for row, cells in zip(table.rows, table.cells, strict=True):
-        texts = [_cell_text(cell, lambda s: f"**{s}**", " ± ", replicated) for col in cells for cell in col]
-        lines.append(f"| {'**mean**' if row == MEAN_ROW else row} | " + " | ".join(texts) + " |")
-    return "\n".join(lines)
-
-
-def table_csv(table: Table) -> str:
-    """The table as CSV: ``sequence``, then per column and metric ``<label> | <metric>`` (mean),
-    ``... std`` (sample std, empty for n < 2) and ``... n``; full precision."""
-    out = io.StringIO()
-    writer = csv.writer(out, lineterminator="\n")
-    header = ["sequence"]
-    for c in table.columns:
-        for name, _ in table.spec.metrics:
-            header += [f"{c.label} | {name}", f"{c.label} | {name} std", f"{c.label} | {name} n"]
-    writer.writerow(header)
-    for row, cells in zip(table.rows, table.cells, strict=True):
-        values: list[str | int] = [row]
-        for col in cells:
-            for cell in col:
-                values += [repr(cell.mean) if cell.n else "", repr(cell.std) if cell.n > 1 else "", cell.n]
-        writer.writerow(values)
-    return out.getvalue()
-
-
-LATEX_SPECIALS = {
-    "\\": r"\textbackslash{}",
-    "&": r"\&",
-    "%": r"\%",
-    "$": r"\$",
-    "#": r"\#",
-    "_": r"\_",
-    "{": r"\{",
-    "}": r"\}",
-    "~": r"\textasciitilde{}",
-    "^": r"\textasciicircum{}",
-}
-
-
-def latex_escape(text: str) -> str:
-    return "".join(LATEX_SPECIALS.get(ch, ch) for ch in text)
-
-
-def table_latex(table: Table) -> str:
-    """The table as a LaTeX ``tabular`` with booktabs rules; best cells in ``\\textbf``."""
-    replicated = _replicated(table)
-    k = len(table.spec.metrics)
-    lines = [
-        f"% {table.spec.title}; generated by python -m lossvo.report; needs \\usepackage{{booktabs}}",
-        "\\begin{tabular}{l" + "r" * (k * len(table.columns)) + "}",
-        "\\toprule",
-        "Sequence & "
-        + " & ".join(f"\\multicolumn{{{k}}}{{c}}{{{latex_escape(c.label)}}}" for c in table.columns)
-        + " \\\\",
-        "".join(f"\\cmidrule(lr){{{2 + i * k}-{1 + (i + 1) * k}}}" for i in range(len(table.columns))),
-        " & "
-        + " & ".join(latex_escape(name) for _ in table.columns for name, _ in table.spec.metrics)
-        + " \\\\",
-        "\\midrule",
-    ]
-    for row, cells in zip(table.rows, table.cells, strict=True):
-        if row == MEAN_ROW:
-            lines.append("\\midrule")
-        texts = [
-            _cell_text(cell, lambda s: f"\\textbf{{{s}}}", " $\\pm$ ", replicated)
-            for col in cells
-            for cell in col
-        ]
-        lines.append(f"{'Mean' if row == MEAN_ROW else latex_escape(row)} & " + " & ".join(texts) + " \\\\")
-    lines += ["\\bottomrule", "\\end{tabular}"]
-    return "\n".join(lines) + "\n"
 
 
 # --------------------------------------------------------------------------------------------------
@@ -777,180 +537,6 @@ def ground_truth(job: Job, sequences: Sequence[str]) -> dict[str, np.ndarray]:
         return {}
     found = {s: datamodule.sequences[s].poses for s in sequences if s in datamodule.sequences}
     return {s: poses for s, poses in found.items() if poses is not None}
-
-
-# --------------------------------------------------------------------------------------------------
-# Figures (matplotlib Agg, no pyplot state)
-# --------------------------------------------------------------------------------------------------
-
-CURVE_PANELS = (
-    ("total loss", "loss", True),
-    ("translation loss (unweighted)", "trans_loss", True),
-    ("rotation loss (unweighted)", "rot_loss", True),
-    ("rotation error (rad)", "rot_err_rad", False),
-    ("translation error (m)", "trans_err_m", False),
-)
-
-
-def _figure(width: float, height: float):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(width, height), layout="tight")  # laid out once, while saving
-    FigureCanvasAgg(fig)
-    return fig
-
-
-def save_figure(fig: Any, path: Path) -> None:
-    """Save a figure as PNG atomically (temp file in the same folder, then rename)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".png")
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=100)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def _colors(n: int) -> list[Any]:
-    from matplotlib import colormaps
-
-    cmap = colormaps["tab10"]
-    return [cmap(i % 10) for i in range(n)]
-
-
-def curve_band(jobs: Sequence[Job], key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """Epochs (E,), mean (E,) and sample std (E,) (NaN for one seed) of a metrics.csv column over the
-    jobs' seeds, on the epochs all of them logged; None if no job has it."""
-    series = [j.curves.series[key] for j in jobs if j.curves is not None and key in j.curves.series]
-    if not series:
-        return None
-    epochs = series[0][0]
-    for e, _ in series[1:]:
-        epochs = np.intersect1d(epochs, e)
-    if epochs.size == 0:
-        return None
-    values = np.stack([v[np.searchsorted(e, epochs)] for e, v in series])
-    std = values.std(axis=0, ddof=1) if len(values) > 1 else np.full(len(epochs), np.nan)
-    return epochs, values.mean(axis=0), std
-
-
-def _spans_decades(ax: Any, ratio: float = 20.0) -> bool:
-    """Whether the positive data of an axes' lines spans more than ``ratio`` (worth a log scale)."""
-    values = np.concatenate([np.asarray(line.get_ydata(), dtype=float) for line in ax.get_lines()] or [[]])
-    values = values[np.isfinite(values) & (values > 0)]
-    return values.size > 1 and values.max() > ratio * values.min()
-
-
-def plot_curves(columns: Sequence[Column], path: Path) -> bool:
-    """Loss and yardstick curves per configuration (train solid, val dashed; mean ± 1 std band over
-    seeds; log scale where a panel spans decades). Returns False when no job has curves."""
-    from matplotlib.ticker import MaxNLocator
-
-    fig = _figure(4.2 * len(CURVE_PANELS), 3.6)
-    axes = fig.subplots(1, len(CURVE_PANELS))
-    drawn = False
-    for column, color in zip(columns, _colors(len(columns)), strict=True):
-        for ax, (_, key, _) in zip(axes, CURVE_PANELS, strict=True):
-            for split, style in (("train", "-"), ("val", "--")):
-                band = curve_band(column.jobs, f"{split}/{key}")
-                if band is None:
-                    continue
-                epochs, mean, std = band
-                ax.plot(
-                    epochs + 1, mean, style, color=color, marker="o", ms=3, label=f"{column.label} ({split})"
-                )
-                if np.isfinite(std).any():
-                    ax.fill_between(epochs + 1, mean - std, mean + std, color=color, alpha=0.15, lw=0)
-                drawn = True
-    for ax, (title, _, log_scale) in zip(axes, CURVE_PANELS, strict=True):
-        ax.set_title(title)
-        ax.set_xlabel("epoch")
-        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-        ax.grid(True, alpha=0.3)
-        if log_scale and _spans_decades(ax):
-            ax.set_yscale("log")
-    if drawn:
-        axes[-1].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
-        save_figure(fig, path)
-    return drawn
-
-
-def read_trajectory(job: Job, sequence: str) -> np.ndarray | None:
-    """A job's estimated trajectory (N, 4, 4) of one sequence, None if missing or unreadable."""
-    from lossvo.data.kitti import KittiFormatError, read_poses
-
-    entry = job.results["sequences"].get(sequence, {}) if job.results else {}
-    try:
-        return read_poses(job.path / entry.get("trajectory", f"trajectories/{sequence}.txt"))
-    except (KittiFormatError, OSError):
-        return None
-
-
-def plot_trajectories(
-    sequence: str, columns: Sequence[Column], gt: np.ndarray | None, extra: dict[str, np.ndarray], path: Path
-) -> None:
-    """Bird's-eye view (x right, z forward) of ground truth, each configuration (its first seed) and the
-    baselines' trajectories in ``extra`` (dashed)."""
-    fig = _figure(6.5, 6.5)
-    ax = fig.add_subplot()
-    if gt is not None:
-        ax.plot(gt[:, 0, 3], gt[:, 2, 3], color="black", lw=2.0, label="ground truth")
-    for column, color in zip(columns, _colors(len(columns)), strict=True):
-        est = read_trajectory(column.jobs[0], sequence)
-        if est is not None:
-            ax.plot(
-                est[:, 0, 3],
-                est[:, 2, 3],
-                color=color,
-                lw=1.2,
-                label=f"{column.label} ({column.replicates[0]})",
-            )
-    for (name, est), color in zip(extra.items(), ("0.45", "tab:olive", "tab:cyan"), strict=False):
-        ax.plot(est[:, 0, 3], est[:, 2, 3], "--", color=color, lw=1.0, label=name)
-    start = gt[0] if gt is not None else None
-    if start is not None:
-        ax.plot(start[0, 3], start[2, 3], "o", color="tab:green", ms=5, label="start")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("z (m)")
-    ax.set_title(f"sequence {sequence}")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
-    save_figure(fig, path)
-
-
-def plot_ape_bars(table: Table, path: Path) -> None:
-    """Grouped bars of APE translation RMSE per sequence (and the mean), one bar per column, error bars =
-    sample std over seeds; log scale."""
-    fig = _figure(min(16.0, 3.0 + 0.12 * len(table.rows) * max(1, len(table.columns))), 4.2)
-    ax = fig.add_subplot()
-    width = 0.8 / max(1, len(table.columns))
-    x = np.arange(len(table.rows))
-    for c, (column, color) in enumerate(zip(table.columns, _colors(len(table.columns)), strict=True)):
-        cells = [row[c][0] for row in table.cells]
-        means = np.array([cell.mean for cell in cells])
-        stds = np.array([cell.std if cell.n > 1 else 0.0 for cell in cells])
-        ax.bar(
-            x + (c - (len(table.columns) - 1) / 2) * width,
-            means,
-            width,
-            yerr=stds,
-            color=color,
-            hatch="//" if column.kind == BASELINE else None,
-            label=column.label,
-            capsize=2,
-        )
-    ax.set_xticks(x, table.rows)
-    ax.set_xlabel("sequence")
-    ax.set_ylabel("APE translation RMSE (m)")
-    if np.isfinite([row[c][0].mean for row in table.cells for c in range(len(table.columns))]).any():
-        ax.set_yscale("log")
-    ax.grid(True, axis="y", alpha=0.3)
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    save_figure(fig, path)
 
 
 # --------------------------------------------------------------------------------------------------
