@@ -330,10 +330,7 @@ def load_datamodule(data_cfg: Any) -> Any:
     from hydra.utils import instantiate
 
     datamodule = instantiate(data_cfg)
-    render = getattr(datamodule, "_ensure_rendered", None)
-    if render is not None:
-        render()
-    datamodule._load_metadata()
+    datamodule.load_metadata()  # renders the synthetic dataset first if it is not there
     return datamodule
 
 

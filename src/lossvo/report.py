@@ -531,7 +531,7 @@ def ground_truth(job: Job, sequences: Sequence[str]) -> dict[str, np.ndarray]:
 
     try:
         datamodule = instantiate(_plain(job.config.data), _convert_="all")
-        datamodule._load_metadata()
+        datamodule.load_metadata()
     except Exception as e:  # the dataset is not (or no longer) there: figures without ground truth
         log.info("no ground truth for the trajectory figures: %s", _first_line(e))
         return {}

@@ -221,6 +221,11 @@ class KittiDataModule(L.LightningDataModule):
         }
         return root
 
+    def load_metadata(self) -> Path:
+        """Read and check every sequence's poses, calibration and image list, without building the
+        frame cache (for tools that need the ground truth or the PNGs only); returns the dataset root."""
+        return self._load_metadata()
+
     def cache_path(self) -> Path:
         return frame_cache.cache_folder(self.cache_dir, find_root(self.root), self.height, self.width)
 
@@ -356,6 +361,10 @@ class SyntheticDataModule(KittiDataModule):
         self.root.mkdir(parents=True, exist_ok=True)
         with FileLock(self.root.parent / f".{self.root.name}.lock"):
             synthetic.ensure_dataset(self.root, sequences=self.all_names, **self.generator_args)
+
+    def load_metadata(self) -> Path:
+        self._ensure_rendered()
+        return super().load_metadata()
 
     def prepare_data(self) -> None:
         self._ensure_rendered()
