@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 import re
 import shutil
 import struct
@@ -26,27 +25,6 @@ from scipy.stats import wilcoxon
 from lossvo import metrics
 from lossvo.report import Job, label_jobs, main, make_report, parse_override, read_metrics_csv, varying_keys
 
-TINY = """# @package _global_
-defaults:
-  - override /data: kitti
-data:
-  root: {root}
-  cache_dir: {cache}
-  train: ["00", "01"]
-  val: ["02"]
-  test: ["00", "02"]
-  height: 64
-  width: 96
-  seq_len: 3
-  batch_size: 4
-  num_workers: 0
-model:
-  width_mult: 0.0625
-  hidden_size: 16
-trainer:
-  max_epochs: 1
-  num_sanity_val_steps: 0
-"""
 LOSSES = ("euler", "quat")
 SEEDS = (0, 1)
 SEQUENCES = ("00", "02")
@@ -60,16 +38,11 @@ ROTATION = {"APE [rad]": ("ape", "rot_rad"), "RPE [rad]": ("rpe", "rot_rad")}
 
 
 @pytest.fixture(scope="module")
-def sweep(tiny_kitti: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+def sweep(run_tiny_sweep, tmp_path_factory: pytest.TempPathFactory) -> Path:
     base = tmp_path_factory.mktemp("report_sweep")
-    conf = base / "conf" / "experiment"
-    conf.mkdir(parents=True)
-    (conf / "tiny.yaml").write_text(TINY.format(root=tiny_kitti, cache=base / "cache"))
-    env = {**os.environ, "WANDB_SILENT": "true"}
-    command = [sys.executable, "-m", "lossvo.train", "-m", "--config-dir", str(base / "conf"),
-               "experiment=tiny", f"hydra.sweep.dir={base / 'multirun' / 'sweep'}",
-               f"loss={','.join(LOSSES)}", f"seed={','.join(map(str, SEEDS))}"]  # fmt: skip
-    result = subprocess.run(command, capture_output=True, text=True, env=env, cwd=base, timeout=600)
+    args = [f"loss={','.join(LOSSES)}", f"seed={','.join(map(str, SEEDS))}"]
+    result = run_tiny_sweep(base, base / "multirun" / "sweep", args, test=SEQUENCES,
+                            trainer_extra="  num_sanity_val_steps: 0\n")  # fmt: skip
     assert result.returncode == 0, result.stderr[-3000:]
     return base / "multirun" / "sweep"
 

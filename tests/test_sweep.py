@@ -4,47 +4,18 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-TINY = """# @package _global_
-defaults:
-  - override /data: kitti
-data:
-  root: {root}
-  cache_dir: {cache}
-  train: ["00", "01"]
-  val: ["02"]
-  test: ["02"]
-  height: 64
-  width: 96
-  seq_len: 3
-  batch_size: 4
-  num_workers: 0
-model:
-  width_mult: 0.0625
-  hidden_size: 16
-trainer:
-  max_epochs: 1
-"""
+
+def run_train(args: list[str], tmp_path: Path, run_tiny_sweep) -> subprocess.CompletedProcess:
+    return run_tiny_sweep(tmp_path, tmp_path / "sweep", args)
 
 
-def run_train(args: list[str], tmp_path: Path, tiny_kitti: Path) -> subprocess.CompletedProcess:
-    conf = tmp_path / "conf" / "experiment"
-    conf.mkdir(parents=True)
-    (conf / "tiny.yaml").write_text(TINY.format(root=tiny_kitti, cache=tmp_path / "cache"))
-    env = {**os.environ, "WANDB_SILENT": "true", "WANDB_DISABLE_CODE": "true"}
-    command = [sys.executable, "-m", "lossvo.train", "-m", "--config-dir", str(tmp_path / "conf"),
-               "experiment=tiny", f"hydra.sweep.dir={tmp_path / 'sweep'}", *args]  # fmt: skip
-    return subprocess.run(command, capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
-
-
-def test_sweep_over_three_losses_with_wandb(tiny_kitti: Path, tmp_path: Path) -> None:
-    result = run_train(["loss=euler,quat,chordal", "logger=wandb"], tmp_path, tiny_kitti)
+def test_sweep_over_three_losses_with_wandb(run_tiny_sweep, tmp_path: Path) -> None:
+    result = run_train(["loss=euler,quat,chordal", "logger=wandb"], tmp_path, run_tiny_sweep)
     assert result.returncode == 0, result.stderr[-3000:]
     jobs = sorted(p for p in (tmp_path / "sweep").iterdir() if p.is_dir())
     assert [j.name for j in jobs] == [
@@ -66,8 +37,8 @@ def test_sweep_over_three_losses_with_wandb(tiny_kitti: Path, tmp_path: Path) ->
         assert max(counts, key=counts.get) == loss, counts
 
 
-def test_failing_job_keeps_the_others(tiny_kitti: Path, tmp_path: Path) -> None:
-    result = run_train(["loss=euler", "optimizer.lr=1e30,1e-3"], tmp_path, tiny_kitti)
+def test_failing_job_keeps_the_others(run_tiny_sweep, tmp_path: Path) -> None:
+    result = run_train(["loss=euler", "optimizer.lr=1e30,1e-3"], tmp_path, run_tiny_sweep)
     assert result.returncode != 0
     assert "non-finite loss at epoch 0" in result.stderr
     failed, finished = sorted(p for p in (tmp_path / "sweep").iterdir() if p.is_dir())
@@ -79,10 +50,10 @@ def test_failing_job_keeps_the_others(tiny_kitti: Path, tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("launcher", ["joblib"])
 def test_joblib_launcher_runs_jobs_in_parallel_processes(
-    tiny_kitti: Path, tmp_path: Path, launcher: str
+    run_tiny_sweep, tmp_path: Path, launcher: str
 ) -> None:
     result = run_train(
-        ["loss=euler,quat", f"hydra/launcher={launcher}", "hydra.launcher.n_jobs=2"], tmp_path, tiny_kitti
+        ["loss=euler,quat", f"hydra/launcher={launcher}", "hydra.launcher.n_jobs=2"], tmp_path, run_tiny_sweep
     )
     assert result.returncode == 0, result.stderr[-3000:]
     jobs = sorted(p for p in (tmp_path / "sweep").iterdir() if p.is_dir())

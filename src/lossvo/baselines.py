@@ -28,8 +28,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import os
-import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,6 +39,7 @@ import roma
 import torch
 
 from lossvo import metrics
+from lossvo.atomic import atomic_path
 from lossvo.data.kitti import Sequence as KittiSequence
 from lossvo.data.kitti import find_root, load_sequence
 from lossvo.trajectory import integrate
@@ -366,15 +365,8 @@ def save_cached(path: Path, results: Mapping[str, BaselineResult]) -> None:
     """Write one sequence's baselines to ``path`` (.npz) atomically (temp file + rename)."""
     meta = {name: {"metrics": r.metrics, "failures": r.failures} for name, r in results.items()}
     arrays = {f"trajectory_{i}": r.trajectory for i, r in enumerate(results.values())}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".npz")
-    os.close(fd)
-    try:
+    with atomic_path(path, suffix=".npz") as tmp:
         np.savez(tmp, meta=np.array(json.dumps({"names": list(results), "results": meta})), **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def load_cached(path: Path) -> dict[str, BaselineResult] | None:

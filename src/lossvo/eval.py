@@ -21,7 +21,6 @@ import json
 import logging
 import os
 import sys
-import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -31,7 +30,7 @@ import torch
 from torch import Tensor, nn
 
 from lossvo import metrics
-from lossvo.atomic import write_text_atomic
+from lossvo.atomic import atomic_path, write_text_atomic
 from lossvo.data.kitti import KittiFormatError, read_poses, write_poses
 from lossvo.trajectory import integrate
 
@@ -164,15 +163,8 @@ def plot_trajectory(path: Path, gt: np.ndarray | None, est: np.ndarray, label: s
     ax.set_title(title)
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".png")
-    os.close(fd)
-    try:
+    with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=120, bbox_inches="tight")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _ground_truth(datamodule: Any, name: str) -> np.ndarray | None:

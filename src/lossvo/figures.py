@@ -7,14 +7,13 @@ so a report without figures never loads it.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from lossvo.atomic import atomic_path
 from lossvo.tables import BASELINE, Column, Table
 
 if TYPE_CHECKING:
@@ -46,15 +45,8 @@ def _figure(width: float, height: float) -> Figure:
 
 def save_figure(fig: Figure, path: Path) -> None:
     """Save a figure as PNG at 100 dpi atomically (temp file in the same folder, then rename)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".png")
-    os.close(fd)
-    try:
+    with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=100)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _colors(n: int) -> list[Any]:
