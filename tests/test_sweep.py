@@ -53,8 +53,11 @@ def test_joblib_launcher_runs_jobs_in_parallel_processes(
     run_tiny_sweep, tmp_path: Path, launcher: str
 ) -> None:
     result = run_train(
-        ["loss=euler,quat", f"hydra/launcher={launcher}", "hydra.launcher.n_jobs=2"], tmp_path, run_tiny_sweep
-    )
+        ["loss=euler,quat", f"hydra/launcher={launcher}", "hydra.launcher.n_jobs=2", "data.num_workers=1"],
+        tmp_path, run_tiny_sweep,
+    )  # fmt: skip
     assert result.returncode == 0, result.stderr[-3000:]
     jobs = sorted(p for p in (tmp_path / "sweep").iterdir() if p.is_dir())
     assert len(jobs) == 2 and all((j / "checkpoints" / "best.ckpt").is_file() for j in jobs)
+    # DataLoader workers start inside joblib's (loky) worker processes too
+    assert all(json.loads((j / "status.json").read_text())["status"] == "completed" for j in jobs)
