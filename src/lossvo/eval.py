@@ -328,6 +328,9 @@ def main() -> None:
 
     @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="eval")
     def _main(cfg: Any) -> None:
+        from lossvo.processes import restore_start_method
+
+        restore_start_method()  # a joblib-launched job: let its loader workers start
         out_dir = Path(HydraConfig.get().runtime.output_dir)
         if OmegaConf.is_missing(cfg, "ckpt_path"):
             print("error: ckpt_path is required: python -m lossvo.eval ckpt_path=PATH", file=sys.stderr)

@@ -35,6 +35,7 @@ from omegaconf import DictConfig, OmegaConf
 from lossvo.atomic import write_text_atomic
 from lossvo.model import load_flownet
 from lossvo.module import VOModule
+from lossvo.processes import restore_start_method
 
 log = logging.getLogger("lossvo")
 
@@ -170,6 +171,7 @@ def main(cfg: DictConfig) -> float | None:
     """
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     log.info("output: %s", out_dir)
+    restore_start_method()  # a joblib-launched job: let its loader workers and renderer start
     write_status(out_dir, "running")
     try:
         metrics = train(cfg)

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import multiprocessing
 from collections.abc import Mapping
 from collections.abc import Sequence as Seq
 from pathlib import Path
@@ -52,15 +51,6 @@ def _names(value: str | int | Seq, key: str) -> tuple[str, ...]:
             raise ValueError(f"data.{key}: empty sequence name in {value!r}")
         names.append(text)
     return tuple(names)
-
-
-def worker_start_method() -> str | None:
-    """Start method for DataLoader workers: None (the default) unless this process runs inside a joblib
-    (loky) worker -- a ``hydra/launcher=joblib`` sweep job -- whose default ``"loky"`` context DataLoader
-    cannot start workers with; the platform's default method is used there."""
-    if multiprocessing.get_start_method(allow_none=True) in (None, *multiprocessing.get_all_start_methods()):
-        return None
-    return multiprocessing.get_all_start_methods()[0]  # the platform's default comes first
 
 
 class WindowDataset(Dataset):
@@ -301,7 +291,6 @@ class KittiDataModule(L.LightningDataModule):
         return DataLoader(
             self.datasets[split], batch_size=self.batch_size, sampler=sampler, num_workers=self.num_workers,
             pin_memory=self.pin_memory, persistent_workers=self.num_workers > 0,
-            multiprocessing_context=worker_start_method() if self.num_workers > 0 else None,
         )  # fmt: skip
 
     def train_dataloader(self) -> DataLoader:
