@@ -32,6 +32,7 @@ from torch import Tensor, nn
 from lossvo import metrics
 from lossvo.atomic import atomic_path, write_text_atomic
 from lossvo.data.kitti import KittiFormatError, read_poses, write_poses
+from lossvo.processes import restore_start_method
 from lossvo.trajectory import integrate
 
 log = logging.getLogger("lossvo")
@@ -328,8 +329,6 @@ def main() -> None:
 
     @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="eval")
     def _main(cfg: Any) -> None:
-        from lossvo.processes import restore_start_method
-
         restore_start_method()  # a joblib-launched job: let its loader workers start
         out_dir = Path(HydraConfig.get().runtime.output_dir)
         if OmegaConf.is_missing(cfg, "ckpt_path"):
