@@ -14,7 +14,16 @@ import torch
 from torch.utils import benchmark
 
 from lossvo import geometry as g
-from lossvo.losses import ChordalLoss, EulerLoss, GeodesicLoss, PoseLoss, QuaternionLoss, SixDLoss
+from lossvo.losses import (
+    ChordalLoss,
+    EulerLoss,
+    GeodesicLoss,
+    PoseLoss,
+    QuaternionLoss,
+    SixDLoss,
+    SVDLoss,
+    SymMatrixQuatLoss,
+)
 
 
 def make_batch(loss: PoseLoss, B: int, T: int, device: str) -> tuple[torch.Tensor, torch.Tensor]:
@@ -56,7 +65,7 @@ def main() -> None:
         f"{torch.get_num_threads()} threads, device {args.device}, B={B}, T={T} ({B * T} pairs)"
     )
     print(f"{'loss':<16}{'ms/batch':>10}{'µs/pair':>10}{'loop ms/batch':>15}{'loop / vectorised':>19}")
-    for cls in (EulerLoss, QuaternionLoss, ChordalLoss, GeodesicLoss, SixDLoss):
+    for cls in (EulerLoss, QuaternionLoss, ChordalLoss, GeodesicLoss, SixDLoss, SVDLoss, SymMatrixQuatLoss):
         loss = cls()
         pred, target = make_batch(loss, B, T, args.device)
         fast = time_ms(vectorised_step, loss, pred, target, min_run_time=args.min_run_time)

@@ -118,7 +118,7 @@ def _check_outputs(run: Path, tiny_kitti: Path) -> dict:
     result = json.loads((run / "results.json").read_text())
     gt = read_poses(tiny_kitti / "poses" / "02.txt")
     assert set(result["sequences"]) == {"02"}
-    assert result["loss"] == {"class": "QuaternionLoss", "k": 14.0}
+    assert result["loss"] == {"class": "QuaternionLoss", "k": 400.0}  # matched: 100 / (1/4)
     entry = result["sequences"]["02"]
     traj = run / "trajectories" / "02.txt"
     est = read_poses(traj)

@@ -10,11 +10,21 @@ import torch
 from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
+import lossvo.train  # noqa: F401  (registers the config resolvers)
 from lossvo import geometry as g
-from lossvo.losses import ChordalLoss, EulerLoss, GeodesicLoss, PoseLoss, QuaternionLoss, SixDLoss
+from lossvo.losses import (
+    ChordalLoss,
+    EulerLoss,
+    GeodesicLoss,
+    PoseLoss,
+    QuaternionLoss,
+    SixDLoss,
+    SVDLoss,
+    SymMatrixQuatLoss,
+)
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
-LOSSES = [EulerLoss, QuaternionLoss, ChordalLoss, GeodesicLoss, SixDLoss]
+LOSSES = [EulerLoss, QuaternionLoss, ChordalLoss, GeodesicLoss, SixDLoss, SVDLoss, SymMatrixQuatLoss]
 KEYS = {"loss", "trans_loss", "rot_loss", "trans_err_m", "rot_err_rad"}
 NEAR_PI = math.radians(179.9)
 
@@ -53,7 +63,11 @@ def p(*values: float) -> torch.Tensor:
 
 
 def test_head_sizes_and_default_weights() -> None:
-    assert [(c.dim, c().k) for c in LOSSES] == [(6, 100.0), (7, 14.0), (6, 153.0), (6, 100.0), (9, 153.0)]
+    # The default k is the matched weighting, 100 / small_angle_gain; paper_k the study's.
+    assert [(c.dim, c().k) for c in LOSSES] == [
+        (6, 100.0), (7, 400.0), (6, 50.0), (6, 100.0), (9, 50.0), (12, 50.0), (13, 50.0)
+    ]  # fmt: skip
+    assert [c.paper_k for c in LOSSES[:3]] == [100.0, 14.0, 153.0]
 
 
 @pytest.mark.parametrize("cls", LOSSES)
@@ -96,7 +110,7 @@ def test_euler_targets_are_angles_of_the_relative_rotation() -> None:
 def test_quaternion_hand_example() -> None:
     # pred identity (w = 1); target 90 deg about z: q = (cos 45, 0, 0, sin 45);
     # |q - q^|^2 = (1 - sqrt(2)/2)^2 + 1/2 = 2 - sqrt(2).
-    out = QuaternionLoss()(p(0, 0, 0, 1, 0, 0, 0), pose(rot(2, math.pi / 2)))
+    out = QuaternionLoss(k=14.0)(p(0, 0, 0, 1, 0, 0, 0), pose(rot(2, math.pi / 2)))
     assert out["rot_loss"].item() == pytest.approx(2 - math.sqrt(2))
     assert out["loss"].item() == pytest.approx(14 * (2 - math.sqrt(2)))
     assert out["rot_err_rad"].item() == pytest.approx(math.pi / 2)
@@ -104,7 +118,7 @@ def test_quaternion_hand_example() -> None:
 
 def test_chordal_hand_example() -> None:
     # xi = (rho = (1, 0, 0), omega = (0, 0, pi/2)): R = Rz(90 deg), t = V rho = (2/pi, 2/pi, 0).
-    loss = ChordalLoss()
+    loss = ChordalLoss(k=153.0)
     xi = p(1, 0, 0, 0, 0, math.pi / 2)
     expected = pose(rot(2, math.pi / 2), (2 / math.pi, 2 / math.pi, 0.0))
     torch.testing.assert_close(loss.decode(xi), expected, atol=1e-15, rtol=0)
@@ -123,7 +137,7 @@ def test_geodesic_hand_example() -> None:
 
 def test_sixd_hand_example() -> None:
     # Columns (2, 0, 0) and (1, 3, 0) orthonormalise to the identity; target Rz(90): |I - Rz|_F^2 = 4.
-    out = SixDLoss()(p(0, 0, 1, 2, 0, 0, 1, 3, 0), pose(rot(2, math.pi / 2)))
+    out = SixDLoss(k=153.0)(p(0, 0, 1, 2, 0, 0, 1, 3, 0), pose(rot(2, math.pi / 2)))
     assert out["trans_loss"].item() == pytest.approx(1.0)
     assert out["rot_loss"].item() == pytest.approx(4.0)
     assert out["loss"].item() == pytest.approx(1 + 153 * 4)
@@ -219,7 +233,7 @@ def test_wrong_shapes_raise_value_errors(cls: type[PoseLoss]) -> None:
 
 @pytest.mark.parametrize("k", [-1.0, float("nan"), float("inf"), "100", True])
 def test_invalid_weight_is_rejected(k: object) -> None:
-    with pytest.raises(ValueError, match="EulerLoss: k must be a finite number >= 0"):
+    with pytest.raises(ValueError, match=r"loss\.k: expected a finite number >= 0 for EulerLoss"):
         EulerLoss(k=k)
 
 
@@ -234,11 +248,60 @@ def test_invalid_weight_is_rejected(k: object) -> None:
         ("chordal", ChordalLoss),
         ("geodesic", GeodesicLoss),
         ("sixd", SixDLoss),
+        ("svd", SVDLoss),
+        ("quat10d", SymMatrixQuatLoss),
     ],
 )
 def test_hydra_loss_group(name: str, cls: type[PoseLoss]) -> None:
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        default = instantiate(compose(overrides=[f"+loss={name}"]).loss)
-        tuned = instantiate(compose(overrides=[f"+loss={name}", "loss.k=50"]).loss)
-    assert type(default) is cls and default.k == cls.default_k
+        default = instantiate(compose("train", overrides=[f"loss={name}"]).loss)
+        tuned = instantiate(compose("train", overrides=[f"loss={name}", "loss.k=50"]).loss)
+    assert type(default) is cls and default.k == cls().matched_k()
     assert type(tuned) is cls and tuned.k == 50.0
+
+
+# -- 9-D and 10-D parameterisations at degenerate outputs -------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("cls", "rotation_part"),
+    [
+        (SVDLoss, torch.zeros(9)),  # M = 0: every singular value 0
+        (SVDLoss, torch.tensor([1.0, 2, 3, 2, 4, 6, 3, 6, 9])),  # rank 1
+        (SVDLoss, torch.tensor([1.0, 0, 0, 0, 1, 0, 0, 0, -1])),  # det < 0 with equal singular values
+        (SymMatrixQuatLoss, torch.zeros(10)),  # A = 0: the smallest eigenvalue four times
+        (SymMatrixQuatLoss, torch.tensor([1.0, 0, 0, 0, 1, 0, 0, 1, 0, 1])),  # A = I
+        (SymMatrixQuatLoss, torch.tensor([0.0, 0, 0, 0, 0, 0, 0, 1, 0, 1])),  # smallest eigenvalue twice
+    ],
+)
+def test_degenerate_outputs_give_finite_values_and_gradients(cls: type[PoseLoss], rotation_part) -> None:
+    loss = cls()
+    pred = torch.cat((torch.tensor([0.1, 0.0, 1.0]), rotation_part)).double()[None, None].requires_grad_()
+    out = loss(pred, targets(1, 2, dtype=torch.float64)[:, 1:])
+    R = loss.decode(pred)[..., :3, :3]
+    torch.testing.assert_close(R @ R.transpose(-1, -2), torch.eye(3, dtype=torch.float64).expand_as(R))
+    assert torch.isfinite(out["loss"])
+    out["loss"].backward()
+    assert torch.isfinite(pred.grad).all()
+
+
+def test_svd_projection_is_the_nearest_rotation() -> None:
+    gen = torch.Generator().manual_seed(5)
+    M = torch.randn(64, 3, 3, generator=gen, dtype=torch.float64)
+    R = SVDLoss().decode(torch.cat((torch.zeros(64, 3, dtype=torch.float64), M.flatten(-2)), -1))[:, :3, :3]
+    U, _, Vh = torch.linalg.svd(M)
+    D = torch.diag_embed(torch.stack([torch.ones(64), torch.ones(64), torch.det(U @ Vh)], -1).double())
+    torch.testing.assert_close(R, U @ D @ Vh)  # special Procrustes, computed independently
+
+
+def test_symmetric_matrix_quaternion_is_the_smallest_eigenvector() -> None:
+    gen = torch.Generator().manual_seed(6)
+    x = torch.randn(64, 10, generator=gen, dtype=torch.float64)
+    R = SymMatrixQuatLoss().decode(torch.cat((torch.zeros(64, 3, dtype=torch.float64), x), -1))[:, :3, :3]
+    A = torch.zeros(64, 4, 4, dtype=torch.float64)
+    entries = [(0, 0), (1, 0), (2, 0), (3, 0), (1, 1), (2, 1), (3, 1), (2, 2), (3, 2), (3, 3)]  # roma's order
+    for j, (r, c) in enumerate(entries):
+        A[:, r, c] = A[:, c, r] = x[:, j]
+    q_xyzw = torch.linalg.eigh(A)[1][..., 0]
+    q_wxyz = torch.cat((q_xyzw[:, 3:], q_xyzw[:, :3]), -1)
+    torch.testing.assert_close(R, g.quat_to_matrix(q_wxyz))

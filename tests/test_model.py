@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from lossvo import losses
-from lossvo.model import DeepVO, LoadReport, identity_output, load_flownet
+from lossvo.model import DeepVO, LoadReport, load_flownet
 
 SMALL = {"width_mult": 0.0625, "hidden_size": 16}
 
@@ -77,12 +77,14 @@ def test_pairs_are_consecutive_frames_in_order() -> None:
 
 
 @pytest.mark.parametrize(
-    "loss_cls", [losses.EulerLoss, losses.QuaternionLoss, losses.ChordalLoss, losses.SixDLoss]
-)
+    "loss_cls",
+    [losses.EulerLoss, losses.QuaternionLoss, losses.ChordalLoss, losses.SixDLoss, losses.SVDLoss,
+     losses.SymMatrixQuatLoss],
+)  # fmt: skip
 def test_initial_output_is_near_identity_motion(loss_cls: type[losses.PoseLoss]) -> None:
-    ident = identity_output(loss_cls.dim)
-    torch.testing.assert_close(ident, loss_cls().encode(torch.eye(4)).to(ident.dtype), atol=1e-6, rtol=0)
-    model = small(loss_cls.dim, hidden_size=256).eval()
+    ident = loss_cls().identity_output()
+    torch.testing.assert_close(loss_cls().decode(ident.double()), torch.eye(4, dtype=torch.float64))
+    model = small(loss_cls.dim, hidden_size=256, head_bias=ident.tolist()).eval()
     out = model(frames(2, 4))
     assert (out - ident).abs().max() < 0.1
     poses = loss_cls().decode(out)
@@ -291,3 +293,18 @@ def test_flownet_needs_full_width(flownet_file) -> None:
         ValueError, match=r"nothing matches.*different shapes.*width_mult=1 \(model has width_mult=0.25\)"
     ):
         load_flownet(model, path)
+
+
+def test_channels_last_gives_the_same_outputs_and_gradients() -> None:
+    x = frames(2, 4)
+    outputs, grads = [], []
+    for channels_last in (False, True):
+        no_dropout = {"conv_dropout": 0.0, "conv6_dropout": 0.0, "lstm_dropout": 0.0, "head_dropout": 0.0}
+        model = small(channels_last=channels_last, **no_dropout).train()  # batch statistics on
+        out = model(x)
+        out.square().sum().backward()
+        outputs.append(out)
+        grads.append(model.encoder.conv1[0].weight.grad)
+    torch.testing.assert_close(outputs[0], outputs[1], atol=1e-5, rtol=1e-4)
+    torch.testing.assert_close(grads[0], grads[1], atol=1e-5, rtol=1e-4)
+    assert small(channels_last=True).encoder.conv2[0].weight.is_contiguous(memory_format=torch.channels_last)

@@ -1,5 +1,6 @@
 """The sweep report on a real (tiny) sweep: tables equal the jobs' results.json, bold marks the minimum,
-mean ± std over seeds, baselines equal an independent computation, damaged jobs are listed, bad input.
+mean ± std over seeds, baselines equal an independent computation, damaged jobs are listed, bad input;
+rotation weights and selection metrics from the job configs, convergence from metrics.csv, the claims.
 
 One Hydra multirun (2 losses x 2 seeds on the tiny KITTI-layout dataset of tests/conftest.py) is trained
 once per module; every test reads it or a copy of it.
@@ -351,3 +352,117 @@ def test_latest_reports_the_newest_sweep_and_prints_the_path(
     rows = read_table(out / "tables" / "translation.csv")
     assert not any(h.startswith("zero motion") for h in rows["00"])  # --no-baselines
     assert "(`--no-baselines`)" in (out / "report.md").read_text()
+
+
+# --------------------------------------------------------------------------------------------------
+# Configurations, convergence and the study's claims
+# --------------------------------------------------------------------------------------------------
+
+GAINS = {"EulerLoss": 1.0, "QuaternionLoss": 0.25, "ChordalLoss": 2.0}  # rotation term ~ gain * theta^2
+
+
+def job_configs(sweep: Path) -> dict[str, tuple[Path, dict]]:
+    """{job folder name: (folder, .hydra/config.yaml as plain YAML, interpolations unresolved)}."""
+    return {
+        job.name: (job, yaml.safe_load((job / ".hydra" / "config.yaml").read_text()))
+        for job in sweep.iterdir()
+        if (job / ".hydra" / "config.yaml").is_file()
+    }
+
+
+def section(text: str, title: str) -> str:
+    """The text of ``## <title>`` up to the next ``## `` heading."""
+    return text.split(f"\n## {title}\n", 1)[1].split("\n## ", 1)[0]
+
+
+def test_configurations_list_k_times_gain_and_the_selection_metric(sweep: Path, report: Path) -> None:
+    text = (report / "report.md").read_text()
+    header, rows = markdown_rows(text, "Configurations")
+    configs = {name: cfg for name, (_, cfg) in job_configs(sweep).items()}
+    for loss in LOSSES:
+        cfg = next(c for name, c in configs.items() if f"loss={loss}," in name)
+        row = dict(zip(header, rows[f"loss={loss}"], strict=True))
+        gain = GAINS[cfg["loss"]["_target_"].rsplit(".", 1)[-1]]
+        k = cfg["loss"]["k"]
+        if not isinstance(k, (int, float)):  # the matched preset's k = c / gain, interpolated
+            assert cfg["weighting"]["preset"] == "matched"
+            k = cfg["weighting"]["c"] / gain
+        assert float(row["rotation weight k·gain"]) == pytest.approx(k * gain, rel=1e-3)
+        assert row["selected by"] == f"`{cfg['selection']['monitor']}` ({cfg['selection']['mode']})"
+    assert "**Warning" not in text  # every job of the default study is selected by val/score
+
+
+def test_different_selection_metrics_give_a_bold_warning_at_the_top(sweep: Path, tmp_path: Path) -> None:
+    copy = copy_sweep(sweep, tmp_path)
+    for name, (job, cfg) in job_configs(copy).items():
+        if "loss=quat" in name:
+            cfg["selection"] = {"monitor": "val/loss", "mode": "min"}
+            (job / ".hydra" / "config.yaml").write_text(yaml.safe_dump(cfg))
+    text = make_report(copy, with_baselines=False, with_figures=False).read_text()
+    top = text.split("\n## ", 1)[0]
+    warning = next(line for line in top.splitlines() if line.startswith("**Warning"))
+    assert warning.endswith("**") and "selected by different metrics" in warning
+    assert "loss=quat: `val/loss` (min)" in warning and "loss=euler: `val/score` (min)" in warning
+
+
+def first_within_ten_percent(path: Path, column: str = "val/score") -> int:
+    """The 1-based epoch at which ``column`` first comes within 10 % of its minimum, from metrics.csv read
+    with the csv module (the last value logged in an epoch counts)."""
+    per_epoch: dict[int, float] = {}
+    with path.open() as f:
+        for row in csv.DictReader(f):
+            if row["epoch"] and row.get(column):
+                per_epoch[int(row["epoch"])] = float(row[column])
+    best = min(per_epoch.values())
+    return min(e for e, v in per_epoch.items() if v <= best * 1.1) + 1
+
+
+def test_convergence_epochs_match_the_jobs_metrics_csv(sweep: Path, report: Path) -> None:
+    with (report / "tables" / "convergence.csv").open() as f:
+        rows = {(r["configuration"], r["seed"]): r for r in csv.DictReader(f)}
+    for name, (job, _) in job_configs(sweep).items():
+        loss, seed = re.search(r"loss=(\w+),seed=(\d+)", name).groups()
+        row = rows[(f"loss={loss}", f"seed={seed}")]
+        assert row["metric"] == "val/score"
+        assert int(row["epoch"]) == first_within_ten_percent(job / "metrics.csv")
+    for loss in LOSSES:
+        epochs = [int(rows[(f"loss={loss}", f"seed={s}")]["epoch"]) for s in SEEDS]
+        assert float(rows[(f"loss={loss}", "mean")]["epoch"]) == pytest.approx(np.mean(epochs))
+    assert "| loss=euler | val/score | 2 |" in section((report / "report.md").read_text(), "Convergence")
+
+
+def test_claims_section_is_last_and_cannot_be_tested_without_chordal(report: Path) -> None:
+    text = (report / "report.md").read_text()
+    titles = re.findall(r"^## (.+)$", text, flags=re.MULTILINE)
+    assert titles[-1] == "The study's claims"
+    assert (
+        section(text + "\n## end", "The study's claims").count("Cannot be tested: the sweep has no chordal")
+        == 2
+    )
+    with (report / "tables" / "claims.csv").open() as f:
+        assert [r["verdict"] for r in csv.DictReader(f)] == ["cannot be tested"] * 2
+
+
+def test_claims_test_the_chordal_loss_class_on_held_out_sequences(sweep: Path, tmp_path: Path) -> None:
+    copy = copy_sweep(sweep, tmp_path)
+    for name, (job, cfg) in job_configs(copy).items():
+        if "loss=quat" in name:  # the report must find the chordal configuration by its loss class
+            cfg["loss"]["_target_"] = "lossvo.losses.ChordalLoss"
+            (job / ".hydra" / "config.yaml").write_text(yaml.safe_dump(cfg))
+    path = make_report(copy, with_baselines=False, with_figures=False)
+    results = job_results(sweep)
+    held_out = [s for s in SEQUENCES if s not in ("00", "01")]  # data.train of the tiny experiment
+    with (path.parent / "tables" / "claims.csv").open() as f:
+        rows = {(r["claim"], r["quantity"]): r for r in csv.DictReader(f)}
+    row = rows[("the chordal loss gives the lowest errors", "RPE trans RMSE [m]")]
+    assert (row["configuration"], row["versus"]) == ("loss=quat", "loss=euler")
+    x = np.array([rmse(results[("quat", s)], q, ("rpe", "trans")) for s in SEEDS for q in held_out])
+    y = np.array([rmse(results[("euler", s)], q, ("rpe", "trans")) for s in SEEDS for q in held_out])
+    assert int(row["n"]) == x.size == len(SEEDS) * len(held_out)
+    assert float(row["mean"]) == pytest.approx(x.mean()) and float(row["versus_mean"]) == pytest.approx(
+        y.mean()
+    )
+    assert float(row["p_value"]) == pytest.approx(wilcoxon(x - y).pvalue)
+    assert row["verdict"] == "not distinguishable at this n"  # 2 pairs: p >= 0.5 whatever the numbers
+    text = path.read_text()
+    assert text.count("**Verdict: not distinguishable at this n.**") == 2

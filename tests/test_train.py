@@ -37,12 +37,12 @@ def compose_train(overrides: list[str], out: Path) -> DictConfig:
     return cfg
 
 
-@pytest.mark.parametrize("loss", ["euler", "quat", "chordal", "geodesic", "sixd"])
+@pytest.mark.parametrize("loss", ["euler", "quat", "chordal", "geodesic", "sixd", "svd", "quat10d"])
 def test_fast_dev_run_for_every_loss(tiny_kitti: Path, tmp_path: Path, loss: str) -> None:
     overrides = [*tiny_overrides(tiny_kitti, tmp_path / "cache"), f"loss={loss}", "+trainer.fast_dev_run=1"]
     cfg = compose_train(overrides, tmp_path / "run")
     metrics = train.train(cfg)
-    assert {"train/loss", "val/loss", "val/rot_err_rad", "val/trans_err_m"} <= set(metrics)
+    assert {"train/loss", "val/loss", "val/score", "val/rot_err_rad", "val/trans_err_m"} <= set(metrics)
     assert all(torch.isfinite(torch.tensor(v)) for v in metrics.values())
 
 
@@ -54,7 +54,7 @@ def test_checkpoint_reloads_with_weights_only(tiny_kitti: Path, tmp_path: Path) 
     assert ckpt.is_file() and (tmp_path / "run" / "checkpoints" / "last.ckpt").is_file()
     torch.load(ckpt, map_location="cpu")  # torch's default: weights_only=True
     module = VOModule.load_from_checkpoint(ckpt, map_location="cpu", weights_only=True)
-    assert module.loss.dim == 7 and module.loss.k == 14.0
+    assert module.loss.dim == 7 and module.loss.k == 400.0  # matched: 100 / (1/4)
     frames = torch.rand(2, 3, 3, 64, 96)
     module.eval()
     assert module(frames).shape == (2, 2, 7)
@@ -63,7 +63,7 @@ def test_checkpoint_reloads_with_weights_only(tiny_kitti: Path, tmp_path: Path) 
 
 
 def test_head_size_follows_the_loss(tiny_kitti: Path, tmp_path: Path) -> None:
-    for loss, dim in (("euler", 6), ("quat", 7), ("sixd", 9)):
+    for loss, dim in (("euler", 6), ("quat", 7), ("sixd", 9), ("svd", 12), ("quat10d", 13)):
         cfg = compose_train([*tiny_overrides(tiny_kitti, tmp_path), f"loss={loss}"], tmp_path / "run")
         assert cfg.model.out_dim == dim
 

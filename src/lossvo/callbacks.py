@@ -20,7 +20,7 @@ from lossvo import metrics
 
 log = logging.getLogger("lossvo")
 
-SUMMARY_KEYS = ("train/loss", "val/loss", "val/trans_err_m", "val/rot_err_rad")
+SUMMARY_KEYS = ("train/loss", "val/loss", "val/score", "val/trans_err_m", "val/rot_err_rad")
 
 
 class EpochSummary(Callback):

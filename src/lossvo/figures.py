@@ -25,12 +25,14 @@ if TYPE_CHECKING:
 # The panels of the curves figure: (title, metrics.csv key without the ``train/`` or ``val/`` prefix,
 # log scale allowed).
 CURVE_PANELS = (
+    ("validation score (loss-independent)", "score", False),
     ("total loss", "loss", True),
     ("translation loss (unweighted)", "trans_loss", True),
     ("rotation loss (unweighted)", "rot_loss", True),
     ("rotation error (rad)", "rot_err_rad", False),
     ("translation error (m)", "trans_err_m", False),
 )
+CURVE_COLUMNS = 3
 
 
 def _figure(width: float, height: float) -> Figure:
@@ -81,17 +83,23 @@ def _spans_decades(ax: Axes, ratio: float = 20.0) -> bool:
 
 
 def plot_curves(columns: Sequence[Column], path: Path) -> bool:
-    """Loss and yardstick curves per configuration, one panel per :data:`CURVE_PANELS` entry.
+    """Score, loss and yardstick curves per configuration, one panel per :data:`CURVE_PANELS` entry
+    (:data:`CURVE_COLUMNS` panels a row).
 
-    x: epoch (1-based); y: the losses (unitless, the translation and rotation terms unweighted), rotation
-    error (rad) and translation error (m) as logged in metrics.csv. Train solid, val dashed; mean ± 1
-    sample std band over seeds; log scale where a loss panel spans decades. Returns False (and writes
-    nothing) when no job has curves.
+    x: epoch (1-based); y: the validation score ``val/score`` (unitless, the same for every loss), the
+    losses (unitless, the translation and rotation terms unweighted), rotation error (rad) and translation
+    error (m) as logged in metrics.csv. Train solid, val dashed; the line is the mean over seeds, the band
+    mean ± 1 sample std (none for one seed); log scale where a loss panel spans decades. A panel whose
+    column no job logged stays empty. Returns False (and writes nothing) when no job has curves.
     """
     from matplotlib.ticker import MaxNLocator
 
-    fig = _figure(4.2 * len(CURVE_PANELS), 3.6)
-    axes = fig.subplots(1, len(CURVE_PANELS))
+    rows = -(-len(CURVE_PANELS) // CURVE_COLUMNS)
+    fig = _figure(4.2 * CURVE_COLUMNS, 3.4 * rows)
+    axes = fig.subplots(rows, CURVE_COLUMNS, squeeze=False).ravel()
+    for ax in axes[len(CURVE_PANELS) :]:
+        ax.set_axis_off()
+    axes = axes[: len(CURVE_PANELS)]
     drawn = False
     for column, color in zip(columns, _colors(len(columns)), strict=True):
         for ax, (_, key, _) in zip(axes, CURVE_PANELS, strict=True):

@@ -496,6 +496,21 @@ def quat_distance(q_a: Tensor, q_b: Tensor) -> Tensor:
     )
 
 
+def quat_distance_squared(q_a: Tensor, q_b: Tensor) -> Tensor:
+    """Squared sign-invariant quaternion distance ``min(|q_a - q_b|^2, |q_a + q_b|^2)``, in [0, 2].
+
+    Smooth where :func:`quat_distance` squared would differentiate a norm at zero.
+
+    Args:
+        q_a, q_b: (..., 4) unit quaternions ``(w, x, y, z)``.
+    Returns:
+        (...) squared distances.
+    """
+    check_shape(q_a, (4,), "q_a")
+    check_shape(q_b, (4,), "q_b")
+    return torch.minimum((q_a - q_b).square().sum(-1), (q_a + q_b).square().sum(-1))
+
+
 def se3_chordal_distance(T_a: Tensor, T_b: Tensor, weight: float = 1.0) -> Tensor:
     """Chordal distance on SE(3), ``sqrt(|t_a - t_b|^2 + weight |R_a - R_b|_F^2)``.
 

@@ -12,6 +12,11 @@ Euclidean distance for every loss, so that only the rotation term differs betwee
 The result is the mean over all pairs (batch and time). The study sums over time instead; dividing by
 the number of pairs keeps ``k`` independent of the window length (multiply by ``T`` to compare).
 
+Each class states ``small_angle_gain``: its rotation term is ``gain * theta^2 + O(theta^3)`` for a
+rotation error of angle theta (at an identity target; for Euler angles at zero pitch). ``k`` defaults to
+the ``matched`` weighting, ``100 / gain``, so that every loss weighs small rotation errors alike; the
+study's values are ``paper_k`` (see :mod:`lossvo.weighting` for the presets and the learned weighting).
+
 Besides ``loss``, ``forward`` returns the unweighted means ``trans_loss`` and ``rot_loss`` and two
 yardsticks that are the same for every loss, so that runs with different losses can be compared on
 one scale: ``trans_err_m`` (mean ``|t - t^|``, metres) and ``rot_err_rad`` (mean geodesic angle between
@@ -26,31 +31,61 @@ from __future__ import annotations
 
 import math
 
+import roma
 import torch
 from torch import Tensor, nn
 
 from lossvo import geometry as g
+from lossvo.weighting import DEFAULT_C, HomoscedasticWeighting, learned_from_config
 
 
 class PoseLoss(nn.Module):
-    """Base class: shape checks, the shared translation term, the yardsticks.
+    """Base class: shape checks, the shared translation term, the weighting, the yardsticks.
 
-    Subclasses set ``dim`` and ``default_k`` and implement :meth:`decode_rt`, :meth:`encode` and
-    :meth:`rotation_term`.
+    Subclasses set ``dim``, ``small_angle_gain`` and ``paper_k`` and implement :meth:`decode_rt`,
+    :meth:`encode` and :meth:`rotation_term`.
+
+    Args:
+        k: rotation weight; None: the matched weighting ``100 / small_angle_gain``.
+        learned: initial log-variances ``{"s_t": .., "s_r": ..}`` for the learned (homoscedastic)
+            weighting instead of k (then k must be None).
     """
 
     dim: int
-    default_k: float
+    small_angle_gain: float
+    """Rotation term ~ gain * theta^2 for a small rotation error theta (radians)."""
+    paper_k: float
+    """The study's weight for this loss (for losses the study did not have: the study's weight of the
+    loss with the same rotation distance)."""
 
-    def __init__(self, k: float | None = None) -> None:
+    def __init__(self, k: float | None = None, learned: dict[str, float] | None = None) -> None:
         super().__init__()
-        k = self.default_k if k is None else k
-        if isinstance(k, bool) or not isinstance(k, (int, float)) or not math.isfinite(k) or k < 0:
-            raise ValueError(f"{type(self).__name__}: k must be a finite number >= 0, got {k!r}")
-        self.k = float(k)
+        name = type(self).__name__
+        self.weighting: HomoscedasticWeighting | None = learned_from_config(learned)
+        if self.weighting is not None and k is not None:
+            raise ValueError(
+                f"loss.k={k!r} cannot be combined with weighting=learned (the learned weights replace k): "
+                "drop loss.k, or choose weighting=matched or weighting=paper"
+            )
+        if self.weighting is None and k is None:
+            k = self.matched_k()
+        if k is not None and (
+            isinstance(k, bool) or not isinstance(k, (int, float)) or not math.isfinite(k) or k < 0
+        ):
+            raise ValueError(f"loss.k: expected a finite number >= 0 for {name}, got {k!r}")
+        self.k = None if k is None else float(k)
+
+    def matched_k(self) -> float:
+        """The default k: ``100 / small_angle_gain`` (the matched weighting with c = 100)."""
+        return DEFAULT_C / self.small_angle_gain
 
     def extra_repr(self) -> str:
-        return f"dim={self.dim}, k={self.k:g}"
+        weight = "learned" if self.k is None else f"{self.k:g}"
+        return f"dim={self.dim}, k={weight}"
+
+    def identity_output(self) -> Tensor:
+        """The output (dim,) float32 that decodes to the identity pose (the head's initial bias)."""
+        return self.encode(torch.eye(4, dtype=torch.float64)).float()
 
     # -- parameterisation -------------------------------------------------------------------------
 
@@ -109,13 +144,22 @@ class PoseLoss(nn.Module):
                 trans_err = torch.sqrt(trans_sq).mean()
                 rot_err = g.so3_geodesic_distance(R_target, R).mean()
             trans_loss, rot_loss = trans_sq.mean(), rot.mean()
-            return {
-                "loss": trans_loss + self.k * rot_loss,
+            out = {
+                "loss": self.weigh(trans_loss, rot_loss),
                 "trans_loss": trans_loss,
                 "rot_loss": rot_loss,
                 "trans_err_m": trans_err,
                 "rot_err_rad": rot_err,
             }
+            if self.weighting is not None:
+                out.update(self.weighting.values())
+            return out
+
+    def weigh(self, trans_loss: Tensor, rot_loss: Tensor) -> Tensor:
+        """The loss from the unweighted mean terms: ``L_t + k L_r``, or the learned weighting."""
+        if self.weighting is not None:
+            return self.weighting(trans_loss, rot_loss)
+        return trans_loss + self.k * rot_loss
 
     # -- input checks -----------------------------------------------------------------------------
 
@@ -144,7 +188,8 @@ class EulerLoss(PoseLoss):
     """
 
     dim = 6
-    default_k = 100.0
+    small_angle_gain = 1.0  # |dphi|^2 = theta^2 at zero pitch
+    paper_k = 100.0
 
     def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
         return g.euler_to_matrix(pred[..., 3:]), pred[..., :3]
@@ -161,10 +206,28 @@ class QuaternionLoss(PoseLoss):
 
     Output ``[t (3), w, x, y, z]`` with a raw quaternion, normalised here (see
     :func:`lossvo.geometry.quat_normalize`); q and -q give identical losses.
+
+    ``squared=False`` uses the unsquared distance ``min_b |q - b q^|``: the study writes d_q without a
+    square (and squares it in its loss), its released code used unsquared norms. That term is about
+    theta / 2, not quadratic, so it has no matched k: give ``k`` (or ``weighting=paper``).
     """
 
     dim = 7
-    default_k = 14.0
+    small_angle_gain = 0.25  # |q - q^|^2 = 2 - 2 cos(theta / 2) = theta^2 / 4 + O(theta^4)
+    paper_k = 14.0
+
+    def __init__(
+        self, k: float | None = None, learned: dict[str, float] | None = None, squared: bool = True
+    ) -> None:
+        if not isinstance(squared, bool):
+            raise ValueError(f"loss.squared: expected true or false, got {squared!r}")
+        if not squared and k is None and learned is None:
+            raise ValueError(
+                "loss.squared=false: the unsquared quaternion distance (~ theta / 2) has no matched k; "
+                "set loss.k (the study's 14 with weighting=paper) or use weighting=learned"
+            )
+        self.squared = squared
+        super().__init__(k, learned)
 
     def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
         return g.quat_to_matrix(g.quat_normalize(pred[..., 3:])), pred[..., :3]
@@ -173,7 +236,10 @@ class QuaternionLoss(PoseLoss):
         return torch.cat((pose[..., :3, 3], g.matrix_to_quat(pose[..., :3, :3])), dim=-1)
 
     def rotation_term(self, pred: Tensor, R: Tensor, R_target: Tensor) -> Tensor:
-        return g.quat_distance(g.quat_normalize(pred[..., 3:]), g.matrix_to_quat(R_target)).square()
+        q, q_target = g.quat_normalize(pred[..., 3:]), g.matrix_to_quat(R_target)
+        if self.squared:
+            return g.quat_distance_squared(q, q_target)
+        return g.quat_distance(q, q_target)
 
 
 class ChordalLoss(PoseLoss):
@@ -183,7 +249,8 @@ class ChordalLoss(PoseLoss):
     """
 
     dim = 6
-    default_k = 153.0
+    small_angle_gain = 2.0  # |R - R^|_F^2 = 8 sin^2(theta / 2) = 2 theta^2 + O(theta^4)
+    paper_k = 153.0
 
     def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
         T = g.se3_exp(pred)
@@ -199,12 +266,13 @@ class ChordalLoss(PoseLoss):
 class GeodesicLoss(PoseLoss):
     """Rotation vector + geodesic angle: ``|t - t^|^2 + k angle(R, R^)^2``.
 
-    Output ``[t (3), omega (3)]``, ``R^ = exp(omega)``. Default k = 100: for small errors the squared
-    angle equals the squared Euler error, so this matches the Euler loss's scale.
+    Output ``[t (3), omega (3)]``, ``R^ = exp(omega)``; ``paper_k`` is the study's Euler k1 (for small
+    errors the squared angle equals the squared Euler error).
     """
 
     dim = 6
-    default_k = 100.0
+    small_angle_gain = 1.0
+    paper_k = 100.0
 
     def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
         return g.so3_exp(pred[..., 3:]), pred[..., :3]
@@ -219,17 +287,74 @@ class GeodesicLoss(PoseLoss):
 class SixDLoss(PoseLoss):
     """6-D rotation (two columns, Gram-Schmidt) + chordal: ``|t - t^|^2 + k |R - R^|_F^2``.
 
-    Output ``[t (3), c1 (3), c2 (3)]``. Default k = 153, the chordal loss's, as the distance is the same.
+    Output ``[t (3), c1 (3), c2 (3)]`` (Zhou et al. 2019); ``paper_k`` is the chordal loss's k3, as the
+    distance is the same.
     """
 
     dim = 9
-    default_k = 153.0
+    small_angle_gain = 2.0
+    paper_k = 153.0
 
     def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
         return g.sixd_to_matrix(pred[..., 3:]), pred[..., :3]
 
     def encode(self, pose: Tensor) -> Tensor:
         return torch.cat((pose[..., :3, 3], g.matrix_to_sixd(pose[..., :3, :3])), dim=-1)
+
+    def rotation_term(self, pred: Tensor, R: Tensor, R_target: Tensor) -> Tensor:
+        return g.so3_chordal_distance(R, R_target).square()
+
+
+class SVDLoss(PoseLoss):
+    """9-D rotation (special Procrustes / SVD) + chordal: ``|t - t^|^2 + k |R - R^|_F^2``.
+
+    Output ``[t (3), M (9)]`` with M a 3x3 matrix in row-major order, projected onto SO(3) by
+    :func:`roma.special_procrustes` (the rotation nearest to M in the Frobenius norm; Levinson et al.
+    2020, Brégier 2021). Its derivative is damped where M's singular values coincide (M = 0, rank < 2),
+    so values and gradients stay finite at degenerate outputs. ``paper_k`` is the chordal loss's k3.
+    """
+
+    dim = 12
+    small_angle_gain = 2.0
+    paper_k = 153.0
+
+    def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
+        M = pred[..., 3:].unflatten(-1, (3, 3))
+        return roma.special_procrustes(M).to(pred.dtype), pred[..., :3]
+
+    def encode(self, pose: Tensor) -> Tensor:
+        return torch.cat((pose[..., :3, 3], pose[..., :3, :3].flatten(-2)), dim=-1)
+
+    def rotation_term(self, pred: Tensor, R: Tensor, R_target: Tensor) -> Tensor:
+        return g.so3_chordal_distance(R, R_target).square()
+
+
+class SymMatrixQuatLoss(PoseLoss):
+    """10-D symmetric-matrix quaternion + chordal: ``|t - t^|^2 + k |R - R^|_F^2``.
+
+    Output ``[t (3), a (10)]``: the upper triangle of a symmetric 4x4 matrix A (roma's order a00, a10,
+    a20, a30, a11, a21, a31, a22, a32, a33); the rotation is the unit quaternion (x, y, z, w) minimising
+    ``q^T A q``, the eigenvector of A's smallest eigenvalue (Peretroukhin et al. 2020), by
+    :func:`roma.symmatrixvec_to_unitquat`, whose derivative is damped where that eigenvalue is repeated
+    (e.g. A = 0), so values and gradients stay finite. ``paper_k`` is the chordal loss's k3.
+    """
+
+    dim = 13
+    small_angle_gain = 2.0
+    paper_k = 153.0
+
+    _UPPER = (0, 4, 8, 12, 5, 9, 13, 10, 14, 15)
+    """Indices of roma's 10 entries in the row-major flattened 4x4 matrix (its lower triangle by columns)."""
+
+    def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
+        q = roma.symmatrixvec_to_unitquat(pred[..., 3:])
+        return roma.unitquat_to_rotmat(q).to(pred.dtype), pred[..., :3]
+
+    def encode(self, pose: Tensor) -> Tensor:
+        """``A = I - q q^T`` for the pose's quaternion q: eigenvalue 0 for q, 1 for the rest."""
+        q = roma.rotmat_to_unitquat(pose[..., :3, :3])
+        A = torch.eye(4, dtype=q.dtype, device=q.device) - q[..., :, None] * q[..., None, :]
+        return torch.cat((pose[..., :3, 3], A.flatten(-2)[..., list(self._UPPER)]), dim=-1)
 
     def rotation_term(self, pred: Tensor, R: Tensor, R_target: Tensor) -> Tensor:
         return g.so3_chordal_distance(R, R_target).square()

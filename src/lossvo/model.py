@@ -32,11 +32,17 @@ Initialisation (documented, as in DeepVO-pytorch where it has one):
 - LSTM: Xavier-uniform input weights and orthogonal recurrent weights (per gate), biases 0 except the
   forget gate's, which is 1 (``bias_hh``; PyTorch adds ``bias_ih + bias_hh``);
 - head: weights normal with std 1e-3 (small, but not zero, so that gradients reach the LSTM and the
-  encoder from the first step) and the bias set to :func:`identity_output` -- the output that decodes
-  to "no motion" in every parameterisation of :mod:`lossvo.losses` -- so the initial prediction is close
-  to the identity pose for each loss. (An all-zero output would decode to the identity for Euler,
-  se(3) and quaternion heads too, but it is a degenerate point for the quaternion's normalisation and the
-  6-D Gram-Schmidt, where the rotation would get no gradient; starting at ``w = 1`` avoids that.)
+  encoder from the first step) and the bias set to ``head_bias``, the loss's
+  :meth:`lossvo.losses.PoseLoss.identity_output` -- the output that decodes to "no motion" -- so the
+  initial prediction is close to the identity pose for each loss. (An all-zero output would decode to the
+  identity for Euler, se(3) and quaternion heads too, but it is a degenerate point for the quaternion's
+  normalisation and the 6-D Gram-Schmidt, where the rotation would get no gradient.)
+
+Random streams. The network takes one number from the caller's random stream (the init seed) and
+nothing else: the backbone (encoder and LSTM) is drawn from a generator seeded with it, the head from a
+second generator seeded with it plus one. So for one seed every head size (every loss) gets identical
+backbone weights, and the caller's stream -- data order, dropout masks -- is where it would be without
+the network, whatever its head.
 """
 
 from __future__ import annotations
@@ -73,20 +79,16 @@ TOTAL_STRIDE = 64
 MIN_SIZE = TOTAL_STRIDE
 
 
-def identity_output(out_dim: int) -> Tensor:
-    """The head output (out_dim,) that decodes to the identity pose in :mod:`lossvo.losses`.
-
-    Layout ``[t (3), r (D)]``: zeros for the 6-D heads (Euler angles, se(3), rotation vector), ``w = 1``
-    for the quaternion ``(w, x, y, z)`` head (7), the first two columns of the identity for the 6-D
-    rotation head (9). Other sizes get zeros.
-    """
-    out = torch.zeros(out_dim)
-    if out_dim == 7:
-        out[3] = 1.0
-    elif out_dim == 9:
-        out[3] = 1.0  # first column (1, 0, 0)
-        out[7] = 1.0  # second column (0, 1, 0)
-    return out
+def _head_bias(value: object, out_dim: int) -> Tensor:
+    if value is None:
+        return torch.zeros(out_dim)
+    try:
+        bias = torch.as_tensor([float(v) for v in value], dtype=torch.float32)  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        bias = torch.empty(0)
+    if bias.shape != (out_dim,) or not torch.isfinite(bias).all():
+        raise ValueError(f"model.head_bias: expected null or {out_dim} finite numbers, got {value!r}")
+    return bias
 
 
 def _check_int(name: str, value: object, minimum: int, why: str = "") -> int:
@@ -134,6 +136,10 @@ class DeepVO(nn.Module):
         batch_norm: BatchNorm after each conv (FlowNetS-BN; the convs then have no bias).
         flownet: optional path to a FlowNetPytorch checkpoint loaded into the encoder (:func:`load_flownet`);
             needs ``width_mult=1`` and ``normalization: flownet`` input.
+        head_bias: the head's initial bias (out_dim,), the loss's identity output; null: zeros.
+        channels_last: run the encoder in the channels-last memory layout (NHWC), which the oneDNN CPU
+            kernels and GPU tensor cores prefer; the values are the same (dropout masks are drawn in
+            memory order, so with conv dropout a run differs from a contiguous-layout run).
     """
 
     def __init__(
@@ -150,6 +156,8 @@ class DeepVO(nn.Module):
         head_dropout: float = 0.5,
         batch_norm: bool = True,
         flownet: str | Path | None = None,
+        head_bias: list[float] | None = None,
+        channels_last: bool = False,
     ) -> None:
         super().__init__()
         why = f" so that conv6 (stride {TOTAL_STRIDE}) has at least 1 {{}}"
@@ -167,7 +175,23 @@ class DeepVO(nn.Module):
             raise ValueError(f"model.batch_norm: expected true or false, got {batch_norm!r}")
         if flownet is not None and not isinstance(flownet, (str, Path)):
             raise ValueError(f"model.flownet: expected a path or null, got {flownet!r}")
+        if not isinstance(channels_last, bool):
+            raise ValueError(f"model.channels_last: expected true or false, got {channels_last!r}")
+        self.memory_format = torch.channels_last if channels_last else torch.contiguous_format
+        self.register_buffer("_head_bias", _head_bias(head_bias, self.out_dim), persistent=False)
 
+        init_seed = int(torch.randint(0, 2**62, ()))  # the one draw from the caller's stream
+        with torch.random.fork_rng(devices=[]):  # the layers' default initialisation is overwritten
+            self._build(conv_p, conv6_p, lstm_p, head_p, batch_norm)
+        self.reset_parameters(init_seed)
+        self.encoder.to(memory_format=self.memory_format)
+
+        if flownet is not None:
+            report = load_flownet(self, flownet)
+            log.info("DeepVO encoder from FlowNet checkpoint %s: %s", flownet, report.summary())
+
+    def _build(self, conv_p: float, conv6_p: float, lstm_p: float, head_p: float, batch_norm: bool) -> None:
+        """Create the layers (encoder, LSTM, head)."""
         blocks: OrderedDict[str, nn.Module] = OrderedDict()
         for name, c_in, c_out, kernel, stride in FLOWNETS_ENCODER:
             c_in = c_in if name == "conv1" else self._channels(c_in)
@@ -191,21 +215,22 @@ class DeepVO(nn.Module):
         )
         self.head_dropout = nn.Dropout(head_p)
         self.head = nn.Linear(self.hidden_size, self.out_dim)
-        self.reset_parameters()
-
-        if flownet is not None:
-            report = load_flownet(self, flownet)
-            log.info("DeepVO encoder from FlowNet checkpoint %s: %s", flownet, report.summary())
 
     def _channels(self, c: int) -> int:
         return max(1, round(c * self.width_mult))
 
     @torch.no_grad()
-    def reset_parameters(self) -> None:
-        """Initialise every layer as described in the module docstring."""
+    def reset_parameters(self, seed: int | None = None) -> None:
+        """Initialise every layer as described in the module docstring: the backbone from a generator
+        seeded with ``seed``, the head from one seeded with ``seed + 1`` (None: one draw from the
+        global stream)."""
+        if seed is None:
+            seed = int(torch.randint(0, 2**62, ()))
+        backbone = torch.Generator().manual_seed(seed)
+        head = torch.Generator().manual_seed(seed + 1)
         for m in self.encoder.modules():
             if isinstance(m, nn.Conv2d):
-                nn.init.kaiming_normal_(m.weight, a=0.1, nonlinearity="leaky_relu")
+                nn.init.kaiming_normal_(m.weight, a=0.1, nonlinearity="leaky_relu", generator=backbone)
                 if m.bias is not None:
                     nn.init.zeros_(m.bias)
             elif isinstance(m, nn.BatchNorm2d):
@@ -216,16 +241,16 @@ class DeepVO(nn.Module):
         for name, param in self.lstm.named_parameters():
             if name.startswith("weight_ih"):
                 for gate in param.split(n):  # PyTorch gate order: input, forget, cell, output
-                    nn.init.xavier_uniform_(gate)
+                    nn.init.xavier_uniform_(gate, generator=backbone)
             elif name.startswith("weight_hh"):
                 for gate in param.split(n):
-                    nn.init.orthogonal_(gate)
+                    nn.init.orthogonal_(gate, generator=backbone)
             elif name.startswith("bias"):
                 nn.init.zeros_(param)
                 if name.startswith("bias_hh"):
                     param[n : 2 * n] = 1.0
-        nn.init.normal_(self.head.weight, std=1e-3)
-        self.head.bias.copy_(identity_output(self.out_dim))
+        nn.init.normal_(self.head.weight, std=1e-3, generator=head)
+        self.head.bias.copy_(self._head_bias)
 
     def extra_repr(self) -> str:
         return (
@@ -258,7 +283,10 @@ class DeepVO(nn.Module):
         self._check_frames(frames)
         B, L = frames.shape[:2]
         pairs = torch.cat((frames[:, :-1], frames[:, 1:]), dim=2)  # (B, L-1, 6, H, W)
-        feats = self.encoder(pairs.reshape(B * (L - 1), 6, self.height, self.width))
+        pairs = pairs.reshape(B * (L - 1), 6, self.height, self.width).contiguous(
+            memory_format=self.memory_format
+        )
+        feats = self.encoder(pairs)
         return feats.reshape(B, L - 1, self.lstm_input_size)
 
     def forward_with_state(self, frames: Tensor, state: LSTMState | None = None) -> tuple[Tensor, LSTMState]:

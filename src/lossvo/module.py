@@ -4,7 +4,9 @@ The module is built from plain config dictionaries (Hydra ``_target_`` style), a
 are its hyperparameters: a checkpoint holds only primitives and reloads with torch's default
 ``weights_only`` loading, and ``VOModule.load_from_checkpoint(path)`` rebuilds the same network and
 loss without Hydra. Every key the loss returns is logged per epoch as ``train/<key>`` and
-``val/<key>`` (``loss``, ``trans_loss``, ``rot_loss``, ``trans_err_m``, ``rot_err_rad``).
+``val/<key>`` (``loss``, ``trans_loss``, ``rot_loss``, ``trans_err_m``, ``rot_err_rad``; ``s_t``, ``s_r``
+under the learned weighting), and validation also logs the loss-independent selection score
+``val/score`` (:mod:`lossvo.selection`).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from hydra.utils import instantiate
 from torch import Tensor
 
 from lossvo.losses import PoseLoss
+from lossvo.selection import SCORE_KEY, SelectionScore
 
 
 class NonFiniteLossError(FloatingPointError):
@@ -32,7 +35,8 @@ class VOModule(L.LightningModule):
         loss: config of a :class:`lossvo.losses.PoseLoss`.
         optimizer: config of a partial optimiser (``_partial_: true``), called with the parameters.
         scheduler: optional config of a partial LR scheduler, called with the optimiser; stepped per
-            epoch and given ``val/loss`` when it needs a metric (ReduceLROnPlateau).
+            epoch and given the ``monitor`` metric when it needs one (ReduceLROnPlateau).
+        monitor: the selection metric (``selection.monitor``): ``val/score`` or ``val/loss``.
     """
 
     def __init__(
@@ -41,11 +45,13 @@ class VOModule(L.LightningModule):
         loss: dict[str, Any],
         optimizer: dict[str, Any],
         scheduler: dict[str, Any] | None = None,
+        monitor: str = SCORE_KEY,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
         self.loss: PoseLoss = instantiate(loss)
         self.model = instantiate(model)
+        self.val_score = SelectionScore()
 
     def forward(self, frames: Tensor) -> Tensor:
         """Network output (B, L-1, dim) for frames (B, L, 3, H, W)."""
@@ -76,6 +82,9 @@ class VOModule(L.LightningModule):
         )  # fmt: skip
         if stage == "train":
             self.log("loss", out["loss"], on_step=True, on_epoch=False, prog_bar=True, logger=False)
+        if stage == "val":
+            self.val_score.update(self.decode(pred.detach()), targets)
+            self.log(SCORE_KEY, self.val_score, on_step=False, on_epoch=True)
         return out["loss"]
 
     def training_step(self, batch: tuple[Tensor, Tensor], batch_idx: int) -> Tensor:
@@ -113,5 +122,5 @@ class VOModule(L.LightningModule):
         scheduler = instantiate(self.hparams.scheduler)(optimizer=optimizer)
         return {
             "optimizer": optimizer,
-            "lr_scheduler": {"scheduler": scheduler, "interval": "epoch", "monitor": "val/loss"},
+            "lr_scheduler": {"scheduler": scheduler, "interval": "epoch", "monitor": self.hparams.monitor},
         }

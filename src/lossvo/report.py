@@ -5,12 +5,19 @@ per run, ``SWEEP_DIR/<num>_<overrides>/``, with ``.hydra/{config,overrides}.yaml
 ``metrics.csv``, ``results.json`` and ``trajectories/NN.txt``. This module writes into ``--out`` (default
 ``SWEEP_DIR/report/``), every file atomically:
 
-- ``report.md``: Table I (APE / RPE translation RMSE, m), Table II (APE / RPE rotation RMSE, rad) and
-  Table III (KITTI t_err %, r_err deg/100 m) per test sequence plus a mean row, one column pair per compared
+- ``report.md``: a bold warning at the top when the configurations were selected by different metrics;
+  the configurations (loss, weighting, k, the effective small-angle rotation weight k·gain, the selection
+  metric); Table I (APE / RPE translation RMSE, m), Table II (APE / RPE rotation RMSE, rad) and Table III
+  (KITTI t_err %, r_err deg/100 m) per test sequence plus a mean row, one column pair per compared
   configuration and per baseline; the minimum of each row in bold, over all columns including the
-  baselines; the pairwise comparison of the configurations; which jobs were included or skipped and why;
-- ``tables/{translation,rotation,kitti}.{csv,tex}`` (LaTeX with booktabs) and ``tables/pairwise.csv``;
-- ``figures/``: loss curves, bird's-eye trajectories per sequence, APE bar chart (PNG).
+  baselines; the pairwise comparison of the configurations; convergence (the first epoch within 10 % of
+  the best ``val/score``); which jobs were included or skipped and why; and last, the study's claims
+  (chordal gives the lowest errors, converges fastest) with their paired tests and verdicts
+  (:mod:`lossvo.claims`);
+- ``tables/{translation,rotation,kitti}.{csv,tex}`` (LaTeX with booktabs), ``tables/pairwise.csv``,
+  ``tables/configurations.csv``, ``tables/convergence.csv`` and ``tables/claims.csv``;
+- ``figures/``: score and loss curves (mean and ± std band over seeds), bird's-eye trajectories per
+  sequence, APE bar chart (PNG).
 
 Configurations are named by the overrides that differ between jobs (``loss=euler`` vs ``loss=quat``, or
 ``loss.k=50`` vs ``loss.k=100``); ``seed`` is the replicate axis: with several seeds a cell is the mean ±
@@ -38,7 +45,6 @@ import math
 import os
 import sys
 import time
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from itertools import combinations
@@ -47,19 +53,24 @@ from typing import Any
 
 import numpy as np
 
+from lossvo import claims
 from lossvo.atomic import write_text_atomic
+from lossvo.claims import PairedTest, wilcoxon_p
 from lossvo.figures import plot_ape_bars, plot_curves, plot_trajectories
 from lossvo.tables import (
     BASELINE,
     METRIC_PATHS,
     NETWORK,
     TABLES,
+    Cell,
     Column,
     Table,
     build_table,
     fmt,
     lookup,
     md,
+    mean_std_text,
+    samples,
     table_csv,
     table_latex,
     table_markdown,
@@ -406,17 +417,6 @@ def paired_values(a: Column, b: Column, path: Sequence[str]) -> tuple[np.ndarray
     return np.array(xs), np.array(ys), len(seeds)
 
 
-def wilcoxon_p(differences: np.ndarray) -> float:
-    """Two-sided Wilcoxon signed-rank p-value of paired differences (1.0 if all are zero)."""
-    from scipy.stats import wilcoxon
-
-    if not np.any(differences != 0):
-        return 1.0
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # small samples with ties: scipy warns and uses the normal approx.
-        return float(wilcoxon(differences).pvalue)
-
-
 def compare(columns: Sequence[Column]) -> list[Comparison]:
     """Every pair of network columns on each metric of :data:`COMPARED`."""
     out = []
@@ -451,6 +451,613 @@ def comparisons_csv(comparisons: Sequence[Comparison]) -> str:
         writer.writerow(
             [c.a, c.b, c.metric, c.n, c.seeds, repr(c.median_diff), c.a_lower, repr(c.p_value), c.verdict]
         )
+    return out.getvalue()
+
+
+# --------------------------------------------------------------------------------------------------
+# Configurations: rotation weights and selection metrics, from the jobs' configs
+# --------------------------------------------------------------------------------------------------
+
+SCORE = "val/score"
+DEFAULT_MONITOR = "val/loss"
+LOSS_DEPENDENT = ("val/loss", "val/rot_loss")
+"""Monitors whose value depends on the loss and its weights: the same key names a different metric in
+configurations that differ in loss or weighting."""
+
+
+def config_value(config: Any, key: str, default: Any = None) -> Any:
+    """The value at dotted ``key`` of a job config (a DictConfig or a mapping), interpolations resolved;
+    ``default`` where the key is missing, null or cannot be resolved here."""
+    from omegaconf import OmegaConf
+
+    if config is None:
+        return default
+    if not OmegaConf.is_config(config):
+        config = OmegaConf.create(config)
+    value = OmegaConf.select(config, key, default=None, throw_on_resolution_failure=False)
+    return default if value is None else value
+
+
+def _number(value: Any) -> float | None:
+    """``value`` as a float if it is a finite number (not a bool), else None."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        return None
+    return float(value)
+
+
+def loss_target(job: Job) -> str | None:
+    """The job's ``loss._target_`` (e.g. ``lossvo.losses.ChordalLoss``), None if missing."""
+    target = config_value(job.config, "loss._target_")
+    return str(target) if target is not None else None
+
+
+def loss_class_name(job: Job) -> str | None:
+    """The class name of the job's loss (``ChordalLoss``), None if missing."""
+    target = loss_target(job)
+    return target.rsplit(".", 1)[-1] if target else None
+
+
+def loss_attribute(target: str | None, name: str) -> float | None:
+    """A numeric class attribute (``small_angle_gain``, ``paper_k``) of the loss class named ``target``;
+    None if the class cannot be imported or lacks it."""
+    from hydra.utils import get_class
+
+    if not target:
+        return None
+    try:
+        return _number(getattr(get_class(target), name, None))
+    except Exception:  # an old or renamed class: the report goes on without the attribute
+        return None
+
+
+@dataclass(frozen=True)
+class Weighting:
+    """A job's rotation weighting: the loss class, ``weighting.preset`` (None for old jobs), the k used,
+    the loss's small-angle gain (rotation term ~ gain·theta², theta in rad) and the effective small-angle
+    rotation weight relative to the translation term (k·gain, or gain·exp(s_t − s_r) at the last epoch
+    under learned weighting); None where unknown."""
+
+    loss: str | None
+    preset: str | None
+    k: float | None
+    gain: float | None
+    weight: float | None
+    squared: bool = True
+
+    @property
+    def learned(self) -> bool:
+        return self.preset == "learned"
+
+
+def learned_ratio(curves: Curves | None) -> float | None:
+    """``exp(s_t − s_r)`` at the last epoch with both ``train/s_t`` and ``train/s_r`` logged, or None."""
+    if curves is None or not {"train/s_t", "train/s_r"} <= set(curves.series):
+        return None
+    (et, st), (er, sr) = curves.series["train/s_t"], curves.series["train/s_r"]
+    common = np.intersect1d(et, er)
+    if common.size == 0:
+        return None
+    last = common[-1]
+    return float(np.exp(st[et == last][0] - sr[er == last][0]))
+
+
+def job_weighting(job: Job) -> Weighting:
+    """How the job weighted its rotation term, from ``.hydra/config.yaml`` (and metrics.csv for learned).
+
+    k is ``loss.k`` if it is a number; otherwise the preset's (``weighting.c / gain`` for matched, the
+    class's ``paper_k`` for paper).
+    """
+    target = loss_target(job)
+    preset = config_value(job.config, "weighting.preset")
+    preset = str(preset) if preset is not None else None
+    gain = loss_attribute(target, "small_angle_gain")
+    squared = config_value(job.config, "loss.squared", True) is not False
+    name = loss_class_name(job)
+    if preset == "learned":
+        ratio = learned_ratio(job.curves)
+        weight = gain * ratio if gain is not None and ratio is not None else None
+        return Weighting(name, preset, 1.0, gain, weight, squared)
+    k = _number(config_value(job.config, "loss.k"))
+    if k is None and preset == "matched":
+        c = _number(config_value(job.config, "weighting.c"))
+        k = c / gain if c is not None and gain else None
+    elif k is None and preset == "paper":
+        k = loss_attribute(target, "paper_k")
+    weight = k * gain if k is not None and gain is not None and squared else None
+    return Weighting(name, preset, k, gain, weight, squared)
+
+
+def short(x: float | None) -> str:
+    """A weight or gain with up to 4 significant digits (``100``, ``0.25``, ``33.33``); ``"?"`` if None."""
+    return "?" if x is None else f"{x:.4g}"
+
+
+def weight_text(weightings: Sequence[Weighting]) -> str:
+    """The effective small-angle rotation weight of a configuration's seeds as text: one number (k·gain),
+    ``"learned: mean ± std"`` over seeds, ``"?"`` where unknown."""
+    if not weightings:
+        return "?"
+    if any(w.learned for w in weightings):
+        cell = Cell.of(np.array([w.weight if w.weight is not None else np.nan for w in weightings]))
+        if cell.n == 0:
+            return "learned: ? (no train/s_t, train/s_r in metrics.csv)"
+        return f"learned: {mean_std_text(cell)}"
+    if not all(w.squared for w in weightings):
+        return "n/a (unsquared rotation term: not gain·theta²)"
+    return ", ".join(sorted({short(w.weight) for w in weightings}))
+
+
+@dataclass(frozen=True)
+class Selection:
+    """How a job chose its best checkpoint: the monitored metrics.csv column and ``min`` / ``max``, and
+    the config key it was read from (``selection.monitor``, ``callbacks.model_checkpoint.monitor`` or
+    ``default`` for an old job without either)."""
+
+    monitor: str
+    mode: str
+    source: str
+
+
+def job_selection(config: Any) -> Selection:
+    """The selection metric of a job config: ``selection.monitor``, else the checkpoint callback's
+    monitor, else ``val/loss``; the mode likewise (``min`` by default)."""
+    for prefix in ("selection", "callbacks.model_checkpoint"):
+        monitor = config_value(config, f"{prefix}.monitor")
+        if monitor is not None:
+            return Selection(str(monitor), str(config_value(config, f"{prefix}.mode", "min")), prefix)
+    return Selection(DEFAULT_MONITOR, "min", "default")
+
+
+def selection_text(selection: Selection) -> str:
+    """``"`val/score` (min)"``, marked when the value was assumed for an old job."""
+    text = f"`{selection.monitor}` ({selection.mode})"
+    return text + ", assumed: not in the config" if selection.source == "default" else text
+
+
+def selection_identity(job: Job) -> tuple[Any, ...]:
+    """What a job's selection metric is: the monitor and mode, plus, for a loss-dependent monitor
+    (:data:`LOSS_DEPENDENT`), the loss and weights that define its value."""
+    selection = job_selection(job.config)
+    key: tuple[Any, ...] = (selection.monitor, selection.mode)
+    if selection.monitor in LOSS_DEPENDENT:
+        w = job_weighting(job)
+        key += (w.loss, w.preset, None if w.learned else w.k, w.squared)
+    return key
+
+
+def selection_warning(columns: Sequence[Column]) -> str | None:
+    """A bold markdown warning if the configurations were selected by different metrics (different
+    monitors, or one loss-dependent monitor such as ``val/loss`` over different losses or weights);
+    None if one metric selected them all."""
+    networks = [c for c in columns if c.kind == NETWORK and c.jobs]
+    if len({selection_identity(j) for c in networks for j in c.jobs}) < 2:
+        return None
+    per_config = "; ".join(
+        f"{c.label}: {', '.join(sorted({selection_text(job_selection(j.config)) for j in c.jobs}))}"
+        for c in networks
+    )
+    monitors = {job_selection(j.config).monitor for c in networks for j in c.jobs}
+    why = (
+        "each by its own loss value, which differs between losses and weights"
+        if len(monitors) == 1
+        else "different columns of metrics.csv"
+    )
+    return (
+        f"**Warning: the configurations of this sweep were selected by different metrics ({why}; "
+        f"{per_config}): their best checkpoints, and so the tables below, were not chosen by one rule. "
+        f"A fair comparison selects every configuration by the loss-independent `{SCORE}`.**"
+    )
+
+
+CONFIGURATION_FIELDS = (
+    ("configuration", "configuration"),
+    ("loss", "loss"),
+    ("weighting", "weighting"),
+    ("k", "k"),
+    ("gain", "gain"),
+    ("rotation weight k·gain", "rotation_weight"),
+    ("selected by", "selected_by"),
+    ("seeds", "seeds"),
+)
+"""(markdown header, CSV header) of the configurations table."""
+
+
+def configuration_row(column: Column) -> list[str]:
+    """One configuration's :data:`CONFIGURATION_FIELDS` as text (several values of its seeds joined)."""
+    ws = [job_weighting(j) for j in column.jobs]
+    first = ws[0] if ws else Weighting(None, None, None, None, None)
+    return [
+        column.label,
+        first.loss or "?",
+        first.preset or "? (not in the config)",
+        ", ".join(sorted({short(w.k) for w in ws})),
+        short(first.gain),
+        weight_text(ws),
+        ", ".join(sorted({selection_text(job_selection(j.config)) for j in column.jobs})),
+        str(len(column.jobs)),
+    ]
+
+
+def configurations_markdown(columns: Sequence[Column]) -> str:
+    """Per configuration: loss class, weighting preset, k, gain, k·gain and the selection metric."""
+    lines = ["| " + " | ".join(h for h, _ in CONFIGURATION_FIELDS) + " |", "|" + "---|" * 8]
+    for c in columns:
+        if c.kind == NETWORK:
+            lines.append("| " + " | ".join(md(v) for v in configuration_row(c)) + " |")
+    return "\n".join(lines)
+
+
+def configurations_csv(columns: Sequence[Column]) -> str:
+    """:data:`CONFIGURATION_FIELDS` per configuration, as in report.md (backticks dropped)."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow([name for _, name in CONFIGURATION_FIELDS])
+    for c in columns:
+        if c.kind == NETWORK:
+            writer.writerow([v.replace("`", "") for v in configuration_row(c)])
+    return out.getvalue()
+
+
+# --------------------------------------------------------------------------------------------------
+# Convergence: the first epoch within 10 % of the best validation score
+# --------------------------------------------------------------------------------------------------
+
+
+def convergence_metric(job: Job) -> tuple[str, str]:
+    """(metrics.csv column, mode) a job's convergence is measured on: ``val/score`` (min) if logged,
+    else its selection monitor."""
+    if job.curves is not None and SCORE in job.curves.series:
+        return SCORE, "min"
+    selection = job_selection(job.config)
+    return selection.monitor, selection.mode
+
+
+@dataclass
+class Convergence:
+    """A configuration's convergence: per replicate (seed) the column used, the first epoch (1-based,
+    = metrics.csv epoch + 1) within :data:`lossvo.claims.CONVERGENCE_TOLERANCE` of its best value (None
+    without that column) and the number of epochs logged."""
+
+    label: str
+    replicates: list[str]
+    metrics: list[str]
+    epochs: list[int | None]
+    logged: list[int]
+
+    def cell(self) -> Cell:
+        return Cell.of(np.array([e if e is not None else np.nan for e in self.epochs], dtype=np.float64))
+
+    def epoch_of(self, replicate: str) -> int | None:
+        return self.epochs[self.replicates.index(replicate)] if replicate in self.replicates else None
+
+
+def job_convergence(job: Job) -> tuple[str, int | None, int]:
+    """(column, first epoch within 10 % of the best (1-based) or None, epochs logged) of one job."""
+    column, mode = convergence_metric(job)
+    if job.curves is None or column not in job.curves.series:
+        return column, None, 0
+    epochs, values = job.curves.series[column]
+    epoch = claims.convergence_epoch(epochs, values, mode=mode)
+    return column, (epoch + 1 if epoch is not None else None), len(epochs)
+
+
+def convergence(columns: Sequence[Column]) -> list[Convergence]:
+    """One :class:`Convergence` per network column, replicates in the column's order."""
+    out = []
+    for c in columns:
+        if c.kind != NETWORK:
+            continue
+        per_job = [job_convergence(j) for j in c.jobs]
+        out.append(
+            Convergence(
+                c.label,
+                list(c.replicates),
+                [m for m, _, _ in per_job],
+                [e for _, e, _ in per_job],
+                [n for _, _, n in per_job],
+            )
+        )
+    return out
+
+
+def epoch_text(cell: Cell) -> str:
+    """Epochs as ``"mean ± std"`` with one decimal (``"n/a"`` without any)."""
+    if cell.n == 0:
+        return "n/a"
+    return f"{cell.mean:.1f}" + (f" ± {cell.std:.1f}" if cell.n > 1 else "")
+
+
+def convergence_markdown(items: Sequence[Convergence]) -> str:
+    tolerance = f"{claims.CONVERGENCE_TOLERANCE:.0%}"
+    lines = [
+        f"The first epoch (counted from 1, as in the curves; metrics.csv counts from 0) at which the "
+        f"validation score comes within {tolerance} of its best over the run (value <= best × "
+        f"{1 + claims.CONVERGENCE_TOLERANCE:g} for a min metric), mean ± sample std over seeds. The "
+        f"score is the loss-independent `{SCORE}`, the same for every loss.",
+    ]
+    fallback = sorted({m for c in items for m in c.metrics if m != SCORE})
+    if fallback:
+        lines += [
+            "",
+            f"*Note:* `{SCORE}` is not in every metrics.csv: those jobs are measured on their selection "
+            f"monitor ({', '.join(f'`{m}`' for m in fallback)}), which is not on one scale across losses.",
+        ]
+    lines += [
+        "",
+        "| configuration | metric | seeds with a curve | epoch (mean ± std) | per seed | epochs logged |",
+        "|" + "---|" * 6,
+    ]
+    for c in items:
+        pairs = zip(c.replicates, c.epochs, strict=True)
+        per_seed = ", ".join(f"{r}: {e if e is not None else 'n/a'}" for r, e in pairs)
+        cell = c.cell()
+        lines.append(
+            f"| {md(c.label)} | {md(', '.join(sorted(set(c.metrics))))} | {cell.n} | {epoch_text(cell)} | "
+            f"{md(per_seed)} | {md(', '.join(map(str, sorted(set(c.logged)))))} |"
+        )
+    return "\n".join(lines)
+
+
+def convergence_csv(items: Sequence[Convergence]) -> str:
+    """One row per configuration and seed: ``configuration, seed, metric, epoch`` (1-based, empty if
+    none), ``epochs_logged``; then per configuration a row with seed ``mean`` (mean epoch) and one with
+    seed ``std`` (sample std)."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(["configuration", "seed", "metric", "epoch", "epochs_logged"])
+    for c in items:
+        for r, m, e, n in zip(c.replicates, c.metrics, c.epochs, c.logged, strict=True):
+            writer.writerow([c.label, r, m, "" if e is None else e, n])
+        cell, metric = c.cell(), ",".join(sorted(set(c.metrics)))
+        writer.writerow([c.label, "mean", metric, repr(cell.mean) if cell.n else "", ""])
+        writer.writerow([c.label, "std", metric, repr(cell.std) if cell.n > 1 else "", ""])
+    return out.getvalue()
+
+
+# --------------------------------------------------------------------------------------------------
+# The study's claims, tested on the numbers
+# --------------------------------------------------------------------------------------------------
+
+CLAIMED_LOSS = "ChordalLoss"
+CLAIM_ERRORS = (
+    ("RPE trans RMSE [m]", ("rpe", "trans", "rmse")),
+    ("RPE rot RMSE [rad]", ("rpe", "rot_rad", "rmse")),
+    ("APE trans RMSE [m]", ("ape", "trans", "rmse")),
+)
+CLAIM_A = "the chordal loss gives the lowest errors"
+CLAIM_B = "it converges fastest"
+EPOCHS = "convergence epoch"
+
+
+@dataclass
+class QuantityTests:
+    """The claimed configuration against each other on one quantity (an error metric or the
+    convergence epoch): the paired tests and their verdict."""
+
+    quantity: str
+    tests: list[PairedTest]
+    verdict: str
+
+
+@dataclass
+class Claim:
+    """One claim about one claimed configuration: what was paired (``scope``), per configuration the
+    measured numbers ``{label: {quantity: Cell over seeds}}``, the tests per quantity, the overall
+    verdict and notes. ``untested`` says why there are no tests (then ``verdict`` is empty)."""
+
+    statement: str
+    configuration: str
+    scope: str = ""
+    measured: dict[str, dict[str, Cell]] = field(default_factory=dict)
+    quantities: list[QuantityTests] = field(default_factory=list)
+    verdict: str = ""
+    notes: list[str] = field(default_factory=list)
+    untested: str | None = None
+
+
+def is_claimed(column: Column) -> bool:
+    """Whether a network column is a chordal configuration: every job's ``loss._target_`` class is
+    :data:`CLAIMED_LOSS`."""
+    return (
+        column.kind == NETWORK
+        and bool(column.jobs)
+        and all(loss_class_name(j) == CLAIMED_LOSS for j in column.jobs)
+    )
+
+
+def training_sequences(columns: Sequence[Column]) -> set[str]:
+    """The union of the jobs' ``data.train`` sequences (as strings)."""
+    out: set[str] = set()
+    for c in columns:
+        for j in c.jobs:
+            out.update(str(s) for s in (config_value(j.config, "data.train") or []))
+    return out
+
+
+def restrict(column: Column, sequences: Sequence[str]) -> Column:
+    """A copy of a column whose results hold only ``sequences``."""
+    results = [{s: r[s] for s in sequences if s in r} for r in column.results]
+    return Column(column.label, column.kind, list(column.replicates), results, list(column.jobs))
+
+
+def seed_means(column: Column, path: Sequence[str], sequences: Sequence[str]) -> Cell:
+    """Mean ± std over seeds of each seed's mean of one metric over ``sequences`` (a seed missing one
+    sequence is left out)."""
+    values = samples(column, path, sequences)  # (seeds, sequences)
+    return Cell.of(values.mean(axis=1) if values.shape[1] else np.array([]))
+
+
+def error_claim(claimed: Column, others: Sequence[Column], heldout: Sequence[str]) -> Claim:
+    """Claim (a): the claimed configuration's errors against every other's, paired over (seed, held-out
+    sequence), one verdict per metric of :data:`CLAIM_ERRORS`, combined by :func:`lossvo.claims.combine`."""
+    scope = f"On the sequences outside the training split: {', '.join(heldout)}."
+    claim = Claim(CLAIM_A, claimed.label, scope)
+    for column in (claimed, *others):
+        claim.measured[column.label] = {q: seed_means(column, p, heldout) for q, p in CLAIM_ERRORS}
+    a = restrict(claimed, heldout)
+    for quantity, path in CLAIM_ERRORS:
+        tests = []
+        for other in others:
+            x, y, _ = paired_values(a, restrict(other, heldout), path)
+            tests.append(claims.paired_test(other.label, x, y))
+        claim.quantities.append(QuantityTests(quantity, tests, claims.verdict(tests)))
+    claim.verdict = claims.combine([q.verdict for q in claim.quantities])
+    claim.notes.append(
+        "The sequences of one seed share one trained network, so the (seed, sequence) pairs are not fully "
+        "independent: read p as indicative."
+    )
+    return claim
+
+
+def convergence_claim(claimed: Convergence, others: Sequence[Convergence]) -> Claim:
+    """Claim (b): the claimed configuration's convergence epochs against every other's, paired by seed."""
+    claim = Claim(CLAIM_B, claimed.label, "Paired by seed, on the epochs of *Convergence*.")
+    for c in (claimed, *others):
+        claim.measured[c.label] = {EPOCHS: c.cell()}
+    tests = []
+    for other in others:
+        pairs = [(claimed.epoch_of(r), other.epoch_of(r)) for r in claimed.replicates]
+        pairs = [(x, y) for x, y in pairs if x is not None and y is not None]
+        x, y = (np.array([p[i] for p in pairs], dtype=np.float64) for i in (0, 1))
+        tests.append(claims.paired_test(other.label, x, y))
+    claim.quantities.append(QuantityTests(EPOCHS, tests, claims.verdict(tests)))
+    claim.verdict = claim.quantities[0].verdict
+    smallest = sorted({(t.n, claims.smallest_p(t.n)) for t in tests})
+    claim.notes += [
+        f"With n = {n} paired seeds the smallest two-sided p an exact Wilcoxon test can give is {fmt(p, 3)}"
+        + (f", so p < {claims.ALPHA} cannot be reached." if p >= claims.ALPHA else ".")
+        for n, p in smallest
+    ]
+    metrics = {m for c in (claimed, *others) for m in c.metrics}
+    if metrics != {SCORE}:
+        claim.notes.append(
+            f"Not every job logged `{SCORE}`: epochs are measured on {', '.join(sorted(metrics))}, curves "
+            "that are not on one scale across losses."
+        )
+    return claim
+
+
+def study_claims(
+    columns: Sequence[Column], items: Sequence[Convergence], sequences: Sequence[str]
+) -> list[Claim]:
+    """Claims (a) and (b) for every chordal configuration against all non-chordal ones (an untested
+    claim says why: no chordal configuration, nothing to compare with, no held-out sequence)."""
+    networks = [c for c in columns if c.kind == NETWORK]
+    claimed = [c for c in networks if is_claimed(c)]
+    others = [c for c in networks if not is_claimed(c)]
+    if not claimed:
+        reason = f"the sweep has no chordal configuration (no job with loss._target_ {CLAIMED_LOSS})"
+        return [Claim(s, "", untested=reason) for s in (CLAIM_A, CLAIM_B)]
+    train = training_sequences(networks)
+    heldout = [s for s in sequences if s not in train]
+    by_label = {c.label: c for c in items}
+    out = []
+    for column in claimed:
+        if not others:
+            reason = "no other configuration with results to compare with"
+            out += [Claim(s, column.label, untested=reason) for s in (CLAIM_A, CLAIM_B)]
+            continue
+        if heldout:
+            a = error_claim(column, others, heldout)
+        else:
+            a = Claim(CLAIM_A, column.label, untested="no evaluated sequence is outside the training split")
+        out += [a, convergence_claim(by_label[column.label], [by_label[o.label] for o in others])]
+    return out
+
+
+CLAIMS_RULE = (
+    f"Verdict rule (`lossvo.claims.verdict`): the chordal configuration (`loss._target_` class "
+    f"`{CLAIMED_LOSS}`) is paired with every other configuration and each pair is tested with a two-sided "
+    f"Wilcoxon signed-rank test (`scipy.stats.wilcoxon`). **{claims.SUPPORTED}**: the chordal mean is lower "
+    f"than every other configuration's and every p < {claims.ALPHA}; **{claims.CONTRADICTED}**: some other "
+    f"configuration's mean is lower with p < {claims.ALPHA}; otherwise **{claims.NOT_DISTINGUISHABLE}**. "
+    f"Claim (a) is tested per error metric, paired over (seed, sequence) on the sequences outside the "
+    f"training split (`data.train`), and the metrics combine as: {claims.CONTRADICTED} if any metric is, "
+    f"{claims.SUPPORTED} if all are, otherwise {claims.NOT_DISTINGUISHABLE}. Claim (b) pairs the convergence "
+    f"epochs (*Convergence*) by seed."
+)
+
+
+def _measured_markdown(claim: Claim) -> list[str]:
+    quantities = list(next(iter(claim.measured.values())))
+    fmt_cell = epoch_text if quantities == [EPOCHS] else mean_std_text
+    lines = ["| configuration | " + " | ".join(quantities) + " |", "|" + "---|" * (len(quantities) + 1)]
+    for label, cells in claim.measured.items():
+        lines.append(f"| {md(label)} | " + " | ".join(fmt_cell(cells[q]) for q in quantities) + " |")
+    return lines
+
+
+def _tests_markdown(claim: Claim) -> list[str]:
+    lines = [
+        f"| quantity | {md(claim.configuration)} vs | pairs n | mean {md(claim.configuration)} | mean other "
+        "| p (Wilcoxon) | smallest p at this n | verdict on the quantity |",
+        "|" + "---|" * 8,
+    ]
+    for q in claim.quantities:
+        number = (lambda x: f"{x:.2f}" if math.isfinite(x) else "n/a") if q.quantity == EPOCHS else fmt
+        for t in q.tests:
+            lines.append(
+                f"| {q.quantity} | {md(t.versus)} | {t.n} | {number(t.mean)} | {number(t.versus_mean)} | "
+                f"{fmt(t.p_value, 3)} | {fmt(claims.smallest_p(t.n), 3)} | {q.verdict} |"
+            )
+    return lines
+
+
+def claim_markdown(claim: Claim, letter: str) -> str:
+    """One claim: measured numbers (mean ± std over seeds), the paired tests and the verdict."""
+    head = f'### ({letter}) "{claim.statement}"'
+    head += f" ({claim.configuration})" if claim.configuration else ""
+    if claim.untested:
+        return f"{head}\n\nCannot be tested: {claim.untested}."
+    what = "each seed's mean over those sequences" if claim.statement == CLAIM_A else "epochs"
+    lines = [head, "", claim.scope, "", f"Measured ({what}; mean ± sample std over seeds):", ""]
+    lines += [*_measured_markdown(claim), "", "Paired tests:", "", *_tests_markdown(claim)]
+    lines += [f"\n*Note:* {n}" for n in claim.notes]
+    lines += ["", f"**Verdict: {claim.verdict}.**"]
+    return "\n".join(lines)
+
+
+def claims_markdown(items: Sequence[Claim]) -> str:
+    letters = {CLAIM_A: "a", CLAIM_B: "b"}
+    return "\n\n".join([CLAIMS_RULE, *(claim_markdown(c, letters[c.statement]) for c in items)])
+
+
+CLAIMS_HEADER = (
+    "claim",
+    "configuration",
+    "versus",
+    "quantity",
+    "n",
+    "mean",
+    "versus_mean",
+    "p_value",
+    "smallest_p",
+    "verdict",
+    "note",
+)
+
+
+def claims_csv(items: Sequence[Claim]) -> str:
+    """One row per paired test (``verdict``: that quantity's), then one ``all`` row per claim with its
+    verdict; an untested claim is one row with verdict ``cannot be tested`` and the reason in ``note``."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(CLAIMS_HEADER)
+    for c in items:
+        if c.untested:
+            writer.writerow([c.statement, c.configuration, *[""] * 7, "cannot be tested", c.untested])
+            continue
+        for q in c.quantities:
+            for t in q.tests:
+                numbers = [
+                    t.n,
+                    repr(t.mean),
+                    repr(t.versus_mean),
+                    repr(t.p_value),
+                    repr(claims.smallest_p(t.n)),
+                ]
+                writer.writerow([c.statement, c.configuration, t.versus, q.quantity, *numbers, q.verdict, ""])
+        writer.writerow([c.statement, c.configuration, "all", "all", *[""] * 5, c.verdict, " ".join(c.notes)])
     return out.getvalue()
 
 
@@ -612,6 +1219,25 @@ def figures_markdown(figures: Sequence[Path] | None, out: Path) -> str:
     return "\n\n".join(f"![{p.stem}]({p.relative_to(out).as_posix()})" for p in figures)
 
 
+@dataclass
+class Study:
+    """What a report measures besides the tables: the configurations (network columns), their
+    convergence and the study's claims."""
+
+    networks: list[Column]
+    convergence: list[Convergence]
+    claims: list[Claim]
+
+
+def analyse(networks: Sequence[Column], sequences: Sequence[str]) -> Study:
+    """Convergence and claims of the network columns on the evaluated ``sequences``."""
+    items = convergence(networks)
+    return Study(list(networks), items, study_claims(networks, items, sequences))
+
+
+TABLE_FILES = ("pairwise.csv", "configurations.csv", "convergence.csv", "claims.csv")
+
+
 def render_report(
     sweep: Path,
     out: Path,
@@ -622,6 +1248,7 @@ def render_report(
     baselines_on: bool,
     figures: Sequence[Path] | None,
     sequences: Sequence[str],
+    study: Study,
 ) -> str:
     """The text of report.md (``figures`` None: not drawn)."""
     included = [j for j in jobs if j.included]
@@ -632,6 +1259,22 @@ def render_report(
         f"Generated {time.strftime('%Y-%m-%d %H:%M:%S')} by `python -m lossvo.report`. "
         f"{len(jobs)} job(s): {len(included)} included, {len(skipped)} skipped (see *Jobs*).",
     ]
+    warning = selection_warning(study.networks)
+    if warning:
+        lines += ["", warning]
+    if study.networks:
+        lines += [
+            "",
+            "## Configurations",
+            "",
+            "Rotation weight: the small-angle weight of the rotation term relative to the translation "
+            "term, k · gain: each loss's rotation term is ≈ gain · θ² for a small rotation error θ (rad), "
+            "so a configuration's loss is ≈ |t − t^|² (m²) + k · gain · θ². Under learned weighting it is "
+            "gain · exp(s_t − s_r) at the last epoch (mean ± std over seeds). Selected by: the metric "
+            "that chose each job's best checkpoint.",
+            "",
+            configurations_markdown(study.networks),
+        ]
     if included:
         align, delta, _ = evaluation_settings(included)
         lines += [
@@ -665,6 +1308,8 @@ def render_report(
         ]
     else:
         lines += ["Fewer than two configurations with results: nothing to compare."]
+    if study.convergence:
+        lines += ["", "## Convergence", "", convergence_markdown(study.convergence)]
     lines += ["", "## Baselines", "", baselines_markdown(base, baselines_on)]
     lines += ["", "## Jobs", "", jobs_markdown(jobs)]
     lines += [
@@ -673,9 +1318,10 @@ def render_report(
         "lose only their loss curves.",
     ]
     files = [f"`tables/{t.spec.key}.{ext}`" for t in tables for ext in ("csv", "tex")]
-    files.append("`tables/pairwise.csv`")
+    files += [f"`tables/{name}`" for name in TABLE_FILES]
     lines += ["", "## Files", "", f"Tables as CSV and LaTeX (booktabs): {', '.join(files)}."]
     lines += ["", "## Figures", "", figures_markdown(figures, out)]
+    lines += ["", "## The study's claims", "", claims_markdown(study.claims)]
     return "\n".join(lines) + "\n"
 
 
@@ -689,11 +1335,20 @@ def evaluated_sequences(columns: Sequence[Column]) -> list[str]:
     return sorted({name for c in columns for per_sequence in c.results for name in per_sequence})
 
 
-def write_tables(tables: Sequence[Table], comparisons: Sequence[Comparison], folder: Path) -> None:
+def write_tables(
+    tables: Sequence[Table], comparisons: Sequence[Comparison], study: Study, folder: Path
+) -> None:
     for table in tables:
         write_text_atomic(folder / f"{table.spec.key}.csv", table_csv(table))
         write_text_atomic(folder / f"{table.spec.key}.tex", table_latex(table))
-    write_text_atomic(folder / "pairwise.csv", comparisons_csv(comparisons))
+    texts = (
+        comparisons_csv(comparisons),
+        configurations_csv(study.networks),
+        convergence_csv(study.convergence),
+        claims_csv(study.claims),
+    )
+    for name, text in zip(TABLE_FILES, texts, strict=True):
+        write_text_atomic(folder / name, text)
 
 
 def write_figures(
@@ -744,12 +1399,15 @@ def make_report(
     columns = [*networks, *base.columns]
     tables = [build_table(spec, columns, sequences) for spec in TABLES] if networks else []
     comparisons = compare(networks)
-    write_tables(tables, comparisons, out / "tables")
+    study = analyse(networks, sequences)
+    write_tables(tables, comparisons, study, out / "tables")
     figures = None
     if with_figures:
         gt = ground_truth(included[0], sequences) if included else {}
         figures = write_figures(networks, tables, base, gt, sequences, out / "figures")
-    text = render_report(sweep, out, jobs, tables, comparisons, base, with_baselines, figures, sequences)
+    text = render_report(
+        sweep, out, jobs, tables, comparisons, base, with_baselines, figures, sequences, study
+    )
     write_text_atomic(out / "report.md", text)
     return out / "report.md"
 

@@ -195,6 +195,13 @@ def _cell_text(cell: Cell, bold: Callable[[str], str], pm: str, replicated: bool
     return text
 
 
+def mean_std_text(cell: Cell, digits: int = 4) -> str:
+    """``"mean ± std"`` of a cell (``"mean"`` for n = 1, ``"n/a"`` for n = 0), no bold."""
+    if cell.n == 0:
+        return "n/a"
+    return fmt(cell.mean, digits) + (f" ± {fmt(cell.std, 2)}" if cell.n > 1 else "")
+
+
 def _replicated(table: Table) -> bool:
     return any(len(c.replicates) > 1 for c in table.columns)
 

@@ -8,7 +8,8 @@ Examples::
     python -m lossvo.train experiment=paper data.root=/data/kitti trainer=gpu
 
 A run writes to ``outputs/runs/<time>/``, a sweep job to ``outputs/multirun/<time>/<num>_<overrides>/``:
-the resolved config (``.hydra/``), ``checkpoints/`` (best on ``val/loss`` and last), ``metrics.csv``,
+the resolved config (``.hydra/``), ``checkpoints/`` (best on the selection metric, ``val/score`` unless
+``selection=loss``, and last), ``metrics.csv``,
 and, from the best checkpoint evaluated on the test sequences after fitting
 (:func:`lossvo.eval.evaluate_run`), ``results.json``, ``trajectories/NN.txt`` and ``plots/NN.png``.
 ``+evaluate=false`` skips that evaluation (it is also skipped for ``trainer.fast_dev_run``, which saves no
@@ -32,10 +33,12 @@ from lightning.pytorch.callbacks import Callback, ModelCheckpoint, ProgressBar
 from lightning.pytorch.loggers import Logger, WandbLogger
 from omegaconf import DictConfig, OmegaConf
 
+from lossvo import weighting
 from lossvo.atomic import write_text_atomic
 from lossvo.model import load_flownet
 from lossvo.module import VOModule
 from lossvo.processes import restore_start_method
+from lossvo.selection import SCORE_KEY
 
 log = logging.getLogger("lossvo")
 
@@ -47,6 +50,19 @@ def _dim_of(target: str) -> int:
     return int(get_class(target).dim)
 
 
+def _identity_of(target: str) -> list[float]:
+    """The output of a loss class that decodes to no motion (the model's ``head_bias`` interpolates this)."""
+    return OmegaConf.create(get_class(target)(k=1.0).identity_output().tolist())  # type: ignore[return-value]
+
+
+def _matched_k(target: str, c: Any, squared: bool = True) -> float | None:
+    return weighting.preset_k(target, "matched", c, squared)
+
+
+def _paper_k(target: str) -> float | None:
+    return weighting.preset_k(target, "paper")
+
+
 def _path_safe(text: str) -> str:
     """A sweep job's folder name from its overrides: '/' would nest folders, so it becomes '_'."""
     return str(text).replace("/", "_")
@@ -54,7 +70,9 @@ def _path_safe(text: str) -> str:
 
 def register_resolvers() -> None:
     """OmegaConf resolvers used by lossvo's configs (idempotent)."""
-    for name, fn in (("dim_of", _dim_of), ("path_safe", _path_safe)):
+    resolvers = (("dim_of", _dim_of), ("identity_of", _identity_of), ("matched_k", _matched_k),
+                 ("paper_k", _paper_k), ("path_safe", _path_safe))  # fmt: skip
+    for name, fn in resolvers:
         if not OmegaConf.has_resolver(name):
             OmegaConf.register_new_resolver(name, fn)
 
@@ -93,6 +111,7 @@ def build(cfg: DictConfig) -> tuple[L.LightningDataModule, VOModule, L.Trainer]:
         loss=_container(cfg.loss),
         optimizer=_container(cfg.optimizer),
         scheduler=_container(cfg.scheduler) if cfg.get("scheduler") else None,
+        monitor=cfg.selection.monitor if cfg.get("selection") else SCORE_KEY,
     )
     if flownet:
         log.info("FlowNetS initialisation: %s", load_flownet(module.model, flownet).summary())
@@ -170,6 +189,12 @@ def main(cfg: DictConfig) -> float | None:
     other jobs (finished or still to come) keep their outputs.
     """
     out_dir = Path(HydraConfig.get().runtime.output_dir)
+    if cfg.get("weighting") is not None:
+        try:
+            weighting.check_config(cfg.weighting, cfg.loss)
+        except ValueError as e:  # a config error: one line, before anything is built
+            log.error("%s", e)
+            raise SystemExit(2) from None
     log.info("output: %s", out_dir)
     restore_start_method()  # a joblib-launched job: let its loader workers and renderer start
     write_status(out_dir, "running")
@@ -180,7 +205,7 @@ def main(cfg: DictConfig) -> float | None:
         log.error("job failed: %s: %s", type(e).__name__, e)
         raise
     write_status(out_dir, "completed", metrics=metrics)
-    return metrics.get(cfg.get("optimized_metric", "val/loss"))
+    return metrics.get(cfg.get("optimized_metric", SCORE_KEY))
 
 
 if __name__ == "__main__":

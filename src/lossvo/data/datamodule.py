@@ -294,10 +294,15 @@ class KittiDataModule(L.LightningDataModule):
         )  # fmt: skip
 
     def train_dataloader(self) -> DataLoader:
-        """Shuffled training windows; with ``windows_per_epoch``, a fresh random subset every epoch."""
+        """Shuffled training windows; with ``windows_per_epoch``, a fresh random subset every epoch.
+
+        The order comes from a generator of its own, seeded with torch's initial seed (the run's
+        ``seed``), so it depends on the seed and the data alone: not on the network, its head or the
+        loss, which draw from other streams."""
         dataset = self.datasets["train"]
         count = min(self.windows_per_epoch or len(dataset), len(dataset))
-        return self._loader("train", RandomSampler(dataset, num_samples=count))
+        order = torch.Generator().manual_seed(torch.initial_seed())
+        return self._loader("train", RandomSampler(dataset, num_samples=count, generator=order))
 
     def val_dataloader(self) -> DataLoader:
         return self._loader("val")

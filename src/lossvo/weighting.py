@@ -1,0 +1,127 @@
+"""How the translation and rotation terms of a pose loss are weighted (config group ``weighting``).
+
+Every loss of :mod:`lossvo.losses` is ``L_t + k * L_r`` per frame pair, with ``L_t = |t - t^|^2`` and a
+rotation term ``L_r = rho(R, R^)`` that behaves like ``gain * theta^2`` for a small rotation error theta
+(each loss class states its ``small_angle_gain``). The presets:
+
+- ``matched`` (default): ``k = c / gain``, so that every loss's rotation term is ``c * theta^2`` to second
+  order at zero error; one constant ``c`` (default 100, the study's Euler weight) for all losses.
+- ``paper``: the study's weights verbatim (k1 = 100 Euler, k2 = 14 quaternion, k3 = 153 chordal; each
+  class's ``paper_k``).
+- ``learned``: homoscedastic task weighting (Kendall & Cipolla, CVPR 2017),
+  ``L = exp(-s_t) L_t + s_t + exp(-s_r) L_r + s_r`` with learnable log-variances ``s_t``, ``s_r``
+  (:class:`HomoscedasticWeighting`); ``k`` is not used.
+
+An explicit ``loss.k`` wins over ``matched`` and ``paper``; with ``learned`` it is an error (the
+learned weights replace k). The resolvers below compute the preset's k inside the config, so the job's
+logged ``.hydra/config.yaml`` shows the k that was used.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import torch
+from hydra.utils import get_class
+from torch import Tensor, nn
+
+DEFAULT_C = 100.0
+"""The matched preset's small-angle rotation weight: the study's Euler k1, whose gain is 1."""
+
+PRESETS = ("matched", "paper", "learned")
+
+
+def check_c(c: Any) -> float:
+    """``weighting.c`` as a float; one clear error for anything but a finite number > 0."""
+    if isinstance(c, bool) or not isinstance(c, (int, float)) or not math.isfinite(c) or c <= 0:
+        raise ValueError(f"weighting.c: expected a finite number > 0, got {c!r}")
+    return float(c)
+
+
+def matched_k(gain: float, c: float = DEFAULT_C) -> float:
+    """The k that makes a rotation term of small-angle gain ``gain`` equal to ``c * theta^2``."""
+    return check_c(c) / gain
+
+
+def _loss_class(target: str) -> Any:
+    cls = get_class(target)
+    if not hasattr(cls, "small_angle_gain"):
+        raise ValueError(f"loss._target_: {target} is not a lossvo pose loss (no small_angle_gain)")
+    return cls
+
+
+def preset_k(target: str, preset: str, c: float = DEFAULT_C, squared: bool = True) -> float | None:
+    """The k of a weighting preset for the loss class named ``target`` (None for ``learned``, and for
+    a rotation term without a theta^2 gain under ``matched``: the loss then asks for an explicit k)."""
+    if preset not in PRESETS:
+        raise ValueError(f"weighting.preset: expected one of {PRESETS}, got {preset!r}")
+    cls = _loss_class(target)
+    if preset == "learned":
+        return None
+    if preset == "paper":
+        return float(cls.paper_k)
+    return matched_k(cls.small_angle_gain, c) if squared else None
+
+
+def check_config(weighting: Mapping[str, Any], loss: Mapping[str, Any]) -> None:
+    """Check a job's ``weighting`` and ``loss`` config entries before anything is built.
+
+    Raises:
+        ValueError: one line naming the key: an unknown preset, ``weighting.c`` not a finite number
+            > 0 (matched), or ``loss.k`` given together with ``weighting=learned``.
+    """
+    preset = weighting.get("preset")
+    if preset not in PRESETS:
+        raise ValueError(f"weighting.preset: expected one of {PRESETS}, got {preset!r}")
+    if preset == "matched":
+        check_c(weighting.get("c"))
+        if loss.get("squared") is False and loss.get("k") is None:
+            raise ValueError(
+                "loss.squared=false: the unsquared quaternion distance (~ theta / 2) has no matched k; "
+                "set loss.k (the study's 14 with weighting=paper) or use weighting=learned"
+            )
+    if preset == "learned" and loss.get("k") is not None:
+        raise ValueError(
+            f"loss.k={loss.get('k')!r} cannot be combined with weighting=learned (the learned weights "
+            "replace k): drop loss.k, or choose weighting=matched or weighting=paper"
+        )
+
+
+class HomoscedasticWeighting(nn.Module):
+    """Learned task weights: ``exp(-s_t) L_t + s_t + exp(-s_r) L_r + s_r`` (Kendall & Cipolla 2017).
+
+    ``s_t``, ``s_r`` are log-variances (scalars, float32 parameters saved in the state dict, so
+    checkpoints still reload with ``weights_only``). The effective rotation weight relative to the
+    translation term is ``exp(s_t - s_r)``.
+
+    Args:
+        s_t, s_r: initial log-variances (0: both terms start with weight 1).
+    """
+
+    def __init__(self, s_t: float = 0.0, s_r: float = 0.0) -> None:
+        super().__init__()
+        for name, value in (("s_t", s_t), ("s_r", s_r)):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ValueError(f"weighting.learned.{name}: expected a finite number, got {value!r}")
+        self.log_vars = nn.Parameter(torch.tensor([float(s_t), float(s_r)]))
+
+    def forward(self, trans_loss: Tensor, rot_loss: Tensor) -> Tensor:
+        """Weighted loss (scalar) from the unweighted means of the two terms (scalars)."""
+        s = self.log_vars.to(trans_loss.dtype)
+        return torch.exp(-s[0]) * trans_loss + s[0] + torch.exp(-s[1]) * rot_loss + s[1]
+
+    def values(self) -> dict[str, Tensor]:
+        """The current ``s_t``, ``s_r`` (detached scalars), for logging."""
+        s = self.log_vars.detach()
+        return {"s_t": s[0], "s_r": s[1]}
+
+
+def learned_from_config(learned: Mapping[str, Any] | None) -> HomoscedasticWeighting | None:
+    """The module for ``weighting.learned`` (a mapping of initial values), or None."""
+    if learned is None:
+        return None
+    if not isinstance(learned, Mapping) or set(learned) - {"s_t", "s_r"}:
+        raise ValueError(f"weighting.learned: expected a mapping with keys s_t, s_r, got {learned!r}")
+    return HomoscedasticWeighting(**{k: learned[k] for k in learned})

@@ -1,0 +1,336 @@
+"""The report's claims without training: convergence epochs on hand-made curves, the verdict rule on
+numbers built for each verdict, rotation weights and selection warnings from hand-made job configs, and
+the claims of hand-made configurations (identified by their loss class, held-out sequences only).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+
+from lossvo import claims
+from lossvo.report import (
+    Curves,
+    Job,
+    claims_csv,
+    claims_markdown,
+    convergence,
+    job_selection,
+    job_weighting,
+    selection_warning,
+    study_claims,
+    weight_text,
+)
+from lossvo.tables import NETWORK, Column
+
+LOSSES = "lossvo.losses"
+ERRORS = (("rpe", "trans"), ("rpe", "rot_rad"), ("ape", "trans"))
+
+
+# --------------------------------------------------------------------------------------------------
+# Convergence epoch
+# --------------------------------------------------------------------------------------------------
+
+
+def test_convergence_epoch_is_the_first_within_ten_percent_of_the_best() -> None:
+    values = np.array([10.0, 5.0, 3.0, 2.1, 2.0, 2.05])  # best 2.0: within 10 % means <= 2.2
+    assert claims.convergence_epoch(np.arange(6), values) == 3
+    assert claims.convergence_epoch(np.arange(6) + 1, values) == 4  # returned in the given counting
+    assert claims.convergence_epoch(np.arange(6), values, tolerance=0.01) == 4  # <= 2.02
+
+
+def test_convergence_epoch_boundary_nan_and_max_mode() -> None:
+    assert claims.convergence_epoch(np.arange(3), np.array([1.1, 1.5, 1.0])) == 0  # 1.1 <= 1.0 * 1.1
+    assert claims.convergence_epoch(np.arange(3), np.array([math.nan, 4.0, 1.0])) == 2
+    assert claims.convergence_epoch(np.arange(2), np.array([math.nan, math.nan])) is None
+    assert claims.convergence_epoch(np.arange(4), np.array([0.1, 0.5, 0.95, 1.0]), mode="max") == 2
+    with pytest.raises(ValueError, match="mode"):
+        claims.convergence_epoch(np.arange(2), np.ones(2), mode="lowest")
+
+
+# --------------------------------------------------------------------------------------------------
+# The verdict rule
+# --------------------------------------------------------------------------------------------------
+
+
+def lower_by(offsets: np.ndarray, n: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """(claimed, other) of n pairs with distinct differences claimed - other = -offsets."""
+    other = 1.0 + np.arange(n, dtype=np.float64)
+    return other - offsets, other
+
+
+def test_supported_when_lower_than_every_other_with_p_below_alpha() -> None:
+    x, y = lower_by(0.01 * (1 + np.arange(10)))
+    tests = [claims.paired_test("euler", x, y), claims.paired_test("quat", x, y + 0.5)]
+    assert tests[0].n == 10 and tests[0].p_value == pytest.approx(2 / 2**10)  # exact: all one sign
+    assert tests[0].mean == pytest.approx(x.mean()) and tests[0].versus_mean == pytest.approx(y.mean())
+    assert claims.verdict(tests) == claims.SUPPORTED
+
+
+def test_contradicted_when_another_is_lower_with_p_below_alpha() -> None:
+    x, y = lower_by(0.01 * (1 + np.arange(10)))
+    better = claims.paired_test("quat", x, y)
+    worse = claims.paired_test("euler", y, x)  # the claimed one is higher on every pair
+    assert worse.p_value == pytest.approx(2 / 2**10)
+    assert claims.verdict([better, worse]) == claims.CONTRADICTED
+    assert claims.verdict([worse]) == claims.CONTRADICTED
+
+
+def test_not_distinguishable_for_mixed_signs_small_n_or_no_test() -> None:
+    x, y = lower_by(np.array([0.1, -0.2, 0.3, -0.4, 0.5, -0.6, 0.7, -0.8, 0.9, -0.05]))
+    mixed = claims.paired_test("quat", x, y)
+    assert mixed.p_value > 0.5
+    assert claims.verdict([mixed]) == claims.NOT_DISTINGUISHABLE
+    assert (
+        claims.verdict([claims.paired_test("quat", y, x)]) == claims.NOT_DISTINGUISHABLE
+    )  # other lower, p > 0.5
+    few = claims.paired_test("euler", np.array([1.0, 2.0, 3.0]), np.array([2.0, 4.0, 6.0]))
+    assert few.claimed_lower and few.p_value == pytest.approx(0.25) == claims.smallest_p(3)
+    assert claims.verdict([few]) == claims.NOT_DISTINGUISHABLE
+    assert claims.verdict([claims.paired_test("euler", few_y := np.array([2.0, 4.0, 6.0]), few_y / 2)]) == (
+        claims.NOT_DISTINGUISHABLE
+    )  # the other is lower on all three pairs, but p = 0.25
+    assert (
+        claims.verdict([claims.paired_test("euler", np.array([]), np.array([]))])
+        == claims.NOT_DISTINGUISHABLE
+    )
+    assert claims.verdict([]) == claims.NOT_DISTINGUISHABLE
+
+
+def test_smallest_p_and_combining_verdicts() -> None:
+    assert [claims.smallest_p(n) for n in (0, 1, 3, 5, 6)] == [1.0, 1.0, 0.25, 0.0625, 0.03125]
+    s, c, n = claims.SUPPORTED, claims.CONTRADICTED, claims.NOT_DISTINGUISHABLE
+    assert claims.combine([s, s]) == s
+    assert claims.combine([s, n]) == n
+    assert claims.combine([s, c, n]) == c
+    assert claims.combine([]) == n
+
+
+# --------------------------------------------------------------------------------------------------
+# Rotation weights and selection metrics from hand-made job configs
+# --------------------------------------------------------------------------------------------------
+
+
+def job(loss: str, curves: dict | None = None, **config: object) -> Job:
+    """A job with config ``loss._target_ = lossvo.losses.<loss>`` plus ``config`` (dotted keys)."""
+    cfg = OmegaConf.create({"loss": {"_target_": f"{LOSSES}.{loss}"}})
+    for key, value in config.items():
+        OmegaConf.update(cfg, key.replace("__", "."), value, force_add=True)
+    series = {k: (np.arange(len(v)), np.asarray(v, dtype=np.float64)) for k, v in (curves or {}).items()}
+    return Job(Path(f"job_{loss}"), config=cfg, curves=Curves(series))
+
+
+@pytest.mark.parametrize(
+    ("loss", "k", "preset", "weight"),
+    [
+        ("EulerLoss", 100.0, "matched", 100.0),  # gain 1
+        ("QuaternionLoss", 400.0, "matched", 100.0),  # gain 1/4
+        ("QuaternionLoss", 14.0, "paper", 3.5),
+        ("ChordalLoss", 153.0, "paper", 306.0),  # gain 2
+    ],
+)
+def test_rotation_weight_is_k_times_the_small_angle_gain(
+    loss: str, k: float, preset: str, weight: float
+) -> None:
+    j = job(loss, loss__k=k, weighting__preset=preset)
+    assert job_weighting(j).weight == pytest.approx(weight)
+    assert weight_text([job_weighting(j)] * 2) == f"{weight:.4g}"
+
+
+def test_rotation_weight_of_an_unresolved_preset_k_and_of_old_or_unknown_jobs() -> None:
+    unresolved = job(
+        "ChordalLoss", loss__k="${no_such_resolver:x}", weighting__preset="matched", weighting__c=100.0
+    )
+    assert job_weighting(unresolved).k == pytest.approx(50.0)  # c / gain
+    assert weight_text([job_weighting(unresolved)]) == "100"
+    paper = job("QuaternionLoss", loss__k="${no_such_resolver:x}", weighting__preset="paper")
+    assert weight_text([job_weighting(paper)]) == "3.5"
+    old = job("EulerLoss", loss__k=100.0)  # no weighting group
+    assert job_weighting(old).preset is None and weight_text([job_weighting(old)]) == "100"
+    unknown = Job(
+        Path("x"), config=OmegaConf.create({"loss": {"_target_": "collections.OrderedDict", "k": 3.0}})
+    )
+    assert job_weighting(unknown).gain is None and weight_text([job_weighting(unknown)]) == "?"
+    unsquared = job("ChordalLoss", loss__k=153.0, loss__squared=False, weighting__preset="paper")
+    assert weight_text([job_weighting(unsquared)]).startswith("n/a")
+
+
+def test_learned_rotation_weight_is_gain_times_exp_st_minus_sr_at_the_last_epoch() -> None:
+    a = job("ChordalLoss", {"train/s_t": [0.0, 0.5], "train/s_r": [0.0, -0.2]}, weighting__preset="learned")
+    b = job("ChordalLoss", {"train/s_t": [0.0, 0.3], "train/s_r": [0.0, 0.1]}, weighting__preset="learned")
+    expected = np.array([2.0 * math.exp(0.7), 2.0 * math.exp(0.2)])
+    assert job_weighting(a).weight == pytest.approx(expected[0])
+    text = weight_text([job_weighting(a), job_weighting(b)])
+    mean, std = (float(v) for v in text.removeprefix("learned: ").split(" ± "))
+    assert mean == pytest.approx(expected.mean(), rel=1e-3)
+    assert std == pytest.approx(expected.std(ddof=1), abs=0.05)  # two significant digits
+    blind = job("ChordalLoss", weighting__preset="learned")  # no s_t, s_r logged
+    assert weight_text([job_weighting(blind)]).startswith("learned: ?")
+
+
+def test_selection_metric_from_selection_then_checkpoint_monitor_then_default() -> None:
+    new = job("EulerLoss", selection__monitor="val/score", selection__mode="min",
+              callbacks__model_checkpoint__monitor="${selection.monitor}")  # fmt: skip
+    assert (job_selection(new.config).monitor, job_selection(new.config).source) == ("val/score", "selection")
+    old = job("EulerLoss", callbacks__model_checkpoint__monitor="val/rot_err_rad",
+              callbacks__model_checkpoint__mode="max")  # fmt: skip
+    selection = job_selection(old.config)
+    assert (selection.monitor, selection.mode, selection.source) == (
+        "val/rot_err_rad", "max", "callbacks.model_checkpoint")  # fmt: skip
+    dangling = job("EulerLoss", callbacks__model_checkpoint__monitor="${selection.monitor}")
+    assert (job_selection(dangling.config).monitor, job_selection(dangling.config).source) == (
+        "val/loss",
+        "default",
+    )
+
+
+def column(label: str, *jobs: Job, results: list | None = None) -> Column:
+    replicates = [f"seed={i}" for i in range(len(jobs))]
+    return Column(label, NETWORK, replicates, results or [{} for _ in jobs], list(jobs))
+
+
+def selected(loss: str, monitor: str, k: float = 100.0) -> Job:
+    return job(loss, loss__k=k, selection__monitor=monitor, selection__mode="min")
+
+
+def test_selection_warning_only_when_the_configurations_were_selected_by_different_metrics() -> None:
+    score = [column("loss=euler", selected("EulerLoss", "val/score")),
+             column("loss=quat", selected("QuaternionLoss", "val/score", 400.0))]  # fmt: skip
+    assert selection_warning(score) is None
+    mixed = [score[0], column("loss=quat", selected("QuaternionLoss", "val/loss", 400.0))]
+    warning = selection_warning(mixed)
+    assert warning is not None and warning.startswith("**Warning") and warning.endswith("**")
+    assert "loss=euler: `val/score` (min)" in warning and "loss=quat: `val/loss` (min)" in warning
+    own_loss = [column("loss=euler", selected("EulerLoss", "val/loss")),
+                column("loss=quat", selected("QuaternionLoss", "val/loss", 400.0))]  # fmt: skip
+    assert "its own loss value" in (selection_warning(own_loss) or "")
+    same_loss = [column("lr=0.001", selected("EulerLoss", "val/loss")),
+                 column("lr=0.01", selected("EulerLoss", "val/loss"))]  # fmt: skip
+    assert selection_warning(same_loss) is None  # one loss, one k: val/loss is one metric
+
+
+# --------------------------------------------------------------------------------------------------
+# The claims of hand-made configurations
+# --------------------------------------------------------------------------------------------------
+
+
+def results(errors: dict[str, float]) -> dict:
+    """A results.json sequence map: every error metric of a sequence equal to ``errors[sequence]``."""
+    out: dict = {}
+    for sequence, value in errors.items():
+        entry: dict = {}
+        for group, key in ERRORS:
+            entry.setdefault(group, {})[key] = {"rmse": value}
+        out[sequence] = entry
+    return out
+
+
+def configuration(label: str, loss: str, errors: list[dict[str, float]], scores: list[list[float]]) -> Column:
+    """A configuration of one job per seed: ``errors[seed]`` per sequence, ``scores[seed]`` per epoch."""
+    jobs = [job(loss, {"val/score": s}, data__train=["00", "01"]) for s in scores]
+    return column(label, *jobs, results=[results(e) for e in errors])
+
+
+HELD_OUT = ("02", "03", "04", "05")
+SEQUENCES = ["00", *HELD_OUT]
+
+
+def sweep_columns(offset: float, alternate: bool = False, train_penalty: float = 5.0) -> list[Column]:
+    """Three seeds, held-out sequences 02-05 (00 is in ``data.train``). The ChordalLoss configuration
+    (labelled ``loss=se3``) is :func:`chordal_step` off the EulerLoss one on each held-out sequence and
+    ``train_penalty`` worse on 00; the EulerLoss configuration is (misleadingly) labelled
+    ``loss=chordal``."""
+    base = [
+        {s: 1.0 + 0.1 * i + 0.37 * seed + 0.011 * i * seed for i, s in enumerate(SEQUENCES)}
+        for seed in range(3)
+    ]
+    ours = [
+        {s: v + (train_penalty if s == "00" else chordal_step(offset, SEQUENCES.index(s), seed, alternate))
+         for s, v in b.items()}
+        for seed, b in enumerate(base)
+    ]  # fmt: skip
+    fast = [[5.0, 1.05, 1.0], [5.0, 2.0, 1.0], [4.0, 1.08, 1.0]]  # within 10 % at epochs 2, 3, 2 (1-based)
+    slow = [[5.0, 3.0, 1.0], [5.0, 3.0, 1.0], [5.0, 3.0, 1.0]]  # epoch 3
+    return [
+        configuration("loss=chordal", "EulerLoss", base, slow),
+        configuration("loss=se3", "ChordalLoss", ours, fast),
+    ]
+
+
+def chordal_step(offset: float, j: int, seed: int, alternate: bool) -> float:
+    """The ChordalLoss configuration's error minus the EulerLoss one's on held-out sequence j (1-4); all
+    distinct (no ties), alternating in sign with ``alternate``."""
+    return offset * (1 + 0.1 * j + 0.03 * seed) * (-1.0 if alternate and j % 2 else 1.0)
+
+
+@pytest.mark.parametrize(
+    ("offset", "alternate", "expected"),
+    [(-0.05, False, claims.SUPPORTED), (0.05, False, claims.CONTRADICTED),
+     (-0.05, True, claims.NOT_DISTINGUISHABLE)],
+)  # fmt: skip
+def test_error_claim_on_held_out_sequences_of_the_chordal_loss_class(
+    offset: float, alternate: bool, expected: str
+) -> None:
+    columns = sweep_columns(offset, alternate)
+    a, _ = study_claims(columns, convergence(columns), SEQUENCES)
+    assert a.configuration == "loss=se3"  # by loss._target_, not by label
+    assert a.verdict == expected
+    diffs = np.array([chordal_step(offset, j, seed, alternate) for seed in range(3) for j in range(1, 5)])
+    for q in a.quantities:
+        (t,) = q.tests
+        assert t.versus == "loss=chordal" and t.n == 3 * len(HELD_OUT)  # 00 is trained on: left out
+        assert t.mean - t.versus_mean == pytest.approx(diffs.mean())
+        assert q.verdict == expected
+    if not alternate:
+        assert a.quantities[0].tests[0].p_value == pytest.approx(2 / 2**12)  # exact: 12 of one sign
+    theirs = columns[1].results  # mean over held-out sequences per seed, then mean ± std over seeds
+    per_seed = np.array([np.mean([r[s]["rpe"]["trans"]["rmse"] for s in HELD_OUT]) for r in theirs])
+    cell = a.measured["loss=se3"]["RPE trans RMSE [m]"]
+    assert (cell.n, cell.mean, cell.std) == (
+        3,
+        pytest.approx(per_seed.mean()),
+        pytest.approx(per_seed.std(ddof=1)),
+    )
+
+
+def test_convergence_claim_pairs_epochs_by_seed_and_cannot_reach_p_below_alpha_with_three() -> None:
+    columns = sweep_columns(-0.05)
+    items = convergence(columns)
+    by_label = {c.label: c for c in items}
+    assert by_label["loss=se3"].epochs == [2, 3, 2] and by_label["loss=chordal"].epochs == [3, 3, 3]
+    assert by_label["loss=se3"].cell().mean == pytest.approx(7 / 3)
+    _, b = study_claims(columns, items, SEQUENCES)
+    (t,) = b.quantities[0].tests
+    assert (t.n, t.mean, t.versus_mean) == (3, pytest.approx(7 / 3), 3.0)
+    assert t.p_value >= claims.smallest_p(3) == 0.25
+    assert b.verdict == claims.NOT_DISTINGUISHABLE
+    text = claims_markdown(study_claims(columns, items, SEQUENCES))
+    assert "smallest two-sided p an exact Wilcoxon test can give is 0.250" in text
+    assert "**Verdict: supported.**" in text and "**Verdict: not distinguishable at this n.**" in text
+
+
+def test_claims_cannot_be_tested_without_a_chordal_configuration() -> None:
+    columns = [c for c in sweep_columns(-0.05) if c.label == "loss=chordal"]  # the EulerLoss one
+    found = study_claims(columns, convergence(columns), ["00", "02"])
+    assert all(c.untested and "no chordal configuration" in c.untested for c in found)
+    assert claims_markdown(found).count("Cannot be tested: the sweep has no chordal configuration") == 2
+    rows = list(csv.DictReader(io.StringIO(claims_csv(found))))
+    assert [r["verdict"] for r in rows] == ["cannot be tested"] * 2
+
+
+def test_claims_csv_has_a_row_per_test_and_one_per_claim() -> None:
+    columns = sweep_columns(-0.05)
+    found = study_claims(columns, convergence(columns), SEQUENCES)
+    rows = list(csv.DictReader(io.StringIO(claims_csv(found))))
+    assert len(rows) == 3 + 1 + 1 + 1  # three error metrics + overall, the epochs + overall
+    overall = {r["claim"]: r["verdict"] for r in rows if r["versus"] == "all"}
+    assert overall == {"the chordal loss gives the lowest errors": "supported",
+                       "it converges fastest": "not distinguishable at this n"}  # fmt: skip
+    epochs = next(r for r in rows if r["quantity"] == "convergence epoch")
+    assert float(epochs["smallest_p"]) == 0.25 and int(epochs["n"]) == 3
