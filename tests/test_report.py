@@ -466,3 +466,24 @@ def test_claims_test_the_chordal_loss_class_on_held_out_sequences(sweep: Path, t
     assert row["verdict"] == "not distinguishable at this n"  # 2 pairs: p >= 0.5 whatever the numbers
     text = path.read_text()
     assert text.count("**Verdict: not distinguishable at this n.**") == 2
+
+
+def test_each_job_is_compared_with_the_mean_motion_on_the_validation_sequences(
+    sweep: Path, report: Path
+) -> None:
+    text = (report / "report.md").read_text()
+    section = text.split("## Against the mean motion, per job", 1)[1].split("\n## ", 1)[0]
+    rows = [line.strip("|").split("|") for line in section.splitlines() if line.startswith("| ")]
+    header, body = [c.strip() for c in rows[0]], [[c.strip() for c in r] for r in rows[1:]]
+    assert header == ["configuration", "seed", "02 RPE trans", "02 RPE rot"]  # the tiny sweep's data.val
+    assert len(body) == len(LOSSES) * len(SEEDS)
+    translation = read_table(report / "tables" / "translation.csv")
+    rotation = read_table(report / "tables" / "rotation.csv")
+    baseline = {"trans": float(translation["02"]["mean motion (train) | RPE [m]"]),
+                "rot_rad": float(rotation["02"]["mean motion (train) | RPE [rad]"])}  # fmt: skip
+    results = job_results(sweep)
+    for label, seed, trans, rot in body:
+        job = results[(label.removeprefix("loss="), int(seed))]
+        for cell, kind in ((trans, "trans"), (rot, "rot_rad")):
+            expected = 100 * (1 - rmse(job, "02", ("rpe", kind)) / baseline[kind])
+            assert float(cell.removesuffix(" %")) == pytest.approx(expected, abs=0.5 + 1e-9)

@@ -21,6 +21,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import wilcoxon
 
 SUPPORTED = "supported"
 CONTRADICTED = "contradicted"
@@ -63,8 +64,6 @@ def convergence_epoch(
 
 def wilcoxon_p(differences: np.ndarray) -> float:
     """Two-sided Wilcoxon signed-rank p-value of paired differences (P,) (1.0 if all are zero)."""
-    from scipy.stats import wilcoxon
-
     if not np.any(differences != 0):
         return 1.0
     with warnings.catch_warnings():

@@ -1211,6 +1211,58 @@ def baselines_markdown(run: BaselineRun, enabled: bool) -> str:
     return "\n".join(lines)
 
 
+LEARNING_METRICS = (("RPE trans", ("rpe", "trans", "rmse")), ("RPE rot", ("rpe", "rot_rad", "rmse")))
+
+
+def validation_sequences(columns: Sequence[Column]) -> list[str]:
+    """The validation sequences (``data.val``) of the networks' jobs, in order."""
+    names: list[str] = []
+    for column in columns:
+        for job in column.jobs:
+            val = config_value(job.config, "data.val", [])
+            items = val.split(",") if isinstance(val, str) else list(val or [])
+            for item in items:
+                name = f"{item:02d}" if isinstance(item, int) else str(item).strip()
+                if name not in names:
+                    names.append(name)
+    return names
+
+
+def reduction(value: Any, reference: Any) -> float | None:
+    """``1 - value / reference`` (the fraction by which a network beats a baseline), or None."""
+    value, reference = _number(value), _number(reference)
+    if value is None or reference is None or reference <= 0:
+        return None
+    return 1.0 - value / reference
+
+
+def learning_markdown(networks: Sequence[Column], base: BaselineRun) -> str:
+    """Per job and validation sequence: how far below the mean-motion baseline its RPE lies."""
+    mean_motion = next((c for c in base.columns if c.label == "mean motion (train)"), None)
+    sequences = validation_sequences(networks)
+    if mean_motion is None or not sequences:
+        return "No mean-motion baseline or no validation sequence: nothing to compare."
+    header = ["configuration", "seed"] + [f"{s} {name}" for s in sequences for name, _ in LEARNING_METRICS]
+    rows = []
+    for column in networks:
+        for job, results in zip(column.jobs, column.results, strict=True):
+            cells = []
+            for s in sequences:
+                for _, path in LEARNING_METRICS:
+                    r = reduction(lookup(results.get(s), path), lookup(mean_motion.results[0].get(s), path))
+                    cells.append("–" if r is None else f"{100 * r:.0f} %")
+            rows.append([md(column.label), str(job.seed), *cells])
+    lines = [
+        "How far each job's RPE RMSE lies below the mean-motion baseline's on the validation sequences "
+        "(1 − network / baseline; negative: worse than predicting the training set's mean motion).",
+        "",
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * len(header),
+        *("| " + " | ".join(row) + " |" for row in rows),
+    ]
+    return "\n".join(lines)
+
+
 def figures_markdown(figures: Sequence[Path] | None, out: Path) -> str:
     if figures is None:
         return "Figures were not drawn (`--no-figures`)."
@@ -1311,6 +1363,9 @@ def render_report(
     if study.convergence:
         lines += ["", "## Convergence", "", convergence_markdown(study.convergence)]
     lines += ["", "## Baselines", "", baselines_markdown(base, baselines_on)]
+    if baselines_on and included:
+        networks = [c for c in tables[0].columns if c.kind == NETWORK] if tables else []
+        lines += ["", "## Against the mean motion, per job", "", learning_markdown(networks, base)]
     lines += ["", "## Jobs", "", jobs_markdown(jobs)]
     lines += [
         "",
