@@ -83,7 +83,7 @@ class VOModule(L.LightningModule):
         if stage == "train":
             self.log("loss", out["loss"], on_step=True, on_epoch=False, prog_bar=True, logger=False)
         if stage == "val":
-            self.val_score.update(self.decode(pred.detach()), targets)
+            self.val_score.update(self.decode(pred.detach().float()), targets)
             self.log(SCORE_KEY, self.val_score, on_step=False, on_epoch=True)
         return out["loss"]
 

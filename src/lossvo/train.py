@@ -31,7 +31,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.utils import get_class, instantiate
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint, ProgressBar
 from lightning.pytorch.loggers import Logger, WandbLogger
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from lossvo import weighting
 from lossvo.atomic import write_text_atomic
@@ -50,16 +50,18 @@ def _dim_of(target: str) -> int:
     return int(get_class(target).dim)
 
 
-def _identity_of(target: str) -> list[float]:
+def _identity_of(target: str) -> ListConfig:
     """The output of a loss class that decodes to no motion (the model's ``head_bias`` interpolates this)."""
-    return OmegaConf.create(get_class(target)(k=1.0).identity_output().tolist())  # type: ignore[return-value]
+    return ListConfig(get_class(target)(k=1.0).identity_output().tolist())
 
 
 def _matched_k(target: str, c: Any, squared: bool = True) -> float | None:
+    """``weighting=matched``'s k for a loss class (``weighting.k`` interpolates this)."""
     return weighting.preset_k(target, "matched", c, squared)
 
 
 def _paper_k(target: str) -> float | None:
+    """``weighting=paper``'s k for a loss class."""
     return weighting.preset_k(target, "paper")
 
 
