@@ -96,7 +96,7 @@ DISTANCES: tuple[Distance, ...] = (
     ),
     Distance(
         "quaternion, one sign", "‖q − q̂‖", QUATERNION, _naive_quat_distance,
-        "Not sign-invariant: q and −q, one rotation, are 2 apart (the pitfall of earlier code).",
+        "Not sign-invariant: q and −q, one rotation, are 2 apart.",
     ),
     Distance(
         "quaternion, min over sign", "min±‖q ∓ q̂‖", QUATERNION, g.quat_distance,
