@@ -2,7 +2,7 @@
 
 EXPECTED is the mathematics (see lossvo.axioms' notes for the closed forms); the property tests prove
 each entry independently of lossvo.axioms' own sampling, and the last tests check that the generated
-table and the README's copy of it say the same.
+table and the copy of it in docs/losses.md say the same.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 from lossvo import axioms
 from lossvo import geometry as g
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+DOC = Path(__file__).resolve().parents[1] / "docs" / "losses.md"
 TOL = axioms.TOLERANCE
 
 FAILS = {
@@ -132,7 +132,7 @@ def test_generated_table_agrees_with_the_mathematics() -> None:
 
 def test_readme_shows_the_generated_table() -> None:
     table = axioms.markdown_table()
-    readme = README.read_text(encoding="utf-8")
+    readme = DOC.read_text(encoding="utf-8")
     block = re.search(r"<!-- axioms:begin -->\n(.*?)<!-- axioms:end -->", readme, flags=re.S)
-    assert block is not None, "README.md lacks the <!-- axioms:begin/end --> block"
-    assert block.group(1) == table, "README's axioms table is stale: paste `python -m lossvo.geometry`"
+    assert block is not None, "docs/losses.md lacks the <!-- axioms:begin/end --> block"
+    assert block.group(1) == table, "docs/losses.md: axioms table stale, paste `python -m lossvo.geometry`"

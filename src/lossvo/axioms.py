@@ -12,7 +12,7 @@ Each axiom is checked here in float64 on seeded random rotations and on the trip
 would show first (midpoints of short and long geodesics, midpoints in the representation's own
 coordinates), and the worst case found is kept as evidence. ``python -m lossvo.geometry`` prints the
 resulting table; the property-based tests in ``tests/test_axioms.py`` check the same statements with
-hypothesis, and that the README's copy of the table is the one printed here.
+hypothesis, and that the copy of the table in docs/losses.md is the one printed here.
 
 The closed forms in the notes follow from the relative angle ``theta`` in [0, pi]:
 ``|q_a -+ q_b|^2 = 2 -+ 2 <q_a, q_b>`` with ``|<q_a, q_b>| = cos(theta / 2)`` gives
