@@ -238,7 +238,7 @@ def test_window_longer_than_sequences(tiny_kitti: Path, tmp_path: Path) -> None:
 
 def test_sequence_names_from_hydra_integers(tiny_kitti: Path, tmp_path: Path) -> None:
     dm = make_dm(tiny_kitti, tmp_path, train=[0, 1], val="02", test=[2])
-    assert dm.splits == {"train": ("00", "01"), "val": ("02",), "test": ("02",)}
+    assert dm.splits == {"train": ("00", "01"), "val": ("02",), "test": ("02",), "unseen": ()}
 
 
 def test_synthetic_datamodule_renders_on_first_use(tmp_path: Path) -> None:
@@ -250,3 +250,28 @@ def test_synthetic_datamodule_renders_on_first_use(tmp_path: Path) -> None:
     assert (tmp_path / "synth" / "poses" / "00.txt").is_file()
     x, y = next(iter(dm.train_dataloader()))
     assert x.shape[1:] == (3, 3, 32, 96) and y.shape[1:] == (2, 4, 4)
+
+
+def test_frame_steps_add_windows_of_every_other_frame_with_recomputed_targets(
+    tiny_kitti: Path, tmp_path: Path
+) -> None:
+    dm = KittiDataModule(str(tiny_kitti), train=["00"], val=["02"], test=["02"], height=32, width=96,
+                         seq_len=3, cache_dir=str(tmp_path), frame_steps=[1, 2])  # fmt: skip
+    dm.prepare_data()
+    dm.setup()
+    poses = kitti.read_poses(tiny_kitti / "poses" / "00.txt")
+    train = dm.datasets["train"]
+    n = len(poses)
+    assert len(train) == (n - 2) + (n - 4)  # windows of 3 frames at step 1, then at step 2
+    frames, targets = train[n - 2]  # the first step-2 window: frames 0, 2, 4
+    cached = dm.sequence_frames("00")
+    np.testing.assert_array_equal(frames.numpy(), cached[[0, 2, 4]])
+    expected = [np.linalg.inv(poses[k]) @ poses[k + 2] for k in (0, 2)]
+    np.testing.assert_allclose(targets.numpy(), np.array(expected), atol=1e-5)
+    assert all(int(step) == 1 for step in dm.datasets["val"].index[:, 2])  # validation: consecutive only
+
+
+@pytest.mark.parametrize("steps", [[], [0, 1], "2", [1.5]])
+def test_bad_frame_steps(tiny_kitti: Path, tmp_path: Path, steps) -> None:
+    with pytest.raises(ValueError, match=r"data\.frame_steps: expected a list of integers >= 1"):
+        KittiDataModule(str(tiny_kitti), cache_dir=str(tmp_path), frame_steps=steps)

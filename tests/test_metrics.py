@@ -363,9 +363,10 @@ def test_metric_statistics_are_pooled_errors():
 
 @pytest.fixture(scope="module")
 def cli_runs(tmp_path_factory) -> dict[str, tuple[subprocess.CompletedProcess, Path]]:
-    """Two real ``python -m lossvo.metrics`` runs, started together (each spends seconds importing torch).
+    """Three real ``python -m lossvo.metrics`` runs, started together (each spends seconds importing torch).
 
-    "json": a valid pair with --align se3 --delta 2 --json; "malformed": an estimate whose line 4 is bad.
+    "json": a valid pair with --align se3 --delta 2 --json; "malformed": an estimate whose line 4 is bad;
+    "closed pipe": the json run whose reader closes its end at once (as ``| head`` does when done).
     """
     tmp = tmp_path_factory.mktemp("cli")
     ref = make_reference(300)
@@ -378,6 +379,7 @@ def cli_runs(tmp_path_factory) -> dict[str, tuple[subprocess.CompletedProcess, P
     argv = {
         "json": [str(gt_file), str(est_file), "--align", "se3", "--delta", "2", "--json"],
         "malformed": [str(gt_file), str(bad)],
+        "closed pipe": [str(gt_file), str(est_file), "--json"],
     }
     procs = {
         key: subprocess.Popen(
@@ -388,8 +390,14 @@ def cli_runs(tmp_path_factory) -> dict[str, tuple[subprocess.CompletedProcess, P
         )
         for key, args in argv.items()
     }
+    procs["closed pipe"].stdout.close()
     done = {}
     for key, proc in procs.items():
+        if key == "closed pipe":
+            err = proc.stderr.read()
+            proc.wait(timeout=120)
+            done[key] = (subprocess.CompletedProcess(proc.args, proc.returncode, "", err), bad)
+            continue
         out, err = proc.communicate(timeout=120)
         done[key] = (subprocess.CompletedProcess(proc.args, proc.returncode, out, err), bad)
     return done
@@ -405,6 +413,11 @@ def test_cli_json(cli_runs):
         assert set(result[key]["trans"]) == set(metrics.STATISTICS)
     assert set(result["kitti"]) == {"t_err_pct", "r_err_deg_per_100m"}
     assert result["kitti"]["t_err_pct"] > 0
+
+
+def test_cli_survives_a_closed_pipe(cli_runs):
+    proc, _ = cli_runs["closed pipe"]
+    assert proc.returncode == 0 and proc.stderr == ""
 
 
 def test_cli_malformed_file(cli_runs):

@@ -1,6 +1,7 @@
 """The sweep report on a real (tiny) sweep: tables equal the jobs' results.json, bold marks the minimum,
 mean ± std over seeds, baselines equal an independent computation, damaged jobs are listed, bad input;
-rotation weights and selection metrics from the job configs, convergence from metrics.csv, the claims.
+rotation weights and selection metrics from the job configs, convergence from metrics.csv, the claims;
+the unseen-motion marks and section on hand-written job folders.
 
 One Hydra multirun (2 losses x 2 seeds on the tiny KITTI-layout dataset of tests/conftest.py) is trained
 once per module; every test reads it or a copy of it.
@@ -24,7 +25,17 @@ import yaml
 from scipy.stats import wilcoxon
 
 from lossvo import metrics
-from lossvo.report import Job, label_jobs, main, make_report, parse_override, read_metrics_csv, varying_keys
+from lossvo.report import (
+    BaselineRun,
+    Job,
+    label_jobs,
+    main,
+    make_report,
+    parse_override,
+    read_metrics_csv,
+    varying_keys,
+)
+from lossvo.tables import BASELINE, Column
 
 LOSSES = ("euler", "quat")
 SEEDS = (0, 1)
@@ -130,7 +141,7 @@ def test_bold_marks_the_row_minimum_over_all_columns(report: Path) -> None:
     bold_seen = 0
     for metric in TRANSLATION:
         columns = [h for h in header if h.endswith(f": {metric}")]
-        assert len(columns) == len(LOSSES) + 3  # three baselines
+        assert len(columns) == len(LOSSES) + 4  # four baselines
         for sequence in (*SEQUENCES, "mean"):
             means = {c: float(rows_csv[sequence][c.replace(": ", " | ", 1)]) for c in columns}
             best = min(means, key=means.get)
@@ -487,3 +498,100 @@ def test_each_job_is_compared_with_the_mean_motion_on_the_validation_sequences(
         for cell, kind in ((trans, "trans"), (rot, "rot_rad")):
             expected = 100 * (1 - rmse(job, "02", ("rpe", kind)) / baseline[kind])
             assert float(cell.removesuffix(" %")) == pytest.approx(expected, abs=0.5 + 1e-9)
+
+
+# --------------------------------------------------------------------------------------------------
+# Unseen motion: hand-written job folders and baselines, no training
+# --------------------------------------------------------------------------------------------------
+
+UNSEEN = ("11", "12")
+
+
+def entry(rpe_trans: float, rpe_rot: float) -> dict:
+    """A results.json sequence entry with the given RPE RMSEs (m, rad); APE and KITTI errors fixed."""
+    return {
+        "ape": {"trans": {"rmse": 5.0}, "rot_rad": {"rmse": 0.1}},
+        "rpe": {"trans": {"rmse": rpe_trans}, "rot_rad": {"rmse": rpe_rot}},
+        "kitti": {"t_err_pct": 10.0, "r_err_deg_per_100m": 5.0},
+    }
+
+
+def write_job(sweep: Path, number: int, loss: str, data: dict, sequences: dict) -> None:
+    """A completed job folder: .hydra/{config,overrides}.yaml, status.json and results.json."""
+    job = sweep / f"{number}_loss={loss},seed=0"
+    (job / ".hydra").mkdir(parents=True)
+    (job / ".hydra" / "config.yaml").write_text(yaml.safe_dump({"seed": 0, "data": data}))
+    (job / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump([f"loss={loss}", "seed=0"]))
+    (job / "status.json").write_text('{"status": "completed"}')
+    results = {"align": "none", "delta": 1, "sequences": sequences}
+    (job / "results.json").write_text(json.dumps(results))
+
+
+def hand_sweep(tmp_path: Path, unseen: list[str] | None) -> Path:
+    """Two jobs on 07 and the unseen sequences against zero motion (RPE rot 0.05 rad) and the own mean
+    motion (RPE trans 0.2 m): euler is 60 % below zero motion in rotation and 25 % below the oracle in
+    translation on both; quat is only 20 % below zero motion in rotation on 12."""
+    sweep = tmp_path / "sweep"
+    data = {"train": ["00"], "val": ["07"]} | ({} if unseen is None else {"unseen": unseen})
+    good = {"07": entry(0.1, 0.01), "11": entry(0.15, 0.02), "12": entry(0.15, 0.02)}
+    write_job(sweep, 0, "euler", data, good)
+    write_job(sweep, 1, "quat", data, {**good, "12": entry(0.1, 0.04)})
+    return sweep
+
+
+def hand_baselines(*_: object) -> BaselineRun:
+    """What :func:`lossvo.report.run_baselines` returns, with fixed numbers on 07, 11 and 12."""
+    values = {"zero motion": (1.0, 0.05), "mean motion (train)": (0.3, 0.05),
+              "ORB+E (GT scale)": (0.5, 0.03), "own mean motion (oracle)": (0.2, 0.04)}  # fmt: skip
+    columns = [
+        Column(name, BASELINE, ["deterministic"], [{s: entry(*v) for s in ("07", *UNSEEN)}])
+        for name, v in values.items()
+    ]
+    return BaselineRun(columns=columns)
+
+
+def unseen_rows(text: str) -> dict[tuple[str, str], dict[str, str]]:
+    """The rows of the *Unseen motion* table by (configuration, sequence)."""
+    header, _ = markdown_rows(text, "Unseen motion")
+    body = section(text, "Unseen motion").splitlines()
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in body if line.startswith("| ")][1:]
+    return {(r[0], r[2]): dict(zip(header, r, strict=True)) for r in rows}
+
+
+def test_unseen_motion_section_marks_which_jobs_meet_both_criteria(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr("lossvo.report.run_baselines", hand_baselines)
+    path = make_report(hand_sweep(tmp_path, list(UNSEEN)), with_figures=False)
+    text = path.read_text()
+    rows = unseen_rows(text)
+    assert set(rows) == {(f"loss={loss}", s) for loss in ("euler", "quat") for s in UNSEEN}
+    assert rows[("loss=euler", "12")]["vs zero motion"] == "60.0 %"
+    assert rows[("loss=euler", "12")]["vs own mean motion"] == "25.0 %"
+    assert rows[("loss=quat", "12")]["vs zero motion"] == "20.0 %"
+    assert rows[("loss=quat", "12")]["vs own mean motion"] == "50.0 %"
+    met = {key: row["both met"] for key, row in rows.items()}
+    assert met == {("loss=euler", "11"): "yes", ("loss=euler", "12"): "yes",
+                   ("loss=quat", "11"): "yes", ("loss=quat", "12"): "no"}  # fmt: skip
+    assert "1 of 2 jobs meet both on every unseen sequence." in section(text, "Unseen motion")
+    _, table = markdown_rows(text, "Table I")
+    assert {"07", "11 (unseen motion)", "12 (unseen motion)", "mean"} == set(table)
+    csv_rows = read_table(path.parent / "tables" / "translation.csv")
+    assert {s: r["note"] for s, r in csv_rows.items()} == {"07": "", "11": "unseen motion",
+                                                           "12": "unseen motion", "mean": ""}  # fmt: skip
+    assert float(csv_rows["11"]["own mean motion (oracle) | RPE [m]"]) == 0.2
+    latex = (path.parent / "tables" / "translation.tex").read_text()
+    assert "\n11 (unseen motion) & " in latex and "\n07 & " in latex
+    assert "**own mean motion (oracle)**" in section(text, "Baselines")
+
+
+@pytest.mark.parametrize(("unseen", "with_baselines"), [(None, True), ([], True), (list(UNSEEN), False)])
+def test_no_unseen_motion_section_without_unseen_sequences_or_baselines(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, unseen: list[str] | None, with_baselines: bool
+) -> None:
+    monkeypatch.setattr("lossvo.report.run_baselines", hand_baselines)
+    path = make_report(hand_sweep(tmp_path, unseen), with_baselines=with_baselines, with_figures=False)
+    text = path.read_text()
+    assert "## Unseen motion" not in text
+    assert "## Against the mean motion, per job" in text or not with_baselines
+    assert ("(unseen motion)" in text) == bool(unseen)  # the table marks need no baselines

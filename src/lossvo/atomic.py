@@ -13,17 +13,30 @@ from contextlib import contextmanager
 from pathlib import Path
 
 
+def _umask() -> int:
+    """The process's umask (reading it means setting it; it is set straight back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+UMASK = _umask()
+"""Read once at import, before any thread could create files meanwhile."""
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str = ".tmp") -> Iterator[Path]:
     """A temporary path in ``path``'s folder to write to; renamed onto ``path`` when the block ends
     without an error, deleted otherwise. ``suffix`` keeps writers that pick a format by extension
-    (matplotlib, ``np.savez``) writing the right one."""
+    (matplotlib, ``np.savez``) writing the right one. The file gets the permissions the umask gives
+    a new file (``mkstemp`` alone would make it private to its owner)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=suffix)
     os.close(fd)
     try:
         yield Path(tmp)
+        os.chmod(tmp, 0o666 & ~UMASK)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -1,6 +1,6 @@
 """Non-learned baselines for the sweep report, evaluated exactly as the networks are.
 
-Three estimators of the relative poses ``T_k = inv(T_w_k) @ T_w_{k+1}`` (frame k+1 seen from frame k) of a
+Four estimators of the relative poses ``T_k = inv(T_w_k) @ T_w_{k+1}`` (frame k+1 seen from frame k) of a
 sequence, each integrated from the first ground-truth pose with :func:`lossvo.trajectory.integrate` and
 scored with :func:`lossvo.metrics.evaluate` (the same APE alignment and RPE delta as the jobs'
 ``results.json``), so that their numbers sit in the same table as the networks':
@@ -16,7 +16,10 @@ scored with :func:`lossvo.metrics.evaluate` (the same APE alignment and RPE delt
   as such. A pair whose matches barely move (median below :data:`MIN_PARALLAX_PX`) gets no rotation and
   a step straight ahead (standing still or creeping, the ground-truth step length decides). A pair with
   too few matches or inliers takes the previous pair's motion (the training mean for the first pair),
-  rescaled the same way; the report counts these failures.
+  rescaled the same way; the report counts these failures;
+- ``own mean motion (oracle)``: the sequence's own mean relative pose (as ``mean motion (train)``, over
+  the sequence's ground truth) at every step: an oracle that knows the sequence's average motion, which
+  a network that learned only an average motion cannot beat.
 
 Results are cached per (data config, sequence) in ``<cache_dir>/<key>.npz`` so that re-running a report
 costs nothing; the key covers everything the numbers depend on (dataset identity, training split, the
@@ -48,8 +51,9 @@ log = logging.getLogger("lossvo")
 T = TypeVar("T")
 
 ZERO, MEAN, ORB = "zero motion", "mean motion (train)", "ORB+E (GT scale)"
-NAMES: tuple[str, ...] = (ZERO, MEAN, ORB)
-VERSION = 1
+OWN = "own mean motion (oracle)"
+NAMES: tuple[str, ...] = (ZERO, MEAN, ORB, OWN)
+VERSION = 2
 """Bump when a baseline's computation changes: cached results then no longer match."""
 
 MIN_MATCHES = 8
@@ -72,6 +76,8 @@ DATA_IDENTITY_IGNORED = frozenset(
     {
         "val",
         "test",
+        "unseen",
+        "frame_steps",
         "height",
         "width",
         "seq_len",
@@ -310,7 +316,12 @@ def sequence_baselines(
     targets = sequence.targets
     steps = np.linalg.norm(targets[:, :3, 3], axis=1)
     orb, failed = orb_essential(sequence.images, sequence.calib.K, steps, train_mean)
-    relatives = {ZERO: zero_motion(len(targets)), MEAN: repeat_motion(train_mean, len(targets)), ORB: orb}
+    relatives = {
+        ZERO: zero_motion(len(targets)),
+        MEAN: repeat_motion(train_mean, len(targets)),
+        ORB: orb,
+        OWN: repeat_motion(mean_motion([targets]), len(targets)),
+    }
     out = {}
     for name, relative in relatives.items():
         trajectory, scores = evaluate_relative(relative, gt, align, delta)
@@ -370,10 +381,13 @@ def save_cached(path: Path, results: Mapping[str, BaselineResult]) -> None:
 
 
 def load_cached(path: Path) -> dict[str, BaselineResult] | None:
-    """One sequence's baselines from ``path``, or None if it is missing or unreadable."""
+    """One sequence's baselines from ``path``, or None if it is missing, unreadable or lacks one of
+    :data:`NAMES` (a file written before that baseline existed)."""
     try:
         with np.load(path) as data:
             meta = json.loads(str(data["meta"]))
+            if not set(NAMES) <= set(meta["names"]):
+                return None
             return {
                 name: BaselineResult(
                     np.asarray(data[f"trajectory_{i}"]),

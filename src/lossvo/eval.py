@@ -204,7 +204,7 @@ def evaluate_run(
         datamodule: a set-up-able :class:`lossvo.data.datamodule.KittiDataModule` (``sequence_frames``,
             ``sequence_poses``, ``normalize``, ``seq_len``).
         out_dir: folder receiving ``trajectories/NN.txt``, ``plots/NN.png`` and ``results.json``.
-        sequences: sequence names, e.g. ``datamodule.splits["test"]``.
+        sequences: sequence names, e.g. ``datamodule.evaluated``.
         checkpoint: the checkpoint the weights came from (recorded in ``results.json``).
         align, delta: APE alignment and RPE delta (:func:`lossvo.metrics.evaluate`).
         carry_state: see :func:`predict_sequence`.
@@ -313,7 +313,7 @@ def run(cfg: Any, out_dir: Path) -> dict[str, Any]:
     check_compatible(module, datamodule)
     datamodule.prepare_data()
     datamodule.setup("test")
-    sequences = list(cfg.sequences) if cfg.get("sequences") else list(datamodule.splits["test"])
+    sequences = list(cfg.sequences) if cfg.get("sequences") else datamodule.evaluated
     sequences = [f"{s:02d}" if isinstance(s, int) else str(s) for s in sequences]
     return evaluate_run(module, datamodule, out_dir, sequences, checkpoint=Path(cfg.ckpt_path).resolve(),
                         align=cfg.get("align", "none"), delta=int(cfg.get("delta", 1)),

@@ -37,6 +37,7 @@ from torchmetrics import Metric
 from torchmetrics.utilities import dim_zero_cat
 
 from lossvo import geometry
+from lossvo.console import emit
 
 AlignMode = Literal["none", "se3", "sim3", "scale"]
 ALIGN_MODES: tuple[str, ...] = ("none", "se3", "sim3", "scale")
@@ -482,7 +483,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as e:  # KittiFormatError is a ValueError
         print(f"error: {e}", file=sys.stderr)
         return 2
-    print(json.dumps(result, indent=2) if args.json else format_table(result))
+    emit(json.dumps(result, indent=2) if args.json else format_table(result))
     return 0
 
 

@@ -10,10 +10,12 @@ per run, ``SWEEP_DIR/<num>_<overrides>/``, with ``.hydra/{config,overrides}.yaml
   metric); Table I (APE / RPE translation RMSE, m), Table II (APE / RPE rotation RMSE, rad) and Table III
   (KITTI t_err %, r_err deg/100 m) per test sequence plus a mean row, one column pair per compared
   configuration and per baseline; the minimum of each row in bold, over all columns including the
-  baselines; the pairwise comparison of the configurations; convergence (the first epoch within 10 % of
-  the best ``val/score``); which jobs were included or skipped and why; and last, the study's claims
-  (chordal gives the lowest errors, converges fastest) with their paired tests and verdicts
-  (:mod:`lossvo.claims`);
+  baselines, sequences of ``data.unseen`` marked ``(unseen motion)``; the pairwise comparison of the
+  configurations; convergence (the first epoch within 10 % of the best ``val/score``); each job against
+  the mean-motion baseline on the validation sequences and, on the unseen-motion sequences, against zero
+  motion and the sequence's own mean motion; which jobs were included or skipped and why; and last, the
+  study's claims (chordal gives the lowest errors, converges fastest) with their paired tests and
+  verdicts (:mod:`lossvo.claims`);
 - ``tables/{translation,rotation,kitti}.{csv,tex}`` (LaTeX with booktabs), ``tables/pairwise.csv``,
   ``tables/configurations.csv``, ``tables/convergence.csv`` and ``tables/claims.csv``;
 - ``figures/``: score and loss curves (mean and ± std band over seeds), bird's-eye trajectories per
@@ -56,6 +58,7 @@ import numpy as np
 from lossvo import claims
 from lossvo.atomic import write_text_atomic
 from lossvo.claims import PairedTest, wilcoxon_p
+from lossvo.console import emit
 from lossvo.figures import plot_ape_bars, plot_curves, plot_trajectories
 from lossvo.tables import (
     BASELINE,
@@ -1191,7 +1194,10 @@ def baselines_markdown(run: BaselineRun, enabled: bool) -> str:
         "`cv2.recoverPose` with K from calib.txt; each step's translation is scaled to the ground-truth "
         "step length (monocular VO has no scale: this is an optimistic baseline). A pair whose matches do "
         "not move is a step straight ahead; a pair with too few matches or inliers takes the previous "
-        "pair's motion (counted below as a failure).",
+        "pair's motion (counted below as a failure);",
+        "- **own mean motion (oracle)**: the sequence's own mean relative pose (from its ground truth) at "
+        "every step: it knows the sequence's average motion, so a network that learned only an average "
+        "motion cannot beat it.",
     ]
     if run.failures:
         total = sum(run.failures.values())
@@ -1214,18 +1220,36 @@ def baselines_markdown(run: BaselineRun, enabled: bool) -> str:
 LEARNING_METRICS = (("RPE trans", ("rpe", "trans", "rmse")), ("RPE rot", ("rpe", "rot_rad", "rmse")))
 
 
-def validation_sequences(columns: Sequence[Column]) -> list[str]:
-    """The validation sequences (``data.val``) of the networks' jobs, in order."""
+def config_sequences(columns: Sequence[Column], key: str) -> list[str]:
+    """The sequence names listed at ``key`` (e.g. ``data.val``) in the networks' job configs, in order of
+    first appearance; a missing or empty key lists none."""
     names: list[str] = []
     for column in columns:
         for job in column.jobs:
-            val = config_value(job.config, "data.val", [])
-            items = val.split(",") if isinstance(val, str) else list(val or [])
+            value = config_value(job.config, key, [])
+            items = value.split(",") if isinstance(value, str) else list(value or [])
             for item in items:
                 name = f"{item:02d}" if isinstance(item, int) else str(item).strip()
-                if name not in names:
+                if name and name not in names:
                     names.append(name)
     return names
+
+
+def validation_sequences(columns: Sequence[Column]) -> list[str]:
+    """The validation sequences (``data.val``) of the networks' jobs, in order."""
+    return config_sequences(columns, "data.val")
+
+
+UNSEEN_KEY = "data.unseen"
+UNSEEN_NOTE = "unseen motion"
+"""The note beside an unseen-motion sequence's name in the per-sequence tables."""
+
+
+def unseen_sequences(columns: Sequence[Column], sequences: Sequence[str]) -> list[str]:
+    """The evaluated ``sequences`` that some network job lists in ``data.unseen`` (route families never
+    used for training), in the order of ``sequences``."""
+    unseen = set(config_sequences(columns, UNSEEN_KEY))
+    return [s for s in sequences if s in unseen]
 
 
 def reduction(value: Any, reference: Any) -> float | None:
@@ -1263,6 +1287,90 @@ def learning_markdown(networks: Sequence[Column], base: BaselineRun) -> str:
     return "\n".join(lines)
 
 
+UNSEEN_ROTATION_BAR = 0.30
+"""Fraction by which a job's RPE rotation RMSE must lie below zero motion's on an unseen-motion sequence."""
+RPE_ROT, RPE_TRANS = ("rpe", "rot_rad", "rmse"), ("rpe", "trans", "rmse")
+
+
+@dataclass(frozen=True)
+class UnseenCheck:
+    """One job on one unseen-motion sequence: RPE rotation RMSE (rad) and its reduction against zero
+    motion, RPE translation RMSE (m) and its reduction against the sequence's own mean motion (the
+    oracle), reductions as fractions (1 - network / baseline); None where a value is missing."""
+
+    rot: float | None
+    rot_reduction: float | None
+    trans: float | None
+    trans_reduction: float | None
+
+    @property
+    def met(self) -> bool:
+        """Rotation at least :data:`UNSEEN_ROTATION_BAR` below zero motion and translation below the
+        oracle; a missing value meets neither."""
+        rot_ok = self.rot_reduction is not None and self.rot_reduction >= UNSEEN_ROTATION_BAR
+        return rot_ok and self.trans_reduction is not None and self.trans_reduction > 0
+
+
+def unseen_check(entry: Any, zero: Any, own: Any) -> UnseenCheck:
+    """The :class:`UnseenCheck` of a job's results entry of one sequence against the zero-motion and
+    own-mean-motion baselines' entries of that sequence (each as in results.json, or None)."""
+    rot, trans = _number(lookup(entry, RPE_ROT)), _number(lookup(entry, RPE_TRANS))
+    return UnseenCheck(
+        rot, reduction(rot, lookup(zero, RPE_ROT)), trans, reduction(trans, lookup(own, RPE_TRANS))
+    )
+
+
+def _percent(fraction: float | None) -> str:
+    return "–" if fraction is None else f"{100 * fraction:.1f} %"
+
+
+UNSEEN_HEADER = ("RPE rot [rad]", "vs zero motion", "RPE trans [m]", "vs own mean motion", "both met")
+
+
+def _check_cells(check: UnseenCheck) -> list[str]:
+    """An :class:`UnseenCheck` as the cells of :data:`UNSEEN_HEADER`."""
+    rmse = ["–" if v is None else fmt(v) for v in (check.rot, check.trans)]
+    reductions = [_percent(check.rot_reduction), _percent(check.trans_reduction)]
+    return [rmse[0], reductions[0], rmse[1], reductions[1], "yes" if check.met else "no"]
+
+
+def unseen_markdown(networks: Sequence[Column], base: BaselineRun, unseen: Sequence[str]) -> str:
+    """Per job and unseen-motion sequence: RPE rotation against zero motion, RPE translation against the
+    sequence's own mean motion, whether both criteria are met; then how many jobs meet both on every
+    unseen sequence."""
+    by_label = {c.label: c for c in base.columns}
+    zero, own = by_label.get("zero motion"), by_label.get("own mean motion (oracle)")
+    if zero is None or own is None:
+        return "No zero-motion or own-mean-motion baseline: nothing to compare."
+    rows, passed, total = [], 0, 0
+    for column in networks:
+        for job, results in zip(column.jobs, column.results, strict=True):
+            checks = [
+                unseen_check(results.get(s), zero.results[0].get(s), own.results[0].get(s)) for s in unseen
+            ]
+            rows += [
+                [md(column.label), md(job.seed), s, *_check_cells(c)]
+                for s, c in zip(unseen, checks, strict=True)
+            ]
+            passed += all(c.met for c in checks)
+            total += 1
+    header = ["configuration", "seed", "sequence", *UNSEEN_HEADER]
+    lines = [
+        f"On the sequences of route families never used for training (`{UNSEEN_KEY}`): each job's RPE "
+        "rotation RMSE against zero motion's and its RPE translation RMSE against the sequence's own mean "
+        "motion (the oracle), as 1 − network / baseline. Both are met when the rotation lies at least "
+        f"{100 * UNSEEN_ROTATION_BAR:.0f} % below zero motion's and the translation below the oracle's "
+        "(a reduction above 0); a missing value meets neither.",
+        "",
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * len(header),
+        *("| " + " | ".join(row) + " |" for row in rows),
+        "",
+        f"{passed} of {total} jobs meet both on every unseen sequence.",
+    ]
+    return "\n".join(lines)
+
+
 def figures_markdown(figures: Sequence[Path] | None, out: Path) -> str:
     if figures is None:
         return "Figures were not drawn (`--no-figures`)."
@@ -1274,17 +1382,20 @@ def figures_markdown(figures: Sequence[Path] | None, out: Path) -> str:
 @dataclass
 class Study:
     """What a report measures besides the tables: the configurations (network columns), their
-    convergence and the study's claims."""
+    convergence, the study's claims and the evaluated sequences of unseen motion (``data.unseen``)."""
 
     networks: list[Column]
     convergence: list[Convergence]
     claims: list[Claim]
+    unseen: list[str] = field(default_factory=list)
 
 
 def analyse(networks: Sequence[Column], sequences: Sequence[str]) -> Study:
-    """Convergence and claims of the network columns on the evaluated ``sequences``."""
+    """Convergence, claims and unseen-motion sequences of the network columns on the evaluated
+    ``sequences``."""
     items = convergence(networks)
-    return Study(list(networks), items, study_claims(networks, items, sequences))
+    claimed = study_claims(networks, items, sequences)
+    return Study(list(networks), items, claimed, unseen_sequences(networks, sequences))
 
 
 TABLE_FILES = ("pairwise.csv", "configurations.csv", "convergence.csv", "claims.csv")
@@ -1334,7 +1445,13 @@ def render_report(
             f"Test sequences: {', '.join(sequences)}. APE alignment: `{align}`; RPE delta: {delta} "
             "frame(s) (as in the jobs' results.json). Columns are named by the overrides that differ "
             "between jobs; **bold**: the lowest value of the row over all columns, baselines "
-            "included, so a winning baseline shows.",
+            "included, so a winning baseline shows."
+            + (
+                f" Rows marked ({UNSEEN_NOTE}) are sequences of route families never used for training "
+                f"(`{UNSEEN_KEY}`): {', '.join(study.unseen)}."
+                if study.unseen
+                else ""
+            ),
             "",
             seeds_text([*tables[0].columns]),
         ]
@@ -1366,6 +1483,8 @@ def render_report(
     if baselines_on and included:
         networks = [c for c in tables[0].columns if c.kind == NETWORK] if tables else []
         lines += ["", "## Against the mean motion, per job", "", learning_markdown(networks, base)]
+        if study.unseen:
+            lines += ["", "## Unseen motion", "", unseen_markdown(networks, base, study.unseen)]
     lines += ["", "## Jobs", "", jobs_markdown(jobs)]
     lines += [
         "",
@@ -1452,9 +1571,10 @@ def make_report(
         n_jobs = n_jobs or os.cpu_count() or 1
         base = run_baselines(included, sequences, out / "cache", n_jobs)
     columns = [*networks, *base.columns]
-    tables = [build_table(spec, columns, sequences) for spec in TABLES] if networks else []
     comparisons = compare(networks)
     study = analyse(networks, sequences)
+    notes = dict.fromkeys(study.unseen, UNSEEN_NOTE)
+    tables = [build_table(spec, columns, sequences, notes) for spec in TABLES] if networks else []
     write_tables(tables, comparisons, study, out / "tables")
     figures = None
     if with_figures:
@@ -1495,7 +1615,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     log.info("report written in %.1f s", time.perf_counter() - start)
-    print(path)
+    emit(str(path))
     return 0
 
 

@@ -3,6 +3,8 @@
 A :class:`Column` is one compared configuration (its seeds) or one baseline; :func:`build_table` fills a
 :class:`Table` of :data:`TABLES` with mean ± sample std over seeds per sequence plus a mean row, and bolds
 the minimum of each row; :func:`table_markdown`, :func:`table_csv` and :func:`table_latex` write it out.
+A row may carry a note (e.g. ``unseen motion``): in markdown and LaTeX it follows the sequence name in
+parentheses, in CSV it has its own last column, so the ``sequence`` column stays the bare name.
 Units are those of the metrics: m and rad for APE / RPE, % and deg/100 m for the KITTI errors.
 """
 
@@ -11,7 +13,7 @@ from __future__ import annotations
 import csv
 import io
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -113,17 +115,28 @@ class Cell:
 
 @dataclass
 class Table:
-    """A filled table: ``cells[row][column][metric]``; rows are the sequences, then :data:`MEAN_ROW`."""
+    """A filled table: ``cells[row][column][metric]``; rows are the sequences, then :data:`MEAN_ROW`;
+    ``notes`` maps a row to a short note shown beside its name."""
 
     spec: TableSpec
     columns: list[Column]
     rows: list[str]
     cells: list[list[list[Cell]]]
     mean_over: list[str]
+    notes: dict[str, str] = field(default_factory=dict)
+
+    def label(self, row: str) -> str:
+        """A row's name with its note: ``"11 (unseen motion)"``; the bare name without one."""
+        return f"{row} ({self.notes[row]})" if row in self.notes else row
 
 
-def build_table(spec: TableSpec, columns: Sequence[Column], sequences: Sequence[str]) -> Table:
-    """Cells per sequence, a mean row and the bold marks.
+def build_table(
+    spec: TableSpec,
+    columns: Sequence[Column],
+    sequences: Sequence[str],
+    notes: Mapping[str, str] | None = None,
+) -> Table:
+    """Cells per sequence, a mean row and the bold marks; ``notes``: {sequence: note} (:attr:`Table.notes`).
 
     The mean row averages each replicate over the sequences where every column has a value (so all
     columns are averaged over the same sequences), then takes mean ± std over the replicates.
@@ -145,7 +158,12 @@ def build_table(spec: TableSpec, columns: Sequence[Column], sequences: Sequence[
         for c in range(len(columns))
     ]
     table = Table(
-        spec, list(columns), [*sequences, MEAN_ROW], [*cells, mean_row], [sequences[j] for j in common]
+        spec,
+        list(columns),
+        [*sequences, MEAN_ROW],
+        [*cells, mean_row],
+        [sequences[j] for j in common],
+        {s: n for s, n in (notes or {}).items() if s in sequences},
     )
     mark_best(table)
     return table
@@ -220,26 +238,29 @@ def table_markdown(table: Table) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for row, cells in zip(table.rows, table.cells, strict=True):
         texts = [_cell_text(cell, lambda s: f"**{s}**", " ± ", replicated) for col in cells for cell in col]
-        lines.append(f"| {'**mean**' if row == MEAN_ROW else row} | " + " | ".join(texts) + " |")
+        lines.append(
+            f"| {'**mean**' if row == MEAN_ROW else md(table.label(row))} | " + " | ".join(texts) + " |"
+        )
     return "\n".join(lines)
 
 
 def table_csv(table: Table) -> str:
     """The table as CSV: ``sequence``, then per column and metric ``<label> | <metric>`` (mean),
-    ``... std`` (sample std, empty for n < 2) and ``... n``; full precision."""
+    ``... std`` (sample std, empty for n < 2) and ``... n``, then ``note`` (the row's note, or empty);
+    full precision."""
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     header = ["sequence"]
     for c in table.columns:
         for name, _ in table.spec.metrics:
             header += [f"{c.label} | {name}", f"{c.label} | {name} std", f"{c.label} | {name} n"]
-    writer.writerow(header)
+    writer.writerow([*header, "note"])
     for row, cells in zip(table.rows, table.cells, strict=True):
         values: list[str | int] = [row]
         for col in cells:
             for cell in col:
                 values += [repr(cell.mean) if cell.n else "", repr(cell.std) if cell.n > 1 else "", cell.n]
-        writer.writerow(values)
+        writer.writerow([*values, table.notes.get(row, "")])
     return out.getvalue()
 
 
@@ -287,6 +308,7 @@ def table_latex(table: Table) -> str:
             for col in cells
             for cell in col
         ]
-        lines.append(f"{'Mean' if row == MEAN_ROW else latex_escape(row)} & " + " & ".join(texts) + " \\\\")
+        name = "Mean" if row == MEAN_ROW else latex_escape(table.label(row))
+        lines.append(f"{name} & " + " & ".join(texts) + " \\\\")
     lines += ["\\bottomrule", "\\end{tabular}"]
     return "\n".join(lines) + "\n"

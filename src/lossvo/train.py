@@ -28,6 +28,7 @@ from typing import Any
 import hydra
 import lightning as L
 from hydra.core.hydra_config import HydraConfig
+from hydra.errors import InstantiationException
 from hydra.utils import get_class, instantiate
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint, ProgressBar
 from lightning.pytorch.loggers import Logger, WandbLogger
@@ -164,8 +165,8 @@ def evaluate_after_fit(trainer: L.Trainer, module: VOModule, datamodule: L.Light
     else:
         log.warning("no best checkpoint: evaluating the last weights")
     module = module.to(device)
-    result = evaluate_run(module, datamodule, out_dir, list(datamodule.splits["test"]), checkpoint=best)
-    log.info("evaluation of %s on %s: %s", best or "the last weights", ", ".join(datamodule.splits["test"]),
+    result = evaluate_run(module, datamodule, out_dir, datamodule.evaluated, checkpoint=best)
+    log.info("evaluation of %s on %s: %s", best or "the last weights", ", ".join(datamodule.evaluated),
              out_dir / "results.json")  # fmt: skip
     return result
 
@@ -202,6 +203,13 @@ def main(cfg: DictConfig) -> float | None:
     write_status(out_dir, "running")
     try:
         metrics = train(cfg)
+    except InstantiationException as e:
+        if not isinstance(e.__cause__, ValueError):  # a config value a constructor refused: one line
+            write_status(out_dir, "failed", error=f"{type(e).__name__}: {e}")
+            raise
+        write_status(out_dir, "failed", error=f"ValueError: {e.__cause__}")
+        log.error("%s", e.__cause__)
+        raise SystemExit(2) from None
     except Exception as e:
         write_status(out_dir, "failed", error=f"{type(e).__name__}: {e}")
         log.error("job failed: %s: %s", type(e).__name__, e)

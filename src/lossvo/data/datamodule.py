@@ -32,8 +32,8 @@ from torch.utils.data import DataLoader, Dataset, RandomSampler, Sampler
 
 from lossvo import geometry
 from lossvo.atomic import write_text_atomic
-from lossvo.data import frame_cache, synthetic
-from lossvo.data.kitti import Sequence, find_root, load_sequence
+from lossvo.data import frame_cache, routes, synthetic
+from lossvo.data.kitti import Sequence, find_root, load_sequence, relative_targets
 
 PAPER_TRAIN = ("00", "02", "03", "04", "05", "06", "08")
 PAPER_VAL = ("07", "09")
@@ -54,35 +54,48 @@ def _names(value: str | int | Seq, key: str) -> tuple[str, ...]:
 
 
 class WindowDataset(Dataset):
-    """Windows of consecutive cached frames with their relative-pose targets.
+    """Windows of cached frames with their relative-pose targets, at one or more frame steps.
 
     Items are ``(frames (seq_len, 3, H, W) uint8, targets (seq_len - 1, 4, 4) float32)``: a window
-    costs one memory copy. Conversion to float, normalisation and augmentation happen per batch on the
-    training device (:meth:`KittiDataModule.on_after_batch_transfer`), which also moves 4x fewer bytes
-    to the GPU. The memory maps are opened lazily in each process (a pickled memmap would be copied
-    whole into every DataLoader worker).
+    costs one memory copy. A window at step s takes every s-th frame, and its targets are the relative
+    poses between those frames, ``inv(T_w_k) @ T_w_{k+s}`` computed from the poses in float64 (so s = 2
+    doubles the speeds and rotations the network sees). Conversion to float, normalisation and
+    augmentation happen per batch on the training device (:meth:`KittiDataModule.on_after_batch_transfer`),
+    which also moves 4x fewer bytes to the GPU. The memory maps are opened lazily in each process (a
+    pickled memmap would be copied whole into every DataLoader worker).
+
+    Args:
+        cache_files: one cached frame array per sequence; poses: (N_i, 4, 4) T_w_c per sequence.
+        seq_len: frames per window; stride: frames between window starts; steps: frame steps (1: consecutive).
     """
 
-    def __init__(self, cache_files: list[Path], targets: list[np.ndarray], seq_len: int, stride: int) -> None:
+    def __init__(
+        self, cache_files: list[Path], poses: list[np.ndarray], seq_len: int, stride: int,
+        steps: Seq[int] = (1,),
+    ) -> None:  # fmt: skip
         self.cache_files = cache_files
-        self.targets = [torch.from_numpy(t.astype(np.float32)) for t in targets]
         self.seq_len = seq_len
-        self.index = self._windows([len(t) + 1 for t in targets], seq_len, stride)
+        self.targets = {
+            s: [torch.from_numpy(relative_targets(p, s).astype(np.float32)) for p in poses] for s in steps
+        }
+        lengths = [len(p) for p in poses]
+        self.index = np.concatenate([self._windows(lengths, seq_len, stride, s) for s in steps])
         self._frames: list[np.ndarray] | None = None
 
     @staticmethod
-    def _windows(lengths: list[int], seq_len: int, stride: int) -> np.ndarray:
-        """(M, 2) (sequence, start frame) of every window. With stride = seq_len - 1 (evaluation) a
-        last, overlapping window is added where needed, so every pair of a sequence is covered."""
+    def _windows(lengths: list[int], seq_len: int, stride: int, step: int = 1) -> np.ndarray:
+        """(M, 3) (sequence, start frame, step) of every window. With stride = seq_len - 1 (evaluation)
+        a last, overlapping window is added where needed, so every pair of a sequence is covered."""
+        span = step * (seq_len - 1) + 1
         rows = []
         for i, n in enumerate(lengths):
-            if n < seq_len:
+            if n < span:
                 continue
-            starts = np.arange(0, n - seq_len + 1, stride)
-            if starts[-1] != n - seq_len and stride == seq_len - 1:
-                starts = np.append(starts, n - seq_len)
-            rows.append(np.stack((np.full_like(starts, i), starts), axis=1))
-        return np.concatenate(rows) if rows else np.zeros((0, 2), dtype=np.int64)
+            starts = np.arange(0, n - span + 1, stride)
+            if starts[-1] != n - span and stride == seq_len - 1:
+                starts = np.append(starts, n - span)
+            rows.append(np.stack((np.full_like(starts, i), starts, np.full_like(starts, step)), axis=1))
+        return np.concatenate(rows) if rows else np.zeros((0, 3), dtype=np.int64)
 
     def __getstate__(self) -> dict:
         return {**self.__dict__, "_frames": None}
@@ -97,9 +110,10 @@ class WindowDataset(Dataset):
         return len(self.index)
 
     def __getitem__(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
-        seq, start = (int(v) for v in self.index[i])
-        window = torch.from_numpy(np.array(self.frames[seq][start : start + self.seq_len]))  # one copy
-        return window, self.targets[seq][start : start + self.seq_len - 1]
+        seq, start, step = (int(v) for v in self.index[i])
+        end = start + step * (self.seq_len - 1) + 1
+        window = torch.from_numpy(np.array(self.frames[seq][start:end:step]))  # one copy
+        return window, self.targets[step][seq][start : end - 1 : step]
 
 
 def reverse_windows(
@@ -139,6 +153,8 @@ class KittiDataModule(L.LightningDataModule):
     Args:
         root: folder holding ``sequences/`` and ``poses/`` (or the folder holding ``dataset/``).
         train, val, test: sequence names (``["00", "02"]`` or ``"00,02"``).
+        unseen: sequences of motion unlike the training split's (the synthetic dataset's unseen-motion
+            routes), evaluated beside the test sequences and marked as such in reports; need poses.
         height, width: frame size in pixels after resizing (area interpolation).
         seq_len: frames per window (``seq_len - 1`` frame pairs).
         stride: frames between the starts of consecutive training windows.
@@ -150,6 +166,9 @@ class KittiDataModule(L.LightningDataModule):
         augment: photometric jitter on training windows.
         reverse: probability of playing a training window backwards (frames in reverse order, targets
             the inverse relative poses in reverse order): exact geometry, twice the motions.
+        frame_steps: frame steps of the training windows, e.g. ``[1, 2]``: every window start at each
+            step (every s-th frame, targets recomputed from the poses), so larger steps add faster motion.
+            Validation and evaluation always use consecutive frames.
     """
 
     def __init__(
@@ -158,6 +177,7 @@ class KittiDataModule(L.LightningDataModule):
         train: Seq[str] | str = PAPER_TRAIN,
         val: Seq[str] | str = PAPER_VAL,
         test: Seq[str] | str = PAPER_TEST,
+        unseen: Seq[str] | str = (),
         height: int = 184,
         width: int = 608,
         seq_len: int = 7,
@@ -170,6 +190,7 @@ class KittiDataModule(L.LightningDataModule):
         reverse: float = 0.0,
         pin_memory: bool = False,
         windows_per_epoch: int | None = None,
+        frame_steps: Seq[int] = (1,),
     ) -> None:
         super().__init__()
         self.root = Path(root).expanduser()
@@ -177,6 +198,7 @@ class KittiDataModule(L.LightningDataModule):
             "train": _names(train, "train"),
             "val": _names(val, "val"),
             "test": _names(test, "test"),
+            "unseen": _names(unseen, "unseen"),
         }
         for key, value in (("height", height), ("width", width)):
             if not isinstance(value, int) or value < 16:
@@ -198,6 +220,12 @@ class KittiDataModule(L.LightningDataModule):
                 f"data.windows_per_epoch: expected null or an integer >= 1, got {windows_per_epoch!r}"
             )
         self.windows_per_epoch = windows_per_epoch
+        steps = list(frame_steps) if isinstance(frame_steps, Seq) and not isinstance(frame_steps, str) else []
+        if not steps or any(isinstance(v, bool) or not isinstance(v, int) or v < 1 for v in steps):
+            raise ValueError(
+                f"data.frame_steps: expected a list of integers >= 1 like [1, 2], got {frame_steps!r}"
+            )
+        self.frame_steps = tuple(dict.fromkeys(steps))
         self.cache_dir = Path(cache_dir).expanduser() if cache_dir else frame_cache.default_cache_dir()
         if not 0.0 <= reverse <= 1.0:
             raise ValueError(f"data.reverse: expected a probability in [0, 1], got {reverse!r}")
@@ -212,10 +240,15 @@ class KittiDataModule(L.LightningDataModule):
     def all_names(self) -> list[str]:
         return sorted(set().union(*self.splits.values()))
 
+    @property
+    def evaluated(self) -> list[str]:
+        """The sequences a trained network is evaluated on: test, then unseen-motion ones."""
+        return list(dict.fromkeys(self.splits["test"] + self.splits["unseen"]))
+
     def _load_metadata(self) -> Path:
         """Read every sequence's metadata; only test sequences may lack poses (KITTI 11-21)."""
         root = find_root(self.root)
-        labelled = set(self.splits["train"]) | set(self.splits["val"])
+        labelled = set(self.splits["train"]) | set(self.splits["val"]) | set(self.splits["unseen"])
         self.sequences = {
             name: load_sequence(root, name, require_poses=name in labelled) for name in self.all_names
         }
@@ -277,8 +310,8 @@ class KittiDataModule(L.LightningDataModule):
             stride = self.stride if split == "train" else self.seq_len - 1
             names = [n for n in names if self.sequences[n].poses is not None]  # test: labelled ones
             self.datasets[split] = WindowDataset(
-                [frame_cache.files(folder, n)[0] for n in names], [self.sequences[n].targets for n in names],
-                self.seq_len, stride,
+                [frame_cache.files(folder, n)[0] for n in names], [self.sequences[n].poses for n in names],
+                self.seq_len, stride, self.frame_steps if split == "train" else (1,),
             )  # fmt: skip
         if len(self.datasets["train"]) == 0:
             shortest = min(len(self.sequences[n].images) for n in self.splits["train"])
@@ -348,18 +381,25 @@ class SyntheticDataModule(KittiDataModule):
         frames: frames per sequence (None: the generator's defaults).
         render_height, render_width: resolution the generator writes (None: its default).
         seed: the generator's seed (a different seed is a different set of worlds and routes).
+        route_families: route families added or changed, name -> parameters of
+            :class:`lossvo.data.routes.Family` (None: the built-in ones).
+        route_mixes: sequence -> {family: weight} for the sequences whose routes differ from the
+            built-in mixes (None: none).
         Other arguments as :class:`KittiDataModule`.
     """
 
     def __init__(self, root: str | None = None, frames: int | dict[str, int] | None = None,
                  render_height: int | None = None, render_width: int | None = None,
-                 seed: int = 0, **kwargs) -> None:  # fmt: skip
+                 seed: int = 0, route_families: Mapping | None = None, route_mixes: Mapping | None = None,
+                 **kwargs) -> None:  # fmt: skip
         cache_dir = kwargs.get("cache_dir")
         base = Path(cache_dir).expanduser() if cache_dir else frame_cache.default_cache_dir()
         super().__init__(root=str(root or base / "synthetic"), **kwargs)
+        spec = routes.route_spec(route_families, route_mixes, prefix="data.")
         self.generator_args = {"frames": dict(frames) if isinstance(frames, Mapping) else frames,
                                "height": render_height or synthetic.DEFAULT_HEIGHT,
-                               "width": render_width or synthetic.DEFAULT_WIDTH, "seed": seed}  # fmt: skip
+                               "width": render_width or synthetic.DEFAULT_WIDTH, "seed": seed,
+                               "spec": spec}  # fmt: skip
 
     def _ensure_rendered(self) -> None:
         """Render the dataset unless it is there; the lock lets parallel sweep jobs share it."""

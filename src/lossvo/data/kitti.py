@@ -180,15 +180,16 @@ def write_poses(path: str | os.PathLike, poses: np.ndarray | torch.Tensor) -> No
     write_text_atomic(Path(path), text + "\n")
 
 
-def relative_targets(poses: np.ndarray) -> np.ndarray:
-    """Relative poses between consecutive frames, ``inv(T_w_k) @ T_w_{k+1}``, in float64.
+def relative_targets(poses: np.ndarray, step: int = 1) -> np.ndarray:
+    """Relative poses between frames ``step`` apart, ``inv(T_w_k) @ T_w_{k+step}``, in float64.
 
     Args:
-        poses: (N, 4, 4) camera-to-world poses.
+        poses: (N, 4, 4) camera-to-world poses; step: frames between the two poses (1: consecutive).
     Returns:
-        (N - 1, 4, 4) float64 relative poses (frame k+1 seen from frame k).
+        (N - step, 4, 4) float64 relative poses (frame k+step seen from frame k).
     """
-    return geometry.consecutive_relative_poses(torch.from_numpy(np.asarray(poses, np.float64))).numpy()
+    T_w = torch.from_numpy(np.asarray(poses, np.float64))
+    return geometry.relative_pose(T_w[:-step], T_w[step:]).numpy()
 
 
 # --------------------------------------------------------------------------------------------------

@@ -1,6 +1,6 @@
 """Synthetic KITTI-odometry dataset: a procedural town rendered along car-like routes.
 
-``generate(out)`` writes, for each sequence ``NN`` (default ``00``..``10``, each its own world and route)::
+``generate(out)`` writes, for each sequence ``NN`` (default ``00``..``12``, each its own world and route)::
 
     out/sequences/NN/image_2/000000.png ...   8-bit colour PNGs, (height, width) = (160, 512) by default
     out/sequences/NN/calib.txt                P0..P3 (3x4) and Tr (3x4), KITTI format; P2 = [K | 0]
@@ -18,8 +18,11 @@ rotations to a median of ~0.15 degree and the translation directions to ~2-3 deg
 Default resolution: 160 x 512, KITTI's 376 x 1241 scaled by about 0.42 (K scaled per axis, as resizing
 KITTI frames does). At 128 x 416 the ORB check above sits too close to its 0.3 degree bound (up to 0.27);
 160 x 512 keeps it below 0.18 for a modest cost. Default frame counts are 100-240 per sequence (training
-sequences longer than validation ones), 1,800 frames in all: about 50 s of CPU, so the whole default
+sequences longer than validation ones), 2,100 frames in all: about 50 s of CPU, so the whole default
 dataset renders in about half a minute on 2 cores (one process per sequence), ~230 MB of PNGs.
+
+Routes (``lossvo.data.routes``): sequences 00-10 drive a mix of town, arterial and country roads; 11 and
+12, the unseen-motion split, drive stop-and-go traffic and expressways, families no other sequence drives.
 
 The scene: an infinite textured ground plane (asphalt-like multi-scale "dead leaves" patches with paint
 marks), buildings (vertical boxes with window, brick or panel facades) in rows along both sides of the
@@ -53,6 +56,8 @@ from typing import NoReturn
 import cv2
 import numpy as np
 
+from lossvo.data import routes
+
 # --------------------------------------------------------------------------------------------------
 # Parameters
 # --------------------------------------------------------------------------------------------------
@@ -64,10 +69,10 @@ KITTI_INTRINSICS = (718.856, 718.856, 607.1928, 185.2157)
 
 DEFAULT_HEIGHT = 160
 DEFAULT_WIDTH = 512
-SEQUENCES = tuple(f"{i:02d}" for i in range(11))
+SEQUENCES = tuple(f"{i:02d}" for i in range(11)) + routes.UNSEEN_SEQUENCES
 DEFAULT_FRAMES = {
     "00": 240, "01": 120, "02": 240, "03": 120, "04": 100, "05": 200,
-    "06": 150, "07": 120, "08": 240, "09": 150, "10": 120,
+    "06": 150, "07": 120, "08": 240, "09": 150, "10": 120, "11": 150, "12": 150,
 }  # fmt: skip
 """Frames per sequence when none are given; sequences not listed get FALLBACK_FRAMES."""
 FALLBACK_FRAMES = 150
@@ -79,7 +84,7 @@ CAMERA_HEIGHT = 1.65
 """Metres from the camera centre down to the ground at frame 0; the ground is the world plane y = +1.65."""
 FRAME_RATE = 10.0
 MANIFEST = "lossvo_synthetic.json"
-VERSION = 1
+VERSION = 2
 """Bumped whenever the rendered content changes, so that ensure_dataset regenerates old datasets."""
 
 SUPERSAMPLE = 1
@@ -139,101 +144,6 @@ def times_text(n_frames: int) -> str:
 def poses_text(poses: np.ndarray) -> str:
     """KITTI poses file content for poses (N, 4, 4): the row-major 3x4 [R | t] of each, one a line."""
     return "".join(" ".join(f"{v:.9e}" for v in T[:3].ravel()) + "\n" for T in poses)
-
-
-def euler_to_matrix(yaw: np.ndarray, pitch: np.ndarray, roll: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) R = Ry(yaw) @ Rx(pitch) @ Rz(roll), angles in radians (float64)."""
-    yaw, pitch, roll = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (yaw, pitch, roll)))
-    (cy, cp, cr), (sy, sp, sr) = np.cos([yaw, pitch, roll]), np.sin([yaw, pitch, roll])
-    one, zero = np.ones_like(yaw), np.zeros_like(yaw)
-    Ry = np.stack([cy, zero, sy, zero, one, zero, -sy, zero, cy], -1).reshape(*yaw.shape, 3, 3)
-    Rx = np.stack([one, zero, zero, zero, cp, -sp, zero, sp, cp], -1).reshape(*yaw.shape, 3, 3)
-    Rz = np.stack([cr, -sr, zero, sr, cr, zero, zero, zero, one], -1).reshape(*yaw.shape, 3, 3)
-    return Ry @ Rx @ Rz
-
-
-# --------------------------------------------------------------------------------------------------
-# Route: car-like motion on the ground plane
-# --------------------------------------------------------------------------------------------------
-
-
-def _smooth(x: np.ndarray, sigma: float) -> np.ndarray:
-    """x (n,) convolved with a normalised Gaussian of std sigma samples, edges replicated."""
-    half = max(1, int(3 * sigma))
-    kernel = np.exp(-0.5 * (np.arange(-half, half + 1) / sigma) ** 2)
-    padded = np.pad(x, half, mode="edge")
-    return np.convolve(padded, kernel / kernel.sum(), mode="valid")
-
-
-def _smooth_noise(rng: np.random.Generator, n: int, std: float, sigma: float) -> np.ndarray:
-    """(n,) smooth zero-mean random signal of the given std, correlated over about sigma samples."""
-    half = max(1, int(3 * sigma))
-    kernel = np.exp(-0.5 * (np.arange(-half, half + 1) / sigma) ** 2)
-    kernel /= np.sqrt((kernel**2).sum())
-    return std * np.convolve(rng.standard_normal(n + 2 * half), kernel, mode="valid")
-
-
-def _turn_direction(rng: np.random.Generator, heading: float) -> float:
-    """+1 (right) or -1 (left), steering the net heading back when it passes +-100 degrees."""
-    if heading > math.radians(100):
-        return -1.0
-    if heading < -math.radians(100):
-        return 1.0
-    return 1.0 if rng.random() < 0.5 else -1.0
-
-
-def _motion_schedule(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per-step yaw rate (rad/frame) and target speed (m/frame), (n,) each.
-
-    Alternates straight stretches (8-30 frames, 0.85-1.3 m/frame) with a turn: a sharp corner of 80-100
-    degrees over 14-22 frames at 0.55-0.75 m/frame, or a gentle curve of 15-50 degrees over 25-60 frames
-    (never two in a row, so every route of 200 frames or more has a corner). Each turn has a smooth
-    sin^2 yaw-rate profile.
-    """
-    rates: list[np.ndarray] = []
-    speeds: list[np.ndarray] = []
-    heading, total, sharp = 0.0, 0, True
-    while total < n:
-        straight = int(rng.integers(8, 31))
-        cruise = rng.uniform(0.85, 1.3)
-        rates.append(np.zeros(straight))
-        speeds.append(np.full(straight, cruise))
-        sharp = not sharp or rng.random() < 0.5
-        length = int(rng.integers(14, 23) if sharp else rng.integers(25, 61))
-        angle = math.radians(rng.uniform(80, 100) if sharp else rng.uniform(15, 50))
-        angle *= _turn_direction(rng, heading)
-        profile = np.sin(np.pi * (np.arange(length) + 0.5) / length) ** 2
-        rates.append(angle * profile / profile.sum())
-        speeds.append(np.full(length, rng.uniform(0.55, 0.75) if sharp else cruise))
-        heading += angle
-        total += straight + length
-    return np.concatenate(rates)[:n], np.concatenate(speeds)[:n]
-
-
-def make_route(rng: np.random.Generator, n_frames: int) -> np.ndarray:
-    """Camera poses T_w_c (n_frames, 4, 4) float64 of a car driving on the ground plane.
-
-    Speed about 1 m/frame (smoothed, so the car brakes before corners), lane wobble, suspension pitch
-    (braking) and roll (cornering) below ~1.5 degrees with small bumps, height bobbing of ~1 cm.
-    The first pose is the identity.
-    """
-    yaw_rate, target = _motion_schedule(rng, n_frames)
-    yaw_rate = yaw_rate + _smooth_noise(rng, n_frames, 0.002, 4.0)
-    speed = _smooth(target, 4.0) * (1.0 + _smooth_noise(rng, n_frames, 0.03, 6.0))
-    yaw = np.concatenate([[0.0], np.cumsum(yaw_rate)[:-1]])
-    accel = np.gradient(speed)
-    pitch = np.clip(0.25 * accel + _smooth_noise(rng, n_frames, math.radians(0.25), 2.0), -0.026, 0.026)
-    roll = np.clip(
-        -0.15 * speed * yaw_rate + _smooth_noise(rng, n_frames, math.radians(0.2), 2.0), -0.026, 0.026
-    )
-    bob = _smooth_noise(rng, n_frames, 0.01, 2.0)
-    heading = 0.5 * (yaw[:-1] + yaw[1:])
-    steps = speed[:-1, None] * np.stack([np.sin(heading), np.cos(heading)], -1)
-    xz = np.concatenate([np.zeros((1, 2)), np.cumsum(steps, 0)])
-    poses = np.tile(np.eye(4), (n_frames, 1, 1))
-    poses[:, :3, :3] = euler_to_matrix(yaw, pitch - pitch[0], roll - roll[0])
-    poses[:, :3, 3] = np.stack([xz[:, 0], bob - bob[0], xz[:, 1]], -1)
-    return poses
 
 
 # --------------------------------------------------------------------------------------------------
@@ -950,21 +860,29 @@ def _streams(sequence: str, seed: int) -> list[np.random.SeedSequence]:
     return np.random.SeedSequence([seed, int(sequence)]).spawn(3)
 
 
-def sequence_route(sequence: str, n_frames: int, seed: int = 0) -> np.ndarray:
+def sequence_route(
+    sequence: str, n_frames: int, seed: int = 0, spec: routes.RouteSpec = routes.DEFAULT_SPEC
+) -> np.ndarray:
     """The camera poses T_w_c (n_frames, 4, 4) float64 that generate() writes for this sequence and seed."""
-    return make_route(np.random.default_rng(_streams(sequence, seed)[0]), n_frames)
+    rng = np.random.default_rng(_streams(sequence, seed)[0])
+    return routes.make_route(rng, n_frames, spec.mix(sequence), spec.families)
 
 
-def scene(sequence: str, n_frames: int, seed: int) -> tuple[np.ndarray, World, np.random.Generator]:
+def scene(
+    sequence: str, n_frames: int, seed: int, spec: routes.RouteSpec = routes.DEFAULT_SPEC
+) -> tuple[np.ndarray, World, np.random.Generator]:
     """The seeded route poses (N, 4, 4), world and sensor-noise generator of one sequence."""
     _, world_seq, noise_seq = _streams(sequence, seed)
-    poses = sequence_route(sequence, n_frames, seed)
+    poses = sequence_route(sequence, n_frames, seed, spec)
     return poses, build_world(np.random.default_rng(world_seq), poses), np.random.default_rng(noise_seq)
 
 
-def render_sequence(folder: Path, sequence: str, n_frames: int, height: int, width: int, seed: int) -> None:
+def render_sequence(
+    folder: Path, sequence: str, n_frames: int, height: int, width: int, seed: int,
+    spec: routes.RouteSpec = routes.DEFAULT_SPEC,
+) -> None:  # fmt: skip
     """Render one sequence into folder: folder/NN/{image_2/*.png, calib.txt, times.txt} and folder/NN.txt."""
-    poses, world, noise = scene(sequence, n_frames, seed)
+    poses, world, noise = scene(sequence, n_frames, seed, spec)
     K = intrinsics(height, width)
     (folder / sequence / "image_2").mkdir(parents=True)
     (folder / sequence / "calib.txt").write_text(calib_text(K))
@@ -977,7 +895,10 @@ def render_sequence(folder: Path, sequence: str, n_frames: int, height: int, wid
     (folder / f"{sequence}.txt").write_text(poses_text(poses))
 
 
-def write_sequence(out: Path, sequence: str, n_frames: int, height: int, width: int, seed: int) -> float:
+def write_sequence(
+    out: Path, sequence: str, n_frames: int, height: int, width: int, seed: int,
+    spec: routes.RouteSpec = routes.DEFAULT_SPEC,
+) -> float:  # fmt: skip
     """Render one sequence into the dataset root out, atomically; returns the seconds it took.
 
     Everything is rendered into a temporary folder inside out first (removed on failure); the sequence
@@ -987,7 +908,7 @@ def write_sequence(out: Path, sequence: str, n_frames: int, height: int, width: 
     tmp = out / f".tmp-{sequence}-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     try:
-        render_sequence(tmp, sequence, n_frames, height, width, seed)
+        render_sequence(tmp, sequence, n_frames, height, width, seed, spec)
         (out / "sequences").mkdir(exist_ok=True)
         (out / "poses").mkdir(exist_ok=True)
         shutil.rmtree(out / "sequences" / sequence, ignore_errors=True)
@@ -998,15 +919,18 @@ def write_sequence(out: Path, sequence: str, n_frames: int, height: int, width: 
     return time.perf_counter() - start
 
 
-def _header(height: int, width: int, seed: int) -> dict:
-    """The manifest entries that every sequence of one dataset shares."""
-    return {
+def _header(height: int, width: int, seed: int, spec: routes.RouteSpec) -> dict:
+    """The manifest entries that every sequence of one dataset shares (JSON-normalised, so that they
+    compare equal to the ones read back from a manifest)."""
+    header = {
         "generator": "lossvo.data.synthetic",
         "version": VERSION,
         "height": height,
         "width": width,
         "seed": seed,
+        "routes": spec.manifest(),
     }
+    return json.loads(json.dumps(header))
 
 
 def read_manifest(root: Path) -> dict | None:
@@ -1039,11 +963,12 @@ def _kept_sequences(
 
 
 def _render_all(
-    out: Path, counts: dict[str, int], height: int, width: int, seed: int, progress: bool, workers: int | None
-) -> None:
+    out: Path, counts: dict[str, int], height: int, width: int, seed: int, progress: bool,
+    workers: int | None, spec: routes.RouteSpec,
+) -> None:  # fmt: skip
     """Render the sequences, in parallel spawned worker processes when there are several and cores to spare
     (so a calling script needs the usual ``if __name__ == "__main__":`` guard)."""
-    jobs = [(out, s, n, height, width, seed) for s, n in counts.items()]
+    jobs = [(out, s, n, height, width, seed, spec) for s, n in counts.items()]
     workers = min(len(jobs), workers or os.cpu_count() or 1)
     if multiprocessing.current_process().daemon:  # e.g. inside a pool worker: no children allowed
         workers = 1
@@ -1075,22 +1000,24 @@ def generate(
     seed: int = 0,
     progress: bool = True,
     workers: int | None = None,
+    spec: routes.RouteSpec = routes.DEFAULT_SPEC,
 ) -> Path:
     """Render the synthetic dataset into out in the KITTI odometry layout; returns out as a Path.
 
     sequences: two-digit names; frames: None (DEFAULT_FRAMES), one count for all, or a mapping; height,
-    width: pixels; seed: the same seed gives byte-identical files. Sequences of an earlier dataset in out
-    generated with the same size and seed are kept. The manifest is removed first and written last, so
+    width: pixels; seed: the same seed gives byte-identical files; spec: route families and mixes
+    (:func:`lossvo.data.routes.route_spec`). Sequences of an earlier dataset in out generated with the
+    same size, seed and spec are kept. The manifest is removed first and written last, so
     an interrupted run never looks complete.
     """
     out = Path(out)
     counts = resolve_frames(sequences, frames)
     check_size(height, width)
     out.mkdir(parents=True, exist_ok=True)
-    header = _header(height, width, seed)
+    header = _header(height, width, seed, spec)
     kept = _kept_sequences(out, read_manifest(out), header, counts)
     (out / MANIFEST).unlink(missing_ok=True)
-    _render_all(out, counts, height, width, seed, progress, workers)
+    _render_all(out, counts, height, width, seed, progress, workers, spec)
     manifest = {**header, "frames": dict(sorted({**kept, **counts}.items()))}
     _write_text(out / MANIFEST, json.dumps(manifest, indent=2) + "\n")
     return out
@@ -1105,21 +1032,22 @@ def ensure_dataset(
     seed: int = 0,
     progress: bool = True,
     workers: int | None = None,
+    spec: routes.RouteSpec = routes.DEFAULT_SPEC,
 ) -> Path:
     """Root as a Path, holding the requested synthetic sequences: generated unless already there.
 
-    Nothing is rendered when root's manifest has the same generator version, size and seed and lists every
-    requested sequence with the requested frame count, and those sequences' files are present.
+    Nothing is rendered when root's manifest has the same generator version, size, seed and routes and
+    lists every requested sequence with the requested frame count, and those sequences' files are present.
     """
     root = Path(root)
     counts = resolve_frames(sequences, frames)
     manifest = read_manifest(root)
-    header = _header(height, width, seed)
+    header = _header(height, width, seed, spec)
     if manifest is not None and all(manifest.get(k) == v for k, v in header.items()):
         listed = manifest.get("frames", {})
         if all(listed.get(s) == n and _sequence_complete(root, s, n) for s, n in counts.items()):
             return root
-    return generate(root, counts, counts, height, width, seed, progress, workers)
+    return generate(root, counts, counts, height, width, seed, progress, workers, spec)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -1138,7 +1066,7 @@ def _parser() -> argparse.ArgumentParser:
     p = _Parser(prog="python -m lossvo.data.synthetic", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, required=True, help="dataset root to write (KITTI odometry layout)")
     p.add_argument(
-        "--sequences", default=",".join(SEQUENCES), help="comma-separated, e.g. 00,07 (default: 00..10)"
+        "--sequences", default=",".join(SEQUENCES), help="comma-separated, e.g. 00,07 (default: 00..12)"
     )
     p.add_argument(
         "--frames", type=int, default=None, help="frames per sequence (default: 100-240 by sequence)"
@@ -1147,8 +1075,30 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--width", type=int, default=DEFAULT_WIDTH, help=f"pixels (default: {DEFAULT_WIDTH})")
     p.add_argument("--seed", type=int, default=0, help="same seed, same bytes (default: 0)")
     p.add_argument("--workers", type=int, default=None, help="processes (default: one per core)")
+    example = "11=stop_and_go:2+expressway"
+    p.add_argument("--mix", action="append", default=[], metavar="NN=FAMILY[:W][+FAMILY[:W]]",
+                   help=f"route families of a sequence, e.g. {example} (repeatable)")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     return p
+
+
+def parse_mix(text: str) -> tuple[str, dict[str, float]]:
+    """'11=stop_and_go:2+expressway' -> ('11', {'stop_and_go': 2.0, 'expressway': 1.0}); ValueError."""
+    sequence, sep, body = text.partition("=")
+    if not sep or not body:
+        raise ValueError(f"--mix: expected NN=FAMILY[:WEIGHT][+FAMILY[:WEIGHT]], got {text!r}")
+    mix = {}
+    for item in body.split("+"):
+        name, _, weight = item.partition(":")
+        try:
+            mix[name.strip()] = float(weight) if weight else 1.0
+        except ValueError:
+            raise ValueError(f"--mix {text}: the weight of {name!r} is not a number: {weight!r}") from None
+    try:
+        routes.check_mix(mix)
+    except ValueError as err:
+        raise ValueError(f"--mix {text}: {err}") from None
+    return parse_sequences(sequence, "--mix")[0], mix
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -1160,10 +1110,13 @@ def main(argv: list[str] | None = None) -> int:
         check_size(args.height, args.width, prefix="--")
         if args.workers is not None and args.workers < 1:
             raise ValueError(f"--workers: must be >= 1, got {args.workers}")
+        spec = routes.route_spec(mixes=dict(parse_mix(m) for m in args.mix))
     except ValueError as err:
         parser.error(str(err))
     start = time.perf_counter()
-    out = generate(args.out, counts, counts, args.height, args.width, args.seed, not args.quiet, args.workers)
+    out = generate(
+        args.out, counts, counts, args.height, args.width, args.seed, not args.quiet, args.workers, spec
+    )
     if not args.quiet:
         size = dataset_size(out, counts)
         elapsed = time.perf_counter() - start

@@ -1,0 +1,144 @@
+"""Per-frame motion statistics of KITTI-layout pose files, by split: how fast and how sharply a dataset moves.
+
+For each consecutive pair the relative pose ``inv(T_w_k) @ T_w_{k+1}`` gives a speed (its translation's
+norm, m/frame) and a rotation (its angle, rad/frame). A split's row pools its sequences' pairs: mean, RMS,
+5th/50th/95th percentiles and maximum of each, and the fraction of pairs standing still (< 1 cm).
+
+Command line: ``python -m lossvo.data.motion [ROOT] [--train 00,02 --val 07,09 --test ... --unseen 11,12]``
+(ROOT: a KITTI odometry root; default: the embedded synthetic dataset in the cache, after a first
+``make sweep`` or ``python -m lossvo.data.synthetic``). Prints a Markdown table: one row per split, then
+one per sequence.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import NoReturn
+
+import numpy as np
+
+from lossvo.console import emit
+from lossvo.data import frame_cache, kitti, routes
+
+STANDING = 0.01
+"""Metres per frame below which a pair counts as standing still."""
+PAPER_SPLITS = {
+    "train": ("00", "02", "03", "04", "05", "06", "08"),
+    "val": ("07", "09"),
+    "test": tuple(f"{i:02d}" for i in range(11)),
+    "unseen": routes.UNSEEN_SEQUENCES,
+}
+"""The default splits: the paper's, plus the synthetic dataset's unseen-motion sequences."""
+COLUMNS = (
+    "pairs", "speed mean", "speed RMS", "speed p5", "speed p50", "speed p95", "speed max", "standing",
+    "rot mean", "rot RMS", "rot p50", "rot p95", "rot max",
+)  # fmt: skip
+"""Table columns: speeds in m/frame, rotations in rad/frame, standing as a fraction of the pairs."""
+
+
+def frame_motion(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Speed (N-1,) m/frame and rotation angle (N-1,) rad/frame between consecutive poses (N, 4, 4).
+
+    The angle is atan2(|axis| sin, cos) of the relative rotation, accurate at small and large angles.
+    """
+    rel = kitti.relative_targets(np.asarray(poses, dtype=np.float64))
+    R = rel[:, :3, :3]
+    skew = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], -1)
+    angle = np.arctan2(0.5 * np.linalg.norm(skew, axis=1), 0.5 * (np.trace(R, axis1=1, axis2=2) - 1.0))
+    return np.linalg.norm(rel[:, :3, 3], axis=1), angle
+
+
+def statistics(speed: np.ndarray, rotation: np.ndarray) -> dict[str, float]:
+    """The :data:`COLUMNS` of pooled pairs: speed (P,) m/frame, rotation (P,) rad/frame."""
+    p5, p50, p95 = np.percentile(speed, [5, 50, 95])
+    r50, r95 = np.percentile(rotation, [50, 95])
+    values = (len(speed), speed.mean(), np.sqrt((speed**2).mean()), p5, p50, p95, speed.max(),
+              (speed < STANDING).mean(), rotation.mean(), np.sqrt((rotation**2).mean()), r50, r95,
+              rotation.max())  # fmt: skip
+    return dict(zip(COLUMNS, map(float, values), strict=True))
+
+
+def split_statistics(
+    motion: Mapping[str, tuple[np.ndarray, np.ndarray]], splits: Mapping[str, Sequence[str]]
+) -> dict[str, dict[str, float]]:
+    """Rows {label: statistics}: one per non-empty split (its sequences' pairs pooled), then one per sequence.
+
+    motion: {sequence: (speed, rotation)} as :func:`frame_motion` returns them.
+    """
+    rows = {}
+    for split, names in splits.items():
+        present = [n for n in names if n in motion]
+        if present:
+            speed = np.concatenate([motion[n][0] for n in present])
+            rotation = np.concatenate([motion[n][1] for n in present])
+            rows[f"{split} ({', '.join(present)})"] = statistics(speed, rotation)
+    for name in sorted(motion):
+        rows[name] = statistics(*motion[name])
+    return rows
+
+
+def markdown(rows: Mapping[str, Mapping[str, float]]) -> str:
+    """A Markdown table of statistics rows: speeds m/frame, rotations rad/frame, standing in percent."""
+
+    def cell(column: str, value: float) -> str:
+        if column == "pairs":
+            return f"{value:.0f}"
+        if column == "standing":
+            return f"{100 * value:.1f} %"
+        return f"{value:.3f}" if column.startswith("speed") else f"{value:.4f}"
+
+    head = ["split / sequence", *COLUMNS]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for label, row in rows.items():
+        lines.append("| " + " | ".join([label, *(cell(c, row[c]) for c in COLUMNS)]) + " |")
+    return "\n".join(lines)
+
+
+def read_motion(root: Path, names: Sequence[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """{sequence: (speed, rotation)} of the sequences under root that have a poses file."""
+    motion = {}
+    for name in names:
+        path = kitti.pose_path(root, name)
+        if path.is_file():
+            motion[name] = frame_motion(kitti.read_poses(path))
+    return motion
+
+
+class _Parser(argparse.ArgumentParser):
+    """ArgumentParser whose errors are one line on stderr (no usage block), exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="python -m lossvo.data.motion", description=__doc__.split("\n\n")[0])
+    default_root = "the synthetic dataset in the lossvo cache"
+    p.add_argument("root", nargs="?", type=Path, default=None, help=f"KITTI root (default: {default_root})")
+    for split, names in PAPER_SPLITS.items():
+        p.add_argument(f"--{split}", default=",".join(names), help=f"sequences (default: {','.join(names)})")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command-line entry point: prints the table; exit status 2 and one line for a bad root or split."""
+    parser = _parser()
+    args = parser.parse_args(argv)
+    root = args.root or frame_cache.default_cache_dir() / "synthetic"
+    try:
+        root = kitti.find_root(root)
+        splits = {s: [n.strip() for n in getattr(args, s).split(",") if n.strip()] for s in PAPER_SPLITS}
+        motion = read_motion(root, sorted({n for names in splits.values() for n in names}))
+    except ValueError as err:  # KittiFormatError too
+        parser.error(str(err))
+    if not motion:
+        parser.error(f"{root}: no poses file for any of the requested sequences")
+    emit(markdown(split_statistics(motion, splits)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,106 @@
+"""The baselines on hand-written KITTI-layout sequences (noise frames, known poses): the own-mean-motion
+oracle equals an independent computation and is exact on constant-velocity motion; cache files that lack
+a baseline are recomputed."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from lossvo import baselines, metrics
+from lossvo.data.kitti import Calib
+from lossvo.data.kitti import Sequence as KittiSequence
+
+FRAMES, HEIGHT, WIDTH = 8, 64, 96
+P2 = np.array([[60.0, 0, WIDTH / 2, 0], [0, 60.0, HEIGHT / 2, 0], [0, 0, 1, 0]])
+
+
+def step(yaw: float, forward: float, right: float = 0.0) -> np.ndarray:
+    """(4, 4) relative pose: a rotation by ``yaw`` (rad) about the camera's y axis, then a translation
+    (m) of ``right`` along x and ``forward`` along z."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    out = np.eye(4)
+    out[:3, :3] = [[c, 0, s], [0, 1, 0], [-s, 0, c]]
+    out[:3, 3] = [right, 0.0, forward]
+    return out
+
+
+def chain(steps: list[np.ndarray]) -> np.ndarray:
+    """(len(steps) + 1, 4, 4) poses from the identity, ``T_w_{k+1} = T_w_k @ T_k``."""
+    poses = [np.eye(4)]
+    for t in steps:
+        poses.append(poses[-1] @ t)
+    return np.stack(poses)
+
+
+def write_sequence(root: Path, name: str, poses: np.ndarray, seed: int) -> KittiSequence:
+    """Noise frames, calib.txt and poses/<name>.txt in the KITTI layout under ``root``."""
+    folder = root / "sequences" / name / "image_2"
+    folder.mkdir(parents=True)
+    rng = np.random.default_rng(seed)
+    images = []
+    for i in range(len(poses)):
+        images.append(folder / f"{i:06d}.png")
+        cv2.imwrite(str(images[-1]), rng.integers(0, 256, (HEIGHT, WIDTH), dtype=np.uint8))
+    numbers = " ".join(f"{v:.6f}" for v in P2.ravel())
+    (folder.parent / "calib.txt").write_text("".join(f"P{i}: {numbers}\n" for i in range(4)))
+    (root / "poses").mkdir(exist_ok=True)
+    np.savetxt(root / "poses" / f"{name}.txt", poses[:, :3, :].reshape(len(poses), 12))
+    return KittiSequence(name, images, poses, Calib({"P2": P2}, None))
+
+
+def varied_poses(seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return chain([step(rng.uniform(-0.05, 0.05), rng.uniform(0.2, 1.2), rng.uniform(-0.1, 0.1))
+                  for _ in range(FRAMES - 1)])  # fmt: skip
+
+
+def test_own_mean_motion_is_the_sequences_mean_motion_repeated(tmp_path: Path) -> None:
+    gt = varied_poses(0)
+    sequence = write_sequence(tmp_path, "00", gt, seed=0)
+    results = baselines.sequence_baselines(sequence, train_mean=np.eye(4))
+    assert tuple(results) == baselines.NAMES and baselines.OWN in baselines.NAMES
+    steps = np.linalg.inv(gt[:-1]) @ gt[1:]
+    u, _, vt = np.linalg.svd(steps[:, :3, :3].mean(axis=0))  # chordal L2 mean, projected onto SO(3)
+    mean = np.eye(4)
+    mean[:3, :3] = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    mean[:3, 3] = steps[:, :3, 3].mean(axis=0)
+    expected = chain([mean] * (FRAMES - 1))
+    own = results[baselines.OWN]
+    np.testing.assert_allclose(own.trajectory, expected, atol=1e-9)
+    scores = metrics.evaluate(torch.from_numpy(gt), torch.from_numpy(expected), "none", 1)
+    assert own.metrics["rpe"]["trans"]["rmse"] == pytest.approx(scores["rpe"]["trans"]["rmse"], rel=1e-6)
+    assert own.metrics["ape"]["trans"]["rmse"] == pytest.approx(scores["ape"]["trans"]["rmse"], rel=1e-6)
+    assert own.metrics["rpe"]["trans"]["rmse"] > 0.1 and own.failures == 0  # varied steps: not exact
+
+
+def test_own_mean_motion_is_exact_on_constant_velocity(tmp_path: Path) -> None:
+    gt = chain([step(0.03, 0.8, 0.05)] * (FRAMES - 1))
+    own = baselines.sequence_baselines(write_sequence(tmp_path, "00", gt, seed=1), np.eye(4))[baselines.OWN]
+    np.testing.assert_allclose(own.trajectory, gt, atol=1e-9)
+    for kind in ("trans", "rot_rad"):
+        assert own.metrics["rpe"][kind]["rmse"] < 1e-6 and own.metrics["ape"][kind]["rmse"] < 1e-6
+
+
+def test_cache_files_without_a_baseline_are_recomputed(tmp_path: Path) -> None:
+    root = tmp_path / "kitti"
+    write_sequence(root, "00", varied_poses(1), seed=2)
+    write_sequence(root, "01", varied_poses(2), seed=3)
+    data = {"_target_": "lossvo.data.datamodule.KittiDataModule", "root": str(root), "train": ["00"],
+            "val": ["01"], "test": ["01"], "cache_dir": str(tmp_path / "frames")}  # fmt: skip
+    cache = tmp_path / "cache"
+    first = baselines.compute_baselines(data, ["01"], cache)["01"]
+    (path,) = cache.glob("*.npz")
+    assert baselines.load_cached(path) is not None
+    old = {name: r for name, r in first.items() if name != baselines.OWN}  # a file from before the oracle
+    baselines.save_cached(path, old)
+    assert baselines.load_cached(path) is None
+    again = baselines.compute_baselines(data, ["01"], cache)["01"]
+    assert tuple(again) == baselines.NAMES and not any(r.cached for r in again.values())
+    np.testing.assert_allclose(again[baselines.OWN].trajectory, first[baselines.OWN].trajectory)
+    third = baselines.compute_baselines(data, ["01"], cache)["01"]
+    assert tuple(third) == baselines.NAMES and all(r.cached for r in third.values())
