@@ -250,7 +250,7 @@ def test_failed_running_and_corrupt_jobs_are_listed_and_skipped(sweep: Path, tmp
     (jobs["2"] / "status.json").write_text(json.dumps(status))  # quat, seed 0
     metrics_csv = jobs["3"] / "metrics.csv"  # quat, seed 1: metrics.csv cut mid-line, results intact
     metrics_csv.write_text(metrics_csv.read_text()[:-25])
-    running = copy / "4_experiment=tiny,loss=chordal,seed=0"
+    running = copy / "4_experiment-tiny+loss-chordal+seed-0"
     shutil.copytree(jobs["0"] / ".hydra", running / ".hydra")
     (running / ".hydra" / "overrides.yaml").write_text("- experiment=tiny\n- loss=chordal\n- seed=0\n")
     (running / "status.json").write_text('{"status": "running"}')
@@ -280,7 +280,7 @@ def test_failed_running_and_corrupt_jobs_are_listed_and_skipped(sweep: Path, tmp
 def test_single_seed_says_no_seed_noise_estimate(sweep: Path, tmp_path: Path) -> None:
     copy = copy_sweep(sweep, tmp_path)
     for job in copy.iterdir():
-        if job.is_dir() and "seed=1" in job.name:
+        if job.is_dir() and "seed-1" in job.name:
             shutil.rmtree(job)
     text = make_report(copy, with_baselines=False, with_figures=False).read_text()
     assert "One seed per configuration" in text and "no seed-noise estimate is available" in text
@@ -344,7 +344,7 @@ def test_not_a_sweep_is_a_one_line_error_with_status_2(tmp_path: Path, make_fold
     if make_folder != "missing":
         folder.mkdir()
     if make_folder == "no_config":
-        (folder / "0_loss=euler").mkdir()  # a job folder without .hydra/config.yaml
+        (folder / "0_loss-euler").mkdir()  # a job folder without .hydra/config.yaml
     result = subprocess.run(
         [sys.executable, "-m", "lossvo.report", str(folder)], capture_output=True, text=True
     )
@@ -391,7 +391,7 @@ def test_configurations_list_k_times_gain_and_the_selection_metric(sweep: Path, 
     header, rows = markdown_rows(text, "Configurations")
     configs = {name: cfg for name, (_, cfg) in job_configs(sweep).items()}
     for loss in LOSSES:
-        cfg = next(c for name, c in configs.items() if f"loss={loss}," in name)
+        cfg = next(c for name, c in configs.items() if f"loss-{loss}+" in name)
         row = dict(zip(header, rows[f"loss={loss}"], strict=True))
         gain = GAINS[cfg["loss"]["_target_"].rsplit(".", 1)[-1]]
         k = cfg["loss"]["k"]
@@ -406,7 +406,7 @@ def test_configurations_list_k_times_gain_and_the_selection_metric(sweep: Path, 
 def test_different_selection_metrics_give_a_bold_warning_at_the_top(sweep: Path, tmp_path: Path) -> None:
     copy = copy_sweep(sweep, tmp_path)
     for name, (job, cfg) in job_configs(copy).items():
-        if "loss=quat" in name:
+        if "loss-quat" in name:
             cfg["selection"] = {"monitor": "val/loss", "mode": "min"}
             (job / ".hydra" / "config.yaml").write_text(yaml.safe_dump(cfg))
     text = make_report(copy, with_baselines=False, with_figures=False).read_text()
@@ -432,7 +432,7 @@ def test_convergence_epochs_match_the_jobs_metrics_csv(sweep: Path, report: Path
     with (report / "tables" / "convergence.csv").open() as f:
         rows = {(r["configuration"], r["seed"]): r for r in csv.DictReader(f)}
     for name, (job, _) in job_configs(sweep).items():
-        loss, seed = re.search(r"loss=(\w+),seed=(\d+)", name).groups()
+        loss, seed = re.search(r"loss-(\w+)\+seed-(\d+)", name).groups()
         row = rows[(f"loss={loss}", f"seed={seed}")]
         assert row["metric"] == "val/score"
         assert int(row["epoch"]) == first_within_ten_percent(job / "metrics.csv")
@@ -457,7 +457,7 @@ def test_claims_section_is_last_and_cannot_be_tested_without_chordal(report: Pat
 def test_claims_test_the_chordal_loss_class_on_held_out_sequences(sweep: Path, tmp_path: Path) -> None:
     copy = copy_sweep(sweep, tmp_path)
     for name, (job, cfg) in job_configs(copy).items():
-        if "loss=quat" in name:  # the report must find the chordal configuration by its loss class
+        if "loss-quat" in name:  # the report must find the chordal configuration by its loss class
             cfg["loss"]["_target_"] = "lossvo.losses.ChordalLoss"
             (job / ".hydra" / "config.yaml").write_text(yaml.safe_dump(cfg))
     path = make_report(copy, with_baselines=False, with_figures=False)
@@ -518,7 +518,7 @@ def entry(rpe_trans: float, rpe_rot: float) -> dict:
 
 def write_job(sweep: Path, number: int, loss: str, data: dict, sequences: dict) -> None:
     """A completed job folder: .hydra/{config,overrides}.yaml, status.json and results.json."""
-    job = sweep / f"{number}_loss={loss},seed=0"
+    job = sweep / f"{number}_loss-{loss}+seed-0"
     (job / ".hydra").mkdir(parents=True)
     (job / ".hydra" / "config.yaml").write_text(yaml.safe_dump({"seed": 0, "data": data}))
     (job / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump([f"loss={loss}", "seed=0"]))

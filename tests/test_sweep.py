@@ -8,6 +8,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from hydra.core.override_parser.overrides_parser import OverridesParser
 
 
 def run_train(args: list[str], tmp_path: Path, run_tiny_sweep) -> subprocess.CompletedProcess:
@@ -19,10 +20,14 @@ def test_sweep_over_three_losses_with_wandb(run_tiny_sweep, tmp_path: Path) -> N
     assert result.returncode == 0, result.stderr[-3000:]
     jobs = sorted(p for p in (tmp_path / "sweep").iterdir() if p.is_dir())
     assert [j.name for j in jobs] == [
-        "0_experiment=tiny,logger=wandb,loss=euler",
-        "1_experiment=tiny,logger=wandb,loss=quat",
-        "2_experiment=tiny,logger=wandb,loss=chordal",
+        "0_experiment-tiny+logger-wandb+loss-euler",
+        "1_experiment-tiny+logger-wandb+loss-quat",
+        "2_experiment-tiny+logger-wandb+loss-chordal",
     ]
+    parser = OverridesParser.create()  # a checkpoint path copied from the sweep is a valid override value
+    for job in jobs:
+        path = str(job / "checkpoints" / "best.ckpt")
+        assert parser.parse_override(f"ckpt_path={path}").value() == path
     for job, loss in zip(jobs, ("euler", "quat", "chordal"), strict=True):
         assert (job / ".hydra" / "config.yaml").is_file()
         assert {p.name for p in (job / "checkpoints").iterdir()} == {"best.ckpt", "last.ckpt"}

@@ -66,9 +66,16 @@ def _paper_k(target: str) -> float | None:
     return weighting.preset_k(target, "paper")
 
 
+PATH_SAFE = str.maketrans({"/": "_", "=": "-", ",": "+", " ": None, "'": None, '"': None,
+                           "[": None, "]": None, "{": None, "}": None, "(": None, ")": None})  # fmt: skip
+"""Characters of overrides that Hydra's override grammar does not take unquoted (or that would nest
+folders), and what they become in a job folder's name."""
+
+
 def _path_safe(text: str) -> str:
-    """A sweep job's folder name from its overrides: '/' would nest folders, so it becomes '_'."""
-    return str(text).replace("/", "_")
+    """A sweep job's folder name from its overrides, e.g. 'loss-euler+seed-0', that can be pasted
+    unquoted into an override (``ckpt_path=.../0_loss-euler+seed-0/checkpoints/best.ckpt``)."""
+    return str(text).translate(PATH_SAFE)
 
 
 def register_resolvers() -> None:
