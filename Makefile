@@ -20,6 +20,7 @@ $(STAMP): pyproject.toml
 lint: venv
 	$(VENV)/bin/ruff check src tests benchmarks
 	$(VENV)/bin/ruff format --check src tests benchmarks
+	$(VENV)/bin/mypy
 
 format: venv
 	$(VENV)/bin/ruff check --fix src tests benchmarks

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 import subprocess
@@ -17,6 +18,7 @@ from evo.tools import file_interface
 
 from conftest import DEVICES
 from lossvo import geometry, metrics
+from lossvo.data.kitti import read_poses
 
 MODES = ("none", "se3", "sim3", "scale")
 
@@ -107,7 +109,12 @@ def evo_ape(evo_est: PosePath3D, evo_ref: PosePath3D, mode: str) -> dict[str, di
     return out
 
 
-def evo_rpe(evo_est: PosePath3D, evo_ref: PosePath3D, delta: int) -> dict[str, dict[str, float]]:
+def evo_rpe(
+    evo_est: PosePath3D, evo_ref: PosePath3D, delta: int, mode: str = "none"
+) -> dict[str, dict[str, float]]:
+    if mode != "none":  # as evo_rpe --align / --correct_scale
+        evo_est = copy.deepcopy(evo_est)
+        evo_est.align(evo_ref, correct_scale=mode == "sim3", correct_only_scale=mode == "scale")
     out = {}
     for key, relation in (
         ("trans", evo_metrics.PoseRelation.translation_part),
@@ -138,6 +145,20 @@ def test_ape_equals_evo(cases, mode):
         ours = {"trans": metrics.statistics(trans), "rot_rad": metrics.statistics(rot)}
         rot_rtol = 1e-6 if name.endswith("7digits") else 1e-9
         assert_stats_close(ours, evo_ape(evo_est, evo_ref, mode), rot_rtol, f"{name} align={mode}")
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_rpe_after_alignment_equals_evo_rpe_with_align_and_correct_scale(cases, mode):
+    for name, est, ref, evo_est, evo_ref in cases:
+        trans, rot = metrics.rpe_errors(est, ref, delta=3, align=mode)
+        ours = {"trans": metrics.statistics(trans), "rot_rad": metrics.statistics(rot)}
+        rot_rtol = 1e-6 if name.endswith("7digits") else 1e-9
+        assert_stats_close(ours, evo_rpe(evo_est, evo_ref, 3, mode), rot_rtol, f"{name} align={mode}")
+    if any(mode == m for m in ("sim3", "scale")):  # the scale changes relative translations
+        _, est, ref, _, _ = cases[0]
+        assert not torch.allclose(
+            metrics.rpe_errors(est, ref, 3, mode)[0], metrics.rpe_errors(est, ref, 3)[0]
+        )
 
 
 @pytest.mark.parametrize("delta", [1, 7])
@@ -283,10 +304,30 @@ def test_kitti_equals_devkit_loops():
     t, r = metrics.kitti_segment_errors(est, ref)
     assert len(t_ref) > 100
     np.testing.assert_allclose(t.numpy(), t_ref, rtol=1e-9)
-    np.testing.assert_allclose(r.numpy(), r_ref, rtol=1e-6)  # arccos vs atan2 near small angles
+    np.testing.assert_allclose(r.numpy(), r_ref, rtol=1e-9, atol=1e-15)
     t_pct, r_deg = metrics.kitti_odometry_error(est, ref)
     assert t_pct == pytest.approx(100 * np.mean(t_ref), rel=1e-9)
-    assert r_deg == pytest.approx(100 * math.degrees(np.mean(r_ref)), rel=1e-6)
+    assert r_deg == pytest.approx(100 * math.degrees(np.mean(r_ref)), rel=1e-9)
+
+
+def test_kitti_equals_devkit_loops_on_7_digit_files_that_are_not_orthonormal(tmp_path):
+    """Pose files written with 7 significant digits (as ORB-SLAM's), read back: rotations are then not
+    exactly orthonormal, and the devkit's arccos formula is what defines the error."""
+    ref = make_reference(1000, 0)
+    est = make_estimate(ref, 1)
+    for name, poses in (("gt.txt", ref), ("est.txt", est)):
+        np.savetxt(tmp_path / name, poses[:, :3].reshape(len(poses), 12).numpy(), fmt="%.6e")
+    ref7 = torch.from_numpy(read_poses(tmp_path / "gt.txt"))
+    est7 = torch.from_numpy(read_poses(tmp_path / "est.txt"))
+    R = est7[:, :3, :3]
+    assert (R @ R.transpose(-1, -2) - torch.eye(3, dtype=R.dtype)).abs().max() > 1e-8  # not orthonormal
+    t_ref, r_ref = kitti_devkit(ref7.numpy(), est7.numpy())
+    t, r = metrics.kitti_segment_errors(est7, ref7)
+    np.testing.assert_allclose(t.numpy(), t_ref, rtol=1e-9)
+    np.testing.assert_allclose(r.numpy(), r_ref, rtol=1e-9, atol=1e-15)
+    t_pct, r_deg = metrics.kitti_odometry_error(est7, ref7)
+    assert t_pct == pytest.approx(100 * np.mean(t_ref), rel=1e-9)
+    assert r_deg == pytest.approx(100 * math.degrees(np.mean(r_ref)), rel=1e-9)
 
 
 def test_kitti_short_sequence_is_none():

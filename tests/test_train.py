@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import pytest
@@ -49,7 +50,12 @@ def test_fast_dev_run_for_every_loss(tiny_kitti: Path, tmp_path: Path, loss: str
 def test_checkpoint_reloads_with_weights_only(tiny_kitti: Path, tmp_path: Path) -> None:
     overrides = [*tiny_overrides(tiny_kitti, tmp_path / "cache"), "loss=quat", "trainer.max_epochs=1"]
     cfg = compose_train(overrides, tmp_path / "run")
-    train.train(cfg)
+    (tmp_path / "run" / ".hydra").mkdir(parents=True)  # as Hydra leaves a job folder before training
+    (tmp_path / "run" / "train.log").write_text("")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        train.train(cfg)
+    assert not [w for w in caught if "will be deleted" in str(w.message)]  # nothing to delete: no warning
     ckpt = tmp_path / "run" / "checkpoints" / "best.ckpt"
     assert ckpt.is_file() and (tmp_path / "run" / "checkpoints" / "last.ckpt").is_file()
     torch.load(ckpt, map_location="cpu")  # torch's default: weights_only=True
@@ -95,3 +101,10 @@ def test_callback_without_target_fails_before_training(tiny_kitti: Path, tmp_pat
     cfg = compose_train([*tiny_overrides(tiny_kitti, tmp_path), "+callbacks.oops.x=1"], tmp_path / "run")
     with pytest.raises(ValueError, match=r"callbacks\.oops: expected a config with a _target_"):
         train.build(cfg)
+
+
+@pytest.mark.parametrize("override", ["scheduler=none", "~scheduler"])
+def test_no_scheduler(tiny_kitti: Path, tmp_path: Path, override: str) -> None:
+    cfg = compose_train([*tiny_overrides(tiny_kitti, tmp_path / "cache"), override], tmp_path / "run")
+    _, module, _ = train.build(cfg)
+    assert module.hparams["scheduler"] is None

@@ -34,7 +34,7 @@ import logging
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 import cv2
 import numpy as np
@@ -144,7 +144,7 @@ def _orb(shape: tuple[int, ...]) -> cv2.ORB:
     (the coarser levels of a 96-pixel image hold almost no features)."""
     small = min(shape[:2]) < 300
     patch = 15 if small else 31
-    return cv2.ORB_create(
+    return cv2.ORB.create(
         nfeatures=ORB_FEATURES, edgeThreshold=patch, patchSize=patch, nlevels=3 if small else 8
     )
 
@@ -168,7 +168,7 @@ def orb_features(images: Sequence[Path]) -> Features:
             raise ValueError(f"{path}: cannot decode image")
         orb, shape = orb or _orb(image.shape), image.shape[:2]
         keypoints, desc = orb.detectAndCompute(image, None)
-        points.append(cv2.KeyPoint_convert(keypoints).astype(np.float64).reshape(-1, 2))
+        points.append(np.asarray(cv2.KeyPoint.convert(keypoints), dtype=np.float64).reshape(-1, 2))
         descriptors.append(np.zeros((0, 32), np.uint8) if desc is None else desc)
     return Features(points, descriptors, shape)
 
@@ -375,7 +375,8 @@ def cache_key(identity: Mapping[str, Any], sequence: KittiSequence, align: str, 
 def save_cached(path: Path, results: Mapping[str, BaselineResult]) -> None:
     """Write one sequence's baselines to ``path`` (.npz) atomically (temp file + rename)."""
     meta = {name: {"metrics": r.metrics, "failures": r.failures} for name, r in results.items()}
-    arrays = {f"trajectory_{i}": r.trajectory for i, r in enumerate(results.values())}
+    # Any: mypy would match the unpacked arrays against savez's allow_pickle: bool as well.
+    arrays: dict[str, Any] = {f"trajectory_{i}": r.trajectory for i, r in enumerate(results.values())}
     with atomic_path(path, suffix=".npz") as tmp:
         np.savez(tmp, meta=np.array(json.dumps({"names": list(results), "results": meta})), **arrays)
 
@@ -439,15 +440,19 @@ def compute_baselines(
     from omegaconf import OmegaConf
 
     datamodule = load_datamodule(data_cfg)
-    plain = OmegaConf.to_container(data_cfg, resolve=True) if OmegaConf.is_config(data_cfg) else data_cfg
+    plain: Mapping[str, Any] = (  # a DictConfig's to_container is a dict with its (str) keys
+        cast("dict[str, Any]", OmegaConf.to_container(data_cfg, resolve=True))
+        if OmegaConf.is_config(data_cfg)
+        else data_cfg
+    )
     identity = {**data_identity(plain), "resolved_root": str(Path(datamodule.root).resolve())}
     train_mean = mean_motion([datamodule.sequences[n].targets for n in datamodule.splits["train"]])
     loaded = {
         n: datamodule.sequences.get(n) or load_sequence(find_root(datamodule.root), n) for n in sequences
     }
     paths = {n: cache_dir / f"{cache_key(identity, loaded[n], align, delta)}.npz" for n in sequences}
-    found = {n: load_cached(p) for n, p in paths.items()}
-    todo = [n for n in sequences if found[n] is None]
+    found = {n: r for n, p in paths.items() if (r := load_cached(p)) is not None}
+    todo = [n for n in sequences if n not in found]
     if todo:
         log.info("baselines: computing %d sequence(s) (%s)", len(todo), ", ".join(todo))
         todo.sort(key=lambda n: -len(loaded[n].images))  # longest first: balanced threads

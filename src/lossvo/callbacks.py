@@ -76,13 +76,14 @@ class TrajectoryValidation(Callback):
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if trainer.sanity_checking or (trainer.current_epoch + 1) % self.every_n_epochs:
             return
-        datamodule = trainer.datamodule
+        # Lightning's data connector sets Trainer.datamodule without declaring it; used duck-typed here.
+        datamodule = trainer.datamodule  # type: ignore[attr-defined]
         if not self._usable(datamodule) or not datamodule.splits.get("val"):
             return
         from lossvo.eval import predict_sequence
         from lossvo.trajectory import integrate
 
-        ape, rpe = metrics.APE(align=self.align), metrics.RPE(delta=self.delta)
+        ape, rpe = metrics.APE(align=self.align), metrics.RPE(delta=self.delta, align=self.align)
         kitti = metrics.KittiOdometryError()
         for name in datamodule.splits["val"]:
             gt = datamodule.sequence_poses(name)
@@ -102,8 +103,9 @@ class TrajectoryValidation(Callback):
             "val/rpe_trans_rmse": rpe_out["trans"]["rmse"],
             "val/rpe_rot_rmse": rpe_out["rot_rad"]["rmse"],
         }
-        if kitti_out["t_err_pct"] is not None:
-            values["val/kitti_t_err"] = kitti_out["t_err_pct"]
-            values["val/kitti_r_err"] = kitti_out["r_err_deg_per_100m"]
+        t_err, r_err = kitti_out["t_err_pct"], kitti_out["r_err_deg_per_100m"]
+        if t_err is not None and r_err is not None:  # both or neither: no segment
+            values["val/kitti_t_err"] = t_err
+            values["val/kitti_r_err"] = r_err
         for key, value in values.items():
             pl_module.log(key, torch.tensor(value, dtype=torch.float32), on_step=False, on_epoch=True)

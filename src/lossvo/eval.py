@@ -23,7 +23,7 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import torch
@@ -34,6 +34,9 @@ from lossvo.atomic import atomic_path, write_text_atomic
 from lossvo.data.kitti import KittiFormatError, read_poses, write_poses
 from lossvo.processes import restore_start_method
 from lossvo.trajectory import integrate
+
+if TYPE_CHECKING:
+    from lossvo.model import DeepVO, LSTMState
 
 log = logging.getLogger("lossvo")
 
@@ -107,12 +110,15 @@ def predict_sequence(
     outputs: list[Tensor] = []
     try:
         with torch.no_grad():
+            # Duck-typed (a VOModule's): nn.Module's __getattr__ would type these Tensor | Module.
+            decode = cast("Callable[[Tensor], Tensor]", module.decode)
             if carry_state:
-                state = None
+                model = cast("DeepVO", module.model)
+                state: LSTMState | None = None
                 for start, stop in windows:
                     x = _load(frames, start, stop, device, normalize)[None]
-                    pred, state = module.model.forward_with_state(x, state)
-                    outputs.append(module.decode(pred)[0].double().cpu())
+                    pred, state = model.forward_with_state(x, state)
+                    outputs.append(decode(pred)[0].double().cpu())
             else:
                 full = [w for w in windows if w[1] - w[0] == seq_len]
                 short = [w for w in windows if w[1] - w[0] != seq_len]  # at most the last one
@@ -123,10 +129,10 @@ def predict_sequence(
                     chunk = _load(frames, first, last, device, normalize)
                     index = (torch.tensor([s - first for s, _ in group])[:, None] + offsets).to(device)
                     pred = module(chunk[index])  # (B, seq_len, 3, H, W) -> (B, seq_len - 1, dim)
-                    outputs.append(module.decode(pred).reshape(-1, 4, 4).double().cpu())
+                    outputs.append(decode(pred).reshape(-1, 4, 4).double().cpu())
                 for start, stop in short:
                     pred = module(_load(frames, start, stop, device, normalize)[None])
-                    outputs.append(module.decode(pred)[0].double().cpu())
+                    outputs.append(decode(pred)[0].double().cpu())
     finally:
         module.train(was_training)
     relative = torch.cat(outputs)
@@ -216,7 +222,8 @@ def evaluate_run(
     """
     out_dir = Path(out_dir)
     datamodule.setup("test")
-    ape, rpe, kitti = metrics.APE(align=align), metrics.RPE(delta=delta), metrics.KittiOdometryError()
+    ape, rpe = metrics.APE(align=align), metrics.RPE(delta=delta, align=align)
+    kitti = metrics.KittiOdometryError()
     loss = _loss_info(module)
     per_sequence: dict[str, Any] = {}
     evaluated: list[str] = []

@@ -77,7 +77,9 @@ def curve_band(jobs: Sequence[Job], key: str) -> tuple[np.ndarray, np.ndarray, n
 
 def _spans_decades(ax: Axes, ratio: float = 20.0) -> bool:
     """Whether the positive data of an axes' lines spans more than ``ratio`` (worth a log scale)."""
-    values = np.concatenate([np.asarray(line.get_ydata(), dtype=float) for line in ax.get_lines()] or [[]])
+    values = np.concatenate(
+        [np.asarray(line.get_ydata(), dtype=float) for line in ax.get_lines()] or [np.empty(0)]
+    )
     values = values[np.isfinite(values) & (values > 0)]
     return values.size > 1 and values.max() > ratio * values.min()
 

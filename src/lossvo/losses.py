@@ -159,6 +159,7 @@ class PoseLoss(nn.Module):
         """The loss from the unweighted mean terms: ``L_t + k L_r``, or the learned weighting."""
         if self.weighting is not None:
             return self.weighting(trans_loss, rot_loss)
+        assert self.k is not None  # __init__ sets k whenever there is no learned weighting
         return trans_loss + self.k * rot_loss
 
     # -- input checks -----------------------------------------------------------------------------

@@ -183,15 +183,19 @@ def rpe_pairs(n: int, delta: int = 1) -> tuple[Tensor, Tensor]:
     return starts[:-1], starts[1:]
 
 
-def rpe_errors(est: Tensor, ref: Tensor, delta: int = 1) -> tuple[Tensor, Tensor]:
-    """Relative pose errors, evo's RPE (delta in frames, consecutive pairs, no alignment).
+def rpe_errors(est: Tensor, ref: Tensor, delta: int = 1, align: AlignMode = "none") -> tuple[Tensor, Tensor]:
+    """Relative pose errors, evo's RPE (delta in frames, consecutive pairs).
 
-    ``E = inv(inv(Q_i) Q_j) @ (inv(P_i) P_j)``, Q the reference and P the estimate (evo's ``rpe_base``).
+    ``E = inv(inv(Q_i) Q_j) @ (inv(P_i) P_j)``, Q the reference and P the estimate (evo's ``rpe_base``),
+    after aligning the estimate as ``evo_rpe --align [--correct_scale]`` does (:func:`align`): a rigid
+    alignment leaves relative poses unchanged, the Umeyama scale of ``sim3`` and ``scale`` scales their
+    translations.
 
     Args:
         est: (N, 4, 4) estimated poses.
         ref: (N, 4, 4) reference poses, N > delta.
         delta: frames between the two poses of a pair (>= 1).
+        align: alignment of the estimate first, see :func:`align`.
     Returns:
         trans (M,) metres and rot (M,) radians, M = (N - 1) // delta, float64.
     """
@@ -200,6 +204,7 @@ def rpe_errors(est: Tensor, ref: Tensor, delta: int = 1) -> tuple[Tensor, Tensor
     est, ref = _check_pair(est, ref, 2)
     if len(est) <= delta:
         raise ValueError(f"delta = {delta} frames needs more than {delta} poses, got {len(est)}")
+    est = _align(est, ref, align)
     i, j = rpe_pairs(len(est), delta)
     i, j = i.to(est.device), j.to(est.device)
     ref_rel = geometry.pose_inverse(ref[i]) @ ref[j]
@@ -263,9 +268,12 @@ def kitti_segment_errors(
 
     For each first frame ``f`` in ``0, step, 2 step, ...`` and each length L, the last frame l is the first
     frame with ``dist[l] > dist[f] + L`` (distances along the ground truth; no segment if none), and the
-    error pose is the devkit's ``inv(inv(E_f) E_l) @ (inv(G_f) G_l)`` (E estimate, G ground truth). Unlike
-    the devkit (float32 distances, arccos), distances are float64 and the angle is
-    :func:`lossvo.geometry.rotation_angle`.
+    error pose is the devkit's ``inv(inv(E_f) E_l) @ (inv(G_f) G_l)`` (E estimate, G ground truth; inv
+    the general matrix inverse, as the devkit's), its
+    angle the devkit's ``acos(clamp((trace(R) - 1) / 2, -1, 1))`` (:func:`devkit_rotation_error`), so
+    that the numbers equal the devkit's formulas also on pose files that are not exactly orthonormal
+    (7-digit matrices). Everything is float64; the C++ devkit accumulates distances and errors in
+    single precision, so its figures differ from these by about 1e-4 relative.
 
     Args:
         est: (N, 4, 4) estimated poses.
@@ -285,12 +293,28 @@ def kitti_segment_errors(
     f = first[:, None].expand_as(last)[valid]
     ln = lens[None, :].expand_as(last)[valid]
     last = last[valid]
-    ref_rel = geometry.pose_inverse(ref[f]) @ ref[last]
-    est_rel = geometry.pose_inverse(est[f]) @ est[last]
-    E = geometry.pose_inverse(est_rel) @ ref_rel
+    inv = torch.linalg.inv  # the devkit's general inverse: the files' rotations may not be orthonormal
+    ref_rel = inv(ref[f]) @ ref[last]
+    est_rel = inv(est[f]) @ est[last]
+    E = inv(est_rel) @ ref_rel
     t_err = torch.linalg.vector_norm(E[:, :3, 3], dim=-1) / ln
-    r_err = geometry.rotation_angle(E[:, :3, :3]) / ln
+    r_err = devkit_rotation_error(E[:, :3, :3]) / ln
     return t_err, r_err
+
+
+def devkit_rotation_error(R: Tensor) -> Tensor:
+    """The KITTI devkit's ``rotationError``: ``acos(max(min((trace(R) - 1) / 2, 1), -1))``, radians.
+
+    Evaluation only: the clamp has no gradient beyond it and arccos loses precision near 0 (that is the
+    devkit's definition; training uses :func:`lossvo.geometry.rotation_angle`).
+
+    Args:
+        R: (..., 3, 3) (nearly) rotation matrices.
+    Returns:
+        (...,) float64 angles in [0, pi].
+    """
+    d = 0.5 * (R.to(torch.float64).diagonal(dim1=-2, dim2=-1).sum(-1) - 1.0)
+    return torch.acos(d.clamp(-1.0, 1.0))
 
 
 def _kitti_summary(t_sum: float, r_sum: float, count: int) -> dict[str, float | None]:
@@ -314,9 +338,10 @@ def kitti_odometry_error(
     """
     t, r = kitti_segment_errors(est, ref, lengths, step)
     out = _kitti_summary(float(t.sum()), float(r.sum()), t.numel())
-    if out["t_err_pct"] is None:
+    t_err, r_err = out["t_err_pct"], out["r_err_deg_per_100m"]
+    if t_err is None or r_err is None:  # both or neither: no segment
         return None
-    return out["t_err_pct"], out["r_err_deg_per_100m"]
+    return t_err, r_err
 
 
 # --------------------------------------------------------------------------------------------------
@@ -334,6 +359,8 @@ class _PoseErrorMetric(Metric):
     is_differentiable = False
     higher_is_better = False
     full_state_update = False
+    trans: list[Tensor]  # states (add_state), which nn.Module's __getattr__ would type Tensor | Module
+    rot: list[Tensor]
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
@@ -379,16 +406,19 @@ class RPE(_PoseErrorMetric):
 
     Args:
         delta: frames between the poses of a pair.
+        align: alignment of each estimate first (:func:`rpe_errors`).
     """
 
-    def __init__(self, delta: int = 1, **kwargs: Any) -> None:
+    def __init__(self, delta: int = 1, align: AlignMode = "none", **kwargs: Any) -> None:
         if isinstance(delta, bool) or not isinstance(delta, int) or delta < 1:
             raise ValueError(f"delta must be a positive integer number of frames, got {delta!r}")
+        if align not in ALIGN_MODES:
+            raise ValueError(f"unknown alignment {align!r}; expected one of {', '.join(ALIGN_MODES)}")
         super().__init__(**kwargs)
-        self.delta = delta
+        self.delta, self.align = delta, align
 
     def _errors(self, est: Tensor, ref: Tensor) -> tuple[Tensor, Tensor]:
-        return rpe_errors(est, ref, self.delta)
+        return rpe_errors(est, ref, self.delta, self.align)
 
 
 class KittiOdometryError(Metric):
@@ -402,6 +432,9 @@ class KittiOdometryError(Metric):
     is_differentiable = False
     higher_is_better = False
     full_state_update = False
+    t_sum: Tensor  # states (add_state), float64 scalars
+    r_sum: Tensor
+    count: Tensor
 
     def __init__(
         self, lengths: Sequence[float] = KITTI_LENGTHS, step: int = KITTI_STEP, **kwargs: Any
@@ -431,14 +464,14 @@ class KittiOdometryError(Metric):
 
 
 def evaluate(gt: Tensor, est: Tensor, align: AlignMode = "none", delta: int = 1) -> dict[str, Any]:
-    """APE (with ``align``), RPE (``delta``) and KITTI error of one estimate, JSON-ready.
+    """APE and RPE (both with ``align``, RPE with ``delta``) and KITTI error of one estimate, JSON-ready.
 
     Returns:
         ``{"ape": {"trans": {...}, "rot_rad": {...}}, "rpe": {...}, "kitti": {"t_err_pct": x,
         "r_err_deg_per_100m": y}}`` (kitti values None when the sequence is too short).
     """
     ape_t, ape_r = ape_errors(est, gt, align)
-    rpe_t, rpe_r = rpe_errors(est, gt, delta)
+    rpe_t, rpe_r = rpe_errors(est, gt, delta, align)
     t, r = kitti_segment_errors(est, gt)
     return {
         "ape": {"trans": statistics(ape_t), "rot_rad": statistics(ape_r)},

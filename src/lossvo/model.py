@@ -51,6 +51,7 @@ import logging
 import math
 import warnings
 from collections import OrderedDict
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -83,7 +84,8 @@ def _head_bias(value: object, out_dim: int) -> Tensor:
     if value is None:
         return torch.zeros(out_dim)
     try:
-        bias = torch.as_tensor([float(v) for v in value], dtype=torch.float32)  # type: ignore[union-attr]
+        numbers = [float(v) for v in value] if isinstance(value, Iterable) else []
+        bias = torch.as_tensor(numbers, dtype=torch.float32)
     except (TypeError, ValueError):
         bias = torch.empty(0)
     if bias.shape != (out_dim,) or not torch.isfinite(bias).all():
@@ -98,12 +100,14 @@ def _check_int(name: str, value: object, minimum: int, why: str = "") -> int:
 
 
 def _check_float(name: str, value: object, low: float, high: float, high_open: bool, what: str) -> float:
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-    if ok:
-        ok = low <= value < high if high_open else low < value <= high
-    if not ok:
-        raise ValueError(f"model.{name}: expected {what}, got {value!r}")
-    return float(value)  # type: ignore[arg-type]
+    if (
+        isinstance(value, (int, float))
+        and not isinstance(value, bool)
+        and math.isfinite(value)
+        and (low <= value < high if high_open else low < value <= high)
+    ):
+        return float(value)
+    raise ValueError(f"model.{name}: expected {what}, got {value!r}")
 
 
 def _dropout(name: str, value: object) -> float:
@@ -141,6 +145,8 @@ class DeepVO(nn.Module):
             kernels and GPU tensor cores prefer; the values are the same (dropout masks are drawn in
             memory order, so with conv dropout a run differs from a contiguous-layout run).
     """
+
+    _head_bias: Tensor  # a buffer (register_buffer); nn.Module's __getattr__ would type it Tensor | Module
 
     def __init__(
         self,
@@ -184,7 +190,8 @@ class DeepVO(nn.Module):
         with torch.random.fork_rng(devices=[]):  # the layers' default initialisation is overwritten
             self._build(conv_p, conv6_p, lstm_p, head_p, batch_norm)
         self.reset_parameters(init_seed)
-        self.encoder.to(memory_format=self.memory_format)
+        # nn.Module.to takes memory_format (documented, and at run time); torch's overloads omit it.
+        self.encoder.to(memory_format=self.memory_format)  # type: ignore[call-overload]
 
         if flownet is not None:
             report = load_flownet(self, flownet)

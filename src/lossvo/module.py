@@ -116,11 +116,11 @@ class VOModule(L.LightningModule):
     # -- optimisation ---------------------------------------------------------------------------------
 
     def configure_optimizers(self) -> Any:
-        optimizer = instantiate(self.hparams.optimizer)(params=self.parameters())
-        if not self.hparams.scheduler:
+        optimizer = instantiate(self.hparams["optimizer"])(params=self.parameters())
+        if not self.hparams["scheduler"]:
             return optimizer
-        scheduler = instantiate(self.hparams.scheduler)(optimizer=optimizer)
+        scheduler = instantiate(self.hparams["scheduler"])(optimizer=optimizer)
         return {
             "optimizer": optimizer,
-            "lr_scheduler": {"scheduler": scheduler, "interval": "epoch", "monitor": self.hparams.monitor},
+            "lr_scheduler": {"scheduler": scheduler, "interval": "epoch", "monitor": self.hparams["monitor"]},
         }

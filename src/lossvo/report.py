@@ -51,7 +51,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from itertools import combinations
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -78,6 +78,9 @@ from lossvo.tables import (
     table_latex,
     table_markdown,
 )
+
+if TYPE_CHECKING:
+    from lossvo.metrics import AlignMode
 
 log = logging.getLogger("lossvo")
 
@@ -167,6 +170,12 @@ class Job:
     @property
     def included(self) -> bool:
         return self.skip is None
+
+    @property
+    def included_results(self) -> dict[str, Any]:
+        """``results`` of an included job: load_job includes a job only with a valid results.json."""
+        assert self.results is not None, f"{self.path.name} is not included: {self.skip}"
+        return self.results
 
 
 def parse_override(text: str) -> tuple[str, str]:
@@ -352,7 +361,7 @@ def network_columns(jobs: Sequence[Job]) -> list[Column]:
     for column in columns.values():
         column.jobs.sort(key=lambda j: (_seed_order(j.seed), _job_number(j.path)))
         column.replicates = [f"{REPLICATE_KEY}={j.seed}" for j in column.jobs]
-        column.results = [_sequence_metrics(j.results) for j in column.jobs]
+        column.results = [_sequence_metrics(j.included_results) for j in column.jobs]
     return list(columns.values())
 
 
@@ -1084,8 +1093,9 @@ class BaselineRun:
 
 def evaluation_settings(jobs: Sequence[Job]) -> tuple[str, int, list[str]]:
     """(align, delta) of the included jobs' results.json (the first job's) and notes if they differ."""
-    settings = {(str(j.results.get("align", "none")), int(j.results.get("delta", 1))) for j in jobs}
-    first = (str(jobs[0].results.get("align", "none")), int(jobs[0].results.get("delta", 1)))
+    results = [j.included_results for j in jobs]
+    settings = {(str(r.get("align", "none")), int(r.get("delta", 1))) for r in results}
+    first = (str(results[0].get("align", "none")), int(results[0].get("delta", 1)))
     notes = (
         []
         if len(settings) == 1
@@ -1106,7 +1116,8 @@ def run_baselines(jobs: Sequence[Job], sequences: Sequence[str], cache_dir: Path
         data = [_plain(j.config.data) for j in jobs]
         if len({json.dumps(baselines.data_identity(d), sort_keys=True, default=str) for d in data}) > 1:
             run.notes.append(f"jobs differ in their data config: baselines use {jobs[0].path.name}'s")
-        results = baselines.compute_baselines(data[0], sequences, cache_dir, align, delta, n_jobs)
+        mode = cast("AlignMode", align)  # results.json's text; metrics.align rejects an unknown mode
+        results = baselines.compute_baselines(data[0], sequences, cache_dir, mode, delta, n_jobs)
     except Exception as e:  # a missing dataset, a broken config: the report goes on without baselines
         run.notes.append(f"baselines skipped: {type(e).__name__}: {_first_line(e)}")
         run.seconds = time.perf_counter() - start
@@ -1131,7 +1142,9 @@ def _first_line(error: BaseException) -> str:
 def _plain(cfg: Any) -> dict[str, Any]:
     from omegaconf import OmegaConf
 
-    return OmegaConf.to_container(cfg, resolve=True) if OmegaConf.is_config(cfg) else dict(cfg)
+    if OmegaConf.is_config(cfg):  # a DictConfig (a job's cfg.data): to_container gives a str-keyed dict
+        return cast("dict[str, Any]", OmegaConf.to_container(cfg, resolve=True))
+    return dict(cfg)
 
 
 def ground_truth(job: Job, sequences: Sequence[str]) -> dict[str, np.ndarray]:
@@ -1157,7 +1170,7 @@ def ground_truth(job: Job, sequences: Sequence[str]) -> dict[str, np.ndarray]:
 def jobs_markdown(jobs: Sequence[Job]) -> str:
     lines = ["| job | configuration | seed | status | in tables | notes |", "|---|---|---|---|---|---|"]
     for job in jobs:
-        used = "yes" if job.included else f"no: {md(job.skip)}"
+        used = "yes" if job.skip is None else f"no: {md(job.skip)}"  # job.included: skip is None
         lines.append(
             f"| `{job.path.name}` | {md(job.label or '?')} | {md(job.seed)} | {md(job.status)} | {used} | "
             f"{md('; '.join(job.notes))} |"

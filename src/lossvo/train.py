@@ -22,8 +22,9 @@ from __future__ import annotations
 
 import json
 import logging
+import warnings
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import hydra
 import lightning as L
@@ -31,7 +32,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.errors import InstantiationException
 from hydra.utils import get_class, instantiate
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint, ProgressBar
-from lightning.pytorch.loggers import Logger, WandbLogger
+from lightning.pytorch.loggers import CSVLogger, Logger, WandbLogger
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from lossvo import weighting
@@ -41,19 +42,28 @@ from lossvo.module import VOModule
 from lossvo.processes import restore_start_method
 from lossvo.selection import SCORE_KEY
 
+if TYPE_CHECKING:
+    from lossvo.data.datamodule import KittiDataModule
+    from lossvo.losses import PoseLoss
+
 log = logging.getLogger("lossvo")
 
 CONFIG_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 
 
+def _loss_class(target: str) -> type[PoseLoss]:
+    """The loss class a loss config's ``_target_`` names (get_class types any class as ``type``)."""
+    return cast("type[PoseLoss]", get_class(target))
+
+
 def _dim_of(target: str) -> int:
     """Head size of a loss class given its ``_target_`` (the model's ``out_dim`` interpolates this)."""
-    return int(get_class(target).dim)
+    return int(_loss_class(target).dim)
 
 
 def _identity_of(target: str) -> ListConfig:
     """The output of a loss class that decodes to no motion (the model's ``head_bias`` interpolates this)."""
-    return ListConfig(get_class(target)(k=1.0).identity_output().tolist())
+    return ListConfig(_loss_class(target)(k=1.0).identity_output().tolist())
 
 
 def _matched_k(target: str, c: Any, squared: bool = True) -> float | None:
@@ -97,16 +107,16 @@ def _instantiate_group(group: DictConfig | None, name: str) -> list[Any]:
         if entry is None:  # switched off with `callbacks.key=null`
             continue
         if not isinstance(entry, DictConfig) or "_target_" not in entry:
-            raise ValueError(f"{name}.{key}: expected a config with a _target_, got {entry!r}")
+            raise ValueError(f"{name}.{key!s}: expected a config with a _target_, got {entry!r}")
         objects.append(instantiate(entry))
     return objects
 
 
 def _container(cfg: DictConfig) -> dict[str, Any]:
-    return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
+    return cast("dict[str, Any]", OmegaConf.to_container(cfg, resolve=True))  # a DictConfig: str keys
 
 
-def build(cfg: DictConfig) -> tuple[L.LightningDataModule, VOModule, L.Trainer]:
+def build(cfg: DictConfig) -> tuple[KittiDataModule, VOModule, L.Trainer]:
     """Data, module and trainer from a composed config; nothing is trained yet."""
     if cfg.model.get("flownet"):
         # FlowNetS weights were trained on img/255 - 0.5; the dataset statistics would not match them.
@@ -136,25 +146,40 @@ def build(cfg: DictConfig) -> tuple[L.LightningDataModule, VOModule, L.Trainer]:
     return datamodule, module, trainer
 
 
+def _previous_metrics(trainer: L.Trainer) -> bool:
+    """Whether a CSV logger of the trainer would find a metrics.csv of an earlier run in its folder."""
+    return any(
+        isinstance(logger, CSVLogger) and (Path(logger.log_dir) / "metrics.csv").exists()
+        for logger in trainer.loggers
+    )
+
+
 def train(cfg: DictConfig) -> dict[str, float]:
     """Seed, build, fit; returns the final callback metrics (floats)."""
     if cfg.get("seed") is not None:  # seed 0 is a seed
         L.seed_everything(cfg.seed, workers=True)
     datamodule, module, trainer = build(cfg)
     resolved = _container(cfg)
-    for logger in trainer.loggers:
-        logger.log_hyperparams(resolved)
+    with warnings.catch_warnings():
+        if not _previous_metrics(trainer):  # the job folder holds .hydra/ and train.log, nothing to delete
+            warnings.filterwarnings(
+                "ignore", message=".*Previous log files in this directory will be deleted"
+            )
+        for logger in trainer.loggers:
+            logger.log_hyperparams(resolved)
     try:
         trainer.fit(module, datamodule=datamodule, ckpt_path=cfg.get("ckpt_path"))
         metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
-        if cfg.get("evaluate", True) and not trainer.fast_dev_run and trainer.is_global_zero:
+        # Lightning sets Trainer.fast_dev_run in its setup (_init_debugging_flags) without declaring it.
+        fast_dev_run = trainer.fast_dev_run  # type: ignore[attr-defined]
+        if cfg.get("evaluate", True) and not fast_dev_run and trainer.is_global_zero:
             evaluate_after_fit(trainer, module, datamodule)
     finally:
         _finish_wandb(trainer)
     return metrics
 
 
-def evaluate_after_fit(trainer: L.Trainer, module: VOModule, datamodule: L.LightningDataModule) -> dict:
+def evaluate_after_fit(trainer: L.Trainer, module: VOModule, datamodule: KittiDataModule) -> dict:
     """Evaluate the best checkpoint (the last weights if there is none) on the test sequences, writing
     ``results.json``, ``trajectories/`` and ``plots/`` into the job's output folder."""
     from lossvo.eval import evaluate_run
@@ -164,7 +189,7 @@ def evaluate_after_fit(trainer: L.Trainer, module: VOModule, datamodule: L.Light
         if HydraConfig.initialized()
         else Path(trainer.default_root_dir)
     )
-    best = next((c.best_model_path for c in trainer.callbacks if isinstance(c, ModelCheckpoint)
+    best = next((c.best_model_path for c in trainer.checkpoint_callbacks if isinstance(c, ModelCheckpoint)
                  and c.best_model_path and Path(c.best_model_path).is_file()), None)  # fmt: skip
     device = trainer.strategy.root_device  # Lightning moves the module back to the CPU after fit
     if best:

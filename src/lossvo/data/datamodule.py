@@ -23,6 +23,7 @@ import json
 from collections.abc import Mapping
 from collections.abc import Sequence as Seq
 from pathlib import Path
+from typing import Any
 
 import lightning as L
 import numpy as np
@@ -41,9 +42,15 @@ PAPER_TEST = ("00", "01", "02", "03", "04", "05", "06", "07", "08", "09", "10")
 NORMALIZATIONS = ("dataset", "flownet")
 
 
-def _names(value: str | int | Seq, key: str) -> tuple[str, ...]:
-    """Sequence names from a config value: ["00", "07"], "00,07" or [0, 7] (Hydra turns 07 into 7)."""
-    items = value.split(",") if isinstance(value, str) else list(value)
+def _names(value: str | int | Seq[str | int], key: str) -> tuple[str, ...]:
+    """Sequence names from a config value: ["00", "07"], "00,07", [0, 7] or 7 (Hydra turns 07 into 7)."""
+    items: Seq[str | int]
+    if isinstance(value, str):
+        items = value.split(",")
+    elif isinstance(value, int):
+        items = [value]
+    else:
+        items = list(value)
     names = []
     for item in items:
         text = f"{item:02d}" if isinstance(item, int) and not isinstance(item, bool) else str(item).strip()
@@ -231,7 +238,8 @@ class KittiDataModule(L.LightningDataModule):
             raise ValueError(f"data.reverse: expected a probability in [0, 1], got {reverse!r}")
         self.normalization, self.augment, self.reverse = normalization, augment, float(reverse)
         self.sequences: dict[str, Sequence] = {}
-        self.mean = self.std = None
+        self.mean: np.ndarray | None = None  # per-channel statistics, set by setup
+        self.std: np.ndarray | None = None
         self.datasets: dict[str, WindowDataset] = {}
 
     # -- preparation: check everything, build the cache, compute statistics --------------------------
@@ -308,9 +316,9 @@ class KittiDataModule(L.LightningDataModule):
         self.mean, self.std = self._stats(folder, frames)
         for split, names in self.splits.items():
             stride = self.stride if split == "train" else self.seq_len - 1
-            names = [n for n in names if self.sequences[n].poses is not None]  # test: labelled ones
+            labelled = [(n, p) for n in names if (p := self.sequences[n].poses) is not None]  # labelled ones
             self.datasets[split] = WindowDataset(
-                [frame_cache.files(folder, n)[0] for n in names], [self.sequences[n].poses for n in names],
+                [frame_cache.files(folder, n)[0] for n, _ in labelled], [p for _, p in labelled],
                 self.seq_len, stride, self.frame_steps if split == "train" else (1,),
             )  # fmt: skip
         if len(self.datasets["train"]) == 0:
@@ -396,10 +404,11 @@ class SyntheticDataModule(KittiDataModule):
         base = Path(cache_dir).expanduser() if cache_dir else frame_cache.default_cache_dir()
         super().__init__(root=str(root or base / "synthetic"), **kwargs)
         spec = routes.route_spec(route_families, route_mixes, prefix="data.")
-        self.generator_args = {"frames": dict(frames) if isinstance(frames, Mapping) else frames,
-                               "height": render_height or synthetic.DEFAULT_HEIGHT,
-                               "width": render_width or synthetic.DEFAULT_WIDTH, "seed": seed,
-                               "spec": spec}  # fmt: skip
+        self.generator_args: dict[str, Any] = {  # synthetic.ensure_dataset's keyword arguments
+            "frames": dict(frames) if isinstance(frames, Mapping) else frames,
+            "height": render_height or synthetic.DEFAULT_HEIGHT,
+            "width": render_width or synthetic.DEFAULT_WIDTH, "seed": seed, "spec": spec,
+        }  # fmt: skip
 
     def _ensure_rendered(self) -> None:
         """Render the dataset unless it is there; the lock lets parallel sweep jobs share it."""

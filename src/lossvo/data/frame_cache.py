@@ -110,7 +110,7 @@ def build_frames(
     tmp = data.with_name(f".{data.name}.{os.getpid()}.tmp")
     out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.uint8, shape=(len(seq.images), 3, height, width))
     try:
-        first_size = None
+        first_size: tuple[int, int] | None = None
         with ThreadPoolExecutor(workers) as pool:  # OpenCV releases the GIL while decoding
             jobs = pool.map(lambda p: _read_frame(p, height, width), seq.images)
             bar = tqdm(jobs, total=len(seq.images), desc=f"caching {seq.name} at {height}x{width}",
@@ -129,6 +129,7 @@ def build_frames(
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+    assert first_size is not None  # a Sequence has frames (kitti.image_paths raises on none)
     meta = {"version": CACHE_VERSION, "sequence": seq.name, "shape": [len(seq.images), 3, height, width],
             "source_size_hw": list(first_size), "source": _fingerprint(seq)}  # fmt: skip
     write_text_atomic(manifest, json.dumps(meta))

@@ -20,6 +20,7 @@ import dataclasses
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -182,7 +183,9 @@ def route_spec(
         if unknown:
             raise ValueError(f"{prefix}route_families.{name}: unknown parameter {unknown[0]!r} "
                              f"(expected some of {', '.join(FIELDS)})")  # fmt: skip
-        values = {k: tuple(v) if isinstance(v, list | tuple) else v for k, v in params.items()}
+        values: dict[str, Any] = {  # config values; Family's own checks validate them
+            k: tuple(v) if isinstance(v, list | tuple) else v for k, v in params.items()
+        }
         if name in table:
             table[name] = dataclasses.replace(table[name], **values)
             continue

@@ -403,7 +403,7 @@ def _footprints(
     Front faces follow the path at a lateral offset (m) that drifts within ``offset``, with short gaps and
     occasional wide ones (side streets); each footprint is a rectangle 6-15 m deep, away from the path.
     """
-    out = []
+    out: list[np.ndarray] = []
     i = int(rng.integers(0, 20))
     lateral = rng.uniform(*offset)
     while True:
@@ -460,14 +460,14 @@ def _buildings(rng: np.random.Generator, pts: np.ndarray, right: np.ndarray, n_t
 
 def _poles(rng: np.random.Generator, pts: np.ndarray, right: np.ndarray) -> np.ndarray:
     """Poles (P, 4) rows x, z, radius, y_top: every 8-25 m on both sides, 2.2-3.2 m from the path."""
-    poles = []
+    rows: list[list[float]] = []
     for side in (-1.0, 1.0):
         i = int(rng.integers(0, 30))
         while i < len(pts):
             c = pts[i] + side * rng.uniform(2.2, 3.2) * right[i]
-            poles.append([*c, rng.uniform(0.06, 0.2), CAMERA_HEIGHT - rng.uniform(3.0, 9.0)])
+            rows.append([*c, rng.uniform(0.06, 0.2), CAMERA_HEIGHT - rng.uniform(3.0, 9.0)])
             i += int(rng.uniform(8, 25) / PATH_STEP)
-    poles = np.array(poles).reshape(-1, 4)
+    poles = np.array(rows).reshape(-1, 4)
     centres = np.repeat(poles[:, None, :2], 2, 1)
     keep = _clearance(centres, pts) - poles[:, 2] > 1.8
     return poles[keep]
@@ -663,8 +663,8 @@ class Renderer:
         seen = (bounds[:, 0] < bounds[:, 1]) & (bounds[:, 2] < bounds[:, 3])
         if max_depth is not None:
             seen &= zmin < max_depth
-        seen = np.flatnonzero(seen)
-        for m in seen[np.argsort(zmin[seen], kind="stable")]:
+        index = np.flatnonzero(seen)
+        for m in index[np.argsort(zmin[index], kind="stable")]:
             r0, r1, c0, c1 = bounds[m]
             window = (slice(r0, r1), slice(c0, c1))
             if g.depth[window].max() > zmin[m]:
