@@ -23,7 +23,7 @@ from lossvo.losses import (
     SymMatrixQuatLoss,
 )
 
-CONF = Path(__file__).resolve().parents[1] / "conf"
+CONF = Path(__file__).resolve().parents[1] / "src" / "lossvo" / "conf"
 LOSSES = [EulerLoss, QuaternionLoss, ChordalLoss, GeodesicLoss, SixDLoss, SVDLoss, SymMatrixQuatLoss]
 KEYS = {"loss", "trans_loss", "rot_loss", "trans_err_m", "rot_err_rad"}
 NEAR_PI = math.radians(179.9)

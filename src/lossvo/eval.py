@@ -1,6 +1,6 @@
 """Evaluation: whole sequences through a trained network, trajectories, plots and ``results.json``.
 
-Command line (Hydra, ``conf/eval.yaml``)::
+Command line (Hydra, ``lossvo/conf/eval.yaml``)::
 
     python -m lossvo.eval ckpt_path=outputs/runs/<time>/checkpoints/best.ckpt
     python -m lossvo.eval ckpt_path=... data=kitti data.root=/data/kitti data.test=[09,10]

@@ -48,7 +48,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("lossvo")
 
-CONFIG_DIR = str(Path(__file__).resolve().parents[2] / "conf")
+CONFIG_DIR = str(Path(__file__).resolve().parent / "conf")
 
 
 def _loss_class(target: str) -> type[PoseLoss]:
