@@ -23,6 +23,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import torch
+
+from lossvo import geometry
 
 STRETCH = 60
 """Frames (at least) driven in one family before the next family is drawn from the sequence's mix."""
@@ -343,17 +346,6 @@ def undulation(
     return profile
 
 
-def euler_to_matrix(yaw: np.ndarray, pitch: np.ndarray, roll: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) R = Ry(yaw) @ Rx(pitch) @ Rz(roll), angles in radians (float64)."""
-    yaw, pitch, roll = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (yaw, pitch, roll)))
-    (cy, cp, cr), (sy, sp, sr) = np.cos([yaw, pitch, roll]), np.sin([yaw, pitch, roll])
-    one, zero = np.ones_like(yaw), np.zeros_like(yaw)
-    Ry = np.stack([cy, zero, sy, zero, one, zero, -sy, zero, cy], -1).reshape(*yaw.shape, 3, 3)
-    Rx = np.stack([one, zero, zero, zero, cp, -sp, zero, sp, cp], -1).reshape(*yaw.shape, 3, 3)
-    Rz = np.stack([cr, -sr, zero, sr, cr, zero, zero, zero, one], -1).reshape(*yaw.shape, 3, 3)
-    return Ry @ Rx @ Rz
-
-
 def make_route(
     rng: np.random.Generator, n_frames: int, mix: Mapping[str, float] = TRAINING_MIX,
     families: Mapping[str, Family] = FAMILIES,
@@ -387,7 +379,8 @@ def make_route(
     steps = speed[:-1, None] * np.stack([np.sin(heading), np.cos(heading)], -1)
     xz = np.concatenate([np.zeros((1, 2)), np.cumsum(steps, 0)])
     poses = np.tile(np.eye(4), (n, 1, 1))
-    poses[:, :3, :3] = euler_to_matrix(yaw, pitch - pitch[0], roll - roll[0])
+    angles = np.stack([yaw, pitch - pitch[0], roll - roll[0]], -1)
+    poses[:, :3, :3] = geometry.euler_to_matrix(torch.from_numpy(angles)).numpy()
     poses[:, :3, 3] = np.stack([xz[:, 0], -(height - height[0]) + bob - bob[0], xz[:, 1]], -1)
     return poses[:n_frames]
 
