@@ -1,9 +1,12 @@
-"""Printing a command's result to standard output, also into a pipe that closes early (``| head``)."""
+"""Command-line plumbing: one-line argument errors, and printing a result also into a pipe that closes
+early (``| head``)."""
 
 from __future__ import annotations
 
+import argparse
 import os
 import sys
+from typing import NoReturn
 
 
 def emit(text: str) -> None:
@@ -15,3 +18,10 @@ def emit(text: str) -> None:
     except BrokenPipeError:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())  # the interpreter's final flush then succeeds
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """ArgumentParser whose errors are one line on stderr (no usage block), exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")

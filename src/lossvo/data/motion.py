@@ -16,11 +16,12 @@ import argparse
 import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import NoReturn
 
 import numpy as np
+import torch
 
-from lossvo.console import emit
+from lossvo import geometry
+from lossvo.console import OneLineParser, emit
 from lossvo.data import frame_cache, kitti, routes
 
 STANDING = 0.01
@@ -42,12 +43,11 @@ COLUMNS = (
 def frame_motion(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Speed (N-1,) m/frame and rotation angle (N-1,) rad/frame between consecutive poses (N, 4, 4).
 
-    The angle is atan2(|axis| sin, cos) of the relative rotation, accurate at small and large angles.
+    The angle is :func:`lossvo.geometry.rotation_angle` of the relative rotation (accurate at small and
+    large angles).
     """
     rel = kitti.relative_targets(np.asarray(poses, dtype=np.float64))
-    R = rel[:, :3, :3]
-    skew = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], -1)
-    angle = np.arctan2(0.5 * np.linalg.norm(skew, axis=1), 0.5 * (np.trace(R, axis1=1, axis2=2) - 1.0))
+    angle = geometry.rotation_angle(torch.from_numpy(rel[:, :3, :3])).numpy()
     return np.linalg.norm(rel[:, :3, 3], axis=1), angle
 
 
@@ -107,15 +107,8 @@ def read_motion(root: Path, names: Sequence[str]) -> dict[str, tuple[np.ndarray,
     return motion
 
 
-class _Parser(argparse.ArgumentParser):
-    """ArgumentParser whose errors are one line on stderr (no usage block), exit status 2."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
 def _parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="python -m lossvo.data.motion", description=__doc__.split("\n\n")[0])
+    p = OneLineParser(prog="python -m lossvo.data.motion", description=__doc__.split("\n\n")[0])
     default_root = "the synthetic dataset in the lossvo cache"
     p.add_argument("root", nargs="?", type=Path, default=None, help=f"KITTI root (default: {default_root})")
     for split, names in PAPER_SPLITS.items():

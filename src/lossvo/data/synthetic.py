@@ -51,11 +51,11 @@ from collections.abc import Iterable, Iterator, Mapping
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NoReturn
 
 import cv2
 import numpy as np
 
+from lossvo.console import OneLineParser
 from lossvo.data import routes
 
 # --------------------------------------------------------------------------------------------------
@@ -1055,15 +1055,8 @@ def ensure_dataset(
 # --------------------------------------------------------------------------------------------------
 
 
-class _Parser(argparse.ArgumentParser):
-    """ArgumentParser whose errors are one line on stderr (no usage block), exit status 2."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
 def _parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="python -m lossvo.data.synthetic", description=__doc__.split("\n\n")[0])
+    p = OneLineParser(prog="python -m lossvo.data.synthetic", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, required=True, help="dataset root to write (KITTI odometry layout)")
     p.add_argument(
         "--sequences", default=",".join(SEQUENCES), help="comma-separated, e.g. 00,07 (default: 00..12)"
