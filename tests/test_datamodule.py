@@ -268,7 +268,7 @@ def test_frame_steps_add_windows_of_every_other_frame_with_recomputed_targets(
     np.testing.assert_array_equal(frames.numpy(), cached[[0, 2, 4]])
     expected = [np.linalg.inv(poses[k]) @ poses[k + 2] for k in (0, 2)]
     np.testing.assert_allclose(targets.numpy(), np.array(expected), atol=1e-5)
-    assert all(int(step) == 1 for step in dm.datasets["val"].index[:, 2])  # validation: consecutive only
+    assert all(int(step) == 1 for step in dm.datasets["val"].index[:, 3])  # validation: consecutive only
 
 
 @pytest.mark.parametrize("steps", [[], [0, 1], "2", [1.5]])

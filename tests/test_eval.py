@@ -18,7 +18,8 @@ from torch import Tensor, nn
 
 from lossvo import geometry, metrics, train
 from lossvo.data.kitti import read_poses
-from lossvo.eval import evaluate_run, predict_sequence, window_starts
+from lossvo.data.windows import tile
+from lossvo.eval import evaluate_run, predict_sequence
 from lossvo.module import VOModule
 from test_train import compose_train, tiny_overrides
 
@@ -69,7 +70,7 @@ def test_predict_sequence_covers_every_pair_once(n: int, seq_len: int, batch: in
     pairs = torch.cat(stub.seen)
     assert sorted(pairs[:, 0].tolist()) == list(range(n - 1))  # each pair exactly once
     assert (pairs[:, 1] == pairs[:, 0] + 1).all()
-    assert all(stop - start >= 2 for start, stop in window_starts(n, seq_len))
+    assert all(stop - start >= 2 for start, stop in tile(n, seq_len))
 
 
 def test_predict_sequence_uses_eval_mode_and_restores_it(tiny_kitti: Path, tmp_path: Path) -> None:
@@ -98,9 +99,9 @@ def test_predict_sequence_uses_eval_mode_and_restores_it(tiny_kitti: Path, tmp_p
     module.eval()
     with torch.no_grad():
         x = torch.from_numpy(images).float() / 255
-        windows = [module.decode(module(x[s:e][None]))[0] for s, e in window_starts(9, 4)]
+        windows = [module.decode(module(x[s:e][None]))[0] for s, e in tile(9, 4)]
     np.testing.assert_allclose(a, torch.cat(windows).double().numpy(), atol=1e-5)
-    carried = module.predict_sequence(images, lambda x: x.float() / 255, 4, carry_state=True)
+    carried = predict_sequence(module, images, lambda x: x.float() / 255, 4, carry_state=True)
     assert carried.shape == (8, 4, 4)
 
 

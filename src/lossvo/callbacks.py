@@ -17,6 +17,7 @@ import torch
 from lightning.pytorch.callbacks import Callback, RichProgressBar
 
 from lossvo import metrics
+from lossvo.eval import predict_sequence
 
 log = logging.getLogger("lossvo")
 
@@ -80,9 +81,6 @@ class TrajectoryValidation(Callback):
         datamodule = trainer.datamodule  # type: ignore[attr-defined]
         if not self._usable(datamodule) or not datamodule.splits.get("val"):
             return
-        from lossvo.eval import predict_sequence
-        from lossvo.trajectory import integrate
-
         ape, rpe = metrics.APE(align=self.align), metrics.RPE(delta=self.delta, align=self.align)
         kitti = metrics.KittiOdometryError()
         for name in datamodule.splits["val"]:
@@ -91,10 +89,7 @@ class TrajectoryValidation(Callback):
                 continue
             relative = predict_sequence(pl_module, datamodule.sequence_frames(name), datamodule.normalize,
                                         datamodule.seq_len)  # fmt: skip
-            gt = torch.as_tensor(gt, dtype=torch.float64)
-            est = integrate(torch.from_numpy(relative), start=gt[0])
-            for metric in (ape, rpe, kitti):
-                metric.update(est, gt)
+            metrics.evaluate_relative(relative, gt, self.align, self.delta, pooled=(ape, rpe, kitti))
         if not ape.trans:
             return
         ape_out, rpe_out, kitti_out = ape.compute(), rpe.compute(), kitti.compute()

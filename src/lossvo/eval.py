@@ -2,14 +2,17 @@
 
 Command line (Hydra, ``lossvo/conf/eval.yaml``)::
 
-    python -m lossvo.eval ckpt_path=outputs/runs/<time>/checkpoints/best.ckpt
+    python -m lossvo.eval ckpt_path=outputs/multirun/<time>/0_loss-euler+seed-0/checkpoints/best.ckpt
     python -m lossvo.eval ckpt_path=... data=kitti data.root=/data/kitti data.test=[09,10]
 
-The data config must describe the data the checkpoint was trained with (frame size, ``seq_len``, training
-split -- it decides the normalisation statistics): pass the same ``data.*`` overrides as for training.
-The output folder (``outputs/eval/<time>/``, or ``hydra.run.dir``) receives, per test sequence,
-``trajectories/NN.txt`` (KITTI format, readable by evo, first pose = ground truth's), ``plots/NN.png``
-(bird's-eye x-z view) and ``results.json`` (APE / RPE / KITTI error per sequence and pooled over all).
+The checkpoint says how its network was trained (:mod:`lossvo.checkpoints`): frame size, ``seq_len``,
+normalisation and its statistics, and the data it was trained on, which is what is evaluated unless
+``data=...`` chooses another dataset or ``data.KEY=...`` changes a setting; the other data need hold no
+training sequence. An override of the frame size, ``seq_len`` or normalisation that contradicts the
+checkpoint is an error. The output folder (``outputs/eval/<time>/``, or ``hydra.run.dir``) receives, per
+sequence, ``trajectories/NN.txt`` (KITTI format, readable by evo, first pose = ground truth's),
+``plots/NN.png`` (bird's-eye x-z view) and ``results.json`` (APE / RPE / KITTI error per sequence and
+pooled over all, and the data evaluated).
 
 From Python: :func:`predict_sequence` (relative poses of one sequence) and :func:`evaluate_run` (all of
 the above for a module and a datamodule); ``lossvo.train`` calls the latter after fitting.
@@ -29,9 +32,10 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from lossvo import metrics
+from lossvo import checkpoints, metrics
 from lossvo.atomic import atomic_path, write_text_atomic
-from lossvo.data.kitti import KittiFormatError, read_poses, write_poses
+from lossvo.data.kitti import KittiFormatError, pose_path, write_poses
+from lossvo.data.windows import tile
 from lossvo.processes import restore_start_method
 from lossvo.trajectory import integrate
 
@@ -47,20 +51,6 @@ NO_GT_NOTE = "no ground truth (no pose file): trajectory starts at identity, no 
 # --------------------------------------------------------------------------------------------------
 # Inference on whole sequences
 # --------------------------------------------------------------------------------------------------
-
-
-def window_starts(n_frames: int, seq_len: int) -> list[tuple[int, int]]:
-    """(start, stop) frame ranges of the evaluation windows of a sequence of ``n_frames`` frames.
-
-    Windows of ``seq_len`` frames overlap by one frame (starts 0, seq_len-1, 2 (seq_len-1), ...); the last
-    one is shorter where needed (at least 2 frames), so every consecutive pair is in exactly one window.
-    """
-    if n_frames < 2:
-        raise ValueError(f"a sequence needs at least 2 frames for one relative pose, got {n_frames}")
-    if seq_len < 2:
-        raise ValueError(f"seq_len must be >= 2 frames, got {seq_len}")
-    step = seq_len - 1
-    return [(s, min(s + seq_len, n_frames)) for s in range(0, n_frames - 1, step)]
 
 
 def _device_of(module: nn.Module) -> torch.device:
@@ -81,12 +71,12 @@ def predict_sequence(
 ) -> np.ndarray:
     """Relative poses of a whole sequence, every consecutive pair predicted exactly once.
 
-    The sequence is cut into windows as in training and validation: ``seq_len`` frames overlapping by one
-    (see :func:`window_starts`). By default the LSTM starts from zeros in every window, which is what the
-    network saw in training (one window per sample); ``batch_windows`` windows go through the network in
+    The sequence is cut into windows as in validation: ``seq_len`` frames overlapping by one
+    (:func:`lossvo.data.windows.tile`). By default the LSTM starts from zeros in every window, which is what
+    the network saw in training (one window per sample); ``batch_windows`` windows go through the network in
     one forward pass. With ``carry_state=True`` the LSTM state is carried from one window to the next
-    (``model.forward_with_state``; the windows then run one after the other): an option for networks
-    trained on longer sequences, not what training does.
+    (``model.forward_with_state``; the windows then run one after the other): an option for networks trained
+    on longer sequences, not what training does.
 
     The module is put in eval mode (dropout off, BatchNorm running statistics) under ``torch.no_grad``,
     and its previous mode is restored afterwards.
@@ -103,7 +93,7 @@ def predict_sequence(
         (N-1, 4, 4) float64 relative poses ``T_k`` (frame k+1 seen from frame k).
     """
     n = len(frames)
-    windows = window_starts(n, seq_len)
+    windows = [(int(a), int(b)) for a, b in tile(n, seq_len)]
     device = _device_of(module)
     was_training = module.training
     module.eval()
@@ -193,6 +183,35 @@ def _kitti_with_note(result: dict[str, Any]) -> dict[str, Any]:
     return result
 
 
+def data_record(module: nn.Module, datamodule: Any) -> dict[str, Any]:
+    """``results.json``'s ``data``: the evaluated dataset (``kind``, ``root``, ``test``, ``unseen``), the
+    data the network was trained on (``train_root``, ``train``) and its input settings (``height``,
+    ``width``, ``seq_len``, ``normalization``, ``mean``, ``std``): what a report needs without
+    building a datamodule."""
+    here = datamodule.description() if hasattr(datamodule, "description") else {}
+    trained = getattr(module, "data", None) or here
+    stats = trained.get("statistics") or here.get("statistics") or {}
+    return {
+        "kind": here.get("_target_"),
+        "root": here.get("dataset_root"),
+        "test": list(datamodule.splits.get("test", ())) if hasattr(datamodule, "splits") else [],
+        "unseen": list(datamodule.splits.get("unseen", ())) if hasattr(datamodule, "splits") else [],
+        "train_root": trained.get("dataset_root"),
+        "train": list(trained.get("train") or []),
+        **{key: trained.get(key, here.get(key)) for key in ("height", "width", "seq_len", "normalization")},
+        "mean": stats.get("mean"),
+        "std": stats.get("std"),
+    }
+
+
+def _pose_file(datamodule: Any, name: str) -> str | None:
+    """The absolute path of a sequence's ground-truth pose file, or None."""
+    sequence = getattr(datamodule, "sequences", {}).get(name)
+    if sequence is None or sequence.poses is None or not hasattr(datamodule, "dataset_root"):
+        return None
+    return str(pose_path(datamodule.dataset_root(), name))
+
+
 def evaluate_run(
     module: nn.Module,
     datamodule: Any,
@@ -216,50 +235,27 @@ def evaluate_run(
         carry_state: see :func:`predict_sequence`.
     Returns:
         The content of ``results.json``: ``{"checkpoint", "loss": {"class", "k"}, "align", "delta",
-        "sequences": {name: {"frames", "trajectory", "plot", "ape", "rpe", "kitti"} or a "note"},
-        "overall": {"sequences", "ape", "rpe", "kitti"}}``. Metrics are computed on the trajectory files as
-        written; a KITTI error is null (with a "note") where no 100 m segment exists.
+        "data": data_record(...), "sequences": {name: {"frames", "trajectory", "plot", "ground_truth",
+        "unseen", "ape", "rpe", "kitti"} or a "note"}, "overall": {"sequences", "ape", "rpe", "kitti"}}``.
+        A KITTI error is null (with a "note") where no 100 m segment exists.
     """
     out_dir = Path(out_dir)
     datamodule.setup("test")
-    ape, rpe = metrics.APE(align=align), metrics.RPE(delta=delta, align=align)
-    kitti = metrics.KittiOdometryError()
+    pooled = (metrics.APE(align=align), metrics.RPE(delta=delta, align=align), metrics.KittiOdometryError())
     loss = _loss_info(module)
+    unseen = set(getattr(datamodule, "splits", {}).get("unseen", ()))
     per_sequence: dict[str, Any] = {}
-    evaluated: list[str] = []
     for name in sequences:
-        frames = datamodule.sequence_frames(name)
-        gt = _ground_truth(datamodule, name)
-        relative = predict_sequence(module, frames, datamodule.normalize, datamodule.seq_len,
-                                    carry_state=carry_state)  # fmt: skip
-        start = None if gt is None else torch.from_numpy(gt[0])
-        traj_path = out_dir / "trajectories" / f"{name}.txt"
-        write_poses(traj_path, integrate(torch.from_numpy(relative), start=start))
-        est = read_poses(traj_path)  # the metrics describe exactly the file a user would evaluate
-        plot_path = out_dir / "plots" / f"{name}.png"
-        plot_trajectory(plot_path, gt, est, f"estimate ({loss['class']}, k={loss['k']:g})"
-                        if loss["k"] is not None else "estimate", f"sequence {name}")  # fmt: skip
-        entry: dict[str, Any] = {"frames": len(est), "trajectory": f"trajectories/{name}.txt",
-                                 "plot": f"plots/{name}.png"}  # fmt: skip
-        if gt is None:
-            entry["note"] = NO_GT_NOTE
-            log.info("sequence %s: %s", name, NO_GT_NOTE)
-        else:
-            gt_t, est_t = torch.from_numpy(gt), torch.from_numpy(est)
-            entry.update(_kitti_with_note(metrics.evaluate(gt_t, est_t, align, delta)))
-            ape.update(est_t, gt_t)
-            rpe.update(est_t, gt_t)
-            kitti.update(est_t, gt_t)
-            evaluated.append(name)
-            log.info("sequence %s: APE trans RMSE %.4g m, RPE trans RMSE %.4g m", name,
-                     entry["ape"]["trans"]["rmse"], entry["rpe"]["trans"]["rmse"])  # fmt: skip
-        per_sequence[name] = entry
+        relative = predict_sequence(module, datamodule.sequence_frames(name), datamodule.normalize,
+                                    datamodule.seq_len, carry_state=carry_state)  # fmt: skip
+        entry = _score_sequence(relative, _ground_truth(datamodule, name), name, out_dir, loss, pooled,
+                                align, delta)  # fmt: skip
+        per_sequence[name] = {**entry, "ground_truth": _pose_file(datamodule, name), "unseen": name in unseen}
+    evaluated = [name for name, entry in per_sequence.items() if "ape" in entry]
+    overall: dict[str, Any] = {"sequences": [], "note": "no sequence with ground truth: no metrics"}
     if evaluated:
-        overall: dict[str, Any] = {"sequences": evaluated, "ape": ape.compute(), "rpe": rpe.compute(),
-                                   "kitti": kitti.compute()}  # fmt: skip
-        _kitti_with_note(overall)
-    else:
-        overall = {"sequences": [], "note": "no sequence with ground truth: no metrics"}
+        ape, rpe, kitti = (m.compute() for m in pooled)
+        overall = _kitti_with_note({"sequences": evaluated, "ape": ape, "rpe": rpe, "kitti": kitti})
     result = {
         "checkpoint": None if checkpoint is None else str(checkpoint),
         "loss": loss,
@@ -267,6 +263,7 @@ def evaluate_run(
         "delta": delta,
         "seq_len": int(datamodule.seq_len),
         "carry_state": carry_state,
+        "data": data_record(module, datamodule),
         "sequences": per_sequence,
         "overall": overall,
     }
@@ -274,22 +271,26 @@ def evaluate_run(
     return result
 
 
-def load_module(ckpt_path: str | os.PathLike, device: str | torch.device = "cpu"):
-    """A :class:`lossvo.module.VOModule` from a checkpoint (``weights_only`` loading), on ``device``.
-
-    Raises:
-        FileNotFoundError: naming the path, when there is no such file.
-    """
-    from lossvo.module import VOModule
-
-    path = Path(ckpt_path).expanduser()
-    if not path.is_file():
-        raise FileNotFoundError(f"checkpoint not found: {path}")
-    try:
-        return VOModule.load_from_checkpoint(path, map_location=torch.device(device), weights_only=True)
-    except Exception as e:  # a truncated or foreign file: one line naming it, not torch's traceback
-        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
-        raise ValueError(f"{path}: cannot load as a lossvo checkpoint ({type(e).__name__}: {first})") from e
+def _score_sequence(
+    relative: np.ndarray, gt: np.ndarray | None, name: str, out_dir: Path, loss: dict[str, Any],
+    pooled: Sequence[Any], align: metrics.AlignMode, delta: int,
+) -> dict[str, Any]:  # fmt: skip
+    """One sequence's trajectory file, plot and scores (:func:`lossvo.metrics.evaluate_relative`)."""
+    entry: dict[str, Any] = {"frames": len(relative) + 1, "trajectory": f"trajectories/{name}.txt",
+                             "plot": f"plots/{name}.png"}  # fmt: skip
+    if gt is None:
+        est = integrate(torch.from_numpy(relative))
+        entry["note"] = NO_GT_NOTE
+        log.info("sequence %s: %s", name, NO_GT_NOTE)
+    else:
+        est, scores = metrics.evaluate_relative(relative, gt, align, delta, pooled)
+        entry.update(_kitti_with_note(scores))
+        log.info("sequence %s: APE trans RMSE %.4g m, RPE trans RMSE %.4g m", name,
+                 entry["ape"]["trans"]["rmse"], entry["rpe"]["trans"]["rmse"])  # fmt: skip
+    write_poses(out_dir / entry["trajectory"], est)
+    label = f"estimate ({loss['class']}, k={loss['k']:g})" if loss["k"] is not None else "estimate"
+    plot_trajectory(out_dir / entry["plot"], gt, est.numpy(), label, f"sequence {name}")
+    return entry
 
 
 def _resolve_device(name: str) -> torch.device:
@@ -298,26 +299,35 @@ def _resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def check_compatible(module: nn.Module, datamodule: Any) -> None:
-    """A clear error when the data's frame size differs from the one the network was built for."""
-    model = getattr(module, "model", None)
-    expected = (getattr(model, "height", None), getattr(model, "width", None))
-    got = (getattr(datamodule, "height", None), getattr(datamodule, "width", None))
-    if None not in expected and None not in got and expected != got:
-        raise ValueError(
-            f"the checkpoint's network expects {expected[0]}x{expected[1]} frames but the data config gives "
-            f"{got[0]}x{got[1]}: pass the training run's data overrides (data.height=..., data.width=...)"
-        )
+def data_overrides(overrides: Sequence[str]) -> tuple[bool, list[str]]:
+    """From command-line overrides: whether a data config was chosen (``data=kitti``) and the data keys
+    set (``data.root=...`` gives ``root``)."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    chosen, keys = False, []
+    for override in OverridesParser.create().parse_overrides(list(overrides)):
+        key = override.key_or_group
+        if key == "data":
+            chosen = True
+        elif key.startswith("data."):
+            keys.append(key.split(".")[1])
+    return chosen, list(dict.fromkeys(keys))
 
 
-def run(cfg: Any, out_dir: Path) -> dict[str, Any]:
-    """The body of ``python -m lossvo.eval``: load, build the data, evaluate the test sequences."""
+def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> dict[str, Any]:
+    """The body of ``python -m lossvo.eval``: load the checkpoint, build the data it describes (with the
+    command line's ``overrides`` of data settings), evaluate the test and unseen-motion sequences."""
     from hydra.utils import instantiate
+    from omegaconf import OmegaConf
 
     device = _resolve_device(str(cfg.get("device", "auto")))
-    module = load_module(cfg.ckpt_path, device)
-    datamodule = instantiate(cfg.data)
-    check_compatible(module, datamodule)
+    module = checkpoints.load_module(cfg.ckpt_path, device)
+    chosen, keys = data_overrides(overrides)
+    given = cast("dict[str, Any]", OmegaConf.to_container(cfg.data, resolve=True))
+    recorded = checkpoints.recorded_data(cfg.ckpt_path, module)
+    explicit = {k: given[k] for k in keys if k in given}
+    data_cfg = checkpoints.evaluation_data(recorded, given if chosen else None, explicit)
+    datamodule = instantiate(data_cfg, _convert_="all")
     datamodule.prepare_data()
     datamodule.setup("test")
     sequences = list(cfg.sequences) if cfg.get("sequences") else datamodule.evaluated
@@ -342,7 +352,7 @@ def main() -> None:
             print("error: ckpt_path is required: python -m lossvo.eval ckpt_path=PATH", file=sys.stderr)
             sys.exit(2)
         try:
-            result = run(cfg, out_dir)
+            result = run(cfg, out_dir, HydraConfig.get().overrides.task)
         except (FileNotFoundError, ValueError) as e:  # KittiFormatError is a ValueError
             print(f"error: {e}", file=sys.stderr)
             sys.exit(2)

@@ -38,6 +38,7 @@ from torchmetrics.utilities import dim_zero_cat
 
 from lossvo import geometry
 from lossvo.console import emit
+from lossvo.trajectory import integrate
 
 AlignMode = Literal["none", "se3", "sim3", "scale"]
 ALIGN_MODES: tuple[str, ...] = ("none", "se3", "sim3", "scale")
@@ -478,6 +479,31 @@ def evaluate(gt: Tensor, est: Tensor, align: AlignMode = "none", delta: int = 1)
         "rpe": {"trans": statistics(rpe_t), "rot_rad": statistics(rpe_r)},
         "kitti": _kitti_summary(float(t.sum()), float(r.sum()), t.numel()),
     }
+
+
+def evaluate_relative(
+    relative: Tensor | np.ndarray,
+    gt: Tensor | np.ndarray,
+    align: AlignMode = "none",
+    delta: int = 1,
+    pooled: Sequence[Metric] = (),
+) -> tuple[Tensor, dict[str, Any]]:
+    """Relative poses -> trajectory -> scores: the one path that validation, evaluation and the
+    baselines share.
+
+    The (N-1, 4, 4) relative poses ``T_k`` are integrated from the first ground-truth pose
+    (:func:`lossvo.trajectory.integrate`) and scored against ``gt`` (N, 4, 4) with :func:`evaluate`;
+    ``pooled`` metrics (:class:`APE`, :class:`RPE`, :class:`KittiOdometryError`) are updated with the
+    sequence, for scores over several sequences.
+
+    Returns:
+        trajectory (N, 4, 4) float64 and :func:`evaluate`'s dict.
+    """
+    gt_t = torch.as_tensor(gt, dtype=torch.float64)
+    est = integrate(torch.as_tensor(relative, dtype=torch.float64), start=gt_t[0])
+    for metric in pooled:
+        metric.update(est, gt_t)
+    return est, evaluate(gt_t, est, align, delta)
 
 
 def format_table(result: dict[str, Any]) -> str:

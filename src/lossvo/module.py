@@ -6,7 +6,8 @@ are its hyperparameters: a checkpoint holds only primitives and reloads with tor
 loss without Hydra. Every key the loss returns is logged per epoch as ``train/<key>`` and
 ``val/<key>`` (``loss``, ``trans_loss``, ``rot_loss``, ``trans_err_m``, ``rot_err_rad``; ``s_t``, ``s_r``
 under the learned weighting), and validation also logs the loss-independent selection score
-``val/score`` (:mod:`lossvo.selection`).
+``val/score`` (:mod:`lossvo.selection`). Checkpoints also record the training data
+(:mod:`lossvo.checkpoints`).
 """
 
 from __future__ import annotations
@@ -52,6 +53,7 @@ class VOModule(L.LightningModule):
         self.loss: PoseLoss = instantiate(loss)
         self.model = instantiate(model)
         self.val_score = SelectionScore()
+        self.data: dict[str, Any] | None = None  # the training data's description, from a checkpoint
 
     def forward(self, frames: Tensor) -> Tensor:
         """Network output (B, L-1, dim) for frames (B, L, 3, H, W)."""
@@ -61,24 +63,33 @@ class VOModule(L.LightningModule):
         """Relative poses (..., 4, 4) from network outputs (..., dim)."""
         return self.loss.decode(pred)
 
-    def predict_sequence(self, frames: Any, normalize: Any, seq_len: int, **kwargs: Any) -> Any:
-        """Relative poses (N-1, 4, 4) float64 of a whole sequence of uint8 frames (N, 3, H, W); see
-        :func:`lossvo.eval.predict_sequence` (eval mode, windows as in training, LSTM reset per window)."""
-        from lossvo.eval import predict_sequence
+    # -- checkpoints ----------------------------------------------------------------------------------
 
-        return predict_sequence(self, frames, normalize, seq_len, **kwargs)
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        """Record the training data's description (``checkpoint["data"]``, see
+        :mod:`lossvo.checkpoints`) when the datamodule gives one."""
+        datamodule = getattr(self.trainer, "datamodule", None)
+        describe = getattr(datamodule, "description", None)
+        if callable(describe):
+            checkpoint["data"] = describe()
+        elif self.data is not None:
+            checkpoint["data"] = self.data
+
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        self.data = checkpoint.get("data")
 
     # -- steps ----------------------------------------------------------------------------------------
 
     def _step(self, batch: tuple[Tensor, Tensor], batch_idx: int, stage: str) -> Tensor:
-        frames, targets = batch
+        frames, targets = batch  # epoch means weight each batch by its frame pairs
         pred = self(frames)
         out = self.loss(pred, targets)
         if stage == "train":
             self._check_finite(out, pred, batch_idx)
         self.log_dict(
             {f"{stage}/{key}": value for key, value in out.items()},
-            on_step=False, on_epoch=True, batch_size=frames.shape[0], sync_dist=stage != "train",
+            on_step=False, on_epoch=True, batch_size=targets.shape[0] * targets.shape[1],
+            sync_dist=stage != "train",
         )  # fmt: skip
         if stage == "train":
             self.log("loss", out["loss"], on_step=True, on_epoch=False, prog_bar=True, logger=False)

@@ -35,7 +35,7 @@ from lightning.pytorch.callbacks import Callback, ModelCheckpoint, ProgressBar
 from lightning.pytorch.loggers import CSVLogger, Logger, WandbLogger
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from lossvo import weighting
+from lossvo import checkpoints, weighting
 from lossvo.atomic import write_text_atomic
 from lossvo.model import load_flownet
 from lossvo.module import VOModule
@@ -121,7 +121,7 @@ def build(cfg: DictConfig) -> tuple[KittiDataModule, VOModule, L.Trainer]:
     if cfg.model.get("flownet"):
         # FlowNetS weights were trained on img/255 - 0.5; the dataset statistics would not match them.
         cfg.data.normalization = "flownet"
-    datamodule = instantiate(cfg.data)
+    datamodule = instantiate(cfg.data, _convert_="all")
     # The FlowNet file initialises the encoder once, here; it is kept out of the module's
     # hyperparameters so that a checkpoint reloads without that file.
     model_cfg = _container(cfg.model)
@@ -159,6 +159,8 @@ def train(cfg: DictConfig) -> dict[str, float]:
     if cfg.get("seed") is not None:  # seed 0 is a seed
         L.seed_everything(cfg.seed, workers=True)
     datamodule, module, trainer = build(cfg)
+    if cfg.get("ckpt_path"):
+        checkpoints.check_resume(cfg.ckpt_path, module, dict(datamodule.hparams))
     resolved = _container(cfg)
     with warnings.catch_warnings():
         if not _previous_metrics(trainer):  # the job folder holds .hydra/ and train.log, nothing to delete
@@ -193,7 +195,7 @@ def evaluate_after_fit(trainer: L.Trainer, module: VOModule, datamodule: KittiDa
                  and c.best_model_path and Path(c.best_model_path).is_file()), None)  # fmt: skip
     device = trainer.strategy.root_device  # Lightning moves the module back to the CPU after fit
     if best:
-        module = VOModule.load_from_checkpoint(best, map_location="cpu", weights_only=True)
+        module = checkpoints.load_module(best)
     else:
         log.warning("no best checkpoint: evaluating the last weights")
     module = module.to(device)
@@ -235,6 +237,10 @@ def main(cfg: DictConfig) -> float | None:
     write_status(out_dir, "running")
     try:
         metrics = train(cfg)
+    except checkpoints.CheckpointError as e:  # ckpt_path is not a checkpoint this run can resume
+        write_status(out_dir, "failed", error=f"CheckpointError: {e}")
+        log.error("ckpt_path: %s", e)
+        raise SystemExit(2) from None
     except InstantiationException as e:
         if not isinstance(e.__cause__, ValueError):  # a config value a constructor refused: one line
             write_status(out_dir, "failed", error=f"{type(e).__name__}: {e}")

@@ -9,11 +9,11 @@ the batches the model receives are::
 The loaders carry frames as uint8 (a window is one copy out of the memory map) and the DataModule
 normalises them on the training device in ``on_after_batch_transfer``, Lightning's hook for this.
 
-Training windows start every ``stride`` frames; validation and test windows overlap by exactly one frame,
-so that every consecutive pair of a sequence is seen exactly once. ``prepare_data`` checks the dataset
-(one clear error naming the file) and builds the frame cache (:mod:`lossvo.data.frame_cache`) before
-anything trains. Normalisation statistics come from the training sequences only, or are FlowNet's
-``x / 255 - 0.5`` when its weights are used.
+Training windows start every ``stride`` frames; validation and test windows tile each sequence
+(:mod:`lossvo.data.windows`), so that every consecutive pair of a sequence is seen exactly once.
+``prepare_data`` checks the dataset (one clear error naming the file) and builds the frame cache
+(:mod:`lossvo.data.frame_cache`) before anything trains. Normalisation statistics come from the training
+sequences only, or are FlowNet's ``x / 255 - 0.5`` when its weights are used.
 """
 
 from __future__ import annotations
@@ -29,11 +29,11 @@ import lightning as L
 import numpy as np
 import torch
 from filelock import FileLock
-from torch.utils.data import DataLoader, Dataset, RandomSampler, Sampler
+from torch.utils.data import DataLoader, Dataset, RandomSampler, Sampler, SequentialSampler
 
 from lossvo import geometry
 from lossvo.atomic import write_text_atomic
-from lossvo.data import frame_cache, routes, synthetic
+from lossvo.data import frame_cache, routes, synthetic, windows
 from lossvo.data.kitti import Sequence, find_root, load_sequence, relative_targets
 
 PAPER_TRAIN = ("00", "02", "03", "04", "05", "06", "08")
@@ -60,49 +60,84 @@ def _names(value: str | int | Seq[str | int], key: str) -> tuple[str, ...]:
     return tuple(names)
 
 
-class WindowDataset(Dataset):
-    """Windows of cached frames with their relative-pose targets, at one or more frame steps.
+def _statistics(value: Mapping[str, Seq[float]] | None) -> tuple[np.ndarray, np.ndarray] | None:
+    """(mean (3,), std (3,)) from ``{"mean": [3], "std": [3]}``; one line naming the problem otherwise."""
+    if value is None:
+        return None
+    try:
+        mean, std = (np.asarray(value[key], dtype=np.float64) for key in ("mean", "std"))
+    except (KeyError, TypeError, ValueError):
+        mean = std = np.zeros(0)
+    if mean.shape != (3,) or std.shape != (3,) or not np.all(std > 0) or not np.isfinite(mean).all():
+        raise ValueError(
+            f"data.statistics: expected {{mean: [3 floats], std: [3 floats > 0]}}, got {value!r}"
+        )
+    return mean, std
 
-    Items are ``(frames (seq_len, 3, H, W) uint8, targets (seq_len - 1, 4, 4) float32)``: a window
-    costs one memory copy. A window at step s takes every s-th frame, and its targets are the relative
-    poses between those frames, ``inv(T_w_k) @ T_w_{k+s}`` computed from the poses in float64 (so s = 2
-    doubles the speeds and rotations the network sees). Conversion to float, normalisation and
-    augmentation happen per batch on the training device (:meth:`KittiDataModule.on_after_batch_transfer`),
-    which also moves 4x fewer bytes to the GPU. The memory maps are opened lazily in each process (a
-    pickled memmap would be copied whole into every DataLoader worker).
+
+def _primitive(value: Any) -> Any:
+    """A config value as plain Python (lists, dicts, scalars): what a checkpoint may hold."""
+    if isinstance(value, Mapping):
+        return {str(k): _primitive(v) for k, v in value.items()}
+    if isinstance(value, Seq) and not isinstance(value, str):
+        return [_primitive(v) for v in value]
+    return value
+
+
+class WindowDataset(Dataset):
+    """Windows of cached frames with their relative-pose targets.
+
+    Items are ``(frames (L, 3, H, W) uint8, targets (L - 1, 4, 4) float32)``: a window costs one memory
+    copy. Training windows (:func:`lossvo.data.windows.training_starts`) have ``seq_len`` frames, start
+    every ``stride`` frames and exist at each frame step s of ``steps``: every s-th frame, with targets
+    ``inv(T_w_k) @ T_w_{k+s}`` computed from the poses in float64 (s = 2 doubles the speeds and rotations
+    the network sees). Tiled windows (``tiled=True``, validation and test) follow
+    :func:`lossvo.data.windows.tile`: every consecutive pair exactly once, the last window of a sequence
+    possibly shorter. Conversion to float, normalisation and augmentation happen per batch on the training
+    device (:meth:`KittiDataModule.on_after_batch_transfer`), which also moves 4x fewer bytes to the GPU.
+    The memory maps are opened lazily in each process (a pickled memmap would be copied whole into every
+    DataLoader worker).
 
     Args:
         cache_files: one cached frame array per sequence; poses: (N_i, 4, 4) T_w_c per sequence.
-        seq_len: frames per window; stride: frames between window starts; steps: frame steps (1: consecutive).
+        seq_len: frames per window; stride: frames between training window starts; steps: frame steps of
+            the training windows (1: consecutive); tiled: tile the sequences instead (stride, steps unused).
     """
 
     def __init__(
-        self, cache_files: list[Path], poses: list[np.ndarray], seq_len: int, stride: int,
-        steps: Seq[int] = (1,),
+        self, cache_files: list[Path], poses: list[np.ndarray], seq_len: int, stride: int = 1,
+        steps: Seq[int] = (1,), tiled: bool = False,
     ) -> None:  # fmt: skip
         self.cache_files = cache_files
         self.seq_len = seq_len
+        steps = (1,) if tiled else tuple(steps)
         self.targets = {
             s: [torch.from_numpy(relative_targets(p, s).astype(np.float32)) for p in poses] for s in steps
         }
         lengths = [len(p) for p in poses]
-        self.index = np.concatenate([self._windows(lengths, seq_len, stride, s) for s in steps])
+        rows = [self._tiles(i, n, seq_len) if tiled else self._training(i, n, seq_len, stride, s)
+                for s in steps for i, n in enumerate(lengths) if n >= 2]  # fmt: skip
+        self.index = np.concatenate(rows) if rows else np.zeros((0, 4), dtype=np.int64)
         self._frames: list[np.ndarray] | None = None
 
     @staticmethod
-    def _windows(lengths: list[int], seq_len: int, stride: int, step: int = 1) -> np.ndarray:
-        """(M, 3) (sequence, start frame, step) of every window. With stride = seq_len - 1 (evaluation)
-        a last, overlapping window is added where needed, so every pair of a sequence is covered."""
-        span = step * (seq_len - 1) + 1
-        rows = []
-        for i, n in enumerate(lengths):
-            if n < span:
-                continue
-            starts = np.arange(0, n - span + 1, stride)
-            if starts[-1] != n - span and stride == seq_len - 1:
-                starts = np.append(starts, n - span)
-            rows.append(np.stack((np.full_like(starts, i), starts, np.full_like(starts, step)), axis=1))
-        return np.concatenate(rows) if rows else np.zeros((0, 3), dtype=np.int64)
+    def _training(seq: int, n: int, seq_len: int, stride: int, step: int) -> np.ndarray:
+        """(M, 4) rows (sequence, start, stop, step) of a sequence's training windows at one step."""
+        starts = windows.training_starts(n, seq_len, stride, step)
+        stops = starts + step * (seq_len - 1) + 1
+        return np.stack((np.full_like(starts, seq), starts, stops, np.full_like(starts, step)), axis=1)
+
+    @staticmethod
+    def _tiles(seq: int, n: int, seq_len: int) -> np.ndarray:
+        """(M, 4) rows (sequence, start, stop, 1) of the windows tiling a sequence."""
+        ranges = windows.tile(n, seq_len)
+        ones = np.ones(len(ranges), dtype=np.int64)
+        return np.stack((seq * ones, ranges[:, 0], ranges[:, 1], ones), axis=1)
+
+    @property
+    def lengths(self) -> np.ndarray:
+        """(M,) frames of each window."""
+        return (self.index[:, 2] - self.index[:, 1] - 1) // self.index[:, 3] + 1
 
     def __getstate__(self) -> dict:
         return {**self.__dict__, "_frames": None}
@@ -117,10 +152,9 @@ class WindowDataset(Dataset):
         return len(self.index)
 
     def __getitem__(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
-        seq, start, step = (int(v) for v in self.index[i])
-        end = start + step * (self.seq_len - 1) + 1
-        window = torch.from_numpy(np.array(self.frames[seq][start:end:step]))  # one copy
-        return window, self.targets[step][seq][start : end - 1 : step]
+        seq, start, stop, step = (int(v) for v in self.index[i])
+        window = torch.from_numpy(np.array(self.frames[seq][start:stop:step]))  # one copy
+        return window, self.targets[step][seq][start : stop - 1 : step]
 
 
 def reverse_windows(
@@ -176,6 +210,12 @@ class KittiDataModule(L.LightningDataModule):
         frame_steps: frame steps of the training windows, e.g. ``[1, 2]``: every window start at each
             step (every s-th frame, targets recomputed from the poses), so larger steps add faster motion.
             Validation and evaluation always use consecutive frames.
+        statistics: ``{"mean": [3], "std": [3]}`` per channel of ``x / 255``: the normalisation of a
+            trained network (its checkpoint's), used instead of computing it from the training split,
+            which may then be empty (evaluation on data that holds only test sequences).
+
+    :meth:`description` records the arguments, the dataset root and the normalisation statistics: a
+    checkpoint stores it (:mod:`lossvo.checkpoints`), so that evaluation needs nothing else.
     """
 
     def __init__(
@@ -198,8 +238,10 @@ class KittiDataModule(L.LightningDataModule):
         pin_memory: bool = False,
         windows_per_epoch: int | None = None,
         frame_steps: Seq[int] = (1,),
+        statistics: Mapping[str, Seq[float]] | None = None,
     ) -> None:
         super().__init__()
+        self.save_hyperparameters(logger=False)
         self.root = Path(root).expanduser()
         self.splits = {
             "train": _names(train, "train"),
@@ -216,7 +258,8 @@ class KittiDataModule(L.LightningDataModule):
             raise ValueError(f"data.stride: expected an integer >= 1, got {stride!r}")
         if normalization not in NORMALIZATIONS:
             raise ValueError(f"data.normalization: expected one of {NORMALIZATIONS}, got {normalization!r}")
-        if not self.splits["train"]:
+        self.statistics = _statistics(statistics)
+        if not self.splits["train"] and self.statistics is None:
             raise ValueError("data.train: expected at least one training sequence")
         self.height, self.width, self.seq_len, self.stride = height, width, seq_len, stride
         self.batch_size, self.num_workers, self.pin_memory = batch_size, num_workers, pin_memory
@@ -285,7 +328,10 @@ class KittiDataModule(L.LightningDataModule):
         return folder / f"stats-{key}.json"
 
     def _stats(self, folder: Path, frames: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        """Per-channel mean/std of the training sequences (cached with the frames), or FlowNet's."""
+        """Per-channel mean/std: given (``statistics``), FlowNet's, or of the training sequences (cached
+        with the frames)."""
+        if self.statistics is not None:
+            return self.statistics
         if self.normalization == "flownet":
             return np.full(3, 0.5), np.ones(3)  # (x/255 - 0.5) / 1
         path = self._stats_path(folder)
@@ -315,16 +361,32 @@ class KittiDataModule(L.LightningDataModule):
         }
         self.mean, self.std = self._stats(folder, frames)
         for split, names in self.splits.items():
-            stride = self.stride if split == "train" else self.seq_len - 1
             labelled = [(n, p) for n in names if (p := self.sequences[n].poses) is not None]  # labelled ones
             self.datasets[split] = WindowDataset(
                 [frame_cache.files(folder, n)[0] for n, _ in labelled], [p for _, p in labelled],
-                self.seq_len, stride, self.frame_steps if split == "train" else (1,),
+                self.seq_len, self.stride, self.frame_steps, tiled=split != "train",
             )  # fmt: skip
-        if len(self.datasets["train"]) == 0:
+        if len(self.datasets["train"]) == 0 and self.splits["train"]:
             shortest = min(len(self.sequences[n].images) for n in self.splits["train"])
             raise ValueError(f"data.seq_len: {self.seq_len} frames is longer than every training sequence "
                              f"(shortest: {shortest} frames)")  # fmt: skip
+
+    def description(self) -> dict[str, Any]:
+        """What a network trained on this data depends on, as primitives (a checkpoint's ``data``):
+        ``_target_`` (this class) and the constructor's arguments, ``root`` absolute, and
+        ``statistics`` ``{"mean": [3], "std": [3]}`` (after :meth:`setup`; None before)."""
+        config = {key: _primitive(value) for key, value in self.hparams.items()}
+        if config.get("root") is not None:
+            config["root"] = str(Path(config["root"]).expanduser().resolve())
+        stats = None if self.mean is None or self.std is None else {
+            "mean": [float(v) for v in self.mean], "std": [float(v) for v in self.std]
+        }  # fmt: skip
+        target = f"{type(self).__module__}.{type(self).__qualname__}"
+        return {"_target_": target, **config, "statistics": stats, "dataset_root": str(self.dataset_root())}
+
+    def dataset_root(self) -> Path:
+        """The absolute folder holding ``sequences/`` and ``poses/``."""
+        return find_root(self.root).resolve()
 
     # -- loaders --------------------------------------------------------------------------------------
 
@@ -333,6 +395,15 @@ class KittiDataModule(L.LightningDataModule):
             self.datasets[split], batch_size=self.batch_size, sampler=sampler, num_workers=self.num_workers,
             pin_memory=self.pin_memory, persistent_workers=self.num_workers > 0,
         )  # fmt: skip
+
+    def _tiled_loader(self, split: str) -> DataLoader:
+        """Validation or test windows in order, batched by length (a sequence's last may be shorter)."""
+        dataset = self.datasets[split]
+        batches = windows.SameLengthBatches(
+            SequentialSampler(dataset), self.batch_size, lengths=dataset.lengths.tolist()
+        )
+        return DataLoader(dataset, batch_sampler=batches, num_workers=self.num_workers,
+                          pin_memory=self.pin_memory, persistent_workers=self.num_workers > 0)  # fmt: skip
 
     def train_dataloader(self) -> DataLoader:
         """Shuffled training windows; with ``windows_per_epoch``, a fresh random subset every epoch.
@@ -346,10 +417,10 @@ class KittiDataModule(L.LightningDataModule):
         return self._loader("train", RandomSampler(dataset, num_samples=count, generator=order))
 
     def val_dataloader(self) -> DataLoader:
-        return self._loader("val")
+        return self._tiled_loader("val")
 
     def test_dataloader(self) -> DataLoader:
-        return self._loader("test")
+        return self._tiled_loader("test")
 
     # -- whole sequences (evaluation) -----------------------------------------------------------------
 

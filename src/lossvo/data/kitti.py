@@ -176,8 +176,14 @@ def write_poses(path: str | os.PathLike, poses: np.ndarray | torch.Tensor) -> No
     poses = np.asarray(poses.detach().cpu() if isinstance(poses, torch.Tensor) else poses, dtype=np.float64)
     if poses.ndim != 3 or poses.shape[1:] not in ((4, 4), (3, 4)):
         raise ValueError(f"poses must have shape (N, 4, 4) or (N, 3, 4), got {poses.shape}")
-    text = "\n".join(" ".join(f"{v:.9e}" for v in row) for row in poses[:, :3, :].reshape(-1, 12))
-    write_text_atomic(Path(path), text + "\n")
+    write_text_atomic(Path(path), poses_text(poses))
+
+
+def poses_text(poses: np.ndarray) -> str:
+    """A KITTI pose file's text for (N, 4, 4) or (N, 3, 4) float64 poses: the row-major 3x4 [R | t] of
+    each, one a line, with 17 significant digits (a float64 reads back exactly)."""
+    rows = np.asarray(poses, dtype=np.float64)[:, :3, :].reshape(-1, 12)
+    return "".join(" ".join(f"{v:.16e}" for v in row) + "\n" for row in rows)
 
 
 def relative_targets(poses: np.ndarray, step: int = 1) -> np.ndarray:

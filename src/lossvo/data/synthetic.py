@@ -55,8 +55,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from lossvo.atomic import write_text_atomic
 from lossvo.console import OneLineParser
-from lossvo.data import routes
+from lossvo.data import kitti, routes
 
 # --------------------------------------------------------------------------------------------------
 # Parameters
@@ -139,11 +140,6 @@ def calib_text(K: np.ndarray) -> str:
 def times_text(n_frames: int) -> str:
     """KITTI times.txt content: one timestamp in seconds a line, FRAME_RATE Hz, starting at 0."""
     return "".join(f"{k / FRAME_RATE:e}\n" for k in range(n_frames))
-
-
-def poses_text(poses: np.ndarray) -> str:
-    """KITTI poses file content for poses (N, 4, 4): the row-major 3x4 [R | t] of each, one a line."""
-    return "".join(" ".join(f"{v:.9e}" for v in T[:3].ravel()) + "\n" for T in poses)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -848,13 +844,6 @@ if hasattr(cv2, "IMWRITE_PNG_FILTER"):  # OpenCV >= 4.10: one fixed filter is 1.
     PNG_PARAMS += [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_PAETH]
 
 
-def _write_text(path: Path, text: str) -> None:
-    """Write text to path via a temporary file and an atomic rename."""
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def _streams(sequence: str, seed: int) -> list[np.random.SeedSequence]:
     """Independent seed streams of one sequence: route, world, sensor noise."""
     return np.random.SeedSequence([seed, int(sequence)]).spawn(3)
@@ -892,7 +881,7 @@ def render_sequence(
         path = folder / sequence / "image_2" / f"{k:06d}.png"
         if not cv2.imwrite(str(path), renderer.render(T, noise), PNG_PARAMS):
             raise OSError(f"could not write {path}")
-    (folder / f"{sequence}.txt").write_text(poses_text(poses))
+    kitti.write_poses(folder / f"{sequence}.txt", poses)
 
 
 def write_sequence(
@@ -1019,7 +1008,7 @@ def generate(
     (out / MANIFEST).unlink(missing_ok=True)
     _render_all(out, counts, height, width, seed, progress, workers, spec)
     manifest = {**header, "frames": dict(sorted({**kept, **counts}.items()))}
-    _write_text(out / MANIFEST, json.dumps(manifest, indent=2) + "\n")
+    write_text_atomic(out / MANIFEST, json.dumps(manifest, indent=2) + "\n")
     return out
 
 

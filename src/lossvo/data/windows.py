@@ -1,0 +1,77 @@
+"""How sequences are cut into windows of frames: the one rule for validation, testing and whole-sequence
+inference (:func:`tile`), the training windows (:func:`training_starts`), and batches of windows of one
+length (:class:`SameLengthBatches`).
+
+A window of ``L`` frames holds ``L - 1`` consecutive frame pairs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+
+import numpy as np
+from torch.utils.data import BatchSampler, Sampler
+
+
+def tile(n_frames: int, seq_len: int) -> np.ndarray:
+    """Windows covering every consecutive frame pair of a sequence exactly once.
+
+    Windows of ``seq_len`` frames overlap by one frame (starts 0, seq_len-1, 2 (seq_len-1), ...); the last
+    one is shorter where needed (at least 2 frames).
+
+    Args:
+        n_frames: frames in the sequence (>= 2); seq_len: frames per window (>= 2).
+    Returns:
+        (M, 2) int64 ``[start, stop)`` frame ranges, in order.
+    """
+    if n_frames < 2:
+        raise ValueError(f"a sequence needs at least 2 frames for one relative pose, got {n_frames}")
+    if seq_len < 2:
+        raise ValueError(f"seq_len must be >= 2 frames, got {seq_len}")
+    starts = np.arange(0, n_frames - 1, seq_len - 1, dtype=np.int64)
+    return np.stack((starts, np.minimum(starts + seq_len, n_frames)), axis=1)
+
+
+def training_starts(n_frames: int, seq_len: int, stride: int, step: int = 1) -> np.ndarray:
+    """First frames of the full training windows of a sequence: every ``stride`` frames, each window
+    taking every ``step``-th frame (it spans ``step (seq_len - 1) + 1`` frames).
+
+    Returns:
+        (M,) int64 start frames (empty when the sequence is shorter than one window).
+    """
+    span = step * (seq_len - 1) + 1
+    return np.arange(0, max(n_frames - span + 1, 0), stride, dtype=np.int64)
+
+
+class SameLengthBatches(BatchSampler):
+    """Batches of at most ``batch_size`` windows of one length, in the order of ``sampler``: the
+    windows of :func:`tile` are all ``seq_len`` frames but a sequence's last, so they cannot all be
+    stacked into one tensor.
+
+    Args:
+        sampler: indices of the windows (e.g. a ``SequentialSampler``; Lightning swaps in a
+            ``DistributedSampler`` under DDP). batch_size: windows per batch. drop_last: as BatchSampler.
+        lengths: frames of each window, by index.
+    """
+
+    def __init__(
+        self, sampler: Sampler[int], batch_size: int, drop_last: bool = False, lengths: Sequence[int] = ()
+    ) -> None:
+        super().__init__(sampler, batch_size, drop_last)
+        self.lengths = list(lengths)
+
+    def __iter__(self) -> Iterator[list[int]]:
+        open_batches: dict[int, list[int]] = {}
+        for index in self.sampler:
+            batch = open_batches.setdefault(self.lengths[index], [])
+            batch.append(index)
+            if len(batch) == self.batch_size:
+                yield batch
+                open_batches[self.lengths[index]] = []
+        if not self.drop_last:
+            yield from (batch for batch in open_batches.values() if batch)
+
+    def __len__(self) -> int:
+        counts = np.bincount([self.lengths[i] for i in self.sampler]) if self.lengths else np.zeros(0)
+        full, rest = np.divmod(counts, self.batch_size)
+        return int(full.sum() + (0 if self.drop_last else np.count_nonzero(rest)))

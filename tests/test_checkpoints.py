@@ -1,0 +1,183 @@
+"""Checkpoints as the contract: evaluation from the checkpoint alone, on other data, refused overrides and
+resumes, foreign files."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from lossvo import checkpoints, train
+from test_train import compose_train, tiny_overrides
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def sweep_job(run_tiny_sweep, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A one-job sweep (euler) on the tiny dataset: the job folder, named as Hydra's sweep names it."""
+    base = tmp_path_factory.mktemp("contract")
+    result = run_tiny_sweep(base, base / "sweep", ["loss=euler"])
+    assert result.returncode == 0, result.stderr[-3000:]
+    (job,) = [p for p in (base / "sweep").iterdir() if p.is_dir()]
+    return job
+
+
+def _eval_main(args: list[str], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture) -> tuple:
+    """``python -m lossvo.eval ARGS`` in process: (exit status, stderr)."""
+    from hydra.core.global_hydra import GlobalHydra
+
+    from lossvo import eval as lossvo_eval
+
+    monkeypatch.setattr(sys, "argv", ["lossvo.eval", *args])
+    status = 0
+    try:
+        lossvo_eval.main()
+    except SystemExit as e:
+        status = e.code
+    finally:
+        GlobalHydra.instance().clear()
+    return status, capsys.readouterr().err
+
+
+def _env(cache: Path) -> dict[str, str]:
+    return {**os.environ, "PYTHONPATH": str(REPO / "src"), "LOSSVO_CACHE": str(cache)}
+
+
+def _ape(result: dict, name: str) -> float:
+    return result["sequences"][name]["ape"]["trans"]["rmse"]
+
+
+def test_checkpoint_records_its_data(sweep_job: Path) -> None:
+    content = checkpoints.read(sweep_job / "checkpoints" / "best.ckpt")
+    data = content["data"]
+    assert data["_target_"] == "lossvo.data.datamodule.KittiDataModule"
+    assert (data["height"], data["width"], data["seq_len"], data["normalization"]) == (64, 96, 3, "dataset")
+    assert data["train"] == ["00", "01"] and len(data["statistics"]["mean"]) == 3
+    assert all(s > 0 for s in data["statistics"]["std"])
+
+
+def test_eval_needs_only_the_checkpoint_path(sweep_job: Path, tmp_path: Path) -> None:
+    ckpt = sweep_job / "checkpoints" / "best.ckpt"  # copied from the sweep folder, unquoted
+    command = [sys.executable, "-m", "lossvo.eval", f"ckpt_path={ckpt}"]
+    proc = subprocess.run(command, cwd=tmp_path, env=_env(tmp_path / "cache"), capture_output=True,
+                          text=True, timeout=300)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    (results,) = (tmp_path / "outputs" / "eval").glob("*/results.json")
+    result, trained = json.loads(results.read_text()), json.loads((sweep_job / "results.json").read_text())
+    assert list(result["sequences"]) == ["02"]
+    assert _ape(result, "02") == pytest.approx(_ape(trained, "02"), rel=1e-9)
+    assert result["data"]["seq_len"] == 3 and result["data"]["train"] == ["00", "01"]
+
+
+def test_eval_on_a_root_holding_only_test_sequences(
+    sweep_job: Path, tiny_kitti: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    other = tmp_path / "other"
+    shutil.copytree(tiny_kitti / "sequences" / "02", other / "sequences" / "02")
+    (other / "poses").mkdir()
+    shutil.copy(tiny_kitti / "poses" / "02.txt", other / "poses" / "02.txt")
+    out = tmp_path / "eval"
+    monkeypatch.setenv("LOSSVO_CACHE", str(tmp_path / "cache"))
+    status, err = _eval_main([f"ckpt_path={sweep_job / 'checkpoints' / 'best.ckpt'}", "data=kitti",
+                              f"data.root={other}", "data.test=[02]", "device=cpu", f"hydra.run.dir={out}"],
+                             monkeypatch, capsys)  # fmt: skip
+    assert status == 0, err
+    result = json.loads((out / "results.json").read_text())
+    trained = json.loads((sweep_job / "results.json").read_text())
+    assert (
+        result["data"]["root"] == str(other.resolve()) and result["data"]["mean"] == trained["data"]["mean"]
+    )
+    assert _ape(result, "02") == pytest.approx(_ape(trained, "02"), rel=1e-9)  # the training normalisation
+
+
+@pytest.mark.parametrize(("override", "given", "recorded"), [("data.seq_len=4", "4", "3"),
+                                                              ("data.height=32", "32", "64")])  # fmt: skip
+def test_contradicting_override_names_both_values(
+    sweep_job: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys, override: str, given: str,
+    recorded: str,
+) -> None:  # fmt: skip
+    key = override.split("=")[0]
+    status, err = _eval_main([f"ckpt_path={sweep_job / 'checkpoints' / 'best.ckpt'}", override,
+                              f"hydra.run.dir={tmp_path / 'eval'}"], monkeypatch, capsys)  # fmt: skip
+    assert status == 2 and len(err.strip().splitlines()) == 1
+    assert f"{key}={given}" in err and f"{key}={recorded}" in err
+
+
+def _resume_cfg(job: Path, tiny_kitti: Path, tmp_path: Path, *extra: str):
+    overrides = [*tiny_overrides(tiny_kitti, tmp_path / "cache"), "trainer.max_epochs=2",
+                 f"ckpt_path={job / 'checkpoints' / 'last.ckpt'}", *extra]  # fmt: skip
+    return compose_train(overrides, tmp_path / "run")
+
+
+def test_resume_refuses_another_loss(sweep_job: Path, tiny_kitti: Path, tmp_path: Path) -> None:
+    cfg = _resume_cfg(sweep_job, tiny_kitti, tmp_path, "loss=chordal")  # the same head size as euler
+    with pytest.raises(checkpoints.CheckpointError, match=r"EulerLoss.*ChordalLoss"):
+        train.train(cfg)
+
+
+def test_resume_refuses_another_network_shape(sweep_job: Path, tiny_kitti: Path, tmp_path: Path) -> None:
+    cfg = _resume_cfg(sweep_job, tiny_kitti, tmp_path, "loss=euler", "model.hidden_size=24")
+    with pytest.raises(
+        checkpoints.CheckpointError, match=r"has shape \(6, 16\), this run's network \(6, 24\)"
+    ):
+        train.train(cfg)
+
+
+def test_resume_refuses_another_frame_size(sweep_job: Path, tiny_kitti: Path, tmp_path: Path) -> None:
+    cfg = _resume_cfg(sweep_job, tiny_kitti, tmp_path, "loss=euler", "data.seq_len=4")
+    with pytest.raises(checkpoints.CheckpointError, match=r"data\.seq_len=3, this run has data\.seq_len=4"):
+        train.train(cfg)
+
+
+def test_train_with_a_file_that_is_no_checkpoint_is_one_line(tiny_kitti: Path, tmp_path: Path) -> None:
+    text = tmp_path / "notes.txt"
+    text.write_text("epoch 3 looked good\n")
+    args = [
+        *tiny_overrides(tiny_kitti, tmp_path / "cache"),
+        f"ckpt_path={text}",
+        f"hydra.run.dir={tmp_path / 'r'}",
+    ]
+    proc = subprocess.run([sys.executable, "-m", "lossvo.train", *args], cwd=tmp_path, env=_env(tmp_path),
+                          capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    lines = [line for line in (proc.stdout + proc.stderr).splitlines() if "error" in line.lower()]
+    assert len(lines) == 1 and f"{text}: cannot load as a lossvo checkpoint" in lines[0]
+    assert "Traceback" not in proc.stderr
+    assert json.loads((tmp_path / "r" / "status.json").read_text())["status"] == "failed"
+
+
+RECORDED = {"_target_": "lossvo.data.datamodule.SyntheticDataModule", "root": None, "train": ["00"],
+            "val": ["07"], "test": ["07"], "height": 64, "width": 208, "seq_len": 6,
+            "normalization": "flownet", "statistics": {"mean": [0.5] * 3, "std": [1.0] * 3},
+            "dataset_root": "/data/synthetic"}  # fmt: skip
+
+
+def test_evaluation_data_takes_the_network_s_settings() -> None:
+    recorded = checkpoints.evaluation_data(RECORDED, None, {"test": ["09"]})
+    assert recorded["_target_"] == RECORDED["_target_"] and recorded["test"] == ["09"]
+    assert (recorded["train"], recorded["val"], recorded["statistics"]) == ([], [], RECORDED["statistics"])
+    assert "dataset_root" not in recorded
+    kitti = {"_target_": "lossvo.data.datamodule.KittiDataModule", "root": "/kitti", "height": 184,
+             "width": 608, "seq_len": 7, "normalization": "dataset", "test": ["10"]}  # fmt: skip
+    chosen = checkpoints.evaluation_data(RECORDED, kitti, {"root": "/kitti"})
+    assert chosen["_target_"] == kitti["_target_"] and chosen["root"] == "/kitti"
+    assert (chosen["height"], chosen["width"], chosen["seq_len"]) == (64, 208, 6)
+    assert chosen["normalization"] == "flownet"  # a FlowNet-initialised network keeps its input range
+    with pytest.raises(checkpoints.CheckpointError, match=r"data\.normalization='dataset'.*'flownet'"):
+        checkpoints.evaluation_data(RECORDED, kitti, {"normalization": "dataset"})
+
+
+def test_foreign_files_are_one_line(tmp_path: Path) -> None:
+    other = tmp_path / "other.ckpt"
+    torch.save({"state_dict": {}, "epoch": 3}, other)  # a Lightning-like checkpoint of something else
+    with pytest.raises(checkpoints.CheckpointError, match="no lossvo network"):
+        checkpoints.read(other)
+    with pytest.raises(checkpoints.CheckpointError, match="checkpoint not found"):
+        checkpoints.read(tmp_path / "missing.ckpt")
