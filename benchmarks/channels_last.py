@@ -17,7 +17,7 @@ import time
 import torch
 
 from lossvo.losses import ChordalLoss
-from lossvo.model import DeepVO
+from lossvo.models import DeepVO
 
 
 def side(channels_last: bool, args: argparse.Namespace) -> tuple[DeepVO, torch.optim.Optimizer]:

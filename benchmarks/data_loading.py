@@ -20,7 +20,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from lossvo.data import synthetic
-from lossvo.data.datamodule import KittiDataModule
+from lossvo.data.datamodules import KittiDataModule
 
 
 class PngWindows(Dataset):

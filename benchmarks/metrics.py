@@ -18,7 +18,8 @@ import torch
 from evo.core import metrics as evo_metrics
 from evo.core.trajectory import PosePath3D
 
-from lossvo import geometry, metrics
+from lossvo import geometry
+from lossvo.evaluation import metrics
 
 RELATIONS = (evo_metrics.PoseRelation.translation_part, evo_metrics.PoseRelation.rotation_angle_rad)
 

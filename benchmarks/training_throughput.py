@@ -20,10 +20,10 @@ from lightning.pytorch.loggers import CSVLogger
 from torch.utils.data import DataLoader, TensorDataset
 
 from lossvo import geometry as g
-from lossvo.model import DeepVO
-from lossvo.module import VOModule
+from lossvo.models import DeepVO
+from lossvo.training.module import VOModule
 
-MODEL = {"_target_": "lossvo.model.DeepVO", "out_dim": 6, "height": 64, "width": 208, "width_mult": 0.125,
+MODEL = {"_target_": "lossvo.models.DeepVO", "out_dim": 6, "height": 64, "width": 208, "width_mult": 0.125,
          "hidden_size": 128, "conv_dropout": 0.0}  # fmt: skip
 LOSS = {"_target_": "lossvo.losses.ChordalLoss"}
 OPTIMIZER = {"_target_": "torch.optim.Adam", "_partial_": True, "lr": 1e-3}

@@ -1,7 +1,7 @@
 """The axioms table: every ✓ is a hypothesis property that holds, every ✗ a counterexample found.
 
-EXPECTED is the mathematics (see lossvo.axioms' notes for the closed forms); the property tests prove
-each entry independently of lossvo.axioms' own sampling, and the last tests check that the generated
+EXPECTED is the mathematics (see lossvo.geometry.axioms' notes for the closed forms); the property tests prove
+each entry independently of lossvo.geometry.axioms' own sampling, and the last tests check that the generated
 table and the copy of it in docs/losses.md say the same.
 """
 
@@ -16,8 +16,8 @@ import torch
 from hypothesis import Phase, find, given, settings
 from hypothesis import strategies as st
 
-from lossvo import axioms
 from lossvo import geometry as g
+from lossvo.geometry import axioms
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "losses.md"
 TOL = axioms.TOLERANCE

@@ -1,6 +1,7 @@
 """The baselines on hand-written KITTI-layout sequences (noise frames, known poses): the own-mean-motion
-oracle equals an independent computation and is exact on constant-velocity motion; cache files that lack
-a baseline are recomputed."""
+oracle equals an independent computation and is exact on constant-velocity motion; the sequences and the
+training split come from the recorded data (never a datamodule); cache files that lack a baseline, or
+whose recorded data differs, are recomputed."""
 
 from __future__ import annotations
 
@@ -11,9 +12,11 @@ import numpy as np
 import pytest
 import torch
 
-from lossvo import baselines, metrics
 from lossvo.data.kitti import Calib
 from lossvo.data.kitti import Sequence as KittiSequence
+from lossvo.evaluation import metrics
+from lossvo.report import baselines
+from lossvo.report.jobs import EvaluatedData
 
 FRAMES, HEIGHT, WIDTH = 8, 64, 96
 P2 = np.array([[60.0, 0, WIDTH / 2, 0], [0, 60.0, HEIGHT / 2, 0], [0, 0, 1, 0]])
@@ -86,12 +89,23 @@ def test_own_mean_motion_is_exact_on_constant_velocity(tmp_path: Path) -> None:
         assert own.metrics["rpe"][kind]["rmse"] < 1e-6 and own.metrics["ape"][kind]["rmse"] < 1e-6
 
 
-def test_cache_files_without_a_baseline_are_recomputed(tmp_path: Path) -> None:
+def recorded_data(root: Path, train: tuple[str, ...] = ("00",)) -> EvaluatedData:
+    """A results.json data record of a KITTI-layout dataset evaluated on itself."""
+    return EvaluatedData("lossvo.data.datamodules.KittiDataModule", root, root, train, test=("01",))
+
+
+def no_datamodule(*_: object, **__: object) -> None:
+    raise AssertionError("the baselines must not instantiate a config")
+
+
+def test_cache_files_without_a_baseline_are_recomputed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr("hydra.utils.instantiate", no_datamodule)
     root = tmp_path / "kitti"
     write_sequence(root, "00", varied_poses(1), seed=2)
     write_sequence(root, "01", varied_poses(2), seed=3)
-    data = {"_target_": "lossvo.data.datamodule.KittiDataModule", "root": str(root), "train": ["00"],
-            "val": ["01"], "test": ["01"], "cache_dir": str(tmp_path / "frames")}  # fmt: skip
+    data = recorded_data(root)
     cache = tmp_path / "cache"
     first = baselines.compute_baselines(data, ["01"], cache)["01"]
     (path,) = cache.glob("*.npz")
@@ -104,3 +118,33 @@ def test_cache_files_without_a_baseline_are_recomputed(tmp_path: Path) -> None:
     np.testing.assert_allclose(again[baselines.OWN].trajectory, first[baselines.OWN].trajectory)
     third = baselines.compute_baselines(data, ["01"], cache)["01"]
     assert tuple(third) == baselines.NAMES and all(r.cached for r in third.values())
+
+
+def test_training_mean_motion_comes_from_the_recorded_training_data(tmp_path: Path) -> None:
+    train_root, root = tmp_path / "train", tmp_path / "test"
+    constant = step(0.02, 0.9, 0.03)
+    write_sequence(train_root, "00", chain([constant] * (FRAMES - 1)), seed=4)
+    write_sequence(root, "01", varied_poses(3), seed=5)
+    data = EvaluatedData(None, root, train_root, ("00",), test=("01",))
+    np.testing.assert_allclose(baselines.training_mean_motion(data), constant, atol=1e-9)
+    results = baselines.compute_baselines(data, ["01"], tmp_path / "cache")["01"]
+    gt = varied_poses(3)
+    np.testing.assert_allclose(
+        results[baselines.MEAN].trajectory, gt[0] @ chain([constant] * (FRAMES - 1)), atol=1e-9
+    )
+    with pytest.raises(ValueError, match=r"data\.train"):
+        baselines.training_mean_motion(EvaluatedData(None, root, train_root, ()))
+
+
+def test_cache_key_changes_with_the_recorded_data_and_the_training_mean(tmp_path: Path) -> None:
+    sequence = write_sequence(tmp_path / "kitti", "01", varied_poses(4), seed=6)
+    data = recorded_data(tmp_path / "kitti")
+    key = baselines.cache_key(data.identity(), sequence, np.eye(4), "none", 1)
+    assert key.startswith("01-") and key == baselines.cache_key(
+        data.identity(), sequence, np.eye(4), "none", 1
+    )
+    other_split = recorded_data(tmp_path / "kitti", ("00", "02")).identity()
+    moved = step(0.0, 1.0)
+    assert len({key, baselines.cache_key(other_split, sequence, np.eye(4), "none", 1),
+                baselines.cache_key(data.identity(), sequence, moved, "none", 1),
+                baselines.cache_key(data.identity(), sequence, np.eye(4), "se3", 1)}) == 4  # fmt: skip

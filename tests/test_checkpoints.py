@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from lossvo import checkpoints, train
+from lossvo.training import checkpoints, train
 from test_train import compose_train, tiny_overrides
 
 REPO = Path(__file__).resolve().parents[1]
@@ -33,7 +33,7 @@ def _eval_main(args: list[str], monkeypatch: pytest.MonkeyPatch, capsys: pytest.
     """``python -m lossvo.eval ARGS`` in process: (exit status, stderr)."""
     from hydra.core.global_hydra import GlobalHydra
 
-    from lossvo import eval as lossvo_eval
+    from lossvo.evaluation import eval as lossvo_eval
 
     monkeypatch.setattr(sys, "argv", ["lossvo.eval", *args])
     status = 0
@@ -57,7 +57,7 @@ def _ape(result: dict, name: str) -> float:
 def test_checkpoint_records_its_data(sweep_job: Path) -> None:
     content = checkpoints.read(sweep_job / "checkpoints" / "best.ckpt")
     data = content["data"]
-    assert data["_target_"] == "lossvo.data.datamodule.KittiDataModule"
+    assert data["_target_"] == "lossvo.data.datamodules.KittiDataModule"
     assert (data["height"], data["width"], data["seq_len"], data["normalization"]) == (64, 96, 3, "dataset")
     assert data["train"] == ["00", "01"] and len(data["statistics"]["mean"]) == 3
     assert all(s > 0 for s in data["statistics"]["std"])
@@ -153,7 +153,7 @@ def test_train_with_a_file_that_is_no_checkpoint_is_one_line(tiny_kitti: Path, t
     assert json.loads((tmp_path / "r" / "status.json").read_text())["status"] == "failed"
 
 
-RECORDED = {"_target_": "lossvo.data.datamodule.SyntheticDataModule", "root": None, "train": ["00"],
+RECORDED = {"_target_": "lossvo.data.datamodules.SyntheticDataModule", "root": None, "train": ["00"],
             "val": ["07"], "test": ["07"], "height": 64, "width": 208, "seq_len": 6,
             "normalization": "flownet", "statistics": {"mean": [0.5] * 3, "std": [1.0] * 3},
             "dataset_root": "/data/synthetic"}  # fmt: skip
@@ -164,7 +164,7 @@ def test_evaluation_data_takes_the_network_s_settings() -> None:
     assert recorded["_target_"] == RECORDED["_target_"] and recorded["test"] == ["09"]
     assert (recorded["train"], recorded["val"], recorded["statistics"]) == ([], [], RECORDED["statistics"])
     assert "dataset_root" not in recorded
-    kitti = {"_target_": "lossvo.data.datamodule.KittiDataModule", "root": "/kitti", "height": 184,
+    kitti = {"_target_": "lossvo.data.datamodules.KittiDataModule", "root": "/kitti", "height": 184,
              "width": 608, "seq_len": 7, "normalization": "dataset", "test": ["10"]}  # fmt: skip
     chosen = checkpoints.evaluation_data(RECORDED, kitti, {"root": "/kitti"})
     assert chosen["_target_"] == kitti["_target_"] and chosen["root"] == "/kitti"

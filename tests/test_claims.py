@@ -14,20 +14,12 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from lossvo import claims
-from lossvo.report import (
-    Curves,
-    Job,
-    claims_csv,
-    claims_markdown,
-    convergence,
-    job_selection,
-    job_weighting,
-    selection_warning,
-    study_claims,
-    weight_text,
-)
-from lossvo.tables import NETWORK, Column
+from lossvo.report import statistics
+from lossvo.report.claims import claims_csv, claims_markdown, study_claims
+from lossvo.report.configurations import job_selection, job_weighting, selection_warning, weight_text
+from lossvo.report.convergence import convergence
+from lossvo.report.jobs import Curves, Job, trained_sequences
+from lossvo.report.tables import NETWORK, Column
 
 LOSSES = "lossvo.losses"
 ERRORS = (("rpe", "trans"), ("rpe", "rot_rad"), ("ape", "trans"))
@@ -40,18 +32,18 @@ ERRORS = (("rpe", "trans"), ("rpe", "rot_rad"), ("ape", "trans"))
 
 def test_convergence_epoch_is_the_first_within_ten_percent_of_the_best() -> None:
     values = np.array([10.0, 5.0, 3.0, 2.1, 2.0, 2.05])  # best 2.0: within 10 % means <= 2.2
-    assert claims.convergence_epoch(np.arange(6), values) == 3
-    assert claims.convergence_epoch(np.arange(6) + 1, values) == 4  # returned in the given counting
-    assert claims.convergence_epoch(np.arange(6), values, tolerance=0.01) == 4  # <= 2.02
+    assert statistics.convergence_epoch(np.arange(6), values) == 3
+    assert statistics.convergence_epoch(np.arange(6) + 1, values) == 4  # returned in the given counting
+    assert statistics.convergence_epoch(np.arange(6), values, tolerance=0.01) == 4  # <= 2.02
 
 
 def test_convergence_epoch_boundary_nan_and_max_mode() -> None:
-    assert claims.convergence_epoch(np.arange(3), np.array([1.1, 1.5, 1.0])) == 0  # 1.1 <= 1.0 * 1.1
-    assert claims.convergence_epoch(np.arange(3), np.array([math.nan, 4.0, 1.0])) == 2
-    assert claims.convergence_epoch(np.arange(2), np.array([math.nan, math.nan])) is None
-    assert claims.convergence_epoch(np.arange(4), np.array([0.1, 0.5, 0.95, 1.0]), mode="max") == 2
+    assert statistics.convergence_epoch(np.arange(3), np.array([1.1, 1.5, 1.0])) == 0  # 1.1 <= 1.0 * 1.1
+    assert statistics.convergence_epoch(np.arange(3), np.array([math.nan, 4.0, 1.0])) == 2
+    assert statistics.convergence_epoch(np.arange(2), np.array([math.nan, math.nan])) is None
+    assert statistics.convergence_epoch(np.arange(4), np.array([0.1, 0.5, 0.95, 1.0]), mode="max") == 2
     with pytest.raises(ValueError, match="mode"):
-        claims.convergence_epoch(np.arange(2), np.ones(2), mode="lowest")
+        statistics.convergence_epoch(np.arange(2), np.ones(2), mode="lowest")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -67,49 +59,49 @@ def lower_by(offsets: np.ndarray, n: int = 10) -> tuple[np.ndarray, np.ndarray]:
 
 def test_supported_when_lower_than_every_other_with_p_below_alpha() -> None:
     x, y = lower_by(0.01 * (1 + np.arange(10)))
-    tests = [claims.paired_test("euler", x, y), claims.paired_test("quat", x, y + 0.5)]
+    tests = [statistics.paired_test("euler", x, y), statistics.paired_test("quat", x, y + 0.5)]
     assert tests[0].n == 10 and tests[0].p_value == pytest.approx(2 / 2**10)  # exact: all one sign
     assert tests[0].mean == pytest.approx(x.mean()) and tests[0].versus_mean == pytest.approx(y.mean())
-    assert claims.verdict(tests) == claims.SUPPORTED
+    assert statistics.verdict(tests) == statistics.SUPPORTED
 
 
 def test_contradicted_when_another_is_lower_with_p_below_alpha() -> None:
     x, y = lower_by(0.01 * (1 + np.arange(10)))
-    better = claims.paired_test("quat", x, y)
-    worse = claims.paired_test("euler", y, x)  # the claimed one is higher on every pair
+    better = statistics.paired_test("quat", x, y)
+    worse = statistics.paired_test("euler", y, x)  # the claimed one is higher on every pair
     assert worse.p_value == pytest.approx(2 / 2**10)
-    assert claims.verdict([better, worse]) == claims.CONTRADICTED
-    assert claims.verdict([worse]) == claims.CONTRADICTED
+    assert statistics.verdict([better, worse]) == statistics.CONTRADICTED
+    assert statistics.verdict([worse]) == statistics.CONTRADICTED
 
 
 def test_not_distinguishable_for_mixed_signs_small_n_or_no_test() -> None:
     x, y = lower_by(np.array([0.1, -0.2, 0.3, -0.4, 0.5, -0.6, 0.7, -0.8, 0.9, -0.05]))
-    mixed = claims.paired_test("quat", x, y)
+    mixed = statistics.paired_test("quat", x, y)
     assert mixed.p_value > 0.5
-    assert claims.verdict([mixed]) == claims.NOT_DISTINGUISHABLE
+    assert statistics.verdict([mixed]) == statistics.NOT_DISTINGUISHABLE
     assert (
-        claims.verdict([claims.paired_test("quat", y, x)]) == claims.NOT_DISTINGUISHABLE
+        statistics.verdict([statistics.paired_test("quat", y, x)]) == statistics.NOT_DISTINGUISHABLE
     )  # other lower, p > 0.5
-    few = claims.paired_test("euler", np.array([1.0, 2.0, 3.0]), np.array([2.0, 4.0, 6.0]))
-    assert few.claimed_lower and few.p_value == pytest.approx(0.25) == claims.smallest_p(3)
-    assert claims.verdict([few]) == claims.NOT_DISTINGUISHABLE
-    assert claims.verdict([claims.paired_test("euler", few_y := np.array([2.0, 4.0, 6.0]), few_y / 2)]) == (
-        claims.NOT_DISTINGUISHABLE
-    )  # the other is lower on all three pairs, but p = 0.25
+    few = statistics.paired_test("euler", np.array([1.0, 2.0, 3.0]), np.array([2.0, 4.0, 6.0]))
+    assert few.claimed_lower and few.p_value == pytest.approx(0.25) == statistics.smallest_p(3)
+    assert statistics.verdict([few]) == statistics.NOT_DISTINGUISHABLE
+    assert statistics.verdict(
+        [statistics.paired_test("euler", few_y := np.array([2.0, 4.0, 6.0]), few_y / 2)]
+    ) == (statistics.NOT_DISTINGUISHABLE)  # the other is lower on all three pairs, but p = 0.25
     assert (
-        claims.verdict([claims.paired_test("euler", np.array([]), np.array([]))])
-        == claims.NOT_DISTINGUISHABLE
+        statistics.verdict([statistics.paired_test("euler", np.array([]), np.array([]))])
+        == statistics.NOT_DISTINGUISHABLE
     )
-    assert claims.verdict([]) == claims.NOT_DISTINGUISHABLE
+    assert statistics.verdict([]) == statistics.NOT_DISTINGUISHABLE
 
 
 def test_smallest_p_and_combining_verdicts() -> None:
-    assert [claims.smallest_p(n) for n in (0, 1, 3, 5, 6)] == [1.0, 1.0, 0.25, 0.0625, 0.03125]
-    s, c, n = claims.SUPPORTED, claims.CONTRADICTED, claims.NOT_DISTINGUISHABLE
-    assert claims.combine([s, s]) == s
-    assert claims.combine([s, n]) == n
-    assert claims.combine([s, c, n]) == c
-    assert claims.combine([]) == n
+    assert [statistics.smallest_p(n) for n in (0, 1, 3, 5, 6)] == [1.0, 1.0, 0.25, 0.0625, 0.03125]
+    s, c, n = statistics.SUPPORTED, statistics.CONTRADICTED, statistics.NOT_DISTINGUISHABLE
+    assert statistics.combine([s, s]) == s
+    assert statistics.combine([s, n]) == n
+    assert statistics.combine([s, c, n]) == c
+    assert statistics.combine([]) == n
 
 
 # --------------------------------------------------------------------------------------------------
@@ -271,8 +263,8 @@ def chordal_step(offset: float, j: int, seed: int, alternate: bool) -> float:
 
 @pytest.mark.parametrize(
     ("offset", "alternate", "expected"),
-    [(-0.05, False, claims.SUPPORTED), (0.05, False, claims.CONTRADICTED),
-     (-0.05, True, claims.NOT_DISTINGUISHABLE)],
+    [(-0.05, False, statistics.SUPPORTED), (0.05, False, statistics.CONTRADICTED),
+     (-0.05, True, statistics.NOT_DISTINGUISHABLE)],
 )  # fmt: skip
 def test_error_claim_on_held_out_sequences_of_the_chordal_loss_class(
     offset: float, alternate: bool, expected: str
@@ -308,8 +300,8 @@ def test_convergence_claim_pairs_epochs_by_seed_and_cannot_reach_p_below_alpha_w
     _, b = study_claims(columns, items, SEQUENCES)
     (t,) = b.quantities[0].tests
     assert (t.n, t.mean, t.versus_mean) == (3, pytest.approx(7 / 3), 3.0)
-    assert t.p_value >= claims.smallest_p(3) == 0.25
-    assert b.verdict == claims.NOT_DISTINGUISHABLE
+    assert t.p_value >= statistics.smallest_p(3) == 0.25
+    assert b.verdict == statistics.NOT_DISTINGUISHABLE
     text = claims_markdown(study_claims(columns, items, SEQUENCES))
     assert "smallest two-sided p an exact Wilcoxon test can give is 0.250" in text
     assert "**Verdict: supported.**" in text and "**Verdict: not distinguishable at this n.**" in text
@@ -334,3 +326,26 @@ def test_claims_csv_has_a_row_per_test_and_one_per_claim() -> None:
                        "it converges fastest": "not distinguishable at this n"}  # fmt: skip
     epochs = next(r for r in rows if r["quantity"] == "convergence epoch")
     assert float(epochs["smallest_p"]) == 0.25 and int(epochs["n"]) == 3
+
+
+def recorded(column: Column, train: list[str], root: str = "/data/kitti") -> Column:
+    """``column`` with every job's results.json recording ``train`` as its training split."""
+    for j in column.jobs:
+        j.results = {"sequences": {}, "data": {"root": root, "train_root": "/data/kitti", "train": train}}
+    return column
+
+
+def test_held_out_sequences_come_from_the_training_split_that_results_json_records() -> None:
+    j = job("EulerLoss", data__train=["00", "01"])
+    assert trained_sequences(j) == {"00", "01"}  # no record: the config's data.train
+    j.results = {
+        "sequences": {},
+        "data": {"root": "/data/kitti", "train_root": "/data/kitti", "train": ["02"]},
+    }
+    assert trained_sequences(j) == {"02"}
+    j.results["data"]["root"] = "/data/other"  # evaluated on other data: none of it was trained on
+    assert trained_sequences(j) == set()
+    columns = [recorded(c, ["00", "02"]) for c in sweep_columns(-0.05)]
+    a, _ = study_claims(columns, convergence(columns), SEQUENCES)
+    assert a.scope == "On the sequences outside the training split: 03, 04, 05."
+    assert all(t.n == 3 * 3 for q in a.quantities for t in q.tests)

@@ -16,11 +16,14 @@ import torch
 from evo.tools import file_interface
 from torch import Tensor, nn
 
-from lossvo import geometry, metrics, train
+from lossvo import geometry
 from lossvo.data.kitti import read_poses
 from lossvo.data.windows import tile
-from lossvo.eval import evaluate_run, predict_sequence
-from lossvo.module import VOModule
+from lossvo.evaluation import metrics
+from lossvo.evaluation.inference import predict_sequence
+from lossvo.evaluation.results import evaluate_run
+from lossvo.training import train
+from lossvo.training.module import VOModule
 from test_train import compose_train, tiny_overrides
 
 REPO = Path(__file__).resolve().parents[1]
@@ -84,7 +87,7 @@ def test_predict_sequence_uses_eval_mode_and_restores_it(tiny_kitti: Path, tmp_p
     assert not stub.training
 
     module = VOModule(
-        model={"_target_": "lossvo.model.DeepVO", "out_dim": 6, "height": 64, "width": 64,
+        model={"_target_": "lossvo.models.DeepVO", "out_dim": 6, "height": 64, "width": 64,
                "width_mult": 0.0625, "hidden_size": 8, "head_dropout": 0.9, "conv_dropout": 0.5},
         loss={"_target_": "lossvo.losses.ChordalLoss"},
         optimizer={"_target_": "torch.optim.Adam", "_partial_": True},
@@ -175,7 +178,7 @@ def _eval_main(args: list[str], monkeypatch: pytest.MonkeyPatch, capsys: pytest.
     """``python -m lossvo.eval ARGS`` in process (a subprocess costs seconds of imports): (status, stderr)."""
     from hydra.core.global_hydra import GlobalHydra
 
-    from lossvo import eval as lossvo_eval
+    from lossvo.evaluation import eval as lossvo_eval
 
     monkeypatch.setattr(sys, "argv", ["lossvo.eval", *args])
     try:
@@ -233,7 +236,7 @@ def test_sequence_without_ground_truth(trained_run: Path, tiny_kitti: Path, tmp_
 def test_trajectory_validation_skips_datamodules_without_sequences() -> None:
     from types import SimpleNamespace
 
-    from lossvo.callbacks import TrajectoryValidation
+    from lossvo.training.callbacks import TrajectoryValidation
 
     class NoLog:
         def log(self, *args, **kwargs):

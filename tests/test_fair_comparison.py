@@ -19,9 +19,9 @@ from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
 from lossvo import geometry as g
-from lossvo import train
-from lossvo.module import VOModule
-from lossvo.selection import SelectionScore, selection_score
+from lossvo.training import train
+from lossvo.training.module import VOModule
+from lossvo.training.selection import SelectionScore, selection_score
 from lossvo.weighting import HomoscedasticWeighting
 from test_train import compose_train, tiny_overrides
 

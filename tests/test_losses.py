@@ -10,7 +10,7 @@ import torch
 from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
-import lossvo.train  # noqa: F401  (registers the config resolvers)
+import lossvo.training.train  # noqa: F401  (registers the config resolvers)
 from lossvo import geometry as g
 from lossvo.losses import (
     ChordalLoss,

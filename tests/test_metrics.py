@@ -17,8 +17,9 @@ from evo.core.trajectory import PosePath3D
 from evo.tools import file_interface
 
 from conftest import DEVICES
-from lossvo import geometry, metrics
+from lossvo import geometry
 from lossvo.data.kitti import read_poses
+from lossvo.evaluation import metrics
 
 MODES = ("none", "se3", "sim3", "scale")
 
@@ -110,8 +111,9 @@ def evo_ape(evo_est: PosePath3D, evo_ref: PosePath3D, mode: str) -> dict[str, di
 
 
 def evo_rpe(
-    evo_est: PosePath3D, evo_ref: PosePath3D, delta: int, mode: str = "none"
-) -> dict[str, dict[str, float]]:
+    evo_est: PosePath3D, evo_ref: PosePath3D, delta: float, mode: str = "none", unit: str = "f",
+    from_reference: bool = False,
+) -> dict[str, dict[str, float]]:  # fmt: skip
     if mode != "none":  # as evo_rpe --align / --correct_scale
         evo_est = copy.deepcopy(evo_est)
         evo_est.align(evo_ref, correct_scale=mode == "sim3", correct_only_scale=mode == "scale")
@@ -120,7 +122,9 @@ def evo_rpe(
         ("trans", evo_metrics.PoseRelation.translation_part),
         ("rot_rad", evo_metrics.PoseRelation.rotation_angle_rad),
     ):
-        rpe = evo_metrics.RPE(relation, delta=delta, delta_unit=evo_metrics.Unit.frames, all_pairs=False)
+        delta_unit = evo_metrics.Unit.frames if unit == "f" else evo_metrics.Unit.meters
+        rpe = evo_metrics.RPE(relation, delta=delta, delta_unit=delta_unit, all_pairs=False,
+                              pairs_from_reference=from_reference)  # fmt: skip
         rpe.process_data((evo_ref, evo_est))
         out[key] = evo_stats(rpe)
     return out
@@ -159,6 +163,33 @@ def test_rpe_after_alignment_equals_evo_rpe_with_align_and_correct_scale(cases, 
         assert not torch.allclose(
             metrics.rpe_errors(est, ref, 3, mode)[0], metrics.rpe_errors(est, ref, 3)[0]
         )
+
+
+@pytest.mark.parametrize("pairs_from", ["estimate", "reference"])
+@pytest.mark.parametrize("mode", ["none", "sim3"])
+def test_rpe_in_metres_equals_evo_with_pairs_from_either_path(cases, pairs_from, mode):
+    for name, est, ref, evo_est, evo_ref in cases:
+        delta = 0.15 * float(metrics.trajectory_distances(ref)[-1])  # about 6 pairs
+        trans, rot = metrics.rpe_errors(est, ref, delta, mode, delta_unit="m", pairs_from=pairs_from)
+        ours = {"trans": metrics.statistics(trans), "rot_rad": metrics.statistics(rot)}
+        rot_rtol = 1e-6 if name.endswith("7digits") else 1e-9
+        theirs = evo_rpe(evo_est, evo_ref, delta, mode, "m", pairs_from == "reference")
+        assert_stats_close(ours, theirs, rot_rtol, f"{name} {delta:.3g} m from {pairs_from}, align={mode}")
+    _, est, ref, _, _ = cases[0]
+    delta = 0.15 * float(metrics.trajectory_distances(ref)[-1])
+    by_est, by_ref = (metrics.rpe_pairs_by_path(p, delta) for p in (est, ref))
+    assert len(by_est[0]) >= 3 and not (
+        len(by_est[0]) == len(by_ref[0]) and torch.equal(by_est[0], by_ref[0])
+    ), "the two paths should pick different pairs on this case, or the test shows nothing"
+
+
+@pytest.mark.parametrize(("delta", "unit", "pairs_from", "message"), [
+    (0, "m", "estimate", "positive path distance"), (1.5, "f", "estimate", "positive integer"),
+    (1, "s", "estimate", "delta_unit"), (1, "f", "both", "pairs_from"),
+])  # fmt: skip
+def test_rpe_settings_are_checked(delta, unit, pairs_from, message):
+    with pytest.raises(ValueError, match=message):
+        metrics.RPE(delta=delta, delta_unit=unit, pairs_from=pairs_from)
 
 
 @pytest.mark.parametrize("delta", [1, 7])

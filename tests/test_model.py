@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from lossvo import losses
-from lossvo.model import DeepVO, LoadReport, load_flownet
+from lossvo.models import DeepVO, LoadReport, load_flownet
 
 SMALL = {"width_mult": 0.0625, "hidden_size": 16}
 

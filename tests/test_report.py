@@ -1,7 +1,9 @@
 """The sweep report on a real (tiny) sweep: tables equal the jobs' results.json, bold marks the minimum,
 mean ± std over seeds, baselines equal an independent computation, damaged jobs are listed, bad input;
 rotation weights and selection metrics from the job configs, convergence from metrics.csv, the claims;
-the unseen-motion marks and section on hand-written job folders.
+the unseen-motion marks and section on hand-written job folders; baselines and ground truth from the data
+that hand-written results.json record (no datamodule), and one note when it is missing; the package's
+import graph.
 
 One Hydra multirun (2 losses x 2 seeds on the tiny KITTI-layout dataset of tests/conftest.py) is trained
 once per module; every test reads it or a copy of it.
@@ -9,6 +11,7 @@ once per module; every test reads it or a copy of it.
 
 from __future__ import annotations
 
+import ast
 import csv
 import json
 import re
@@ -24,18 +27,13 @@ import torch
 import yaml
 from scipy.stats import wilcoxon
 
-from lossvo import metrics
-from lossvo.report import (
-    BaselineRun,
-    Job,
-    label_jobs,
-    main,
-    make_report,
-    parse_override,
-    read_metrics_csv,
-    varying_keys,
-)
-from lossvo.tables import BASELINE, Column
+from lossvo.evaluation import metrics
+from lossvo.report.against_baselines import BaselineRun
+from lossvo.report.cli import main
+from lossvo.report.configurations import label_jobs, varying_keys
+from lossvo.report.document import make_report
+from lossvo.report.jobs import Job, ground_truth, parse_override, read_metrics_csv
+from lossvo.report.tables import BASELINE, Column
 
 LOSSES = ("euler", "quat")
 SEEDS = (0, 1)
@@ -186,19 +184,21 @@ def scores(gt: np.ndarray, est: np.ndarray) -> dict:
     return metrics.evaluate(torch.from_numpy(gt), torch.from_numpy(est), "none", 1)
 
 
-def test_zero_and_mean_motion_baselines_equal_an_independent_computation(
-    tiny_kitti: Path, report: Path
+def check_zero_and_mean_motion(
+    report: Path, root: Path, train: tuple[str, ...], sequences: tuple[str, ...]
 ) -> None:
+    """The report's zero-motion and training-mean-motion cells equal scores computed here, with plain
+    numpy from the pose files under ``root``."""
     rows = read_table(report / "tables" / "translation.csv")
     rot_rows = read_table(report / "tables" / "rotation.csv")
-    train = [read_pose_file(tiny_kitti / "poses" / f"{n}.txt") for n in ("00", "01")]
-    steps = np.concatenate([np.linalg.inv(p[:-1]) @ p[1:] for p in train])
+    poses = [read_pose_file(root / "poses" / f"{n}.txt") for n in train]
+    steps = np.concatenate([np.linalg.inv(p[:-1]) @ p[1:] for p in poses])
     u, _, vt = np.linalg.svd(steps[:, :3, :3].mean(axis=0))
     mean_step = np.eye(4)
     mean_step[:3, :3] = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
     mean_step[:3, 3] = steps[:, :3, 3].mean(axis=0)
-    for sequence in SEQUENCES:
-        gt = read_pose_file(tiny_kitti / "poses" / f"{sequence}.txt")
+    for sequence in sequences:
+        gt = read_pose_file(root / "poses" / f"{sequence}.txt")
         standing = np.repeat(gt[:1], len(gt), axis=0)  # zero motion: the first pose forever
         chained = [gt[0]]
         for _ in range(len(gt) - 1):
@@ -211,6 +211,12 @@ def test_zero_and_mean_motion_baselines_equal_an_independent_computation(
             for header, metric in ROTATION.items():
                 got = float(rot_rows[sequence][f"{name} | {header}"])
                 assert got == pytest.approx(expected[metric[0]][metric[1]]["rmse"], rel=1e-6, abs=1e-9)
+
+
+def test_zero_and_mean_motion_baselines_equal_an_independent_computation(
+    tiny_kitti: Path, report: Path
+) -> None:
+    check_zero_and_mean_motion(report, tiny_kitti, ("00", "01"), SEQUENCES)
 
 
 def test_orb_baseline_uses_gt_scale_and_beats_standing_still(report: Path) -> None:
@@ -516,31 +522,55 @@ def entry(rpe_trans: float, rpe_rot: float) -> dict:
     }
 
 
-def write_job(sweep: Path, number: int, loss: str, data: dict, sequences: dict) -> None:
-    """A completed job folder: .hydra/{config,overrides}.yaml, status.json and results.json."""
+def data_record(root: Path, test: list[str], unseen: list[str], train: list[str] | None = None) -> dict:
+    """results.json's ``data``: a job evaluated on the KITTI-layout dataset at ``root`` that it was
+    trained on (split ``train``, default 00)."""
+    return {"kind": "lossvo.data.datamodules.KittiDataModule", "root": str(root), "test": test,
+            "unseen": unseen, "train_root": str(root), "train": train or ["00"], "height": 64, "width": 208,
+            "seq_len": 3, "normalization": "dataset", "mean": [0.4] * 3, "std": [0.2] * 3}  # fmt: skip
+
+
+def write_job(sweep: Path, number: int, loss: str, data: dict, sequences: dict, record: dict | None) -> Path:
+    """A completed job folder: .hydra/{config,overrides}.yaml, status.json and results.json, whose
+    ``data`` is ``record`` and whose sequences name their ground truth ``<root>/poses/NN.txt`` and say
+    whether they are unseen motion (an older results.json without any of these for ``record`` None)."""
     job = sweep / f"{number}_loss-{loss}+seed-0"
     (job / ".hydra").mkdir(parents=True)
     (job / ".hydra" / "config.yaml").write_text(yaml.safe_dump({"seed": 0, "data": data}))
     (job / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump([f"loss={loss}", "seed=0"]))
     (job / "status.json").write_text('{"status": "completed"}')
-    results = {"align": "none", "delta": 1, "sequences": sequences}
+    results: dict = {"align": "none", "delta": 1, "sequences": sequences}
+    if record is not None:
+        poses = Path(record["root"]) / "poses"
+        results["data"] = record
+        results["sequences"] = {
+            s: {**e, "ground_truth": str(poses / f"{s}.txt"), "unseen": s in record["unseen"]}
+            for s, e in sequences.items()
+        }
     (job / "results.json").write_text(json.dumps(results))
+    return job
 
 
-def hand_sweep(tmp_path: Path, unseen: list[str] | None) -> Path:
+def hand_sweep(tmp_path: Path, unseen: list[str] | None, recorded: bool = True) -> Path:
     """Two jobs on 07 and the unseen sequences against zero motion (RPE rot 0.05 rad) and the own mean
     motion (RPE trans 0.2 m): euler is 60 % below zero motion in rotation and 25 % below the oracle in
-    translation on both; quat is only 20 % below zero motion in rotation on 12."""
+    translation on both; quat is only 20 % below zero motion in rotation on 12. ``recorded``: the
+    unseen sequences are in results.json (and not in the config), else only in the config's
+    ``data.unseen``."""
     sweep = tmp_path / "sweep"
-    data = {"train": ["00"], "val": ["07"]} | ({} if unseen is None else {"unseen": unseen})
+    data = {"train": ["00"], "val": ["07"]}
+    if not recorded and unseen is not None:
+        data["unseen"] = unseen
+    record = data_record(tmp_path / "data", ["07", *UNSEEN], unseen or []) if recorded else None
     good = {"07": entry(0.1, 0.01), "11": entry(0.15, 0.02), "12": entry(0.15, 0.02)}
-    write_job(sweep, 0, "euler", data, good)
-    write_job(sweep, 1, "quat", data, {**good, "12": entry(0.1, 0.04)})
+    write_job(sweep, 0, "euler", data, good, record)
+    write_job(sweep, 1, "quat", data, {**good, "12": entry(0.1, 0.04)}, record)
     return sweep
 
 
 def hand_baselines(*_: object) -> BaselineRun:
-    """What :func:`lossvo.report.run_baselines` returns, with fixed numbers on 07, 11 and 12."""
+    """What :func:`lossvo.report.against_baselines.run_baselines` returns, with fixed numbers on 07, 11
+    and 12."""
     values = {"zero motion": (1.0, 0.05), "mean motion (train)": (0.3, 0.05),
               "ORB+E (GT scale)": (0.5, 0.03), "own mean motion (oracle)": (0.2, 0.04)}  # fmt: skip
     columns = [
@@ -558,11 +588,12 @@ def unseen_rows(text: str) -> dict[tuple[str, str], dict[str, str]]:
     return {(r[0], r[2]): dict(zip(header, r, strict=True)) for r in rows}
 
 
+@pytest.mark.parametrize("recorded", [True, False])
 def test_unseen_motion_section_marks_which_jobs_meet_both_criteria(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, recorded: bool
 ) -> None:
-    monkeypatch.setattr("lossvo.report.run_baselines", hand_baselines)
-    path = make_report(hand_sweep(tmp_path, list(UNSEEN)), with_figures=False)
+    monkeypatch.setattr("lossvo.report.document.run_baselines", hand_baselines)
+    path = make_report(hand_sweep(tmp_path, list(UNSEEN), recorded), with_figures=False)
     text = path.read_text()
     rows = unseen_rows(text)
     assert set(rows) == {(f"loss={loss}", s) for loss in ("euler", "quat") for s in UNSEEN}
@@ -589,9 +620,181 @@ def test_unseen_motion_section_marks_which_jobs_meet_both_criteria(
 def test_no_unseen_motion_section_without_unseen_sequences_or_baselines(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, unseen: list[str] | None, with_baselines: bool
 ) -> None:
-    monkeypatch.setattr("lossvo.report.run_baselines", hand_baselines)
+    monkeypatch.setattr("lossvo.report.document.run_baselines", hand_baselines)
     path = make_report(hand_sweep(tmp_path, unseen), with_baselines=with_baselines, with_figures=False)
     text = path.read_text()
     assert "## Unseen motion" not in text
     assert "## Against the mean motion, per job" in text or not with_baselines
     assert ("(unseen motion)" in text) == bool(unseen)  # the table marks need no baselines
+
+
+def test_unseen_marks_come_from_results_json_before_the_config(tmp_path: Path) -> None:
+    sweep = hand_sweep(tmp_path, [], recorded=True)  # results.json: no unseen-motion sequence
+    for config in sweep.glob("*/.hydra/config.yaml"):
+        config.write_text(yaml.safe_dump({"seed": 0, "data": {"train": ["00"], "unseen": list(UNSEEN)}}))
+    text = make_report(sweep, with_baselines=False, with_figures=False).read_text()
+    assert "(unseen motion)" not in text
+    for results in sweep.glob("*/results.json"):  # one sequence flagged, none listed
+        content = json.loads(results.read_text())
+        content["sequences"]["12"]["unseen"] = True
+        results.write_text(json.dumps(content))
+    _, table = markdown_rows(
+        make_report(sweep, with_baselines=False, with_figures=False).read_text(), "Table I"
+    )
+    assert set(table) == {"07", "11", "12 (unseen motion)", "mean"}
+
+
+# --------------------------------------------------------------------------------------------------
+# The report reads only job outputs: hand-written job folders on the tiny dataset, no training
+# --------------------------------------------------------------------------------------------------
+
+EVALUATED = ("01", "02")
+
+
+def forbid_datamodules(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Building a config's object (a datamodule) fails the test."""
+
+    def forbidden(*_: object, **__: object) -> None:
+        raise AssertionError("the report must read job outputs only")
+
+    monkeypatch.setattr("hydra.utils.instantiate", forbidden)
+
+
+def output_sweep(tmp_path: Path, root: Path, record: bool = True, kind: str | None = None) -> Path:
+    """Two jobs evaluated on 01 and 02 of the dataset at ``root`` (trained on 00), their trajectories
+    the ground truth shifted 0.5 m along x; results.json with its data record (of ``kind``) or, for
+    ``record`` False, without one (an older evaluation)."""
+    sweep = tmp_path / "sweep"
+    data = data_record(root, list(EVALUATED), []) | ({"kind": kind} if kind else {})
+    for number, loss in enumerate(("euler", "quat")):
+        sequences = {s: entry(0.1 + 0.01 * number, 0.01) | {"trajectory": f"trajectories/{s}.txt"}
+                     for s in EVALUATED}  # fmt: skip
+        job = write_job(
+            sweep, number, loss, {"train": ["00"], "val": ["02"]}, sequences, data if record else None
+        )
+        for s in EVALUATED:
+            if (root / "poses" / f"{s}.txt").is_file():
+                shifted = read_pose_file(root / "poses" / f"{s}.txt")
+                shifted[:, 0, 3] += 0.5
+                (job / "trajectories").mkdir(exist_ok=True)
+                np.savetxt(job / "trajectories" / f"{s}.txt", shifted[:, :3, :].reshape(-1, 12))
+    return sweep
+
+
+def test_baselines_and_ground_truth_come_from_the_data_results_json_records(
+    tiny_kitti: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    forbid_datamodules(monkeypatch)
+    path = make_report(output_sweep(tmp_path, tiny_kitti), n_jobs=1)
+    text = path.read_text()
+    check_zero_and_mean_motion(path.parent, tiny_kitti, ("00",), EVALUATED)
+    rows = read_table(path.parent / "tables" / "translation.csv")
+    assert all(float(rows[s]["ORB+E (GT scale) | RPE [m]"]) > 0 for s in EVALUATED)
+    assert "baselines skipped" not in text and "without ground truth" not in text
+    for s in EVALUATED:
+        assert f"(figures/trajectory_{s}.png)" in text
+        assert png_size(path.parent / "figures" / f"trajectory_{s}.png")[0] > 300
+
+
+@pytest.mark.parametrize("damage", ["no record", "dataset gone"])
+def test_without_the_recorded_data_the_report_renders_and_says_why_once(
+    tiny_kitti: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, damage: str
+) -> None:
+    forbid_datamodules(monkeypatch)
+    gone = tmp_path / "synthetic"
+    if damage == "no record":
+        sweep = output_sweep(tmp_path, tiny_kitti, record=False)
+    else:  # a synthetic dataset that was deleted: it must not be rendered again
+        copy = Path(shutil.copytree(tiny_kitti, gone))
+        sweep = output_sweep(tmp_path, copy, kind="lossvo.data.datamodules.SyntheticDataModule")
+        shutil.rmtree(copy)
+    path = make_report(sweep, n_jobs=1)
+    text = path.read_text()
+    reason = "records no evaluated data" if damage == "no record" else f"{gone}, no longer exists"
+    assert text.count("*Note:* baselines skipped") == 1 and reason in section(text, "Baselines")
+    assert section(text + "\n## end", "Figures").count("trajectory figures without ground truth") == 1
+    assert not gone.exists()
+    rows = read_table(path.parent / "tables" / "translation.csv")
+    assert float(rows["01"]["loss=euler | RPE [m]"]) == 0.1 and not any(
+        "zero motion" in h for h in rows["01"]
+    )
+    assert {p.name for p in (path.parent / "figures").glob("trajectory_*.png")} == {
+        f"trajectory_{s}.png" for s in EVALUATED
+    }
+
+
+def test_ground_truth_is_read_from_the_pose_file_results_json_names(tiny_kitti: Path, tmp_path: Path) -> None:
+    elsewhere = tmp_path / "elsewhere.txt"
+    shutil.copyfile(tiny_kitti / "poses" / "02.txt", elsewhere)
+    sequences = {"01": {"ground_truth": str(elsewhere)}, "02": {"ground_truth": None},
+                 "03": {"ground_truth": str(tmp_path / "missing.txt")}, "04": {}}  # fmt: skip
+    job = Job(tmp_path / "0_job", results={"sequences": sequences})
+    found, missing = ground_truth(job, ["01", "02", "03", "04"])
+    assert set(found) == {"01"} and np.array_equal(found["01"], read_pose_file(elsewhere))
+    assert set(missing) == {"02", "03", "04"}
+    assert "names no ground-truth file" in missing["02"] and "missing.txt" in missing["03"]
+
+
+# --------------------------------------------------------------------------------------------------
+# The package: no import cycles, no datamodule
+# --------------------------------------------------------------------------------------------------
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(SRC).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imported(path: Path, modules: set[str]) -> set[str]:
+    """The lossvo modules a source file imports anywhere (inside functions and ``if TYPE_CHECKING:``
+    too); ``from package import name`` counts as the submodule where ``name`` is one."""
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            subs = {f"{node.module}.{alias.name}" for alias in node.names}
+            out |= (subs & modules) or {node.module}
+    return {name for name in out if name in modules}
+
+
+def import_graph() -> dict[str, set[str]]:
+    files = {module_name(p): p for p in (SRC / "lossvo").rglob("*.py")}
+    return {name: imported(path, set(files)) - {name} for name, path in files.items()}
+
+
+def reaches(graph: dict[str, set[str]], start: str, goal: str) -> bool:
+    seen, todo = set(), list(graph[start])
+    while todo:
+        name = todo.pop()
+        if name == goal:
+            return True
+        if name not in seen:
+            seen.add(name)
+            todo.extend(graph.get(name, ()))
+    return False
+
+
+def test_the_report_package_has_no_import_cycle_and_the_plot_no_report_import() -> None:
+    graph = import_graph()
+    ours = [m for m in graph if m.startswith(("lossvo.report", "lossvo.evaluation"))]
+    assert "lossvo.report.jobs" in ours and "lossvo.evaluation.plots" in ours
+    cycles = [(m, d) for m in ours for d in graph[m] if reaches(graph, d, m)]
+    assert not cycles
+    assert not any(m.startswith("lossvo.report") for m in graph["lossvo.evaluation.plots"])
+    assert {"lossvo.report.tables", "lossvo.report.figures"} <= {
+        m for m in graph if "lossvo.report.jobs" in graph[m]
+    }
+
+
+def test_the_report_builds_no_datamodule() -> None:
+    for path in (SRC / "lossvo" / "report").glob("*.py"):
+        tree = ast.parse(path.read_text())
+        names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)}
+        names |= {n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute)}
+        names |= {a.name for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) for a in n.names}
+        data = {m for m in imported(path, set(import_graph())) if m.startswith("lossvo.data")}
+        assert "instantiate" not in names, path.name
+        assert data <= {"lossvo.data", "lossvo.data.kitti"}, (path.name, data)  # the format, no datamodule

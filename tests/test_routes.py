@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lossvo.data import motion, routes, synthetic
+from lossvo.data import motion, synthetic
+from lossvo.data.synthetic import routes
 
 LONG = 4000  # frames: enough manoeuvres of every kind for statistics
 

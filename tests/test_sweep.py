@@ -1,4 +1,5 @@
-"""A real Hydra multirun over three losses, as a subprocess: job folders, checkpoints, metrics, W&B runs."""
+"""A real Hydra multirun over three losses, as a subprocess: job folders, checkpoints, metrics, W&B runs,
+and a report with baselines and ground truth from the jobs' results.json alone."""
 
 from __future__ import annotations
 
@@ -9,6 +10,8 @@ from pathlib import Path
 
 import pytest
 from hydra.core.override_parser.overrides_parser import OverridesParser
+
+from lossvo.report.document import make_report
 
 
 def run_train(args: list[str], tmp_path: Path, run_tiny_sweep) -> subprocess.CompletedProcess:
@@ -40,6 +43,11 @@ def test_sweep_over_three_losses_with_wandb(run_tiny_sweep, tmp_path: Path) -> N
         record = next(runs[0].glob("run-*.wandb")).read_bytes()
         counts = {name: record.count(name.encode()) for name in ("euler", "quat", "chordal")}
         assert max(counts, key=counts.get) == loss, counts
+        data = json.loads((job / "results.json").read_text())["data"]
+        assert data["train"] == ["00", "01"] and data["root"] == data["train_root"]
+    text = make_report(tmp_path / "sweep", n_jobs=1).read_text()
+    assert "baselines skipped" not in text and "without ground truth" not in text
+    assert "| 02 | " in text.split("## Table I", 1)[1]  # the tiny experiment's test sequence
 
 
 def test_failing_job_keeps_the_others(run_tiny_sweep, tmp_path: Path) -> None:

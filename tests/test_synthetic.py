@@ -18,7 +18,8 @@ import cv2
 import numpy as np
 import pytest
 
-from lossvo.data import motion, routes, synthetic
+from lossvo.data import motion, synthetic
+from lossvo.data.synthetic import routes
 
 GEOMETRY_SEQUENCES = ("00", "07", "11")
 GEOMETRY_FRAMES = 40

@@ -11,8 +11,8 @@ from hydra import compose, initialize_config_dir
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, open_dict
 
-from lossvo import train
-from lossvo.module import NonFiniteLossError, VOModule
+from lossvo.training import train
+from lossvo.training.module import NonFiniteLossError, VOModule
 
 
 def tiny_overrides(root: Path, cache: Path) -> list[str]:

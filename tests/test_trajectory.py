@@ -1,4 +1,4 @@
-"""lossvo.trajectory: chaining (vs a sequential reference), TUM files (round trips with evo)."""
+"""lossvo.evaluation.trajectories: chaining (vs a sequential reference), TUM files (round trips with evo)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from evo.tools import file_interface
 
 from lossvo import geometry
 from lossvo.data.kitti import KittiFormatError
-from lossvo.trajectory import integrate, read_tum, write_tum
+from lossvo.evaluation.trajectories import integrate, read_tum, write_tum
 
 
 def relative_steps(n: int, seed: int = 0) -> torch.Tensor:

@@ -8,7 +8,7 @@ import torch
 from torch.utils.data import SequentialSampler
 
 from lossvo.data import windows
-from lossvo.data.datamodule import KittiDataModule
+from lossvo.data.datamodules import KittiDataModule
 from lossvo.data.kitti import relative_targets
 
 

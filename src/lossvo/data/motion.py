@@ -22,7 +22,8 @@ import torch
 
 from lossvo import geometry
 from lossvo.console import OneLineParser, emit
-from lossvo.data import frame_cache, kitti, routes
+from lossvo.data import frame_cache, kitti
+from lossvo.data.synthetic import routes
 
 STANDING = 0.01
 """Metres per frame below which a pair counts as standing still."""

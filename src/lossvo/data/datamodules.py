@@ -33,8 +33,9 @@ from torch.utils.data import DataLoader, Dataset, RandomSampler, Sampler, Sequen
 
 from lossvo import geometry
 from lossvo.atomic import write_text_atomic
-from lossvo.data import frame_cache, routes, synthetic, windows
+from lossvo.data import frame_cache, synthetic, windows
 from lossvo.data.kitti import Sequence, find_root, load_sequence, relative_targets
+from lossvo.data.synthetic import routes
 
 PAPER_TRAIN = ("00", "02", "03", "04", "05", "06", "08")
 PAPER_VAL = ("07", "09")
@@ -215,7 +216,7 @@ class KittiDataModule(L.LightningDataModule):
             which may then be empty (evaluation on data that holds only test sequences).
 
     :meth:`description` records the arguments, the dataset root and the normalisation statistics: a
-    checkpoint stores it (:mod:`lossvo.checkpoints`), so that evaluation needs nothing else.
+    checkpoint stores it (:mod:`lossvo.training.checkpoints`), so that evaluation needs nothing else.
     """
 
     def __init__(
@@ -461,7 +462,7 @@ class SyntheticDataModule(KittiDataModule):
         render_height, render_width: resolution the generator writes (None: its default).
         seed: the generator's seed (a different seed is a different set of worlds and routes).
         route_families: route families added or changed, name -> parameters of
-            :class:`lossvo.data.routes.Family` (None: the built-in ones).
+            :class:`lossvo.data.synthetic.routes.Family` (None: the built-in ones).
         route_mixes: sequence -> {family: weight} for the sequences whose routes differ from the
             built-in mixes (None: none).
         Other arguments as :class:`KittiDataModule`.

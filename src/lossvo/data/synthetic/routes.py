@@ -316,20 +316,24 @@ def yaw_rates(speed: np.ndarray, events: list[tuple[int, int, str, float]]) -> n
 # --------------------------------------------------------------------------------------------------
 
 
+def _gaussian(sigma: float) -> np.ndarray:
+    """Unnormalised Gaussian kernel (2 h + 1,) of std sigma samples, h = max(1, int(3 sigma))."""
+    half = max(1, int(3 * sigma))
+    return np.exp(-0.5 * (np.arange(-half, half + 1) / sigma) ** 2)
+
+
 def _smooth_noise(rng: np.random.Generator, n: int, std: float, sigma: float) -> np.ndarray:
     """(n,) smooth zero-mean random signal of the given std, correlated over about sigma samples."""
-    half = max(1, int(3 * sigma))
-    kernel = np.exp(-0.5 * (np.arange(-half, half + 1) / sigma) ** 2)
+    kernel = _gaussian(sigma)
     kernel /= np.sqrt((kernel**2).sum())
-    return std * np.convolve(rng.standard_normal(n + 2 * half), kernel, mode="valid")
+    return std * np.convolve(rng.standard_normal(n + len(kernel) - 1), kernel, mode="valid")
 
 
 def _blend(driven: np.ndarray, families: Mapping[str, Family], key: str, sigma: float = 15.0) -> np.ndarray:
     """(n,) per-frame family parameter ``key`` (e.g. hill), smoothed over family changes."""
     values = np.array([getattr(families[name], key) for name in driven], dtype=np.float64)
-    half = max(1, int(3 * sigma))
-    kernel = np.exp(-0.5 * (np.arange(-half, half + 1) / sigma) ** 2)
-    return np.convolve(np.pad(values, half, mode="edge"), kernel / kernel.sum(), mode="valid")
+    kernel = _gaussian(sigma)
+    return np.convolve(np.pad(values, len(kernel) // 2, mode="edge"), kernel / kernel.sum(), mode="valid")
 
 
 def undulation(

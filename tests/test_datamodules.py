@@ -1,4 +1,4 @@
-"""lossvo.data.datamodule and frame_cache: windows, targets, cache reuse and repair, statistics."""
+"""lossvo.data.datamodules and frame_cache: windows, targets, cache reuse and repair, statistics."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import torch
 
 from lossvo import geometry
 from lossvo.data import frame_cache, kitti
-from lossvo.data.datamodule import KittiDataModule, SyntheticDataModule, jitter, reverse_windows
+from lossvo.data.datamodules import KittiDataModule, SyntheticDataModule, jitter, reverse_windows
 
 
 def make_dm(root: Path, cache: Path, **kwargs) -> KittiDataModule:

@@ -1,9 +1,9 @@
 """Non-learned baselines for the sweep report, evaluated exactly as the networks are.
 
 Four estimators of the relative poses ``T_k = inv(T_w_k) @ T_w_{k+1}`` (frame k+1 seen from frame k) of a
-sequence, each integrated from the first ground-truth pose with :func:`lossvo.trajectory.integrate` and
-scored with :func:`lossvo.metrics.evaluate` (the same APE alignment and RPE delta as the jobs'
-``results.json``), so that their numbers sit in the same table as the networks':
+sequence, each integrated from the first ground-truth pose and scored by
+:func:`lossvo.evaluation.metrics.evaluate_relative` (the networks' path, with the same APE alignment and
+RPE delta as the jobs' ``results.json``), so that their numbers sit in the same table as the networks':
 
 - ``zero motion``: identity relative poses (the camera never moves);
 - ``mean motion (train)``: the training sequences' mean relative pose at every step (mean translation,
@@ -21,9 +21,12 @@ scored with :func:`lossvo.metrics.evaluate` (the same APE alignment and RPE delt
   the sequence's ground truth) at every step: an oracle that knows the sequence's average motion, which
   a network that learned only an average motion cannot beat.
 
-Results are cached per (data config, sequence) in ``<cache_dir>/<key>.npz`` so that re-running a report
-costs nothing; the key covers everything the numbers depend on (dataset identity, training split, the
-sequence's files, alignment, delta, the ORB settings and :data:`VERSION`).
+The sequences are read from the dataset that the jobs' results.json records (``data.root``, in the
+KITTI layout, :func:`lossvo.data.kitti.load_sequence`), the training split's mean motion from the
+training data it records (``data.train_root``, ``data.train``): no datamodule is built and nothing is
+rendered. Results are cached per sequence in ``<cache_dir>/<key>.npz`` so that re-running a report costs
+nothing; the key covers everything the numbers depend on (the recorded roots and training split, the
+training mean motion, the sequence's files, alignment, delta, the ORB settings and :data:`VERSION`).
 """
 
 from __future__ import annotations
@@ -34,18 +37,18 @@ import logging
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar, cast
+from typing import Any, TypeVar
 
 import cv2
 import numpy as np
 import roma
 import torch
 
-from lossvo import metrics
 from lossvo.atomic import atomic_path
 from lossvo.data.kitti import Sequence as KittiSequence
 from lossvo.data.kitti import find_root, load_sequence
-from lossvo.trajectory import integrate
+from lossvo.evaluation import metrics
+from lossvo.report.jobs import EvaluatedData
 
 log = logging.getLogger("lossvo")
 T = TypeVar("T")
@@ -53,7 +56,7 @@ T = TypeVar("T")
 ZERO, MEAN, ORB = "zero motion", "mean motion (train)", "ORB+E (GT scale)"
 OWN = "own mean motion (oracle)"
 NAMES: tuple[str, ...] = (ZERO, MEAN, ORB, OWN)
-VERSION = 2
+VERSION = 3
 """Bump when a baseline's computation changes: cached results then no longer match."""
 
 MIN_MATCHES = 8
@@ -71,27 +74,6 @@ RATIO = 0.9
 RANSAC_THRESHOLD_PX = 0.5
 """RANSAC inlier threshold for frames narrower than 640 pixels (1 pixel for larger ones, e.g. KITTI's)."""
 ORB_FEATURES = 500
-
-DATA_IDENTITY_IGNORED = frozenset(
-    {
-        "val",
-        "test",
-        "unseen",
-        "frame_steps",
-        "height",
-        "width",
-        "seq_len",
-        "stride",
-        "windows_per_epoch",
-        "batch_size",
-        "num_workers",
-        "normalization",
-        "augment",
-        "reverse",
-        "pin_memory",
-    }
-)
-"""Data config keys that change neither the frames on disk nor the training split's poses."""
 
 
 @dataclass
@@ -288,18 +270,6 @@ def _with_step_lengths(unit: np.ndarray, step_lengths: np.ndarray) -> np.ndarray
 # --------------------------------------------------------------------------------------------------
 
 
-def evaluate_relative(
-    relative: np.ndarray, gt: np.ndarray, align: metrics.AlignMode, delta: int
-) -> tuple[np.ndarray, dict[str, Any]]:
-    """Integrate (N-1, 4, 4) relative poses from ``gt[0]`` and score them against ``gt`` (N, 4, 4).
-
-    Returns:
-        trajectory (N, 4, 4) float64 and ``metrics.evaluate``'s dict (ape, rpe, kitti), as in results.json.
-    """
-    est = integrate(torch.from_numpy(relative), start=torch.from_numpy(gt[0]))
-    return est.numpy(), metrics.evaluate(torch.from_numpy(gt), est, align, delta)
-
-
 def sequence_baselines(
     sequence: KittiSequence, train_mean: np.ndarray, align: metrics.AlignMode = "none", delta: int = 1
 ) -> dict[str, BaselineResult]:
@@ -324,33 +294,35 @@ def sequence_baselines(
     }
     out = {}
     for name, relative in relatives.items():
-        trajectory, scores = evaluate_relative(relative, gt, align, delta)
-        out[name] = BaselineResult(trajectory, scores, int(failed.sum()) if name == ORB else 0)
+        trajectory, scores = metrics.evaluate_relative(relative, gt, align, delta)
+        out[name] = BaselineResult(trajectory.numpy(), scores, int(failed.sum()) if name == ORB else 0)
     return out
 
 
 # --------------------------------------------------------------------------------------------------
-# Data config -> sequences, and the cache
+# The recorded data -> sequences, and the cache
 # --------------------------------------------------------------------------------------------------
 
 
-def load_datamodule(data_cfg: Any) -> Any:
-    """The job's datamodule (``hydra.utils.instantiate(cfg.data)``) with every sequence's metadata read;
-    the synthetic dataset is rendered first if it is not on disk. No frame cache is built."""
-    from hydra.utils import instantiate
+def training_mean_motion(data: EvaluatedData) -> np.ndarray:
+    """(4, 4) mean relative pose (:func:`mean_motion`) of the training split recorded in ``data``, read
+    from the pose files under ``data.train_root``.
 
-    datamodule = instantiate(data_cfg)
-    datamodule.load_metadata()  # renders the synthetic dataset first if it is not there
-    return datamodule
-
-
-def data_identity(data_cfg: Mapping[str, Any]) -> dict[str, Any]:
-    """The part of a data config that decides the frames on disk and the training split (a cache key)."""
-    return {k: v for k, v in sorted(data_cfg.items()) if k not in DATA_IDENTITY_IGNORED}
+    Raises:
+        ValueError: no training sequence recorded; KittiFormatError for a sequence that is not there.
+    """
+    if not data.train:
+        raise ValueError("the recorded training split (data.train) is empty: no training mean motion")
+    root = find_root(data.train_root)
+    return mean_motion([load_sequence(root, name).targets for name in data.train])
 
 
-def cache_key(identity: Mapping[str, Any], sequence: KittiSequence, align: str, delta: int) -> str:
-    """A file-name-safe key of one sequence's baselines: data identity, the sequence's files, settings."""
+def cache_key(
+    identity: Mapping[str, Any], sequence: KittiSequence, train_mean: np.ndarray, align: str, delta: int
+) -> str:
+    """A file-name-safe key of one sequence's baselines: the data's identity
+    (:meth:`lossvo.report.jobs.EvaluatedData.identity`), the (4, 4) training mean motion, the sequence's
+    files and the settings."""
     stats = [p.stat() for p in sequence.images]
     files = {
         "frames": len(stats),
@@ -358,6 +330,7 @@ def cache_key(identity: Mapping[str, Any], sequence: KittiSequence, align: str, 
         "mtime_ns": max(s.st_mtime_ns for s in stats) if stats else 0,
         "poses": hashlib.sha1(np.ascontiguousarray(sequence.poses).tobytes()).hexdigest(),
         "K": np.asarray(sequence.calib.K).tolist(),
+        "train_mean": hashlib.sha1(np.ascontiguousarray(train_mean, dtype=np.float64).tobytes()).hexdigest(),
     }
     settings = [
         VERSION,
@@ -418,56 +391,69 @@ def _torch_single_threaded(fn: Callable[..., T]) -> Callable[..., T]:
 
 
 def compute_baselines(
-    data_cfg: Any,
+    data: EvaluatedData,
     sequences: Sequence[str],
     cache_dir: Path,
     align: metrics.AlignMode = "none",
     delta: int = 1,
     n_jobs: int = 1,
 ) -> dict[str, dict[str, BaselineResult]]:
-    """The baselines of the given sequences for one data config, from the cache where possible.
+    """The baselines of the given sequences of the recorded data, from the cache where possible.
 
     Args:
-        data_cfg: a job's resolved ``cfg.data`` (OmegaConf or dict).
-        sequences: names of sequences with ground truth (e.g. those of the jobs' results.json).
+        data: a job's record of its evaluated dataset and training data (its results.json's ``data``).
+        sequences: names of sequences with ground truth under ``data.root`` (e.g. those of the jobs'
+            results.json).
         cache_dir: folder of the cached ``.npz`` results.
         align, delta: as the jobs' results.json.
         n_jobs: sequences computed in parallel (threads: OpenCV releases the GIL).
     Returns:
         {sequence: {baseline name: BaselineResult}}, in the order of ``sequences``.
+    Raises:
+        ValueError (KittiFormatError among them): a root, a sequence or a pose file that is not there.
     """
-    from joblib import Parallel, delayed
-    from omegaconf import OmegaConf
-
-    datamodule = load_datamodule(data_cfg)
-    plain: Mapping[str, Any] = (  # a DictConfig's to_container is a dict with its (str) keys
-        cast("dict[str, Any]", OmegaConf.to_container(data_cfg, resolve=True))
-        if OmegaConf.is_config(data_cfg)
-        else data_cfg
-    )
-    identity = {**data_identity(plain), "resolved_root": str(Path(datamodule.root).resolve())}
-    train_mean = mean_motion([datamodule.sequences[n].targets for n in datamodule.splits["train"]])
-    loaded = {
-        n: datamodule.sequences.get(n) or load_sequence(find_root(datamodule.root), n) for n in sequences
+    train_mean = training_mean_motion(data)
+    root = find_root(data.root)
+    loaded = {n: load_sequence(root, n) for n in sequences}
+    paths = {
+        n: cache_dir / f"{cache_key(data.identity(), loaded[n], train_mean, align, delta)}.npz"
+        for n in sequences
     }
-    paths = {n: cache_dir / f"{cache_key(identity, loaded[n], align, delta)}.npz" for n in sequences}
     found = {n: r for n, p in paths.items() if (r := load_cached(p)) is not None}
     todo = [n for n in sequences if n not in found]
     if todo:
         log.info("baselines: computing %d sequence(s) (%s)", len(todo), ", ".join(todo))
-        todo.sort(key=lambda n: -len(loaded[n].images))  # longest first: balanced threads
-        # One sequence per thread, each with single-threaded torch and OpenCV: nested thread pools on a
-        # few cores are many times slower. OpenCV's setting is global, so it is made around the pool.
-        cv2_threads = cv2.getNumThreads()
-        cv2.setNumThreads(1)
-        try:
-            computed = Parallel(n_jobs=max(1, min(n_jobs, len(todo))), prefer="threads")(
-                delayed(_torch_single_threaded(sequence_baselines))(loaded[n], train_mean, align, delta)
-                for n in todo
-            )
-        finally:
-            cv2.setNumThreads(cv2_threads)
+        computed = _compute_parallel([loaded[n] for n in todo], train_mean, align, delta, n_jobs)
         for name, result in zip(todo, computed, strict=True):
             save_cached(paths[name], result)
             found[name] = result
     return {n: found[n] for n in sequences}
+
+
+def _compute_parallel(
+    sequences: Sequence[KittiSequence],
+    train_mean: np.ndarray,
+    align: metrics.AlignMode,
+    delta: int,
+    n_jobs: int,
+) -> list[dict[str, BaselineResult]]:
+    """:func:`sequence_baselines` of each sequence, in order, ``n_jobs`` sequences at a time (threads).
+
+    One sequence per thread, each with single-threaded torch and OpenCV: nested thread pools on a few
+    cores are many times slower. OpenCV's setting is global, so it is made around the pool; the longest
+    sequences start first, which balances the threads.
+    """
+    from joblib import Parallel, delayed
+
+    order = sorted(range(len(sequences)), key=lambda i: -len(sequences[i].images))
+    cv2_threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        computed = Parallel(n_jobs=max(1, min(n_jobs, len(sequences))), prefer="threads")(
+            delayed(_torch_single_threaded(sequence_baselines))(sequences[i], train_mean, align, delta)
+            for i in order
+        )
+    finally:
+        cv2.setNumThreads(cv2_threads)
+    by_index = dict(zip(order, computed, strict=True))
+    return [by_index[i] for i in range(len(sequences))]

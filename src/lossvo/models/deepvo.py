@@ -1,4 +1,4 @@
-"""DeepVO (Wang et al., ICRA 2017) and FlowNetS weight loading.
+"""DeepVO (Wang et al., ICRA 2017).
 
 The network maps a window of ``L`` consecutive frames to one relative-pose vector per frame pair:
 
@@ -11,12 +11,12 @@ The network maps a window of ``L`` consecutive frames to one relative-pose vecto
 ``C6 * H6 * W6`` features (flattened in (C, H, W) order): 1024 * 3 * 10 = 30720 at the paper's 184x608,
 256 * 1 * 4 = 1024 for ``width_mult=0.25`` at 64x208.
 
-Encoder. FlowNetS's contracting part (Dosovitskiy et al. 2015): nine ``conv -> BatchNorm -> LeakyReLU(0.1)
--> Dropout`` blocks named like FlowNetPytorch's (``encoder.conv1.0.weight`` is its ``conv1.0.weight``), so
-:func:`load_flownet` can initialise it from ``flownets_bn_*.pth.tar``. With ``batch_norm=False`` the convs
-get a bias and index 1 is an identity, which matches the non-BN ``flownets_*.pth.tar`` keys instead.
-Dropout follows DeepVO-pytorch: ``conv_dropout`` (0.2) after conv1..conv5_1, ``conv6_dropout`` (0.5) after
-conv6.
+Encoder. FlowNetS's contracting part (Dosovitskiy et al. 2015): nine ``conv -> BatchNorm -> LeakyReLU(0.1) ->
+Dropout`` blocks named like FlowNetPytorch's (``encoder.conv1.0.weight`` is its ``conv1.0.weight``), so
+:func:`lossvo.models.flownet.load_flownet` can initialise it from ``flownets_bn_*.pth.tar``. With
+``batch_norm=False`` the convs get a bias and index 1 is an identity, which matches the non-BN
+``flownets_*.pth.tar`` keys instead. Dropout follows DeepVO-pytorch: ``conv_dropout`` (0.2) after
+conv1..conv5_1, ``conv6_dropout`` (0.5) after conv6.
 
 Input range. FlowNetS was trained on ``img / 255 - 0.5``; with its weights the data module must use
 ``normalization: flownet`` (``lossvo.train`` switches it when ``model.flownet`` is set).
@@ -49,14 +49,14 @@ from __future__ import annotations
 
 import logging
 import math
-import warnings
 from collections import OrderedDict
 from collections.abc import Iterable
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
 from torch import Tensor, nn
+
+from lossvo.models.flownet import load_flownet
 
 log = logging.getLogger(__name__)
 
@@ -312,105 +312,3 @@ class DeepVO(nn.Module):
     def forward(self, frames: Tensor, state: LSTMState | None = None) -> Tensor:
         """Outputs (B, L-1, out_dim) for frames (B, L, 3, H, W); the LSTM starts from ``state`` or zeros."""
         return self.forward_with_state(frames, state)[0]
-
-
-@dataclass(frozen=True)
-class LoadReport:
-    """What :func:`load_flownet` did, by state-dict key (without the ``encoder.`` prefix).
-
-    ``missing``: encoder keys the file lacks (``num_batches_tracked`` counters are not listed);
-    ``unexpected``: file keys the encoder lacks (the FlowNetS decoder, or other architectures' convs);
-    ``mismatched``: (key, shape in the file, shape in the encoder) -- same name, different shape, not loaded.
-    """
-
-    loaded: list[str] = field(default_factory=list)
-    missing: list[str] = field(default_factory=list)
-    unexpected: list[str] = field(default_factory=list)
-    mismatched: list[tuple[str, tuple[int, ...], tuple[int, ...]]] = field(default_factory=list)
-
-    def summary(self) -> str:
-        return (
-            f"{len(self.loaded)} loaded, {len(self.missing)} missing, {len(self.unexpected)} unexpected, "
-            f"{len(self.mismatched)} mismatched"
-        )
-
-
-def _read_state_dict(path: Path) -> dict[str, Tensor]:
-    if not path.is_file():
-        raise FileNotFoundError(f"FlowNet checkpoint not found: {path}")
-    try:
-        obj = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:
-        raise ValueError(
-            f"FlowNet checkpoint {path} could not be loaded with torch.load(weights_only=True): {e}"
-        ) from e
-    if isinstance(obj, dict) and isinstance(obj.get("state_dict"), dict):
-        obj = obj["state_dict"]
-    if not isinstance(obj, dict) or not obj or not all(isinstance(v, Tensor) for v in obj.values()):
-        raise ValueError(
-            f"FlowNet checkpoint {path} holds no state dict (expected a dict with key 'state_dict' or a "
-            f"bare name -> tensor dict), got {type(obj).__name__}"
-        )
-    prefix = "module."  # saved from DataParallel
-    if all(k.startswith(prefix) for k in obj):
-        obj = {k[len(prefix) :]: v for k, v in obj.items()}
-    return obj
-
-
-@torch.no_grad()
-def load_flownet(model: DeepVO, path: str | Path) -> LoadReport:
-    """Initialise ``model.encoder`` from a FlowNetPytorch FlowNetS checkpoint, by name with shape checks.
-
-    The file is ``torch.save({'epoch', 'arch', 'state_dict', 'div_flow', ...})`` as FlowNetPytorch writes
-    it (``flownets_bn_EPE2.459.pth.tar`` for ``batch_norm=True``), or a bare state dict. Keys are
-    ``conv1.0.weight``, ``conv1.1.{weight,bias,running_mean,running_var}``, ... ``conv6.*``; the decoder
-    (``deconv*``, ``predict_flow*``, ``upsampled_flow*``) is reported as unexpected. A tensor whose shape
-    differs is skipped with a warning. The weights expect inputs ``img / 255 - 0.5``
-    (``normalization: flownet``).
-
-    Raises:
-        FileNotFoundError: no file at ``path``.
-        ValueError: the file cannot be read with ``weights_only=True``, holds no state dict, or no tensor
-            matches the encoder (by name and shape).
-    """
-    path = Path(path)
-    source = _read_state_dict(path)
-    target = model.encoder.state_dict()
-    loaded: list[str] = []
-    mismatched: list[tuple[str, tuple[int, ...], tuple[int, ...]]] = []
-    for key, value in source.items():
-        if key not in target:
-            continue
-        if value.shape != target[key].shape:
-            mismatched.append((key, tuple(value.shape), tuple(target[key].shape)))
-            continue
-        loaded.append(key)
-    missing = [k for k in target if k not in source and not k.endswith("num_batches_tracked")]
-    unexpected = [k for k in source if k not in target]
-    report = LoadReport(loaded=loaded, missing=missing, unexpected=unexpected, mismatched=mismatched)
-
-    if not any(not k.endswith("num_batches_tracked") for k in loaded):  # a counter is not a match
-        loaded = []
-        if mismatched:
-            raise ValueError(
-                f"FlowNet checkpoint {path}: nothing matches the encoder -- all {len(mismatched)} tensors "
-                f"with matching names have different shapes (e.g. {mismatched[0][0]}: file "
-                f"{mismatched[0][1]} vs model {mismatched[0][2]}); FlowNetS weights need width_mult=1 "
-                f"(model has width_mult={model.width_mult:g})"
-            )
-        raise ValueError(
-            f"FlowNet checkpoint {path}: nothing matches the encoder -- none of its {len(source)} keys "
-            f"(e.g. {next(iter(source))!r}) is an encoder key such as 'conv1.0.weight'"
-        )
-    for key in loaded:
-        target[key].copy_(source[key])  # state_dict tensors share storage with the parameters
-    if mismatched:
-        details = "; ".join(f"{k}: file {a} vs model {b}" for k, a, b in mismatched)
-        warnings.warn(
-            f"FlowNet checkpoint {path}: {len(mismatched)} tensor(s) with a different shape were not "
-            f"loaded: {details}",
-            stacklevel=2,
-        )
-    if missing:
-        log.warning("FlowNet checkpoint %s lacks %d encoder tensor(s): %s", path, len(missing), missing)
-    return report

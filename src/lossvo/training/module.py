@@ -6,8 +6,8 @@ are its hyperparameters: a checkpoint holds only primitives and reloads with tor
 loss without Hydra. Every key the loss returns is logged per epoch as ``train/<key>`` and
 ``val/<key>`` (``loss``, ``trans_loss``, ``rot_loss``, ``trans_err_m``, ``rot_err_rad``; ``s_t``, ``s_r``
 under the learned weighting), and validation also logs the loss-independent selection score
-``val/score`` (:mod:`lossvo.selection`). Checkpoints also record the training data
-(:mod:`lossvo.checkpoints`).
+``val/score`` (:mod:`lossvo.training.selection`). Checkpoints also record the training data
+(:mod:`lossvo.training.checkpoints`).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from hydra.utils import instantiate
 from torch import Tensor
 
 from lossvo.losses import PoseLoss
-from lossvo.selection import SCORE_KEY, SelectionScore
+from lossvo.training.selection import SCORE_KEY, SelectionScore
 
 
 class NonFiniteLossError(FloatingPointError):
@@ -31,7 +31,7 @@ class VOModule(L.LightningModule):
     """A visual-odometry network and its pose loss.
 
     Args:
-        model: config of the network (``_target_`` and arguments), e.g. :class:`lossvo.model.DeepVO`;
+        model: config of the network (``_target_`` and arguments), e.g. :class:`lossvo.models.DeepVO`;
             it maps frames (B, L, 3, H, W) to outputs (B, L-1, loss.dim).
         loss: config of a :class:`lossvo.losses.PoseLoss`.
         optimizer: config of a partial optimiser (``_partial_: true``), called with the parameters.
@@ -67,7 +67,7 @@ class VOModule(L.LightningModule):
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         """Record the training data's description (``checkpoint["data"]``, see
-        :mod:`lossvo.checkpoints`) when the datamodule gives one."""
+        :mod:`lossvo.training.checkpoints`) when the datamodule gives one."""
         datamodule = getattr(self.trainer, "datamodule", None)
         describe = getattr(datamodule, "description", None)
         if callable(describe):

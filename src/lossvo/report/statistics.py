@@ -1,5 +1,5 @@
-"""The pure logic behind a sweep report's claims (:mod:`lossvo.report`): convergence epochs, paired
-tests and the verdict rule.
+"""The statistics behind a sweep report's comparisons and claims: convergence epochs, Wilcoxon
+signed-rank p-values, paired tests and the verdict rule.
 
 A claim says that one configuration (the *claimed* one, e.g. the chordal loss) is lower than every other
 on some quantity (an error in m or rad, a convergence epoch). Each other configuration is paired with it

@@ -16,8 +16,8 @@ import lightning as L
 import torch
 from lightning.pytorch.callbacks import Callback, RichProgressBar
 
-from lossvo import metrics
-from lossvo.eval import predict_sequence
+from lossvo.evaluation import metrics
+from lossvo.evaluation.inference import predict_sequence
 
 log = logging.getLogger("lossvo")
 
@@ -47,12 +47,12 @@ def progress(rich_on_tty: bool = True) -> Callback:
 class TrajectoryValidation(Callback):
     """Every ``every_n_epochs`` epochs, integrate the validation sequences and log trajectory errors.
 
-    Each validation sequence goes through :func:`lossvo.eval.predict_sequence` (eval mode, windows as in
-    training) and is chained from its first ground-truth pose; the errors are pooled over all validation
-    sequences and logged (so they land in ``metrics.csv``) as ``val/ape_trans_rmse``,
-    ``val/rpe_trans_rmse``, ``val/rpe_rot_rmse`` and, where the sequences hold at least one 100 m
-    segment, ``val/kitti_t_err`` (%) and ``val/kitti_r_err`` (deg / 100 m); without a segment those two are
-    not logged (never 0).
+    Each validation sequence goes through :func:`lossvo.evaluation.inference.predict_sequence` (eval mode, the
+    validation windows) and is chained from its first ground-truth pose; the errors are pooled over all
+    validation sequences and logged (so they land in ``metrics.csv``) as ``val/ape_trans_rmse``,
+    ``val/rpe_trans_rmse``, ``val/rpe_rot_rmse`` and, where the sequences hold at least one 100 m segment,
+    ``val/kitti_t_err`` (%) and ``val/kitti_r_err`` (deg / 100 m); without a segment those two are not logged
+    (never 0).
 
     It uses ``trainer.datamodule`` and does nothing for a datamodule without ``sequence_frames``,
     ``sequence_poses`` and ``normalize`` (e.g. a benchmark's dummy data), and nothing during the sanity

@@ -1,11 +1,11 @@
 """Checkpoints as the contract between training and everything after it.
 
-A lossvo checkpoint is a Lightning checkpoint of :class:`lossvo.module.VOModule` that holds only
+A lossvo checkpoint is a Lightning checkpoint of :class:`lossvo.training.module.VOModule` that holds only
 primitives (it loads with torch's default ``weights_only``):
 
 - ``hyper_parameters``: the network, loss, optimiser and scheduler configs the module was built from;
 - ``state_dict``: the weights;
-- ``data``: :meth:`lossvo.data.datamodule.KittiDataModule.description` of the training data: the
+- ``data``: :meth:`lossvo.data.datamodules.KittiDataModule.description` of the training data: the
   datamodule's ``_target_`` and arguments (frame size, ``seq_len``, splits, normalisation mode ...),
   ``dataset_root`` and the normalisation ``statistics`` the network was trained with.
 
@@ -23,7 +23,7 @@ from typing import Any
 
 import torch
 
-from lossvo.module import VOModule
+from lossvo.training.module import VOModule
 
 TRAINED_WITH = ("height", "width", "seq_len", "normalization")
 """Data settings a trained network depends on: evaluation takes them from its checkpoint."""

@@ -1,4 +1,4 @@
-"""Tables of a sweep report (:mod:`lossvo.report`): per-sequence metric tables and their text forms.
+"""Tables of a sweep report: per-sequence metric tables and their text forms.
 
 A :class:`Column` is one compared configuration (its seeds) or one baseline; :func:`build_table` fills a
 :class:`Table` of :data:`TABLES` with mean ± sample std over seeds per sequence plus a mean row, and bolds
@@ -15,12 +15,11 @@ import io
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from lossvo.report import Job
+from lossvo.report.jobs import APE_ROT, APE_TRANS, KITTI_R, KITTI_T, RPE_ROT, RPE_TRANS, Job, lookup
 
 NETWORK, BASELINE = "network", "baseline"
 MEAN_ROW = "mean"
@@ -60,29 +59,19 @@ TABLES = (
     TableSpec(
         "translation",
         "Table I: translation RMSE (m)",
-        (("APE [m]", ("ape", "trans", "rmse")), ("RPE [m]", ("rpe", "trans", "rmse"))),
+        (("APE [m]", APE_TRANS), ("RPE [m]", RPE_TRANS)),
     ),
     TableSpec(
         "rotation",
         "Table II: rotation RMSE (rad)",
-        (("APE [rad]", ("ape", "rot_rad", "rmse")), ("RPE [rad]", ("rpe", "rot_rad", "rmse"))),
+        (("APE [rad]", APE_ROT), ("RPE [rad]", RPE_ROT)),
     ),
     TableSpec(
         "kitti",
         "Table III: KITTI odometry error (mean over 100-800 m segments)",
-        (("t_err [%]", ("kitti", "t_err_pct")), ("r_err [deg/100m]", ("kitti", "r_err_deg_per_100m"))),
+        (("t_err [%]", KITTI_T), ("r_err [deg/100m]", KITTI_R)),
     ),
 )
-METRIC_PATHS = tuple(path for spec in TABLES for _, path in spec.metrics)
-
-
-def lookup(entry: Any, path: Sequence[str]) -> Any:
-    """``entry[path[0]][path[1]]...``, None where a key is missing."""
-    for key in path:
-        if not isinstance(entry, dict) or key not in entry:
-            return None
-        entry = entry[key]
-    return entry
 
 
 def samples(column: Column, path: Sequence[str], sequences: Sequence[str]) -> np.ndarray:

@@ -1,0 +1,97 @@
+"""The command line: ``python -m lossvo.data.synthetic --out DIR [--sequences 00,07] [--frames N]
+[--height H --width W] [--seed S] [--workers N] [--mix NN=FAMILY[:W][+FAMILY[:W]]] [--quiet]``.
+
+Bad values end in one line on stderr and exit status 2, before anything is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Iterable
+from pathlib import Path
+
+from lossvo.console import OneLineParser
+from lossvo.data import kitti
+from lossvo.data.synthetic import routes
+from lossvo.data.synthetic.parameters import (
+    DEFAULT_HEIGHT,
+    DEFAULT_WIDTH,
+    SEQUENCES,
+    check_size,
+    parse_sequences,
+    resolve_frames,
+)
+from lossvo.data.synthetic.writer import generate
+
+DESCRIPTION = "Synthetic KITTI-odometry dataset: a procedural town rendered along car-like routes."
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = OneLineParser(prog="python -m lossvo.data.synthetic", description=DESCRIPTION)
+    p.add_argument("--out", type=Path, required=True, help="dataset root to write (KITTI odometry layout)")
+    p.add_argument(
+        "--sequences", default=",".join(SEQUENCES), help="comma-separated, e.g. 00,07 (default: 00..12)"
+    )
+    p.add_argument(
+        "--frames", type=int, default=None, help="frames per sequence (default: 100-240 by sequence)"
+    )
+    p.add_argument("--height", type=int, default=DEFAULT_HEIGHT, help=f"pixels (default: {DEFAULT_HEIGHT})")
+    p.add_argument("--width", type=int, default=DEFAULT_WIDTH, help=f"pixels (default: {DEFAULT_WIDTH})")
+    p.add_argument("--seed", type=int, default=0, help="same seed, same bytes (default: 0)")
+    p.add_argument("--workers", type=int, default=None, help="processes (default: one per core)")
+    example = "11=stop_and_go:2+expressway"
+    p.add_argument("--mix", action="append", default=[], metavar="NN=FAMILY[:W][+FAMILY[:W]]",
+                   help=f"route families of a sequence, e.g. {example} (repeatable)")  # fmt: skip
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    return p
+
+
+def parse_mix(text: str) -> tuple[str, dict[str, float]]:
+    """'11=stop_and_go:2+expressway' -> ('11', {'stop_and_go': 2.0, 'expressway': 1.0}); ValueError."""
+    sequence, sep, body = text.partition("=")
+    if not sep or not body:
+        raise ValueError(f"--mix: expected NN=FAMILY[:WEIGHT][+FAMILY[:WEIGHT]], got {text!r}")
+    mix = {}
+    for item in body.split("+"):
+        name, _, weight = item.partition(":")
+        try:
+            mix[name.strip()] = float(weight) if weight else 1.0
+        except ValueError:
+            raise ValueError(f"--mix {text}: the weight of {name!r} is not a number: {weight!r}") from None
+    try:
+        routes.check_mix(mix)
+    except ValueError as err:
+        raise ValueError(f"--mix {text}: {err}") from None
+    return parse_sequences(sequence, "--mix")[0], mix
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command-line entry point; returns the exit status (2 and a one-line message for bad values)."""
+    parser = _parser()
+    args = parser.parse_args(argv)
+    try:
+        counts = resolve_frames(args.sequences, args.frames, prefix="--")
+        check_size(args.height, args.width, prefix="--")
+        if args.workers is not None and args.workers < 1:
+            raise ValueError(f"--workers: must be >= 1, got {args.workers}")
+        spec = routes.route_spec(mixes=dict(parse_mix(m) for m in args.mix))
+    except ValueError as err:
+        parser.error(str(err))
+    start = time.perf_counter()
+    out = generate(
+        args.out, counts, counts, args.height, args.width, args.seed, not args.quiet, args.workers, spec
+    )
+    if not args.quiet:
+        size = dataset_size(out, counts)
+        elapsed = time.perf_counter() - start
+        print(f"synthetic: wrote {out} in {elapsed:.1f} s, {size / 1e6:.0f} MB", file=sys.stderr)
+    return 0
+
+
+def dataset_size(root: Path, sequences: Iterable[str]) -> int:
+    """Bytes on disk of the given sequences' images, calibration, timestamps and pose files."""
+    files = [p for s in sequences for p in (root / "sequences" / s).rglob("*") if p.is_file()]
+    files += [kitti.pose_path(root, s) for s in sequences]
+    return sum(p.stat().st_size for p in files if p.is_file())

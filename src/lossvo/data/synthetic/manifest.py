@@ -1,0 +1,59 @@
+"""The manifest, ``lossvo_synthetic.json`` at a dataset's root: the parameters the dataset was rendered
+with (generator version, image size, seed, route families and mixes) and the frames of each sequence.
+
+It is written last, so a dataset with a manifest is complete; a dataset whose manifest has the same
+header as a request is reused, sequence by sequence.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from lossvo.data import kitti
+from lossvo.data.synthetic import routes
+
+MANIFEST = "lossvo_synthetic.json"
+VERSION = 2
+"""Bumped whenever the rendered content changes, so that ensure_dataset regenerates old datasets."""
+
+
+def header(height: int, width: int, seed: int, spec: routes.RouteSpec) -> dict:
+    """The manifest entries that every sequence of one dataset shares (JSON-normalised, so that they
+    compare equal to the ones read back from a manifest)."""
+    entries = {
+        "generator": "lossvo.data.synthetic",
+        "version": VERSION,
+        "height": height,
+        "width": width,
+        "seed": seed,
+        "routes": spec.manifest(),
+    }
+    return json.loads(json.dumps(entries))
+
+
+def read_manifest(root: Path) -> dict | None:
+    """The parameters a complete dataset under root was generated with, or None (absent or unreadable)."""
+    try:
+        manifest = json.loads((Path(root) / MANIFEST).read_text())
+    except (OSError, ValueError):
+        return None
+    return manifest if isinstance(manifest, dict) else None
+
+
+def sequence_complete(root: Path, sequence: str, n_frames: int) -> bool:
+    """Whether root holds sequence with its poses, calib, times and n_frames images."""
+    seq = root / "sequences" / sequence
+    if not all(p.is_file() for p in (kitti.pose_path(root, sequence), seq / "calib.txt", seq / "times.txt")):
+        return False
+    return sum(1 for _ in (seq / "image_2").glob("*.png")) == n_frames
+
+
+def complete_sequences(root: Path, shared: dict) -> dict[str, int]:
+    """{sequence: frames} of the dataset under root whose manifest has the entries shared (a
+    :func:`header`), for the sequences it lists whose files are all present; {} for any other root."""
+    manifest = read_manifest(root)
+    if manifest is None or any(manifest.get(k) != v for k, v in shared.items()):
+        return {}
+    frames = manifest.get("frames", {})
+    return {s: n for s, n in frames.items() if sequence_complete(root, s, n)}

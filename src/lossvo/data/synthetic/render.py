@@ -1,0 +1,326 @@
+"""Rendering: frames of a world seen from camera poses, by ray casting with deferred shading.
+
+Vectorised numpy over the pixels, with one Python loop over the few dozen visible objects per frame: a
+ray per pixel is intersected with the ground and with each visible wall and pole (nearest objects first,
+occluded ones skipped, depth test) into a g-buffer; textures are then looked up once per pixel with
+trilinear mip-mapping via ``cv2.remap`` (texture anti-aliasing; silhouettes are not supersampled by
+default, see SUPERSAMPLE), shaded (Lambert), fogged towards the sky, and sensor noise is added.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from lossvo.data.synthetic.camera import CAMERA_HEIGHT
+from lossvo.data.synthetic.textures import MIP_TOP, TEXELS_PER_M, Atlas
+from lossvo.data.synthetic.world import World
+
+SUPERSAMPLE = 1
+"""Render at SUPERSAMPLE x the resolution and area-average down (anti-aliases silhouettes too). 2 costs
+about 2.5x the time and does not improve the ORB check, so textures are anti-aliased by mip-mapping only."""
+NEAR = 0.05
+"""Metres: nearest depth a surface is drawn at."""
+FAR = 2000.0
+"""Metres: the ground is drawn up to this depth, the sky beyond."""
+CULL = 400.0
+"""Metres: objects wholly deeper than this (or than 3 fog distances) are not drawn (fog hides them)."""
+AMBIENT, DIFFUSE = 0.55, 0.5
+"""Lambert shading: brightness = AMBIENT + DIFFUSE * max(0, n . sun)."""
+MIN_POLE_PIXELS = 0.3
+"""Poles narrower than this on screen (pixels) are not drawn."""
+
+_RECT_EDGES = np.array([[0, 1], [1, 2], [2, 3], [3, 0]])
+_BOX_EDGES = np.array(
+    [[i, (i + 1) % 4] for i in range(4)]
+    + [[4 + i, 4 + (i + 1) % 4] for i in range(4)]
+    + [[i, i + 4] for i in range(4)]
+)
+
+
+@dataclass
+class GBuffer:
+    """Per-pixel nearest surface, (h, w) arrays: depth (camera z, m; inf: sky), texture coordinates u, v
+    (m, before the tile's offsets), cos (|n . d| of the unnormalised ray d, for the mip footprint), shade
+    (Lambert brightness) and tile (uint8 atlas tile index).
+    """
+
+    depth: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    cos: np.ndarray
+    shade: np.ndarray
+    tile: np.ndarray
+
+    def view(self, window: tuple[slice, slice]) -> GBuffer:
+        """The same buffers restricted to a pixel window (views: writes go through)."""
+        return GBuffer(*(getattr(self, f)[window] for f in ("depth", "u", "v", "cos", "shade", "tile")))
+
+    def write(self, mask: np.ndarray, **values: np.ndarray | float) -> None:
+        """Store values (arrays of the window's shape, or scalars) where mask is true."""
+        for name, value in values.items():
+            np.copyto(getattr(self, name), value, where=mask, casting="unsafe")
+
+
+def screen_bounds(
+    corners: np.ndarray, edges: np.ndarray, K: np.ndarray, size: tuple[int, int], cull: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel windows of convex objects given their corners (M, n, 3) in camera coordinates (m).
+
+    The object is clipped at depth NEAR (corners in front plus edge crossings), projected with K (3, 3)
+    and bounded. Returns (M, 4) int rows r0, r1, c0, c1 (half-open, clipped to size = (h, w); empty
+    windows mark objects out of view or wholly deeper than cull metres) and (M,) the smallest depth (m)
+    of the clipped object.
+    """
+    a, b = corners[:, edges[:, 0]], corners[:, edges[:, 1]]
+    za, zb = a[..., 2], b[..., 2]
+    crossing = (za > NEAR) != (zb > NEAR)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(crossing, (NEAR - za) / (zb - za), 0.0)
+    pts = np.concatenate([corners, a + s[..., None] * (b - a)], 1)
+    ok = np.concatenate([corners[..., 2] > NEAR, crossing], 1)
+    z = np.where(ok, np.maximum(pts[..., 2], NEAR), 1.0)
+    u, v = K[0, 0] * pts[..., 0] / z + K[0, 2], K[1, 1] * pts[..., 1] / z + K[1, 2]
+    lo_u, hi_u = np.where(ok, u, np.inf).min(1), np.where(ok, u, -np.inf).max(1)
+    lo_v, hi_v = np.where(ok, v, np.inf).min(1), np.where(ok, v, -np.inf).max(1)
+    h, w = size
+    bounds = np.stack([np.floor(lo_v) - 1, np.ceil(hi_v) + 2, np.floor(lo_u) - 1, np.ceil(hi_u) + 2], 1)
+    bounds = np.clip(bounds, 0, [h, h, w, w]).astype(np.int64)
+    zmin = np.where(ok, z, np.inf).min(1)
+    bounds[zmin > cull] = 0
+    return bounds, zmin
+
+
+def _lut(values: np.ndarray) -> np.ndarray:
+    """A cv2.LUT table (1, 256) float32 mapping uint8 index i to values[i] (0 past the end)."""
+    lut = np.zeros((1, 256), np.float32)
+    lut[0, : len(values)] = values
+    return lut
+
+
+class Renderer:
+    """Renders a world from camera poses: (height, width, 3) uint8 BGR frames with intrinsics K (3, 3).
+
+    Deferred shading: each object writes its nearer hits into a g-buffer (one window of pixels per
+    object, nearest objects first, occluded ones skipped); one pass then samples the textures, shades,
+    fogs and composites over the sky; a last one area-averages the supersampled frame and adds noise.
+    """
+
+    def __init__(self, world: World, K: np.ndarray, height: int, width: int, supersample: int | None = None):
+        s = SUPERSAMPLE if supersample is None else supersample
+        self.world, self.size, self.s = world, (height, width), s
+        self.Ks = np.diag([s, s, 1.0]) @ K
+        self.Ks[:2, 2] += 0.5 * (s - 1)  # pixel centres: c' = (c + 0.5) s - 0.5
+        self.hs, self.ws = height * s, width * s
+        self.ux = ((np.arange(self.ws) - self.Ks[0, 2]) / self.Ks[0, 0]).astype(np.float32)
+        self.uy = ((np.arange(self.hs) - self.Ks[1, 2]) / self.Ks[1, 1]).astype(np.float32)
+        self.dnorm = np.sqrt(self.ux[None, :] ** 2 + self.uy[:, None] ** 2 + 1.0).astype(np.float32)
+        self.texel_scale = np.float32(TEXELS_PER_M / math.sqrt(self.Ks[0, 0] * self.Ks[1, 1]))
+        self.cull = min(CULL, 3.0 * world.fog_distance)
+        self.tile_luts = self._tile_luts(world)
+        self.atlas = cv2.cvtColor(world.atlas.image, cv2.COLOR_RGB2BGR)
+        self.noise: np.ndarray | None = None
+        self.mip_luts = self._mip_luts(world.atlas)
+        self.wall_corners = self._wall_corners(world.walls)
+        self.pole_corners = self._pole_corners(world.poles)
+
+    @staticmethod
+    def _tile_luts(world: World) -> list[np.ndarray]:
+        """Per-tile parameters as cv2.LUT tables indexed by tile: x, y of the tile's first texel, its
+        width, height and their inverses, u and v offsets (texels)."""
+        x, y, w, h = world.atlas.tiles.T.astype(np.float64)
+        du, dv = np.zeros(len(x)), np.full(len(x), -CAMERA_HEIGHT * TEXELS_PER_M)
+        du[0], dv[0] = world.ground_offset  # walls and poles: v = world y, tiles end at the ground
+        return [_lut(col) for col in (x, y, w, h, 1 / w, 1 / h, du, dv)]
+
+    @staticmethod
+    def _mip_luts(atlas: Atlas) -> list[np.ndarray]:
+        """Per-mip-level scale 2**-l and atlas offsets x, y as cv2.LUT tables indexed by level."""
+        return [_lut(col) for col in (0.5 ** np.arange(MIP_TOP + 1), atlas.level_x, atlas.level_y)]
+
+    @staticmethod
+    def _wall_corners(walls: np.ndarray) -> np.ndarray:
+        """World corners (M, 4, 3) of the wall rectangles (bottom at the ground)."""
+        x0, z0, x1, z1, top = (walls[:, i] for i in range(5))
+        g = np.full_like(top, CAMERA_HEIGHT)
+        return np.stack(
+            [np.stack(c, -1) for c in ((x0, g, z0), (x1, g, z1), (x1, top, z1), (x0, top, z0))], 1
+        )
+
+    @staticmethod
+    def _pole_corners(poles: np.ndarray) -> np.ndarray:
+        """World corners (P, 8, 3) of the square prisms that bound the pole cylinders."""
+        x, z, r, top = (poles[:, i] for i in range(4))
+        ring = [(-1, -1), (1, -1), (1, 1), (-1, 1)]
+        corners = [
+            np.stack([x + a * r, y, z + b * r], -1)
+            for y in (np.full_like(top, CAMERA_HEIGHT), top)
+            for a, b in ring
+        ]
+        return np.stack(corners, 1)
+
+    def render(self, T_w_c: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Frame (height, width, 3) uint8 BGR seen from pose T_w_c (4, 4); rng draws the sensor noise."""
+        R, c = T_w_c[:3, :3], T_w_c[:3, 3]
+        d = [
+            (R[i, 0] * self.ux[None, :] + R[i, 1] * self.uy[:, None] + R[i, 2]).astype(np.float32)
+            for i in range(3)
+        ]
+        g = self._ground(d, c)
+        for m, window in self._visible(g, (self.wall_corners - c) @ R, _RECT_EDGES):
+            self._draw_wall(g.view(window), [a[window] for a in d], m, c)
+        pole_px = self.Ks[0, 0] * 2 * self.world.poles[:, 2]
+        for p, window in self._visible(g, (self.pole_corners - c) @ R, _BOX_EDGES, pole_px / MIN_POLE_PIXELS):
+            self._draw_pole(g.view(window), [a[window] for a in d], p, c)
+        return self._finish(self._colour(g, d), rng)
+
+    def _visible(
+        self, g: GBuffer, corners: np.ndarray, edges: np.ndarray, max_depth: np.ndarray | None = None
+    ) -> Iterator[tuple[int, tuple[slice, slice]]]:
+        """(index, pixel window) of the objects in view (corners (M, n, 3) in camera coordinates), nearest
+        first, skipping those deeper than max_depth (M,) and those wholly behind what g holds by then."""
+        bounds, zmin = screen_bounds(corners, edges, self.Ks, (self.hs, self.ws), self.cull)
+        seen = (bounds[:, 0] < bounds[:, 1]) & (bounds[:, 2] < bounds[:, 3])
+        if max_depth is not None:
+            seen &= zmin < max_depth
+        index = np.flatnonzero(seen)
+        for m in index[np.argsort(zmin[index], kind="stable")]:
+            r0, r1, c0, c1 = bounds[m]
+            window = (slice(r0, r1), slice(c0, c1))
+            if g.depth[window].max() > zmin[m]:
+                yield int(m), window
+
+    def _ground(self, d: list[np.ndarray], c: np.ndarray) -> GBuffer:
+        """G-buffer holding the ground plane y = CAMERA_HEIGHT (up to FAR) hit by the rays d from c."""
+        dx, dy, dz = d
+        with np.errstate(divide="ignore"):
+            t = np.float32(CAMERA_HEIGHT - c[1]) / dy
+        t[(dy <= 0) | (t > FAR)] = np.inf
+        tt = np.where(np.isfinite(t), t, np.float32(0))
+        u, v = np.float32(c[0]) + tt * dx, np.float32(c[2]) + tt * dz
+        shade = np.float32(AMBIENT + DIFFUSE * max(0.0, -self.world.sun[1]))
+        return GBuffer(t, u, v, np.abs(dy), np.full_like(t, shade), np.zeros(t.shape, np.uint8))
+
+    def _draw_wall(self, g: GBuffer, d: list[np.ndarray], m: int, c: np.ndarray) -> None:
+        """Intersect the rays d (h, w) of a window with wall m and store the nearer hits into g."""
+        x0, z0, x1, z1, top, u_off = self.world.walls[m]
+        length = math.hypot(x1 - x0, z1 - z0)
+        ex, ez = (x1 - x0) / length, (z1 - z0) / length
+        num = ex * (c[2] - z0) - ez * (c[0] - x0)  # normal n = (-ez, ex)
+        denom = np.float32(ex) * d[2] - np.float32(ez) * d[0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.float32(-num) / denom
+        u = np.float32(ex * (c[0] - x0) + ez * (c[2] - z0)) + t * (
+            np.float32(ex) * d[0] + np.float32(ez) * d[2]
+        )
+        y = np.float32(c[1]) + t * d[1]
+        mask = (t > NEAR) & (t < g.depth) & (u >= 0) & (u <= np.float32(length)) & (y >= np.float32(top))
+        if mask.any():
+            facing = math.copysign(1.0, num)  # the lit side is the one the camera is on
+            light = AMBIENT + DIFFUSE * max(0.0, facing * (ex * self.world.sun[2] - ez * self.world.sun[0]))
+            g.write(
+                mask,
+                depth=t,
+                u=u + np.float32(u_off),
+                v=y,
+                cos=np.abs(denom),
+                shade=light,
+                tile=self.world.wall_tile[m],
+            )
+
+    def _draw_pole(self, g: GBuffer, d: list[np.ndarray], p: int, c: np.ndarray) -> None:
+        """Intersect the rays d (h, w) of a window with pole p (a vertical cylinder); store nearer hits."""
+        px, pz, r, top = self.world.poles[p]
+        ox, oz = np.float32(c[0] - px), np.float32(c[2] - pz)
+        a = d[0] * d[0] + d[2] * d[2]
+        b = ox * d[0] + oz * d[2]
+        disc = b * b - a * np.float32(ox * ox + oz * oz - r * r)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            t = (-b - np.sqrt(disc)) / a
+        y = np.float32(c[1]) + t * d[1]
+        mask = (disc > 0) & (t > NEAR) & (t < g.depth) & (y >= np.float32(top))
+        if mask.any():
+            nx, nz = (ox + t * d[0]) / np.float32(r), (oz + t * d[2]) / np.float32(r)
+            light = AMBIENT + DIFFUSE * np.maximum(
+                0, nx * np.float32(self.world.sun[0]) + nz * np.float32(self.world.sun[2])
+            )
+            g.write(
+                mask,
+                depth=t,
+                u=np.arctan2(nz, nx) * np.float32(r),
+                v=y,
+                cos=np.abs(nx * d[0] + nz * d[2]),
+                shade=light,
+                tile=self.world.pole_tile[p],
+            )
+
+    def _texels(self, g: GBuffer) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Level-0 atlas coordinates ax, ay and footprint (texels per pixel), (h, w) float32 each."""
+        tx, ty, tw, th, inv_w, inv_h, du, dv = (cv2.LUT(g.tile, lut) for lut in self.tile_luts)
+        ax, ay = g.u * np.float32(TEXELS_PER_M) + du, g.v * np.float32(TEXELS_PER_M) + dv
+        ax -= np.floor(ax * inv_w) * tw  # wrap into [0, width): cheaper than np.mod
+        ay -= np.floor(ay * inv_h) * th
+        ax += tx
+        ay += ty
+        cos = np.maximum(g.cos / self.dnorm, np.float32(1e-3))
+        footprint = np.minimum(g.depth, np.float32(FAR)) * self.texel_scale / np.sqrt(cos)
+        return ax, ay, footprint
+
+    def _sample(self, g: GBuffer) -> list[np.ndarray]:
+        """Trilinear (mip-mapped) texture colours at the g-buffer's texels: B, G, R planes (h, w) float32
+        in [0, 255]."""
+        ax, ay, footprint = self._texels(g)
+        level = cv2.log(np.maximum(footprint, np.float32(1e-6))) * np.float32(1 / math.log(2))
+        np.clip(level, 0, MIP_TOP, out=level)
+        low = np.minimum(level, MIP_TOP - 1).astype(np.uint8)
+        frac = level - low
+        coarse, fine = cv2.split(self._remap(ax, ay, low + np.uint8(1))), cv2.split(self._remap(ax, ay, low))
+        return [f + (c.astype(np.float32) - f) * frac for c, f in zip(coarse, fine, strict=True)]
+
+    def _remap(self, ax: np.ndarray, ay: np.ndarray, level: np.ndarray) -> np.ndarray:
+        """Bilinear atlas lookups (h, w, 3) uint8 BGR at level-0 texels ax, ay and mip levels (h, w) uint8."""
+        scale, x0, y0 = (cv2.LUT(level, lut) for lut in self.mip_luts)
+        mx = (ax + np.float32(0.5)) * scale + (x0 - np.float32(0.5))
+        my = (ay + np.float32(0.5)) * scale + (y0 - np.float32(0.5))
+        return cv2.remap(self.atlas, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+    def _colour(self, g: GBuffer, d: list[np.ndarray]) -> list[np.ndarray]:
+        """Shaded surface colours fogged towards the sky behind: B, G, R planes (hs, ws) float32 in [0, 1].
+
+        The fog colour is the sky's colour in the pixel's direction (a vertical gradient from the horizon
+        colour at and below the horizon to the zenith colour), so the sky itself is depth = inf.
+        """
+        w = self.world
+        fog = cv2.exp(np.minimum(g.depth, np.float32(1e5)) * np.float32(-1 / w.fog_distance))
+        elevation = cv2.sqrt(np.clip(d[1] / self.dnorm * np.float32(-1 / 0.6), 0, 1))
+        haze = 1 - fog
+        surface = g.shade * fog * np.float32(1 / 255)
+        sky = zip(w.sky_horizon[::-1].tolist(), w.sky_zenith[::-1].tolist(), strict=True)
+        return [
+            tex * surface + (elevation * np.float32(z - h) + np.float32(h)) * haze
+            for tex, (h, z) in zip(self._sample(g), sky, strict=True)
+        ]
+
+    def _finish(self, colour: list[np.ndarray], rng: np.random.Generator) -> np.ndarray:
+        """Area-average colour planes to (height, width), apply exposure gain and sensor noise: (height,
+        width, 3) uint8 BGR.
+
+        The noise is a random crop of a Gaussian noise image twice the frame's size, drawn on first use
+        (far cheaper than fresh Gaussian draws per frame, and as random to the eye and to a network).
+        """
+        h, w = self.size
+        if self.noise is None:
+            self.noise = rng.standard_normal((3, 2 * h, 2 * w), dtype=np.float32) * np.float32(
+                self.world.noise_std
+            )
+        y, x = rng.integers(0, h), rng.integers(0, w)
+        planes = []
+        for c, plane in enumerate(colour):
+            small = cv2.resize(plane, (w, h), interpolation=cv2.INTER_AREA) if self.s > 1 else plane
+            small = small * np.float32(255 * self.world.gain) + self.noise[c, y : y + h, x : x + w]
+            planes.append(np.clip(small + np.float32(0.5), 0, 255).astype(np.uint8))
+        return cv2.merge(planes)

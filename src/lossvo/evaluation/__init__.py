@@ -1,0 +1,1 @@
+"""Evaluating trained networks: inference over whole sequences, trajectories, metrics and their plots."""

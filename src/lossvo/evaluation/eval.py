@@ -1,0 +1,101 @@
+"""``python -m lossvo.eval``: evaluate a checkpoint (Hydra, ``lossvo/conf/eval.yaml``)::
+
+    python -m lossvo.eval ckpt_path=outputs/multirun/<time>/0_loss-euler+seed-0/checkpoints/best.ckpt
+    python -m lossvo.eval ckpt_path=... data=kitti data.root=/data/kitti data.test=[09,10]
+
+The checkpoint says how its network was trained (:mod:`lossvo.training.checkpoints`): frame size,
+``seq_len``, normalisation and its statistics, and the data it was trained on, which is what is evaluated
+unless ``data=...`` chooses another dataset or ``data.KEY=...`` changes a setting; the other data need
+hold no training sequence. An override of the frame size, ``seq_len`` or normalisation that contradicts
+the checkpoint is an error (one line, exit status 2). The output folder (``outputs/eval/<time>/``, or
+``hydra.run.dir``) receives what :func:`lossvo.evaluation.results.evaluate_run` writes.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, cast
+
+import torch
+
+from lossvo.evaluation.results import evaluate_run
+from lossvo.processes import restore_start_method
+from lossvo.training import checkpoints
+
+log = logging.getLogger("lossvo")
+
+CONFIG_DIR = str(Path(__file__).resolve().parents[1] / "conf")
+
+
+def _resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+def data_overrides(overrides: Sequence[str]) -> tuple[bool, list[str]]:
+    """From command-line overrides: whether a data config was chosen (``data=kitti``) and the data keys
+    set (``data.root=...`` gives ``root``)."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    chosen, keys = False, []
+    for override in OverridesParser.create().parse_overrides(list(overrides)):
+        key = override.key_or_group
+        if key == "data":
+            chosen = True
+        elif key.startswith("data."):
+            keys.append(key.split(".")[1])
+    return chosen, list(dict.fromkeys(keys))
+
+
+def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> dict[str, Any]:
+    """The body of ``python -m lossvo.eval``: load the checkpoint, build the data it describes (with the
+    command line's ``overrides`` of data settings), evaluate the test and unseen-motion sequences."""
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+
+    device = _resolve_device(str(cfg.get("device", "auto")))
+    module = checkpoints.load_module(cfg.ckpt_path, device)
+    chosen, keys = data_overrides(overrides)
+    given = cast("dict[str, Any]", OmegaConf.to_container(cfg.data, resolve=True))
+    recorded = checkpoints.recorded_data(cfg.ckpt_path, module)
+    explicit = {k: given[k] for k in keys if k in given}
+    data_cfg = checkpoints.evaluation_data(recorded, given if chosen else None, explicit)
+    datamodule = instantiate(data_cfg, _convert_="all")
+    datamodule.prepare_data()
+    datamodule.setup("test")
+    sequences = list(cfg.sequences) if cfg.get("sequences") else datamodule.evaluated
+    sequences = [f"{s:02d}" if isinstance(s, int) else str(s) for s in sequences]
+    return evaluate_run(module, datamodule, out_dir, sequences, checkpoint=Path(cfg.ckpt_path).resolve(),
+                        align=cfg.get("align", "none"), delta=int(cfg.get("delta", 1)),
+                        carry_state=bool(cfg.get("carry_state", False)))  # fmt: skip
+
+
+def main() -> None:
+    import hydra
+    from hydra.core.hydra_config import HydraConfig
+    from omegaconf import OmegaConf
+
+    @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="eval")
+    def _main(cfg: Any) -> None:
+        restore_start_method()  # a joblib-launched job: let its loader workers start
+        out_dir = Path(HydraConfig.get().runtime.output_dir)
+        if OmegaConf.is_missing(cfg, "ckpt_path"):
+            print("error: ckpt_path is required: python -m lossvo.eval ckpt_path=PATH", file=sys.stderr)
+            sys.exit(2)
+        try:
+            result = run(cfg, out_dir, HydraConfig.get().overrides.task)
+        except (FileNotFoundError, ValueError) as e:  # KittiFormatError is a ValueError
+            print(f"error: {e}", file=sys.stderr)
+            sys.exit(2)
+        overall = result["overall"]
+        if "ape" in overall:
+            names = ", ".join(overall["sequences"])
+            ape, rpe = overall["ape"]["trans"]["rmse"], overall["rpe"]["trans"]["rmse"]
+            log.info("overall (%s): APE trans RMSE %.4g m, RPE trans RMSE %.4g m", names, ape, rpe)
+        log.info("results: %s", out_dir / "results.json")
+
+    _main()

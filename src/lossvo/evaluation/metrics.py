@@ -1,0 +1,622 @@
+"""Trajectory metrics equal to evo's APE / RPE and the KITTI odometry error, as torchmetrics.
+
+Everything is computed in float64, vectorised over poses and pairs (no Python loop), on the device of the
+input. Poses are (N, 4, 4) camera-to-world matrices ``T_w_c`` (KITTI).
+
+Definitions (checked against evo 1.x, ``evo/core/metrics.py`` and ``evo/core/geometry.py``):
+
+- APE (evo ``APE``): error pose ``E_i = inv(P_est_i) @ P_ref_i``. The translation error is evo's
+  ``translation_part``, which evo computes as ``|p_est_i - p_ref_i|`` (the positions' distance; equal to
+  ``|t(E_i)|`` for rigid poses, and what evo actually evaluates, so we do the same). The rotation error is
+  the angle of ``R(E_i) = R_est_i^T R_ref_i`` (evo: ``|so3_log(R(E_i))|``; here lossvo's robust
+  :func:`lossvo.geometry.rotation_angle`).
+- RPE (evo ``RPE``, delta in frames, ``all_pairs=False``): pairs ``(0, d), (d, 2d), ...`` (consecutive,
+  non-overlapping), ``E = inv(inv(Q_i) Q_j) @ (inv(P_i) P_j)`` with Q the reference and P the estimate;
+  errors ``|t(E)|`` and the angle of ``R(E)``.
+- Alignment (evo ``PosePath3D.align``): Umeyama on positions, estimate onto reference. ``se3`` applies
+  ``[r | t]`` on the left; ``sim3`` scales the estimate's translations by ``s`` and then applies
+  ``[r | t]``; ``scale`` only scales the translations.
+- KITTI (devkit ``evaluate_odometry.cpp``): see :func:`kitti_segment_errors`.
+
+Run ``python -m lossvo.metrics GT_FILE EST_FILE [--align ...] [--delta N] [--json]`` on two KITTI pose files.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Sequence
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from torch import Tensor
+from torchmetrics import Metric
+from torchmetrics.utilities import dim_zero_cat
+
+from lossvo import geometry
+from lossvo.console import emit
+from lossvo.evaluation.trajectories import integrate
+
+AlignMode = Literal["none", "se3", "sim3", "scale"]
+ALIGN_MODES: tuple[str, ...] = ("none", "se3", "sim3", "scale")
+KITTI_LENGTHS: tuple[float, ...] = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
+"""Segment lengths (metres) of the KITTI odometry benchmark."""
+KITTI_STEP = 10
+"""Frames between the first frames of KITTI segments (the devkit's ``step_size``, one second at 10 Hz)."""
+
+STATISTICS: tuple[str, ...] = ("rmse", "mean", "median", "std", "min", "max")
+
+
+# --------------------------------------------------------------------------------------------------
+# Input checks
+# --------------------------------------------------------------------------------------------------
+
+
+def _as_poses(x: Tensor | np.ndarray | Sequence, name: str, device: torch.device | None = None) -> Tensor:
+    """``x`` as a float64 (N, 4, 4) tensor; ValueError for another shape or a non-finite pose."""
+    t = torch.as_tensor(x, dtype=torch.float64, device=device)
+    if t.dim() != 3 or tuple(t.shape[1:]) != (4, 4):
+        raise ValueError(f"{name} must have shape (N, 4, 4), got {tuple(t.shape)}")
+    bad = ~torch.isfinite(t).flatten(1).all(dim=1)
+    if bool(bad.any()):
+        index = int(torch.nonzero(bad)[0, 0])
+        raise ValueError(f"{name} pose {index} is not finite (NaN or inf)")
+    return t
+
+
+def _check_pair(est: Any, ref: Any, min_poses: int) -> tuple[Tensor, Tensor]:
+    """Both trajectories as float64 tensors on est's device, of equal length >= ``min_poses``."""
+    est = _as_poses(est, "est")
+    ref = _as_poses(ref, "ref", device=est.device)
+    if len(est) != len(ref):
+        raise ValueError(f"trajectories differ in length: est has {len(est)} poses, ref has {len(ref)}")
+    if len(est) < min_poses:
+        raise ValueError(f"need at least {min_poses} poses, got {len(est)}")
+    return est, ref
+
+
+# --------------------------------------------------------------------------------------------------
+# Alignment (Umeyama, as evo)
+# --------------------------------------------------------------------------------------------------
+
+
+def umeyama(x: Tensor, y: Tensor, with_scale: bool) -> tuple[Tensor, Tensor, Tensor]:
+    """Least-squares ``(r, t, c)`` minimising ``sum |y_i - (c r x_i + t)|^2`` (Umeyama 1991), as evo.
+
+    Written out instead of ``roma.rigid_points_registration`` so that every step is evo's
+    ``geometry.umeyama_alignment``: the same normalisation of the covariance and the variance (1/n), the
+    same SVD-based reflection fix (``det(u) det(v) < 0``), the same rank test, and ``c = tr(D S) / sigma_x``.
+    RoMa solves the same problem but through its own Procrustes routine and scale formula, so its rounding
+    (and its behaviour on degenerate input) is not evo's.
+
+    Args:
+        x: (N, 3) source points (metres), N >= 3.
+        y: (N, 3) target points.
+        with_scale: also estimate the scale c (else c = 1).
+    Returns:
+        r (3, 3) rotation, t (3,) translation (metres), c () scale; all float64.
+    Raises:
+        ValueError: "degenerate alignment: ..." when the covariance has rank < 2.
+    """
+    n = x.shape[0]
+    mean_x, mean_y = x.mean(dim=0), y.mean(dim=0)
+    xc, yc = x - mean_x, y - mean_y
+    if not bool(xc.any()) or not bool(yc.any()):
+        raise ValueError("degenerate alignment: all positions identical")
+    sigma_x = (xc * xc).sum() / n
+    cov = yc.T @ xc / n
+    u, d, v = torch.linalg.svd(cov)
+    if int((d > torch.finfo(d.dtype).eps).sum()) < 2:
+        raise ValueError("degenerate alignment: positions are collinear (covariance rank < 2)")
+    s = torch.ones(3, dtype=x.dtype, device=x.device)
+    if float(torch.linalg.det(u) * torch.linalg.det(v)) < 0.0:
+        s[2] = -1.0
+    r = u @ torch.diag(s) @ v
+    c = (d * s).sum() / sigma_x if with_scale else torch.ones((), dtype=x.dtype, device=x.device)
+    t = mean_y - c * (r @ mean_x)
+    return r, t, c
+
+
+def align(est: Tensor, ref: Tensor, mode: AlignMode = "none") -> Tensor:
+    """The estimate aligned onto the reference as evo's ``traj_est.align(traj_ref, ...)``.
+
+    Args:
+        est: (N, 4, 4) estimated poses.
+        ref: (N, 4, 4) reference poses.
+        mode: "none" (unchanged), "se3" (``--align``), "sim3" (``--align --correct_scale``) or "scale"
+            (``--correct_scale`` alone: translations times the Umeyama scale).
+    Returns:
+        (N, 4, 4) float64 aligned estimate.
+    Raises:
+        ValueError: unknown mode, different lengths, non-finite poses, N < 3 for an alignment, degenerate
+            positions.
+    """
+    if mode not in ALIGN_MODES:
+        raise ValueError(f"unknown alignment {mode!r}; expected one of {', '.join(ALIGN_MODES)}")
+    est, ref = _check_pair(est, ref, 1 if mode == "none" else 3)
+    if mode == "none":
+        return est
+    r, t, c = umeyama(est[:, :3, 3], ref[:, :3, 3], with_scale=mode != "se3")
+    out = est.clone()
+    if mode in ("sim3", "scale"):
+        out[:, :3, 3] = c * out[:, :3, 3]
+    if mode in ("se3", "sim3"):
+        out = geometry.make_pose(r, t) @ out
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
+# Per-pose / per-pair errors
+# --------------------------------------------------------------------------------------------------
+
+
+def ape_errors(est: Tensor, ref: Tensor, align: AlignMode = "none") -> tuple[Tensor, Tensor]:
+    """Absolute pose errors, evo's APE (``translation_part``, ``rotation_angle_rad``).
+
+    Args:
+        est: (N, 4, 4) estimated poses, N >= 2 (>= 3 with an alignment).
+        ref: (N, 4, 4) reference poses.
+        align: alignment of the estimate first, see :func:`align`.
+    Returns:
+        trans (N,) metres and rot (N,) radians in [0, pi], float64.
+    """
+    est, ref = _check_pair(est, ref, 2)
+    est = _align(est, ref, align)
+    trans = torch.linalg.vector_norm(est[:, :3, 3] - ref[:, :3, 3], dim=-1)
+    rot = geometry.rotation_angle(est[:, :3, :3].transpose(-1, -2) @ ref[:, :3, :3])
+    return trans, rot
+
+
+def _align(est: Tensor, ref: Tensor, mode: AlignMode) -> Tensor:
+    return est if mode == "none" else align(est, ref, mode)
+
+
+PairsFrom = Literal["estimate", "reference"]
+PAIRS_FROM: tuple[PairsFrom, ...] = ("estimate", "reference")
+
+
+def rpe_pairs(n: int, delta: int = 1) -> tuple[Tensor, Tensor]:
+    """Index pairs ``(0, d), (d, 2d), ...`` of evo's RPE with ``all_pairs=False`` (delta in frames).
+
+    Returns:
+        i (M,), j (M,) int64 indices with M = (n - 1) // delta.
+    """
+    starts = torch.arange(0, n, delta)
+    return starts[:-1], starts[1:]
+
+
+def rpe_pairs_by_path(poses: Tensor, delta_m: float) -> tuple[Tensor, Tensor]:
+    """Index pairs of evo's RPE with ``delta_unit=m`` and ``all_pairs=False`` (evo's
+    ``filters.filter_pairs_by_path``, evo >= 1.31): the first pose is taken, then, walking along the
+    path, each pose at which the distance travelled since the last taken one reaches ``delta_m``;
+    consecutive taken indices are the pairs.
+
+    Which trajectory's path decides the pairs is the caller's choice (evo's ``pairs_from_reference``).
+    The loop runs once per pair, each step a binary search over the cumulative path length.
+
+    Args:
+        poses: (N, 4, 4) poses; delta_m: path distance in metres (> 0).
+    Returns:
+        i (M,), j (M,) int64 indices.
+    """
+    steps = torch.linalg.vector_norm(poses[1:, :3, 3] - poses[:-1, :3, 3], dim=-1).double().cpu().numpy()
+    travelled = np.concatenate(([0.0], np.cumsum(steps)))
+    taken, here = [0], 0
+    while (nxt := int(np.searchsorted(travelled, travelled[here] + delta_m, side="left"))) < len(travelled):
+        taken.append(nxt)
+        here = nxt
+    ids = torch.tensor(taken, dtype=torch.int64)
+    return ids[:-1], ids[1:]
+
+
+def rpe_errors(
+    est: Tensor, ref: Tensor, delta: float = 1, align: AlignMode = "none", delta_unit: str = "f",
+    pairs_from: PairsFrom = "estimate",
+) -> tuple[Tensor, Tensor]:  # fmt: skip
+    """Relative pose errors, evo's RPE (consecutive pairs, ``all_pairs=False``).
+
+    ``E = inv(inv(Q_i) Q_j) @ (inv(P_i) P_j)``, Q the reference and P the estimate (evo's ``rpe_base``),
+    after aligning the estimate as ``evo_rpe --align [--correct_scale]`` does (:func:`align`): a rigid
+    alignment leaves relative poses unchanged, the Umeyama scale of ``sim3`` and ``scale`` scales their
+    translations.
+
+    Args:
+        est: (N, 4, 4) estimated poses.
+        ref: (N, 4, 4) reference poses, N > delta.
+        delta: frames (``delta_unit="f"``, an integer >= 1) or metres of path (``"m"``) between the two
+            poses of a pair.
+        align: alignment of the estimate first, see :func:`align`.
+        delta_unit: ``"f"`` (frames) or ``"m"`` (metres, :func:`rpe_pairs_by_path`).
+        pairs_from: the path that decides metre-based pairs: the (aligned) ``"estimate"``, evo's default,
+            or the ``"reference"``, evo's ``pairs_from_reference`` (the same pairs for every estimate
+            compared); frame-based pairs are the same either way.
+    Returns:
+        trans (M,) metres and rot (M,) radians, float64 (M = (N - 1) // delta for frames).
+    """
+    est, ref = _check_pair(est, ref, 2)
+    est = _align(est, ref, align)
+    i, j = _rpe_pairs(est, ref, delta, delta_unit, pairs_from)
+    i, j = i.to(est.device), j.to(est.device)
+    ref_rel = geometry.pose_inverse(ref[i]) @ ref[j]
+    est_rel = geometry.pose_inverse(est[i]) @ est[j]
+    E = geometry.pose_inverse(ref_rel) @ est_rel
+    return torch.linalg.vector_norm(E[:, :3, 3], dim=-1), geometry.rotation_angle(E[:, :3, :3])
+
+
+def check_rpe_settings(delta: float, delta_unit: str, pairs_from: str) -> None:
+    """One line naming the setting that is not a valid RPE delta, unit or pair source."""
+    if delta_unit not in ("f", "m"):
+        raise ValueError(f"delta_unit must be 'f' (frames) or 'm' (metres), got {delta_unit!r}")
+    if pairs_from not in PAIRS_FROM:
+        raise ValueError(f"pairs_from must be one of {', '.join(PAIRS_FROM)}, got {pairs_from!r}")
+    if delta_unit == "f" and (isinstance(delta, bool) or not isinstance(delta, int) or delta < 1):
+        raise ValueError(f"delta must be a positive integer number of frames, got {delta!r}")
+    if delta_unit == "m" and not (isinstance(delta, (int, float)) and math.isfinite(delta) and delta > 0):
+        raise ValueError(f"delta must be a positive path distance in metres, got {delta!r}")
+
+
+def _rpe_pairs(
+    est: Tensor, ref: Tensor, delta: float, delta_unit: str, pairs_from: PairsFrom
+) -> tuple[Tensor, Tensor]:
+    check_rpe_settings(delta, delta_unit, pairs_from)
+    if delta_unit == "f":
+        if len(est) <= delta:
+            raise ValueError(f"delta = {delta} frames needs more than {delta} poses, got {len(est)}")
+        return rpe_pairs(len(est), int(delta))
+    i, j = rpe_pairs_by_path(ref if pairs_from == "reference" else est, float(delta))
+    if len(i) == 0:
+        raise ValueError(f"delta = {delta} m: the {pairs_from}'s path is too short for one pair")
+    return i, j
+
+
+# --------------------------------------------------------------------------------------------------
+# Statistics
+# --------------------------------------------------------------------------------------------------
+
+
+def statistics(errors: Tensor) -> dict[str, float]:
+    """evo's statistics of an error vector: rmse, mean, median, std, min, max.
+
+    The median of an even count is the mean of the middle two (numpy); std is the population std (ddof 0).
+
+    Args:
+        errors: (M,) errors, M >= 1.
+    Returns:
+        dict of Python floats in the errors' unit.
+    """
+    e = torch.as_tensor(errors, dtype=torch.float64).flatten()
+    if e.numel() == 0:
+        raise ValueError("no errors to summarise")
+    s = torch.sort(e).values
+    m = e.numel()
+    median = 0.5 * (s[(m - 1) // 2] + s[m // 2])
+    return {
+        "rmse": math.sqrt(float((e * e).mean())),
+        "mean": float(e.mean()),
+        "median": float(median),
+        "std": float(e.std(correction=0)) if m > 1 else 0.0,
+        "min": float(s[0]),
+        "max": float(s[-1]),
+    }
+
+
+# --------------------------------------------------------------------------------------------------
+# KITTI odometry error
+# --------------------------------------------------------------------------------------------------
+
+
+def trajectory_distances(poses: Tensor) -> Tensor:
+    """Cumulative path length at each pose (devkit ``trajectoryDistances``), starting at 0.
+
+    Args:
+        poses: (N, 4, 4) poses.
+    Returns:
+        (N,) float64 metres.
+    """
+    steps = torch.linalg.vector_norm(poses[1:, :3, 3] - poses[:-1, :3, 3], dim=-1)
+    return torch.cat((steps.new_zeros(1), torch.cumsum(steps, dim=0)))
+
+
+def kitti_segment_errors(
+    est: Tensor, ref: Tensor, lengths: Sequence[float] = KITTI_LENGTHS, step: int = KITTI_STEP
+) -> tuple[Tensor, Tensor]:
+    """Per-segment errors of the KITTI odometry devkit (``calcSequenceErrors``).
+
+    For each first frame ``f`` in ``0, step, 2 step, ...`` and each length L, the last frame l is the first
+    frame with ``dist[l] > dist[f] + L`` (distances along the ground truth; no segment if none), and the
+    error pose is the devkit's ``inv(inv(E_f) E_l) @ (inv(G_f) G_l)`` (E estimate, G ground truth; inv
+    the general matrix inverse, as the devkit's), its
+    angle the devkit's ``acos(clamp((trace(R) - 1) / 2, -1, 1))`` (:func:`devkit_rotation_error`), so
+    that the numbers equal the devkit's formulas also on pose files that are not exactly orthonormal
+    (7-digit matrices). Everything is float64; the C++ devkit accumulates distances and errors in
+    single precision, so its figures differ from these by about 1e-4 relative.
+
+    Args:
+        est: (N, 4, 4) estimated poses.
+        ref: (N, 4, 4) ground-truth poses.
+        lengths: segment lengths in metres.
+        step: frames between first frames.
+    Returns:
+        t_err (S,) in metres per metre and r_err (S,) in radians per metre, segments ordered by first
+        frame, then length (the devkit's order); S may be 0.
+    """
+    est, ref = _check_pair(est, ref, 2)
+    dist = trajectory_distances(ref)
+    lens = torch.as_tensor(lengths, dtype=torch.float64, device=est.device)
+    first = torch.arange(0, len(ref), step, device=est.device)
+    last = torch.searchsorted(dist, dist[first][:, None] + lens[None, :], right=True)
+    valid = last < len(ref)
+    f = first[:, None].expand_as(last)[valid]
+    ln = lens[None, :].expand_as(last)[valid]
+    last = last[valid]
+    inv = torch.linalg.inv  # the devkit's general inverse: the files' rotations may not be orthonormal
+    ref_rel = inv(ref[f]) @ ref[last]
+    est_rel = inv(est[f]) @ est[last]
+    E = inv(est_rel) @ ref_rel
+    t_err = torch.linalg.vector_norm(E[:, :3, 3], dim=-1) / ln
+    r_err = devkit_rotation_error(E[:, :3, :3]) / ln
+    return t_err, r_err
+
+
+def devkit_rotation_error(R: Tensor) -> Tensor:
+    """The KITTI devkit's ``rotationError``: ``acos(max(min((trace(R) - 1) / 2, 1), -1))``, radians.
+
+    Evaluation only: the clamp has no gradient beyond it and arccos loses precision near 0 (that is the
+    devkit's definition; training uses :func:`lossvo.geometry.rotation_angle`).
+
+    Args:
+        R: (..., 3, 3) (nearly) rotation matrices.
+    Returns:
+        (...,) float64 angles in [0, pi].
+    """
+    d = 0.5 * (R.to(torch.float64).diagonal(dim1=-2, dim2=-1).sum(-1) - 1.0)
+    return torch.acos(d.clamp(-1.0, 1.0))
+
+
+def _kitti_summary(t_sum: float, r_sum: float, count: int) -> dict[str, float | None]:
+    """Mean segment errors as the devkit reports them: t in %, r in deg per 100 m; None without segments."""
+    if count == 0:
+        return {"t_err_pct": None, "r_err_deg_per_100m": None}
+    return {
+        "t_err_pct": 100.0 * t_sum / count,
+        "r_err_deg_per_100m": 100.0 * math.degrees(r_sum / count),
+    }
+
+
+def kitti_odometry_error(
+    est: Tensor, ref: Tensor, lengths: Sequence[float] = KITTI_LENGTHS, step: int = KITTI_STEP
+) -> tuple[float, float] | None:
+    """KITTI odometry error of one sequence: the mean over its segments (:func:`kitti_segment_errors`).
+
+    Returns:
+        ``(t_err_pct, r_err_deg_per_100m)`` (translation error in %, rotation error in degrees per 100 m),
+        or None when the ground truth is too short for any segment (never 0: no segment is no measurement).
+    """
+    t, r = kitti_segment_errors(est, ref, lengths, step)
+    out = _kitti_summary(float(t.sum()), float(r.sum()), t.numel())
+    t_err, r_err = out["t_err_pct"], out["r_err_deg_per_100m"]
+    if t_err is None or r_err is None:  # both or neither: no segment
+        return None
+    return t_err, r_err
+
+
+# --------------------------------------------------------------------------------------------------
+# torchmetrics
+# --------------------------------------------------------------------------------------------------
+
+
+class _PoseErrorMetric(Metric):
+    """Collects per-pose (or per-pair) translation and rotation errors; ``compute`` pools all updates.
+
+    States are lists of float64 error vectors reduced by concatenation, so statistics over processes are
+    exactly those of all sequences together.
+    """
+
+    is_differentiable = False
+    higher_is_better = False
+    full_state_update = False
+    trans: list[Tensor]  # states (add_state), which nn.Module's __getattr__ would type Tensor | Module
+    rot: list[Tensor]
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.add_state("trans", default=[], dist_reduce_fx="cat")
+        self.add_state("rot", default=[], dist_reduce_fx="cat")
+
+    def _errors(self, est: Tensor, ref: Tensor) -> tuple[Tensor, Tensor]:
+        raise NotImplementedError
+
+    def update(self, est: Tensor, ref: Tensor) -> None:
+        """Add one sequence: est, ref (N, 4, 4) whole trajectories (poses, not batches of windows)."""
+        trans, rot = self._errors(est, ref)
+        self.trans.append(trans)
+        self.rot.append(rot)
+
+    def compute(self) -> dict[str, dict[str, float]]:
+        """``{"trans": statistics (m), "rot_rad": statistics (rad)}`` over all updates."""
+        return {
+            "trans": statistics(dim_zero_cat(self.trans)),
+            "rot_rad": statistics(dim_zero_cat(self.rot)),
+        }
+
+
+class APE(_PoseErrorMetric):
+    """evo's absolute pose error, pooled over sequences (each sequence aligned on its own).
+
+    Args:
+        align: "none", "se3", "sim3" or "scale" (see :func:`align`).
+    """
+
+    def __init__(self, align: AlignMode = "none", **kwargs: Any) -> None:
+        if align not in ALIGN_MODES:
+            raise ValueError(f"unknown alignment {align!r}; expected one of {', '.join(ALIGN_MODES)}")
+        super().__init__(**kwargs)
+        self.align = align
+
+    def _errors(self, est: Tensor, ref: Tensor) -> tuple[Tensor, Tensor]:
+        return ape_errors(est, ref, self.align)
+
+
+class RPE(_PoseErrorMetric):
+    """evo's relative pose error (consecutive pairs), pooled over sequences.
+
+    Args:
+        delta, delta_unit, pairs_from: the pairs (:func:`rpe_errors`): frames by default.
+        align: alignment of each estimate first (:func:`rpe_errors`).
+    """
+
+    def __init__(
+        self, delta: float = 1, align: AlignMode = "none", delta_unit: str = "f",
+        pairs_from: PairsFrom = "estimate", **kwargs: Any,
+    ) -> None:  # fmt: skip
+        check_rpe_settings(delta, delta_unit, pairs_from)
+        if align not in ALIGN_MODES:
+            raise ValueError(f"unknown alignment {align!r}; expected one of {', '.join(ALIGN_MODES)}")
+        super().__init__(**kwargs)
+        self.delta, self.align, self.delta_unit, self.pairs_from = delta, align, delta_unit, pairs_from
+
+    def _errors(self, est: Tensor, ref: Tensor) -> tuple[Tensor, Tensor]:
+        return rpe_errors(est, ref, self.delta, self.align, self.delta_unit, self.pairs_from)
+
+
+class KittiOdometryError(Metric):
+    """KITTI odometry error pooled over all segments of all sequences (as the devkit's averages).
+
+    Sum states (sum of per-segment t and r errors, segment count) reduce by summation across processes.
+    ``compute`` returns ``{"t_err_pct": ..., "r_err_deg_per_100m": ...}``, both None when no sequence had
+    a segment.
+    """
+
+    is_differentiable = False
+    higher_is_better = False
+    full_state_update = False
+    t_sum: Tensor  # states (add_state), float64 scalars
+    r_sum: Tensor
+    count: Tensor
+
+    def __init__(
+        self, lengths: Sequence[float] = KITTI_LENGTHS, step: int = KITTI_STEP, **kwargs: Any
+    ) -> None:
+        super().__init__(**kwargs)
+        self.lengths = tuple(float(x) for x in lengths)
+        self.step = step
+        zero = torch.zeros((), dtype=torch.float64)
+        self.add_state("t_sum", default=zero.clone(), dist_reduce_fx="sum")
+        self.add_state("r_sum", default=zero.clone(), dist_reduce_fx="sum")
+        self.add_state("count", default=zero.clone(), dist_reduce_fx="sum")
+
+    def update(self, est: Tensor, ref: Tensor) -> None:
+        """Add one sequence: est, ref (N, 4, 4) whole trajectories."""
+        t, r = kitti_segment_errors(est, ref, self.lengths, self.step)
+        self.t_sum = self.t_sum + t.sum().to(self.t_sum)
+        self.r_sum = self.r_sum + r.sum().to(self.r_sum)
+        self.count = self.count + t.numel()
+
+    def compute(self) -> dict[str, float | None]:
+        return _kitti_summary(float(self.t_sum), float(self.r_sum), round(float(self.count)))
+
+
+# --------------------------------------------------------------------------------------------------
+# CLI
+# --------------------------------------------------------------------------------------------------
+
+
+def evaluate(
+    gt: Tensor, est: Tensor, align: AlignMode = "none", delta: float = 1, delta_unit: str = "f",
+    pairs_from: PairsFrom = "estimate",
+) -> dict[str, Any]:  # fmt: skip
+    """APE and RPE (both with ``align``; RPE pairs by ``delta``, ``delta_unit``, ``pairs_from``, see
+    :func:`rpe_errors`) and KITTI error of one estimate, JSON-ready.
+
+    Returns:
+        ``{"ape": {"trans": {...}, "rot_rad": {...}}, "rpe": {...}, "kitti": {"t_err_pct": x,
+        "r_err_deg_per_100m": y}}`` (kitti values None when the sequence is too short).
+    """
+    ape_t, ape_r = ape_errors(est, gt, align)
+    rpe_t, rpe_r = rpe_errors(est, gt, delta, align, delta_unit, pairs_from)
+    t, r = kitti_segment_errors(est, gt)
+    return {
+        "ape": {"trans": statistics(ape_t), "rot_rad": statistics(ape_r)},
+        "rpe": {"trans": statistics(rpe_t), "rot_rad": statistics(rpe_r)},
+        "kitti": _kitti_summary(float(t.sum()), float(r.sum()), t.numel()),
+    }
+
+
+def evaluate_relative(
+    relative: Tensor | np.ndarray,
+    gt: Tensor | np.ndarray,
+    align: AlignMode = "none",
+    delta: int = 1,
+    pooled: Sequence[Metric] = (),
+) -> tuple[Tensor, dict[str, Any]]:
+    """Relative poses -> trajectory -> scores: the one path that validation, evaluation and the
+    baselines share.
+
+    The (N-1, 4, 4) relative poses ``T_k`` are integrated from the first ground-truth pose
+    (:func:`lossvo.evaluation.trajectories.integrate`) and scored against ``gt`` (N, 4, 4) with
+    :func:`evaluate`; ``pooled`` metrics (:class:`APE`, :class:`RPE`, :class:`KittiOdometryError`) are updated
+    with the sequence, for scores over several sequences.
+
+    Returns:
+        trajectory (N, 4, 4) float64 and :func:`evaluate`'s dict.
+    """
+    gt_t = torch.as_tensor(gt, dtype=torch.float64)
+    est = integrate(torch.as_tensor(relative, dtype=torch.float64), start=gt_t[0])
+    for metric in pooled:
+        metric.update(est, gt_t)
+    return est, evaluate(gt_t, est, align, delta)
+
+
+def format_table(result: dict[str, Any]) -> str:
+    """A plain-text table of :func:`evaluate`'s result."""
+    lines = [f"{'':14}" + "".join(f"{name:>12}" for name in STATISTICS)]
+    for metric in ("ape", "rpe"):
+        for part, unit in (("trans", "m"), ("rot_rad", "rad")):
+            stats = result[metric][part]
+            label = f"{metric.upper()} {part.split('_')[0]} ({unit})"
+            lines.append(f"{label:14}" + "".join(f"{stats[name]:12.6g}" for name in STATISTICS))
+    kitti = result["kitti"]
+    if kitti["t_err_pct"] is None:
+        lines.append("KITTI: sequence too short for any segment (100-800 m)")
+    else:
+        lines.append(
+            f"KITTI: t_err {kitti['t_err_pct']:.4f} %, r_err {kitti['r_err_deg_per_100m']:.4f} deg/100 m"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m lossvo.metrics GT_FILE EST_FILE``; one-line errors with exit status 2."""
+    from lossvo.data.kitti import read_poses
+
+    parser = argparse.ArgumentParser(prog="python -m lossvo.metrics", description=__doc__.splitlines()[0])
+    parser.add_argument("gt", help="ground-truth KITTI pose file")
+    parser.add_argument("est", help="estimated KITTI pose file")
+    parser.add_argument("--align", choices=ALIGN_MODES, default="none", help="APE alignment (evo's)")
+    parser.add_argument(
+        "--delta", type=float, default=1, help="RPE delta, in frames or metres (--delta-unit)"
+    )
+    parser.add_argument(
+        "--delta-unit", choices=("f", "m"), default="f", help="RPE delta unit: frames or metres"
+    )
+    parser.add_argument("--pairs-from", choices=PAIRS_FROM, default="estimate",
+                        help="whose path picks RPE pairs in metres (evo: pairs_from_reference)")  # fmt: skip
+    parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    args = parser.parse_args(argv)
+    try:
+        gt = torch.from_numpy(read_poses(args.gt))
+        est = torch.from_numpy(read_poses(args.est))
+        delta = int(args.delta) if args.delta_unit == "f" and float(args.delta).is_integer() else args.delta
+        result = evaluate(gt, est, args.align, delta, args.delta_unit, args.pairs_from)
+    except ValueError as e:  # KittiFormatError is a ValueError
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    emit(json.dumps(result, indent=2) if args.json else format_table(result))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,287 @@
+"""The baselines in a sweep report: their table columns and section (:func:`run_baselines`,
+:func:`baselines_markdown`), and each job against them: below the training mean motion on the validation
+sequences (:func:`learning_markdown`), below zero motion in rotation and below the sequence's own mean
+motion in translation on the unseen-motion sequences (:func:`unseen_markdown`).
+
+The baselines' data is what the first included job's results.json records (:mod:`lossvo.report.jobs`);
+where it is missing or no longer on disk, the report has no baseline columns and one note says why.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import cast
+
+import numpy as np
+
+from lossvo.evaluation.metrics import AlignMode
+from lossvo.report import baselines
+from lossvo.report.jobs import (
+    RPE_ROT,
+    RPE_TRANS,
+    EvaluatedData,
+    Job,
+    check_on_disk,
+    config_sequences,
+    evaluated_data,
+    finite_number,
+    first_line,
+    lookup,
+)
+from lossvo.report.tables import BASELINE, Column, fmt, md
+
+UNSEEN_KEY = "data.unseen"
+UNSEEN_ROTATION_BAR = 0.30
+"""Fraction by which a job's RPE rotation RMSE must lie below zero motion's on an unseen-motion sequence."""
+LEARNING_METRICS = (("RPE trans", RPE_TRANS), ("RPE rot", RPE_ROT))
+
+
+@dataclass
+class BaselineRun:
+    """The baselines of a report: columns, trajectories (N, 4, 4) per sequence and baseline, ORB failures
+    and frame counts per sequence, notes, the time taken (s) and how many sequences came from the
+    cache."""
+
+    columns: list[Column] = field(default_factory=list)
+    trajectories: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    failures: dict[str, int] = field(default_factory=dict)
+    frames: dict[str, int] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+    cached: int = 0
+
+
+def evaluation_settings(jobs: Sequence[Job]) -> tuple[str, int, list[str]]:
+    """(align, delta) of the included jobs' results.json (the first job's) and notes if they differ."""
+    results = [j.included_results for j in jobs]
+    settings = {(str(r.get("align", "none")), int(r.get("delta", 1))) for r in results}
+    first = (str(results[0].get("align", "none")), int(results[0].get("delta", 1)))
+    notes = (
+        []
+        if len(settings) == 1
+        else [f"jobs differ in align/delta {sorted(settings)}: baselines use {first}"]
+    )
+    return first[0], first[1], notes
+
+
+def baseline_data(jobs: Sequence[Job]) -> tuple[EvaluatedData, list[str]]:
+    """The data record of the first job (which the baselines use) and a note if the jobs' records differ.
+
+    Raises:
+        ValueError: the first job's results.json records no data, or its data is no longer on disk.
+    """
+    data = evaluated_data(jobs[0])
+    check_on_disk(data, jobs[0])
+    identities = set()
+    for job in jobs:
+        try:
+            identities.add(json.dumps(evaluated_data(job).identity(), sort_keys=True))
+        except ValueError:
+            identities.add(job.path.name)
+    notes = (
+        [] if len(identities) == 1 else [f"jobs differ in their data: baselines use {jobs[0].path.name}'s"]
+    )
+    return data, notes
+
+
+def run_baselines(jobs: Sequence[Job], sequences: Sequence[str], cache_dir: Path, n_jobs: int) -> BaselineRun:
+    """Baselines on ``sequences`` of the data the first included job records; never raises (a failure
+    becomes a note and no baseline columns)."""
+    run = BaselineRun()
+    start = time.perf_counter()
+    align, delta, run.notes = evaluation_settings(jobs)
+    try:
+        data, notes = baseline_data(jobs)
+        run.notes += notes
+        mode = cast("AlignMode", align)  # results.json's text; metrics.align rejects an unknown mode
+        results = baselines.compute_baselines(data, sequences, cache_dir, mode, delta, n_jobs)
+    except Exception as e:  # missing data, a damaged sequence: the report goes on without baselines
+        run.notes.append(f"baselines skipped: {type(e).__name__}: {first_line(e)}")
+        run.seconds = time.perf_counter() - start
+        return run
+    _fill(run, results, sequences)
+    run.seconds = time.perf_counter() - start
+    return run
+
+
+def _fill(
+    run: BaselineRun, results: dict[str, dict[str, baselines.BaselineResult]], sequences: Sequence[str]
+) -> None:
+    """A run's columns, trajectories, failure and frame counts from :func:`baselines.compute_baselines`."""
+    for name in baselines.NAMES:
+        per_sequence = {s: results[s][name].metrics for s in sequences}
+        run.columns.append(Column(name, BASELINE, ["deterministic"], [per_sequence]))
+    for s in sequences:
+        run.trajectories[s] = {name: results[s][name].trajectory for name in baselines.NAMES}
+        run.failures[s] = results[s][baselines.ORB].failures
+        run.frames[s] = len(results[s][baselines.ZERO].trajectory)
+    run.cached = sum(results[s][baselines.ZERO].cached for s in sequences)
+
+
+BASELINES_TEXT = [
+    "Computed on the same sequences, integrated from the first ground-truth pose and scored with the "
+    "same alignment and RPE delta as the jobs' results.json (`lossvo.report.baselines`), on the dataset "
+    "and training split that results.json records:",
+    "",
+    "- **zero motion**: identity relative poses (the camera stands still);",
+    "- **mean motion (train)**: the training split's mean relative pose (mean translation, chordal mean "
+    "rotation) at every step;",
+    "- **ORB+E (GT scale)**: ORB features, `cv2.findEssentialMat` (RANSAC, OpenCV's USAC) and "
+    "`cv2.recoverPose` with K from calib.txt; each step's translation is scaled to the ground-truth "
+    "step length (monocular VO has no scale: this is an optimistic baseline). A pair whose matches do "
+    "not move is a step straight ahead; a pair with too few matches or inliers takes the previous "
+    "pair's motion (counted below as a failure);",
+    "- **own mean motion (oracle)**: the sequence's own mean relative pose (from its ground truth) at "
+    "every step: it knows the sequence's average motion, so a network that learned only an average "
+    "motion cannot beat it.",
+]
+
+
+def baselines_markdown(run: BaselineRun, enabled: bool) -> str:
+    """The *Baselines* section: what each baseline is, ORB failures, time and cache use, notes."""
+    if not enabled:
+        return "Baselines were not computed (`--no-baselines`)."
+    lines = list(BASELINES_TEXT)
+    if run.failures:
+        total = sum(run.failures.values())
+        pairs = sum(n - 1 for n in run.frames.values())
+        per = ", ".join(f"{s}: {f}" for s, f in run.failures.items() if f)
+        lines += [
+            "",
+            f"ORB+E failed (fell back) on {total} of {pairs} frame pairs" + (f" ({per})." if per else "."),
+        ]
+    if run.columns:
+        lines += [
+            "",
+            f"Baselines took {run.seconds:.1f} s ({run.cached} of {len(run.frames)} sequences from "
+            "the report's `cache/`, keyed by the recorded data and the sequence).",
+        ]
+    lines += [f"\n*Note:* {note}" for note in run.notes]
+    return "\n".join(lines)
+
+
+def reduction(value: object, reference: object) -> float | None:
+    """``1 - value / reference`` (the fraction by which a network beats a baseline), or None."""
+    value, reference = finite_number(value), finite_number(reference)
+    if value is None or reference is None or reference <= 0:
+        return None
+    return 1.0 - value / reference
+
+
+def _baseline(base: BaselineRun, name: str) -> Column | None:
+    return next((c for c in base.columns if c.label == name), None)
+
+
+def learning_markdown(networks: Sequence[Column], base: BaselineRun) -> str:
+    """Per job and validation sequence (the configs' ``data.val``): how far below the mean-motion
+    baseline its RPE lies."""
+    mean_motion = _baseline(base, baselines.MEAN)
+    sequences = config_sequences((j for c in networks for j in c.jobs), "data.val")
+    if mean_motion is None or not sequences:
+        return "No mean-motion baseline or no validation sequence: nothing to compare."
+    header = ["configuration", "seed"] + [f"{s} {name}" for s in sequences for name, _ in LEARNING_METRICS]
+    rows = []
+    for column in networks:
+        for job, results in zip(column.jobs, column.results, strict=True):
+            cells = []
+            for s in sequences:
+                for _, path in LEARNING_METRICS:
+                    r = reduction(lookup(results.get(s), path), lookup(mean_motion.results[0].get(s), path))
+                    cells.append("–" if r is None else f"{100 * r:.0f} %")
+            rows.append([md(column.label), str(job.seed), *cells])
+    lines = [
+        "How far each job's RPE RMSE lies below the mean-motion baseline's on the validation sequences "
+        "(1 − network / baseline; negative: worse than predicting the training set's mean motion).",
+        "",
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * len(header),
+        *("| " + " | ".join(row) + " |" for row in rows),
+    ]
+    return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class UnseenCheck:
+    """One job on one unseen-motion sequence: RPE rotation RMSE (rad) and its reduction against zero
+    motion, RPE translation RMSE (m) and its reduction against the sequence's own mean motion (the
+    oracle), reductions as fractions (1 - network / baseline); None where a value is missing."""
+
+    rot: float | None
+    rot_reduction: float | None
+    trans: float | None
+    trans_reduction: float | None
+
+    @property
+    def met(self) -> bool:
+        """Rotation at least :data:`UNSEEN_ROTATION_BAR` below zero motion and translation below the
+        oracle; a missing value meets neither."""
+        rot_ok = self.rot_reduction is not None and self.rot_reduction >= UNSEEN_ROTATION_BAR
+        return rot_ok and self.trans_reduction is not None and self.trans_reduction > 0
+
+
+def unseen_check(entry: object, zero: object, own: object) -> UnseenCheck:
+    """The :class:`UnseenCheck` of a job's results entry of one sequence against the zero-motion and
+    own-mean-motion baselines' entries of that sequence (each as in results.json, or None)."""
+    rot, trans = finite_number(lookup(entry, RPE_ROT)), finite_number(lookup(entry, RPE_TRANS))
+    return UnseenCheck(
+        rot, reduction(rot, lookup(zero, RPE_ROT)), trans, reduction(trans, lookup(own, RPE_TRANS))
+    )
+
+
+def _percent(fraction: float | None) -> str:
+    return "–" if fraction is None else f"{100 * fraction:.1f} %"
+
+
+UNSEEN_HEADER = ("RPE rot [rad]", "vs zero motion", "RPE trans [m]", "vs own mean motion", "both met")
+
+
+def _check_cells(check: UnseenCheck) -> list[str]:
+    """An :class:`UnseenCheck` as the cells of :data:`UNSEEN_HEADER`."""
+    rmse = ["–" if v is None else fmt(v) for v in (check.rot, check.trans)]
+    reductions = [_percent(check.rot_reduction), _percent(check.trans_reduction)]
+    return [rmse[0], reductions[0], rmse[1], reductions[1], "yes" if check.met else "no"]
+
+
+UNSEEN_TEXT = (
+    f"On the sequences of route families never used for training (`{UNSEEN_KEY}`): each job's RPE "
+    "rotation RMSE against zero motion's and its RPE translation RMSE against the sequence's own mean "
+    "motion (the oracle), as 1 − network / baseline. Both are met when the rotation lies at least "
+    f"{100 * UNSEEN_ROTATION_BAR:.0f} % below zero motion's and the translation below the oracle's "
+    "(a reduction above 0); a missing value meets neither."
+)
+
+
+def unseen_markdown(networks: Sequence[Column], base: BaselineRun, unseen: Sequence[str]) -> str:
+    """Per job and unseen-motion sequence: RPE rotation against zero motion, RPE translation against the
+    sequence's own mean motion, whether both criteria are met; then how many jobs meet both on every
+    unseen sequence."""
+    zero, own = _baseline(base, baselines.ZERO), _baseline(base, baselines.OWN)
+    if zero is None or own is None:
+        return "No zero-motion or own-mean-motion baseline: nothing to compare."
+    rows, passed, total = [], 0, 0
+    for column in networks:
+        for job, results in zip(column.jobs, column.results, strict=True):
+            checks = [
+                unseen_check(results.get(s), zero.results[0].get(s), own.results[0].get(s)) for s in unseen
+            ]
+            rows += [
+                [md(column.label), md(job.seed), s, *_check_cells(c)]
+                for s, c in zip(unseen, checks, strict=True)
+            ]
+            passed += all(c.met for c in checks)
+            total += 1
+    header = ["configuration", "seed", "sequence", *UNSEEN_HEADER]
+    lines = [
+        UNSEEN_TEXT,
+        "",
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * len(header),
+        *("| " + " | ".join(row) + " |" for row in rows),
+        "",
+        f"{passed} of {total} jobs meet both on every unseen sequence.",
+    ]
+    return "\n".join(lines)

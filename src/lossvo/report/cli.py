@@ -1,0 +1,63 @@
+"""A sweep folder -> the study's tables and figures: ``python -m lossvo.report SWEEP_DIR [--out DIR]``.
+
+Command line::
+
+    python -m lossvo.report outputs/multirun/2026-11-23_10-00-00
+    python -m lossvo.report --latest outputs/multirun          # the newest sweep under that folder
+    python -m lossvo.report SWEEP_DIR --out DIR --no-baselines
+
+It prints the path of ``report.md``. A folder that is not a sweep is a one-line error, exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from lossvo.console import emit
+from lossvo.report.document import make_report
+from lossvo.report.jobs import SweepError, latest_sweep
+
+log = logging.getLogger("lossvo")
+
+
+def parser() -> argparse.ArgumentParser:
+    """The command line's parser."""
+    out = argparse.ArgumentParser(prog="python -m lossvo.report", description=__doc__.splitlines()[0])
+    out.add_argument(
+        "sweep_dir",
+        type=Path,
+        help="a sweep folder (outputs/multirun/<time>), or with --latest the folder holding sweeps",
+    )
+    out.add_argument("--out", type=Path, default=None, help="output folder (default SWEEP_DIR/report)")
+    out.add_argument("--latest", action="store_true", help="report the newest sweep under SWEEP_DIR")
+    out.add_argument("--no-baselines", action="store_true", help="skip the zero / mean / ORB baselines")
+    out.add_argument("--no-figures", action="store_true", help="write the tables only")
+    out.add_argument(
+        "--jobs",
+        type=int,
+        default=None,
+        help="sequences computed in parallel for the baselines (default: CPU count)",
+    )
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m lossvo.report SWEEP_DIR [--out DIR] [--latest] [--no-baselines] [--jobs N]``; returns
+    the exit status (2: not a sweep)."""
+    args = parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)
+    start = time.perf_counter()
+    try:
+        sweep = latest_sweep(args.sweep_dir) if args.latest else args.sweep_dir
+        path = make_report(sweep, args.out, not args.no_baselines, not args.no_figures, args.jobs)
+    except SweepError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    log.info("report written in %.1f s", time.perf_counter() - start)
+    emit(str(path))
+    return 0

@@ -1,0 +1,316 @@
+"""The compared configurations of a sweep: jobs grouped by the overrides that differ (seeds as
+replicates), each configuration's rotation weighting (k · gain) and the metric that selected its best
+checkpoint, and the configurations table of report.md and ``tables/configurations.csv``.
+
+Everything is read from the jobs' ``.hydra/config.yaml`` (and metrics.csv for learned weighting); the loss
+classes are looked up by their ``_target_`` only for their ``small_angle_gain`` and ``paper_k``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from lossvo.report.jobs import (
+    REPLICATE_KEY,
+    Curves,
+    Job,
+    config_value,
+    finite_number,
+    job_number,
+    sequence_metrics,
+)
+from lossvo.report.tables import NETWORK, Cell, Column, md, mean_std_text
+
+SCORE = "val/score"
+"""The loss-independent validation score (:mod:`lossvo.selection`)."""
+DEFAULT_MONITOR = "val/loss"
+LOSS_DEPENDENT = ("val/loss", "val/rot_loss")
+"""Monitors whose value depends on the loss and its weights: the same key names a different metric in
+configurations that differ in loss or weighting."""
+
+
+# --------------------------------------------------------------------------------------------------
+# Jobs -> configurations
+# --------------------------------------------------------------------------------------------------
+
+
+def varying_keys(jobs: Sequence[Job]) -> list[str]:
+    """Override keys (other than ``seed``) whose value differs between jobs or is missing in some, in the
+    order they first appear."""
+    keys: list[str] = []
+    for job in jobs:
+        keys.extend(k for k in job.overrides if k not in keys and k != REPLICATE_KEY)
+    values = {k: {job.overrides.get(k) for job in jobs} for k in keys}
+    return [k for k in keys if len(values[k]) > 1]
+
+
+def label_jobs(jobs: Sequence[Job]) -> None:
+    """Set each job's ``label`` from the varying overrides (``loss=euler``); the common overrides name a
+    sweep whose jobs differ only in seed."""
+    keys = varying_keys(jobs)
+    for job in jobs:
+        names = [f"{k}={job.overrides[k]}" for k in keys if k in job.overrides]
+        if not keys:
+            names = [f"{k}={v}" for k, v in job.overrides.items() if k != REPLICATE_KEY]
+        job.label = ",".join(names) or "defaults"
+
+
+def network_columns(jobs: Sequence[Job]) -> list[Column]:
+    """One column per configuration (jobs with equal labels), replicates ordered by seed; only included
+    jobs; in the order of the configurations' first job."""
+    columns: dict[str, Column] = {}
+    for job in jobs:
+        if job.included:
+            columns.setdefault(job.label, Column(job.label, NETWORK, [], [])).jobs.append(job)
+    for column in columns.values():
+        column.jobs.sort(key=lambda j: (_seed_order(j.seed), job_number(j.path)))
+        column.replicates = [f"{REPLICATE_KEY}={j.seed}" for j in column.jobs]
+        column.results = [sequence_metrics(j.included_results) for j in column.jobs]
+    return list(columns.values())
+
+
+def _seed_order(seed: Any) -> tuple[int, float, str]:
+    """Sort key of seeds: numbers numerically (2 before 10), then anything else by its text."""
+    try:
+        return (0, float(seed), "")
+    except (TypeError, ValueError):
+        return (1, 0.0, str(seed))
+
+
+# --------------------------------------------------------------------------------------------------
+# Rotation weighting
+# --------------------------------------------------------------------------------------------------
+
+
+def loss_target(job: Job) -> str | None:
+    """The job's ``loss._target_`` (e.g. ``lossvo.losses.ChordalLoss``), None if missing."""
+    target = config_value(job.config, "loss._target_")
+    return str(target) if target is not None else None
+
+
+def loss_class_name(job: Job) -> str | None:
+    """The class name of the job's loss (``ChordalLoss``), None if missing."""
+    target = loss_target(job)
+    return target.rsplit(".", 1)[-1] if target else None
+
+
+def loss_attribute(target: str | None, name: str) -> float | None:
+    """A numeric class attribute (``small_angle_gain``, ``paper_k``) of the loss class named ``target``;
+    None if the class cannot be imported or lacks it."""
+    from hydra.utils import get_class
+
+    if not target:
+        return None
+    try:
+        return finite_number(getattr(get_class(target), name, None))
+    except Exception:  # an old or renamed class: the report goes on without the attribute
+        return None
+
+
+@dataclass(frozen=True)
+class Weighting:
+    """A job's rotation weighting: the loss class, ``weighting.preset`` (None for old jobs), the k used,
+    the loss's small-angle gain (rotation term ~ gain·theta², theta in rad) and the effective small-angle
+    rotation weight relative to the translation term (k·gain, or gain·exp(s_t − s_r) at the last epoch
+    under learned weighting); None where unknown."""
+
+    loss: str | None
+    preset: str | None
+    k: float | None
+    gain: float | None
+    weight: float | None
+    squared: bool = True
+
+    @property
+    def learned(self) -> bool:
+        return self.preset == "learned"
+
+
+def learned_ratio(curves: Curves | None) -> float | None:
+    """``exp(s_t − s_r)`` at the last epoch with both ``train/s_t`` and ``train/s_r`` logged, or None."""
+    if curves is None or not {"train/s_t", "train/s_r"} <= set(curves.series):
+        return None
+    (et, st), (er, sr) = curves.series["train/s_t"], curves.series["train/s_r"]
+    common = np.intersect1d(et, er)
+    if common.size == 0:
+        return None
+    last = common[-1]
+    return float(np.exp(st[et == last][0] - sr[er == last][0]))
+
+
+def job_weighting(job: Job) -> Weighting:
+    """How the job weighted its rotation term, from ``.hydra/config.yaml`` (and metrics.csv for learned).
+
+    k is ``loss.k`` if it is a number; otherwise the preset's (``weighting.c / gain`` for matched, the
+    class's ``paper_k`` for paper).
+    """
+    target = loss_target(job)
+    preset = config_value(job.config, "weighting.preset")
+    preset = str(preset) if preset is not None else None
+    gain = loss_attribute(target, "small_angle_gain")
+    squared = config_value(job.config, "loss.squared", True) is not False
+    name = loss_class_name(job)
+    if preset == "learned":
+        ratio = learned_ratio(job.curves)
+        weight = gain * ratio if gain is not None and ratio is not None else None
+        return Weighting(name, preset, 1.0, gain, weight, squared)
+    k = _preset_k(job, target, preset, gain)
+    weight = k * gain if k is not None and gain is not None and squared else None
+    return Weighting(name, preset, k, gain, weight, squared)
+
+
+def _preset_k(job: Job, target: str | None, preset: str | None, gain: float | None) -> float | None:
+    """``loss.k`` if it is a number, else the preset's k (matched: c / gain; paper: the class's)."""
+    k = finite_number(config_value(job.config, "loss.k"))
+    if k is None and preset == "matched":
+        c = finite_number(config_value(job.config, "weighting.c"))
+        return c / gain if c is not None and gain else None
+    if k is None and preset == "paper":
+        return loss_attribute(target, "paper_k")
+    return k
+
+
+def short(x: float | None) -> str:
+    """A weight or gain with up to 4 significant digits (``100``, ``0.25``, ``33.33``); ``"?"`` if None."""
+    return "?" if x is None else f"{x:.4g}"
+
+
+def weight_text(weightings: Sequence[Weighting]) -> str:
+    """The effective small-angle rotation weight of a configuration's seeds as text: one number (k·gain),
+    ``"learned: mean ± std"`` over seeds, ``"?"`` where unknown."""
+    if not weightings:
+        return "?"
+    if any(w.learned for w in weightings):
+        cell = Cell.of(np.array([w.weight if w.weight is not None else np.nan for w in weightings]))
+        if cell.n == 0:
+            return "learned: ? (no train/s_t, train/s_r in metrics.csv)"
+        return f"learned: {mean_std_text(cell)}"
+    if not all(w.squared for w in weightings):
+        return "n/a (unsquared rotation term: not gain·theta²)"
+    return ", ".join(sorted({short(w.weight) for w in weightings}))
+
+
+# --------------------------------------------------------------------------------------------------
+# Selection metric
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Selection:
+    """How a job chose its best checkpoint: the monitored metrics.csv column and ``min`` / ``max``, and
+    the config key it was read from (``selection.monitor``, ``callbacks.model_checkpoint.monitor`` or
+    ``default`` for an old job without either)."""
+
+    monitor: str
+    mode: str
+    source: str
+
+
+def job_selection(config: Any) -> Selection:
+    """The selection metric of a job config: ``selection.monitor``, else the checkpoint callback's
+    monitor, else ``val/loss``; the mode likewise (``min`` by default)."""
+    for prefix in ("selection", "callbacks.model_checkpoint"):
+        monitor = config_value(config, f"{prefix}.monitor")
+        if monitor is not None:
+            return Selection(str(monitor), str(config_value(config, f"{prefix}.mode", "min")), prefix)
+    return Selection(DEFAULT_MONITOR, "min", "default")
+
+
+def selection_text(selection: Selection) -> str:
+    """``"`val/score` (min)"``, marked when the value was assumed for an old job."""
+    text = f"`{selection.monitor}` ({selection.mode})"
+    return text + ", assumed: not in the config" if selection.source == "default" else text
+
+
+def selection_identity(job: Job) -> tuple[Any, ...]:
+    """What a job's selection metric is: the monitor and mode, plus, for a loss-dependent monitor
+    (:data:`LOSS_DEPENDENT`), the loss and weights that define its value."""
+    selection = job_selection(job.config)
+    key: tuple[Any, ...] = (selection.monitor, selection.mode)
+    if selection.monitor in LOSS_DEPENDENT:
+        w = job_weighting(job)
+        key += (w.loss, w.preset, None if w.learned else w.k, w.squared)
+    return key
+
+
+def selection_warning(columns: Sequence[Column]) -> str | None:
+    """A bold markdown warning if the configurations were selected by different metrics (different
+    monitors, or one loss-dependent monitor such as ``val/loss`` over different losses or weights);
+    None if one metric selected them all."""
+    networks = [c for c in columns if c.kind == NETWORK and c.jobs]
+    if len({selection_identity(j) for c in networks for j in c.jobs}) < 2:
+        return None
+    per_config = "; ".join(
+        f"{c.label}: {', '.join(sorted({selection_text(job_selection(j.config)) for j in c.jobs}))}"
+        for c in networks
+    )
+    monitors = {job_selection(j.config).monitor for c in networks for j in c.jobs}
+    why = (
+        "each by its own loss value, which differs between losses and weights"
+        if len(monitors) == 1
+        else "different columns of metrics.csv"
+    )
+    return (
+        f"**Warning: the configurations of this sweep were selected by different metrics ({why}; "
+        f"{per_config}): their best checkpoints, and so the tables below, were not chosen by one rule. "
+        f"A fair comparison selects every configuration by the loss-independent `{SCORE}`.**"
+    )
+
+
+# --------------------------------------------------------------------------------------------------
+# The configurations table
+# --------------------------------------------------------------------------------------------------
+
+CONFIGURATION_FIELDS = (
+    ("configuration", "configuration"),
+    ("loss", "loss"),
+    ("weighting", "weighting"),
+    ("k", "k"),
+    ("gain", "gain"),
+    ("rotation weight k·gain", "rotation_weight"),
+    ("selected by", "selected_by"),
+    ("seeds", "seeds"),
+)
+"""(markdown header, CSV header) of the configurations table."""
+
+
+def configuration_row(column: Column) -> list[str]:
+    """One configuration's :data:`CONFIGURATION_FIELDS` as text (several values of its seeds joined)."""
+    ws = [job_weighting(j) for j in column.jobs]
+    first = ws[0] if ws else Weighting(None, None, None, None, None)
+    return [
+        column.label,
+        first.loss or "?",
+        first.preset or "? (not in the config)",
+        ", ".join(sorted({short(w.k) for w in ws})),
+        short(first.gain),
+        weight_text(ws),
+        ", ".join(sorted({selection_text(job_selection(j.config)) for j in column.jobs})),
+        str(len(column.jobs)),
+    ]
+
+
+def configurations_markdown(columns: Sequence[Column]) -> str:
+    """Per configuration: loss class, weighting preset, k, gain, k·gain and the selection metric."""
+    lines = ["| " + " | ".join(h for h, _ in CONFIGURATION_FIELDS) + " |", "|" + "---|" * 8]
+    for c in columns:
+        if c.kind == NETWORK:
+            lines.append("| " + " | ".join(md(v) for v in configuration_row(c)) + " |")
+    return "\n".join(lines)
+
+
+def configurations_csv(columns: Sequence[Column]) -> str:
+    """:data:`CONFIGURATION_FIELDS` per configuration, as in report.md (backticks dropped)."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow([name for _, name in CONFIGURATION_FIELDS])
+    for c in columns:
+        if c.kind == NETWORK:
+            writer.writerow([v.replace("`", "") for v in configuration_row(c)])
+    return out.getvalue()

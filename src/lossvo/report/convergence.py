@@ -1,0 +1,127 @@
+"""Convergence of each configuration: per seed, the first epoch within 10 % of the best validation score
+(``tables/convergence.csv`` and the *Convergence* section of report.md)."""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from lossvo.report import statistics
+from lossvo.report.configurations import SCORE, job_selection
+from lossvo.report.jobs import Job
+from lossvo.report.tables import NETWORK, Cell, Column, md
+
+
+def convergence_metric(job: Job) -> tuple[str, str]:
+    """(metrics.csv column, mode) a job's convergence is measured on: ``val/score`` (min) if logged,
+    else its selection monitor."""
+    if job.curves is not None and SCORE in job.curves.series:
+        return SCORE, "min"
+    selection = job_selection(job.config)
+    return selection.monitor, selection.mode
+
+
+@dataclass
+class Convergence:
+    """A configuration's convergence: per replicate (seed) the column used, the first epoch (1-based,
+    = metrics.csv epoch + 1) within :data:`lossvo.report.statistics.CONVERGENCE_TOLERANCE` of its best
+    value (None without that column) and the number of epochs logged."""
+
+    label: str
+    replicates: list[str]
+    metrics: list[str]
+    epochs: list[int | None]
+    logged: list[int]
+
+    def cell(self) -> Cell:
+        return Cell.of(np.array([e if e is not None else np.nan for e in self.epochs], dtype=np.float64))
+
+    def epoch_of(self, replicate: str) -> int | None:
+        return self.epochs[self.replicates.index(replicate)] if replicate in self.replicates else None
+
+
+def job_convergence(job: Job) -> tuple[str, int | None, int]:
+    """(column, first epoch within 10 % of the best (1-based) or None, epochs logged) of one job."""
+    column, mode = convergence_metric(job)
+    if job.curves is None or column not in job.curves.series:
+        return column, None, 0
+    epochs, values = job.curves.series[column]
+    epoch = statistics.convergence_epoch(epochs, values, mode=mode)
+    return column, (epoch + 1 if epoch is not None else None), len(epochs)
+
+
+def convergence(columns: Sequence[Column]) -> list[Convergence]:
+    """One :class:`Convergence` per network column, replicates in the column's order."""
+    out = []
+    for c in columns:
+        if c.kind != NETWORK:
+            continue
+        per_job = [job_convergence(j) for j in c.jobs]
+        metrics = [m for m, _, _ in per_job]
+        epochs = [e for _, e, _ in per_job]
+        logged = [n for _, _, n in per_job]
+        out.append(Convergence(c.label, list(c.replicates), metrics, epochs, logged))
+    return out
+
+
+def epoch_text(cell: Cell) -> str:
+    """Epochs as ``"mean ± std"`` with one decimal (``"n/a"`` without any)."""
+    if cell.n == 0:
+        return "n/a"
+    return f"{cell.mean:.1f}" + (f" ± {cell.std:.1f}" if cell.n > 1 else "")
+
+
+def convergence_rule() -> list[str]:
+    """The paragraph (lines) that says how the convergence epoch is defined."""
+    tolerance = statistics.CONVERGENCE_TOLERANCE
+    return [
+        f"The first epoch (counted from 1, as in the curves; metrics.csv counts from 0) at which the "
+        f"validation score comes within {tolerance:.0%} of its best over the run (value <= best × "
+        f"{1 + tolerance:g} for a min metric), mean ± sample std over seeds. The "
+        f"score is the loss-independent `{SCORE}`, the same for every loss.",
+    ]
+
+
+def convergence_markdown(items: Sequence[Convergence]) -> str:
+    lines = convergence_rule()
+    fallback = sorted({m for c in items for m in c.metrics if m != SCORE})
+    if fallback:
+        lines += [
+            "",
+            f"*Note:* `{SCORE}` is not in every metrics.csv: those jobs are measured on their selection "
+            f"monitor ({', '.join(f'`{m}`' for m in fallback)}), which is not on one scale across losses.",
+        ]
+    lines += [
+        "",
+        "| configuration | metric | seeds with a curve | epoch (mean ± std) | per seed | epochs logged |",
+        "|" + "---|" * 6,
+    ]
+    for c in items:
+        pairs = zip(c.replicates, c.epochs, strict=True)
+        per_seed = ", ".join(f"{r}: {e if e is not None else 'n/a'}" for r, e in pairs)
+        cell = c.cell()
+        lines.append(
+            f"| {md(c.label)} | {md(', '.join(sorted(set(c.metrics))))} | {cell.n} | {epoch_text(cell)} | "
+            f"{md(per_seed)} | {md(', '.join(map(str, sorted(set(c.logged)))))} |"
+        )
+    return "\n".join(lines)
+
+
+def convergence_csv(items: Sequence[Convergence]) -> str:
+    """One row per configuration and seed: ``configuration, seed, metric, epoch`` (1-based, empty if
+    none), ``epochs_logged``; then per configuration a row with seed ``mean`` (mean epoch) and one with
+    seed ``std`` (sample std)."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(["configuration", "seed", "metric", "epoch", "epochs_logged"])
+    for c in items:
+        for r, m, e, n in zip(c.replicates, c.metrics, c.epochs, c.logged, strict=True):
+            writer.writerow([c.label, r, m, "" if e is None else e, n])
+        cell, metric = c.cell(), ",".join(sorted(set(c.metrics)))
+        writer.writerow([c.label, "mean", metric, repr(cell.mean) if cell.n else "", ""])
+        writer.writerow([c.label, "std", metric, repr(cell.std) if cell.n > 1 else "", ""])
+    return out.getvalue()

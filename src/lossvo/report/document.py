@@ -1,0 +1,374 @@
+"""The report of a sweep: reading its jobs, building the tables, analyses and figures, and writing
+``report.md``, ``tables/`` and ``figures/`` (:func:`make_report`), every file atomically.
+
+``report.md`` holds, in this order: a bold warning when the configurations were selected by different
+metrics; the configurations (:mod:`~lossvo.report.configurations`); Tables I-III
+(:mod:`~lossvo.report.tables`); the pairwise comparison (:mod:`~lossvo.report.comparison`); convergence
+(:mod:`~lossvo.report.convergence`); the baselines and each job against them
+(:mod:`~lossvo.report.against_baselines`); the jobs, included or skipped and why; the files; the figures
+(:mod:`~lossvo.report.figures`); and last the study's claims (:mod:`~lossvo.report.claims`).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from lossvo.atomic import write_text_atomic
+from lossvo.report.against_baselines import (
+    UNSEEN_KEY,
+    BaselineRun,
+    baselines_markdown,
+    evaluation_settings,
+    learning_markdown,
+    run_baselines,
+    unseen_markdown,
+)
+from lossvo.report.claims import Claim, claims_csv, claims_markdown, study_claims
+from lossvo.report.comparison import Comparison, compare, comparisons_csv, comparisons_markdown
+from lossvo.report.configurations import (
+    configurations_csv,
+    configurations_markdown,
+    label_jobs,
+    network_columns,
+    selection_warning,
+)
+from lossvo.report.convergence import Convergence, convergence, convergence_csv, convergence_markdown
+from lossvo.report.figures import plot_ape_bars, plot_curves, plot_trajectories
+from lossvo.report.jobs import Job, ground_truth, job_dirs, load_job, unseen_sequences
+from lossvo.report.tables import (
+    NETWORK,
+    TABLES,
+    Column,
+    Table,
+    build_table,
+    md,
+    table_csv,
+    table_latex,
+    table_markdown,
+)
+
+log = logging.getLogger("lossvo")
+
+UNSEEN_NOTE = "unseen motion"
+"""The note beside an unseen-motion sequence's name in the per-sequence tables."""
+TABLE_FILES = ("pairwise.csv", "configurations.csv", "convergence.csv", "claims.csv")
+
+
+# --------------------------------------------------------------------------------------------------
+# What a report measures
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Study:
+    """What a report measures besides the tables: the configurations (network columns), their
+    convergence, the study's claims and the evaluated sequences of unseen motion."""
+
+    networks: list[Column]
+    convergence: list[Convergence]
+    claims: list[Claim]
+    unseen: list[str] = field(default_factory=list)
+
+
+def evaluated_sequences(columns: Sequence[Column]) -> list[str]:
+    """Sequences with metrics in any included job, sorted."""
+    return sorted({name for c in columns for per_sequence in c.results for name in per_sequence})
+
+
+def unseen_of(networks: Sequence[Column], sequences: Sequence[str]) -> list[str]:
+    """The evaluated ``sequences`` that some network job marks as unseen motion
+    (:func:`lossvo.report.jobs.unseen_sequences`), in the order of ``sequences``."""
+    unseen = {s for c in networks for j in c.jobs for s in unseen_sequences(j)}
+    return [s for s in sequences if s in unseen]
+
+
+def analyse(networks: Sequence[Column], sequences: Sequence[str]) -> Study:
+    """Convergence, claims and unseen-motion sequences of the network columns on the evaluated
+    ``sequences``."""
+    items = convergence(networks)
+    claimed = study_claims(networks, items, sequences)
+    return Study(list(networks), items, claimed, unseen_of(networks, sequences))
+
+
+@dataclass
+class Figures:
+    """The figures of a report: the PNGs written and a note on what they lack (e.g. ground truth)."""
+
+    paths: list[Path] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+# --------------------------------------------------------------------------------------------------
+# report.md, section by section
+# --------------------------------------------------------------------------------------------------
+
+
+def jobs_markdown(jobs: Sequence[Job]) -> str:
+    lines = ["| job | configuration | seed | status | in tables | notes |", "|---|---|---|---|---|---|"]
+    for job in jobs:
+        used = "yes" if job.skip is None else f"no: {md(job.skip)}"  # job.included: skip is None
+        lines.append(
+            f"| `{job.path.name}` | {md(job.label or '?')} | {md(job.seed)} | {md(job.status)} | {used} | "
+            f"{md('; '.join(job.notes))} |"
+        )
+    return "\n".join(lines)
+
+
+def seeds_text(columns: Sequence[Column]) -> str:
+    networks = [c for c in columns if c.kind == NETWORK]
+    counts = ", ".join(f"{c.label}: n = {len(c.replicates)} ({', '.join(c.replicates)})" for c in networks)
+    if any(len(c.replicates) > 1 for c in networks):
+        return (
+            "Cells are the mean ± the sample standard deviation (ddof = 1) over seeds; bold marks the "
+            "lowest mean. The mean row averages each seed over the sequences first, then takes mean ± std "
+            f"over seeds. Seeds per configuration: {counts}."
+        )
+    return (
+        f"One seed per configuration ({counts}): no seed-noise estimate is available, so differences "
+        "between configurations below cannot be told apart from the run-to-run variation of training."
+    )
+
+
+def figures_markdown(figures: Figures | None, out: Path) -> str:
+    if figures is None:
+        return "Figures were not drawn (`--no-figures`)."
+    if not figures.paths:
+        return "No figures (no job with curves or results)."
+    lines = [f"![{p.stem}]({p.relative_to(out).as_posix()})" for p in figures.paths]
+    return "\n\n".join([*lines, *(f"*Note:* {note}" for note in figures.notes)])
+
+
+def header_lines(sweep: Path, jobs: Sequence[Job], study: Study) -> list[str]:
+    """The title, the job count and the selection warning (if any)."""
+    included = sum(j.included for j in jobs)
+    lines = [
+        f"# Sweep report: `{sweep}`",
+        "",
+        f"Generated {time.strftime('%Y-%m-%d %H:%M:%S')} by `python -m lossvo.report`. "
+        f"{len(jobs)} job(s): {included} included, {len(jobs) - included} skipped (see *Jobs*).",
+    ]
+    warning = selection_warning(study.networks)
+    return lines + (["", warning] if warning else [])
+
+
+CONFIGURATIONS_TEXT = (
+    "Rotation weight: the small-angle weight of the rotation term relative to the translation "
+    "term, k · gain: each loss's rotation term is ≈ gain · θ² for a small rotation error θ (rad), "
+    "so a configuration's loss is ≈ |t − t^|² (m²) + k · gain · θ². Under learned weighting it is "
+    "gain · exp(s_t − s_r) at the last epoch (mean ± std over seeds). Selected by: the metric "
+    "that chose each job's best checkpoint."
+)
+
+
+def configurations_lines(study: Study) -> list[str]:
+    if not study.networks:
+        return []
+    return ["", "## Configurations", "", CONFIGURATIONS_TEXT, "", configurations_markdown(study.networks)]
+
+
+def tables_lines(
+    included: Sequence[Job], tables: Sequence[Table], sequences: Sequence[str], study: Study
+) -> list[str]:
+    """What the tables show (sequences, alignment, delta, bold, unseen marks, seeds), then Tables I-III."""
+    if not included:
+        return ["", "No job has usable results yet: no tables."]
+    align, delta, _ = evaluation_settings(included)
+    unseen = (
+        f" Rows marked ({UNSEEN_NOTE}) are sequences of route families never used for training "
+        f"(`{UNSEEN_KEY}`): {', '.join(study.unseen)}."
+        if study.unseen
+        else ""
+    )
+    lines = [
+        "",
+        f"Test sequences: {', '.join(sequences)}. APE alignment: `{align}`; RPE delta: {delta} "
+        "frame(s) (as in the jobs' results.json). Columns are named by the overrides that differ "
+        "between jobs; **bold**: the lowest value of the row over all columns, baselines "
+        "included, so a winning baseline shows." + unseen,
+        "",
+        seeds_text([*tables[0].columns]),
+    ]
+    for table in tables:
+        lines += ["", f"## {table.spec.title}", "", table_markdown(table)]
+        if table.mean_over != table.rows[:-1]:
+            mean_over = ", ".join(table.mean_over) or "none"
+            lines += ["", f"Mean over the sequences with a value in every column: {mean_over}."]
+    return lines
+
+
+PAIRWISE_TEXT = (
+    "Paired over (seed, sequence): the per-sequence RMSE of A and of B from the same seed on the "
+    "same sequence. Two-sided Wilcoxon signed-rank test (`scipy.stats.wilcoxon`) on the differences "
+    "A − B; *distinguishable* means p < 0.05. Sequences within a seed share one trained network, so "
+    "the pairs are not fully independent: read p as indicative."
+)
+
+
+def pairwise_lines(comparisons: Sequence[Comparison]) -> list[str]:
+    if not comparisons:
+        return [
+            "",
+            "## Pairwise comparison",
+            "",
+            "Fewer than two configurations with results: nothing to compare.",
+        ]
+    return ["", "## Pairwise comparison", "", PAIRWISE_TEXT, "", comparisons_markdown(comparisons)]
+
+
+def baseline_lines(
+    base: BaselineRun, baselines_on: bool, tables: Sequence[Table], study: Study, any_included: bool
+) -> list[str]:
+    """The *Baselines* section, and each job against the mean motion and on unseen motion."""
+    lines = ["", "## Baselines", "", baselines_markdown(base, baselines_on)]
+    if not (baselines_on and any_included):
+        return lines
+    networks = [c for c in tables[0].columns if c.kind == NETWORK] if tables else []
+    lines += ["", "## Against the mean motion, per job", "", learning_markdown(networks, base)]
+    if study.unseen:
+        lines += ["", "## Unseen motion", "", unseen_markdown(networks, base, study.unseen)]
+    return lines
+
+
+def files_lines(tables: Sequence[Table]) -> list[str]:
+    files = [f"`tables/{t.spec.key}.{ext}`" for t in tables for ext in ("csv", "tex")]
+    files += [f"`tables/{name}`" for name in TABLE_FILES]
+    return ["", "## Files", "", f"Tables as CSV and LaTeX (booktabs): {', '.join(files)}."]
+
+
+DAMAGED_CURVES_TEXT = (
+    "Jobs whose metrics.csv is damaged stay in the tables (their results.json is intact) and "
+    "lose only their loss curves."
+)
+
+
+@dataclass
+class Contents:
+    """Everything report.md shows: the jobs, the tables, comparisons, baselines, figures and study."""
+
+    jobs: list[Job]
+    sequences: list[str]
+    tables: list[Table]
+    comparisons: list[Comparison]
+    base: BaselineRun
+    baselines_on: bool
+    figures: Figures | None
+    study: Study
+
+
+def render_report(sweep: Path, out: Path, contents: Contents) -> str:
+    """The text of report.md (``contents.figures`` None: not drawn)."""
+    c = contents
+    included = [j for j in c.jobs if j.included]
+    lines = header_lines(sweep, c.jobs, c.study)
+    lines += configurations_lines(c.study)
+    lines += tables_lines(included, c.tables, c.sequences, c.study)
+    lines += pairwise_lines(c.comparisons)
+    if c.study.convergence:
+        lines += ["", "## Convergence", "", convergence_markdown(c.study.convergence)]
+    lines += baseline_lines(c.base, c.baselines_on, c.tables, c.study, bool(included))
+    lines += ["", "## Jobs", "", jobs_markdown(c.jobs), "", DAMAGED_CURVES_TEXT]
+    lines += files_lines(c.tables)
+    lines += ["", "## Figures", "", figures_markdown(c.figures, out)]
+    lines += ["", "## The study's claims", "", claims_markdown(c.study.claims)]
+    return "\n".join(lines) + "\n"
+
+
+# --------------------------------------------------------------------------------------------------
+# Writing the files
+# --------------------------------------------------------------------------------------------------
+
+
+def write_tables(
+    tables: Sequence[Table], comparisons: Sequence[Comparison], study: Study, folder: Path
+) -> None:
+    """Tables I-III as CSV and LaTeX, and :data:`TABLE_FILES`, into ``folder``."""
+    for table in tables:
+        write_text_atomic(folder / f"{table.spec.key}.csv", table_csv(table))
+        write_text_atomic(folder / f"{table.spec.key}.tex", table_latex(table))
+    texts = (
+        comparisons_csv(comparisons),
+        configurations_csv(study.networks),
+        convergence_csv(study.convergence),
+        claims_csv(study.claims),
+    )
+    for name, text in zip(TABLE_FILES, texts, strict=True):
+        write_text_atomic(folder / name, text)
+
+
+def ground_truth_note(missing: dict[str, str]) -> list[str]:
+    """One note on the sequences drawn without ground truth, grouped by reason; none if none."""
+    if not missing:
+        return []
+    by_reason: dict[str, list[str]] = {}
+    for s, reason in missing.items():
+        by_reason.setdefault(reason, []).append(s)
+    reasons = "; ".join(f"{', '.join(names)}: {reason}" for reason, names in by_reason.items())
+    return [f"trajectory figures without ground truth ({reasons})."]
+
+
+def write_figures(
+    networks: Sequence[Column],
+    tables: Sequence[Table],
+    base: BaselineRun,
+    sequences: Sequence[str],
+    folder: Path,
+    source: Job | None,
+) -> Figures:
+    """Every figure, the ground truth read from the pose files that ``source``'s results.json names
+    (:func:`lossvo.report.jobs.ground_truth`). Returns the paths written and a note if some trajectory
+    figure lacks ground truth."""
+    figures = Figures()
+    if networks and plot_curves(networks, folder / "curves.png"):
+        figures.paths.append(folder / "curves.png")
+    if tables and tables[0].columns:
+        plot_ape_bars(tables[0], folder / "ape_trans_rmse.png")
+        figures.paths.append(folder / "ape_trans_rmse.png")
+    gt, missing = ground_truth(source, sequences) if source is not None else ({}, {})
+    figures.notes += ground_truth_note(missing)
+    for s in sequences:
+        extra = {k: v for k, v in base.trajectories.get(s, {}).items() if not k.startswith("zero")}
+        plot_trajectories(s, networks, gt.get(s), extra, folder / f"trajectory_{s}.png")
+        figures.paths.append(folder / f"trajectory_{s}.png")
+    return figures
+
+
+def make_report(
+    sweep: Path,
+    out: Path | None = None,
+    with_baselines: bool = True,
+    with_figures: bool = True,
+    n_jobs: int | None = None,
+) -> Path:
+    """Write the report of a sweep folder; returns the path of report.md.
+
+    Raises:
+        SweepError: if ``sweep`` is not a sweep folder.
+    """
+    sweep = Path(sweep)
+    out = Path(out) if out is not None else sweep / "report"
+    jobs = [load_job(p) for p in job_dirs(sweep)]
+    label_jobs([j for j in jobs if j.config is not None])
+    networks = network_columns(jobs)
+    sequences = evaluated_sequences(networks)
+    included = [j for j in jobs if j.included]
+    base = BaselineRun()
+    if with_baselines and included and sequences:
+        base = run_baselines(included, sequences, out / "cache", n_jobs or os.cpu_count() or 1)
+    study = analyse(networks, sequences)
+    notes = dict.fromkeys(study.unseen, UNSEEN_NOTE)
+    columns = [*networks, *base.columns]
+    tables = [build_table(spec, columns, sequences, notes) for spec in TABLES] if networks else []
+    comparisons = compare(networks)
+    write_tables(tables, comparisons, study, out / "tables")
+    figures = None
+    if with_figures:
+        source = included[0] if included else None
+        figures = write_figures(networks, tables, base, sequences, out / "figures", source)
+    contents = Contents(jobs, sequences, tables, comparisons, base, with_baselines, figures, study)
+    write_text_atomic(out / "report.md", render_report(sweep, out, contents))
+    return out / "report.md"

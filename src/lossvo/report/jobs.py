@@ -1,0 +1,483 @@
+"""Reading a sweep folder and its job folders: what each job is, what happened, what it produced.
+
+A Hydra multirun leaves one job folder per run, ``SWEEP_DIR/<num>_<overrides>/``, holding
+``.hydra/{config,overrides}.yaml``, ``status.json``, ``metrics.csv``, ``results.json`` and
+``trajectories/NN.txt``. :func:`load_job` reads one into a :class:`Job` and never raises: what cannot be
+used is recorded in ``Job.skip`` or ``Job.notes``.
+
+The report reads only these job outputs. The data a job was evaluated on comes from its results.json
+(``data``: the evaluated dataset's root and splits, the training data's root and split;
+``sequences[s].ground_truth``: the pose file the metrics were computed against), never from building a
+datamodule: :func:`evaluated_data`, :func:`ground_truth`, :func:`unseen_sequences`.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import sys
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lossvo.data.kitti import KittiFormatError, read_poses
+
+REPLICATE_KEY = "seed"
+"""The override that names a replicate of a configuration; every other varying override names one."""
+
+APE_TRANS = ("ape", "trans", "rmse")
+APE_ROT = ("ape", "rot_rad", "rmse")
+RPE_TRANS = ("rpe", "trans", "rmse")
+RPE_ROT = ("rpe", "rot_rad", "rmse")
+KITTI_T = ("kitti", "t_err_pct")
+KITTI_R = ("kitti", "r_err_deg_per_100m")
+METRIC_PATHS = (APE_TRANS, RPE_TRANS, APE_ROT, RPE_ROT, KITTI_T, KITTI_R)
+"""Paths into a results.json sequence entry of the numbers the report reads: RMSEs in m and rad, the
+KITTI errors in % and deg/100 m (null where no 100 m segment exists)."""
+
+
+class SweepError(ValueError):
+    """The folder given is not a Hydra sweep folder (or holds no sweep)."""
+
+
+def first_line(error: BaseException) -> str:
+    """The first line of an exception's message ("" for none)."""
+    text = str(error).strip()
+    return text.splitlines()[0] if text else ""
+
+
+def lookup(entry: Any, path: Sequence[str]) -> Any:
+    """``entry[path[0]][path[1]]...``, None where a key is missing."""
+    for key in path:
+        if not isinstance(entry, dict) or key not in entry:
+            return None
+        entry = entry[key]
+    return entry
+
+
+def finite_number(value: Any) -> float | None:
+    """``value`` as a float if it is a finite number (not a bool), else None."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        return None
+    return float(value)
+
+
+def sequence_name(item: Any) -> str:
+    """A sequence name as the KITTI layout writes it: ``7`` -> ``"07"``, ``" 07"`` -> ``"07"``."""
+    return f"{item:02d}" if isinstance(item, int) and not isinstance(item, bool) else str(item).strip()
+
+
+def sequence_names(value: Any) -> list[str]:
+    """Sequence names from a list or a comma-separated string, in order, without empties or repeats."""
+    items = value.split(",") if isinstance(value, str) else list(value or [])
+    return list(dict.fromkeys(name for name in map(sequence_name, items) if name))
+
+
+# --------------------------------------------------------------------------------------------------
+# Finding the sweep and its jobs
+# --------------------------------------------------------------------------------------------------
+
+
+def job_dirs(sweep: Path) -> list[Path]:
+    """Job folders of a sweep (sub-folders holding ``.hydra/config.yaml``), ordered by job number.
+
+    Raises:
+        SweepError: naming the folder and what was expected, if it is missing or holds no job folder.
+    """
+    expected = "a Hydra sweep folder with job folders <num>_<overrides>/.hydra/config.yaml"
+    if not sweep.is_dir():
+        raise SweepError(f"{sweep}: no such folder (expected {expected})")
+    jobs = [p for p in sweep.iterdir() if (p / ".hydra" / "config.yaml").is_file()]
+    if not jobs:
+        raise SweepError(f"{sweep}: not a sweep (expected {expected}, from python -m lossvo.train -m ...)")
+    return sorted(jobs, key=job_number)
+
+
+def job_number(path: Path) -> tuple[int, str]:
+    """Sort key of a job folder: its leading job number (folders without one last), then its name."""
+    head = path.name.split("_", 1)[0]
+    return (int(head) if head.isdigit() else sys.maxsize, path.name)
+
+
+def latest_sweep(parent: Path) -> Path:
+    """The newest sweep folder directly under ``parent`` (e.g. ``outputs/multirun``).
+
+    Newest by the modification time of its ``multirun.yaml`` (written once, when the sweep starts; a
+    report written later into the folder does not make it newer), else of the folder itself.
+
+    Raises:
+        SweepError: if ``parent`` is missing or holds no sweep folder.
+    """
+    if not parent.is_dir():
+        raise SweepError(f"{parent}: no such folder (expected a folder of sweeps, e.g. outputs/multirun)")
+    sweeps = [p for p in parent.iterdir() if p.is_dir() and any(p.glob("*/.hydra/config.yaml"))]
+    if not sweeps:
+        raise SweepError(f"{parent}: holds no sweep folder (expected {parent}/<time>/<num>_<overrides>/)")
+    return max(sweeps, key=_started)
+
+
+def _started(path: Path) -> tuple[float, str]:
+    marker = path / "multirun.yaml"
+    return ((marker if marker.is_file() else path).stat().st_mtime, path.name)
+
+
+# --------------------------------------------------------------------------------------------------
+# One job
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Curves:
+    """Per-epoch values of metrics.csv: ``{column: (epochs (E,) int, values (E,) float)}``."""
+
+    series: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+
+
+@dataclass
+class Job:
+    """One job folder as read: what it is (overrides, seed), what happened (status), what it produced."""
+
+    path: Path
+    overrides: dict[str, str] = field(default_factory=dict)
+    seed: Any = None
+    status: str = "unknown"
+    error: str | None = None
+    results: dict[str, Any] | None = None
+    curves: Curves | None = None
+    config: Any = None
+    skip: str | None = None
+    notes: list[str] = field(default_factory=list)
+    label: str = ""
+
+    @property
+    def included(self) -> bool:
+        return self.skip is None
+
+    @property
+    def included_results(self) -> dict[str, Any]:
+        """``results`` of an included job: load_job includes a job only with a valid results.json."""
+        assert self.results is not None, f"{self.path.name} is not included: {self.skip}"
+        return self.results
+
+
+def parse_override(text: str) -> tuple[str, str]:
+    """``"loss=euler"`` -> ``("loss", "euler")``; a leading ``+``/``++`` is dropped, ``~key`` kept."""
+    key, _, value = str(text).partition("=")
+    return key.lstrip("+").strip(), value.strip()
+
+
+def read_overrides(path: Path) -> dict[str, str]:
+    """``.hydra/overrides.yaml`` (a YAML list of ``key=value`` strings) as an ordered dict."""
+    import yaml
+
+    items = yaml.safe_load(path.read_text()) or []
+    if not isinstance(items, list):
+        raise ValueError("expected a list of key=value strings")
+    return dict(parse_override(item) for item in items)
+
+
+def read_json(path: Path) -> Any:
+    """A JSON file; ValueError with a short reason for a missing, unreadable or invalid one."""
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise ValueError(f"{path.name}: {e.strerror or 'unreadable'}") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path.name}: invalid JSON ({e.msg} at line {e.lineno})") from None
+
+
+def check_results(results: Any) -> list[str]:
+    """Names of the sequences with metrics in a results.json; ValueError if its shape is not
+    :func:`lossvo.evaluation.results.evaluate_run`'s."""
+    if not isinstance(results, dict) or not isinstance(results.get("sequences"), dict):
+        raise ValueError("results.json: expected an object with 'sequences'")
+    names = []
+    for name, entry in results["sequences"].items():
+        if not isinstance(entry, dict) or "ape" not in entry:
+            continue  # a sequence without ground truth has a note and no metrics
+        for path in METRIC_PATHS:
+            value = lookup(entry, path)
+            if not (value is None and path[0] == "kitti") and not isinstance(value, (int, float)):
+                raise ValueError(f"results.json: sequence {name}: no number at {'.'.join(path)}")
+        names.append(name)
+    return names
+
+
+def sequence_metrics(results: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The sequence entries of a results.json that hold metrics: ``{sequence: entry}``."""
+    return {
+        name: entry
+        for name, entry in results["sequences"].items()
+        if isinstance(entry, dict) and "ape" in entry
+    }
+
+
+def read_metrics_csv(path: Path) -> tuple[Curves, list[str]]:
+    """Per-epoch curves from a Lightning CSVLogger file, and notes on any damage.
+
+    Train and validation values sit on different rows; each column's value of an epoch is the last
+    non-empty one logged in that epoch. Rows with a wrong number of fields (a file cut mid-write) or a
+    non-number end the reading there (noted); rows without an epoch (e.g. the first learning-rate row) are
+    ignored.
+    """
+    try:
+        rows = list(csv.reader(io.StringIO(path.read_text())))
+    except (OSError, UnicodeDecodeError, csv.Error) as e:
+        return Curves(), [f"metrics.csv unreadable ({e}): no curves"]
+    if not rows or "epoch" not in rows[0]:
+        return Curves(), ["metrics.csv has no header with an 'epoch' column: no curves"]
+    header, notes = rows[0], []
+    table = []
+    for line, row in enumerate(rows[1:], start=2):
+        try:
+            if len(row) != len(header):
+                raise ValueError(f"{len(row)} fields, header has {len(header)}")
+            table.append([float(v) if v.strip() else math.nan for v in row])
+        except ValueError as e:
+            notes.append(f"metrics.csv line {line} is truncated or corrupt ({e}): later rows ignored")
+            break
+    return _per_epoch(header, np.array(table, dtype=np.float64).reshape(-1, len(header))), notes
+
+
+def _per_epoch(header: list[str], table: np.ndarray) -> Curves:
+    """(rows, columns) floats -> per column, the last finite value logged in each epoch."""
+    epoch = table[:, header.index("epoch")]
+    curves = Curves()
+    for j, name in enumerate(header):
+        if name in ("epoch", "step"):
+            continue
+        keep = np.flatnonzero(np.isfinite(epoch) & np.isfinite(table[:, j]))[::-1]  # newest row first
+        if keep.size:
+            epochs, first = np.unique(epoch[keep].astype(int), return_index=True)
+            curves.series[name] = (epochs, table[keep[first], j])
+    return curves
+
+
+def read_status(path: Path) -> tuple[str, str | None]:
+    """(status, error) from status.json; ("unknown", None) without the file."""
+    if not path.is_file():
+        return "unknown", None
+    status = read_json(path)
+    if not isinstance(status, dict) or "status" not in status:
+        raise ValueError("status.json: expected an object with 'status'")
+    return str(status["status"]), status.get("error")
+
+
+def load_job(path: Path) -> Job:
+    """Read one job folder; never raises: what cannot be used is recorded in ``skip`` / ``notes``."""
+    job = Job(path)
+    try:
+        _read_config(job)
+    except Exception as e:  # YAML errors come in many classes
+        job.skip = f"unreadable Hydra config ({type(e).__name__}: {first_line(e)})"
+        return job
+    try:
+        job.status, job.error = read_status(path / "status.json")
+    except ValueError as e:
+        job.skip = str(e)
+        return job
+    job.skip = _skip_reason(job)
+    if job.skip is None:
+        _read_results(job)
+    if job.status == "unknown" and job.skip is None:
+        job.notes.append("no status.json")
+    _read_curves(job)
+    return job
+
+
+def _read_config(job: Job) -> None:
+    """``config``, ``overrides`` and ``seed`` of a job from ``.hydra/``."""
+    from omegaconf import OmegaConf
+
+    job.config = OmegaConf.load(job.path / ".hydra" / "config.yaml")
+    overrides = job.path / ".hydra" / "overrides.yaml"
+    job.overrides = read_overrides(overrides) if overrides.is_file() else {}
+    job.seed = job.config.get(REPLICATE_KEY, job.overrides.get(REPLICATE_KEY))
+
+
+def _read_results(job: Job) -> None:
+    """``results`` of a job from results.json, or ``skip`` saying why it cannot be used."""
+    try:
+        job.results = read_json(job.path / "results.json")
+        check_results(job.results)
+    except ValueError as e:
+        job.results, job.skip = None, str(e)
+
+
+def _read_curves(job: Job) -> None:
+    """``curves`` of a job from metrics.csv, with notes on a missing or damaged file."""
+    if not (job.path / "metrics.csv").is_file():
+        job.notes.append("no metrics.csv: no curves")
+        return
+    job.curves, notes = read_metrics_csv(job.path / "metrics.csv")
+    job.notes.extend(notes)
+
+
+def _skip_reason(job: Job) -> str | None:
+    """Why a job's results cannot be used yet, from its status and files (None: try results.json)."""
+    if job.status == "failed":
+        return f"failed: {job.error or 'no error recorded'}"
+    if job.status == "running":
+        return "still running (status.json says running)"
+    if not (job.path / "results.json").is_file():
+        if job.status == "completed":
+            return "completed but no results.json (trained with +evaluate=false?)"
+        return "no results.json yet (still running, or stopped before the evaluation)"
+    return None
+
+
+# --------------------------------------------------------------------------------------------------
+# A job's config
+# --------------------------------------------------------------------------------------------------
+
+
+def config_value(config: Any, key: str, default: Any = None) -> Any:
+    """The value at dotted ``key`` of a job config (a DictConfig or a mapping), interpolations resolved;
+    ``default`` where the key is missing, null or cannot be resolved here."""
+    from omegaconf import OmegaConf
+
+    if config is None:
+        return default
+    if not OmegaConf.is_config(config):
+        config = OmegaConf.create(config)
+    value = OmegaConf.select(config, key, default=None, throw_on_resolution_failure=False)
+    return default if value is None else value
+
+
+def config_sequences(jobs: Iterable[Job], key: str) -> list[str]:
+    """The sequence names listed at ``key`` (e.g. ``data.val``) in the jobs' configs, in order of first
+    appearance; a missing or empty key lists none."""
+    names: list[str] = []
+    for job in jobs:
+        names.extend(n for n in sequence_names(config_value(job.config, key, [])) if n not in names)
+    return names
+
+
+# --------------------------------------------------------------------------------------------------
+# What a job was evaluated on: results.json's data record
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class EvaluatedData:
+    """The ``data`` record of a job's results.json: ``kind`` (the evaluated datamodule's class path),
+    ``root`` (the evaluated dataset, KITTI layout: ``sequences/NN/...`` and ``poses/NN.txt``), its
+    ``test`` and ``unseen`` sequences, and the data the network was trained on: ``train_root`` and the
+    training split ``train``. Roots are absolute paths as recorded; they may no longer exist."""
+
+    kind: str | None
+    root: Path
+    train_root: Path
+    train: tuple[str, ...]
+    test: tuple[str, ...] = ()
+    unseen: tuple[str, ...] = ()
+
+    def identity(self) -> dict[str, Any]:
+        """What decides the frames on disk and the training split's poses (a cache key)."""
+        return {"root": str(self.root), "train_root": str(self.train_root), "train": list(self.train)}
+
+
+def evaluated_data(job: Job) -> EvaluatedData:
+    """A job's :class:`EvaluatedData` from its results.json.
+
+    Raises:
+        ValueError: naming the job and the missing or malformed field (results.json written before the
+            record existed, or by another writer).
+    """
+    record = (job.results or {}).get("data")
+    where = f"{job.path.name}/results.json"
+    if not isinstance(record, dict):
+        raise ValueError(f"{where} records no evaluated data (no 'data': written by an older evaluation)")
+    for key in ("root", "train_root"):
+        if not isinstance(record.get(key), str) or not record[key]:
+            raise ValueError(f"{where}: data.{key} is not a path")
+    if not isinstance(record.get("train"), list):
+        raise ValueError(f"{where}: data.train is not a list of sequences")
+    kind = record.get("kind")
+    return EvaluatedData(
+        kind=str(kind) if kind is not None else None,
+        root=Path(record["root"]),
+        train_root=Path(record["train_root"]),
+        train=tuple(sequence_names(record["train"])),
+        test=tuple(sequence_names(record.get("test") or [])),
+        unseen=tuple(sequence_names(record.get("unseen") or [])),
+    )
+
+
+def check_on_disk(data: EvaluatedData, job: Job) -> None:
+    """ValueError naming the job if the evaluated dataset or the training data is no longer there."""
+    for name, root in (("evaluated dataset", data.root), ("training data", data.train_root)):
+        if not root.is_dir():
+            raise ValueError(f"the {name} of {job.path.name}, {root}, no longer exists")
+
+
+def trained_sequences(job: Job) -> set[str]:
+    """The sequences of the evaluated dataset that the job's network was trained on: results.json's
+    ``data.train`` when the evaluated root is the training root (none when they differ), else the
+    config's ``data.train``."""
+    try:
+        data = evaluated_data(job)
+    except ValueError:
+        return set(config_sequences([job], "data.train"))
+    same = os.path.realpath(data.root) == os.path.realpath(data.train_root)
+    return set(data.train) if same else set()
+
+
+def unseen_sequences(job: Job) -> set[str]:
+    """The sequences of route families the job's network never trained on: those results.json flags
+    (``sequences[s].unseen``) and lists (``data.unseen``); the config's ``data.unseen`` for a
+    results.json that records neither."""
+    results = job.results or {}
+    entries = results.get("sequences") or {}
+    flagged = {s for s, e in entries.items() if isinstance(e, dict) and e.get("unseen") is True}
+    record = results.get("data")
+    if isinstance(record, dict) and "unseen" in record:
+        return flagged | set(sequence_names(record["unseen"] or []))
+    if flagged or any(isinstance(e, dict) and "unseen" in e for e in entries.values()):
+        return flagged
+    return set(config_sequences([job], "data.unseen"))
+
+
+# --------------------------------------------------------------------------------------------------
+# Trajectories and ground truth
+# --------------------------------------------------------------------------------------------------
+
+
+def read_trajectory(job: Job, sequence: str) -> np.ndarray | None:
+    """A job's estimated trajectory (N, 4, 4), translation in m, of one sequence; None if missing or
+    unreadable."""
+    entry = job.results["sequences"].get(sequence, {}) if job.results else {}
+    try:
+        return read_poses(job.path / entry.get("trajectory", f"trajectories/{sequence}.txt"))
+    except (KittiFormatError, OSError):
+        return None
+
+
+def ground_truth(job: Job, sequences: Sequence[str]) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    """Ground-truth poses (N, 4, 4), translation in m, of the sequences, read from the pose files that the
+    job's results.json names (``sequences[s].ground_truth``).
+
+    Returns:
+        ``{sequence: poses}`` of the sequences whose file could be read, and ``{sequence: reason}`` of the
+        others (no such field, a file that no longer exists or cannot be read).
+    """
+    entries = (job.results or {}).get("sequences") or {}
+    found, missing = {}, {}
+    for s in sequences:
+        path = entries.get(s, {}).get("ground_truth") if isinstance(entries.get(s), dict) else None
+        if not isinstance(path, str):
+            missing[s] = f"{job.path.name}/results.json names no ground-truth file"
+            continue
+        try:
+            found[s] = read_poses(path)
+        except KittiFormatError as e:
+            missing[s] = str(e)
+    return found, missing

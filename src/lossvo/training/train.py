@@ -1,0 +1,262 @@
+"""Training entry point: ``python -m lossvo.train [overrides]``, sweeps with ``-m``.
+
+Examples::
+
+    python -m lossvo.train                                   # chordal loss, embedded synthetic data
+    python -m lossvo.train -m loss=euler,quat,chordal        # the study's three-way comparison
+    python -m lossvo.train -m loss=euler,quat,chordal seed=0,1,2 hydra/launcher=joblib
+    python -m lossvo.train experiment=paper data.root=/data/kitti trainer=gpu
+
+A run writes to ``outputs/runs/<time>/``, a sweep job to ``outputs/multirun/<time>/<num>_<overrides>/``:
+the resolved config (``.hydra/``), ``checkpoints/`` (best on the selection metric, ``val/score`` unless
+``selection=loss``, and last), ``metrics.csv``,
+and, from the best checkpoint evaluated on the test sequences after fitting
+(:func:`lossvo.evaluation.results.evaluate_run`), ``results.json``, ``trajectories/NN.txt`` and
+``plots/NN.png``.
+``+evaluate=false`` skips that evaluation (it is also skipped for ``trainer.fast_dev_run``, which saves no
+checkpoint).
+Everything (data, network, loss, loggers, callbacks, trainer) is instantiated before training starts,
+so a wrong name or argument fails at once with Hydra's or the class's message.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import warnings
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
+
+import hydra
+import lightning as L
+from hydra.core.hydra_config import HydraConfig
+from hydra.errors import InstantiationException
+from hydra.utils import get_class, instantiate
+from lightning.pytorch.callbacks import Callback, ModelCheckpoint, ProgressBar
+from lightning.pytorch.loggers import CSVLogger, Logger, WandbLogger
+from omegaconf import DictConfig, ListConfig, OmegaConf
+
+from lossvo import weighting
+from lossvo.atomic import write_text_atomic
+from lossvo.models import load_flownet
+from lossvo.processes import restore_start_method
+from lossvo.training import checkpoints
+from lossvo.training.module import VOModule
+from lossvo.training.selection import SCORE_KEY
+
+if TYPE_CHECKING:
+    from lossvo.data.datamodules import KittiDataModule
+    from lossvo.losses import PoseLoss
+
+log = logging.getLogger("lossvo")
+
+CONFIG_DIR = str(Path(__file__).resolve().parents[1] / "conf")
+
+
+def _loss_class(target: str) -> type[PoseLoss]:
+    """The loss class a loss config's ``_target_`` names (get_class types any class as ``type``)."""
+    return cast("type[PoseLoss]", get_class(target))
+
+
+def _dim_of(target: str) -> int:
+    """Head size of a loss class given its ``_target_`` (the model's ``out_dim`` interpolates this)."""
+    return int(_loss_class(target).dim)
+
+
+def _identity_of(target: str) -> ListConfig:
+    """The output of a loss class that decodes to no motion (the model's ``head_bias`` interpolates this)."""
+    return ListConfig(_loss_class(target)(k=1.0).identity_output().tolist())
+
+
+def _matched_k(target: str, c: Any, squared: bool = True) -> float | None:
+    """``weighting=matched``'s k for a loss class (``weighting.k`` interpolates this)."""
+    return weighting.preset_k(target, "matched", c, squared)
+
+
+def _paper_k(target: str) -> float | None:
+    """``weighting=paper``'s k for a loss class."""
+    return weighting.preset_k(target, "paper")
+
+
+PATH_SAFE = str.maketrans({"/": "_", "=": "-", ",": "+", " ": None, "'": None, '"': None,
+                           "[": None, "]": None, "{": None, "}": None, "(": None, ")": None})  # fmt: skip
+"""Characters of overrides that Hydra's override grammar does not take unquoted (or that would nest
+folders), and what they become in a job folder's name."""
+
+
+def _path_safe(text: str) -> str:
+    """A sweep job's folder name from its overrides, e.g. 'loss-euler+seed-0', that can be pasted
+    unquoted into an override (``ckpt_path=.../0_loss-euler+seed-0/checkpoints/best.ckpt``)."""
+    return str(text).translate(PATH_SAFE)
+
+
+def register_resolvers() -> None:
+    """OmegaConf resolvers used by lossvo's configs (idempotent)."""
+    resolvers = (("dim_of", _dim_of), ("identity_of", _identity_of), ("matched_k", _matched_k),
+                 ("paper_k", _paper_k), ("path_safe", _path_safe))  # fmt: skip
+    for name, fn in resolvers:
+        if not OmegaConf.has_resolver(name):
+            OmegaConf.register_new_resolver(name, fn)
+
+
+register_resolvers()
+
+
+def _instantiate_group(group: DictConfig | None, name: str) -> list[Any]:
+    """Instantiate every entry of a dict-of-configs group (callbacks, logger); each needs a _target_."""
+    objects = []
+    for key, entry in (group or {}).items():
+        if entry is None:  # switched off with `callbacks.key=null`
+            continue
+        if not isinstance(entry, DictConfig) or "_target_" not in entry:
+            raise ValueError(f"{name}.{key!s}: expected a config with a _target_, got {entry!r}")
+        objects.append(instantiate(entry))
+    return objects
+
+
+def _container(cfg: DictConfig) -> dict[str, Any]:
+    return cast("dict[str, Any]", OmegaConf.to_container(cfg, resolve=True))  # a DictConfig: str keys
+
+
+def build(cfg: DictConfig) -> tuple[KittiDataModule, VOModule, L.Trainer]:
+    """Data, module and trainer from a composed config; nothing is trained yet."""
+    if cfg.model.get("flownet"):
+        # FlowNetS weights were trained on img/255 - 0.5; the dataset statistics would not match them.
+        cfg.data.normalization = "flownet"
+    datamodule = instantiate(cfg.data, _convert_="all")
+    # The FlowNet file initialises the encoder once, here; it is kept out of the module's
+    # hyperparameters so that a checkpoint reloads without that file.
+    model_cfg = _container(cfg.model)
+    flownet = model_cfg.pop("flownet", None)
+    module = VOModule(
+        model=model_cfg,
+        loss=_container(cfg.loss),
+        optimizer=_container(cfg.optimizer),
+        scheduler=_container(cfg.scheduler) if cfg.get("scheduler") else None,
+        monitor=cfg.selection.monitor if cfg.get("selection") else SCORE_KEY,
+    )
+    if flownet:
+        log.info("FlowNetS initialisation: %s", load_flownet(module.model, flownet).summary())
+    callbacks: list[Callback] = _instantiate_group(cfg.get("callbacks"), "callbacks")
+    loggers: list[Logger] = _instantiate_group(cfg.get("logger"), "logger")
+    trainer = instantiate(
+        cfg.trainer,
+        callbacks=callbacks,
+        logger=loggers or False,
+        enable_progress_bar=any(isinstance(c, ProgressBar) for c in callbacks),
+    )
+    return datamodule, module, trainer
+
+
+def _previous_metrics(trainer: L.Trainer) -> bool:
+    """Whether a CSV logger of the trainer would find a metrics.csv of an earlier run in its folder."""
+    return any(
+        isinstance(logger, CSVLogger) and (Path(logger.log_dir) / "metrics.csv").exists()
+        for logger in trainer.loggers
+    )
+
+
+def train(cfg: DictConfig) -> dict[str, float]:
+    """Seed, build, fit; returns the final callback metrics (floats)."""
+    if cfg.get("seed") is not None:  # seed 0 is a seed
+        L.seed_everything(cfg.seed, workers=True)
+    datamodule, module, trainer = build(cfg)
+    if cfg.get("ckpt_path"):
+        checkpoints.check_resume(cfg.ckpt_path, module, dict(datamodule.hparams))
+    resolved = _container(cfg)
+    with warnings.catch_warnings():
+        if not _previous_metrics(trainer):  # the job folder holds .hydra/ and train.log, nothing to delete
+            warnings.filterwarnings(
+                "ignore", message=".*Previous log files in this directory will be deleted"
+            )
+        for logger in trainer.loggers:
+            logger.log_hyperparams(resolved)
+    try:
+        trainer.fit(module, datamodule=datamodule, ckpt_path=cfg.get("ckpt_path"))
+        metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
+        # Lightning sets Trainer.fast_dev_run in its setup (_init_debugging_flags) without declaring it.
+        fast_dev_run = trainer.fast_dev_run  # type: ignore[attr-defined]
+        if cfg.get("evaluate", True) and not fast_dev_run and trainer.is_global_zero:
+            evaluate_after_fit(trainer, module, datamodule)
+    finally:
+        _finish_wandb(trainer)
+    return metrics
+
+
+def evaluate_after_fit(trainer: L.Trainer, module: VOModule, datamodule: KittiDataModule) -> dict:
+    """Evaluate the best checkpoint (the last weights if there is none) on the test sequences, writing
+    ``results.json``, ``trajectories/`` and ``plots/`` into the job's output folder."""
+    from lossvo.evaluation.results import evaluate_run
+
+    out_dir = (
+        Path(HydraConfig.get().runtime.output_dir)
+        if HydraConfig.initialized()
+        else Path(trainer.default_root_dir)
+    )
+    best = next((c.best_model_path for c in trainer.checkpoint_callbacks if isinstance(c, ModelCheckpoint)
+                 and c.best_model_path and Path(c.best_model_path).is_file()), None)  # fmt: skip
+    device = trainer.strategy.root_device  # Lightning moves the module back to the CPU after fit
+    if best:
+        module = checkpoints.load_module(best)
+    else:
+        log.warning("no best checkpoint: evaluating the last weights")
+    module = module.to(device)
+    result = evaluate_run(module, datamodule, out_dir, datamodule.evaluated, checkpoint=best)
+    log.info("evaluation of %s on %s: %s", best or "the last weights", ", ".join(datamodule.evaluated),
+             out_dir / "results.json")  # fmt: skip
+    return result
+
+
+def _finish_wandb(trainer: L.Trainer) -> None:
+    """One W&B run per sweep job: close it so the next job in this process starts a new one."""
+    if any(isinstance(logger, WandbLogger) for logger in trainer.loggers):
+        import wandb
+
+        wandb.finish()
+
+
+def write_status(out_dir: Path, status: str, **details: Any) -> None:
+    """``status.json`` in a job folder: completed or failed (with the error), for the sweep report."""
+    write_text_atomic(out_dir / "status.json", json.dumps({"status": status, **details}, indent=2) + "\n")
+
+
+@hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")
+def main(cfg: DictConfig) -> float | None:
+    """Hydra entry point; returns ``cfg.optimized_metric`` for hyperparameter sweepers.
+
+    A failing job writes ``status.json`` with its error and re-raises: Hydra reports it, and a sweep's
+    other jobs (finished or still to come) keep their outputs.
+    """
+    out_dir = Path(HydraConfig.get().runtime.output_dir)
+    if cfg.get("weighting") is not None:
+        try:
+            weighting.check_config(cfg.weighting, cfg.loss)
+        except ValueError as e:  # a config error: one line, before anything is built
+            log.error("%s", e)
+            raise SystemExit(2) from None
+    log.info("output: %s", out_dir)
+    restore_start_method()  # a joblib-launched job: let its loader workers and renderer start
+    write_status(out_dir, "running")
+    try:
+        metrics = train(cfg)
+    except checkpoints.CheckpointError as e:  # ckpt_path is not a checkpoint this run can resume
+        write_status(out_dir, "failed", error=f"CheckpointError: {e}")
+        log.error("ckpt_path: %s", e)
+        raise SystemExit(2) from None
+    except InstantiationException as e:
+        if not isinstance(e.__cause__, ValueError):  # a config value a constructor refused: one line
+            write_status(out_dir, "failed", error=f"{type(e).__name__}: {e}")
+            raise
+        write_status(out_dir, "failed", error=f"ValueError: {e.__cause__}")
+        log.error("%s", e.__cause__)
+        raise SystemExit(2) from None
+    except Exception as e:
+        write_status(out_dir, "failed", error=f"{type(e).__name__}: {e}")
+        log.error("job failed: %s: %s", type(e).__name__, e)
+        raise
+    write_status(out_dir, "completed", metrics=metrics)
+    return metrics.get(cfg.get("optimized_metric", SCORE_KEY))
+
+
+if __name__ == "__main__":
+    main()

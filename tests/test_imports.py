@@ -1,0 +1,97 @@
+"""No import cycles in src/lossvo, counting imports inside functions and under ``if TYPE_CHECKING:``."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(SRC).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imported(source: str, name: str, is_package: bool, modules: set[str]) -> set[str]:
+    """The lossvo modules that module ``name`` imports anywhere in its ``source`` (``from a import b``
+    counts ``a.b`` when that is a module, else ``a``; a package's ``__init__`` runs with any of its
+    modules)."""
+    package = name if is_package else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                base = ".".join(
+                    [*package.split(".")[: len(package.split(".")) - node.level + 1], base]
+                ).strip(".")
+            found.update(f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in node.names)
+    edges = set()
+    for target in found:
+        while target and target not in modules:
+            target = target.rpartition(".")[0]
+        parts = target.split(".")
+        edges.update(".".join(parts[:i]) for i in range(2, len(parts) + 1))  # parents' __init__ run first
+    edges.discard(name)
+    return {e for e in edges if e in modules and not name.startswith(e + ".")}
+
+
+def graph() -> dict[str, set[str]]:
+    files = {module_name(p): p for p in (SRC / "lossvo").rglob("*.py")}
+    return {
+        name: imported(path.read_text(), name, path.name == "__init__.py", set(files))
+        for name, path in files.items()
+    }
+
+
+def find_cycle(edges: dict[str, set[str]]) -> list[str] | None:
+    """One cycle of the directed graph as a list of nodes (first = last), or None."""
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        state[node] = 1
+        stack.append(node)
+        for nxt in sorted(edges.get(node, ())):
+            if state.get(nxt) == 1:
+                return [*stack[stack.index(nxt) :], nxt]
+            if nxt not in state and (cycle := visit(nxt)):
+                return cycle
+        stack.pop()
+        state[node] = 2
+        return None
+
+    for node in sorted(edges):
+        if node not in state and (cycle := visit(node)):
+            return cycle
+    return None
+
+
+def test_no_import_cycles() -> None:
+    edges = graph()
+    assert len(edges) > 30 and "lossvo.training.train" in edges["lossvo.train"]
+    cycle = find_cycle(edges)
+    assert cycle is None, "import cycle: " + " -> ".join(cycle or [])
+
+
+@pytest.mark.parametrize(
+    ("edges", "cyclic"),
+    [({"a": {"b"}, "b": {"c"}, "c": {"a"}}, True), ({"a": {"b"}, "b": {"c"}, "c": set()}, False)],
+)
+def test_cycle_finder(edges: dict[str, set[str]], cyclic: bool) -> None:
+    assert (find_cycle(edges) is not None) == cyclic
+
+
+def test_imports_inside_functions_and_type_checking_count() -> None:
+    source = (
+        "from typing import TYPE_CHECKING\n"
+        "if TYPE_CHECKING:\n    from lossvo.b import X\n"
+        "def f():\n    from lossvo import c\n    from .d import y\n"
+    )
+    modules = {"lossvo", "lossvo.a", "lossvo.b", "lossvo.c", "lossvo.d", "lossvo.e"}
+    assert imported(source, "lossvo.a", False, modules) == {"lossvo.b", "lossvo.c", "lossvo.d"}
