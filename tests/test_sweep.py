@@ -74,3 +74,23 @@ def test_joblib_launcher_runs_jobs_in_parallel_processes(
     assert len(jobs) == 2 and all((j / "checkpoints" / "best.ckpt").is_file() for j in jobs)
     # DataLoader workers start inside joblib's (loky) worker processes too
     assert all(json.loads((j / "status.json").read_text())["status"] == "completed" for j in jobs)
+
+
+def test_rerunning_a_sweep_skips_completed_jobs_and_resumes_interrupted_ones(
+    run_tiny_sweep, tmp_path: Path
+) -> None:
+    first = run_train(["loss=euler,quat"], tmp_path, run_tiny_sweep)
+    assert first.returncode == 0, first.stderr[-3000:]
+    done, stopped = sorted(p for p in (tmp_path / "sweep").iterdir() if p.is_dir())
+    (done / "results.json").write_text("{}")  # a skipped job leaves its outputs alone
+    (stopped / "status.json").write_text(
+        json.dumps({"status": "interrupted", "signal": "SIGTERM", "epoch": 1})
+    )
+    (stopped / "results.json").unlink()
+    again = run_tiny_sweep(tmp_path / "again", tmp_path / "sweep", ["loss=euler,quat"])
+    assert again.returncode == 0, again.stderr[-3000:]
+    log = again.stdout + again.stderr
+    assert "already completed (resume=true)" in log and "resuming the interrupted run from" in log
+    assert (done / "results.json").read_text() == "{}"
+    assert json.loads((stopped / "status.json").read_text())["status"] == "completed"
+    assert (stopped / "results.json").is_file()

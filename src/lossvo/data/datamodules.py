@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from collections.abc import Sequence as Seq
 from pathlib import Path
 from typing import Any
@@ -29,7 +29,7 @@ import lightning as L
 import numpy as np
 import torch
 from filelock import FileLock
-from torch.utils.data import DataLoader, Dataset, RandomSampler, Sampler, SequentialSampler
+from torch.utils.data import DataLoader, Dataset, Sampler, SequentialSampler
 
 from lossvo import geometry
 from lossvo.atomic import write_text_atomic
@@ -187,6 +187,35 @@ def jitter(frames: torch.Tensor, generator: torch.Generator | None = None) -> to
     """
     gain, bias = (torch.rand(2, frames.shape[0], 1, 1, 1, 1, generator=generator) - 0.5).to(frames.device)
     return ((frames - 127.5) * (1.0 + 0.4 * gain) + 127.5 + 50.0 * bias).clamp(0.0, 255.0)
+
+
+def _own_stream() -> torch.Generator:
+    """A generator for a DataLoader's worker seeds, seeded with the run's seed: without one, every
+    epoch's loader iterator draws from the global stream, which the network's dropout uses."""
+    return torch.Generator().manual_seed(torch.initial_seed())
+
+
+class EpochShuffle(Sampler[int]):
+    """``count`` of ``n`` indices without replacement in a random order that depends on ``seed`` and the
+    epoch only (Lightning calls :meth:`set_epoch` before every training epoch).
+
+    Args:
+        n: dataset size; count: indices per epoch (<= n); seed: the run's seed.
+    """
+
+    def __init__(self, n: int, count: int, seed: int) -> None:
+        self.n, self.count, self.seed, self.epoch = n, count, seed, 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __iter__(self) -> Iterator[int]:
+        state = np.random.SeedSequence([self.seed % 2**63, self.epoch]).generate_state(2, dtype=np.uint32)
+        generator = torch.Generator().manual_seed(int(state[0]) << 32 | int(state[1]))
+        return iter(torch.randperm(self.n, generator=generator)[: self.count].tolist())
+
+    def __len__(self) -> int:
+        return self.count
 
 
 class KittiDataModule(L.LightningDataModule):
@@ -394,7 +423,7 @@ class KittiDataModule(L.LightningDataModule):
     def _loader(self, split: str, sampler: Sampler | None = None) -> DataLoader:
         return DataLoader(
             self.datasets[split], batch_size=self.batch_size, sampler=sampler, num_workers=self.num_workers,
-            pin_memory=self.pin_memory, persistent_workers=self.num_workers > 0,
+            pin_memory=self.pin_memory, persistent_workers=self.num_workers > 0, generator=_own_stream(),
         )  # fmt: skip
 
     def _tiled_loader(self, split: str) -> DataLoader:
@@ -404,18 +433,19 @@ class KittiDataModule(L.LightningDataModule):
             SequentialSampler(dataset), self.batch_size, lengths=dataset.lengths.tolist()
         )
         return DataLoader(dataset, batch_sampler=batches, num_workers=self.num_workers,
-                          pin_memory=self.pin_memory, persistent_workers=self.num_workers > 0)  # fmt: skip
+                          pin_memory=self.pin_memory, persistent_workers=self.num_workers > 0,
+                          generator=_own_stream())  # fmt: skip
 
     def train_dataloader(self) -> DataLoader:
         """Shuffled training windows; with ``windows_per_epoch``, a fresh random subset every epoch.
 
-        The order comes from a generator of its own, seeded with torch's initial seed (the run's
-        ``seed``), so it depends on the seed and the data alone: not on the network, its head or the
-        loss, which draw from other streams."""
+        Each epoch's order comes from a generator of its own, seeded with torch's initial seed (the run's
+        ``seed``) and the epoch (:class:`EpochShuffle`), so it depends on the seed, the epoch and the data
+        alone: not on the network, its head or the loss, which draw from other streams, and a resumed run
+        sees the order an uninterrupted one would."""
         dataset = self.datasets["train"]
         count = min(self.windows_per_epoch or len(dataset), len(dataset))
-        order = torch.Generator().manual_seed(torch.initial_seed())
-        return self._loader("train", RandomSampler(dataset, num_samples=count, generator=order))
+        return self._loader("train", EpochShuffle(len(dataset), count, torch.initial_seed()))
 
     def val_dataloader(self) -> DataLoader:
         return self._tiled_loader("val")

@@ -262,12 +262,15 @@ def _per_epoch(header: list[str], table: np.ndarray) -> Curves:
 
 
 def read_status(path: Path) -> tuple[str, str | None]:
-    """(status, error) from status.json; ("unknown", None) without the file."""
+    """(status, error) from status.json; ("unknown", None) without the file. The error of an
+    interrupted job is its signal and epoch."""
     if not path.is_file():
         return "unknown", None
     status = read_json(path)
     if not isinstance(status, dict) or "status" not in status:
         raise ValueError("status.json: expected an object with 'status'")
+    if status["status"] == "interrupted":
+        return "interrupted", f"{status.get('signal', 'a signal')} during epoch {status.get('epoch', '?')}"
     return str(status["status"]), status.get("error")
 
 
@@ -327,6 +330,8 @@ def _skip_reason(job: Job) -> str | None:
         return f"failed: {job.error or 'no error recorded'}"
     if job.status == "running":
         return "still running (status.json says running)"
+    if job.status == "interrupted":
+        return f"interrupted ({job.error or 'no signal recorded'}): run the sweep's command again to resume"
     if not (job.path / "results.json").is_file():
         if job.status == "completed":
             return "completed but no results.json (trained with +evaluate=false?)"

@@ -4,17 +4,25 @@
   a cluster log (no TTY), one plain summary line per epoch instead of thousands of redrawn bars.
 - :class:`TrajectoryValidation` integrates the whole validation sequences during fit and logs trajectory
   errors (APE / RPE / KITTI), the numbers the study compares, next to the per-window losses.
+- :class:`InterruptCheckpoint` saves the weights when SIGINT or SIGTERM stops a fit.
+- :class:`MetricsHistory` puts a resumed run's earlier epochs back into its ``metrics.csv``, which
+  Lightning's CSV logger starts afresh.
 """
 
 from __future__ import annotations
 
+import csv
 import logging
+import os
 import sys
 import time
+from pathlib import Path
 
 import lightning as L
 import torch
 from lightning.pytorch.callbacks import Callback, RichProgressBar
+from lightning.pytorch.loggers import CSVLogger
+from lightning.pytorch.utilities.exceptions import SIGTERMException
 
 from lossvo.evaluation import metrics
 from lossvo.evaluation.inference import predict_sequence
@@ -104,3 +112,65 @@ class TrajectoryValidation(Callback):
             values["val/kitti_r_err"] = r_err
         for key, value in values.items():
             pl_module.log(key, torch.tensor(value, dtype=torch.float32), on_step=False, on_epoch=True)
+
+
+class InterruptCheckpoint(Callback):
+    """On SIGINT (KeyboardInterrupt) or SIGTERM (Lightning's ``SIGTERMException``), save the weights and
+    loop state at that moment to ``dirpath/interrupted.ckpt``, single-process runs only (a collective
+    save from one rank would hang the others). Resuming continues from ``last.ckpt``, the end of the last
+    complete epoch, which repeats no step and skips none.
+
+    Args:
+        dirpath: the job's checkpoint folder.
+    """
+
+    def __init__(self, dirpath: str | os.PathLike) -> None:
+        self.path = Path(dirpath) / "interrupted.ckpt"
+
+    def on_exception(
+        self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException
+    ) -> None:
+        if not isinstance(exception, (KeyboardInterrupt, SIGTERMException)) or trainer.world_size > 1:
+            return
+        try:
+            trainer.save_checkpoint(self.path)
+        except Exception as e:  # a full disk must not hide the interrupt
+            log.warning("could not save %s: %s", self.path, e)
+
+
+class MetricsHistory(Callback):
+    """The rows of an earlier ``metrics.csv`` up to a resumed epoch, logged again before training goes on,
+    so that the file holds every epoch once across resumes.
+
+    Args:
+        rows: the earlier rows (``csv.DictReader`` dicts).
+        last_epoch, global_step: the checkpoint's epoch and step. Rows of later epochs, and rows without
+            an epoch (the learning rate) logged at or after that step, are dropped: they come again.
+    """
+
+    def __init__(self, rows: list[dict[str, str]], last_epoch: int, global_step: int) -> None:
+        self.rows = [r for r in rows if _before(r, last_epoch, global_step)]
+
+    @classmethod
+    def from_file(cls, path: Path, last_epoch: int, global_step: int) -> MetricsHistory:
+        with path.open(newline="") as f:
+            return cls(list(csv.DictReader(f)), last_epoch, global_step)
+
+    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        for logger in trainer.loggers:
+            if isinstance(logger, CSVLogger):
+                for row in self.rows:
+                    values = {k: _number(v) for k, v in row.items() if v != "" and k != "step"}
+                    logger.experiment.log_metrics(values, int(float(row.get("step") or 0)))
+                logger.save()
+
+
+def _number(text: str) -> float | int:
+    value = float(text)
+    return int(value) if value.is_integer() and "." not in text and "e" not in text.lower() else value
+
+
+def _before(row: dict[str, str], last_epoch: int, global_step: int) -> bool:
+    if row.get("epoch"):
+        return int(float(row["epoch"])) <= last_epoch
+    return bool(row.get("step")) and int(float(row["step"])) < global_step

@@ -22,7 +22,9 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from lightning.pytorch.plugins.io import TorchCheckpointIO
 
+from lossvo.atomic import atomic_path
 from lossvo.training.module import VOModule
 
 TRAINED_WITH = ("height", "width", "seq_len", "normalization")
@@ -109,9 +111,10 @@ def evaluation_data(
     return {**base, "train": [], "val": [], "statistics": recorded["statistics"]}
 
 
-def check_resume(path: str | os.PathLike, module: VOModule, data: Mapping[str, Any]) -> None:
+def check_resume(path: str | os.PathLike, module: VOModule, data: Mapping[str, Any]) -> tuple[int, int]:
     """Refuse to resume a run from a checkpoint of another loss, parameterisation, network shape or
-    training data setting, naming the difference.
+    training data setting, naming the difference; returns the checkpoint's epoch (0-based) and global
+    step.
 
     Args:
         path: the checkpoint. module: the run's freshly built module. data: the run's data description.
@@ -131,6 +134,7 @@ def check_resume(path: str | os.PathLike, module: VOModule, data: Mapping[str, A
         if key in recorded and recorded[key] != data.get(key):
             raise CheckpointError(f"{path}: trained with data.{key}={recorded[key]!r}, this run has "
                                   f"data.{key}={data.get(key)!r}")  # fmt: skip
+    return int(content.get("epoch", 0)), int(content.get("global_step", 0))
 
 
 def _check_shapes(path: str | os.PathLike, saved: Mapping[str, Any], current: Mapping[str, Any]) -> None:
@@ -150,3 +154,17 @@ def _check_shapes(path: str | os.PathLike, saved: Mapping[str, Any], current: Ma
 def _first_line(error: BaseException) -> str:
     text = str(error).strip()
     return text.splitlines()[0] if text else ""
+
+
+class AtomicCheckpointIO(TorchCheckpointIO):
+    """Checkpoints written to a temporary file next to their path and renamed onto it, so a crash or a
+    full disk leaves the previous checkpoint in place. Lightning's own save stages the file in the
+    system's temporary folder and moves it, which is a copy, not atomic, when that is another disk."""
+
+    def save_checkpoint(
+        self, checkpoint: dict[str, Any], path: str | os.PathLike, storage_options: Any | None = None
+    ) -> None:
+        if storage_options is not None:
+            raise TypeError(f"{type(self).__name__} takes no storage_options, got {storage_options!r}")
+        with atomic_path(path, suffix=".ckpt") as tmp:
+            torch.save(checkpoint, tmp)

@@ -20,6 +20,8 @@ from hydra.utils import instantiate
 from torch import Tensor
 
 from lossvo.losses import PoseLoss
+from lossvo.training import random_streams
+from lossvo.training.schedules import extend_cosine
 from lossvo.training.selection import SCORE_KEY, SelectionScore
 
 
@@ -54,6 +56,7 @@ class VOModule(L.LightningModule):
         self.model = instantiate(model)
         self.val_score = SelectionScore()
         self.data: dict[str, Any] | None = None  # the training data's description, from a checkpoint
+        self._resumed_rng: dict[str, Any] | None = None  # random streams of a checkpoint to resume
 
     def forward(self, frames: Tensor) -> Tensor:
         """Network output (B, L-1, dim) for frames (B, L, 3, H, W)."""
@@ -67,16 +70,28 @@ class VOModule(L.LightningModule):
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         """Record the training data's description (``checkpoint["data"]``, see
-        :mod:`lossvo.training.checkpoints`) when the datamodule gives one."""
+        :mod:`lossvo.training.checkpoints`) when the datamodule gives one, and the random streams
+        (``checkpoint["rng"]``), which a resumed fit restores (Lightning restores the rest)."""
         datamodule = getattr(self.trainer, "datamodule", None)
         describe = getattr(datamodule, "description", None)
         if callable(describe):
             checkpoint["data"] = describe()
         elif self.data is not None:
             checkpoint["data"] = self.data
+        checkpoint["rng"] = random_streams.collect()
 
     def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         self.data = checkpoint.get("data")
+        self._resumed_rng = checkpoint.get("rng")
+
+    def on_train_start(self) -> None:
+        """On resuming a fit: the random streams as they were when the checkpoint was written, and a
+        schedule whose length grew (``trainer.max_epochs`` raised) continued at its current epoch."""
+        if self._resumed_rng:
+            random_streams.restore(self._resumed_rng)
+            self._resumed_rng = None
+        for config in self.trainer.lr_scheduler_configs:
+            extend_cosine(config.scheduler, (self.hparams["scheduler"] or {}).get("T_max"))
 
     # -- steps ----------------------------------------------------------------------------------------
 

@@ -21,7 +21,6 @@ so a wrong name or argument fails at once with Hydra's or the class's message.
 
 from __future__ import annotations
 
-import json
 import logging
 import warnings
 from pathlib import Path
@@ -34,13 +33,21 @@ from hydra.errors import InstantiationException
 from hydra.utils import get_class, instantiate
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint, ProgressBar
 from lightning.pytorch.loggers import CSVLogger, Logger, WandbLogger
-from omegaconf import DictConfig, ListConfig, OmegaConf
+from lightning.pytorch.utilities.exceptions import SIGTERMException
+from omegaconf import DictConfig, ListConfig, OmegaConf, open_dict
 
 from lossvo import weighting
-from lossvo.atomic import write_text_atomic
 from lossvo.models import load_flownet
 from lossvo.processes import restore_start_method
 from lossvo.training import checkpoints
+from lossvo.training.callbacks import MetricsHistory
+from lossvo.training.job_folder import (
+    LAST_CHECKPOINT,
+    InterruptedRun,
+    read_status,
+    resume_point,
+    write_status,
+)
 from lossvo.training.module import VOModule
 from lossvo.training.selection import SCORE_KEY
 
@@ -141,6 +148,7 @@ def build(cfg: DictConfig) -> tuple[KittiDataModule, VOModule, L.Trainer]:
     loggers: list[Logger] = _instantiate_group(cfg.get("logger"), "logger")
     trainer = instantiate(
         cfg.trainer,
+        plugins=[checkpoints.AtomicCheckpointIO()],
         callbacks=callbacks,
         logger=loggers or False,
         enable_progress_bar=any(isinstance(c, ProgressBar) for c in callbacks),
@@ -162,17 +170,24 @@ def train(cfg: DictConfig) -> dict[str, float]:
         L.seed_everything(cfg.seed, workers=True)
     datamodule, module, trainer = build(cfg)
     if cfg.get("ckpt_path"):
-        checkpoints.check_resume(cfg.ckpt_path, module, dict(datamodule.hparams))
+        epoch, step = checkpoints.check_resume(cfg.ckpt_path, module, dict(datamodule.hparams))
+        history = Path(cfg.ckpt_path).parent.parent / "metrics.csv"  # the checkpoint's job folder
+        if history.is_file():  # read now: the CSV logger starts the file afresh
+            trainer.callbacks.append(MetricsHistory.from_file(history, epoch, step))  # type: ignore[attr-defined]
     resolved = _container(cfg)
     with warnings.catch_warnings():
-        if not _previous_metrics(trainer):  # the job folder holds .hydra/ and train.log, nothing to delete
+        restored = any(isinstance(c, MetricsHistory) for c in trainer.callbacks)  # type: ignore[attr-defined]
+        if restored or not _previous_metrics(trainer):  # nothing is lost: no warning about deleting it
             warnings.filterwarnings(
                 "ignore", message=".*Previous log files in this directory will be deleted"
             )
         for logger in trainer.loggers:
             logger.log_hyperparams(resolved)
     try:
-        trainer.fit(module, datamodule=datamodule, ckpt_path=cfg.get("ckpt_path"))
+        try:
+            trainer.fit(module, datamodule=datamodule, ckpt_path=cfg.get("ckpt_path"))
+        except (KeyboardInterrupt, SystemExit) as e:
+            raise _interrupted(e, trainer.current_epoch) from None
         metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
         # Lightning sets Trainer.fast_dev_run in its setup (_init_debugging_flags) without declaring it.
         fast_dev_run = trainer.fast_dev_run  # type: ignore[attr-defined]
@@ -181,6 +196,16 @@ def train(cfg: DictConfig) -> dict[str, float]:
     finally:
         _finish_wandb(trainer)
     return metrics
+
+
+def _interrupted(error: BaseException, epoch: int) -> BaseException:
+    """Lightning ends a fit on SIGINT with ``sys.exit(1)`` (after a KeyboardInterrupt) and on SIGTERM
+    with its ``SIGTERMException``: an :class:`InterruptedRun`; any other exit as it was."""
+    if isinstance(error, SIGTERMException):
+        return InterruptedRun("SIGTERM", epoch)
+    if isinstance(error, KeyboardInterrupt) or isinstance(error.__context__, KeyboardInterrupt):
+        return InterruptedRun("SIGINT", epoch)
+    return error
 
 
 def evaluate_after_fit(trainer: L.Trainer, module: VOModule, datamodule: KittiDataModule) -> dict:
@@ -194,7 +219,7 @@ def evaluate_after_fit(trainer: L.Trainer, module: VOModule, datamodule: KittiDa
         else Path(trainer.default_root_dir)
     )
     best = next((c.best_model_path for c in trainer.checkpoint_callbacks if isinstance(c, ModelCheckpoint)
-                 and c.best_model_path and Path(c.best_model_path).is_file()), None)  # fmt: skip
+                 and c.monitor and Path(c.best_model_path or "/nonexistent").is_file()), None)  # fmt: skip
     device = trainer.strategy.root_device  # Lightning moves the module back to the CPU after fit
     if best:
         module = checkpoints.load_module(best)
@@ -215,11 +240,6 @@ def _finish_wandb(trainer: L.Trainer) -> None:
         wandb.finish()
 
 
-def write_status(out_dir: Path, status: str, **details: Any) -> None:
-    """``status.json`` in a job folder: completed or failed (with the error), for the sweep report."""
-    write_text_atomic(out_dir / "status.json", json.dumps({"status": status, **details}, indent=2) + "\n")
-
-
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")
 def main(cfg: DictConfig) -> float | None:
     """Hydra entry point; returns ``cfg.optimized_metric`` for hyperparameter sweepers.
@@ -236,9 +256,23 @@ def main(cfg: DictConfig) -> float | None:
             raise SystemExit(2) from None
     log.info("output: %s", out_dir)
     restore_start_method()  # a joblib-launched job: let its loader workers and renderer start
+    point = resume_point(out_dir) if cfg.get("resume", True) and not cfg.get("ckpt_path") else None
+    if point == "completed":
+        log.info("already completed (resume=true): %s", out_dir / "status.json")
+        return read_status(out_dir).get("metrics", {}).get(cfg.get("optimized_metric", SCORE_KEY))
+    if point is not None:
+        log.info("resuming the interrupted run from %s", point)
+        with open_dict(cfg):
+            cfg.ckpt_path = str(point)
     write_status(out_dir, "running")
     try:
         metrics = train(cfg)
+    except InterruptedRun as e:
+        last = out_dir / LAST_CHECKPOINT
+        write_status(out_dir, "interrupted", signal=e.signal_name, epoch=e.epoch,
+                     resume_from=str(last) if last.is_file() else None)  # fmt: skip
+        log.error("interrupted by %s during epoch %d; run the same command to resume", e.signal_name, e.epoch)
+        raise SystemExit(e.exit_code) from None
     except checkpoints.CheckpointError as e:  # ckpt_path is not a checkpoint this run can resume
         write_status(out_dir, "failed", error=f"CheckpointError: {e}")
         log.error("ckpt_path: %s", e)

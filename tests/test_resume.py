@@ -1,0 +1,155 @@
+"""Runs that survive: last.ckpt every epoch, resume equals uninterrupted, metrics.csv continuity,
+extending a finished run, atomic checkpoints on a full disk, SIGINT / SIGTERM and resuming by itself."""
+
+from __future__ import annotations
+
+import csv
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import lightning as L
+import pytest
+import torch
+
+from lossvo.training import checkpoints, train
+from lossvo.training.job_folder import InterruptedRun
+from test_train import compose_train, tiny_overrides
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+class InterruptAtEpoch(L.Callback):
+    """Raises KeyboardInterrupt (what SIGINT raises) when ``epoch`` starts: the epochs before it are
+    complete and checkpointed."""
+
+    def __init__(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def on_train_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if trainer.current_epoch == self.epoch:
+            raise KeyboardInterrupt
+
+
+@pytest.fixture
+def restore_sigint():
+    """Lightning ignores SIGINT after a KeyboardInterrupt; give pytest its handler back."""
+    yield
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def _overrides(tiny_kitti: Path, cache: Path, *extra: str) -> list[str]:
+    return [*tiny_overrides(tiny_kitti, cache), "loss=chordal", "trainer.deterministic=true",
+            "data.reverse=0.5", "data.augment=true", *extra]  # fmt: skip
+
+
+def _rows(run: Path) -> list[dict[str, str]]:
+    with (run / "metrics.csv").open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _values(run: Path, key: str) -> list[tuple[str, str, float]]:
+    """(epoch, step, value) of every row logging ``key``, in file order."""
+    return [(r.get("epoch", ""), r["step"], float(r[key])) for r in _rows(run) if r.get(key)]
+
+
+def _weights(run: Path) -> dict[str, torch.Tensor]:
+    return checkpoints.read(run / "checkpoints" / "last.ckpt")["state_dict"]
+
+
+def test_resume_equals_uninterrupted(tiny_kitti: Path, tmp_path: Path, restore_sigint) -> None:
+    cache = tmp_path / "cache"
+    whole = tmp_path / "whole"
+    train.train(compose_train(_overrides(tiny_kitti, cache, "trainer.max_epochs=3"), whole))
+
+    parts = tmp_path / "parts"
+    stop = ["+callbacks.stop._target_=test_resume.InterruptAtEpoch", "+callbacks.stop.epoch=1"]
+    with pytest.raises(InterruptedRun, match="SIGINT during epoch 1"):
+        train.train(compose_train(_overrides(tiny_kitti, cache, "trainer.max_epochs=3", *stop), parts))
+    assert checkpoints.read(parts / "checkpoints" / "last.ckpt")["epoch"] == 0
+    assert (parts / "checkpoints" / "interrupted.ckpt").is_file()
+    resumed = _overrides(
+        tiny_kitti, cache, "trainer.max_epochs=3", f"ckpt_path={parts}/checkpoints/last.ckpt"
+    )
+    train.train(compose_train(resumed, parts))
+
+    ours, theirs = _weights(parts), _weights(whole)
+    for name in theirs:
+        torch.testing.assert_close(ours[name], theirs[name], rtol=0, atol=0, msg=name)
+    for key in ("train/loss", "val/score", "val/rpe_trans_rmse", "lr-Adam"):
+        assert _values(parts, key) == _values(whole, key), key
+    epochs = [int(float(r["epoch"])) for r in _rows(parts) if r.get("val/score")]
+    assert epochs == [0, 1, 2]  # every epoch once, across the resume
+
+
+def test_extending_a_finished_run_continues_the_schedule(tiny_kitti: Path, tmp_path: Path) -> None:
+    cache, run = tmp_path / "cache", tmp_path / "run"
+    train.train(compose_train(_overrides(tiny_kitti, cache, "trainer.max_epochs=2"), run))
+    before = _weights(run)
+    longer = _overrides(tiny_kitti, cache, "trainer.max_epochs=3", f"ckpt_path={run}/checkpoints/last.ckpt")
+    train.train(compose_train(longer, run))
+    lr = [value for _, _, value in _values(run, "lr-Adam")]
+    assert len(lr) == 3
+    # cosine over 3 epochs at epoch 2: lr0 (1 + cos(2 pi / 3)) / 2 = lr0 / 4, not the old schedule's 0
+    assert lr[2] == pytest.approx(lr[0] / 4, rel=1e-6)
+    after = _weights(run)
+    assert any(not torch.equal(before[k], after[k]) for k in before if before[k].is_floating_point())
+
+
+def test_a_full_disk_keeps_the_previous_checkpoint(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    io = checkpoints.AtomicCheckpointIO()
+    path = tmp_path / "last.ckpt"
+    io.save_checkpoint({"epoch": 1, "weights": torch.ones(3)}, path)
+
+    def full_disk(obj, f, *args, **kwargs):
+        Path(f).write_bytes(b"PK\x03\x04 half a checkpoint")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(checkpoints.torch, "save", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        io.save_checkpoint({"epoch": 2, "weights": torch.zeros(3)}, path)
+    assert torch.load(path)["epoch"] == 1  # the previous one, whole
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["last.ckpt"]  # no partial file left
+
+
+def _start(tiny_kitti: Path, base: Path, *extra: str) -> subprocess.Popen:
+    args = [*tiny_overrides(tiny_kitti, base / "cache"), f"hydra.run.dir={base / 'run'}", *extra]
+    env = {**os.environ, "PYTHONPATH": str(REPO / "src")}
+    return subprocess.Popen([sys.executable, "-m", "lossvo.train", *args], cwd=base, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # fmt: skip
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_signals_leave_an_interrupted_job_that_resumes_by_itself(
+    tiny_kitti: Path, tmp_path: Path, signum: int
+) -> None:
+    proc = _start(tiny_kitti, tmp_path, "trainer.max_epochs=200")
+    last = tmp_path / "run" / "checkpoints" / "last.ckpt"
+    deadline = time.monotonic() + 240
+    while not last.is_file() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert proc.poll() is None, proc.communicate()[0][-3000:]
+    proc.send_signal(signum)
+    output = proc.communicate(timeout=120)[0]
+    assert proc.returncode == 128 + signum, output[-3000:]
+    status = json.loads((tmp_path / "run" / "status.json").read_text())
+    name = signal.Signals(signum).name
+    assert status["status"] == "interrupted" and status["signal"] == name and status["epoch"] >= 1
+    assert status["resume_from"] == str(last)
+    done = checkpoints.read(last)["epoch"]  # loadable
+    assert checkpoints.read(tmp_path / "run" / "checkpoints" / "interrupted.ckpt")["epoch"] >= done
+    assert "Traceback" not in output and f"interrupted by {name}" in output
+    if signum != signal.SIGTERM:
+        return
+    again = _start(tiny_kitti, tmp_path, f"trainer.max_epochs={done + 2}")  # the same job folder
+    output = again.communicate(timeout=300)[0]
+    assert again.returncode == 0, output[-3000:]
+    assert "resuming the interrupted run" in output
+    assert json.loads((tmp_path / "run" / "status.json").read_text())["status"] == "completed"
+    epochs = [int(float(r["epoch"])) for r in _rows(tmp_path / "run") if r.get("val/score")]
+    assert epochs == list(range(done + 2))  # every epoch once
