@@ -1,16 +1,19 @@
 """Training throughput: lossvo's Lightning path vs a bare PyTorch loop, same model and batches.
 
-Run: ``.venv/bin/python benchmarks/training_throughput.py [--epochs 3 --windows 256 --device cpu]``.
+Run: ``.venv/bin/python benchmarks/training_throughput.py [--rounds 5 --epochs 3 --windows 128]``.
 Both train DeepVO (deepvo_small's settings) with the chordal loss and Adam on the same in-memory
 uint8 windows (seq_len 6, 64x208, batch 8) through the same DataLoader, normalising each batch the
 same way. The Lightning path is lossvo's: ``VOModule`` under a ``Trainer`` that logs every loss key
 per epoch to CSV (checkpointing and progress output off, as they are per-epoch costs). The first
-epoch of each is a warm-up and is not timed. Prints frame pairs per second and the ratio.
+epoch of each measurement is a warm-up and is not timed. The two sides run in interleaved rounds
+(alternating which goes first), so that machine noise and drift reach both; prints the median rate of
+each, the median ratio and its spread over rounds.
 """
 
 from __future__ import annotations
 
 import argparse
+import statistics
 import tempfile
 import time
 
@@ -107,9 +110,10 @@ def bare_seconds(dataset: TensorDataset, epochs: int, batch_size: int, device: s
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--epochs", type=int, default=3, help="the first is a warm-up")
-    parser.add_argument("--windows", type=int, default=256)
+    parser.add_argument("--epochs", type=int, default=3, help="per measurement; the first is a warm-up")
+    parser.add_argument("--windows", type=int, default=128)
     parser.add_argument("--batch-size", type=int, default=8)
+    parser.add_argument("--rounds", type=int, default=5, help="interleaved rounds of both sides")
     parser.add_argument("--device", default="cpu")
     args = parser.parse_args()
     dataset = make_windows(args.windows)
@@ -119,12 +123,19 @@ def main() -> None:
     )
     print(f"DeepVO {params / 1e6:.2f}M parameters, {args.windows} windows x 5 pairs, "
           f"batch {args.batch_size}, {args.device}, torch {torch.__version__}, "
-          f"{torch.get_num_threads()} threads")  # fmt: skip
-    bare = pairs / bare_seconds(dataset, args.epochs, args.batch_size, args.device)
-    lightning = pairs / lightning_seconds(dataset, args.epochs, args.batch_size, args.device)
-    print(f"bare PyTorch loop:      {bare:8.1f} pairs/s")
-    print(f"lossvo (Lightning):     {lightning:8.1f} pairs/s")
-    print(f"ratio lossvo / bare:    {lightning / bare:8.3f}")
+          f"{torch.get_num_threads()} threads, {args.rounds} rounds")  # fmt: skip
+    sides = {"bare": bare_seconds, "lightning": lightning_seconds}
+    rates: dict[str, list[float]] = {name: [] for name in sides}
+    for r in range(args.rounds):  # both sides every round, in alternating order: drift hits both
+        for name in sorted(sides, reverse=r % 2 == 1):
+            rates[name].append(pairs / sides[name](dataset, args.epochs, args.batch_size, args.device))
+    ratios = [lit / bare for lit, bare in zip(rates["lightning"], rates["bare"], strict=True)]
+    for name, label in (("bare", "bare PyTorch loop"), ("lightning", "lossvo (Lightning)")):
+        print(f"{label + ':':22s} median {statistics.median(rates[name]):8.1f} pairs/s "
+              f"(min {min(rates[name]):.1f}, max {max(rates[name]):.1f})")  # fmt: skip
+    print(f"ratio lossvo / bare:   median {statistics.median(ratios):.3f} "
+          f"(min {min(ratios):.3f}, max {max(ratios):.3f}, per round: "
+          f"{', '.join(f'{x:.3f}' for x in ratios)})")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
-"""A fair comparison: same start for every loss, one selection rule, calibrated weights, bad input.
+"""A fair comparison: same start for every loss, one selection rule, calibrated weights (bad weighting
+configs: the rows of docs/bad-input.md, tests/test_bad_input.py).
 
 For one seed every configuration must get identical backbone weights, identical training windows in the
 same order and the same random stream afterwards (dropout masks); only the head may differ. Under
@@ -8,8 +9,6 @@ same order and the same random stream afterwards (dropout masks); only the head 
 from __future__ import annotations
 
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import lightning as L
@@ -199,38 +198,3 @@ def test_selection_score_is_relative_to_no_motion() -> None:
     metric.update(half[:1], target[:1])
     metric.update(half[1:], target[1:])
     assert metric.compute().item() == pytest.approx(0.25, rel=1e-6)
-
-
-# -- bad input --------------------------------------------------------------------------------------
-
-
-def run_train(tmp_path: Path, *overrides: str) -> subprocess.CompletedProcess:
-    command = [sys.executable, "-m", "lossvo.train", f"hydra.run.dir={tmp_path / 'run'}", *overrides]
-    return subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=tmp_path)
-
-
-def test_unknown_weighting_lists_the_options(tmp_path: Path) -> None:
-    result = run_train(tmp_path, "weighting=unknown")
-    assert result.returncode != 0
-    assert "Could not find 'weighting/unknown'" in result.stderr
-    assert all(name in result.stderr for name in ("matched", "paper", "learned"))
-
-
-@pytest.mark.parametrize(
-    ("overrides", "message"),
-    [
-        (("weighting.c=-1",), "weighting.c: expected a finite number > 0, got -1"),
-        (("weighting.c=0",), "weighting.c: expected a finite number > 0, got 0"),
-        (("weighting.c=nan",), "weighting.c: expected a finite number > 0, got nan"),
-        (("weighting=learned", "loss.k=5"), "loss.k=5 cannot be combined with weighting=learned"),
-        (("loss=quat", "loss.squared=false"), "loss.squared=false: the unsquared quaternion distance"),
-    ],
-)
-def test_bad_weighting_is_one_line_before_work(
-    tmp_path: Path, overrides: tuple[str, ...], message: str
-) -> None:
-    result = run_train(tmp_path, *overrides)
-    output = result.stdout + result.stderr
-    assert result.returncode == 2, output[-2000:]
-    assert message in output and "Traceback" not in output
-    assert not (tmp_path / "run" / "status.json").exists()  # nothing started

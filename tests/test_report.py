@@ -17,8 +17,6 @@ import json
 import re
 import shutil
 import struct
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -342,22 +340,6 @@ def test_figures_are_pngs_of_every_sequence(report: Path) -> None:
         assert width > 300 and height > 200, (name, width, height)
     text = (report / "report.md").read_text()
     assert all(f"(figures/{name})" in text for name in names)
-
-
-@pytest.mark.parametrize("make_folder", ["missing", "empty", "no_config"])
-def test_not_a_sweep_is_a_one_line_error_with_status_2(tmp_path: Path, make_folder: str) -> None:
-    folder = tmp_path / "folder"
-    if make_folder != "missing":
-        folder.mkdir()
-    if make_folder == "no_config":
-        (folder / "0_loss-euler").mkdir()  # a job folder without .hydra/config.yaml
-    result = subprocess.run(
-        [sys.executable, "-m", "lossvo.report", str(folder)], capture_output=True, text=True
-    )
-    assert result.returncode == 2
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: ") and "expected" in lines[0], result.stderr
-    assert "Traceback" not in result.stderr and not (folder / "report").exists()
 
 
 def test_latest_reports_the_newest_sweep_and_prints_the_path(

@@ -94,3 +94,12 @@ def test_rerunning_a_sweep_skips_completed_jobs_and_resumes_interrupted_ones(
     assert (done / "results.json").read_text() == "{}"
     assert json.loads((stopped / "status.json").read_text())["status"] == "completed"
     assert (stopped / "results.json").is_file()
+
+
+def test_a_job_with_a_bad_value_fails_alone(run_tiny_sweep, tmp_path: Path) -> None:
+    result = run_train(["loss=euler", "optimizer.lr=-1,1e-3"], tmp_path, run_tiny_sweep)
+    assert result.returncode != 0
+    assert "optimizer.lr: expected" in result.stdout + result.stderr
+    bad, good = sorted(p for p in (tmp_path / "sweep").iterdir() if p.is_dir())
+    assert not (bad / "status.json").exists()  # refused before anything was built
+    assert json.loads((good / "status.json").read_text())["status"] == "completed"

@@ -7,7 +7,8 @@ The checkpoint says how its network was trained (:mod:`lossvo.training.checkpoin
 ``seq_len``, normalisation and its statistics, and the data it was trained on, which is what is evaluated
 unless ``data=...`` chooses another dataset or ``data.KEY=...`` changes a setting; the other data need
 hold no training sequence. An override of the frame size, ``seq_len`` or normalisation that contradicts
-the checkpoint is an error (one line, exit status 2). The output folder (``outputs/eval/<time>/``, or
+the checkpoint is an error, as is any other bad input (one line naming it, exit status 2; with
+``LOSSVO_FULL_ERROR=1`` its traceback instead). The output folder (``outputs/eval/<time>/``, or
 ``hydra.run.dir``) receives what :func:`lossvo.evaluation.results.evaluate_run` writes.
 """
 
@@ -21,6 +22,8 @@ from typing import Any, cast
 
 import torch
 
+from lossvo.console import one_line, one_line_errors, raise_if_full_error
+from lossvo.evaluation.metrics import ALIGN_MODES
 from lossvo.evaluation.results import evaluate_run
 from lossvo.processes import restore_start_method
 from lossvo.training import checkpoints
@@ -34,6 +37,33 @@ def _resolve_device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     return torch.device(name)
+
+
+def check_config(cfg: Any) -> None:
+    """Raise ``ValueError`` (one line naming the key, the value and what was expected) for a config of
+    ``python -m lossvo.eval`` that would fail only after the checkpoint is loaded."""
+    from omegaconf import OmegaConf
+
+    if OmegaConf.is_missing(cfg, "ckpt_path"):
+        raise ValueError("ckpt_path is required: python -m lossvo.eval ckpt_path=PATH")
+    missing = sorted(OmegaConf.missing_keys(cfg))
+    if missing:
+        raise ValueError(f"{missing[0]}: a value is required: add {missing[0]}=... to the command line")
+    device = cfg.get("device", "auto")
+    if device != "auto":
+        try:
+            kind = torch.device(str(device)).type
+        except RuntimeError:
+            raise ValueError(f"device: expected auto, cpu, cuda or cuda:N, got {device!r}") from None
+        if kind == "cuda" and not torch.cuda.is_available():
+            raise ValueError(f"device: {device!r}, but CUDA is not available here (expected auto or cpu)")
+    if cfg.get("align", "none") not in ALIGN_MODES:
+        raise ValueError(f"align: expected one of {', '.join(ALIGN_MODES)}, got {cfg.get('align')!r}")
+    delta = cfg.get("delta", 1)
+    if isinstance(delta, bool) or not isinstance(delta, int) or delta < 1:
+        raise ValueError(f"delta: expected an integer >= 1 (frames), got {delta!r}")
+    if not isinstance(cfg.get("carry_state", False), bool):
+        raise ValueError(f"carry_state: expected true or false, got {cfg.get('carry_state')!r}")
 
 
 def data_overrides(overrides: Sequence[str]) -> tuple[bool, list[str]]:
@@ -69,6 +99,11 @@ def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> dict[str, Any
     datamodule.setup("test")
     sequences = list(cfg.sequences) if cfg.get("sequences") else datamodule.evaluated
     sequences = [f"{s:02d}" if isinstance(s, int) else str(s) for s in sequences]
+    available = list(getattr(datamodule, "sequences", None) or sequences)
+    unknown = [s for s in sequences if s not in available]
+    if unknown:
+        raise ValueError(f"sequences: {unknown[0]!r} is not a sequence of the evaluated data (expected one "
+                         f"of {', '.join(available)}; data.test=[...] chooses them)")  # fmt: skip
     return evaluate_run(module, datamodule, out_dir, sequences, checkpoint=Path(cfg.ckpt_path).resolve(),
                         align=cfg.get("align", "none"), delta=int(cfg.get("delta", 1)),
                         carry_state=bool(cfg.get("carry_state", False)))  # fmt: skip
@@ -77,19 +112,18 @@ def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> dict[str, Any
 def main() -> None:
     import hydra
     from hydra.core.hydra_config import HydraConfig
-    from omegaconf import OmegaConf
 
+    @one_line_errors
     @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="eval")
     def _main(cfg: Any) -> None:
         restore_start_method()  # a joblib-launched job: let its loader workers start
         out_dir = Path(HydraConfig.get().runtime.output_dir)
-        if OmegaConf.is_missing(cfg, "ckpt_path"):
-            print("error: ckpt_path is required: python -m lossvo.eval ckpt_path=PATH", file=sys.stderr)
-            sys.exit(2)
         try:
+            check_config(cfg)
             result = run(cfg, out_dir, HydraConfig.get().overrides.task)
-        except (FileNotFoundError, ValueError) as e:  # KittiFormatError is a ValueError
-            print(f"error: {e}", file=sys.stderr)
+        except (FileNotFoundError, ValueError) as e:  # KittiFormatError, CheckpointError are ValueErrors
+            raise_if_full_error()
+            print(f"error: {one_line(e)}", file=sys.stderr)
             sys.exit(2)
         overall = result["overall"]
         if "ape" in overall:

@@ -23,7 +23,6 @@ Run ``python -m lossvo.metrics GT_FILE EST_FILE [--align ...] [--delta N] [--jso
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -37,7 +36,7 @@ from torchmetrics import Metric
 from torchmetrics.utilities import dim_zero_cat
 
 from lossvo import geometry
-from lossvo.console import emit
+from lossvo.console import OneLineParser, emit, raise_if_full_error
 from lossvo.evaluation.trajectories import integrate
 
 AlignMode = Literal["none", "se3", "sim3", "scale"]
@@ -592,7 +591,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """``python -m lossvo.metrics GT_FILE EST_FILE``; one-line errors with exit status 2."""
     from lossvo.data.kitti import read_poses
 
-    parser = argparse.ArgumentParser(prog="python -m lossvo.metrics", description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog="python -m lossvo.metrics", description=__doc__.splitlines()[0])
     parser.add_argument("gt", help="ground-truth KITTI pose file")
     parser.add_argument("est", help="estimated KITTI pose file")
     parser.add_argument("--align", choices=ALIGN_MODES, default="none", help="APE alignment (evo's)")
@@ -606,12 +605,20 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="whose path picks RPE pairs in metres (evo: pairs_from_reference)")  # fmt: skip
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
     args = parser.parse_args(argv)
+    frames = args.delta_unit == "f"
+    if not (math.isfinite(args.delta) and args.delta > 0 and (not frames or float(args.delta).is_integer())):
+        unit = "an integer number of frames >= 1" if frames else "a distance in metres > 0"
+        parser.error(f"--delta: expected {unit}, got {args.delta:g}")
     try:
         gt = torch.from_numpy(read_poses(args.gt))
         est = torch.from_numpy(read_poses(args.est))
-        delta = int(args.delta) if args.delta_unit == "f" and float(args.delta).is_integer() else args.delta
+        if len(gt) != len(est):
+            raise ValueError(f"{args.est} has {len(est)} poses, {args.gt} has {len(gt)}: expected one pose "
+                             f"per frame of the same sequence in both")  # fmt: skip
+        delta = int(args.delta) if frames else args.delta
         result = evaluate(gt, est, args.align, delta, args.delta_unit, args.pairs_from)
     except ValueError as e:  # KittiFormatError is a ValueError
+        raise_if_full_error()
         print(f"error: {e}", file=sys.stderr)
         return 2
     emit(json.dumps(result, indent=2) if args.json else format_table(result))

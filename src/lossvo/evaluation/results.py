@@ -110,7 +110,10 @@ def evaluate_run(
     """
     out_dir = Path(out_dir)
     datamodule.setup("test")
-    pooled = (metrics.APE(align=align), metrics.RPE(delta=delta, align=align), metrics.KittiOdometryError())
+    # Evaluation runs in one process (rank 0 of a DDP run): nothing to gather from the others.
+    pooled = (metrics.APE(align=align, sync_on_compute=False),
+              metrics.RPE(delta=delta, align=align, sync_on_compute=False),
+              metrics.KittiOdometryError(sync_on_compute=False))  # fmt: skip
     loss = _loss_info(module)
     unseen = set(getattr(datamodule, "splits", {}).get("unseen", ()))
     per_sequence: dict[str, Any] = {}

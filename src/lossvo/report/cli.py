@@ -6,7 +6,8 @@ Command line::
     python -m lossvo.report --latest outputs/multirun          # the newest sweep under that folder
     python -m lossvo.report SWEEP_DIR --out DIR --no-baselines
 
-It prints the path of ``report.md``. A folder that is not a sweep is a one-line error, exit status 2.
+It prints the path of ``report.md``. A folder that is not a sweep, a bad option or an ``--out`` that is a
+file is a one-line error, exit status 2 (``LOSSVO_FULL_ERROR=1``: its traceback instead).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from lossvo.console import emit
+from lossvo.console import OneLineParser, emit, raise_if_full_error
 from lossvo.report.document import make_report
 from lossvo.report.jobs import SweepError, latest_sweep
 
@@ -27,7 +28,7 @@ log = logging.getLogger("lossvo")
 
 def parser() -> argparse.ArgumentParser:
     """The command line's parser."""
-    out = argparse.ArgumentParser(prog="python -m lossvo.report", description=__doc__.splitlines()[0])
+    out = OneLineParser(prog="python -m lossvo.report", description=__doc__.splitlines()[0])
     out.add_argument(
         "sweep_dir",
         type=Path,
@@ -49,13 +50,19 @@ def parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m lossvo.report SWEEP_DIR [--out DIR] [--latest] [--no-baselines] [--jobs N]``; returns
     the exit status (2: not a sweep)."""
-    args = parser().parse_args(argv)
+    command = parser()
+    args = command.parse_args(argv)
+    if args.jobs is not None and args.jobs < 1:
+        command.error(f"--jobs: expected an integer >= 1, got {args.jobs}")
+    if args.out is not None and args.out.exists() and not args.out.is_dir():
+        command.error(f"--out: {args.out} is a file, expected a folder")
     logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)
     start = time.perf_counter()
     try:
         sweep = latest_sweep(args.sweep_dir) if args.latest else args.sweep_dir
         path = make_report(sweep, args.out, not args.no_baselines, not args.no_figures, args.jobs)
     except SweepError as e:
+        raise_if_full_error()
         print(f"error: {e}", file=sys.stderr)
         return 2
     log.info("report written in %.1f s", time.perf_counter() - start)

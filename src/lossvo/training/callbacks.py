@@ -82,6 +82,18 @@ class TrajectoryValidation(Callback):
         needed = ("sequence_frames", "sequence_poses", "normalize", "seq_len", "splits")
         return datamodule is not None and all(hasattr(datamodule, name) for name in needed)
 
+    @staticmethod
+    def _share(
+        names: list[str], trainer: L.Trainer, pl_module: L.LightningModule
+    ) -> tuple[list[str], torch.device]:
+        """This process's validation sequences and the device of its metric states: under DDP every
+        process integrates every world_size-th sequence on its device and the metrics' ``compute``
+        pools them across processes (as one process would over all); one process does all, on the CPU."""
+        world, rank = trainer.world_size, trainer.global_rank
+        if world > 1 and len(names) >= world:
+            return names[rank::world], pl_module.device
+        return names, torch.device("cpu")
+
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if trainer.sanity_checking or (trainer.current_epoch + 1) % self.every_n_epochs:
             return
@@ -91,13 +103,17 @@ class TrajectoryValidation(Callback):
             return
         ape, rpe = metrics.APE(align=self.align), metrics.RPE(delta=self.delta, align=self.align)
         kitti = metrics.KittiOdometryError()
-        for name in datamodule.splits["val"]:
+        names, device = self._share(list(datamodule.splits["val"]), trainer, pl_module)
+        for name in names:
             gt = datamodule.sequence_poses(name)
             if gt is None:
                 continue
             relative = predict_sequence(pl_module, datamodule.sequence_frames(name), datamodule.normalize,
                                         datamodule.seq_len)  # fmt: skip
-            metrics.evaluate_relative(relative, gt, self.align, self.delta, pooled=(ape, rpe, kitti))
+            gt_t, relative_t = (
+                torch.as_tensor(a, dtype=torch.float64, device=device) for a in (gt, relative)
+            )
+            metrics.evaluate_relative(relative_t, gt_t, self.align, self.delta, pooled=(ape, rpe, kitti))
         if not ape.trans:
             return
         ape_out, rpe_out, kitti_out = ape.compute(), rpe.compute(), kitti.compute()

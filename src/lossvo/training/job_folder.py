@@ -14,6 +14,8 @@ import signal
 from pathlib import Path
 from typing import Any
 
+from lightning.pytorch.utilities import rank_zero_only
+
 from lossvo.atomic import write_text_atomic
 
 LAST_CHECKPOINT = Path("checkpoints") / "last.ckpt"
@@ -37,7 +39,9 @@ class InterruptedRun(Exception):  # noqa: N818 (a run, not an error)
 
 
 def write_status(out_dir: Path, status: str, **details: Any) -> None:
-    """Write ``status.json`` atomically."""
+    """Write ``status.json`` atomically; in a multi-process (DDP) run, only the first process does."""
+    if getattr(rank_zero_only, "rank", 0) != 0:  # set by Lightning from the launcher's environment
+        return
     write_text_atomic(out_dir / "status.json", json.dumps({"status": status, **details}, indent=2) + "\n")
 
 

@@ -103,8 +103,7 @@ class VOModule(L.LightningModule):
             self._check_finite(out, pred, batch_idx)
         self.log_dict(
             {f"{stage}/{key}": value for key, value in out.items()},
-            on_step=False, on_epoch=True, batch_size=targets.shape[0] * targets.shape[1],
-            sync_dist=stage != "train",
+            on_step=False, on_epoch=True, batch_size=targets.shape[0] * targets.shape[1], sync_dist=True,
         )  # fmt: skip
         if stage == "train":
             self.log("loss", out["loss"], on_step=True, on_epoch=False, prog_bar=True, logger=False)

@@ -28,19 +28,24 @@ from typing import TYPE_CHECKING, Any, cast
 
 import hydra
 import lightning as L
+import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import InstantiationException
+from hydra.types import RunMode
 from hydra.utils import get_class, instantiate
+from lightning.fabric.utilities.exceptions import MisconfigurationException
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint, ProgressBar
 from lightning.pytorch.loggers import CSVLogger, Logger, WandbLogger
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 from omegaconf import DictConfig, ListConfig, OmegaConf, open_dict
 
 from lossvo import weighting
+from lossvo.console import USER_ERRORS, hydra_message, one_line, one_line_errors, raise_if_full_error
 from lossvo.models import load_flownet
 from lossvo.processes import restore_start_method
 from lossvo.training import checkpoints
 from lossvo.training.callbacks import MetricsHistory
+from lossvo.training.config_checks import check_train_config
 from lossvo.training.job_folder import (
     LAST_CHECKPOINT,
     InterruptedRun,
@@ -97,10 +102,19 @@ def _path_safe(text: str) -> str:
     return str(text).translate(PATH_SAFE)
 
 
+def _sqlite_storage(path: str) -> str:
+    """An SQLite URL for an Optuna study stored at ``path``, whose folder is created first (the sweep
+    folder does not exist yet when the sweeper opens its study)."""
+    db = Path(path).expanduser().resolve()
+    db.parent.mkdir(parents=True, exist_ok=True)
+    return f"sqlite:///{db}"
+
+
 def register_resolvers() -> None:
     """OmegaConf resolvers used by lossvo's configs (idempotent)."""
     resolvers = (("dim_of", _dim_of), ("identity_of", _identity_of), ("matched_k", _matched_k),
-                 ("paper_k", _paper_k), ("path_safe", _path_safe))  # fmt: skip
+                 ("paper_k", _paper_k), ("path_safe", _path_safe),
+                 ("sqlite_storage", _sqlite_storage))  # fmt: skip
     for name, fn in resolvers:
         if not OmegaConf.has_resolver(name):
             OmegaConf.register_new_resolver(name, fn)
@@ -144,6 +158,7 @@ def build(cfg: DictConfig) -> tuple[KittiDataModule, VOModule, L.Trainer]:
     )
     if flownet:
         log.info("FlowNetS initialisation: %s", load_flownet(module.model, flownet).summary())
+    _sync_batchnorm_where_supported(cfg)
     callbacks: list[Callback] = _instantiate_group(cfg.get("callbacks"), "callbacks")
     loggers: list[Logger] = _instantiate_group(cfg.get("logger"), "logger")
     trainer = instantiate(
@@ -154,6 +169,16 @@ def build(cfg: DictConfig) -> tuple[KittiDataModule, VOModule, L.Trainer]:
         enable_progress_bar=any(isinstance(c, ProgressBar) for c in callbacks),
     )
     return datamodule, module, trainer
+
+
+def _sync_batchnorm_where_supported(cfg: DictConfig) -> None:
+    """Sync batch-norm needs CUDA (torch's SyncBatchNorm); off on CPUs, with a log line."""
+    accelerator = str(cfg.trainer.get("accelerator", "auto"))
+    on_cpu = accelerator == "cpu" or (accelerator == "auto" and not torch.cuda.is_available())
+    if cfg.trainer.get("sync_batchnorm") and on_cpu:
+        log.info("trainer.sync_batchnorm: off on CPU (torch's SyncBatchNorm needs CUDA)")
+        with open_dict(cfg):
+            cfg.trainer.sync_batchnorm = False
 
 
 def _previous_metrics(trainer: L.Trainer) -> bool:
@@ -240,20 +265,38 @@ def _finish_wandb(trainer: L.Trainer) -> None:
         wandb.finish()
 
 
+class JobError(Exception):
+    """A user error in one job of a sweep: the job fails (Hydra reports it) and the others go on."""
+
+
+def _user_error(message: str) -> BaseException:
+    """A user error, logged as one line: exit status 2, or in a sweep a :class:`JobError` so that the
+    sweep's other jobs (or a search's other trials) still run."""
+    log.error("%s", message)
+    if HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN:
+        return JobError(message)
+    return SystemExit(2)
+
+
+@one_line_errors
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")
 def main(cfg: DictConfig) -> float | None:
     """Hydra entry point; returns ``cfg.optimized_metric`` for hyperparameter sweepers.
 
-    A failing job writes ``status.json`` with its error and re-raises: Hydra reports it, and a sweep's
-    other jobs (finished or still to come) keep their outputs.
+    A user error (a config value, a data file, a checkpoint that does not fit) ends the job in one log
+    line with exit status 2, found before anything is built where the config alone tells
+    (:func:`~lossvo.training.config_checks.check_train_config`); ``LOSSVO_FULL_ERROR=1`` shows its
+    traceback instead. Any other failure writes ``status.json`` with its error and re-raises: Hydra
+    reports it, and a sweep's other jobs (finished or still to come) keep their outputs.
     """
     out_dir = Path(HydraConfig.get().runtime.output_dir)
-    if cfg.get("weighting") is not None:
-        try:
+    try:  # config errors: one line, before anything is built
+        if cfg.get("weighting") is not None:
             weighting.check_config(cfg.weighting, cfg.loss)
-        except ValueError as e:  # a config error: one line, before anything is built
-            log.error("%s", e)
-            raise SystemExit(2) from None
+        check_train_config(cfg)
+    except ValueError as e:
+        raise_if_full_error()
+        raise _user_error(one_line(e)) from None
     log.info("output: %s", out_dir)
     restore_start_method()  # a joblib-launched job: let its loader workers and renderer start
     point = resume_point(out_dir) if cfg.get("resume", True) and not cfg.get("ckpt_path") else None
@@ -275,15 +318,20 @@ def main(cfg: DictConfig) -> float | None:
         raise SystemExit(e.exit_code) from None
     except checkpoints.CheckpointError as e:  # ckpt_path is not a checkpoint this run can resume
         write_status(out_dir, "failed", error=f"CheckpointError: {e}")
-        log.error("ckpt_path: %s", e)
-        raise SystemExit(2) from None
+        raise_if_full_error()
+        raise _user_error(f"ckpt_path: {e}") from None
     except InstantiationException as e:
-        if not isinstance(e.__cause__, ValueError):  # a config value a constructor refused: one line
+        cause = e.__cause__
+        if not isinstance(cause, (*USER_ERRORS, MisconfigurationException)):
             write_status(out_dir, "failed", error=f"{type(e).__name__}: {e}")
             raise
-        write_status(out_dir, "failed", error=f"ValueError: {e.__cause__}")
-        log.error("%s", e.__cause__)
-        raise SystemExit(2) from None
+        write_status(out_dir, "failed", error=f"{type(cause).__name__}: {cause}")
+        raise_if_full_error()
+        raise _user_error(hydra_message(e)) from None  # a config value or _target_ a constructor refused
+    except ValueError as e:  # a value the run cannot use: a data file, a data setting the data refutes
+        write_status(out_dir, "failed", error=f"{type(e).__name__}: {e}")
+        raise_if_full_error()
+        raise _user_error(one_line(e)) from None
     except Exception as e:
         write_status(out_dir, "failed", error=f"{type(e).__name__}: {e}")
         log.error("job failed: %s: %s", type(e).__name__, e)

@@ -1,7 +1,8 @@
 """The command line: ``python -m lossvo.data.synthetic --out DIR [--sequences 00,07] [--frames N]
 [--height H --width W] [--seed S] [--workers N] [--mix NN=FAMILY[:W][+FAMILY[:W]]] [--quiet]``.
 
-Bad values end in one line on stderr and exit status 2, before anything is written.
+Bad values end in one line on stderr and exit status 2, before anything is written (with
+``LOSSVO_FULL_ERROR=1`` in the environment, in their traceback instead).
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import time
 from collections.abc import Iterable
 from pathlib import Path
 
-from lossvo.console import OneLineParser
+from lossvo.console import OneLineParser, raise_if_full_error
 from lossvo.data import kitti
 from lossvo.data.synthetic import routes
 from lossvo.data.synthetic.parameters import (
@@ -77,12 +78,19 @@ def main(argv: list[str] | None = None) -> int:
         if args.workers is not None and args.workers < 1:
             raise ValueError(f"--workers: must be >= 1, got {args.workers}")
         spec = routes.route_spec(mixes=dict(parse_mix(m) for m in args.mix))
+        if args.out.exists() and not args.out.is_dir():
+            raise ValueError(f"--out: {args.out} is a file, expected a folder")
     except ValueError as err:
+        raise_if_full_error()
         parser.error(str(err))
     start = time.perf_counter()
-    out = generate(
-        args.out, counts, counts, args.height, args.width, args.seed, not args.quiet, args.workers, spec
-    )
+    try:
+        out = generate(
+            args.out, counts, counts, args.height, args.width, args.seed, not args.quiet, args.workers, spec
+        )
+    except OSError as err:  # a folder it may not write to, a full disk
+        raise_if_full_error()
+        parser.error(f"--out: cannot write {err.filename or args.out}: {err.strerror or err}")
     if not args.quiet:
         size = dataset_size(out, counts)
         elapsed = time.perf_counter() - start

@@ -1,0 +1,94 @@
+"""Checks of a composed training config before anything is built.
+
+The settings that Lightning, torch or the data loader would otherwise refuse deep inside a run (or
+misread without a word) are checked first, each failure a ``ValueError`` naming the key, the value and
+what was expected, e.g. ``data.batch_size: expected an integer >= 1, got 'abc'``. The constructors check
+their own arguments (:class:`lossvo.data.datamodules.KittiDataModule`), :func:`lossvo.weighting.check_config`
+the loss weights.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any, cast
+
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from lossvo.console import first_line
+
+_ABSENT = object()
+
+
+def _integer(value: Any, low: int) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= low
+
+
+def _finite(value: Any, low: float) -> bool:
+    number = isinstance(value, int | float) and not isinstance(value, bool)
+    return number and math.isfinite(value) and value >= low
+
+
+def _positive(value: Any) -> bool:
+    return _finite(value, 0.0) and value > 0
+
+
+def _limit(value: Any) -> bool:
+    return _integer(value, 1) or (_integer(value, -1) and value == -1)
+
+
+NO_LIMIT = "an integer >= 1, or -1 for no limit"
+
+SCALARS: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
+    ("seed", lambda v: v is None or (_integer(v, 0) and v < 2**32), "null or an integer in [0, 2**32)"),
+    ("data.batch_size", lambda v: _integer(v, 1), "an integer >= 1"),
+    ("data.num_workers", lambda v: _integer(v, 0), "an integer >= 0"),
+    ("trainer.max_epochs", _limit, NO_LIMIT),
+    ("trainer.max_steps", _limit, NO_LIMIT),
+    ("trainer.log_every_n_steps", lambda v: _integer(v, 1), "an integer >= 1"),
+    ("trainer.check_val_every_n_epoch", lambda v: v is None or _integer(v, 1), "null or an integer >= 1"),
+    ("trainer.gradient_clip_val", lambda v: v is None or _finite(v, 0.0), "null or a finite number >= 0"),
+    ("optimizer.lr", _positive, "a finite number > 0"),
+    ("optimizer.weight_decay", lambda v: _finite(v, 0.0), "a finite number >= 0"),
+    ("resume", lambda v: isinstance(v, bool), "true or false"),
+    ("evaluate", lambda v: isinstance(v, bool), "true or false"),
+)
+"""(key, test, what is expected) of the scalar settings checked; a key the config lacks is skipped."""
+
+
+def _select(config: Mapping[str, Any], key: str) -> Any:
+    node: Any = config
+    for part in key.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            return _ABSENT
+        node = node[part]
+    return node
+
+
+def check_train_config(cfg: DictConfig) -> None:
+    """Raise ``ValueError`` (one line: key, value, what was expected) for a training config that would
+    fail only once the run is under way: a value left missing (``???``), an interpolation that does not
+    resolve, a bad scalar setting (:data:`SCALARS`), a cosine schedule without a length, a ``ckpt_path``
+    that is no file."""
+    try:
+        missing = sorted(OmegaConf.missing_keys(cfg))
+        resolved = cast("dict[str, Any]", OmegaConf.to_container(cfg, resolve=True))
+    except OmegaConfBaseException as e:  # an interpolation that does not resolve
+        raise ValueError(f"{e.full_key}: {first_line(e.msg) or type(e).__name__}") from None
+    if missing:
+        raise ValueError(f"{missing[0]}: a value is required: add {missing[0]}=... to the command line")
+    for key, test, expected in SCALARS:
+        value = _select(resolved, key)
+        if value is not _ABSENT and not test(value):
+            raise ValueError(f"{key}: expected {expected}, got {value!r}")
+    scheduler = resolved.get("scheduler") or {}
+    if str(scheduler.get("_target_", "")).endswith("CosineAnnealingLR"):
+        t_max = scheduler.get("T_max")
+        if not _integer(t_max, 1):
+            raise ValueError(f"scheduler.T_max: expected an integer >= 1 (the cosine schedule's length in "
+                             f"epochs, trainer.max_epochs by default), got {t_max!r}")  # fmt: skip
+    ckpt_path = resolved.get("ckpt_path")
+    if ckpt_path is not None and not Path(str(ckpt_path)).expanduser().is_file():
+        raise ValueError(f"ckpt_path: checkpoint not found: {ckpt_path}")

@@ -1,0 +1,133 @@
+"""Scale-out on existing engines: Lightning DDP on two CPU processes, Hydra's submitit launcher, Optuna."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+import torch.distributed as dist
+import torch.multiprocessing as mp
+
+from lossvo.evaluation import metrics
+from lossvo.evaluation.trajectories import integrate
+from test_train import tiny_overrides
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _epochs(job: Path, key: str = "val/score") -> list[int]:
+    with (job / "metrics.csv").open(newline="") as f:
+        return [int(float(r["epoch"])) for r in csv.DictReader(f) if r.get(key)]
+
+
+def test_ddp_on_two_cpu_processes(tiny_kitti: Path, tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    args = [*tiny_overrides(tiny_kitti, tmp_path / "cache"), "trainer=ddp", "trainer.accelerator=cpu",
+            "trainer.devices=2", "trainer.max_epochs=2", "logger=wandb", f"hydra.run.dir={run}"]  # fmt: skip
+    env = {
+        **os.environ,
+        "PYTHONPATH": str(REPO / "src"),
+        "WANDB_SILENT": "true",
+        "WANDB_DISABLE_CODE": "true",
+    }
+    proc = subprocess.run([sys.executable, "-m", "lossvo.train", *args], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert proc.returncode == 0, (proc.stdout + proc.stderr)[-4000:]
+    assert "sync_batchnorm: off on CPU" in proc.stdout + proc.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cache", "run"]  # one output folder
+    assert [p.relative_to(run) for p in run.rglob("metrics.csv")] == [Path("metrics.csv")]
+    assert _epochs(run) == [0, 1] and _epochs(run, "val/rpe_trans_rmse") == [0, 1]
+    assert len(list((run / "wandb").glob("offline-run-*"))) == 1  # one W&B run
+    assert json.loads((run / "status.json").read_text())["status"] == "completed"
+    assert "02" in json.loads((run / "results.json").read_text())["sequences"]  # evaluated on rank 0
+
+
+def _random_trajectory(n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+    from lossvo import geometry as g
+
+    gen = torch.Generator().manual_seed(seed)
+    forward = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+    gt_rel = g.make_pose(g.so3_exp(0.05 * torch.randn(n - 1, 3, generator=gen, dtype=torch.float64)),
+                         torch.randn(n - 1, 3, generator=gen, dtype=torch.float64) + forward)  # fmt: skip
+    noise = g.make_pose(g.so3_exp(0.01 * torch.randn(n - 1, 3, generator=gen, dtype=torch.float64)),
+                        0.05 * torch.randn(n - 1, 3, generator=gen, dtype=torch.float64))  # fmt: skip
+    return gt_rel, gt_rel @ noise
+
+
+def _pooled(ranked: list[int]) -> dict:
+    ape, rpe, kitti = metrics.APE(), metrics.RPE(delta=2), metrics.KittiOdometryError()
+    for seed in ranked:
+        gt_rel, est_rel = _random_trajectory(150 + 20 * seed, seed)
+        gt = integrate(gt_rel)
+        metrics.evaluate_relative(est_rel, gt, "none", 2, pooled=(ape, rpe, kitti))
+    return {"ape": ape.compute(), "rpe": rpe.compute(), "kitti": kitti.compute()}
+
+
+def _flat(tree: dict, prefix: str = "") -> dict[str, float]:
+    out: dict[str, float] = {}
+    for key, value in tree.items():
+        out.update(_flat(value, f"{prefix}{key}.") if isinstance(value, dict) else {prefix + key: value})
+    return out
+
+
+def _rank(rank: int, world: int, init: str, out: str) -> None:
+    dist.init_process_group("gloo", init_method=init, rank=rank, world_size=world)
+    result = _pooled(list(range(5))[rank::world])  # each process its own sequences
+    Path(out, f"{rank}.json").write_text(json.dumps(result))
+    dist.destroy_process_group()
+
+
+def test_pooled_trajectory_metrics_across_processes_equal_one_process(tmp_path: Path) -> None:
+    mp.spawn(_rank, args=(2, f"file://{tmp_path / 'init'}", str(tmp_path)), nprocs=2, join=True)
+    single = _pooled(list(range(5)))
+    for rank in (0, 1):
+        reduced = json.loads((tmp_path / f"{rank}.json").read_text())
+        assert _flat(reduced) == pytest.approx(_flat(single), rel=1e-12), f"rank {rank}"
+
+
+def test_submitit_local_sweep(run_tiny_sweep, tmp_path: Path) -> None:
+    result = run_tiny_sweep(
+        tmp_path, tmp_path / "sweep", ["hydra/launcher=submitit_local", "loss=euler,quat"]
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    jobs = sorted(p for p in (tmp_path / "sweep").iterdir() if p.is_dir() and (p / "status.json").is_file())
+    assert [j.name.split("_", 1)[0] for j in jobs] == ["0", "1"]
+    for job in jobs:
+        assert json.loads((job / "status.json").read_text())["status"] == "completed"
+        assert (job / "results.json").is_file()
+
+
+FAILING_SEARCH = """# @package _global_
+hydra:
+  sweeper:
+    params:
+      loss.k: choice(100.0)
+      optimizer.lr: choice(1e30, 1e-3)
+"""
+
+
+@pytest.mark.parametrize("failing", [False, True])
+def test_optuna_search(run_tiny_sweep, tmp_path: Path, failing: bool) -> None:
+    args = ["hparams_search=k_search", "hydra.sweeper.n_trials=3"]
+    if failing:  # a diverging learning rate or a good one, as the seeded sampler draws them
+        (tmp_path / "conf" / "hparams_search").mkdir(parents=True)
+        (tmp_path / "conf" / "hparams_search" / "failing.yaml").write_text(FAILING_SEARCH)
+        args = ["hparams_search=[k_search,failing]", "hydra.sweeper.n_trials=4"]
+    result = run_tiny_sweep(tmp_path, tmp_path / "sweep", args)
+    assert result.returncode == 0, result.stderr[-3000:]
+    sweep = tmp_path / "sweep"
+    assert (sweep / "optuna.db").is_file()
+    best = (sweep / "optimization_results.yaml").read_text()
+    assert "best_value" in best
+    statuses = [json.loads((j / "status.json").read_text())["status"] for j in sorted(sweep.iterdir())
+                if (j / "status.json").is_file()]  # fmt: skip
+    if failing:  # seed 0 draws both: the failed trials did not end the search
+        assert len(statuses) == 4 and {"completed", "failed"} == set(statuses), statuses
+    else:
+        assert statuses == ["completed"] * 3
