@@ -1,6 +1,6 @@
 """Training throughput: lossvo's Lightning path vs a bare PyTorch loop, same model and batches.
 
-Run: ``.venv/bin/python benchmarks/training_throughput.py [--rounds 5 --epochs 3 --windows 128]``.
+Run: ``.venv/bin/python benchmarks/training_throughput.py [--rounds 5 --epochs 3 --windows 256]``.
 Both train DeepVO (deepvo_small's settings) with the chordal loss and Adam on the same in-memory
 uint8 windows (seq_len 6, 64x208, batch 8) through the same DataLoader, normalising each batch the
 same way. The Lightning path is lossvo's: ``VOModule`` under a ``Trainer`` that logs every loss key
@@ -111,7 +111,7 @@ def bare_seconds(dataset: TensorDataset, epochs: int, batch_size: int, device: s
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--epochs", type=int, default=3, help="per measurement; the first is a warm-up")
-    parser.add_argument("--windows", type=int, default=128)
+    parser.add_argument("--windows", type=int, default=256)
     parser.add_argument("--batch-size", type=int, default=8)
     parser.add_argument("--rounds", type=int, default=5, help="interleaved rounds of both sides")
     parser.add_argument("--device", default="cpu")
