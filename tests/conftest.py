@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 from collections.abc import Callable
@@ -10,6 +11,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from filelock import FileLock
 from hypothesis import HealthCheck, settings
 
 settings.register_profile(
@@ -25,30 +27,46 @@ DEVICES = [
 ]
 
 
+def made_once(factory: pytest.TempPathFactory, name: str, make: Callable[[Path], object]) -> Path:
+    """The folder ``name`` in the test session's temporary directory, made by ``make(folder)`` the first
+    time it is asked for: once a session, also when pytest-xdist's worker processes share the session
+    (a file lock orders them; the others wait for the first one's folder)."""
+    base = factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        base = base.parent  # the session's folder, above each worker's own
+    folder, done = base / name, base / f"{name}.done"
+    with FileLock(str(base / f"{name}.lock")):
+        if not done.is_file():
+            shutil.rmtree(folder, ignore_errors=True)
+            make(folder)
+            done.touch()
+    return folder
+
+
 @pytest.fixture(scope="session")
-def tiny_kitti(tmp_path_factory: pytest.TempPathFactory):
+def tiny_kitti(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A tiny synthetic dataset in the KITTI layout (3 sequences of 10 frames, 64x208), shared by tests.
 
     Tests that modify a dataset copy it first (see ``kitti_copy``).
     """
     from lossvo.data import synthetic
 
-    root = tmp_path_factory.mktemp("tiny_kitti")
-    synthetic.generate(root, sequences=("00", "01", "02"), frames=10, height=64, width=208, progress=False)
-    return root
+    def make(root: Path) -> None:
+        synthetic.generate(root, ("00", "01", "02"), frames=10, height=64, width=208, progress=False)
+
+    return made_once(tmp_path_factory, "tiny_kitti", make)
 
 
 @pytest.fixture
 def kitti_copy(tiny_kitti, tmp_path):
     """A private, writable copy of ``tiny_kitti``."""
-    import shutil
-
     return shutil.copytree(tiny_kitti, tmp_path / "kitti")
 
 
 TINY_EXPERIMENT = """# @package _global_
 defaults:
   - override /data: kitti
+  - override /logger: {logger}
 data:
   root: {root}
   cache_dir: {cache}
@@ -59,7 +77,7 @@ data:
   width: 96
   seq_len: 3
   batch_size: 4
-  num_workers: 0
+  num_workers: {num_workers}
 model:
   width_mult: 0.0625
   hidden_size: 16
@@ -70,20 +88,55 @@ trainer:
 
 
 @pytest.fixture(scope="session")
-def run_tiny_sweep(tiny_kitti: Path) -> Callable[..., subprocess.CompletedProcess]:
-    """A function running ``python -m lossvo.train -m experiment=tiny ARGS`` as a subprocess in ``base``
-    (config, cache and sweep folders under it), the sweep written to ``sweep_dir``."""
+def tiny_sweep_args(tiny_kitti: Path) -> Callable[..., list[str]]:
+    """A function writing ``experiment=tiny`` into ``base/conf`` (its cache under ``base``) and returning
+    the arguments of ``python -m lossvo.train`` that sweep ARGS over it into ``sweep_dir``."""
 
-    def run(base: Path, sweep_dir: Path, args: list[str], test: tuple[str, ...] = ("02",),
-            trainer_extra: str = "") -> subprocess.CompletedProcess:  # fmt: skip
+    def args_of(base: Path, sweep_dir: Path, args: list[str], test: tuple[str, ...] = ("02",),
+                trainer_extra: str = "", logger: str = "csv", num_workers: int = 0) -> list[str]:  # fmt: skip
         conf = base / "conf" / "experiment"
         conf.mkdir(parents=True)
-        text = TINY_EXPERIMENT.format(root=tiny_kitti, cache=base / "cache", test=list(test),
-                                      trainer_extra=trainer_extra)  # fmt: skip
+        text = TINY_EXPERIMENT.format(root=tiny_kitti, cache=base / "cache", test=list(test), logger=logger,
+                                      num_workers=num_workers, trainer_extra=trainer_extra)  # fmt: skip
         (conf / "tiny.yaml").write_text(text)
+        conf_dir = str(base / "conf")
+        return ["-m", "--config-dir", conf_dir, "experiment=tiny", f"hydra.sweep.dir={sweep_dir}", *args]
+
+    return args_of
+
+
+@pytest.fixture(scope="session")
+def run_tiny_sweep(tiny_sweep_args: Callable[..., list[str]]) -> Callable[..., subprocess.CompletedProcess]:
+    """A function running ``python -m lossvo.train -m experiment=tiny ARGS`` as a subprocess in ``base``
+    (config, cache and sweep folders under it), the sweep written to ``sweep_dir``; keywords as
+    ``tiny_sweep_args``."""
+
+    def run(base: Path, sweep_dir: Path, args: list[str], **options: object) -> subprocess.CompletedProcess:
+        command = [sys.executable, "-m", "lossvo.train", *tiny_sweep_args(base, sweep_dir, args, **options)]
         env = {**os.environ, "WANDB_SILENT": "true", "WANDB_DISABLE_CODE": "true"}
-        command = [sys.executable, "-m", "lossvo.train", "-m", "--config-dir", str(base / "conf"),
-                   "experiment=tiny", f"hydra.sweep.dir={sweep_dir}", *args]  # fmt: skip
         return subprocess.run(command, capture_output=True, text=True, env=env, cwd=base, timeout=600)
 
     return run
+
+
+STUDY_LOSSES = ("euler", "quat")
+STUDY_SEEDS = (0, 1)
+STUDY_SEQUENCES = ("00", "02")
+"""The shared sweep's losses, seeds and test sequences."""
+
+
+@pytest.fixture(scope="session")
+def study_sweep(run_tiny_sweep, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One real Hydra multirun trained once a test session, as ``make sweep`` runs it (the joblib
+    launcher, two jobs at a time, DataLoader workers inside them), logging to W&B offline: losses x seeds
+    on the tiny dataset, STUDY_SEQUENCES as test sequences; the sweep folder. Read-only: tests that
+    change a job, or write a report, work on a copy."""
+
+    def make(base: Path) -> None:
+        args = [f"loss={','.join(STUDY_LOSSES)}", f"seed={','.join(map(str, STUDY_SEEDS))}",
+                "hydra/launcher=joblib", "hydra.launcher.n_jobs=2"]  # fmt: skip
+        result = run_tiny_sweep(base, base / "multirun" / "sweep", args, test=STUDY_SEQUENCES, logger="wandb",
+                                num_workers=1, trainer_extra="  num_sanity_val_steps: 0\n")  # fmt: skip
+        assert result.returncode == 0, result.stderr[-3000:]
+
+    return made_once(tmp_path_factory, "study_sweep", make) / "multirun" / "sweep"

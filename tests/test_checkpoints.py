@@ -20,12 +20,9 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def sweep_job(run_tiny_sweep, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A one-job sweep (euler) on the tiny dataset: the job folder, named as Hydra's sweep names it."""
-    base = tmp_path_factory.mktemp("contract")
-    result = run_tiny_sweep(base, base / "sweep", ["loss=euler"])
-    assert result.returncode == 0, result.stderr[-3000:]
-    (job,) = [p for p in (base / "sweep").iterdir() if p.is_dir()]
+def sweep_job(study_sweep: Path) -> Path:
+    """The shared sweep's euler job of seed 0 (read-only), named as Hydra's sweep names it."""
+    (job,) = study_sweep.glob("*+loss-euler+seed-0")
     return job
 
 
@@ -71,8 +68,9 @@ def test_eval_needs_only_the_checkpoint_path(sweep_job: Path, tmp_path: Path) ->
     assert proc.returncode == 0, proc.stderr[-3000:]
     (results,) = (tmp_path / "outputs" / "eval").glob("*/results.json")
     result, trained = json.loads(results.read_text()), json.loads((sweep_job / "results.json").read_text())
-    assert list(result["sequences"]) == ["02"]
-    assert _ape(result, "02") == pytest.approx(_ape(trained, "02"), rel=1e-9)
+    assert list(result["sequences"]) == list(trained["sequences"]) == ["00", "02"]
+    for name in result["sequences"]:
+        assert _ape(result, name) == pytest.approx(_ape(trained, name), rel=1e-9)
     assert result["data"]["seq_len"] == 3 and result["data"]["train"] == ["00", "01"]
 
 

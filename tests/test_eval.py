@@ -5,8 +5,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -25,8 +23,6 @@ from lossvo.evaluation.results import evaluate_run
 from lossvo.training import train
 from lossvo.training.module import VOModule
 from test_train import compose_train, tiny_overrides
-
-REPO = Path(__file__).resolve().parents[1]
 
 
 class PairStub(nn.Module):
@@ -152,17 +148,23 @@ def test_training_writes_results_trajectories_and_plots(trained_run: Path, tiny_
     assert "val/kitti_t_err" not in header  # no segment: not logged, never 0
 
 
-def test_eval_cli_writes_the_same_files(trained_run: Path, tiny_kitti: Path, tmp_path: Path) -> None:
+def test_eval_cli_writes_the_same_files(
+    trained_run: Path, tiny_kitti: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The eval entry in process (tests/test_checkpoints.py runs the real command line)."""
+    from hydra.core.global_hydra import GlobalHydra
+
+    from lossvo.evaluation import eval as lossvo_eval
+
     data = [o for o in tiny_overrides(tiny_kitti, trained_run.parent / "cache") if o.startswith("data")]
     out = tmp_path / "eval"
     ckpt = trained_run / "checkpoints" / "best.ckpt"
-    env = {**os.environ, "PYTHONPATH": str(REPO / "src")}
-    proc = subprocess.run(
-        [sys.executable, "-m", "lossvo.eval", f"ckpt_path={ckpt}", *data, "device=cpu",
-         f"hydra.run.dir={out}"],
-        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
-    assert proc.returncode == 0, proc.stderr
+    monkeypatch.setattr(sys, "argv", ["lossvo.eval", f"ckpt_path={ckpt}", *data, "device=cpu",
+                                      f"hydra.run.dir={out}"])  # fmt: skip
+    try:
+        lossvo_eval.main()
+    finally:
+        GlobalHydra.instance().clear()
     result = _check_outputs(out, tiny_kitti)
     trained = json.loads((trained_run / "results.json").read_text())
     for kind in ("trans", "rot_rad"):

@@ -434,12 +434,8 @@ def test_metric_statistics_are_pooled_errors():
 
 
 @pytest.fixture(scope="module")
-def cli_runs(tmp_path_factory) -> dict[str, tuple[subprocess.CompletedProcess, Path]]:
-    """Three real ``python -m lossvo.metrics`` runs, started together (each spends seconds importing torch).
-
-    "json": a valid pair with --align se3 --delta 2 --json; "malformed": an estimate whose line 4 is bad;
-    "closed pipe": the json run whose reader closes its end at once (as ``| head`` does when done).
-    """
+def cli_files(tmp_path_factory) -> tuple[Path, Path, Path]:
+    """(ground truth, estimate, an estimate whose line 4 is malformed) pose files."""
     tmp = tmp_path_factory.mktemp("cli")
     ref = make_reference(300)
     gt_file = write_kitti(tmp / "gt.txt", ref)
@@ -448,37 +444,13 @@ def cli_runs(tmp_path_factory) -> dict[str, tuple[subprocess.CompletedProcess, P
     lines[3] = "1 2 3"
     bad = tmp / "bad.txt"
     bad.write_text("\n".join(lines) + "\n")
-    argv = {
-        "json": [str(gt_file), str(est_file), "--align", "se3", "--delta", "2", "--json"],
-        "malformed": [str(gt_file), str(bad)],
-        "closed pipe": [str(gt_file), str(est_file), "--json"],
-    }
-    procs = {
-        key: subprocess.Popen(
-            [sys.executable, "-m", "lossvo.metrics", *args],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        for key, args in argv.items()
-    }
-    procs["closed pipe"].stdout.close()
-    done = {}
-    for key, proc in procs.items():
-        if key == "closed pipe":
-            err = proc.stderr.read()
-            proc.wait(timeout=120)
-            done[key] = (subprocess.CompletedProcess(proc.args, proc.returncode, "", err), bad)
-            continue
-        out, err = proc.communicate(timeout=120)
-        done[key] = (subprocess.CompletedProcess(proc.args, proc.returncode, out, err), bad)
-    return done
+    return gt_file, est_file, bad
 
 
-def test_cli_json(cli_runs):
-    proc, _ = cli_runs["json"]
-    assert proc.returncode == 0, proc.stderr
-    result = json.loads(proc.stdout)
+def test_cli_json(cli_files, capsys):
+    gt_file, est_file, _ = cli_files
+    assert metrics.main([str(gt_file), str(est_file), "--align", "se3", "--delta", "2", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
     assert set(result) == {"ape", "rpe", "kitti"}
     for key in ("ape", "rpe"):
         assert set(result[key]) == {"trans", "rot_rad"}
@@ -487,15 +459,21 @@ def test_cli_json(cli_runs):
     assert result["kitti"]["t_err_pct"] > 0
 
 
-def test_cli_survives_a_closed_pipe(cli_runs):
-    proc, _ = cli_runs["closed pipe"]
-    assert proc.returncode == 0 and proc.stderr == ""
+def test_cli_survives_a_closed_pipe(cli_files):
+    """A real ``python -m lossvo.metrics --json`` whose reader closes its end at once (as ``| head`` does
+    when done): no BrokenPipeError traceback."""
+    gt_file, est_file, _ = cli_files
+    proc = subprocess.Popen([sys.executable, "-m", "lossvo.metrics", str(gt_file), str(est_file), "--json"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    proc.stdout.close()
+    err = proc.stderr.read()
+    assert proc.wait(timeout=120) == 0 and err == ""
 
 
-def test_cli_malformed_file(cli_runs):
-    proc, bad = cli_runs["malformed"]
-    assert proc.returncode == 2
-    err = proc.stderr.strip()
+def test_cli_malformed_file(cli_files, capsys):
+    gt_file, _, bad = cli_files
+    assert metrics.main([str(gt_file), str(bad)]) == 2
+    err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "Traceback" not in err
     assert f"{bad}:4" in err
 

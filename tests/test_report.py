@@ -5,8 +5,8 @@ the unseen-motion marks and section on hand-written job folders; baselines and g
 that hand-written results.json record (no datamodule), and one note when it is missing; the package's
 import graph.
 
-One Hydra multirun (2 losses x 2 seeds on the tiny KITTI-layout dataset of tests/conftest.py) is trained
-once per module; every test reads it or a copy of it.
+The session's one Hydra multirun (2 losses x 2 seeds on the tiny KITTI-layout dataset, ``study_sweep`` in
+tests/conftest.py) is read by every test, or a copy of it.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ import torch
 import yaml
 from scipy.stats import wilcoxon
 
+from conftest import STUDY_LOSSES, STUDY_SEEDS, STUDY_SEQUENCES
 from lossvo.evaluation import metrics
 from lossvo.report.against_baselines import BaselineRun
 from lossvo.report.cli import main
@@ -33,9 +34,9 @@ from lossvo.report.document import make_report
 from lossvo.report.jobs import Job, ground_truth, parse_override, read_metrics_csv
 from lossvo.report.tables import BASELINE, Column
 
-LOSSES = ("euler", "quat")
-SEEDS = (0, 1)
-SEQUENCES = ("00", "02")
+LOSSES = STUDY_LOSSES
+SEEDS = STUDY_SEEDS
+SEQUENCES = STUDY_SEQUENCES
 TRANSLATION = {"APE [m]": ("ape", "trans"), "RPE [m]": ("rpe", "trans")}
 ROTATION = {"APE [rad]": ("ape", "rot_rad"), "RPE [rad]": ("rpe", "rot_rad")}
 
@@ -46,20 +47,17 @@ ROTATION = {"APE [rad]": ("ape", "rot_rad"), "RPE [rad]": ("rpe", "rot_rad")}
 
 
 @pytest.fixture(scope="module")
-def sweep(run_tiny_sweep, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    base = tmp_path_factory.mktemp("report_sweep")
-    args = [f"loss={','.join(LOSSES)}", f"seed={','.join(map(str, SEEDS))}"]
-    result = run_tiny_sweep(base, base / "multirun" / "sweep", args, test=SEQUENCES,
-                            trainer_extra="  num_sanity_val_steps: 0\n")  # fmt: skip
-    assert result.returncode == 0, result.stderr[-3000:]
-    return base / "multirun" / "sweep"
+def sweep(study_sweep: Path) -> Path:
+    """The session's shared sweep (read-only)."""
+    return study_sweep
 
 
 @pytest.fixture(scope="module")
-def report(sweep: Path) -> Path:
-    """The report folder of the sweep, with baselines."""
-    path = make_report(sweep, n_jobs=1)
-    assert path == sweep / "report" / "report.md"
+def report(sweep: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The report folder of (a copy of) the sweep, with baselines."""
+    copy = copy_sweep(sweep, tmp_path_factory.mktemp("report"))
+    path = make_report(copy, n_jobs=1)
+    assert path == copy / "report" / "report.md"
     return path.parent
 
 
@@ -772,11 +770,12 @@ def test_the_report_package_has_no_import_cycle_and_the_plot_no_report_import() 
 
 
 def test_the_report_builds_no_datamodule() -> None:
+    modules = set(import_graph())
     for path in (SRC / "lossvo" / "report").glob("*.py"):
         tree = ast.parse(path.read_text())
         names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)}
         names |= {n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute)}
         names |= {a.name for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) for a in n.names}
-        data = {m for m in imported(path, set(import_graph())) if m.startswith("lossvo.data")}
+        data = {m for m in imported(path, modules) if m.startswith("lossvo.data")}
         assert "instantiate" not in names, path.name
         assert data <= {"lossvo.data", "lossvo.data.kitti"}, (path.name, data)  # the format, no datamodule

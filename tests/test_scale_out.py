@@ -78,13 +78,23 @@ def _flat(tree: dict, prefix: str = "") -> dict[str, float]:
 
 def _rank(rank: int, world: int, init: str, out: str) -> None:
     dist.init_process_group("gloo", init_method=init, rank=rank, world_size=world)
-    result = _pooled(list(range(5))[rank::world])  # each process its own sequences
+    try:
+        result = _pooled(list(range(5))[rank::world])  # each process its own sequences
+    finally:
+        dist.destroy_process_group()
     Path(out, f"{rank}.json").write_text(json.dumps(result))
-    dist.destroy_process_group()
 
 
 def test_pooled_trajectory_metrics_across_processes_equal_one_process(tmp_path: Path) -> None:
-    mp.spawn(_rank, args=(2, f"file://{tmp_path / 'init'}", str(tmp_path)), nprocs=2, join=True)
+    """Rank 0 in this process, rank 1 in a spawned one."""
+    init = f"file://{tmp_path / 'init'}"
+    other = mp.get_context("spawn").Process(target=_rank, args=(1, 2, init, str(tmp_path)))
+    other.start()
+    try:
+        _rank(0, 2, init, str(tmp_path))
+    finally:
+        other.join(timeout=120)
+    assert other.exitcode == 0
     single = _pooled(list(range(5)))
     for rank in (0, 1):
         reduced = json.loads((tmp_path / f"{rank}.json").read_text())

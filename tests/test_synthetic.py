@@ -10,8 +10,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
-import subprocess
-import sys
+import os
 from pathlib import Path
 
 import cv2
@@ -19,7 +18,7 @@ import numpy as np
 import pytest
 
 from lossvo.data import motion, synthetic
-from lossvo.data.synthetic import routes
+from lossvo.data.synthetic import routes, writer
 
 GEOMETRY_SEQUENCES = ("00", "07", "11")
 GEOMETRY_FRAMES = 40
@@ -62,7 +61,7 @@ def angle_deg(R: np.ndarray) -> float:
 def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A small dataset at the default resolution: 3 sequences of 40 frames."""
     out = tmp_path_factory.mktemp("synthetic")
-    return synthetic.generate(out, GEOMETRY_SEQUENCES, GEOMETRY_FRAMES, progress=False, workers=2)
+    return synthetic.generate(out, GEOMETRY_SEQUENCES, GEOMETRY_FRAMES, progress=False)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -179,6 +178,13 @@ def tree_bytes(root: Path) -> dict[str, bytes]:
     return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
 
 
+def test_small_datasets_render_in_this_process() -> None:
+    assert writer._worker_count(3, None, writer.PARALLEL_PIXELS - 1) == 1
+    assert writer._worker_count(3, None, writer.PARALLEL_PIXELS) == min(3, os.cpu_count() or 1)
+    assert writer._worker_count(3, 2, 100) == 2  # an explicit count wins
+    assert writer._worker_count(1, 2, writer.PARALLEL_PIXELS) == 1  # at most one process a sequence
+
+
 def test_same_seed_same_bytes_and_sequences_differ(tmp_path: Path, dataset: Path) -> None:
     a = synthetic.generate(tmp_path / "a", ["03"], 4, progress=False, workers=1)
     b = synthetic.generate(tmp_path / "b", ["04", "03"], 4, progress=False, workers=2)  # in a worker process
@@ -239,17 +245,12 @@ def test_orb_essential_matrix_recovers_every_route_familys_poses(tmp_path: Path,
 # Its bad values: rows of docs/bad-input.md (tests/test_bad_input.py).
 
 
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "lossvo.data.synthetic", *args], capture_output=True, text=True
-    )
-
-
-def test_cli_writes_a_dataset(tmp_path: Path) -> None:
-    proc = run_cli("--out", str(tmp_path / "d"), "--sequences", "00", "--frames", "5")
-    assert proc.returncode == 0, proc.stderr
+def test_cli_writes_a_dataset(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """In process (tests/test_bad_input.py runs the real command line)."""
+    assert synthetic.main(["--out", str(tmp_path / "d"), "--sequences", "00", "--frames", "5"]) == 0
+    err = capsys.readouterr().err
     size = sum(p.stat().st_size for p in (tmp_path / "d").rglob("*") if p.is_file() and p.suffix != ".json")
-    assert f"wrote {tmp_path / 'd'} in " in proc.stderr and f", {size / 1e6:.0f} MB" in proc.stderr
+    assert f"wrote {tmp_path / 'd'} in " in err and f", {size / 1e6:.0f} MB" in err
     assert len(list((tmp_path / "d/sequences/00/image_2").glob("*.png"))) == 5
     assert len((tmp_path / "d/poses/00.txt").read_text().splitlines()) == 5
     assert (tmp_path / "d" / synthetic.MANIFEST).is_file()

@@ -210,7 +210,10 @@ def train(cfg: DictConfig) -> dict[str, float]:
             logger.log_hyperparams(resolved)
     try:
         try:
-            trainer.fit(module, datamodule=datamodule, ckpt_path=cfg.get("ckpt_path"))
+            with warnings.catch_warnings():
+                if cfg.get("ckpt_path"):  # a resumed job's folder holds its earlier checkpoints
+                    warnings.filterwarnings("ignore", message="Checkpoint directory .* is not empty")
+                trainer.fit(module, datamodule=datamodule, ckpt_path=cfg.get("ckpt_path"))
         except (KeyboardInterrupt, SystemExit) as e:
             raise _interrupted(e, trainer.current_epoch) from None
         metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}

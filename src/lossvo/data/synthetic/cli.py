@@ -41,7 +41,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--height", type=int, default=DEFAULT_HEIGHT, help=f"pixels (default: {DEFAULT_HEIGHT})")
     p.add_argument("--width", type=int, default=DEFAULT_WIDTH, help=f"pixels (default: {DEFAULT_WIDTH})")
     p.add_argument("--seed", type=int, default=0, help="same seed, same bytes (default: 0)")
-    p.add_argument("--workers", type=int, default=None, help="processes (default: one per core)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="processes (default: one per core; one below 10 million pixels in all)")  # fmt: skip
     example = "11=stop_and_go:2+expressway"
     p.add_argument("--mix", action="append", default=[], metavar="NN=FAMILY[:W][+FAMILY[:W]]",
                    help=f"route families of a sequence, e.g. {example} (repeatable)")  # fmt: skip

@@ -84,10 +84,17 @@ def write_sequence(
     return time.perf_counter() - start
 
 
-def _worker_count(jobs: int, workers: int | None) -> int:
-    """Processes to render jobs sequences with: at most one a sequence and, unless workers says how
-    many, one a core; 1 inside a daemon process (e.g. a pool worker), which may not have children."""
-    if multiprocessing.current_process().daemon:
+PARALLEL_PIXELS = 10_000_000
+"""Without an explicit worker count, a dataset of fewer pixels (frames x height x width; about 750
+frames of 64x208) renders in this process: a spawned worker first spends seconds importing torch, which
+is longer than rendering that many pixels takes."""
+
+
+def _worker_count(jobs: int, workers: int | None, pixels: int) -> int:
+    """Processes to render jobs sequences of pixels in all with: at most one a sequence and, unless
+    workers says how many, one a core, or 1 below PARALLEL_PIXELS; 1 inside a daemon process (e.g. a
+    pool worker), which may not have children."""
+    if multiprocessing.current_process().daemon or (workers is None and pixels < PARALLEL_PIXELS):
         return 1
     return min(jobs, workers or os.cpu_count() or 1)
 
@@ -99,7 +106,7 @@ def _render_all(
     """Render the sequences, in parallel spawned worker processes when there are several and cores to spare
     (so a calling script needs the usual ``if __name__ == "__main__":`` guard)."""
     jobs = [(out, s, n, height, width, seed, spec) for s, n in counts.items()]
-    workers = _worker_count(len(jobs), workers)
+    workers = _worker_count(len(jobs), workers, sum(counts.values()) * height * width)
     pool = None
     if workers > 1:
         context = multiprocessing.get_context("spawn")  # fork is unsafe in threaded (torch) parents
