@@ -27,6 +27,20 @@ DEVICES = [
 ]
 
 
+SUBPROCESS_FILES = (
+    "test_launchers.py", "test_distributed.py", "test_sweep.py", "test_resume.py", "test_report.py",
+    "test_synthetic.py", "test_bad_input.py", "test_packaging.py",
+)  # fmt: skip
+"""The test files that spend longest (most of it in subprocesses), longest first."""
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """SUBPROCESS_FILES first, in their order: pytest-xdist hands each worker whole files in collection
+    order, so the workers then finish together on the short files."""
+    rank = {name: k for k, name in enumerate(SUBPROCESS_FILES)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: each file keeps its order
+
+
 def made_once(factory: pytest.TempPathFactory, name: str, make: Callable[[Path], object]) -> Path:
     """The folder ``name`` in the test session's temporary directory, made by ``make(folder)`` the first
     time it is asked for: once a session, also when pytest-xdist's worker processes share the session
