@@ -38,7 +38,7 @@ COMMANDS = {
 }
 REAL = ("train", "synthetic")
 """Commands whose first row also runs as a subprocess."""
-NOTHING_BUILT = ("composing the config", "before anything is built")
+NOTHING_BUILT = ("parsing the arguments", "composing the config", "before anything is built")
 """Where a training job fails before it starts: no status.json."""
 
 
@@ -184,7 +184,7 @@ def check_output(row: Row, message: str, status: int, out: str, err: str) -> Non
 def check_nothing_done(row: Row, places: dict[str, str], tmp_path: Path) -> None:
     """What a row's failure leaves: a training job's status, no report, no dataset."""
     run = tmp_path / "run"
-    if row.found == "composing the config":
+    if row.found in ("parsing the arguments", "composing the config"):
         assert not run.exists()
     elif row.command == "train" and row.found in NOTHING_BUILT:
         assert not (run / "status.json").exists()  # nothing started

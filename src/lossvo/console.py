@@ -16,6 +16,7 @@ import sys
 from collections.abc import Callable
 from typing import NoReturn, ParamSpec, TypeVar
 
+from hydra._internal.utils import get_args_parser  # the parser @hydra.main reads the command line with
 from hydra.errors import (
     CompactHydraException,
     HydraException,
@@ -108,6 +109,17 @@ def _user_error(error: Exception) -> bool:
     return isinstance(error, CompactHydraException)
 
 
+def _check_flags(argv: list[str]) -> None:
+    """One line and exit status 2 for a command-line flag that Hydra's own parser does not know (it
+    would print its usage block)."""
+    known = {option for action in get_args_parser()._actions for option in action.option_strings}
+    for arg in argv:
+        if arg.startswith("-") and arg.split("=", 1)[0] not in known:
+            print(f"error: unrecognized option {arg} (--help lists the options; overrides are KEY=VALUE)",
+                  file=sys.stderr)  # fmt: skip
+            raise SystemExit(2)
+
+
 def one_line_errors(hydra_main: Callable[_P, _R]) -> Callable[_P, _R]:
     """A ``@hydra.main`` entry point whose config errors (an unknown config group option, an override
     of a key the config lacks, a malformed override) end in one line on stderr with exit status 2,
@@ -116,6 +128,7 @@ def one_line_errors(hydra_main: Callable[_P, _R]) -> Callable[_P, _R]:
 
     @functools.wraps(hydra_main)
     def main(*args: _P.args, **kwargs: _P.kwargs) -> _R:
+        _check_flags(sys.argv[1:])
         given = os.environ.get(_HYDRA_FULL_ERROR)
         os.environ[_HYDRA_FULL_ERROR] = "1"  # Hydra raises its errors instead of printing them
         try:
