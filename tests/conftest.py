@@ -12,11 +12,18 @@ from pathlib import Path
 import pytest
 import torch
 from filelock import FileLock
+from hydra.core.global_hydra import GlobalHydra
 from hypothesis import HealthCheck, settings
 
-settings.register_profile(
-    "lossvo", deadline=None, derandomize=True, max_examples=200, suppress_health_check=[HealthCheck.too_slow]
-)
+from lossvo.evaluation import eval as lossvo_eval
+from lossvo.training import train
+
+# Property tests draw hypothesis' usual 100 examples; `make test-all` (--hypothesis-profile=thorough) 1,000.
+for _name, _examples in (("lossvo", 100), ("thorough", 1000)):
+    settings.register_profile(
+        _name, deadline=None, derandomize=True, max_examples=_examples,
+        suppress_health_check=[HealthCheck.too_slow],
+    )  # fmt: skip
 settings.load_profile("lossvo")
 
 DEVICES = [
@@ -129,6 +136,39 @@ def run_tiny_sweep(tiny_sweep_args: Callable[..., list[str]]) -> Callable[..., s
         command = [sys.executable, "-m", "lossvo.train", *tiny_sweep_args(base, sweep_dir, args, **options)]
         env = {**os.environ, "WANDB_SILENT": "true", "WANDB_DISABLE_CODE": "true"}
         return subprocess.run(command, capture_output=True, text=True, env=env, cwd=base, timeout=600)
+
+    return run
+
+
+def run_hydra_main(main: Callable[[], object], argv: list[str], monkeypatch: pytest.MonkeyPatch) -> int:
+    """Run a Hydra entry point (``train.main``, ``eval.main``) in this process as the command line ``argv``
+    would, a subprocess costing seconds of imports: its exit status. Hydra's global state is cleared
+    afterwards; exceptions other than SystemExit propagate."""
+    monkeypatch.setattr(sys, "argv", argv)
+    try:
+        main()
+    except SystemExit as e:
+        return 0 if e.code is None else e.code if isinstance(e.code, int) else 1  # as the interpreter
+    finally:
+        GlobalHydra.instance().clear()
+    return 0
+
+
+def eval_main(args: list[str], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+              ) -> tuple[int, str]:  # fmt: skip
+    """``python -m lossvo.eval ARGS`` in this process: (exit status, stderr)."""
+    return run_hydra_main(lossvo_eval.main, ["lossvo.eval", *args], monkeypatch), capsys.readouterr().err
+
+
+@pytest.fixture
+def run_tiny_sweep_here(tiny_sweep_args: Callable[..., list[str]], monkeypatch: pytest.MonkeyPatch
+                        ) -> Callable[..., int]:  # fmt: skip
+    """``run_tiny_sweep`` in this process (working directory ``base``): the exit status."""
+
+    def run(base: Path, sweep_dir: Path, args: list[str], **options: object) -> int:
+        argv = ["lossvo.train", *tiny_sweep_args(base, sweep_dir, args, **options)]
+        monkeypatch.chdir(base)
+        return run_hydra_main(train.main, argv, monkeypatch)
 
     return run
 

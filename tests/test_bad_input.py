@@ -14,13 +14,12 @@ import re
 import shlex
 import subprocess
 import sys
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from hydra.core.global_hydra import GlobalHydra
 
+from conftest import run_hydra_main
 from lossvo.data.synthetic import cli as synthetic_cli
 from lossvo.evaluation import eval as lossvo_eval
 from lossvo.evaluation import metrics
@@ -126,17 +125,6 @@ def fill(text: str, places: dict[str, str]) -> str:
 # -- running a row ---------------------------------------------------------------------------------
 
 
-def _hydra_main(main: Callable[[], object], argv: list[str], monkeypatch: pytest.MonkeyPatch) -> int:
-    monkeypatch.setattr(sys, "argv", argv)
-    try:
-        main()
-    except SystemExit as e:
-        return int(e.code or 0)
-    finally:
-        GlobalHydra.instance().clear()
-    return 0
-
-
 def train_argv(args: list[str], tiny_kitti: Path, tmp_path: Path) -> list[str]:
     """The training command line of a row: the working one with the row's input added, or the row's
     input alone where it chooses ``data=``."""
@@ -150,10 +138,11 @@ def run_row(
 ) -> int:
     """Run a row in process; its exit status."""
     if row.command == "train":
-        return _hydra_main(train.main, ["lossvo.train", *train_argv(args, tiny_kitti, tmp_path)], monkeypatch)
+        argv = ["lossvo.train", *train_argv(args, tiny_kitti, tmp_path)]
+        return run_hydra_main(train.main, argv, monkeypatch)
     if row.command == "eval":
-        return _hydra_main(lossvo_eval.main, ["lossvo.eval", f"hydra.run.dir={tmp_path / 'run'}", *args],
-                           monkeypatch)  # fmt: skip
+        argv = ["lossvo.eval", f"hydra.run.dir={tmp_path / 'run'}", *args]
+        return run_hydra_main(lossvo_eval.main, argv, monkeypatch)
     main = {"report": report_cli.main, "metrics": metrics.main, "synthetic": synthetic_cli.main}[row.command]
     try:
         return int(main(args))

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from conftest import eval_main
 from lossvo.training import checkpoints, train
 from test_train import compose_train, tiny_overrides
 
@@ -24,23 +25,6 @@ def sweep_job(study_sweep: Path) -> Path:
     """The shared sweep's euler job of seed 0 (read-only), named as Hydra's sweep names it."""
     (job,) = study_sweep.glob("*+loss-euler+seed-0")
     return job
-
-
-def _eval_main(args: list[str], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture) -> tuple:
-    """``python -m lossvo.eval ARGS`` in process: (exit status, stderr)."""
-    from hydra.core.global_hydra import GlobalHydra
-
-    from lossvo.evaluation import eval as lossvo_eval
-
-    monkeypatch.setattr(sys, "argv", ["lossvo.eval", *args])
-    status = 0
-    try:
-        lossvo_eval.main()
-    except SystemExit as e:
-        status = e.code
-    finally:
-        GlobalHydra.instance().clear()
-    return status, capsys.readouterr().err
 
 
 def _env(cache: Path) -> dict[str, str]:
@@ -83,7 +67,7 @@ def test_eval_on_a_root_holding_only_test_sequences(
     shutil.copy(tiny_kitti / "poses" / "02.txt", other / "poses" / "02.txt")
     out = tmp_path / "eval"
     monkeypatch.setenv("LOSSVO_CACHE", str(tmp_path / "cache"))
-    status, err = _eval_main([f"ckpt_path={sweep_job / 'checkpoints' / 'best.ckpt'}", "data=kitti",
+    status, err = eval_main([f"ckpt_path={sweep_job / 'checkpoints' / 'best.ckpt'}", "data=kitti",
                               f"data.root={other}", "data.test=[02]", "device=cpu", f"hydra.run.dir={out}"],
                              monkeypatch, capsys)  # fmt: skip
     assert status == 0, err
@@ -102,7 +86,7 @@ def test_contradicting_override_names_both_values(
     recorded: str,
 ) -> None:  # fmt: skip
     key = override.split("=")[0]
-    status, err = _eval_main([f"ckpt_path={sweep_job / 'checkpoints' / 'best.ckpt'}", override,
+    status, err = eval_main([f"ckpt_path={sweep_job / 'checkpoints' / 'best.ckpt'}", override,
                               f"hydra.run.dir={tmp_path / 'eval'}"], monkeypatch, capsys)  # fmt: skip
     assert status == 2 and len(err.strip().splitlines()) == 1
     assert f"{key}={given}" in err and f"{key}={recorded}" in err

@@ -5,7 +5,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,9 +13,11 @@ import torch
 from evo.tools import file_interface
 from torch import Tensor, nn
 
+from conftest import eval_main, run_hydra_main
 from lossvo import geometry
 from lossvo.data.kitti import read_poses
 from lossvo.data.windows import tile
+from lossvo.evaluation import eval as lossvo_eval
 from lossvo.evaluation import metrics
 from lossvo.evaluation.inference import predict_sequence
 from lossvo.evaluation.results import evaluate_run
@@ -152,19 +153,11 @@ def test_eval_cli_writes_the_same_files(
     trained_run: Path, tiny_kitti: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """The eval entry in process (tests/test_checkpoints.py runs the real command line)."""
-    from hydra.core.global_hydra import GlobalHydra
-
-    from lossvo.evaluation import eval as lossvo_eval
-
     data = [o for o in tiny_overrides(tiny_kitti, trained_run.parent / "cache") if o.startswith("data")]
     out = tmp_path / "eval"
     ckpt = trained_run / "checkpoints" / "best.ckpt"
-    monkeypatch.setattr(sys, "argv", ["lossvo.eval", f"ckpt_path={ckpt}", *data, "device=cpu",
-                                      f"hydra.run.dir={out}"])  # fmt: skip
-    try:
-        lossvo_eval.main()
-    finally:
-        GlobalHydra.instance().clear()
+    argv = ["lossvo.eval", f"ckpt_path={ckpt}", *data, "device=cpu", f"hydra.run.dir={out}"]
+    assert run_hydra_main(lossvo_eval.main, argv, monkeypatch) == 0
     result = _check_outputs(out, tiny_kitti)
     trained = json.loads((trained_run / "results.json").read_text())
     for kind in ("trans", "rot_rad"):
@@ -176,34 +169,19 @@ def test_eval_cli_writes_the_same_files(
     ).read_text()
 
 
-def _eval_main(args: list[str], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture) -> tuple:
-    """``python -m lossvo.eval ARGS`` in process (a subprocess costs seconds of imports): (status, stderr)."""
-    from hydra.core.global_hydra import GlobalHydra
-
-    from lossvo.evaluation import eval as lossvo_eval
-
-    monkeypatch.setattr(sys, "argv", ["lossvo.eval", *args])
-    try:
-        with pytest.raises(SystemExit) as exit_info:
-            lossvo_eval.main()
-    finally:
-        GlobalHydra.instance().clear()
-    return exit_info.value.code, capsys.readouterr().err
-
-
 def test_eval_cli_errors_are_one_line(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
 ) -> None:
     out = f"hydra.run.dir={tmp_path / 'eval'}"
     missing = tmp_path / "nope" / "best.ckpt"
-    status, err = _eval_main([f"ckpt_path={missing}", out], monkeypatch, capsys)
+    status, err = eval_main([f"ckpt_path={missing}", out], monkeypatch, capsys)
     assert status == 2 and err.strip() == f"error: checkpoint not found: {missing}"
     garbage = tmp_path / "garbage.ckpt"
     garbage.write_bytes(b"not a checkpoint")
-    status, err = _eval_main([f"ckpt_path={garbage}", out], monkeypatch, capsys)
+    status, err = eval_main([f"ckpt_path={garbage}", out], monkeypatch, capsys)
     assert status == 2 and len(err.strip().splitlines()) == 1
     assert err.startswith(f"error: {garbage}: cannot load")
-    status, err = _eval_main([out], monkeypatch, capsys)
+    status, err = eval_main([out], monkeypatch, capsys)
     assert status == 2 and err.strip() == "error: ckpt_path is required: python -m lossvo.eval ckpt_path=PATH"
 
 

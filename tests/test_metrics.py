@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -459,15 +460,28 @@ def test_cli_json(cli_files, capsys):
     assert result["kitti"]["t_err_pct"] > 0
 
 
-def test_cli_survives_a_closed_pipe(cli_files):
-    """A real ``python -m lossvo.metrics --json`` whose reader closes its end at once (as ``| head`` does
-    when done): no BrokenPipeError traceback."""
+def test_cli_survives_a_closed_pipe(cli_files, monkeypatch):
+    """``lossvo.metrics --json`` whose reader closes its end at once (as ``| head`` does when done): no
+    BrokenPipeError. In process, with stdout a real pipe whose read end is closed."""
     gt_file, est_file, _ = cli_files
-    proc = subprocess.Popen([sys.executable, "-m", "lossvo.metrics", str(gt_file), str(est_file), "--json"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    with os.fdopen(write_end, "w") as pipe:
+        monkeypatch.setattr(sys, "stdout", pipe)
+        assert metrics.main([str(gt_file), str(est_file), "--json"]) == 0
+        monkeypatch.undo()
+
+
+def test_output_into_a_closed_pipe_ends_the_interpreter_cleanly():
+    """A real interpreter printing through ``console.emit`` into a closed pipe exits 0 with nothing on
+    stderr: its final flush of stdout succeeds too."""
+    code = "from lossvo.console import emit; emit('x' * 1_000_000); emit('more')"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     proc.stdout.close()
     err = proc.stderr.read()
-    assert proc.wait(timeout=120) == 0 and err == ""
+    assert proc.wait(timeout=60) == 0 and err == ""
 
 
 def test_cli_malformed_file(cli_files, capsys):

@@ -1,25 +1,18 @@
-"""Real Hydra multiruns, as subprocesses: job folders, checkpoints, metrics and W&B runs of the shared
-sweep (joblib launcher); failing jobs that keep the others; re-running a sweep."""
+"""Real Hydra multiruns: job folders, checkpoints, metrics and W&B runs of the shared sweep (a subprocess,
+joblib launcher); failing jobs that keep the others; re-running a sweep (the re-run a subprocess)."""
 
 from __future__ import annotations
 
 import csv
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import yaml
-from hydra.core.global_hydra import GlobalHydra
 from hydra.core.override_parser.overrides_parser import OverridesParser
 
 from conftest import STUDY_LOSSES, STUDY_SEEDS
-from lossvo.training import train
-
-
-def run_train(args: list[str], tmp_path: Path, run_tiny_sweep) -> subprocess.CompletedProcess:
-    return run_tiny_sweep(tmp_path, tmp_path / "sweep", args)
+from lossvo.training.module import NonFiniteLossError
 
 
 def test_sweep_over_losses_and_seeds_with_joblib_and_wandb(study_sweep: Path) -> None:
@@ -49,13 +42,14 @@ def test_sweep_over_losses_and_seeds_with_joblib_and_wandb(study_sweep: Path) ->
         assert data["train"] == ["00", "01"] and data["root"] == data["train_root"]
 
 
-def test_failing_jobs_keep_the_others(run_tiny_sweep, tmp_path: Path) -> None:
+def test_failing_jobs_keep_the_others(run_tiny_sweep_here, tmp_path: Path, capfd: pytest.CaptureFixture
+                                      ) -> None:  # fmt: skip
     """One job diverges (non-finite loss), one is refused before anything is built (a bad value), the
-    third completes."""
-    result = run_train(["loss=euler", "optimizer.lr=1e30,-1,1e-3"], tmp_path, run_tiny_sweep)
-    assert result.returncode != 0
-    assert "non-finite loss at epoch 0" in result.stderr
-    assert "optimizer.lr: expected" in result.stdout + result.stderr
+    third completes. In process, where the sweep's first failure is raised (the command line prints
+    its traceback and exits 1)."""
+    with pytest.raises(NonFiniteLossError, match="non-finite loss at epoch 0"):  # after every job ran
+        run_tiny_sweep_here(tmp_path, tmp_path / "sweep", ["loss=euler", "optimizer.lr=1e30,-1,1e-3"])
+    assert "optimizer.lr: expected" in "".join(capfd.readouterr())
     diverged, refused, finished = sorted(p for p in (tmp_path / "sweep").iterdir() if p.is_dir())
     status = json.loads((diverged / "status.json").read_text())
     assert status["status"] == "failed" and "NonFiniteLossError" in status["error"]
@@ -65,15 +59,10 @@ def test_failing_jobs_keep_the_others(run_tiny_sweep, tmp_path: Path) -> None:
 
 
 def test_rerunning_a_sweep_skips_completed_jobs_and_resumes_interrupted_ones(
-    tiny_sweep_args, run_tiny_sweep, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    run_tiny_sweep_here, run_tiny_sweep, tmp_path: Path
 ) -> None:
     """The first sweep in process, the re-run as the real command line."""
-    monkeypatch.setattr(sys, "argv", ["lossvo.train", *tiny_sweep_args(tmp_path, tmp_path / "sweep",
-                                                                       ["loss=euler,quat"])])  # fmt: skip
-    try:
-        train.main()
-    finally:
-        GlobalHydra.instance().clear()
+    assert run_tiny_sweep_here(tmp_path, tmp_path / "sweep", ["loss=euler,quat"]) == 0
     done, stopped = sorted(p for p in (tmp_path / "sweep").iterdir() if p.is_dir())
     (done / "results.json").write_text("{}")  # a skipped job leaves its outputs alone
     (stopped / "status.json").write_text(
