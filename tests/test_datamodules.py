@@ -13,7 +13,14 @@ import torch
 
 from lossvo import geometry
 from lossvo.data import frame_cache, kitti
-from lossvo.data.datamodules import KittiDataModule, SyntheticDataModule, jitter, reverse_windows
+from lossvo.data.datamodules import (
+    STANDSTILL_NOISE,
+    KittiDataModule,
+    SyntheticDataModule,
+    jitter,
+    reverse_windows,
+    standing_windows,
+)
 
 
 def make_dm(root: Path, cache: Path, **kwargs) -> KittiDataModule:
@@ -169,6 +176,31 @@ def test_reverse_only_in_training(tiny_kitti: Path, tmp_path: Path) -> None:
     assert torch.equal(dm.on_after_batch_transfer(batch, 0)[1], batch[1])
 
 
+def test_standing_windows_show_no_motion_with_fresh_noise() -> None:
+    torch.manual_seed(0)
+    frames = torch.randint(20, 236, (3, 5, 3, 16, 16), dtype=torch.uint8)
+    targets = torch.randn(3, 4, 4, 4, dtype=torch.float64)
+    out_frames, out_targets = standing_windows(frames, targets, torch.tensor([True, False, True]))
+    assert out_frames.dtype == torch.uint8 and out_targets.dtype == torch.float64
+    assert torch.equal(out_frames[1], frames[1]) and torch.equal(out_targets[1], targets[1])
+    assert torch.equal(out_targets[[0, 2]], torch.eye(4, dtype=torch.float64).expand(2, 4, 4, 4))
+    noise = out_frames[[0, 2]].float() - frames[[0, 2], :1].float()
+    assert abs(noise.mean().item()) < 0.05 and abs(noise.std().item() - STANDSTILL_NOISE) < 0.1
+    assert not torch.equal(out_frames[0, 1], out_frames[0, 2])  # each frame its own noise
+    unchanged, _ = standing_windows(frames, targets, torch.zeros(3, dtype=torch.bool))
+    assert unchanged is frames
+
+
+def test_standstill_only_in_training(tiny_kitti: Path, tmp_path: Path) -> None:
+    batch = next(iter(make_dm(tiny_kitti, tmp_path).val_dataloader()))
+    dm = make_dm(tiny_kitti, tmp_path, standstill=1.0)
+    dm.trainer = SimpleNamespace(training=True)
+    _, targets = dm.on_after_batch_transfer(batch, 0)
+    assert torch.equal(targets, torch.eye(4, dtype=targets.dtype).expand_as(targets))
+    dm.trainer = SimpleNamespace(training=False)
+    assert torch.equal(dm.on_after_batch_transfer(batch, 0)[1], batch[1])
+
+
 def test_jitter_is_one_draw_per_window() -> None:
     frames = torch.full((4, 3, 3, 8, 8), 100.0)
     out = jitter(frames, torch.Generator().manual_seed(0))
@@ -226,6 +258,7 @@ def test_missing_sequence_is_named(tiny_kitti: Path, tmp_path: Path) -> None:
         ({"normalization": "imagenet"}, r"data\.normalization: expected one of"),
         ({"train": []}, r"data\.train: expected at least one"),
         ({"reverse": 1.5}, r"data\.reverse: expected a probability in \[0, 1\]"),
+        ({"standstill": -0.1}, r"data\.standstill: expected a probability in \[0, 1\]"),
         ({"windows_per_epoch": 0}, r"data\.windows_per_epoch: expected null or an integer >= 1"),
     ],
 )

@@ -177,6 +177,33 @@ def reverse_windows(
     )
 
 
+STANDSTILL_NOISE = 1.5
+"""Standard deviation (grey levels) of the sensor noise added to each frame of a standing window."""
+
+
+def standing_windows(
+    frames: torch.Tensor, targets: torch.Tensor, which: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Turn the selected windows into a car standing still where the window starts: every frame the
+    window's first with fresh sensor noise (Gaussian, STANDSTILL_NOISE grey levels), every target the
+    identity. Any scene may then show no motion, so a network cannot read speed off the scene.
+
+    Args:
+        frames: (B, L, 3, H, W) uint8; targets: (B, L-1, 4, 4); which: (B,) bool, the windows to stop.
+    Returns:
+        frames, targets of the same shapes and dtypes.
+    """
+    chosen = which.to(frames.device).nonzero().flatten()
+    if not len(chosen):
+        return frames, targets
+    frames, targets = frames.clone(), targets.clone()
+    still = frames[chosen, :1].float().expand(-1, frames.shape[1], -1, -1, -1)
+    noisy = still + STANDSTILL_NOISE * torch.randn(still.shape, device=frames.device)
+    frames[chosen] = noisy.round().clamp(0, 255).to(frames.dtype)
+    targets[chosen] = torch.eye(4, dtype=targets.dtype, device=targets.device)
+    return frames, targets
+
+
 def jitter(frames: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
     """Brightness and contrast jitter, one draw per window (keeps the window's pairs consistent).
 
@@ -237,6 +264,8 @@ class KittiDataModule(L.LightningDataModule):
         augment: photometric jitter on training windows.
         reverse: probability of playing a training window backwards (frames in reverse order, targets
             the inverse relative poses in reverse order): exact geometry, twice the motions.
+        standstill: probability of replacing a training window by the car standing still at its first
+            frame (:func:`standing_windows`): no motion in any scene.
         frame_steps: frame steps of the training windows, e.g. ``[1, 2]``: every window start at each
             step (every s-th frame, targets recomputed from the poses), so larger steps add faster motion.
             Validation and evaluation always use consecutive frames.
@@ -265,6 +294,7 @@ class KittiDataModule(L.LightningDataModule):
         normalization: str = "dataset",
         augment: bool = False,
         reverse: float = 0.0,
+        standstill: float = 0.0,
         pin_memory: bool = False,
         windows_per_epoch: int | None = None,
         frame_steps: Seq[int] = (1,),
@@ -307,9 +337,11 @@ class KittiDataModule(L.LightningDataModule):
             )
         self.frame_steps = tuple(dict.fromkeys(steps))
         self.cache_dir = Path(cache_dir).expanduser() if cache_dir else frame_cache.default_cache_dir()
-        if not 0.0 <= reverse <= 1.0:
-            raise ValueError(f"data.reverse: expected a probability in [0, 1], got {reverse!r}")
+        for name, p in (("reverse", reverse), ("standstill", standstill)):
+            if isinstance(p, bool) or not isinstance(p, (int, float)) or not 0.0 <= p <= 1.0:
+                raise ValueError(f"data.{name}: expected a probability in [0, 1], got {p!r}")
         self.normalization, self.augment, self.reverse = normalization, augment, float(reverse)
+        self.standstill = float(standstill)
         self.sequences: dict[str, Sequence] = {}
         self.mean: np.ndarray | None = None  # per-channel statistics, set by setup
         self.std: np.ndarray | None = None
@@ -462,10 +494,12 @@ class KittiDataModule(L.LightningDataModule):
         return frames.float().mul_(1.0 / (255.0 * std)).sub_(mean / std)  # in place: one pass less
 
     def on_after_batch_transfer(self, batch: tuple[torch.Tensor, torch.Tensor], dataloader_idx: int):
-        """On the training device: uint8 windows -> normalised float32; when training, jittered
-        (``augment``) and played backwards (``reverse``)."""
+        """On the training device: uint8 windows -> normalised float32; when training, stopped
+        (``standstill``), played backwards (``reverse``) and jittered (``augment``)."""
         frames, targets = batch
         training = self.trainer is not None and self.trainer.training
+        if training and self.standstill > 0:
+            frames, targets = standing_windows(frames, targets, torch.rand(frames.shape[0]) < self.standstill)
         if training and self.reverse > 0:
             frames, targets = reverse_windows(frames, targets, torch.rand(frames.shape[0]) < self.reverse)
         if training and self.augment:
