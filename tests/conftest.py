@@ -140,6 +140,11 @@ def run_tiny_sweep(tiny_sweep_args: Callable[..., list[str]]) -> Callable[..., s
     return run
 
 
+def exit_status(error: SystemExit) -> int:
+    """The exit status the interpreter gives a SystemExit: 0 for None, the int, 1 for a message."""
+    return 0 if error.code is None else error.code if isinstance(error.code, int) else 1
+
+
 def run_hydra_main(main: Callable[[], object], argv: list[str], monkeypatch: pytest.MonkeyPatch) -> int:
     """Run a Hydra entry point (``train.main``, ``eval.main``) in this process as the command line ``argv``
     would, a subprocess costing seconds of imports: its exit status. Hydra's global state is cleared
@@ -148,7 +153,7 @@ def run_hydra_main(main: Callable[[], object], argv: list[str], monkeypatch: pyt
     try:
         main()
     except SystemExit as e:
-        return 0 if e.code is None else e.code if isinstance(e.code, int) else 1  # as the interpreter
+        return exit_status(e)
     finally:
         GlobalHydra.instance().clear()
     return 0

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import run_hydra_main
+from conftest import exit_status, run_hydra_main
 from lossvo.data.synthetic import cli as synthetic_cli
 from lossvo.evaluation import eval as lossvo_eval
 from lossvo.evaluation import metrics
@@ -147,7 +147,7 @@ def run_row(
     try:
         return int(main(args))
     except SystemExit as e:
-        return int(e.code or 0)
+        return exit_status(e)
 
 
 LOG_RECORD = re.compile(r"\[[^]]*\]\[[^]]*\]\[(?:DEBUG|INFO|WARNING)\] - ")

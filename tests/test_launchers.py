@@ -8,12 +8,10 @@ from pathlib import Path
 
 def test_submitit_local_sweep(run_tiny_sweep_here, tmp_path: Path) -> None:
     """The sweep launched from this process; submitit runs each job in a process of its own."""
-    assert (
-        run_tiny_sweep_here(
-            tmp_path, tmp_path / "sweep", ["hydra/launcher=submitit_local", "loss=euler,quat"]
-        )
-        == 0
+    status = run_tiny_sweep_here(
+        tmp_path, tmp_path / "sweep", ["hydra/launcher=submitit_local", "loss=euler,quat"]
     )
+    assert status == 0
     jobs = sorted(p for p in (tmp_path / "sweep").iterdir() if p.is_dir() and (p / "status.json").is_file())
     assert [j.name.split("_", 1)[0] for j in jobs] == ["0", "1"]
     for job in jobs:
