@@ -1,4 +1,7 @@
-"""Shared test settings: deterministic hypothesis runs, devices to test on."""
+"""Shared test settings and fixtures: deterministic hypothesis runs, the tiny dataset, the shared sweep.
+
+pytest-xdist's controller process loads this file too, before it starts the workers: it imports nothing
+heavy (torch, Lightning), so the workers start sooner. Helpers that need those live in ``helpers.py``."""
 
 from __future__ import annotations
 
@@ -10,13 +13,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-import torch
 from filelock import FileLock
-from hydra.core.global_hydra import GlobalHydra
 from hypothesis import HealthCheck, settings
-
-from lossvo.evaluation import eval as lossvo_eval
-from lossvo.training import train
 
 # Property tests draw hypothesis' usual 100 examples; `make test-all` (--hypothesis-profile=thorough) 1,000.
 for _name, _examples in (("lossvo", 100), ("thorough", 1000)):
@@ -26,25 +24,18 @@ for _name, _examples in (("lossvo", 100), ("thorough", 1000)):
     )  # fmt: skip
 settings.load_profile("lossvo")
 
-DEVICES = [
-    "cpu",
-    pytest.param(
-        "cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA is not available")
-    ),
-]
-
-
-SUBPROCESS_FILES = (
+LONG_FILES = (
     "test_launchers.py", "test_distributed.py", "test_sweep.py", "test_resume.py", "test_report.py",
-    "test_synthetic.py", "test_bad_input.py", "test_packaging.py",
+    "test_synthetic.py", "test_bad_input.py", "test_packaging.py", "test_fair_comparison.py",
+    "test_checkpoints.py", "test_axioms.py", "test_metrics.py", "test_train.py",
 )  # fmt: skip
-"""The test files that spend longest (most of it in subprocesses), longest first."""
+"""The test files that take longest (the first eight mostly in subprocesses), in the order to start them."""
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """SUBPROCESS_FILES first, in their order: pytest-xdist hands each worker whole files in collection
-    order, so the workers then finish together on the short files."""
-    rank = {name: k for k, name in enumerate(SUBPROCESS_FILES)}
+    """LONG_FILES first, in their order: pytest-xdist hands each worker whole files in collection order,
+    so the workers then finish together on the short files."""
+    rank = {name: k for k, name in enumerate(LONG_FILES)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: each file keeps its order
 
 
@@ -140,40 +131,17 @@ def run_tiny_sweep(tiny_sweep_args: Callable[..., list[str]]) -> Callable[..., s
     return run
 
 
-def exit_status(error: SystemExit) -> int:
-    """The exit status the interpreter gives a SystemExit: 0 for None, the int, 1 for a message."""
-    return 0 if error.code is None else error.code if isinstance(error.code, int) else 1
-
-
-def run_hydra_main(main: Callable[[], object], argv: list[str], monkeypatch: pytest.MonkeyPatch) -> int:
-    """Run a Hydra entry point (``train.main``, ``eval.main``) in this process as the command line ``argv``
-    would, a subprocess costing seconds of imports: its exit status. Hydra's global state is cleared
-    afterwards; exceptions other than SystemExit propagate."""
-    monkeypatch.setattr(sys, "argv", argv)
-    try:
-        main()
-    except SystemExit as e:
-        return exit_status(e)
-    finally:
-        GlobalHydra.instance().clear()
-    return 0
-
-
-def eval_main(args: list[str], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
-              ) -> tuple[int, str]:  # fmt: skip
-    """``python -m lossvo.eval ARGS`` in this process: (exit status, stderr)."""
-    return run_hydra_main(lossvo_eval.main, ["lossvo.eval", *args], monkeypatch), capsys.readouterr().err
-
-
 @pytest.fixture
 def run_tiny_sweep_here(tiny_sweep_args: Callable[..., list[str]], monkeypatch: pytest.MonkeyPatch
                         ) -> Callable[..., int]:  # fmt: skip
     """``run_tiny_sweep`` in this process (working directory ``base``): the exit status."""
 
+    from helpers import train_main  # not at the top: the xdist controller loads this file without Lightning
+
     def run(base: Path, sweep_dir: Path, args: list[str], **options: object) -> int:
-        argv = ["lossvo.train", *tiny_sweep_args(base, sweep_dir, args, **options)]
+        argv = tiny_sweep_args(base, sweep_dir, args, **options)  # makes base
         monkeypatch.chdir(base)
-        return run_hydra_main(train.main, argv, monkeypatch)
+        return train_main(argv, monkeypatch)
 
     return run
 

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import exit_status, run_hydra_main
+from helpers import exit_status, run_hydra_main
 from lossvo.data.synthetic import cli as synthetic_cli
 from lossvo.evaluation import eval as lossvo_eval
 from lossvo.evaluation import metrics

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from conftest import eval_main
+from helpers import eval_main
 from lossvo.training import checkpoints, train
 from test_train import compose_train, tiny_overrides
 

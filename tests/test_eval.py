@@ -13,7 +13,7 @@ import torch
 from evo.tools import file_interface
 from torch import Tensor, nn
 
-from conftest import eval_main, run_hydra_main
+from helpers import eval_main, run_hydra_main
 from lossvo import geometry
 from lossvo.data.kitti import read_poses
 from lossvo.data.windows import tile

@@ -9,7 +9,7 @@ import torch
 from hypothesis import given
 from hypothesis import strategies as st
 
-from conftest import DEVICES
+from helpers import DEVICES
 from lossvo import geometry as g
 
 TOL = {torch.float32: 1e-6, torch.float64: 1e-12}

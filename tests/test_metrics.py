@@ -17,7 +17,7 @@ from evo.core import metrics as evo_metrics
 from evo.core.trajectory import PosePath3D
 from evo.tools import file_interface
 
-from conftest import DEVICES
+from helpers import DEVICES
 from lossvo import geometry
 from lossvo.data.kitti import read_poses
 from lossvo.evaluation import metrics

@@ -17,7 +17,7 @@ import lightning as L
 import pytest
 import torch
 
-from conftest import run_hydra_main
+from helpers import run_hydra_main
 from lossvo.training import checkpoints, train
 from lossvo.training.job_folder import InterruptedRun
 from test_train import compose_train, tiny_overrides

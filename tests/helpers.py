@@ -1,0 +1,50 @@
+"""Test helpers that import torch and Lightning: devices to test on, entry points run in this process."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+
+import pytest
+import torch
+from hydra.core.global_hydra import GlobalHydra
+
+from lossvo.evaluation import eval as lossvo_eval
+from lossvo.training import train
+
+DEVICES = [
+    "cpu",
+    pytest.param(
+        "cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA is not available")
+    ),
+]
+
+
+def exit_status(error: SystemExit) -> int:
+    """The exit status the interpreter gives a SystemExit: 0 for None, the int, 1 for a message."""
+    return 0 if error.code is None else error.code if isinstance(error.code, int) else 1
+
+
+def run_hydra_main(main: Callable[[], object], argv: list[str], monkeypatch: pytest.MonkeyPatch) -> int:
+    """Run a Hydra entry point (``train.main``, ``eval.main``) in this process as the command line ``argv``
+    would, a subprocess costing seconds of imports: its exit status. Hydra's global state is cleared
+    afterwards; exceptions other than SystemExit propagate."""
+    monkeypatch.setattr(sys, "argv", argv)
+    try:
+        main()
+    except SystemExit as e:
+        return exit_status(e)
+    finally:
+        GlobalHydra.instance().clear()
+    return 0
+
+
+def train_main(args: list[str], monkeypatch: pytest.MonkeyPatch) -> int:
+    """``python -m lossvo.train ARGS`` in this process: its exit status."""
+    return run_hydra_main(train.main, ["lossvo.train", *args], monkeypatch)
+
+
+def eval_main(args: list[str], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+              ) -> tuple[int, str]:  # fmt: skip
+    """``python -m lossvo.eval ARGS`` in this process: (exit status, stderr)."""
+    return run_hydra_main(lossvo_eval.main, ["lossvo.eval", *args], monkeypatch), capsys.readouterr().err
