@@ -80,7 +80,8 @@ def relative_pose_errors(root: Path, sequence: str) -> tuple[np.ndarray, np.ndar
 def pose_errors(images: list[np.ndarray], poses: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rotation and translation-direction errors (deg) per consecutive pair of grey images (H, W) uint8
     against the poses (N, 4, 4) T_w_c, with intrinsics K (3, 3)."""
-    # 128-pixel-high frames: a 15-pixel border and patch instead of ORB's default 31 keep most of the image.
+    # Frames DEFAULT_HEIGHT (160) pixels high: a 15-pixel border and patch instead of ORB's default 31 keep
+    # most of the image.
     orb = cv2.ORB_create(nfeatures=2000, edgeThreshold=15, patchSize=15)
     matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
     features = [orb.detectAndCompute(img, None) for img in images]
