@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers import exit_status, run_hydra_main
+from helpers import exit_status, run_hydra_main, train_main
 from lossvo.data.synthetic import cli as synthetic_cli
 from lossvo.evaluation import eval as lossvo_eval
 from lossvo.evaluation import metrics
@@ -138,8 +138,7 @@ def run_row(
 ) -> int:
     """Run a row in process; its exit status."""
     if row.command == "train":
-        argv = ["lossvo.train", *train_argv(args, tiny_kitti, tmp_path)]
-        return run_hydra_main(train.main, argv, monkeypatch)
+        return train_main(train_argv(args, tiny_kitti, tmp_path), monkeypatch)
     if row.command == "eval":
         argv = ["lossvo.eval", f"hydra.run.dir={tmp_path / 'run'}", *args]
         return run_hydra_main(lossvo_eval.main, argv, monkeypatch)

@@ -17,7 +17,7 @@ import lightning as L
 import pytest
 import torch
 
-from helpers import run_hydra_main
+from helpers import train_main
 from lossvo.training import checkpoints, train
 from lossvo.training.job_folder import InterruptedRun
 from test_train import compose_train, tiny_overrides
@@ -154,8 +154,7 @@ def test_signals_leave_an_interrupted_job_that_resumes_by_itself(
     if signum != signal.SIGTERM:
         return
     # The same command, in process: the same job folder resumes by itself.
-    argv = ["lossvo.train", *_args(tiny_kitti, tmp_path, f"trainer.max_epochs={done + 2}")]
-    assert run_hydra_main(train.main, argv, monkeypatch) == 0
+    assert train_main(_args(tiny_kitti, tmp_path, f"trainer.max_epochs={done + 2}"), monkeypatch) == 0
     assert "resuming the interrupted run" in capsys.readouterr().out
     assert json.loads((tmp_path / "run" / "status.json").read_text())["status"] == "completed"
     epochs = [int(float(r["epoch"])) for r in _rows(tmp_path / "run") if r.get("val/score")]
