@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from lossvo import geometry
-from lossvo.data import frame_cache, kitti
+from lossvo.data import datamodules, frame_cache, kitti
 from lossvo.data.datamodules import (
     STANDSTILL_NOISE,
     KittiDataModule,
@@ -166,6 +166,33 @@ def test_reversed_windows_are_exact(tiny_kitti: Path) -> None:
     assert torch.equal(out_targets[1], targets[1])
 
 
+def test_mirrored_windows_are_the_mirrored_trajectorys(tiny_kitti: Path) -> None:
+    poses = torch.from_numpy(kitti.read_poses(tiny_kitti / "poses" / "00.txt"))[:5]
+    S = torch.diag(torch.tensor([-1.0, 1.0, 1.0, 1.0], dtype=torch.float64))
+    frames = torch.arange(2 * 5 * 3 * 2 * 4).view(2, 5, 3, 2, 4)
+    targets = geometry.consecutive_relative_poses(poses).expand(2, 4, 4, 4)
+    out_frames, out_targets = datamodules.mirror_windows(frames, targets, torch.tensor([True, False]))
+    assert torch.equal(out_frames[0], frames[0].flip(-1)) and torch.equal(out_frames[1], frames[1])
+    expected = geometry.consecutive_relative_poses(S @ poses @ S)  # the world seen in a mirror
+    torch.testing.assert_close(out_targets[0], expected, atol=1e-12, rtol=0)
+    assert torch.equal(out_targets[1], targets[1])
+    # yaw and roll change sign, pitch does not (R = Ry(yaw) Rx(pitch) Rz(roll))
+    euler, mirrored = (geometry.matrix_to_euler(t[:, :3, :3]) for t in (targets[0], out_targets[0]))
+    torch.testing.assert_close(mirrored, euler * torch.tensor([-1.0, 1.0, -1.0], dtype=euler.dtype))
+    twice = datamodules.mirror_windows(out_frames, out_targets, torch.tensor([True, False]))
+    assert torch.equal(twice[0], frames) and torch.equal(twice[1], targets)
+
+
+def test_mirror_only_in_training(tiny_kitti: Path, tmp_path: Path) -> None:
+    batch = next(iter(make_dm(tiny_kitti, tmp_path).val_dataloader()))
+    dm = make_dm(tiny_kitti, tmp_path, mirror=1.0)
+    dm.trainer = SimpleNamespace(training=True)
+    frames, _ = dm.on_after_batch_transfer(batch, 0)
+    torch.testing.assert_close(frames, dm.normalize(batch[0].flip(-1)))
+    dm.trainer = SimpleNamespace(training=False)
+    assert torch.equal(dm.on_after_batch_transfer(batch, 0)[0], dm.normalize(batch[0]))
+
+
 def test_reverse_only_in_training(tiny_kitti: Path, tmp_path: Path) -> None:
     batch = next(iter(make_dm(tiny_kitti, tmp_path).val_dataloader()))
     dm = make_dm(tiny_kitti, tmp_path, reverse=1.0)
@@ -259,6 +286,7 @@ def test_missing_sequence_is_named(tiny_kitti: Path, tmp_path: Path) -> None:
         ({"train": []}, r"data\.train: expected at least one"),
         ({"reverse": 1.5}, r"data\.reverse: expected a probability in \[0, 1\]"),
         ({"standstill": -0.1}, r"data\.standstill: expected a probability in \[0, 1\]"),
+        ({"mirror": 2}, r"data\.mirror: expected a probability in \[0, 1\]"),
         ({"windows_per_epoch": 0}, r"data\.windows_per_epoch: expected null or an integer >= 1"),
     ],
 )

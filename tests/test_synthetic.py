@@ -219,11 +219,11 @@ def test_written_poses_are_the_sequences_routes(dataset: Path) -> None:
         assert tilt.max() < 5.2
 
 
-@pytest.mark.parametrize("family", list(routes.FAMILIES))
-def test_orb_essential_matrix_recovers_every_route_familys_poses(tmp_path: Path, family: str) -> None:
-    """The render-geometry check on 30 frame pairs around each family's busiest rotation. Slow families
-    are checked on frames further apart (about 0.6 m): any two rendered frames must agree with their
-    relative pose, and a longer baseline determines it better."""
+def busiest_frames(family: str) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """Grey frames (H, W) of 31 poses around a route's busiest rotation in one family, the poses
+    (31, 4, 4) and the intrinsics (3, 3). Slow families are rendered on frames further apart (about
+    0.6 m): any two rendered frames must agree with their relative pose, and a longer baseline
+    determines it better."""
     rng = np.random.default_rng(7)
     poses = routes.make_route(rng, 600, {family: 1.0})
     speed, rotation = motion.frame_motion(poses)
@@ -235,9 +235,30 @@ def test_orb_essential_matrix_recovers_every_route_familys_poses(tmp_path: Path,
     K = synthetic.intrinsics(h, w)
     renderer = synthetic.Renderer(world, K, h, w)
     window = poses[start : start + 30 * step + 1 : step]
-    images = [cv2.cvtColor(renderer.render(T, rng), cv2.COLOR_BGR2GRAY) for T in window]
-    rot, trans = pose_errors(images, window, K)
-    check_geometry(family, rot, trans, window)
+    return [cv2.cvtColor(renderer.render(T, rng), cv2.COLOR_BGR2GRAY) for T in window], window, K
+
+
+@pytest.mark.parametrize("family", list(routes.FAMILIES))
+def test_orb_essential_matrix_recovers_every_route_familys_poses(family: str) -> None:
+    """The render-geometry check on 30 frame pairs around each family's busiest rotation."""
+    images, poses, K = busiest_frames(family)
+    rot, trans = pose_errors(images, poses, K)
+    check_geometry(family, rot, trans, poses)
+
+
+def test_mirrored_frames_move_as_the_mirrored_poses() -> None:
+    """What data.mirror trains on: frames flipped left to right, seen through the mirrored principal point
+    (cx -> W - 1 - cx), move as S @ T_w_c @ S with S = diag(-1, 1, 1, 1); the unmirrored poses, which
+    turn the other way, do not fit them."""
+    images, poses, K = busiest_frames("town")
+    mirrored = [cv2.flip(image, 1) for image in images]
+    K = K.copy()
+    K[0, 2] = images[0].shape[1] - 1 - K[0, 2]
+    S = np.diag([-1.0, 1.0, 1.0, 1.0])
+    rot, trans = pose_errors(mirrored, S @ poses @ S, K)
+    check_geometry("town, mirrored", rot, trans, S @ poses @ S)
+    rot_unmirrored, _ = pose_errors(mirrored, poses, K)
+    assert np.median(rot_unmirrored) > 3 * max(np.median(rot), 0.1)
 
 
 # --------------------------------------------------------------------------------------------------

@@ -177,6 +177,29 @@ def reverse_windows(
     )
 
 
+def mirror_windows(
+    frames: torch.Tensor, targets: torch.Tensor, which: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Mirror the selected windows left to right: every frame flipped horizontally and every target
+    conjugated by the reflection S = diag(-1, 1, 1, 1) of the camera's x axis, S @ T @ S (sideways
+    translation, yaw and roll change sign). The mirrored frames are what the mirrored world looks like
+    through a camera whose principal point is mirrored too (cx -> W - 1 - cx): exact for a centred
+    principal point, and a shift of W - 1 - 2 cx pixels otherwise (about 4 px of 208 on the synthetic
+    data, 26 px of 1241 on KITTI).
+
+    Args:
+        frames: (B, L, 3, H, W); targets: (B, L-1, 4, 4); which: (B,) bool, the windows to mirror.
+    Returns:
+        frames, targets of the same shapes.
+    """
+    which = which.to(frames.device)
+    sign = torch.tensor([-1.0, 1.0, 1.0, 1.0], dtype=targets.dtype, device=targets.device)
+    return (
+        torch.where(which.view(-1, 1, 1, 1, 1), frames.flip(-1), frames),
+        torch.where(which.view(-1, 1, 1, 1), targets * (sign[:, None] * sign), targets),
+    )
+
+
 STANDSTILL_NOISE = 1.5
 """Standard deviation (grey levels) of the sensor noise added to each frame of a standing window."""
 
@@ -269,6 +292,8 @@ class KittiDataModule(L.LightningDataModule):
         frame_steps: frame steps of the training windows, e.g. ``[1, 2]``: every window start at each
             step (every s-th frame, targets recomputed from the poses), so larger steps add faster motion.
             Validation and evaluation always use consecutive frames.
+        mirror: probability of mirroring a training window left to right (:func:`mirror_windows`):
+            left and right turns in equal numbers, and scenes the network has not seen.
         statistics: ``{"mean": [3], "std": [3]}`` per channel of ``x / 255``: the normalisation of a
             trained network (its checkpoint's), used instead of computing it from the training split,
             which may then be empty (evaluation on data that holds only test sequences).
@@ -298,6 +323,7 @@ class KittiDataModule(L.LightningDataModule):
         pin_memory: bool = False,
         windows_per_epoch: int | None = None,
         frame_steps: Seq[int] = (1,),
+        mirror: float = 0.0,
         statistics: Mapping[str, Seq[float]] | None = None,
     ) -> None:
         super().__init__()
@@ -337,11 +363,11 @@ class KittiDataModule(L.LightningDataModule):
             )
         self.frame_steps = tuple(dict.fromkeys(steps))
         self.cache_dir = Path(cache_dir).expanduser() if cache_dir else frame_cache.default_cache_dir()
-        for name, p in (("reverse", reverse), ("standstill", standstill)):
+        for name, p in (("reverse", reverse), ("standstill", standstill), ("mirror", mirror)):
             if isinstance(p, bool) or not isinstance(p, (int, float)) or not 0.0 <= p <= 1.0:
                 raise ValueError(f"data.{name}: expected a probability in [0, 1], got {p!r}")
         self.normalization, self.augment, self.reverse = normalization, augment, float(reverse)
-        self.standstill = float(standstill)
+        self.standstill, self.mirror = float(standstill), float(mirror)
         self.sequences: dict[str, Sequence] = {}
         self.mean: np.ndarray | None = None  # per-channel statistics, set by setup
         self.std: np.ndarray | None = None
@@ -495,11 +521,13 @@ class KittiDataModule(L.LightningDataModule):
 
     def on_after_batch_transfer(self, batch: tuple[torch.Tensor, torch.Tensor], dataloader_idx: int):
         """On the training device: uint8 windows -> normalised float32; when training, stopped
-        (``standstill``), played backwards (``reverse``) and jittered (``augment``)."""
+        (``standstill``), mirrored (``mirror``), played backwards (``reverse``) and jittered (``augment``)."""
         frames, targets = batch
         training = self.trainer is not None and self.trainer.training
         if training and self.standstill > 0:
             frames, targets = standing_windows(frames, targets, torch.rand(frames.shape[0]) < self.standstill)
+        if training and self.mirror > 0:
+            frames, targets = mirror_windows(frames, targets, torch.rand(frames.shape[0]) < self.mirror)
         if training and self.reverse > 0:
             frames, targets = reverse_windows(frames, targets, torch.rand(frames.shape[0]) < self.reverse)
         if training and self.augment:
