@@ -7,6 +7,7 @@ so that the check is independent of the project's own readers.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import json
 import math
@@ -219,6 +220,7 @@ def test_written_poses_are_the_sequences_routes(dataset: Path) -> None:
         assert tilt.max() < 5.2
 
 
+@functools.cache  # rendered once per family for the tests below (they only read the arrays)
 def busiest_frames(family: str) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
     """Grey frames (H, W) of 31 poses around a route's busiest rotation in one family, the poses
     (31, 4, 4) and the intrinsics (3, 3). Slow families are rendered on frames further apart (about
