@@ -5,10 +5,13 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
+import scipy.linalg
 import torch
 from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
+from scipy.spatial.transform import Rotation
 
 import lossvo.training.train  # noqa: F401  (registers the config resolvers)
 from lossvo import geometry as g
@@ -54,6 +57,46 @@ def rot(axis: int, angle: float) -> torch.Tensor:
     return g.so3_exp(omega)
 
 
+def independent_encoding(cls: type[PoseLoss], target: torch.Tensor) -> torch.Tensor:
+    """A network output (..., cls.dim) that decodes to ``target`` (..., 4, 4), computed from the
+    parameterisations' definitions with scipy (not with lossvo's geometry or roma, which it uses):
+
+    - euler: (t, yaw, pitch, roll) with R = Ry(yaw) Rx(pitch) Rz(roll), scipy's intrinsic "YXZ";
+    - quat: (t, w, x, y, z) with w >= 0;
+    - chordal: xi = (rho, omega), the 4x4 matrix logarithm of the pose (scipy.linalg.logm), so that
+      R = exp(omega^) and t = V(omega) rho;
+    - geodesic: (t, rotation vector); sixd: (t, first column, second column);
+    - svd: (t, M) with M = R diag(1, 2, 3) row-major, whose nearest rotation (polar factor) is R;
+    - quat10d: (t, upper triangle of A = I - q q^T in roma's order), q = (x, y, z, w) A's null vector.
+    """
+    T = target.detach().to(torch.float64).reshape(-1, 4, 4).numpy()
+    R, t = T[:, :3, :3], T[:, :3, 3]
+    rotation = Rotation.from_matrix(R)
+    if cls is EulerLoss:
+        r = rotation.as_euler("YXZ")
+    elif cls is QuaternionLoss:
+        xyzw = rotation.as_quat()
+        r = np.where(xyzw[:, 3:] < 0, -xyzw, xyzw)[:, [3, 0, 1, 2]]
+    elif cls is ChordalLoss:
+        T[:, :3, :3] = rotation.as_matrix()  # orthonormal: near pi, logm is sensitive to float32 rounding
+        twist = np.stack([scipy.linalg.logm(pose).real for pose in T])
+        t, r = twist[:, :3, 3], twist[:, [2, 0, 1], [1, 2, 0]]  # rho; omega from hat(omega)
+    elif cls is GeodesicLoss:
+        r = rotation.as_rotvec()
+    elif cls is SixDLoss:
+        r = np.concatenate((R[:, :, 0], R[:, :, 1]), axis=-1)
+    elif cls is SVDLoss:
+        r = (R @ np.diag([1.0, 2.0, 3.0])).reshape(-1, 9)
+    elif cls is SymMatrixQuatLoss:
+        q = rotation.as_quat()
+        A = np.eye(4) - q[:, :, None] * q[:, None, :]
+        r = A[:, [0, 1, 2, 3, 1, 2, 3, 2, 3, 3], [0, 0, 0, 0, 1, 1, 1, 2, 2, 3]]
+    else:
+        raise AssertionError(f"no independent encoding for {cls.__name__}")
+    out = torch.from_numpy(np.concatenate((t, r), axis=-1))
+    return out.reshape(*target.shape[:-2], cls.dim).to(target.dtype)
+
+
 def p(*values: float) -> torch.Tensor:
     """(1, 1, D) float64 prediction."""
     return torch.tensor(values, dtype=torch.float64)[None, None]
@@ -73,15 +116,19 @@ def test_head_sizes_and_default_weights() -> None:
 @pytest.mark.parametrize("cls", LOSSES)
 def test_decode_encode_round_trip(cls: type[PoseLoss]) -> None:
     loss = cls()
-    target = targets(dtype=torch.float64)
+    target = targets(dtype=torch.float64)  # rotations from 0 to 179.9 deg
+    pred = independent_encoding(cls, target)
+    torch.testing.assert_close(loss.decode(pred), target, atol=1e-12, rtol=0)
     torch.testing.assert_close(loss.decode(loss.encode(target)), target, atol=1e-12, rtol=0)
+    if cls not in (SVDLoss, SymMatrixQuatLoss):  # the others' encodings are unique: encode gives them
+        torch.testing.assert_close(loss.encode(target), pred, atol=1e-12, rtol=0)
 
 
 @pytest.mark.parametrize("cls", LOSSES)
 def test_zero_loss_at_the_target(cls: type[PoseLoss]) -> None:
     loss = cls()
     target = targets()
-    out = loss(loss.encode(target), target)
+    out = loss(independent_encoding(cls, target), target)
     assert set(out) == KEYS
     for key, value in out.items():
         assert value.shape == ()
@@ -241,22 +288,22 @@ def test_invalid_weight_is_rejected(k: object) -> None:
 
 
 @pytest.mark.parametrize(
-    ("name", "cls"),
+    ("name", "cls", "matched_k"),
     [
-        ("euler", EulerLoss),
-        ("quat", QuaternionLoss),
-        ("chordal", ChordalLoss),
-        ("geodesic", GeodesicLoss),
-        ("sixd", SixDLoss),
-        ("svd", SVDLoss),
-        ("quat10d", SymMatrixQuatLoss),
+        ("euler", EulerLoss, 100.0),
+        ("quat", QuaternionLoss, 400.0),
+        ("chordal", ChordalLoss, 50.0),
+        ("geodesic", GeodesicLoss, 100.0),
+        ("sixd", SixDLoss, 50.0),
+        ("svd", SVDLoss, 50.0),
+        ("quat10d", SymMatrixQuatLoss, 50.0),
     ],
 )
-def test_hydra_loss_group(name: str, cls: type[PoseLoss]) -> None:
+def test_hydra_loss_group(name: str, cls: type[PoseLoss], matched_k: float) -> None:
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         default = instantiate(compose("train", overrides=[f"loss={name}"]).loss)
         tuned = instantiate(compose("train", overrides=[f"loss={name}", "loss.k=50"]).loss)
-    assert type(default) is cls and default.k == cls().matched_k()
+    assert type(default) is cls and default.k == matched_k  # weighting=matched: 100 / small_angle_gain
     assert type(tuned) is cls and tuned.k == 50.0
 
 
@@ -303,5 +350,4 @@ def test_symmetric_matrix_quaternion_is_the_smallest_eigenvector() -> None:
     for j, (r, c) in enumerate(entries):
         A[:, r, c] = A[:, c, r] = x[:, j]
     q_xyzw = torch.linalg.eigh(A)[1][..., 0]
-    q_wxyz = torch.cat((q_xyzw[:, 3:], q_xyzw[:, :3]), -1)
-    torch.testing.assert_close(R, g.quat_to_matrix(q_wxyz))
+    torch.testing.assert_close(R, torch.from_numpy(Rotation.from_quat(q_xyzw.numpy()).as_matrix()))
