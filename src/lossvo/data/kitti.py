@@ -15,6 +15,7 @@ usable for inference only. Every reader fails with one ``KittiFormatError`` nami
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -59,6 +60,25 @@ def find_root(root: str | os.PathLike) -> Path:
         f"{root}: not a KITTI odometry root: expected {root}/sequences/NN/image_2 and {root}/poses/NN.txt "
         f"(or the same under {root}/dataset)"
     )
+
+
+def sequence_name(item: object) -> str:
+    """A sequence name as the KITTI layout writes it: ``7`` -> ``"07"``, ``" 07"`` -> ``"07"`` (a YAML
+    ``07`` arrives as the integer 7)."""
+    return f"{item:02d}" if isinstance(item, int) and not isinstance(item, bool) else str(item).strip()
+
+
+def sequence_names(value: str | int | Iterable[object] | None) -> list[str]:
+    """Sequence names from a list, a comma-separated string or one integer, in order, without empties or
+    repeats: ``"00, 07"``, ``[0, 7]`` -> ``["00", "07"]``."""
+    items: Iterable[object]
+    if isinstance(value, str):
+        items = value.split(",")
+    elif isinstance(value, int):
+        items = [value]
+    else:
+        items = value or []
+    return list(dict.fromkeys(name for name in map(sequence_name, items) if name))
 
 
 def list_sequences(root: Path) -> list[str]:

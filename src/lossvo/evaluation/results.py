@@ -1,10 +1,18 @@
-"""A trained network evaluated on whole sequences: trajectory files, plots and ``results.json``.
+"""A trained network evaluated on whole sequences, and ``results.json``: the contract between evaluation
+and everything that reads a run (the report, the baselines, users).
 
 :func:`evaluate_run` writes, into a run's folder, per sequence ``trajectories/NN.txt`` (KITTI format,
 readable by evo, first pose = ground truth's) and ``plots/NN.png`` (bird's-eye x-z view), and
-``results.json``: APE / RPE / KITTI error per sequence and pooled over all, and the data evaluated
-(:func:`data_record`), which is all a report needs. ``python -m lossvo.train`` calls it after fitting,
-``python -m lossvo.eval`` (:mod:`lossvo.evaluation.eval`) for a checkpoint.
+``results.json``: a :class:`Results`, written by :meth:`Results.write` and read back by
+:meth:`Results.read`, nowhere else. It holds APE / RPE / KITTI error per sequence and pooled over all
+(:class:`Scores`), the data evaluated and the data the network was trained on (:class:`DataRecord`), the
+evaluation settings and :data:`SCHEMA_VERSION`. Reading a file that is missing, not JSON, of another
+schema version or of another shape raises :class:`ResultsError`, one line naming the file and the problem.
+``python -m lossvo.train`` calls :func:`evaluate_run` after fitting, ``python -m lossvo.eval`` for a
+checkpoint.
+
+Units: APE / RPE translation statistics in m, rotation statistics in rad (``rot_rad``); KITTI errors in %
+and deg per 100 m, null where no 100 m segment exists.
 """
 
 from __future__ import annotations
@@ -12,28 +20,471 @@ from __future__ import annotations
 import json
 import logging
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import torch
 from torch import nn
 
 from lossvo.atomic import write_text_atomic
-from lossvo.data.kitti import KittiFormatError, pose_path, write_poses
+from lossvo.data.kitti import KittiFormatError, pose_path, sequence_names, write_poses
 from lossvo.evaluation import metrics
 from lossvo.evaluation.inference import predict_sequence
 from lossvo.evaluation.plots import plot_birdseye
 from lossvo.evaluation.trajectories import integrate
 
+if TYPE_CHECKING:
+    from lossvo.data.datamodules import KittiDataModule
+    from lossvo.losses import PoseLoss
+
 log = logging.getLogger("lossvo")
 
+SCHEMA_VERSION = 1
+"""The version of :class:`Results` that this code writes and reads."""
 NO_SEGMENT_NOTE = "sequence too short for any KITTI segment (100-800 m): no KITTI error"
 NO_GT_NOTE = "no ground truth (no pose file): trajectory starts at identity, no metrics"
+NO_METRICS_NOTE = "no sequence with ground truth: no metrics"
 
 
-def _ground_truth(datamodule: Any, name: str) -> np.ndarray | None:
+class ResultsError(ValueError):
+    """A results.json that cannot be read as :class:`Results`; the message is one line,
+    ``"<path>: <reason>"``."""
+
+    def __init__(self, path: str | os.PathLike, reason: str) -> None:
+        super().__init__(f"{path}: {reason}")
+        self.path, self.reason = Path(path), reason
+
+
+class _MalformedError(ValueError):
+    """A field of the JSON being read that does not fit the contract (the message names its key path)."""
+
+
+# --------------------------------------------------------------------------------------------------
+# Reading typed fields out of parsed JSON
+# --------------------------------------------------------------------------------------------------
+
+
+def _key(where: str, key: str) -> str:
+    return f"{where}.{key}" if where else key
+
+
+def _object(value: Any, where: str) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise _MalformedError(f"{where or 'the file'}: expected an object, got {type(value).__name__}")
+    return value
+
+
+def _field(obj: dict[str, Any], key: str, where: str) -> Any:
+    if key not in obj:
+        raise _MalformedError(f"{_key(where, key)} is missing")
+    return obj[key]
+
+
+def _number(value: Any, where: str, optional: bool = False) -> float | None:
+    if value is None and optional:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise _MalformedError(
+            f"{where}: expected a number{' or null' if optional else ''}, got {value!r:.40}"
+        )
+    return float(value)
+
+
+def _integer(value: Any, where: str, optional: bool = False) -> int | None:
+    if value is None and optional:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise _MalformedError(
+            f"{where}: expected an integer{' or null' if optional else ''}, got {value!r:.40}"
+        )
+    return value
+
+
+def _text(value: Any, where: str, optional: bool = False) -> str | None:
+    if value is None and optional:
+        return None
+    if not isinstance(value, str):
+        raise _MalformedError(
+            f"{where}: expected a string{' or null' if optional else ''}, got {value!r:.40}"
+        )
+    return value
+
+
+def _flag(value: Any, where: str) -> bool:
+    if not isinstance(value, bool):
+        raise _MalformedError(f"{where}: expected true or false, got {value!r:.40}")
+    return value
+
+
+def _names(value: Any, where: str) -> list[str]:
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise _MalformedError(f"{where}: expected a list of sequence names, got {value!r:.40}")
+    return list(value)
+
+
+def _numbers(value: Any, where: str) -> list[float] | None:
+    if value is None:
+        return None
+    if not isinstance(value, list):
+        raise _MalformedError(f"{where}: expected a list of numbers or null, got {value!r:.40}")
+    return [cast("float", _number(v, f"{where}[{i}]")) for i, v in enumerate(value)]
+
+
+# --------------------------------------------------------------------------------------------------
+# The contract
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Statistics:
+    """evo's statistics of an error vector (:func:`lossvo.evaluation.metrics.statistics`), in its unit."""
+
+    rmse: float
+    mean: float
+    median: float
+    std: float
+    min: float
+    max: float
+
+    @classmethod
+    def from_json(cls, obj: Any, where: str) -> Statistics:
+        obj = _object(obj, where)
+        values = {f.name: _number(_field(obj, f.name, where), _key(where, f.name)) for f in fields(cls)}
+        return cls(**cast("dict[str, float]", values))
+
+    def to_json(self) -> dict[str, float]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+@dataclass(frozen=True)
+class PoseErrors:
+    """APE or RPE: statistics of the translation errors (m) and of the rotation angles (rad)."""
+
+    trans: Statistics
+    rot_rad: Statistics
+
+    @classmethod
+    def from_json(cls, obj: Any, where: str) -> PoseErrors:
+        obj = _object(obj, where)
+        trans, rot = (
+            Statistics.from_json(_field(obj, k, where), _key(where, k)) for k in ("trans", "rot_rad")
+        )
+        return cls(trans, rot)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"trans": self.trans.to_json(), "rot_rad": self.rot_rad.to_json()}
+
+
+@dataclass(frozen=True)
+class KittiError:
+    """The KITTI odometry error (mean over 100-800 m segments): translation in %, rotation in deg per
+    100 m; both None with a ``note`` where no segment exists."""
+
+    t_err_pct: float | None
+    r_err_deg_per_100m: float | None
+    note: str | None = None
+
+    @classmethod
+    def from_json(cls, obj: Any, where: str) -> KittiError:
+        obj = _object(obj, where)
+        t, r = (_number(_field(obj, k, where), _key(where, k), optional=True)
+                for k in ("t_err_pct", "r_err_deg_per_100m"))  # fmt: skip
+        return cls(t, r, _text(obj.get("note"), _key(where, "note"), optional=True))
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"t_err_pct": self.t_err_pct, "r_err_deg_per_100m": self.r_err_deg_per_100m}
+        return out | ({"note": self.note} if self.note is not None else {})
+
+
+@dataclass(frozen=True)
+class Scores:
+    """One trajectory (or several pooled) against its ground truth: APE, RPE and the KITTI error, as
+    :func:`lossvo.evaluation.metrics.evaluate` computes them."""
+
+    ape: PoseErrors
+    rpe: PoseErrors
+    kitti: KittiError
+
+    @classmethod
+    def from_json(cls, obj: Any, where: str = "") -> Scores:
+        """From :func:`lossvo.evaluation.metrics.evaluate`'s dict (or its JSON); ValueError naming the
+        key path of a field that does not fit."""
+        obj = _object(obj, where)
+        ape, rpe = (PoseErrors.from_json(_field(obj, k, where), _key(where, k)) for k in ("ape", "rpe"))
+        return cls(ape, rpe, KittiError.from_json(_field(obj, "kitti", where), _key(where, "kitti")))
+
+    def to_json(self) -> dict[str, Any]:
+        return {"ape": self.ape.to_json(), "rpe": self.rpe.to_json(), "kitti": self.kitti.to_json()}
+
+
+@dataclass(frozen=True)
+class SequenceResult:
+    """One evaluated sequence: its frame count, trajectory and plot files (relative to the run folder),
+    the ground-truth pose file it was scored against (absolute; None without one), whether it is of a
+    route family never trained on, and its :class:`Scores` (None, with a ``note``, without ground
+    truth)."""
+
+    frames: int
+    trajectory: str
+    plot: str
+    ground_truth: str | None
+    unseen: bool
+    scores: Scores | None = None
+    note: str | None = None
+
+    @classmethod
+    def from_json(cls, obj: Any, where: str) -> SequenceResult:
+        obj = _object(obj, where)
+        scores = Scores.from_json(obj, where) if "ape" in obj else None
+        note = _text(obj.get("note"), _key(where, "note"), optional=True)
+        if scores is None and note is None:
+            raise _MalformedError(f"{where}: neither scores (ape, rpe, kitti) nor a note")
+        return cls(
+            frames=cast("int", _integer(_field(obj, "frames", where), _key(where, "frames"))),
+            trajectory=cast("str", _text(_field(obj, "trajectory", where), _key(where, "trajectory"))),
+            plot=cast("str", _text(_field(obj, "plot", where), _key(where, "plot"))),
+            ground_truth=_text(_field(obj, "ground_truth", where), _key(where, "ground_truth"), True),
+            unseen=_flag(_field(obj, "unseen", where), _key(where, "unseen")),
+            scores=scores,
+            note=note,
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"frames": self.frames, "trajectory": self.trajectory, "plot": self.plot}
+        out |= {"note": self.note} if self.scores is None else self.scores.to_json()
+        return out | {"ground_truth": self.ground_truth, "unseen": self.unseen}
+
+
+@dataclass(frozen=True)
+class Overall:
+    """Scores pooled over the evaluated ``sequences`` that have ground truth (None, with a ``note``,
+    when none has)."""
+
+    sequences: list[str]
+    scores: Scores | None = None
+    note: str | None = None
+
+    @classmethod
+    def from_json(cls, obj: Any, where: str = "overall") -> Overall:
+        obj = _object(obj, where)
+        scores = Scores.from_json(obj, where) if "ape" in obj else None
+        note = _text(obj.get("note"), _key(where, "note"), optional=True)
+        if scores is None and note is None:
+            raise _MalformedError(f"{where}: neither scores (ape, rpe, kitti) nor a note")
+        return cls(_names(_field(obj, "sequences", where), _key(where, "sequences")), scores, note)
+
+    def to_json(self) -> dict[str, Any]:
+        rest = {"note": self.note} if self.scores is None else self.scores.to_json()
+        return {"sequences": list(self.sequences), **rest}
+
+
+@dataclass(frozen=True)
+class LossRecord:
+    """The network's loss: its class name (``ChordalLoss``) and rotation weight k (None: learned)."""
+
+    name: str | None
+    k: float | None
+
+    @classmethod
+    def from_json(cls, obj: Any, where: str = "loss") -> LossRecord:
+        obj = _object(obj, where)
+        name = _text(_field(obj, "class", where), _key(where, "class"), optional=True)
+        return cls(name, _number(_field(obj, "k", where), _key(where, "k"), optional=True))
+
+    def to_json(self) -> dict[str, Any]:
+        return {"class": self.name, "k": self.k}
+
+
+@dataclass(frozen=True)
+class DataRecord:
+    """The data of an evaluation: the evaluated dataset (``kind``: its datamodule's class path;
+    ``root``: its absolute KITTI-layout folder, ``sequences/NN/...`` and ``poses/NN.txt``; its ``test``
+    and ``unseen`` sequences) and the data the network was trained on (``train_root``, the training
+    split ``train``) with its input settings (``height``, ``width`` in pixels, ``seq_len`` in frames,
+    ``normalization``, per-channel ``mean`` and ``std`` of pixel values in [0, 1]). Roots are as
+    recorded; they may no longer exist."""
+
+    kind: str | None
+    root: str
+    test: list[str]
+    unseen: list[str]
+    train_root: str | None
+    train: list[str]
+    height: int | None = None
+    width: int | None = None
+    seq_len: int | None = None
+    normalization: str | None = None
+    mean: list[float] | None = None
+    std: list[float] | None = None
+
+    def identity(self) -> dict[str, Any]:
+        """What decides the frames on disk and the training split's poses (a cache key)."""
+        train_root = None if self.train_root is None else str(Path(self.train_root))
+        return {"root": str(Path(self.root)), "train_root": train_root, "train": list(self.train)}
+
+    @classmethod
+    def from_json(cls, obj: Any, where: str = "data") -> DataRecord:
+        obj = _object(obj, where)
+
+        def get(key: str) -> tuple[Any, str]:
+            return _field(obj, key, where), _key(where, key)
+
+        return cls(
+            kind=_text(*get("kind"), optional=True),
+            root=cast("str", _text(*get("root"))),
+            test=_names(*get("test")),
+            unseen=_names(*get("unseen")),
+            train_root=_text(*get("train_root"), optional=True),
+            train=_names(*get("train")),
+            height=_integer(*get("height"), optional=True),
+            width=_integer(*get("width"), optional=True),
+            seq_len=_integer(*get("seq_len"), optional=True),
+            normalization=_text(*get("normalization"), optional=True),
+            mean=_numbers(*get("mean")),
+            std=_numbers(*get("std")),
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+@dataclass(frozen=True)
+class Results:
+    """The content of a run's ``results.json``.
+
+    ``checkpoint``: the weights evaluated (None: the last weights of a fit); ``loss``; ``align`` and
+    ``delta``: the APE alignment and RPE delta (frames) of every score; ``seq_len``: the window length
+    (frames) inferred with; ``carry_state``: whether the recurrent state was carried between windows;
+    ``threads``: the CPU thread count the network was trained with (None: not recorded); ``data``;
+    ``sequences``: per evaluated sequence; ``overall``: pooled over the sequences with ground truth.
+    """
+
+    checkpoint: str | None
+    loss: LossRecord
+    align: str
+    delta: int
+    seq_len: int
+    carry_state: bool
+    data: DataRecord
+    sequences: dict[str, SequenceResult]
+    overall: Overall
+    threads: int | None = None
+    schema_version: int = field(default=SCHEMA_VERSION)
+
+    def scored(self) -> dict[str, Scores]:
+        """The sequences with ground truth and their scores, in order."""
+        return {name: s.scores for name, s in self.sequences.items() if s.scores is not None}
+
+    def unseen(self) -> set[str]:
+        """The unseen-motion sequences: those flagged and those the data record lists."""
+        return {name for name, s in self.sequences.items() if s.unseen} | set(self.data.unseen)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "schema_version": self.schema_version,
+            "checkpoint": self.checkpoint,
+            "loss": self.loss.to_json(),
+            "align": self.align,
+            "delta": self.delta,
+            "seq_len": self.seq_len,
+            "carry_state": self.carry_state,
+            "threads": self.threads,
+            "data": self.data.to_json(),
+            "sequences": {name: s.to_json() for name, s in self.sequences.items()},
+            "overall": self.overall.to_json(),
+        }
+
+    @classmethod
+    def from_json(cls, obj: Any) -> Results:
+        """From parsed JSON; ValueError naming the key path of the first field that does not fit."""
+        obj = _object(obj, "")
+        version = obj.get("schema_version")
+        if version != SCHEMA_VERSION:
+            found = "no schema_version" if version is None else f"schema_version {version!r}"
+            raise _MalformedError(f"{found}, expected {SCHEMA_VERSION}: evaluate the checkpoint again "
+                             "(python -m lossvo.eval ckpt_path=...)")  # fmt: skip
+        sequences = _object(_field(obj, "sequences", ""), "sequences")
+        return cls(
+            checkpoint=_text(_field(obj, "checkpoint", ""), "checkpoint", optional=True),
+            loss=LossRecord.from_json(_field(obj, "loss", "")),
+            align=cast("str", _text(_field(obj, "align", ""), "align")),
+            delta=cast("int", _integer(_field(obj, "delta", ""), "delta")),
+            seq_len=cast("int", _integer(_field(obj, "seq_len", ""), "seq_len")),
+            carry_state=_flag(_field(obj, "carry_state", ""), "carry_state"),
+            threads=_integer(_field(obj, "threads", ""), "threads", optional=True),
+            data=DataRecord.from_json(_field(obj, "data", "")),
+            sequences={n: SequenceResult.from_json(e, f"sequences.{n}") for n, e in sequences.items()},
+            overall=Overall.from_json(_field(obj, "overall", "")),
+        )
+
+    def write(self, path: str | os.PathLike) -> None:
+        """Write ``path`` (JSON, NaN allowed) atomically."""
+        write_text_atomic(Path(path), json.dumps(self.to_json(), indent=2, allow_nan=True) + "\n")
+
+    @classmethod
+    def read(cls, path: str | os.PathLike) -> Results:
+        """Read ``path``.
+
+        Raises:
+            ResultsError: one line naming the file and what is wrong: missing, unreadable, not JSON,
+                another schema version, or a field missing or of another type.
+        """
+        try:
+            text = Path(path).read_text()
+        except FileNotFoundError:
+            raise ResultsError(path, "no such file") from None
+        except (OSError, UnicodeDecodeError) as e:
+            reason = e.strerror if isinstance(e, OSError) and e.strerror else type(e).__name__
+            raise ResultsError(path, f"unreadable ({reason})") from None
+        try:
+            obj = json.loads(text)
+        except json.JSONDecodeError as e:
+            raise ResultsError(path, f"invalid JSON ({e.msg} at line {e.lineno})") from None
+        try:
+            return cls.from_json(obj)
+        except _MalformedError as e:
+            raise ResultsError(path, str(e)) from None
+
+
+# --------------------------------------------------------------------------------------------------
+# Writing it: evaluation of a trained network
+# --------------------------------------------------------------------------------------------------
+
+
+def data_record(
+    trained: Mapping[str, Any] | None, evaluated: Mapping[str, Any], splits: Mapping[str, Sequence[str]]
+) -> DataRecord:
+    """The :class:`DataRecord` of an evaluation.
+
+    Args:
+        trained: the description of the data the network was trained on, as its checkpoint records it
+            (:meth:`lossvo.data.datamodules.KittiDataModule.description`, ``VOModule.data``); None for a
+            network that was not loaded from a checkpoint: then it is ``evaluated``.
+        evaluated: the evaluated datamodule's description.
+        splits: the evaluated datamodule's splits (``test``, ``unseen``).
+    """
+    trained = trained or evaluated
+    stats = trained.get("statistics") or {}
+    return DataRecord(
+        kind=evaluated.get("_target_"),
+        root=str(evaluated["dataset_root"]),
+        test=list(splits.get("test", ())),
+        unseen=list(splits.get("unseen", ())),
+        train_root=trained.get("dataset_root"),
+        train=sequence_names(trained.get("train")),
+        height=trained.get("height"),
+        width=trained.get("width"),
+        seq_len=trained.get("seq_len"),
+        normalization=trained.get("normalization"),
+        mean=stats.get("mean"),
+        std=stats.get("std"),
+    )
+
+
+def _ground_truth(datamodule: KittiDataModule, name: str) -> np.ndarray | None:
     try:
         poses = datamodule.sequence_poses(name)
     except (KittiFormatError, KeyError):
@@ -41,72 +492,32 @@ def _ground_truth(datamodule: Any, name: str) -> np.ndarray | None:
     return None if poses is None else np.asarray(poses, dtype=np.float64)
 
 
-def _loss_info(module: nn.Module) -> dict[str, Any]:
-    loss = getattr(module, "loss", None)
-    return {"class": type(loss).__name__ if loss is not None else None, "k": getattr(loss, "k", None)}
-
-
-def _kitti_with_note(result: dict[str, Any]) -> dict[str, Any]:
-    if result["kitti"]["t_err_pct"] is None:
-        result["kitti"]["note"] = NO_SEGMENT_NOTE
-    return result
-
-
-def data_record(module: nn.Module, datamodule: Any) -> dict[str, Any]:
-    """``results.json``'s ``data``: the evaluated dataset (``kind``, ``root``, ``test``, ``unseen``), the
-    data the network was trained on (``train_root``, ``train``) and its input settings (``height``,
-    ``width``, ``seq_len``, ``normalization``, ``mean``, ``std``): what a report needs without
-    building a datamodule."""
-    here = datamodule.description() if hasattr(datamodule, "description") else {}
-    trained = getattr(module, "data", None) or here
-    stats = trained.get("statistics") or here.get("statistics") or {}
-    return {
-        "kind": here.get("_target_"),
-        "root": here.get("dataset_root"),
-        "test": list(datamodule.splits.get("test", ())) if hasattr(datamodule, "splits") else [],
-        "unseen": list(datamodule.splits.get("unseen", ())) if hasattr(datamodule, "splits") else [],
-        "train_root": trained.get("dataset_root"),
-        "train": list(trained.get("train") or []),
-        **{key: trained.get(key, here.get(key)) for key in ("height", "width", "seq_len", "normalization")},
-        "mean": stats.get("mean"),
-        "std": stats.get("std"),
-    }
-
-
-def _pose_file(datamodule: Any, name: str) -> str | None:
-    """The absolute path of a sequence's ground-truth pose file, or None."""
-    sequence = getattr(datamodule, "sequences", {}).get(name)
-    if sequence is None or sequence.poses is None or not hasattr(datamodule, "dataset_root"):
-        return None
-    return str(pose_path(datamodule.dataset_root(), name))
-
-
 def evaluate_run(
     module: nn.Module,
-    datamodule: Any,
+    datamodule: KittiDataModule,
     out_dir: str | os.PathLike,
     sequences: Sequence[str],
     checkpoint: str | os.PathLike | None = None,
     align: metrics.AlignMode = "none",
     delta: int = 1,
     carry_state: bool = False,
-) -> dict[str, Any]:
+    threads: int | None = None,
+) -> Results:
     """Integrate each sequence with ``module`` and write trajectories, plots and ``results.json``.
 
     Args:
-        module: the trained :class:`lossvo.training.module.VOModule` (on the device to run on).
-        datamodule: a set-up-able :class:`lossvo.data.datamodules.KittiDataModule` (``sequence_frames``,
-            ``sequence_poses``, ``normalize``, ``seq_len``).
+        module: the trained :class:`lossvo.training.module.VOModule` (on the device to run on): its
+            ``loss`` (a :class:`lossvo.losses.PoseLoss`) and ``data`` (the training data's description
+            from its checkpoint, or None).
+        datamodule: the evaluated :class:`lossvo.data.datamodules.KittiDataModule` (set up here).
         out_dir: folder receiving ``trajectories/NN.txt``, ``plots/NN.png`` and ``results.json``.
         sequences: sequence names, e.g. ``datamodule.evaluated``.
         checkpoint: the checkpoint the weights came from (recorded in ``results.json``).
         align, delta: APE alignment and RPE delta (:func:`lossvo.evaluation.metrics.evaluate`).
         carry_state: see :func:`predict_sequence`.
+        threads: the CPU thread count the network was trained with, recorded as given.
     Returns:
-        The content of ``results.json``: ``{"checkpoint", "loss": {"class", "k"}, "align", "delta",
-        "data": data_record(...), "sequences": {name: {"frames", "trajectory", "plot", "ground_truth",
-        "unseen", "ape", "rpe", "kitti"} or a "note"}, "overall": {"sequences", "ape", "rpe", "kitti"}}``.
-        A KITTI error is null (with a "note") where no 100 m segment exists.
+        The :class:`Results` written to ``out_dir/results.json``.
     """
     out_dir = Path(out_dir)
     datamodule.setup("test")
@@ -114,53 +525,67 @@ def evaluate_run(
     pooled = (metrics.APE(align=align, sync_on_compute=False),
               metrics.RPE(delta=delta, align=align, sync_on_compute=False),
               metrics.KittiOdometryError(sync_on_compute=False))  # fmt: skip
-    loss = _loss_info(module)
-    unseen = set(getattr(datamodule, "splits", {}).get("unseen", ()))
-    per_sequence: dict[str, Any] = {}
+    loss = cast("PoseLoss", module.loss)
+    record = LossRecord(type(loss).__name__, loss.k)
+    unseen = set(datamodule.splits["unseen"])
+    per_sequence: dict[str, SequenceResult] = {}
     for name in sequences:
         relative = predict_sequence(module, datamodule.sequence_frames(name), datamodule.normalize,
                                     datamodule.seq_len, carry_state=carry_state)  # fmt: skip
-        entry = _score_sequence(relative, _ground_truth(datamodule, name), name, out_dir, loss, pooled,
-                                align, delta)  # fmt: skip
-        per_sequence[name] = {**entry, "ground_truth": _pose_file(datamodule, name), "unseen": name in unseen}
-    evaluated = [name for name, entry in per_sequence.items() if "ape" in entry]
-    overall: dict[str, Any] = {"sequences": [], "note": "no sequence with ground truth: no metrics"}
+        gt = _ground_truth(datamodule, name)
+        gt_file = None if gt is None else str(pose_path(datamodule.dataset_root(), name))
+        per_sequence[name] = _score_sequence(relative, gt, name, out_dir, record, pooled, align, delta,
+                                             gt_file, name in unseen)  # fmt: skip
+    evaluated = [name for name, entry in per_sequence.items() if entry.scores is not None]
+    overall = Overall([], note=NO_METRICS_NOTE)
     if evaluated:
         ape, rpe, kitti = (m.compute() for m in pooled)
-        overall = _kitti_with_note({"sequences": evaluated, "ape": ape, "rpe": rpe, "kitti": kitti})
-    result = {
-        "checkpoint": None if checkpoint is None else str(checkpoint),
-        "loss": loss,
-        "align": align,
-        "delta": delta,
-        "seq_len": int(datamodule.seq_len),
-        "carry_state": carry_state,
-        "data": data_record(module, datamodule),
-        "sequences": per_sequence,
-        "overall": overall,
-    }
-    write_text_atomic(out_dir / "results.json", json.dumps(result, indent=2, allow_nan=True) + "\n")
+        overall = Overall(evaluated, _scores({"ape": ape, "rpe": rpe, "kitti": kitti}))
+    result = Results(
+        checkpoint=None if checkpoint is None else str(checkpoint),
+        loss=record,
+        align=align,
+        delta=delta,
+        seq_len=int(datamodule.seq_len),
+        carry_state=carry_state,
+        threads=threads,
+        data=data_record(
+            cast("dict[str, Any] | None", module.data), datamodule.description(), datamodule.splits
+        ),
+        sequences=per_sequence,
+        overall=overall,
+    )
+    result.write(out_dir / "results.json")
     return result
 
 
+def _scores(computed: dict[str, Any]) -> Scores:
+    """:func:`lossvo.evaluation.metrics.evaluate`'s dict as :class:`Scores`, the KITTI error with a note
+    where no segment exists."""
+    scores = Scores.from_json(computed)
+    if scores.kitti.t_err_pct is None:
+        return replace(scores, kitti=replace(scores.kitti, note=NO_SEGMENT_NOTE))
+    return scores
+
+
 def _score_sequence(
-    relative: np.ndarray, gt: np.ndarray | None, name: str, out_dir: Path, loss: dict[str, Any],
-    pooled: Sequence[Any], align: metrics.AlignMode, delta: int,
-) -> dict[str, Any]:  # fmt: skip
+    relative: np.ndarray, gt: np.ndarray | None, name: str, out_dir: Path, loss: LossRecord,
+    pooled: Sequence[Any], align: metrics.AlignMode, delta: int, gt_file: str | None, unseen: bool,
+) -> SequenceResult:  # fmt: skip
     """One sequence's trajectory file, plot and scores
     (:func:`lossvo.evaluation.metrics.evaluate_relative`)."""
-    entry: dict[str, Any] = {"frames": len(relative) + 1, "trajectory": f"trajectories/{name}.txt",
-                             "plot": f"plots/{name}.png"}  # fmt: skip
+    trajectory, plot = f"trajectories/{name}.txt", f"plots/{name}.png"
     if gt is None:
         est = integrate(torch.from_numpy(relative))
-        entry["note"] = NO_GT_NOTE
+        entry = SequenceResult(len(relative) + 1, trajectory, plot, gt_file, unseen, note=NO_GT_NOTE)
         log.info("sequence %s: %s", name, NO_GT_NOTE)
     else:
         est, scores = metrics.evaluate_relative(relative, gt, align, delta, pooled)
-        entry.update(_kitti_with_note(scores))
+        typed = _scores(scores)
+        entry = SequenceResult(len(relative) + 1, trajectory, plot, gt_file, unseen, typed)
         log.info("sequence %s: APE trans RMSE %.4g m, RPE trans RMSE %.4g m", name,
-                 entry["ape"]["trans"]["rmse"], entry["rpe"]["trans"]["rmse"])  # fmt: skip
-    write_poses(out_dir / entry["trajectory"], est)
-    label = f"estimate ({loss['class']}, k={loss['k']:g})" if loss["k"] is not None else "estimate"
-    plot_birdseye(out_dir / entry["plot"], gt, {label: est.numpy()}, f"sequence {name}")
+                 typed.ape.trans.rmse, typed.rpe.trans.rmse)  # fmt: skip
+    write_poses(out_dir / trajectory, est)
+    label = f"estimate ({loss.name}, k={loss.k:g})" if loss.k is not None else "estimate"
+    plot_birdseye(out_dir / plot, gt, {label: est.numpy()}, f"sequence {name}")
     return entry
