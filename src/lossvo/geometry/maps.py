@@ -4,7 +4,8 @@
 Every function takes tensors with any leading (batch) dimensions, works in float32 and float64 on
 any device, and is safe under autograd: gradients are finite at the identity and near 180 degrees.
 
-Conventions (see DESIGN.md):
+Conventions (lossvo's throughout; poses and camera axes are the KITTI odometry benchmark's, Geiger et al.,
+CVPR 2012; the SE(3) exponential and its V matrix follow Barfoot, *State Estimation for Robotics*, 2017):
 
 - A pose is a 4x4 camera-to-world matrix ``T_w_c``; camera axes x right, y down, z forward.
 - se(3) vectors are ``xi = (rho, omega)``: ``Exp(xi) = [[exp(omega^), V(omega) rho], [0, 1]]``.
