@@ -1,9 +1,10 @@
-"""Non-learned baselines for the sweep report, evaluated exactly as the networks are.
+"""Non-learned baselines, evaluated exactly as the networks are (the sweep report puts them beside every
+network).
 
 Four estimators of the relative poses ``T_k = inv(T_w_k) @ T_w_{k+1}`` (frame k+1 seen from frame k) of a
 sequence, each integrated from the first ground-truth pose and scored by
 :func:`lossvo.evaluation.metrics.evaluate_relative` (the networks' path, with the same APE alignment and
-RPE delta as the jobs' ``results.json``), so that their numbers sit in the same table as the networks':
+RPE delta as the runs' ``results.json``), so that their numbers sit in the same table as the networks':
 
 - ``zero motion``: identity relative poses (the camera never moves);
 - ``mean motion (train)``: the training sequences' mean relative pose at every step (mean translation,
@@ -21,12 +22,14 @@ RPE delta as the jobs' ``results.json``), so that their numbers sit in the same 
   the sequence's ground truth) at every step: an oracle that knows the sequence's average motion, which
   a network that learned only an average motion cannot beat.
 
-The sequences are read from the dataset that the jobs' results.json records (``data.root``, in the
-KITTI layout, :func:`lossvo.data.kitti.load_sequence`), the training split's mean motion from the
-training data it records (``data.train_root``, ``data.train``): no datamodule is built and nothing is
-rendered. Results are cached per sequence in ``<cache_dir>/<key>.npz`` so that re-running a report costs
-nothing; the key covers everything the numbers depend on (the recorded roots and training split, the
-training mean motion, the sequence's files, alignment, delta, the ORB settings and :data:`VERSION`).
+The sequences are read from the dataset that a run's results.json records
+(:class:`lossvo.evaluation.results.DataRecord`: ``root``, in the KITTI layout, read with
+:func:`lossvo.data.kitti.load_sequence`: the frames' PNGs, calib.txt and the pose files), the training
+split's mean motion from the pose files of the training data it records (``train_root``, ``train``): no
+datamodule is built and nothing is rendered. Results are cached per sequence in
+``<cache_dir>/<key>.npz`` so that re-running a report costs nothing; the key covers everything the
+numbers depend on (the recorded roots and training split, the training mean motion, the sequence's
+files, alignment, delta, the ORB settings and :data:`VERSION`).
 """
 
 from __future__ import annotations
@@ -48,7 +51,7 @@ from lossvo.atomic import atomic_path
 from lossvo.data.kitti import Sequence as KittiSequence
 from lossvo.data.kitti import find_root, load_sequence
 from lossvo.evaluation import metrics
-from lossvo.report.jobs import EvaluatedData
+from lossvo.evaluation.results import DataRecord, Scores
 
 log = logging.getLogger("lossvo")
 T = TypeVar("T")
@@ -78,12 +81,12 @@ ORB_FEATURES = 500
 
 @dataclass
 class BaselineResult:
-    """One baseline on one sequence: trajectory (N, 4, 4) float64, metrics as in results.json, the
-    number of frame pairs for which the estimator failed and fell back (ORB only; 0 otherwise), and
+    """One baseline on one sequence: trajectory (N, 4, 4) float64, scores as a network's in results.json,
+    the number of frame pairs for which the estimator failed and fell back (ORB only; 0 otherwise), and
     whether it came from the cache."""
 
     trajectory: np.ndarray
-    metrics: dict[str, Any]
+    scores: Scores
     failures: int = 0
     cached: bool = False
 
@@ -278,7 +281,7 @@ def sequence_baselines(
     Args:
         sequence: a KITTI-layout sequence with poses (images, poses (N, 4, 4), calib).
         train_mean: (4, 4) mean relative pose of the training split (:func:`mean_motion`).
-        align, delta: as the jobs' results.json.
+        align, delta: as the runs' results.json.
     Returns:
         {baseline name: BaselineResult}, in the order of :data:`NAMES`.
     """
@@ -295,7 +298,8 @@ def sequence_baselines(
     out = {}
     for name, relative in relatives.items():
         trajectory, scores = metrics.evaluate_relative(relative, gt, align, delta)
-        out[name] = BaselineResult(trajectory.numpy(), scores, int(failed.sum()) if name == ORB else 0)
+        failures = int(failed.sum()) if name == ORB else 0
+        out[name] = BaselineResult(trajectory.numpy(), Scores.from_json(scores), failures)
     return out
 
 
@@ -304,14 +308,15 @@ def sequence_baselines(
 # --------------------------------------------------------------------------------------------------
 
 
-def training_mean_motion(data: EvaluatedData) -> np.ndarray:
+def training_mean_motion(data: DataRecord) -> np.ndarray:
     """(4, 4) mean relative pose (:func:`mean_motion`) of the training split recorded in ``data``, read
     from the pose files under ``data.train_root``.
 
     Raises:
-        ValueError: no training sequence recorded; KittiFormatError for a sequence that is not there.
+        ValueError: no training data or sequence recorded; KittiFormatError for a sequence that is not
+            there.
     """
-    if not data.train:
+    if not data.train or data.train_root is None:
         raise ValueError("the recorded training split (data.train) is empty: no training mean motion")
     root = find_root(data.train_root)
     return mean_motion([load_sequence(root, name).targets for name in data.train])
@@ -321,8 +326,8 @@ def cache_key(
     identity: Mapping[str, Any], sequence: KittiSequence, train_mean: np.ndarray, align: str, delta: int
 ) -> str:
     """A file-name-safe key of one sequence's baselines: the data's identity
-    (:meth:`lossvo.report.jobs.EvaluatedData.identity`), the (4, 4) training mean motion, the sequence's
-    files and the settings."""
+    (:meth:`lossvo.evaluation.results.DataRecord.identity`), the (4, 4) training mean motion, the
+    sequence's files and the settings."""
     stats = [p.stat() for p in sequence.images]
     files = {
         "frames": len(stats),
@@ -347,7 +352,7 @@ def cache_key(
 
 def save_cached(path: Path, results: Mapping[str, BaselineResult]) -> None:
     """Write one sequence's baselines to ``path`` (.npz) atomically (temp file + rename)."""
-    meta = {name: {"metrics": r.metrics, "failures": r.failures} for name, r in results.items()}
+    meta = {name: {"metrics": r.scores.to_json(), "failures": r.failures} for name, r in results.items()}
     # Any: mypy would match the unpacked arrays against savez's allow_pickle: bool as well.
     arrays: dict[str, Any] = {f"trajectory_{i}": r.trajectory for i, r in enumerate(results.values())}
     with atomic_path(path, suffix=".npz") as tmp:
@@ -356,7 +361,7 @@ def save_cached(path: Path, results: Mapping[str, BaselineResult]) -> None:
 
 def load_cached(path: Path) -> dict[str, BaselineResult] | None:
     """One sequence's baselines from ``path``, or None if it is missing, unreadable or lacks one of
-    :data:`NAMES` (a file written before that baseline existed)."""
+    :data:`NAMES`."""
     try:
         with np.load(path) as data:
             meta = json.loads(str(data["meta"]))
@@ -365,7 +370,7 @@ def load_cached(path: Path) -> dict[str, BaselineResult] | None:
             return {
                 name: BaselineResult(
                     np.asarray(data[f"trajectory_{i}"]),
-                    meta["results"][name]["metrics"],
+                    Scores.from_json(meta["results"][name]["metrics"]),
                     int(meta["results"][name]["failures"]),
                     cached=True,
                 )
@@ -391,7 +396,7 @@ def _torch_single_threaded(fn: Callable[..., T]) -> Callable[..., T]:
 
 
 def compute_baselines(
-    data: EvaluatedData,
+    data: DataRecord,
     sequences: Sequence[str],
     cache_dir: Path,
     align: metrics.AlignMode = "none",
@@ -401,11 +406,11 @@ def compute_baselines(
     """The baselines of the given sequences of the recorded data, from the cache where possible.
 
     Args:
-        data: a job's record of its evaluated dataset and training data (its results.json's ``data``).
-        sequences: names of sequences with ground truth under ``data.root`` (e.g. those of the jobs'
+        data: a run's record of its evaluated dataset and training data (its results.json's ``data``).
+        sequences: names of sequences with ground truth under ``data.root`` (e.g. those of the runs'
             results.json).
         cache_dir: folder of the cached ``.npz`` results.
-        align, delta: as the jobs' results.json.
+        align, delta: as the runs' results.json.
         n_jobs: sequences computed in parallel (threads: OpenCV releases the GIL).
     Returns:
         {sequence: {baseline name: BaselineResult}}, in the order of ``sequences``.

@@ -3,8 +3,9 @@
 sequences (:func:`learning_markdown`), below zero motion in rotation and below the sequence's own mean
 motion in translation on the unseen-motion sequences (:func:`unseen_markdown`).
 
-The baselines' data is what the first included job's results.json records (:mod:`lossvo.report.jobs`);
-where it is missing or no longer on disk, the report has no baseline columns and one note says why.
+The baselines' data is what the first included job's results.json records (its
+:class:`lossvo.evaluation.results.DataRecord`); where it is no longer on disk, the report has no baseline
+columns and one note says why.
 """
 
 from __future__ import annotations
@@ -18,21 +19,22 @@ from typing import cast
 
 import numpy as np
 
+from lossvo.console import first_line
+from lossvo.evaluation import baselines
 from lossvo.evaluation.metrics import AlignMode
-from lossvo.report import baselines
+from lossvo.evaluation.results import DataRecord, Scores
+from lossvo.report import render
 from lossvo.report.jobs import (
     RPE_ROT,
     RPE_TRANS,
-    EvaluatedData,
     Job,
     check_on_disk,
     config_sequences,
-    evaluated_data,
     finite_number,
-    first_line,
-    lookup,
+    metric_value,
 )
-from lossvo.report.tables import BASELINE, Column, fmt, md
+from lossvo.report.render import Rows
+from lossvo.report.tables import BASELINE, Column, fmt
 
 UNSEEN_KEY = "data.unseen"
 UNSEEN_ROTATION_BAR = 0.30
@@ -58,8 +60,8 @@ class BaselineRun:
 def evaluation_settings(jobs: Sequence[Job]) -> tuple[str, int, list[str]]:
     """(align, delta) of the included jobs' results.json (the first job's) and notes if they differ."""
     results = [j.included_results for j in jobs]
-    settings = {(str(r.get("align", "none")), int(r.get("delta", 1))) for r in results}
-    first = (str(results[0].get("align", "none")), int(results[0].get("delta", 1)))
+    settings = {(r.align, r.delta) for r in results}
+    first = (results[0].align, results[0].delta)
     notes = (
         []
         if len(settings) == 1
@@ -68,20 +70,16 @@ def evaluation_settings(jobs: Sequence[Job]) -> tuple[str, int, list[str]]:
     return first[0], first[1], notes
 
 
-def baseline_data(jobs: Sequence[Job]) -> tuple[EvaluatedData, list[str]]:
-    """The data record of the first job (which the baselines use) and a note if the jobs' records differ.
+def baseline_data(jobs: Sequence[Job]) -> tuple[DataRecord, list[str]]:
+    """The data record of the first included job (which the baselines use) and a note if the jobs'
+    records differ.
 
     Raises:
-        ValueError: the first job's results.json records no data, or its data is no longer on disk.
+        ValueError: the first job's data is no longer on disk.
     """
-    data = evaluated_data(jobs[0])
+    data = jobs[0].included_results.data
     check_on_disk(data, jobs[0])
-    identities = set()
-    for job in jobs:
-        try:
-            identities.add(json.dumps(evaluated_data(job).identity(), sort_keys=True))
-        except ValueError:
-            identities.add(job.path.name)
+    identities = {json.dumps(job.included_results.data.identity(), sort_keys=True) for job in jobs}
     notes = (
         [] if len(identities) == 1 else [f"jobs differ in their data: baselines use {jobs[0].path.name}'s"]
     )
@@ -113,7 +111,7 @@ def _fill(
 ) -> None:
     """A run's columns, trajectories, failure and frame counts from :func:`baselines.compute_baselines`."""
     for name in baselines.NAMES:
-        per_sequence = {s: results[s][name].metrics for s in sequences}
+        per_sequence = {s: results[s][name].scores for s in sequences}
         run.columns.append(Column(name, BASELINE, ["deterministic"], [per_sequence]))
     for s in sequences:
         run.trajectories[s] = {name: results[s][name].trajectory for name in baselines.NAMES}
@@ -124,7 +122,7 @@ def _fill(
 
 BASELINES_TEXT = [
     "Computed on the same sequences, integrated from the first ground-truth pose and scored with the "
-    "same alignment and RPE delta as the jobs' results.json (`lossvo.report.baselines`), on the dataset "
+    "same alignment and RPE delta as the jobs' results.json (`lossvo.evaluation.baselines`), on the dataset "
     "and training split that results.json records:",
     "",
     "- **zero motion**: identity relative poses (the camera stands still);",
@@ -184,24 +182,22 @@ def learning_markdown(networks: Sequence[Column], base: BaselineRun) -> str:
     if mean_motion is None or not sequences:
         return "No mean-motion baseline or no validation sequence: nothing to compare."
     header = ["configuration", "seed"] + [f"{s} {name}" for s in sequences for name, _ in LEARNING_METRICS]
-    rows = []
+    rows: list[list[object]] = []
     for column in networks:
         for job, results in zip(column.jobs, column.results, strict=True):
             cells = []
             for s in sequences:
                 for _, path in LEARNING_METRICS:
-                    r = reduction(lookup(results.get(s), path), lookup(mean_motion.results[0].get(s), path))
+                    r = reduction(
+                        metric_value(results.get(s), path), metric_value(mean_motion.results[0].get(s), path)
+                    )
                     cells.append("–" if r is None else f"{100 * r:.0f} %")
-            rows.append([md(column.label), str(job.seed), *cells])
-    lines = [
+            rows.append([column.label, str(job.seed), *cells])
+    text = (
         "How far each job's RPE RMSE lies below the mean-motion baseline's on the validation sequences "
-        "(1 − network / baseline; negative: worse than predicting the training set's mean motion).",
-        "",
-        "| " + " | ".join(header) + " |",
-        "|" + "---|" * len(header),
-        *("| " + " | ".join(row) + " |" for row in rows),
-    ]
-    return "\n".join(lines)
+        "(1 − network / baseline; negative: worse than predicting the training set's mean motion)."
+    )
+    return "\n".join([text, "", render.markdown(Rows(header, rows))])
 
 
 @dataclass(frozen=True)
@@ -223,12 +219,15 @@ class UnseenCheck:
         return rot_ok and self.trans_reduction is not None and self.trans_reduction > 0
 
 
-def unseen_check(entry: object, zero: object, own: object) -> UnseenCheck:
-    """The :class:`UnseenCheck` of a job's results entry of one sequence against the zero-motion and
-    own-mean-motion baselines' entries of that sequence (each as in results.json, or None)."""
-    rot, trans = finite_number(lookup(entry, RPE_ROT)), finite_number(lookup(entry, RPE_TRANS))
+def unseen_check(entry: Scores | None, zero: Scores | None, own: Scores | None) -> UnseenCheck:
+    """The :class:`UnseenCheck` of a job's scores on one sequence against the zero-motion and
+    own-mean-motion baselines' scores on that sequence (None where missing)."""
+    rot, trans = finite_number(metric_value(entry, RPE_ROT)), finite_number(metric_value(entry, RPE_TRANS))
     return UnseenCheck(
-        rot, reduction(rot, lookup(zero, RPE_ROT)), trans, reduction(trans, lookup(own, RPE_TRANS))
+        rot,
+        reduction(rot, metric_value(zero, RPE_ROT)),
+        trans,
+        reduction(trans, metric_value(own, RPE_TRANS)),
     )
 
 
@@ -262,26 +261,18 @@ def unseen_markdown(networks: Sequence[Column], base: BaselineRun, unseen: Seque
     zero, own = _baseline(base, baselines.ZERO), _baseline(base, baselines.OWN)
     if zero is None or own is None:
         return "No zero-motion or own-mean-motion baseline: nothing to compare."
-    rows, passed, total = [], 0, 0
+    rows: list[list[object]] = []
+    passed, total = 0, 0
     for column in networks:
         for job, results in zip(column.jobs, column.results, strict=True):
             checks = [
                 unseen_check(results.get(s), zero.results[0].get(s), own.results[0].get(s)) for s in unseen
             ]
             rows += [
-                [md(column.label), md(job.seed), s, *_check_cells(c)]
-                for s, c in zip(unseen, checks, strict=True)
+                [column.label, job.seed, s, *_check_cells(c)] for s, c in zip(unseen, checks, strict=True)
             ]
             passed += all(c.met for c in checks)
             total += 1
-    header = ["configuration", "seed", "sequence", *UNSEEN_HEADER]
-    lines = [
-        UNSEEN_TEXT,
-        "",
-        "| " + " | ".join(header) + " |",
-        "|" + "---|" * len(header),
-        *("| " + " | ".join(row) + " |" for row in rows),
-        "",
-        f"{passed} of {total} jobs meet both on every unseen sequence.",
-    ]
-    return "\n".join(lines)
+    table = Rows(["configuration", "seed", "sequence", *UNSEEN_HEADER], rows)
+    summary = f"{passed} of {total} jobs meet both on every unseen sequence."
+    return "\n".join([UNSEEN_TEXT, "", render.markdown(table), "", summary])

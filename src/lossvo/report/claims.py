@@ -1,25 +1,24 @@
 """The study's claims, tested on the numbers: (a) "the chordal loss gives the lowest errors" (on the
 sequences outside the training split) and (b) "it converges fastest", each for every chordal
 configuration against every other, with paired tests and a verdict by the rule of
-:mod:`lossvo.report.statistics` (the last section of report.md and ``tables/claims.csv``)."""
+:mod:`lossvo.report.statistics` (the last section of report.md and the rows of ``tables/claims.csv``)."""
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from lossvo.report import statistics
+from lossvo.report import render, statistics
 from lossvo.report.comparison import paired_values
 from lossvo.report.configurations import SCORE, loss_class_name
 from lossvo.report.convergence import Convergence, epoch_text
 from lossvo.report.jobs import APE_TRANS, RPE_ROT, RPE_TRANS, trained_sequences
+from lossvo.report.render import Rows
 from lossvo.report.statistics import PairedTest
-from lossvo.report.tables import NETWORK, Cell, Column, fmt, md, mean_std_text, samples
+from lossvo.report.tables import NETWORK, Cell, Column, fmt, mean_std_text, samples
 
 CLAIMED_LOSS = "ChordalLoss"
 CLAIM_ERRORS = (
@@ -171,7 +170,7 @@ def study_claims(
 
 
 # --------------------------------------------------------------------------------------------------
-# Text: markdown and CSV
+# Text and rows
 # --------------------------------------------------------------------------------------------------
 
 CLAIMS_RULE = (
@@ -187,33 +186,29 @@ CLAIMS_RULE = (
 )
 
 
-def _measured_markdown(claim: Claim) -> list[str]:
+def _measured_rows(claim: Claim) -> Rows:
     quantities = list(next(iter(claim.measured.values())))
     fmt_cell = epoch_text if quantities == [EPOCHS] else mean_std_text
-    lines = ["| configuration | " + " | ".join(quantities) + " |", "|" + "---|" * (len(quantities) + 1)]
-    for label, cells in claim.measured.items():
-        lines.append(f"| {md(label)} | " + " | ".join(fmt_cell(cells[q]) for q in quantities) + " |")
-    return lines
+    rows: list[list[object]] = [
+        [label, *(fmt_cell(cells[q]) for q in quantities)] for label, cells in claim.measured.items()
+    ]
+    return Rows(["configuration", *quantities], rows)
 
 
 def _epochs_number(x: float) -> str:
     return f"{x:.2f}" if math.isfinite(x) else "n/a"
 
 
-def _tests_markdown(claim: Claim) -> list[str]:
-    lines = [
-        f"| quantity | {md(claim.configuration)} vs | pairs n | mean {md(claim.configuration)} | mean other "
-        "| p (Wilcoxon) | smallest p at this n | verdict on the quantity |",
-        "|" + "---|" * 8,
-    ]
+def _tests_rows(claim: Claim) -> Rows:
+    header = ["quantity", f"{claim.configuration} vs", "pairs n", f"mean {claim.configuration}", "mean other",
+              "p (Wilcoxon)", "smallest p at this n", "verdict on the quantity"]  # fmt: skip
+    rows: list[list[object]] = []
     for q in claim.quantities:
         number = _epochs_number if q.quantity == EPOCHS else fmt
         for t in q.tests:
-            lines.append(
-                f"| {q.quantity} | {md(t.versus)} | {t.n} | {number(t.mean)} | {number(t.versus_mean)} | "
-                f"{fmt(t.p_value, 3)} | {fmt(statistics.smallest_p(t.n), 3)} | {q.verdict} |"
-            )
-    return lines
+            rows.append([q.quantity, t.versus, t.n, number(t.mean), number(t.versus_mean), fmt(t.p_value, 3),
+                         fmt(statistics.smallest_p(t.n), 3), q.verdict])  # fmt: skip
+    return Rows(header, rows)
 
 
 def claim_markdown(claim: Claim, letter: str) -> str:
@@ -224,7 +219,13 @@ def claim_markdown(claim: Claim, letter: str) -> str:
         return f"{head}\n\nCannot be tested: {claim.untested}."
     what = "each seed's mean over those sequences" if claim.statement == CLAIM_A else "epochs"
     lines = [head, "", claim.scope, "", f"Measured ({what}; mean ± sample std over seeds):", ""]
-    lines += [*_measured_markdown(claim), "", "Paired tests:", "", *_tests_markdown(claim)]
+    lines += [
+        render.markdown(_measured_rows(claim)),
+        "",
+        "Paired tests:",
+        "",
+        render.markdown(_tests_rows(claim)),
+    ]
     lines += [f"\n*Note:* {n}" for n in claim.notes]
     lines += ["", f"**Verdict: {claim.verdict}.**"]
     return "\n".join(lines)
@@ -235,7 +236,7 @@ def claims_markdown(items: Sequence[Claim]) -> str:
     return "\n\n".join([CLAIMS_RULE, *(claim_markdown(c, letters[c.statement]) for c in items)])
 
 
-CLAIMS_HEADER = (
+CLAIMS_HEADER = [
     "claim",
     "configuration",
     "versus",
@@ -247,28 +248,32 @@ CLAIMS_HEADER = (
     "smallest_p",
     "verdict",
     "note",
-)
+]
 
 
-def _test_numbers(t: PairedTest) -> list[int | str]:
+def _test_numbers(t: PairedTest) -> list[object]:
     """A paired test's ``n, mean, versus_mean, p_value, smallest_p`` cells, full precision."""
     return [t.n, repr(t.mean), repr(t.versus_mean), repr(t.p_value), repr(statistics.smallest_p(t.n))]
 
 
-def claims_csv(items: Sequence[Claim]) -> str:
-    """One row per paired test (``verdict``: that quantity's), then one ``all`` row per claim with its
-    verdict; an untested claim is one row with verdict ``cannot be tested`` and the reason in ``note``."""
-    out = io.StringIO()
-    writer = csv.writer(out, lineterminator="\n")
-    writer.writerow(CLAIMS_HEADER)
+def claims_csv_rows(items: Sequence[Claim]) -> Rows:
+    """``tables/claims.csv``: one row per paired test (``verdict``: that quantity's), then one ``all`` row
+    per claim with its verdict; an untested claim is one row with verdict ``cannot be tested`` and the
+    reason in ``note``."""
+    rows: list[list[object]] = []
     for c in items:
         if c.untested:
-            writer.writerow([c.statement, c.configuration, *[""] * 7, "cannot be tested", c.untested])
+            rows.append([c.statement, c.configuration, *[""] * 7, "cannot be tested", c.untested])
             continue
         for q in c.quantities:
             for t in q.tests:
-                writer.writerow(
+                rows.append(
                     [c.statement, c.configuration, t.versus, q.quantity, *_test_numbers(t), q.verdict, ""]
                 )
-        writer.writerow([c.statement, c.configuration, "all", "all", *[""] * 5, c.verdict, " ".join(c.notes)])
-    return out.getvalue()
+        rows.append([c.statement, c.configuration, "all", "all", *[""] * 5, c.verdict, " ".join(c.notes)])
+    return Rows(CLAIMS_HEADER, rows)
+
+
+def claims_csv(items: Sequence[Claim]) -> str:
+    """:func:`claims_csv_rows` as CSV text."""
+    return render.csv_text(claims_csv_rows(items))

@@ -3,33 +3,25 @@ replicates), each configuration's rotation weighting (k · gain) and the metric 
 checkpoint, and the configurations table of report.md and ``tables/configurations.csv``.
 
 Everything is read from the jobs' ``.hydra/config.yaml`` (and metrics.csv for learned weighting); the loss
-classes are looked up by their ``_target_`` only for their ``small_angle_gain`` and ``paper_k``.
+classes are looked up by their ``_target_`` only for their ``small_angle_gain`` and, through
+:func:`lossvo.weighting.preset_k`, a preset's k.
 """
 
 from __future__ import annotations
 
-import csv
-import io
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from lossvo.report.jobs import (
-    REPLICATE_KEY,
-    Curves,
-    Job,
-    config_value,
-    finite_number,
-    job_number,
-    sequence_metrics,
-)
-from lossvo.report.tables import NETWORK, Cell, Column, md, mean_std_text
+from lossvo import weighting
+from lossvo.report.jobs import REPLICATE_KEY, Curves, Job, config_value, finite_number, job_number
+from lossvo.report.render import Rows
+from lossvo.report.tables import NETWORK, Cell, Column, mean_std_text
 
 SCORE = "val/score"
-"""The loss-independent validation score (:mod:`lossvo.selection`)."""
-DEFAULT_MONITOR = "val/loss"
+"""The loss-independent validation score (:mod:`lossvo.training.selection`)."""
 LOSS_DEPENDENT = ("val/loss", "val/rot_loss")
 """Monitors whose value depends on the loss and its weights: the same key names a different metric in
 configurations that differ in loss or weighting."""
@@ -71,7 +63,7 @@ def network_columns(jobs: Sequence[Job]) -> list[Column]:
     for column in columns.values():
         column.jobs.sort(key=lambda j: (_seed_order(j.seed), job_number(j.path)))
         column.replicates = [f"{REPLICATE_KEY}={j.seed}" for j in column.jobs]
-        column.results = [sequence_metrics(j.included_results) for j in column.jobs]
+        column.results = [j.included_results.scored() for j in column.jobs]
     return list(columns.values())
 
 
@@ -109,16 +101,16 @@ def loss_attribute(target: str | None, name: str) -> float | None:
         return None
     try:
         return finite_number(getattr(get_class(target), name, None))
-    except Exception:  # an old or renamed class: the report goes on without the attribute
+    except Exception:  # a class that cannot be imported here: the report goes on without the attribute
         return None
 
 
 @dataclass(frozen=True)
 class Weighting:
-    """A job's rotation weighting: the loss class, ``weighting.preset`` (None for old jobs), the k used,
-    the loss's small-angle gain (rotation term ~ gain·theta², theta in rad) and the effective small-angle
-    rotation weight relative to the translation term (k·gain, or gain·exp(s_t − s_r) at the last epoch
-    under learned weighting); None where unknown."""
+    """A job's rotation weighting: the loss class, ``weighting.preset`` (None if not in the config), the
+    k used, the loss's small-angle gain (rotation term ~ gain·theta², theta in rad) and the effective
+    small-angle rotation weight relative to the translation term (k·gain, or gain·exp(s_t − s_r) at the
+    last epoch under learned weighting); None where unknown."""
 
     loss: str | None
     preset: str | None
@@ -160,20 +152,21 @@ def job_weighting(job: Job) -> Weighting:
         ratio = learned_ratio(job.curves)
         weight = gain * ratio if gain is not None and ratio is not None else None
         return Weighting(name, preset, 1.0, gain, weight, squared)
-    k = _preset_k(job, target, preset, gain)
+    k = _preset_k(job, target, preset)
     weight = k * gain if k is not None and gain is not None and squared else None
     return Weighting(name, preset, k, gain, weight, squared)
 
 
-def _preset_k(job: Job, target: str | None, preset: str | None, gain: float | None) -> float | None:
-    """``loss.k`` if it is a number, else the preset's k (matched: c / gain; paper: the class's)."""
+def _preset_k(job: Job, target: str | None, preset: str | None) -> float | None:
+    """``loss.k`` if it is a number, else the preset's k (:func:`lossvo.weighting.preset_k`: matched
+    c / gain, paper the class's); None where neither can be had."""
     k = finite_number(config_value(job.config, "loss.k"))
-    if k is None and preset == "matched":
-        c = finite_number(config_value(job.config, "weighting.c"))
-        return c / gain if c is not None and gain else None
-    if k is None and preset == "paper":
-        return loss_attribute(target, "paper_k")
-    return k
+    if k is not None or preset not in ("matched", "paper") or target is None:
+        return k
+    try:
+        return weighting.preset_k(target, preset, config_value(job.config, "weighting.c"))
+    except Exception:  # no weighting.c, or a class that cannot be imported here: k unknown
+        return None
 
 
 def short(x: float | None) -> str:
@@ -203,29 +196,29 @@ def weight_text(weightings: Sequence[Weighting]) -> str:
 
 @dataclass(frozen=True)
 class Selection:
-    """How a job chose its best checkpoint: the monitored metrics.csv column and ``min`` / ``max``, and
-    the config key it was read from (``selection.monitor``, ``callbacks.model_checkpoint.monitor`` or
-    ``default`` for an old job without either)."""
+    """How a job chose its best checkpoint: the monitored metrics.csv column (``selection.monitor``) and
+    ``min`` / ``max`` (``selection.mode``)."""
 
     monitor: str
     mode: str
-    source: str
 
 
 def job_selection(config: Any) -> Selection:
-    """The selection metric of a job config: ``selection.monitor``, else the checkpoint callback's
-    monitor, else ``val/loss``; the mode likewise (``min`` by default)."""
-    for prefix in ("selection", "callbacks.model_checkpoint"):
-        monitor = config_value(config, f"{prefix}.monitor")
-        if monitor is not None:
-            return Selection(str(monitor), str(config_value(config, f"{prefix}.mode", "min")), prefix)
-    return Selection(DEFAULT_MONITOR, "min", "default")
+    """The selection metric of a job config.
+
+    Raises:
+        ValueError: the config has no ``selection.monitor`` or ``selection.mode`` (:func:`load_job`
+            skips such a job).
+    """
+    monitor, mode = (config_value(config, f"selection.{key}") for key in ("monitor", "mode"))
+    if monitor is None or mode is None:
+        raise ValueError("the job's config has no selection.monitor and selection.mode")
+    return Selection(str(monitor), str(mode))
 
 
 def selection_text(selection: Selection) -> str:
-    """``"`val/score` (min)"``, marked when the value was assumed for an old job."""
-    text = f"`{selection.monitor}` ({selection.mode})"
-    return text + ", assumed: not in the config" if selection.source == "default" else text
+    """``"`val/score` (min)"``."""
+    return f"`{selection.monitor}` ({selection.mode})"
 
 
 def selection_identity(job: Job) -> tuple[Any, ...]:
@@ -296,21 +289,15 @@ def configuration_row(column: Column) -> list[str]:
     ]
 
 
-def configurations_markdown(columns: Sequence[Column]) -> str:
+def configuration_rows(columns: Sequence[Column]) -> Rows:
     """Per configuration: loss class, weighting preset, k, gain, k·gain and the selection metric."""
-    lines = ["| " + " | ".join(h for h, _ in CONFIGURATION_FIELDS) + " |", "|" + "---|" * 8]
-    for c in columns:
-        if c.kind == NETWORK:
-            lines.append("| " + " | ".join(md(v) for v in configuration_row(c)) + " |")
-    return "\n".join(lines)
+    rows = [configuration_row(c) for c in columns if c.kind == NETWORK]
+    return Rows([h for h, _ in CONFIGURATION_FIELDS], rows)
 
 
-def configurations_csv(columns: Sequence[Column]) -> str:
+def configuration_csv_rows(columns: Sequence[Column]) -> Rows:
     """:data:`CONFIGURATION_FIELDS` per configuration, as in report.md (backticks dropped)."""
-    out = io.StringIO()
-    writer = csv.writer(out, lineterminator="\n")
-    writer.writerow([name for _, name in CONFIGURATION_FIELDS])
-    for c in columns:
-        if c.kind == NETWORK:
-            writer.writerow([v.replace("`", "") for v in configuration_row(c)])
-    return out.getvalue()
+    rows: list[list[object]] = [
+        [v.replace("`", "") for v in configuration_row(c)] for c in columns if c.kind == NETWORK
+    ]
+    return Rows([name for _, name in CONFIGURATION_FIELDS], rows)

@@ -1,19 +1,18 @@
 """Convergence of each configuration: per seed, the first epoch within 10 % of the best validation score
-(``tables/convergence.csv`` and the *Convergence* section of report.md)."""
+(rows of ``tables/convergence.csv`` and of the *Convergence* section of report.md)."""
 
 from __future__ import annotations
 
-import csv
-import io
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from lossvo.report import statistics
+from lossvo.report import render, statistics
 from lossvo.report.configurations import SCORE, job_selection
 from lossvo.report.jobs import Job
-from lossvo.report.tables import NETWORK, Cell, Column, md
+from lossvo.report.render import Rows
+from lossvo.report.tables import NETWORK, Cell, Column
 
 
 def convergence_metric(job: Job) -> tuple[str, str]:
@@ -95,33 +94,38 @@ def convergence_markdown(items: Sequence[Convergence]) -> str:
             f"*Note:* `{SCORE}` is not in every metrics.csv: those jobs are measured on their selection "
             f"monitor ({', '.join(f'`{m}`' for m in fallback)}), which is not on one scale across losses.",
         ]
-    lines += [
-        "",
-        "| configuration | metric | seeds with a curve | epoch (mean ± std) | per seed | epochs logged |",
-        "|" + "---|" * 6,
+    return "\n".join([*lines, "", render.markdown(convergence_rows(items))])
+
+
+def convergence_rows(items: Sequence[Convergence]) -> Rows:
+    """Per configuration: the metric, seeds with a curve, the epoch (mean ± std), per seed, epochs logged."""
+    header = [
+        "configuration",
+        "metric",
+        "seeds with a curve",
+        "epoch (mean ± std)",
+        "per seed",
+        "epochs logged",
     ]
+    rows: list[list[object]] = []
     for c in items:
         pairs = zip(c.replicates, c.epochs, strict=True)
         per_seed = ", ".join(f"{r}: {e if e is not None else 'n/a'}" for r, e in pairs)
         cell = c.cell()
-        lines.append(
-            f"| {md(c.label)} | {md(', '.join(sorted(set(c.metrics))))} | {cell.n} | {epoch_text(cell)} | "
-            f"{md(per_seed)} | {md(', '.join(map(str, sorted(set(c.logged)))))} |"
-        )
-    return "\n".join(lines)
+        rows.append([c.label, ", ".join(sorted(set(c.metrics))), cell.n, epoch_text(cell), per_seed,
+                     ", ".join(map(str, sorted(set(c.logged))))])  # fmt: skip
+    return Rows(header, rows)
 
 
-def convergence_csv(items: Sequence[Convergence]) -> str:
+def convergence_csv_rows(items: Sequence[Convergence]) -> Rows:
     """One row per configuration and seed: ``configuration, seed, metric, epoch`` (1-based, empty if
     none), ``epochs_logged``; then per configuration a row with seed ``mean`` (mean epoch) and one with
     seed ``std`` (sample std)."""
-    out = io.StringIO()
-    writer = csv.writer(out, lineterminator="\n")
-    writer.writerow(["configuration", "seed", "metric", "epoch", "epochs_logged"])
+    rows: list[list[object]] = []
     for c in items:
         for r, m, e, n in zip(c.replicates, c.metrics, c.epochs, c.logged, strict=True):
-            writer.writerow([c.label, r, m, "" if e is None else e, n])
+            rows.append([c.label, r, m, "" if e is None else e, n])
         cell, metric = c.cell(), ",".join(sorted(set(c.metrics)))
-        writer.writerow([c.label, "mean", metric, repr(cell.mean) if cell.n else "", ""])
-        writer.writerow([c.label, "std", metric, repr(cell.std) if cell.n > 1 else "", ""])
-    return out.getvalue()
+        rows.append([c.label, "mean", metric, repr(cell.mean) if cell.n else "", ""])
+        rows.append([c.label, "std", metric, repr(cell.std) if cell.n > 1 else "", ""])
+    return Rows(["configuration", "seed", "metric", "epoch", "epochs_logged"], rows)

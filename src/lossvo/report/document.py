@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from lossvo.atomic import write_text_atomic
+from lossvo.report import render
 from lossvo.report.against_baselines import (
     UNSEEN_KEY,
     BaselineRun,
@@ -28,25 +29,26 @@ from lossvo.report.against_baselines import (
     run_baselines,
     unseen_markdown,
 )
-from lossvo.report.claims import Claim, claims_csv, claims_markdown, study_claims
-from lossvo.report.comparison import Comparison, compare, comparisons_csv, comparisons_markdown
+from lossvo.report.claims import Claim, claims_csv_rows, claims_markdown, study_claims
+from lossvo.report.comparison import Comparison, compare, comparison_csv_rows, comparison_rows
 from lossvo.report.configurations import (
-    configurations_csv,
-    configurations_markdown,
+    configuration_csv_rows,
+    configuration_rows,
     label_jobs,
     network_columns,
     selection_warning,
 )
-from lossvo.report.convergence import Convergence, convergence, convergence_csv, convergence_markdown
+from lossvo.report.convergence import Convergence, convergence, convergence_csv_rows, convergence_markdown
 from lossvo.report.figures import plot_ape_bars, plot_curves, plot_trajectories
 from lossvo.report.jobs import Job, ground_truth, job_dirs, load_job, unseen_sequences
+from lossvo.report.render import Rows
+from lossvo.report.statistics import ALPHA
 from lossvo.report.tables import (
     NETWORK,
     TABLES,
     Column,
     Table,
     build_table,
-    md,
     table_csv,
     table_latex,
     table_markdown,
@@ -108,15 +110,15 @@ class Figures:
 # --------------------------------------------------------------------------------------------------
 
 
-def jobs_markdown(jobs: Sequence[Job]) -> str:
-    lines = ["| job | configuration | seed | status | in tables | notes |", "|---|---|---|---|---|---|"]
-    for job in jobs:
-        used = "yes" if job.skip is None else f"no: {md(job.skip)}"  # job.included: skip is None
-        lines.append(
-            f"| `{job.path.name}` | {md(job.label or '?')} | {md(job.seed)} | {md(job.status)} | {used} | "
-            f"{md('; '.join(job.notes))} |"
-        )
-    return "\n".join(lines)
+def jobs_rows(jobs: Sequence[Job]) -> Rows:
+    """Every job: its folder, configuration, seed, status, whether it is in the tables (or why not: the
+    file it could not use and why) and notes."""
+    rows: list[list[object]] = [
+        [f"`{job.path.name}`", job.label or "?", job.seed, job.status,
+         "yes" if job.skip is None else f"no: {job.skip}", "; ".join(job.notes)]
+        for job in jobs
+    ]  # fmt: skip
+    return Rows(["job", "configuration", "seed", "status", "in tables", "notes"], rows)
 
 
 def seeds_text(columns: Sequence[Column]) -> str:
@@ -168,7 +170,8 @@ CONFIGURATIONS_TEXT = (
 def configurations_lines(study: Study) -> list[str]:
     if not study.networks:
         return []
-    return ["", "## Configurations", "", CONFIGURATIONS_TEXT, "", configurations_markdown(study.networks)]
+    table = render.markdown(configuration_rows(study.networks))
+    return ["", "## Configurations", "", CONFIGURATIONS_TEXT, "", table]
 
 
 def tables_lines(
@@ -204,7 +207,7 @@ def tables_lines(
 PAIRWISE_TEXT = (
     "Paired over (seed, sequence): the per-sequence RMSE of A and of B from the same seed on the "
     "same sequence. Two-sided Wilcoxon signed-rank test (`scipy.stats.wilcoxon`) on the differences "
-    "A − B; *distinguishable* means p < 0.05. Sequences within a seed share one trained network, so "
+    f"A − B; *distinguishable* means p < {ALPHA}. Sequences within a seed share one trained network, so "
     "the pairs are not fully independent: read p as indicative."
 )
 
@@ -217,7 +220,8 @@ def pairwise_lines(comparisons: Sequence[Comparison]) -> list[str]:
             "",
             "Fewer than two configurations with results: nothing to compare.",
         ]
-    return ["", "## Pairwise comparison", "", PAIRWISE_TEXT, "", comparisons_markdown(comparisons)]
+    table = render.markdown(comparison_rows(comparisons))
+    return ["", "## Pairwise comparison", "", PAIRWISE_TEXT, "", table]
 
 
 def baseline_lines(
@@ -271,7 +275,7 @@ def render_report(sweep: Path, out: Path, contents: Contents) -> str:
     if c.study.convergence:
         lines += ["", "## Convergence", "", convergence_markdown(c.study.convergence)]
     lines += baseline_lines(c.base, c.baselines_on, c.tables, c.study, bool(included))
-    lines += ["", "## Jobs", "", jobs_markdown(c.jobs), "", DAMAGED_CURVES_TEXT]
+    lines += ["", "## Jobs", "", render.markdown(jobs_rows(c.jobs)), "", DAMAGED_CURVES_TEXT]
     lines += files_lines(c.tables)
     lines += ["", "## Figures", "", figures_markdown(c.figures, out)]
     lines += ["", "## The study's claims", "", claims_markdown(c.study.claims)]
@@ -290,14 +294,14 @@ def write_tables(
     for table in tables:
         write_text_atomic(folder / f"{table.spec.key}.csv", table_csv(table))
         write_text_atomic(folder / f"{table.spec.key}.tex", table_latex(table))
-    texts = (
-        comparisons_csv(comparisons),
-        configurations_csv(study.networks),
-        convergence_csv(study.convergence),
-        claims_csv(study.claims),
+    rows = (
+        comparison_csv_rows(comparisons),
+        configuration_csv_rows(study.networks),
+        convergence_csv_rows(study.convergence),
+        claims_csv_rows(study.claims),
     )
-    for name, text in zip(TABLE_FILES, texts, strict=True):
-        write_text_atomic(folder / name, text)
+    for name, content in zip(TABLE_FILES, rows, strict=True):
+        write_text_atomic(folder / name, render.csv_text(content))
 
 
 def ground_truth_note(missing: dict[str, str]) -> list[str]:

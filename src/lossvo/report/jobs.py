@@ -3,12 +3,15 @@
 A Hydra multirun leaves one job folder per run, ``SWEEP_DIR/<num>_<overrides>/``, holding
 ``.hydra/{config,overrides}.yaml``, ``status.json``, ``metrics.csv``, ``results.json`` and
 ``trajectories/NN.txt``. :func:`load_job` reads one into a :class:`Job` and never raises: what cannot be
-used is recorded in ``Job.skip`` or ``Job.notes``.
+used is recorded in ``Job.skip`` (naming the file and why) or ``Job.notes``.
 
-The report reads only these job outputs. The data a job was evaluated on comes from its results.json
-(``data``: the evaluated dataset's root and splits, the training data's root and split;
-``sequences[s].ground_truth``: the pose file the metrics were computed against), never from building a
-datamodule: :func:`evaluated_data`, :func:`ground_truth`, :func:`unseen_sequences`.
+``results.json`` is read only through its contract, :class:`lossvo.evaluation.results.Results`. The data
+a job was evaluated on comes from its ``data`` record (the evaluated dataset's root and splits, the
+training data's root and split) and ``sequences[s].ground_truth`` (the pose file the metrics were
+computed against): :func:`trained_sequences`, :func:`unseen_sequences`, :func:`ground_truth`. Besides
+the job folders, the report reads those pose files (:func:`ground_truth`) and, for the baselines, the
+recorded dataset's frames, calib.txt and pose files (:mod:`lossvo.evaluation.baselines`); it never builds
+a datamodule.
 """
 
 from __future__ import annotations
@@ -26,7 +29,9 @@ from typing import Any
 
 import numpy as np
 
-from lossvo.data.kitti import KittiFormatError, read_poses
+from lossvo.console import first_line
+from lossvo.data.kitti import KittiFormatError, read_poses, sequence_names
+from lossvo.evaluation.results import DataRecord, Results, ResultsError, Scores
 
 REPLICATE_KEY = "seed"
 """The override that names a replicate of a configuration; every other varying override names one."""
@@ -37,28 +42,21 @@ RPE_TRANS = ("rpe", "trans", "rmse")
 RPE_ROT = ("rpe", "rot_rad", "rmse")
 KITTI_T = ("kitti", "t_err_pct")
 KITTI_R = ("kitti", "r_err_deg_per_100m")
-METRIC_PATHS = (APE_TRANS, RPE_TRANS, APE_ROT, RPE_ROT, KITTI_T, KITTI_R)
-"""Paths into a results.json sequence entry of the numbers the report reads: RMSEs in m and rad, the
-KITTI errors in % and deg/100 m (null where no 100 m segment exists)."""
+"""Paths into a sequence's :class:`lossvo.evaluation.results.Scores` of the numbers the report reads:
+RMSEs in m and rad, the KITTI errors in % and deg/100 m (None where no 100 m segment exists)."""
 
 
 class SweepError(ValueError):
     """The folder given is not a Hydra sweep folder (or holds no sweep)."""
 
 
-def first_line(error: BaseException) -> str:
-    """The first line of an exception's message ("" for none)."""
-    text = str(error).strip()
-    return text.splitlines()[0] if text else ""
-
-
-def lookup(entry: Any, path: Sequence[str]) -> Any:
-    """``entry[path[0]][path[1]]...``, None where a key is missing."""
+def metric_value(scores: Scores | None, path: Sequence[str]) -> float | None:
+    """The number at ``path`` of a sequence's scores (``("ape", "trans", "rmse")``), None where the
+    scores or the value are missing (a KITTI error without a segment)."""
+    value: Any = scores
     for key in path:
-        if not isinstance(entry, dict) or key not in entry:
-            return None
-        entry = entry[key]
-    return entry
+        value = getattr(value, key, None)
+    return None if value is None else float(value)
 
 
 def finite_number(value: Any) -> float | None:
@@ -66,17 +64,6 @@ def finite_number(value: Any) -> float | None:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         return None
     return float(value)
-
-
-def sequence_name(item: Any) -> str:
-    """A sequence name as the KITTI layout writes it: ``7`` -> ``"07"``, ``" 07"`` -> ``"07"``."""
-    return f"{item:02d}" if isinstance(item, int) and not isinstance(item, bool) else str(item).strip()
-
-
-def sequence_names(value: Any) -> list[str]:
-    """Sequence names from a list or a comma-separated string, in order, without empties or repeats."""
-    items = value.split(",") if isinstance(value, str) else list(value or [])
-    return list(dict.fromkeys(name for name in map(sequence_name, items) if name))
 
 
 # --------------------------------------------------------------------------------------------------
@@ -148,7 +135,7 @@ class Job:
     seed: Any = None
     status: str = "unknown"
     error: str | None = None
-    results: dict[str, Any] | None = None
+    results: Results | None = None
     curves: Curves | None = None
     config: Any = None
     skip: str | None = None
@@ -160,10 +147,14 @@ class Job:
         return self.skip is None
 
     @property
-    def included_results(self) -> dict[str, Any]:
-        """``results`` of an included job: load_job includes a job only with a valid results.json."""
+    def included_results(self) -> Results:
+        """``results`` of an included job: load_job includes a job only with a readable results.json."""
         assert self.results is not None, f"{self.path.name} is not included: {self.skip}"
         return self.results
+
+
+REQUIRED_CONFIG = ("selection.monitor", "selection.mode")
+"""Keys of a job's ``.hydra/config.yaml`` that the report reads and that every job config has."""
 
 
 def parse_override(text: str) -> tuple[str, str]:
@@ -180,44 +171,6 @@ def read_overrides(path: Path) -> dict[str, str]:
     if not isinstance(items, list):
         raise ValueError("expected a list of key=value strings")
     return dict(parse_override(item) for item in items)
-
-
-def read_json(path: Path) -> Any:
-    """A JSON file; ValueError with a short reason for a missing, unreadable or invalid one."""
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise ValueError(f"{path.name}: {e.strerror or 'unreadable'}") from None
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{path.name}: invalid JSON ({e.msg} at line {e.lineno})") from None
-
-
-def check_results(results: Any) -> list[str]:
-    """Names of the sequences with metrics in a results.json; ValueError if its shape is not
-    :func:`lossvo.evaluation.results.evaluate_run`'s."""
-    if not isinstance(results, dict) or not isinstance(results.get("sequences"), dict):
-        raise ValueError("results.json: expected an object with 'sequences'")
-    names = []
-    for name, entry in results["sequences"].items():
-        if not isinstance(entry, dict) or "ape" not in entry:
-            continue  # a sequence without ground truth has a note and no metrics
-        for path in METRIC_PATHS:
-            value = lookup(entry, path)
-            if not (value is None and path[0] == "kitti") and not isinstance(value, (int, float)):
-                raise ValueError(f"results.json: sequence {name}: no number at {'.'.join(path)}")
-        names.append(name)
-    return names
-
-
-def sequence_metrics(results: dict[str, Any]) -> dict[str, dict[str, Any]]:
-    """The sequence entries of a results.json that hold metrics: ``{sequence: entry}``."""
-    return {
-        name: entry
-        for name, entry in results["sequences"].items()
-        if isinstance(entry, dict) and "ape" in entry
-    }
 
 
 def read_metrics_csv(path: Path) -> tuple[Curves, list[str]]:
@@ -263,10 +216,19 @@ def _per_epoch(header: list[str], table: np.ndarray) -> Curves:
 
 def read_status(path: Path) -> tuple[str, str | None]:
     """(status, error) from status.json; ("unknown", None) without the file. The error of an
-    interrupted job is its signal and epoch."""
+    interrupted job is its signal and epoch.
+
+    Raises:
+        ValueError: ``status.json: <reason>`` for an unreadable file or one without a status.
+    """
     if not path.is_file():
         return "unknown", None
-    status = read_json(path)
+    try:
+        status = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError) as e:
+        raise ValueError(f"status.json: unreadable ({first_line(e)})") from None
+    except json.JSONDecodeError as e:
+        raise ValueError(f"status.json: invalid JSON ({e.msg} at line {e.lineno})") from None
     if not isinstance(status, dict) or "status" not in status:
         raise ValueError("status.json: expected an object with 'status'")
     if status["status"] == "interrupted":
@@ -289,7 +251,10 @@ def load_job(path: Path) -> Job:
         return job
     job.skip = _skip_reason(job)
     if job.skip is None:
-        _read_results(job)
+        try:
+            job.results = Results.read(path / "results.json")
+        except ResultsError as e:
+            job.skip = f"results.json: {e.reason}"
     if job.status == "unknown" and job.skip is None:
         job.notes.append("no status.json")
     _read_curves(job)
@@ -297,22 +262,17 @@ def load_job(path: Path) -> Job:
 
 
 def _read_config(job: Job) -> None:
-    """``config``, ``overrides`` and ``seed`` of a job from ``.hydra/``."""
+    """``config``, ``overrides`` and ``seed`` of a job from ``.hydra/``; ValueError naming a key of
+    :data:`REQUIRED_CONFIG` that the config lacks."""
     from omegaconf import OmegaConf
 
     job.config = OmegaConf.load(job.path / ".hydra" / "config.yaml")
+    missing = [key for key in REQUIRED_CONFIG if config_value(job.config, key) is None]
+    if missing:
+        raise ValueError(f".hydra/config.yaml has no {missing[0]}")
     overrides = job.path / ".hydra" / "overrides.yaml"
     job.overrides = read_overrides(overrides) if overrides.is_file() else {}
     job.seed = job.config.get(REPLICATE_KEY, job.overrides.get(REPLICATE_KEY))
-
-
-def _read_results(job: Job) -> None:
-    """``results`` of a job from results.json, or ``skip`` saying why it cannot be used."""
-    try:
-        job.results = read_json(job.path / "results.json")
-        check_results(job.results)
-    except ValueError as e:
-        job.results, job.skip = None, str(e)
 
 
 def _read_curves(job: Job) -> None:
@@ -325,7 +285,7 @@ def _read_curves(job: Job) -> None:
 
 
 def _skip_reason(job: Job) -> str | None:
-    """Why a job's results cannot be used yet, from its status and files (None: try results.json)."""
+    """Why a job's results cannot be used yet, from its status and files (None: read results.json)."""
     if job.status == "failed":
         return f"failed: {job.error or 'no error recorded'}"
     if job.status == "running":
@@ -371,84 +331,25 @@ def config_sequences(jobs: Iterable[Job], key: str) -> list[str]:
 # --------------------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class EvaluatedData:
-    """The ``data`` record of a job's results.json: ``kind`` (the evaluated datamodule's class path),
-    ``root`` (the evaluated dataset, KITTI layout: ``sequences/NN/...`` and ``poses/NN.txt``), its
-    ``test`` and ``unseen`` sequences, and the data the network was trained on: ``train_root`` and the
-    training split ``train``. Roots are absolute paths as recorded; they may no longer exist."""
-
-    kind: str | None
-    root: Path
-    train_root: Path
-    train: tuple[str, ...]
-    test: tuple[str, ...] = ()
-    unseen: tuple[str, ...] = ()
-
-    def identity(self) -> dict[str, Any]:
-        """What decides the frames on disk and the training split's poses (a cache key)."""
-        return {"root": str(self.root), "train_root": str(self.train_root), "train": list(self.train)}
-
-
-def evaluated_data(job: Job) -> EvaluatedData:
-    """A job's :class:`EvaluatedData` from its results.json.
-
-    Raises:
-        ValueError: naming the job and the missing or malformed field (results.json written before the
-            record existed, or by another writer).
-    """
-    record = (job.results or {}).get("data")
-    where = f"{job.path.name}/results.json"
-    if not isinstance(record, dict):
-        raise ValueError(f"{where} records no evaluated data (no 'data': written by an older evaluation)")
-    for key in ("root", "train_root"):
-        if not isinstance(record.get(key), str) or not record[key]:
-            raise ValueError(f"{where}: data.{key} is not a path")
-    if not isinstance(record.get("train"), list):
-        raise ValueError(f"{where}: data.train is not a list of sequences")
-    kind = record.get("kind")
-    return EvaluatedData(
-        kind=str(kind) if kind is not None else None,
-        root=Path(record["root"]),
-        train_root=Path(record["train_root"]),
-        train=tuple(sequence_names(record["train"])),
-        test=tuple(sequence_names(record.get("test") or [])),
-        unseen=tuple(sequence_names(record.get("unseen") or [])),
-    )
-
-
-def check_on_disk(data: EvaluatedData, job: Job) -> None:
+def check_on_disk(data: DataRecord, job: Job) -> None:
     """ValueError naming the job if the evaluated dataset or the training data is no longer there."""
     for name, root in (("evaluated dataset", data.root), ("training data", data.train_root)):
-        if not root.is_dir():
+        if root is None or not Path(root).is_dir():
             raise ValueError(f"the {name} of {job.path.name}, {root}, no longer exists")
 
 
 def trained_sequences(job: Job) -> set[str]:
-    """The sequences of the evaluated dataset that the job's network was trained on: results.json's
-    ``data.train`` when the evaluated root is the training root (none when they differ), else the
-    config's ``data.train``."""
-    try:
-        data = evaluated_data(job)
-    except ValueError:
-        return set(config_sequences([job], "data.train"))
-    same = os.path.realpath(data.root) == os.path.realpath(data.train_root)
+    """The sequences of the evaluated dataset that an included job's network was trained on: results.json's
+    ``data.train`` when the evaluated root is the training root, none when they differ."""
+    data = job.included_results.data
+    same = data.train_root is not None and os.path.realpath(data.root) == os.path.realpath(data.train_root)
     return set(data.train) if same else set()
 
 
 def unseen_sequences(job: Job) -> set[str]:
-    """The sequences of route families the job's network never trained on: those results.json flags
-    (``sequences[s].unseen``) and lists (``data.unseen``); the config's ``data.unseen`` for a
-    results.json that records neither."""
-    results = job.results or {}
-    entries = results.get("sequences") or {}
-    flagged = {s for s, e in entries.items() if isinstance(e, dict) and e.get("unseen") is True}
-    record = results.get("data")
-    if isinstance(record, dict) and "unseen" in record:
-        return flagged | set(sequence_names(record["unseen"] or []))
-    if flagged or any(isinstance(e, dict) and "unseen" in e for e in entries.values()):
-        return flagged
-    return set(config_sequences([job], "data.unseen"))
+    """The sequences of route families an included job's network never trained on: those its
+    results.json flags (``sequences[s].unseen``) and lists (``data.unseen``)."""
+    return job.included_results.unseen()
 
 
 # --------------------------------------------------------------------------------------------------
@@ -459,9 +360,9 @@ def unseen_sequences(job: Job) -> set[str]:
 def read_trajectory(job: Job, sequence: str) -> np.ndarray | None:
     """A job's estimated trajectory (N, 4, 4), translation in m, of one sequence; None if missing or
     unreadable."""
-    entry = job.results["sequences"].get(sequence, {}) if job.results else {}
+    entry = job.results.sequences.get(sequence) if job.results else None
     try:
-        return read_poses(job.path / entry.get("trajectory", f"trajectories/{sequence}.txt"))
+        return read_poses(job.path / (entry.trajectory if entry else f"trajectories/{sequence}.txt"))
     except (KittiFormatError, OSError):
         return None
 
@@ -472,13 +373,13 @@ def ground_truth(job: Job, sequences: Sequence[str]) -> tuple[dict[str, np.ndarr
 
     Returns:
         ``{sequence: poses}`` of the sequences whose file could be read, and ``{sequence: reason}`` of the
-        others (no such field, a file that no longer exists or cannot be read).
+        others (no file named, a file that no longer exists or cannot be read).
     """
-    entries = (job.results or {}).get("sequences") or {}
+    entries = job.results.sequences if job.results else {}
     found, missing = {}, {}
     for s in sequences:
-        path = entries.get(s, {}).get("ground_truth") if isinstance(entries.get(s), dict) else None
-        if not isinstance(path, str):
+        path = entries[s].ground_truth if s in entries else None
+        if path is None:
             missing[s] = f"{job.path.name}/results.json names no ground-truth file"
             continue
         try:

@@ -28,6 +28,7 @@ CONTRADICTED = "contradicted"
 NOT_DISTINGUISHABLE = "not distinguishable at this n"
 VERDICTS = (SUPPORTED, CONTRADICTED, NOT_DISTINGUISHABLE)
 ALPHA = 0.05
+"""The significance level of every test in the report."""
 CONVERGENCE_TOLERANCE = 0.1
 
 
@@ -79,14 +80,17 @@ def smallest_p(n: int) -> float:
 
 @dataclass(frozen=True)
 class PairedTest:
-    """The claimed configuration against one other on paired values: ``n`` pairs, the means over those
-    pairs (in the quantity's unit) and the two-sided Wilcoxon p-value (NaN for n = 0)."""
+    """One configuration against another (``versus``) on paired values: ``n`` pairs, the means over those
+    pairs (in the quantity's unit), the median of the differences (this - versus), the number of pairs
+    where this one is lower and the two-sided Wilcoxon p-value (NaN for n = 0)."""
 
     versus: str
     n: int
     mean: float
     versus_mean: float
     p_value: float
+    median_diff: float = math.nan
+    lower: int = 0
 
     @property
     def claimed_lower(self) -> bool:
@@ -94,14 +98,16 @@ class PairedTest:
 
 
 def paired_test(versus: str, claimed: np.ndarray, other: np.ndarray) -> PairedTest:
-    """Test paired values (P,) of the claimed configuration against (P,) of ``versus``."""
+    """The one paired test of the report: values (P,) of one configuration against (P,) of ``versus``,
+    two-sided Wilcoxon signed-rank test on the differences."""
     claimed, other = np.asarray(claimed, dtype=np.float64), np.asarray(other, dtype=np.float64)
     if claimed.shape != other.shape or claimed.ndim != 1:
         raise ValueError(f"paired values must be two (P,) arrays, got {claimed.shape} and {other.shape}")
     if claimed.size == 0:
         return PairedTest(versus, 0, math.nan, math.nan, math.nan)
-    p = wilcoxon_p(claimed - other)
-    return PairedTest(versus, int(claimed.size), float(claimed.mean()), float(other.mean()), p)
+    d = claimed - other
+    return PairedTest(versus, int(claimed.size), float(claimed.mean()), float(other.mean()), wilcoxon_p(d),
+                      float(np.median(d)), int((d < 0).sum()))  # fmt: skip
 
 
 def verdict(tests: Sequence[PairedTest], alpha: float = ALPHA) -> str:

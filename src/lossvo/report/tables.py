@@ -2,7 +2,8 @@
 
 A :class:`Column` is one compared configuration (its seeds) or one baseline; :func:`build_table` fills a
 :class:`Table` of :data:`TABLES` with mean ± sample std over seeds per sequence plus a mean row, and bolds
-the minimum of each row; :func:`table_markdown`, :func:`table_csv` and :func:`table_latex` write it out.
+the minimum of each row; :func:`table_markdown`, :func:`table_csv` and :func:`table_latex` give its text
+(:mod:`lossvo.report.render`).
 A row may carry a note (e.g. ``unseen motion``): in markdown and LaTeX it follows the sequence name in
 parentheses, in CSV it has its own last column, so the ``sequence`` column stays the bare name.
 Units are those of the metrics: m and rad for APE / RPE, % and deg/100 m for the KITTI errors.
@@ -10,16 +11,16 @@ Units are those of the metrics: m and rad for APE / RPE, % and deg/100 m for the
 
 from __future__ import annotations
 
-import csv
-import io
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
-from lossvo.report.jobs import APE_ROT, APE_TRANS, KITTI_R, KITTI_T, RPE_ROT, RPE_TRANS, Job, lookup
+from lossvo.evaluation.results import Scores
+from lossvo.report import render
+from lossvo.report.jobs import APE_ROT, APE_TRANS, KITTI_R, KITTI_T, RPE_ROT, RPE_TRANS, Job, metric_value
+from lossvo.report.render import Rows
 
 NETWORK, BASELINE = "network", "baseline"
 MEAN_ROW = "mean"
@@ -29,7 +30,7 @@ MEAN_ROW = "mean"
 class Column:
     """One compared configuration (network) or baseline: its replicates' per-sequence metrics.
 
-    ``results[i]`` is ``{sequence: {"ape": ..., "rpe": ..., "kitti": ...}}`` of replicate ``i`` (a seed),
+    ``results[i]`` is ``{sequence: Scores}`` (results.json's scores) of replicate ``i`` (a seed),
     ``replicates[i]`` its name; ``kind`` is :data:`NETWORK` or :data:`BASELINE`; ``jobs`` are a network's
     job folders in replicate order (none for a baseline).
     """
@@ -37,7 +38,7 @@ class Column:
     label: str
     kind: str
     replicates: list[str]
-    results: list[dict[str, dict[str, Any]]]
+    results: list[dict[str, Scores]]
     jobs: list[Job] = field(default_factory=list)
 
 
@@ -79,8 +80,8 @@ def samples(column: Column, path: Sequence[str], sequences: Sequence[str]) -> np
     out = np.full((len(column.results), len(sequences)), np.nan)
     for i, per_sequence in enumerate(column.results):
         for j, name in enumerate(sequences):
-            value = lookup(per_sequence.get(name), path)
-            out[i, j] = float(value) if isinstance(value, (int, float)) else np.nan
+            value = metric_value(per_sequence.get(name), path)
+            out[i, j] = value if value is not None else np.nan
     return out
 
 
@@ -193,12 +194,14 @@ def fmt(x: float, digits: int = 4) -> str:
     return f"{x:.{decimals}f}"
 
 
-def _cell_text(cell: Cell, bold: Callable[[str], str], pm: str, replicated: bool) -> str:
+def cell_text(cell: Cell, replicated: bool) -> str:
+    """A table cell as text: ``"**mean** ± std"`` (bold where best; the std only for n > 1 when the
+    table has replicates), ``"n/a"`` for n = 0."""
     if cell.n == 0:
         return "n/a"
-    text = bold(fmt(cell.mean)) if cell.best else fmt(cell.mean)
+    text = f"**{fmt(cell.mean)}**" if cell.best else fmt(cell.mean)
     if replicated and cell.n > 1:
-        text += f"{pm}{fmt(cell.std, 2)}"
+        text += f" ± {fmt(cell.std, 2)}"
     return text
 
 
@@ -213,91 +216,46 @@ def _replicated(table: Table) -> bool:
     return any(len(c.replicates) > 1 for c in table.columns)
 
 
-def md(text: str) -> str:
-    """Text for a markdown table cell: one line, ``|`` escaped (it would end the cell)."""
-    return " ".join(str(text).split()).replace("|", "\\|")
+def table_rows(table: Table, mean_name: str = "**mean**") -> Rows:
+    """The table as text: ``sequence``, then per column and metric ``"<label>: <metric>"``; cells by
+    :func:`cell_text`; rows named with their note, the mean row ``mean_name``."""
+    replicated = _replicated(table)
+    header = ["sequence"] + [f"{c.label}: {name}" for c in table.columns for name, _ in table.spec.metrics]
+    rows: list[list[object]] = []
+    for row, cells in zip(table.rows, table.cells, strict=True):
+        name = mean_name if row == MEAN_ROW else table.label(row)
+        rows.append([name, *(cell_text(cell, replicated) for col in cells for cell in col)])
+    return Rows(header, rows)
 
 
 def table_markdown(table: Table) -> str:
     """The table as GitHub markdown, best cells in ``**bold**``."""
-    replicated = _replicated(table)
-    header = ["sequence"] + [
-        f"{md(c.label)}: {name}" for c in table.columns for name, _ in table.spec.metrics
-    ]
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for row, cells in zip(table.rows, table.cells, strict=True):
-        texts = [_cell_text(cell, lambda s: f"**{s}**", " ± ", replicated) for col in cells for cell in col]
-        lines.append(
-            f"| {'**mean**' if row == MEAN_ROW else md(table.label(row))} | " + " | ".join(texts) + " |"
-        )
-    return "\n".join(lines)
+    return render.markdown(table_rows(table))
 
 
 def table_csv(table: Table) -> str:
     """The table as CSV: ``sequence``, then per column and metric ``<label> | <metric>`` (mean),
     ``... std`` (sample std, empty for n < 2) and ``... n``, then ``note`` (the row's note, or empty);
     full precision."""
-    out = io.StringIO()
-    writer = csv.writer(out, lineterminator="\n")
     header = ["sequence"]
     for c in table.columns:
         for name, _ in table.spec.metrics:
             header += [f"{c.label} | {name}", f"{c.label} | {name} std", f"{c.label} | {name} n"]
-    writer.writerow([*header, "note"])
+    rows: list[list[object]] = []
     for row, cells in zip(table.rows, table.cells, strict=True):
-        values: list[str | int] = [row]
+        values: list[object] = [row]
         for col in cells:
             for cell in col:
                 values += [repr(cell.mean) if cell.n else "", repr(cell.std) if cell.n > 1 else "", cell.n]
-        writer.writerow([*values, table.notes.get(row, "")])
-    return out.getvalue()
-
-
-LATEX_SPECIALS = {
-    "\\": r"\textbackslash{}",
-    "&": r"\&",
-    "%": r"\%",
-    "$": r"\$",
-    "#": r"\#",
-    "_": r"\_",
-    "{": r"\{",
-    "}": r"\}",
-    "~": r"\textasciitilde{}",
-    "^": r"\textasciicircum{}",
-}
-
-
-def latex_escape(text: str) -> str:
-    """``text`` with LaTeX's special characters escaped (:data:`LATEX_SPECIALS`)."""
-    return "".join(LATEX_SPECIALS.get(ch, ch) for ch in text)
+        rows.append([*values, table.notes.get(row, "")])
+    return render.csv_text(Rows([*header, "note"], rows))
 
 
 def table_latex(table: Table) -> str:
-    """The table as a LaTeX ``tabular`` with booktabs rules; best cells in ``\\textbf``."""
-    replicated = _replicated(table)
+    """The table as a LaTeX ``tabular`` with booktabs rules, a configuration's metrics grouped under its
+    label; best cells in ``\\textbf``."""
+    rows = table_rows(table, mean_name="Mean")
     k = len(table.spec.metrics)
-    lines = [
-        f"% {table.spec.title}; generated by python -m lossvo.report; needs \\usepackage{{booktabs}}",
-        "\\begin{tabular}{l" + "r" * (k * len(table.columns)) + "}",
-        "\\toprule",
-        "Sequence & "
-        + " & ".join(f"\\multicolumn{{{k}}}{{c}}{{{latex_escape(c.label)}}}" for c in table.columns)
-        + " \\\\",
-        "".join(f"\\cmidrule(lr){{{2 + i * k}-{1 + (i + 1) * k}}}" for i in range(len(table.columns))),
-        " & "
-        + " & ".join(latex_escape(name) for _ in table.columns for name, _ in table.spec.metrics)
-        + " \\\\",
-        "\\midrule",
-    ]
-    for row, cells in zip(table.rows, table.cells, strict=True):
-        if row == MEAN_ROW:
-            lines.append("\\midrule")
-        texts = [
-            _cell_text(cell, lambda s: f"\\textbf{{{s}}}", " $\\pm$ ", replicated)
-            for col in cells
-            for cell in col
-        ]
-        name = "Mean" if row == MEAN_ROW else latex_escape(table.label(row))
-        lines.append(f"{name} & " + " & ".join(texts) + " \\\\")
-    lines += ["\\bottomrule", "\\end{tabular}"]
-    return "\n".join(lines) + "\n"
+    latex = Rows(["", *(name for _ in table.columns for name, _ in table.spec.metrics)], rows.rows)
+    groups = [("Sequence", 1), *((c.label, k) for c in table.columns)]
+    return render.latex(latex, table.spec.title, groups, rule_before={table.rows.index(MEAN_ROW)})
