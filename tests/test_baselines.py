@@ -1,7 +1,7 @@
 """The baselines on hand-written KITTI-layout sequences (noise frames, known poses): the own-mean-motion
-oracle equals an independent computation and is exact on constant-velocity motion; the sequences and the
-training split come from the recorded data (never a datamodule); cache files that lack a baseline, or
-whose recorded data differs, are recomputed."""
+oracle equals an independent computation, its scores equal evo's, and it is exact on constant-velocity
+motion; the zero-motion and mean-motion scores equal evo's; the sequences and the training split come from
+the recorded data; cache files that lack a baseline, or whose recorded data differs, are recomputed."""
 
 from __future__ import annotations
 
@@ -10,13 +10,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-import torch
+from evo.core import metrics as evo_metrics
+from evo.core.trajectory import PosePath3D
 
 from lossvo.data.kitti import Calib
 from lossvo.data.kitti import Sequence as KittiSequence
-from lossvo.evaluation import metrics
-from lossvo.report import baselines
-from lossvo.report.jobs import EvaluatedData
+from lossvo.evaluation import baselines
+from lossvo.evaluation.results import DataRecord, Scores
 
 FRAMES, HEIGHT, WIDTH = 8, 64, 96
 P2 = np.array([[60.0, 0, WIDTH / 2, 0], [0, 60.0, HEIGHT / 2, 0], [0, 0, 1, 0]])
@@ -62,6 +62,25 @@ def varied_poses(seed: int) -> np.ndarray:
                   for _ in range(FRAMES - 1)])  # fmt: skip
 
 
+def evo_rmse(gt: np.ndarray, est: np.ndarray, kind: str, relation: str) -> float:
+    """evo's APE or RPE (delta 1 frame, no alignment) RMSE of ``est`` (N, 4, 4) against ``gt``:
+    ``relation`` "trans" (m, translation part) or "rot_rad" (rotation angle)."""
+    pose_relation = {"trans": evo_metrics.PoseRelation.translation_part,
+                     "rot_rad": evo_metrics.PoseRelation.rotation_angle_rad}[relation]  # fmt: skip
+    metric = evo_metrics.APE(pose_relation) if kind == "ape" else evo_metrics.RPE(pose_relation, delta=1)
+    metric.process_data((PosePath3D(poses_se3=list(gt)), PosePath3D(poses_se3=list(est))))
+    return float(metric.get_statistic(evo_metrics.StatisticsType.rmse))
+
+
+def check_against_evo(scores: Scores, gt: np.ndarray, est: np.ndarray) -> None:
+    """Every APE / RPE RMSE of ``scores`` equals evo's on the same trajectories."""
+    for kind in ("ape", "rpe"):
+        for relation in ("trans", "rot_rad"):
+            expected = evo_rmse(gt, est, kind, relation)
+            got = getattr(getattr(scores, kind), relation).rmse
+            assert got == pytest.approx(expected, rel=1e-6, abs=1e-9), (kind, relation)
+
+
 def test_own_mean_motion_is_the_sequences_mean_motion_repeated(tmp_path: Path) -> None:
     gt = varied_poses(0)
     sequence = write_sequence(tmp_path, "00", gt, seed=0)
@@ -75,10 +94,21 @@ def test_own_mean_motion_is_the_sequences_mean_motion_repeated(tmp_path: Path) -
     expected = chain([mean] * (FRAMES - 1))
     own = results[baselines.OWN]
     np.testing.assert_allclose(own.trajectory, expected, atol=1e-9)
-    scores = metrics.evaluate(torch.from_numpy(gt), torch.from_numpy(expected), "none", 1)
-    assert own.metrics["rpe"]["trans"]["rmse"] == pytest.approx(scores["rpe"]["trans"]["rmse"], rel=1e-6)
-    assert own.metrics["ape"]["trans"]["rmse"] == pytest.approx(scores["ape"]["trans"]["rmse"], rel=1e-6)
-    assert own.metrics["rpe"]["trans"]["rmse"] > 0.1 and own.failures == 0  # varied steps: not exact
+    check_against_evo(own.scores, gt, expected)
+    assert own.scores.rpe.trans.rmse > 0.1 and own.failures == 0  # varied steps: not exact
+
+
+def test_zero_and_training_mean_motion_scores_equal_evos(tmp_path: Path) -> None:
+    gt = varied_poses(5)
+    train_step = step(0.01, 0.7, -0.02)
+    results = baselines.sequence_baselines(write_sequence(tmp_path, "00", gt, seed=7), train_mean=train_step)
+    standing = np.repeat(gt[:1], len(gt), axis=0)  # zero motion: the first pose forever
+    np.testing.assert_allclose(results[baselines.ZERO].trajectory, standing, atol=1e-12)
+    check_against_evo(results[baselines.ZERO].scores, gt, standing)
+    chained = gt[0] @ chain([train_step] * (FRAMES - 1))
+    np.testing.assert_allclose(results[baselines.MEAN].trajectory, chained, atol=1e-9)
+    check_against_evo(results[baselines.MEAN].scores, gt, chained)
+    check_against_evo(results[baselines.ORB].scores, gt, results[baselines.ORB].trajectory)
 
 
 def test_own_mean_motion_is_exact_on_constant_velocity(tmp_path: Path) -> None:
@@ -86,22 +116,24 @@ def test_own_mean_motion_is_exact_on_constant_velocity(tmp_path: Path) -> None:
     own = baselines.sequence_baselines(write_sequence(tmp_path, "00", gt, seed=1), np.eye(4))[baselines.OWN]
     np.testing.assert_allclose(own.trajectory, gt, atol=1e-9)
     for kind in ("trans", "rot_rad"):
-        assert own.metrics["rpe"][kind]["rmse"] < 1e-6 and own.metrics["ape"][kind]["rmse"] < 1e-6
+        assert getattr(own.scores.rpe, kind).rmse < 1e-6 and getattr(own.scores.ape, kind).rmse < 1e-6
 
 
-def recorded_data(root: Path, train: tuple[str, ...] = ("00",)) -> EvaluatedData:
+def data_record(
+    root: Path, train_root: Path, train: tuple[str, ...], test: tuple[str, ...] = ()
+) -> DataRecord:
+    """A results.json data record of the KITTI-layout dataset at ``root`` (sequences ``test``) evaluating a
+    network trained on ``train`` under ``train_root``."""
+    kind = "lossvo.data.datamodules.KittiDataModule"
+    return DataRecord(kind, str(root), list(test), [], str(train_root), list(train))
+
+
+def recorded_data(root: Path, train: tuple[str, ...] = ("00",)) -> DataRecord:
     """A results.json data record of a KITTI-layout dataset evaluated on itself."""
-    return EvaluatedData("lossvo.data.datamodules.KittiDataModule", root, root, train, test=("01",))
+    return data_record(root, root, train, test=("01",))
 
 
-def no_datamodule(*_: object, **__: object) -> None:
-    raise AssertionError("the baselines must not instantiate a config")
-
-
-def test_cache_files_without_a_baseline_are_recomputed(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    monkeypatch.setattr("hydra.utils.instantiate", no_datamodule)
+def test_cache_files_without_a_baseline_are_recomputed(tmp_path: Path) -> None:
     root = tmp_path / "kitti"
     write_sequence(root, "00", varied_poses(1), seed=2)
     write_sequence(root, "01", varied_poses(2), seed=3)
@@ -125,7 +157,7 @@ def test_training_mean_motion_comes_from_the_recorded_training_data(tmp_path: Pa
     constant = step(0.02, 0.9, 0.03)
     write_sequence(train_root, "00", chain([constant] * (FRAMES - 1)), seed=4)
     write_sequence(root, "01", varied_poses(3), seed=5)
-    data = EvaluatedData(None, root, train_root, ("00",), test=("01",))
+    data = data_record(root, train_root, ("00",), test=("01",))
     np.testing.assert_allclose(baselines.training_mean_motion(data), constant, atol=1e-9)
     results = baselines.compute_baselines(data, ["01"], tmp_path / "cache")["01"]
     gt = varied_poses(3)
@@ -133,7 +165,7 @@ def test_training_mean_motion_comes_from_the_recorded_training_data(tmp_path: Pa
         results[baselines.MEAN].trajectory, gt[0] @ chain([constant] * (FRAMES - 1)), atol=1e-9
     )
     with pytest.raises(ValueError, match=r"data\.train"):
-        baselines.training_mean_motion(EvaluatedData(None, root, train_root, ()))
+        baselines.training_mean_motion(data_record(root, train_root, ()))
 
 
 def test_cache_key_changes_with_the_recorded_data_and_the_training_mean(tmp_path: Path) -> None:

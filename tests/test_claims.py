@@ -14,6 +14,16 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
+from lossvo.evaluation.results import (
+    DataRecord,
+    KittiError,
+    LossRecord,
+    Overall,
+    PoseErrors,
+    Results,
+    Scores,
+    Statistics,
+)
 from lossvo.report import statistics
 from lossvo.report.claims import claims_csv, claims_markdown, study_claims
 from lossvo.report.configurations import job_selection, job_weighting, selection_warning, weight_text
@@ -22,7 +32,6 @@ from lossvo.report.jobs import Curves, Job, trained_sequences
 from lossvo.report.tables import NETWORK, Column
 
 LOSSES = "lossvo.losses"
-ERRORS = (("rpe", "trans"), ("rpe", "rot_rad"), ("ape", "trans"))
 
 
 # --------------------------------------------------------------------------------------------------
@@ -166,20 +175,16 @@ def test_learned_rotation_weight_is_gain_times_exp_st_minus_sr_at_the_last_epoch
     assert weight_text([job_weighting(blind)]).startswith("learned: ?")
 
 
-def test_selection_metric_from_selection_then_checkpoint_monitor_then_default() -> None:
+def test_selection_metric_is_the_configs_selection_monitor_and_mode() -> None:
     new = job("EulerLoss", selection__monitor="val/score", selection__mode="min",
               callbacks__model_checkpoint__monitor="${selection.monitor}")  # fmt: skip
-    assert (job_selection(new.config).monitor, job_selection(new.config).source) == ("val/score", "selection")
-    old = job("EulerLoss", callbacks__model_checkpoint__monitor="val/rot_err_rad",
-              callbacks__model_checkpoint__mode="max")  # fmt: skip
-    selection = job_selection(old.config)
-    assert (selection.monitor, selection.mode, selection.source) == (
-        "val/rot_err_rad", "max", "callbacks.model_checkpoint")  # fmt: skip
+    assert (job_selection(new.config).monitor, job_selection(new.config).mode) == ("val/score", "min")
+    maximised = job("EulerLoss", selection__monitor="val/rot_err_rad", selection__mode="max")
+    assert (job_selection(maximised.config).monitor, job_selection(maximised.config).mode) == (
+        "val/rot_err_rad", "max")  # fmt: skip
     dangling = job("EulerLoss", callbacks__model_checkpoint__monitor="${selection.monitor}")
-    assert (job_selection(dangling.config).monitor, job_selection(dangling.config).source) == (
-        "val/loss",
-        "default",
-    )
+    with pytest.raises(ValueError, match=r"selection\.monitor"):
+        job_selection(dangling.config)
 
 
 def column(label: str, *jobs: Job, results: list | None = None) -> Column:
@@ -212,20 +217,22 @@ def test_selection_warning_only_when_the_configurations_were_selected_by_differe
 # --------------------------------------------------------------------------------------------------
 
 
-def results(errors: dict[str, float]) -> dict:
-    """A results.json sequence map: every error metric of a sequence equal to ``errors[sequence]``."""
-    out: dict = {}
-    for sequence, value in errors.items():
-        entry: dict = {}
-        for group, key in ERRORS:
-            entry.setdefault(group, {})[key] = {"rmse": value}
-        out[sequence] = entry
-    return out
+def scores(value: float) -> Scores:
+    """Scores whose every APE / RPE statistic is ``value`` (m or rad), no KITTI segment."""
+    errors = PoseErrors(Statistics(*[value] * 6), Statistics(*[value] * 6))
+    return Scores(errors, errors, KittiError(None, None))
+
+
+def results(errors: dict[str, float]) -> dict[str, Scores]:
+    """Per sequence, scores whose every error metric equals ``errors[sequence]``."""
+    return {sequence: scores(value) for sequence, value in errors.items()}
 
 
 def configuration(label: str, loss: str, errors: list[dict[str, float]], scores: list[list[float]]) -> Column:
     """A configuration of one job per seed: ``errors[seed]`` per sequence, ``scores[seed]`` per epoch."""
-    jobs = [job(loss, {"val/score": s}, data__train=["00", "01"]) for s in scores]
+    jobs = [job(loss, {"val/score": s}) for s in scores]
+    for j in jobs:
+        j.results = record(["00", "01"])  # the training split its results.json records
     return column(label, *jobs, results=[results(e) for e in errors])
 
 
@@ -282,7 +289,7 @@ def test_error_claim_on_held_out_sequences_of_the_chordal_loss_class(
     if not alternate:
         assert a.quantities[0].tests[0].p_value == pytest.approx(2 / 2**12)  # exact: 12 of one sign
     theirs = columns[1].results  # mean over held-out sequences per seed, then mean ± std over seeds
-    per_seed = np.array([np.mean([r[s]["rpe"]["trans"]["rmse"] for s in HELD_OUT]) for r in theirs])
+    per_seed = np.array([np.mean([r[s].rpe.trans.rmse for s in HELD_OUT]) for r in theirs])
     cell = a.measured["loss=se3"]["RPE trans RMSE [m]"]
     assert (cell.n, cell.mean, cell.std) == (
         3,
@@ -328,22 +335,25 @@ def test_claims_csv_has_a_row_per_test_and_one_per_claim() -> None:
     assert float(epochs["smallest_p"]) == 0.25 and int(epochs["n"]) == 3
 
 
+def record(train: list[str], root: str = "/data/kitti") -> Results:
+    """A results.json recording evaluation on ``root`` of a network trained on ``train`` of /data/kitti."""
+    data = DataRecord(None, root, [], [], "/data/kitti", train)
+    overall = Overall([], note="no sequence with ground truth: no metrics")
+    return Results(None, LossRecord("EulerLoss", 100.0), "none", 1, 3, False, data, {}, overall)
+
+
 def recorded(column: Column, train: list[str], root: str = "/data/kitti") -> Column:
     """``column`` with every job's results.json recording ``train`` as its training split."""
     for j in column.jobs:
-        j.results = {"sequences": {}, "data": {"root": root, "train_root": "/data/kitti", "train": train}}
+        j.results = record(train, root)
     return column
 
 
 def test_held_out_sequences_come_from_the_training_split_that_results_json_records() -> None:
-    j = job("EulerLoss", data__train=["00", "01"])
-    assert trained_sequences(j) == {"00", "01"}  # no record: the config's data.train
-    j.results = {
-        "sequences": {},
-        "data": {"root": "/data/kitti", "train_root": "/data/kitti", "train": ["02"]},
-    }
+    j = job("EulerLoss", data__train=["00", "01"])  # the config's data.train is not what counts
+    j.results = record(["02"])
     assert trained_sequences(j) == {"02"}
-    j.results["data"]["root"] = "/data/other"  # evaluated on other data: none of it was trained on
+    j.results = record(["02"], root="/data/other")  # evaluated on other data: none of it was trained on
     assert trained_sequences(j) == set()
     columns = [recorded(c, ["00", "02"]) for c in sweep_columns(-0.05)]
     a, _ = study_claims(columns, convergence(columns), SEQUENCES)
