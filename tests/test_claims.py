@@ -144,7 +144,7 @@ def test_rotation_weight_is_k_times_the_small_angle_gain(
     assert weight_text([job_weighting(j)] * 2) == f"{weight:.4g}"
 
 
-def test_rotation_weight_of_an_unresolved_preset_k_and_of_old_or_unknown_jobs() -> None:
+def test_rotation_weight_of_an_unresolved_preset_k_without_a_preset_and_of_unknown_classes() -> None:
     unresolved = job(
         "ChordalLoss", loss__k="${no_such_resolver:x}", weighting__preset="matched", weighting__c=100.0
     )
@@ -152,8 +152,8 @@ def test_rotation_weight_of_an_unresolved_preset_k_and_of_old_or_unknown_jobs() 
     assert weight_text([job_weighting(unresolved)]) == "100"
     paper = job("QuaternionLoss", loss__k="${no_such_resolver:x}", weighting__preset="paper")
     assert weight_text([job_weighting(paper)]) == "3.5"
-    old = job("EulerLoss", loss__k=100.0)  # no weighting group
-    assert job_weighting(old).preset is None and weight_text([job_weighting(old)]) == "100"
+    no_preset = job("EulerLoss", loss__k=100.0)  # no weighting group
+    assert job_weighting(no_preset).preset is None and weight_text([job_weighting(no_preset)]) == "100"
     unknown = Job(
         Path("x"), config=OmegaConf.create({"loss": {"_target_": "collections.OrderedDict", "k": 3.0}})
     )

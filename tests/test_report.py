@@ -1,9 +1,10 @@
 """The sweep report on a real (tiny) sweep: tables equal the jobs' results.json, bold marks the minimum,
-mean ± std over seeds, baselines equal an independent computation, damaged jobs are listed, bad input;
-rotation weights and selection metrics from the job configs, convergence from metrics.csv, the claims;
-the unseen-motion marks and section on hand-written job folders; baselines and ground truth from the data
-that hand-written results.json record (no datamodule), and one note when it is missing; the package's
-import graph.
+mean ± std over seeds, baselines equal an independent computation (evo), damaged jobs are listed, bad
+input; rotation weights and selection metrics from the job configs, convergence from metrics.csv, the
+claims; the unseen-motion marks and section on hand-written job folders; baselines and ground truth from
+the data that hand-written results.json record (no datamodule), and one note when it is gone; the
+results.json contract (round trip, one line naming the file for each bad file, a sweep with an unreadable
+one); the package's import graph.
 
 The session's one Hydra multirun (2 losses x 2 seeds on the tiny KITTI-layout dataset, ``study_sweep`` in
 tests/conftest.py) is read by every test, or a copy of it.
@@ -17,16 +18,30 @@ import json
 import re
 import shutil
 import struct
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 import yaml
+from evo.core import metrics as evo_metrics
+from evo.core.trajectory import PosePath3D
 from scipy.stats import wilcoxon
 
 from conftest import STUDY_LOSSES, STUDY_SEEDS, STUDY_SEQUENCES
-from lossvo.evaluation import metrics
+from lossvo.evaluation.results import (
+    SCHEMA_VERSION,
+    DataRecord,
+    KittiError,
+    LossRecord,
+    Overall,
+    PoseErrors,
+    Results,
+    ResultsError,
+    Scores,
+    SequenceResult,
+    Statistics,
+)
 from lossvo.report.against_baselines import BaselineRun
 from lossvo.report.cli import main
 from lossvo.report.configurations import label_jobs, varying_keys
@@ -177,7 +192,16 @@ def read_pose_file(path: Path) -> np.ndarray:
 
 
 def scores(gt: np.ndarray, est: np.ndarray) -> dict:
-    return metrics.evaluate(torch.from_numpy(gt), torch.from_numpy(est), "none", 1)
+    """evo's APE and RPE (delta 1 frame, no alignment) RMSEs: ``{kind: {"trans" | "rot_rad": {"rmse"}}}``."""
+    relations = {"trans": evo_metrics.PoseRelation.translation_part,
+                 "rot_rad": evo_metrics.PoseRelation.rotation_angle_rad}  # fmt: skip
+    out: dict = {}
+    for kind in ("ape", "rpe"):
+        for name, relation in relations.items():
+            metric = evo_metrics.APE(relation) if kind == "ape" else evo_metrics.RPE(relation, delta=1)
+            metric.process_data((PosePath3D(poses_se3=list(gt)), PosePath3D(poses_se3=list(est))))
+            out.setdefault(kind, {})[name] = {"rmse": metric.get_statistic(evo_metrics.StatisticsType.rmse)}
+    return out
 
 
 def check_zero_and_mean_motion(
@@ -493,55 +517,61 @@ def test_each_job_is_compared_with_the_mean_motion_on_the_validation_sequences(
 UNSEEN = ("11", "12")
 
 
-def entry(rpe_trans: float, rpe_rot: float) -> dict:
-    """A results.json sequence entry with the given RPE RMSEs (m, rad); APE and KITTI errors fixed."""
-    return {
-        "ape": {"trans": {"rmse": 5.0}, "rot_rad": {"rmse": 0.1}},
-        "rpe": {"trans": {"rmse": rpe_trans}, "rot_rad": {"rmse": rpe_rot}},
-        "kitti": {"t_err_pct": 10.0, "r_err_deg_per_100m": 5.0},
-    }
+def statistics(rmse: float) -> Statistics:
+    """Error statistics with the given RMSE (m or rad)."""
+    return Statistics(rmse=rmse, mean=rmse, median=rmse, std=0.0, min=rmse, max=rmse)
 
 
-def data_record(root: Path, test: list[str], unseen: list[str], train: list[str] | None = None) -> dict:
+def entry(rpe_trans: float, rpe_rot: float) -> Scores:
+    """A sequence's scores with the given RPE RMSEs (m, rad); APE and KITTI errors fixed."""
+    return Scores(
+        PoseErrors(statistics(5.0), statistics(0.1)),
+        PoseErrors(statistics(rpe_trans), statistics(rpe_rot)),
+        KittiError(10.0, 5.0),
+    )
+
+
+def data_record(root: Path, test: list[str], unseen: list[str], train: list[str] | None = None) -> DataRecord:
     """results.json's ``data``: a job evaluated on the KITTI-layout dataset at ``root`` that it was
     trained on (split ``train``, default 00)."""
-    return {"kind": "lossvo.data.datamodules.KittiDataModule", "root": str(root), "test": test,
-            "unseen": unseen, "train_root": str(root), "train": train or ["00"], "height": 64, "width": 208,
-            "seq_len": 3, "normalization": "dataset", "mean": [0.4] * 3, "std": [0.2] * 3}  # fmt: skip
+    return DataRecord("lossvo.data.datamodules.KittiDataModule", str(root), test, unseen, str(root),
+                      train or ["00"], 64, 208, 3, "dataset", [0.4] * 3, [0.2] * 3)  # fmt: skip
 
 
-def write_job(sweep: Path, number: int, loss: str, data: dict, sequences: dict, record: dict | None) -> Path:
-    """A completed job folder: .hydra/{config,overrides}.yaml, status.json and results.json, whose
-    ``data`` is ``record`` and whose sequences name their ground truth ``<root>/poses/NN.txt`` and say
-    whether they are unseen motion (an older results.json without any of these for ``record`` None)."""
+def results_json(record: DataRecord, sequences: dict[str, Scores]) -> Results:
+    """A results.json of a job evaluated on ``record``'s data: per sequence its scores, trajectory file and
+    ground truth ``<root>/poses/NN.txt``, unseen if ``record`` lists it."""
+    poses = Path(record.root) / "poses"
+    entries = {
+        s: SequenceResult(10, f"trajectories/{s}.txt", f"plots/{s}.png", str(poses / f"{s}.txt"),
+                          s in record.unseen, scores)
+        for s, scores in sequences.items()
+    }  # fmt: skip
+    overall = Overall([], note="pooled scores not computed by this test")
+    return Results(None, LossRecord("EulerLoss", 100.0), "none", 1, 3, False, record, entries, overall)
+
+
+def write_job(sweep: Path, number: int, loss: str, data: dict, sequences: dict, record: DataRecord) -> Path:
+    """A completed job folder: .hydra/{config,overrides}.yaml (config ``data`` and the selection metric),
+    status.json and results.json (:func:`results_json`)."""
     job = sweep / f"{number}_loss-{loss}+seed-0"
     (job / ".hydra").mkdir(parents=True)
-    (job / ".hydra" / "config.yaml").write_text(yaml.safe_dump({"seed": 0, "data": data}))
+    config = {"seed": 0, "data": data, "selection": {"monitor": "val/score", "mode": "min"}}
+    (job / ".hydra" / "config.yaml").write_text(yaml.safe_dump(config))
     (job / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump([f"loss={loss}", "seed=0"]))
     (job / "status.json").write_text('{"status": "completed"}')
-    results: dict = {"align": "none", "delta": 1, "sequences": sequences}
-    if record is not None:
-        poses = Path(record["root"]) / "poses"
-        results["data"] = record
-        results["sequences"] = {
-            s: {**e, "ground_truth": str(poses / f"{s}.txt"), "unseen": s in record["unseen"]}
-            for s, e in sequences.items()
-        }
-    (job / "results.json").write_text(json.dumps(results))
+    results_json(record, sequences).write(job / "results.json")
     return job
 
 
-def hand_sweep(tmp_path: Path, unseen: list[str] | None, recorded: bool = True) -> Path:
+def hand_sweep(tmp_path: Path, unseen: list[str] | None) -> Path:
     """Two jobs on 07 and the unseen sequences against zero motion (RPE rot 0.05 rad) and the own mean
     motion (RPE trans 0.2 m): euler is 60 % below zero motion in rotation and 25 % below the oracle in
-    translation on both; quat is only 20 % below zero motion in rotation on 12. ``recorded``: the
-    unseen sequences are in results.json (and not in the config), else only in the config's
-    ``data.unseen``."""
+    translation on both; quat is only 20 % below zero motion in rotation on 12. The unseen sequences are
+    in results.json (and not in the config)."""
     sweep = tmp_path / "sweep"
     data = {"train": ["00"], "val": ["07"]}
-    if not recorded and unseen is not None:
-        data["unseen"] = unseen
-    record = data_record(tmp_path / "data", ["07", *UNSEEN], unseen or []) if recorded else None
+    record = data_record(tmp_path / "data", ["07", *UNSEEN], unseen or [])
     good = {"07": entry(0.1, 0.01), "11": entry(0.15, 0.02), "12": entry(0.15, 0.02)}
     write_job(sweep, 0, "euler", data, good, record)
     write_job(sweep, 1, "quat", data, {**good, "12": entry(0.1, 0.04)}, record)
@@ -568,12 +598,11 @@ def unseen_rows(text: str) -> dict[tuple[str, str], dict[str, str]]:
     return {(r[0], r[2]): dict(zip(header, r, strict=True)) for r in rows}
 
 
-@pytest.mark.parametrize("recorded", [True, False])
 def test_unseen_motion_section_marks_which_jobs_meet_both_criteria(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, recorded: bool
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setattr("lossvo.report.document.run_baselines", hand_baselines)
-    path = make_report(hand_sweep(tmp_path, list(UNSEEN), recorded), with_figures=False)
+    path = make_report(hand_sweep(tmp_path, list(UNSEEN)), with_figures=False)
     text = path.read_text()
     rows = unseen_rows(text)
     assert set(rows) == {(f"loss={loss}", s) for loss in ("euler", "quat") for s in UNSEEN}
@@ -609,9 +638,11 @@ def test_no_unseen_motion_section_without_unseen_sequences_or_baselines(
 
 
 def test_unseen_marks_come_from_results_json_before_the_config(tmp_path: Path) -> None:
-    sweep = hand_sweep(tmp_path, [], recorded=True)  # results.json: no unseen-motion sequence
+    sweep = hand_sweep(tmp_path, [])  # results.json: no unseen-motion sequence
     for config in sweep.glob("*/.hydra/config.yaml"):
-        config.write_text(yaml.safe_dump({"seed": 0, "data": {"train": ["00"], "unseen": list(UNSEEN)}}))
+        content = yaml.safe_load(config.read_text())
+        content["data"]["unseen"] = list(UNSEEN)
+        config.write_text(yaml.safe_dump(content))
     text = make_report(sweep, with_baselines=False, with_figures=False).read_text()
     assert "(unseen motion)" not in text
     for results in sweep.glob("*/results.json"):  # one sequence flagged, none listed
@@ -625,7 +656,7 @@ def test_unseen_marks_come_from_results_json_before_the_config(tmp_path: Path) -
 
 
 # --------------------------------------------------------------------------------------------------
-# The report reads only job outputs: hand-written job folders on the tiny dataset, no training
+# What the report reads: hand-written job folders, the data they record on the tiny dataset, no training
 # --------------------------------------------------------------------------------------------------
 
 EVALUATED = ("01", "02")
@@ -635,23 +666,20 @@ def forbid_datamodules(monkeypatch: pytest.MonkeyPatch) -> None:
     """Building a config's object (a datamodule) fails the test."""
 
     def forbidden(*_: object, **__: object) -> None:
-        raise AssertionError("the report must read job outputs only")
+        raise AssertionError("the report must build no datamodule")
 
     monkeypatch.setattr("hydra.utils.instantiate", forbidden)
 
 
-def output_sweep(tmp_path: Path, root: Path, record: bool = True, kind: str | None = None) -> Path:
+def output_sweep(tmp_path: Path, root: Path, kind: str | None = None) -> Path:
     """Two jobs evaluated on 01 and 02 of the dataset at ``root`` (trained on 00), their trajectories
-    the ground truth shifted 0.5 m along x; results.json with its data record (of ``kind``) or, for
-    ``record`` False, without one (an older evaluation)."""
+    the ground truth shifted 0.5 m along x; results.json with its data record (of ``kind``)."""
     sweep = tmp_path / "sweep"
-    data = data_record(root, list(EVALUATED), []) | ({"kind": kind} if kind else {})
+    data = data_record(root, list(EVALUATED), [])
+    data = replace(data, kind=kind) if kind else data
     for number, loss in enumerate(("euler", "quat")):
-        sequences = {s: entry(0.1 + 0.01 * number, 0.01) | {"trajectory": f"trajectories/{s}.txt"}
-                     for s in EVALUATED}  # fmt: skip
-        job = write_job(
-            sweep, number, loss, {"train": ["00"], "val": ["02"]}, sequences, data if record else None
-        )
+        sequences = {s: entry(0.1 + 0.01 * number, 0.01) for s in EVALUATED}
+        job = write_job(sweep, number, loss, {"train": ["00"], "val": ["02"]}, sequences, data)
         for s in EVALUATED:
             if (root / "poses" / f"{s}.txt").is_file():
                 shifted = read_pose_file(root / "poses" / f"{s}.txt")
@@ -676,21 +704,17 @@ def test_baselines_and_ground_truth_come_from_the_data_results_json_records(
         assert png_size(path.parent / "figures" / f"trajectory_{s}.png")[0] > 300
 
 
-@pytest.mark.parametrize("damage", ["no record", "dataset gone"])
 def test_without_the_recorded_data_the_report_renders_and_says_why_once(
-    tiny_kitti: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, damage: str
+    tiny_kitti: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     forbid_datamodules(monkeypatch)
-    gone = tmp_path / "synthetic"
-    if damage == "no record":
-        sweep = output_sweep(tmp_path, tiny_kitti, record=False)
-    else:  # a synthetic dataset that was deleted: it must not be rendered again
-        copy = Path(shutil.copytree(tiny_kitti, gone))
-        sweep = output_sweep(tmp_path, copy, kind="lossvo.data.datamodules.SyntheticDataModule")
-        shutil.rmtree(copy)
+    gone = tmp_path / "synthetic"  # a synthetic dataset that was deleted: it must not be rendered again
+    copy = Path(shutil.copytree(tiny_kitti, gone))
+    sweep = output_sweep(tmp_path, copy, kind="lossvo.data.datamodules.SyntheticDataModule")
+    shutil.rmtree(copy)
     path = make_report(sweep, n_jobs=1)
     text = path.read_text()
-    reason = "records no evaluated data" if damage == "no record" else f"{gone}, no longer exists"
+    reason = f"{gone}, no longer exists"
     assert text.count("*Note:* baselines skipped") == 1 and reason in section(text, "Baselines")
     assert section(text + "\n## end", "Figures").count("trajectory figures without ground truth") == 1
     assert not gone.exists()
@@ -706,13 +730,160 @@ def test_without_the_recorded_data_the_report_renders_and_says_why_once(
 def test_ground_truth_is_read_from_the_pose_file_results_json_names(tiny_kitti: Path, tmp_path: Path) -> None:
     elsewhere = tmp_path / "elsewhere.txt"
     shutil.copyfile(tiny_kitti / "poses" / "02.txt", elsewhere)
-    sequences = {"01": {"ground_truth": str(elsewhere)}, "02": {"ground_truth": None},
-                 "03": {"ground_truth": str(tmp_path / "missing.txt")}, "04": {}}  # fmt: skip
-    job = Job(tmp_path / "0_job", results={"sequences": sequences})
+    named = {"01": str(elsewhere), "02": None, "03": str(tmp_path / "missing.txt")}  # 04: not evaluated
+    results = results_json(data_record(tiny_kitti, list(named), []), {s: entry(0.1, 0.01) for s in named})
+    sequences = {s: replace(e, ground_truth=named[s]) for s, e in results.sequences.items()}
+    job = Job(tmp_path / "0_job", results=replace(results, sequences=sequences))
     found, missing = ground_truth(job, ["01", "02", "03", "04"])
     assert set(found) == {"01"} and np.array_equal(found["01"], read_pose_file(elsewhere))
     assert set(missing) == {"02", "03", "04"}
     assert "names no ground-truth file" in missing["02"] and "missing.txt" in missing["03"]
+
+
+# --------------------------------------------------------------------------------------------------
+# The results.json contract
+# --------------------------------------------------------------------------------------------------
+
+
+def contract_example(root: Path) -> Results:
+    """A results.json with every kind of entry: scores, a sequence without a KITTI segment, one without
+    ground truth, pooled scores and a thread count."""
+    record = data_record(root, ["01", "02", "11"], ["11"])
+    results = results_json(record, {"01": entry(0.1, 0.01), "02": entry(0.2, 0.02)})
+    short = replace(entry(0.3, 0.03), kitti=KittiError(None, None, "sequence too short"))
+    blind = SequenceResult(5, "trajectories/11.txt", "plots/11.png", None, True, note="no ground truth")
+    sequences = {**results.sequences, "02": replace(results.sequences["02"], scores=short), "11": blind}
+    return replace(results, sequences=sequences, overall=Overall(["01", "02"], entry(0.15, 0.015)), threads=4)
+
+
+def test_results_json_round_trip(tmp_path: Path) -> None:
+    results = contract_example(tmp_path)
+    results.write(tmp_path / "results.json")
+    assert Results.read(tmp_path / "results.json") == results
+    content = json.loads((tmp_path / "results.json").read_text())
+    assert content["schema_version"] == SCHEMA_VERSION and content["threads"] == 4
+    assert list(content) == [
+        "schema_version",
+        "checkpoint",
+        "loss",
+        "align",
+        "delta",
+        "seq_len",
+        "carry_state",
+        "threads",
+        "data",
+        "sequences",
+        "overall",
+    ]
+    assert content["loss"] == {"class": "EulerLoss", "k": 100.0}
+    assert list(content["sequences"]["01"]) == [
+        "frames",
+        "trajectory",
+        "plot",
+        "ape",
+        "rpe",
+        "kitti",
+        "ground_truth",
+        "unseen",
+    ]
+    assert content["sequences"]["01"]["ape"]["trans"] == {
+        "rmse": 5.0,
+        "mean": 5.0,
+        "median": 5.0,
+        "std": 0.0,
+        "min": 5.0,
+        "max": 5.0,
+    }
+    assert content["sequences"]["02"]["kitti"] == {
+        "t_err_pct": None,
+        "r_err_deg_per_100m": None,
+        "note": "sequence too short",
+    }
+    assert content["sequences"]["11"] == {
+        "frames": 5,
+        "trajectory": "trajectories/11.txt",
+        "plot": "plots/11.png",
+        "note": "no ground truth",
+        "ground_truth": None,
+        "unseen": True,
+    }
+    assert results.scored() == {"01": entry(0.1, 0.01), "02": results.sequences["02"].scores}
+    assert results.unseen() == {"11"}
+
+
+def damaged(content: dict, change: str) -> object:
+    """``content`` (results.json as parsed) with one damage."""
+    if change == "a list":
+        return [content]
+    if change == "no rmse":
+        del content["sequences"]["01"]["ape"]["trans"]["rmse"]
+    elif change == "rmse a string":
+        content["sequences"]["01"]["rpe"]["rot_rad"]["rmse"] = "0.1"
+    elif change == "sequences a list":
+        content["sequences"] = list(content["sequences"])
+    elif change == "no data":
+        del content["data"]
+    elif change == "train not names":
+        content["data"]["train"] = "00"
+    elif change == "neither scores nor note":
+        del content["sequences"]["11"]["note"]
+    elif change == "another schema":
+        content["schema_version"] = SCHEMA_VERSION + 1
+    elif change == "no schema":
+        del content["schema_version"]
+    return content
+
+
+@pytest.mark.parametrize(
+    ("damage", "reason"),
+    [("missing", "no such file"), ("a folder", "unreadable"), ("binary", "unreadable"),
+     ("cut", "invalid JSON"), ("a list", "expected an object"),
+     ("no rmse", "sequences.01.ape.trans.rmse is missing"),
+     ("rmse a string", "sequences.01.rpe.rot_rad.rmse: expected a number"),
+     ("sequences a list", "sequences: expected an object"), ("no data", "data is missing"),
+     ("train not names", "data.train: expected a list of sequence names"),
+     ("neither scores nor note", "sequences.11: neither scores"),
+     ("another schema", f"schema_version {SCHEMA_VERSION + 1}, expected {SCHEMA_VERSION}"),
+     ("no schema", f"no schema_version, expected {SCHEMA_VERSION}")],
+)  # fmt: skip
+def test_each_bad_results_json_is_one_line_naming_the_file_and_the_problem(
+    tmp_path: Path, damage: str, reason: str
+) -> None:
+    path = tmp_path / "run" / "results.json"
+    path.parent.mkdir()
+    content = contract_example(tmp_path).to_json()
+    if damage == "a folder":
+        path.mkdir()
+    elif damage == "binary":
+        path.write_bytes(b"\xff\xfe\x00results")
+    elif damage == "cut":
+        path.write_text(json.dumps(content)[:-40])
+    elif damage != "missing":
+        path.write_text(json.dumps(damaged(content, damage)))
+    with pytest.raises(ResultsError) as caught:
+        Results.read(path)
+    message = str(caught.value)
+    assert isinstance(caught.value, ValueError) and len(message.splitlines()) == 1
+    assert message.startswith(f"{path}: ") and reason in message, message
+    assert caught.value.path == path and reason in caught.value.reason
+
+
+def test_a_sweep_with_an_unreadable_results_json_lists_the_file_and_the_reason(tmp_path: Path) -> None:
+    sweep = hand_sweep(tmp_path, [])
+    quat = sweep / "1_loss-quat+seed-0" / "results.json"
+    content = json.loads(quat.read_text())
+    content["schema_version"] = SCHEMA_VERSION + 1
+    quat.write_text(json.dumps(content))
+    text = make_report(sweep, with_baselines=False, with_figures=False).read_text()
+    assert "2 job(s): 1 included, 1 skipped" in text
+    _, listed = markdown_rows(text, "Jobs")
+    assert listed["`1_loss-quat+seed-0`"][4] == (
+        f"no: results.json: schema_version {SCHEMA_VERSION + 1}, expected {SCHEMA_VERSION}: evaluate the "
+        "checkpoint again (python -m lossvo.eval ckpt_path=...)"
+    )
+    assert listed["`0_loss-euler+seed-0`"][4] == "yes"
+    _, table = markdown_rows(text, "Table I")
+    assert not any("loss=quat" in h for h in markdown_rows(text, "Table I")[0]) and "07" in table
 
 
 # --------------------------------------------------------------------------------------------------
@@ -764,6 +935,9 @@ def test_the_report_package_has_no_import_cycle_and_the_plot_no_report_import() 
     cycles = [(m, d) for m in ours for d in graph[m] if reaches(graph, d, m)]
     assert not cycles
     assert not any(m.startswith("lossvo.report") for m in graph["lossvo.evaluation.plots"])
+    evaluation = [m for m in graph if m.startswith("lossvo.evaluation")]
+    assert "lossvo.evaluation.baselines" in evaluation  # a classical estimator: evaluation, not report
+    assert not [(m, d) for m in evaluation for d in graph[m] if d.startswith("lossvo.report")]
     assert {"lossvo.report.tables", "lossvo.report.figures"} <= {
         m for m in graph if "lossvo.report.jobs" in graph[m]
     }
