@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable
+from pathlib import Path
 
 import pytest
 import torch
 from hydra.core.global_hydra import GlobalHydra
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig
 
-from lossvo.evaluation import eval as lossvo_eval
-from lossvo.training import train
+from lossvo import eval as lossvo_eval
+from lossvo import train
+from lossvo.training import fitting, lifecycle
 
 DEVICES = [
     "cpu",
@@ -48,3 +52,10 @@ def eval_main(args: list[str], monkeypatch: pytest.MonkeyPatch, capsys: pytest.C
               ) -> tuple[int, str]:  # fmt: skip
     """``python -m lossvo.eval ARGS`` in this process: (exit status, stderr)."""
     return run_hydra_main(lossvo_eval.main, ["lossvo.eval", *args], monkeypatch), capsys.readouterr().err
+
+
+def fit(cfg: DictConfig) -> dict[str, float]:
+    """:func:`lossvo.training.fitting.train` in the output folder a composed config names
+    (``test_train.compose_train``), as a fresh run: the trainer's final callback metrics."""
+    out = Path(HydraConfig.get().runtime.output_dir)
+    return fitting.train(cfg, lifecycle.Run(cfg, out, "run", fresh=True))

@@ -19,12 +19,11 @@ from pathlib import Path
 
 import pytest
 
-from helpers import exit_status, run_hydra_main, train_main
+from helpers import exit_status, fit, run_hydra_main, train_main
+from lossvo import eval as lossvo_eval
+from lossvo import metrics as metrics_cli
 from lossvo.data.synthetic import cli as synthetic_cli
-from lossvo.evaluation import eval as lossvo_eval
-from lossvo.evaluation import metrics
 from lossvo.report import cli as report_cli
-from lossvo.training import train
 from test_train import compose_train, tiny_overrides
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "bad-input.md"
@@ -90,7 +89,7 @@ def euler_checkpoint(tiny_kitti: Path, tmp_path_factory: pytest.TempPathFactory)
     overrides = [*tiny_overrides(tiny_kitti, base / "cache"), "loss=euler", "trainer.max_epochs=1",
                  "+evaluate=false", "+trainer.limit_train_batches=1", "+trainer.limit_val_batches=1",
                  "callbacks.trajectory_validation=null"]  # fmt: skip
-    train.train(compose_train(overrides, base / "run"))
+    fit(compose_train(overrides, base / "run"))
     return base / "run" / "checkpoints" / "best.ckpt"
 
 
@@ -142,7 +141,8 @@ def run_row(
     if row.command == "eval":
         argv = ["lossvo.eval", f"hydra.run.dir={tmp_path / 'run'}", *args]
         return run_hydra_main(lossvo_eval.main, argv, monkeypatch)
-    main = {"report": report_cli.main, "metrics": metrics.main, "synthetic": synthetic_cli.main}[row.command]
+    mains = {"report": report_cli.main, "metrics": metrics_cli.main, "synthetic": synthetic_cli.main}
+    main = mains[row.command]
     try:
         return int(main(args))
     except SystemExit as e:

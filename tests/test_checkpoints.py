@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from helpers import eval_main
-from lossvo.training import checkpoints, train
+from helpers import eval_main, fit
+from lossvo.evaluation import checkpoints
 from test_train import compose_train, tiny_overrides
 
 REPO = Path(__file__).resolve().parents[1]
@@ -101,7 +101,7 @@ def _resume_cfg(job: Path, tiny_kitti: Path, tmp_path: Path, *extra: str):
 def test_resume_refuses_another_loss(sweep_job: Path, tiny_kitti: Path, tmp_path: Path) -> None:
     cfg = _resume_cfg(sweep_job, tiny_kitti, tmp_path, "loss=chordal")  # the same head size as euler
     with pytest.raises(checkpoints.CheckpointError, match=r"EulerLoss.*ChordalLoss"):
-        train.train(cfg)
+        fit(cfg)
 
 
 def test_resume_refuses_another_network_shape(sweep_job: Path, tiny_kitti: Path, tmp_path: Path) -> None:
@@ -109,13 +109,13 @@ def test_resume_refuses_another_network_shape(sweep_job: Path, tiny_kitti: Path,
     with pytest.raises(
         checkpoints.CheckpointError, match=r"has shape \(6, 16\), this run's network \(6, 24\)"
     ):
-        train.train(cfg)
+        fit(cfg)
 
 
 def test_resume_refuses_another_frame_size(sweep_job: Path, tiny_kitti: Path, tmp_path: Path) -> None:
     cfg = _resume_cfg(sweep_job, tiny_kitti, tmp_path, "loss=euler", "data.seq_len=4")
     with pytest.raises(checkpoints.CheckpointError, match=r"data\.seq_len=3, this run has data\.seq_len=4"):
-        train.train(cfg)
+        fit(cfg)
 
 
 RECORDED = {"_target_": "lossvo.data.datamodules.SyntheticDataModule", "root": None, "train": ["00"],

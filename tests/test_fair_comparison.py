@@ -16,9 +16,12 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
+from omegaconf import OmegaConf
 
+from helpers import fit
 from lossvo import geometry as g
-from lossvo.training import train
+from lossvo.train import CONFIG_DIR
+from lossvo.training import fitting, resolvers
 from lossvo.training.module import VOModule
 from lossvo.training.selection import SelectionScore, selection_score
 from lossvo.weighting import HomoscedasticWeighting
@@ -32,7 +35,7 @@ def built(root: Path, tmp: Path, loss: str, *extra: str) -> tuple[VOModule, torc
     """(module, the global RNG state after building, the first two training batches) at seed 0."""
     cfg = compose_train([*tiny_overrides(root, tmp / "cache"), f"loss={loss}", "seed=0", *extra], tmp / loss)
     L.seed_everything(cfg.seed, workers=True)
-    datamodule, module, _ = train.build(cfg)
+    datamodule, module, _ = fitting.build(cfg)
     state = torch.get_rng_state()
     datamodule.prepare_data()
     datamodule.setup("fit")
@@ -57,7 +60,7 @@ def test_same_start_for_every_loss(tiny_kitti: Path, tmp_path: Path) -> None:
         assert torch.equal(state, ref_state), f"{loss}: the random stream after building differs"
         for (frames, targets), (ref_frames, ref_targets) in zip(batches, ref_batches, strict=True):
             assert torch.equal(frames, ref_frames) and torch.equal(targets, ref_targets)
-        assert module.model.head.out_features == train._dim_of(module.hparams.loss["_target_"])
+        assert module.model.head.out_features == resolvers.dim_of(module.hparams.loss["_target_"])
 
 
 def test_weighting_shifts_no_stream(tiny_kitti: Path, tmp_path: Path) -> None:
@@ -78,7 +81,7 @@ def test_another_seed_is_another_start(tiny_kitti: Path, tmp_path: Path) -> None
 
 
 def compose_loss(loss: str, *extra: str) -> torch.nn.Module:
-    with initialize_config_dir(config_dir=train.CONFIG_DIR, version_base="1.3"):
+    with initialize_config_dir(config_dir=CONFIG_DIR, version_base="1.3"):
         cfg = compose("train", overrides=[f"loss={loss}", *extra])
     return instantiate(cfg.loss)
 
@@ -115,9 +118,9 @@ def test_paper_weights_are_the_study_s() -> None:
 def test_explicit_k_wins_and_the_logged_config_shows_it() -> None:
     assert compose_loss("quat", "loss.k=7").k == 7.0
     assert compose_loss("quat", "weighting=paper", "loss.k=7").k == 7.0
-    with initialize_config_dir(config_dir=train.CONFIG_DIR, version_base="1.3"):
+    with initialize_config_dir(config_dir=CONFIG_DIR, version_base="1.3"):
         cfg = compose("train", overrides=["loss=quat"])
-    assert train._container(cfg)["loss"]["k"] == 400.0
+    assert OmegaConf.to_container(cfg, resolve=True)["loss"]["k"] == 400.0
 
 
 def test_unsquared_quaternion_distance() -> None:
@@ -154,7 +157,7 @@ def test_learned_weights_move_and_reload(tiny_kitti: Path, tmp_path: Path) -> No
     overrides = [*tiny_overrides(tiny_kitti, tmp_path / "cache"), "loss=quat", "weighting=learned",
                  "weighting.learned.s_r=1.0", "trainer.max_epochs=2", "optimizer.lr=0.05"]  # fmt: skip
     cfg = compose_train(overrides, tmp_path / "run")
-    metrics = train.train(cfg)
+    metrics = fit(cfg)
     assert {"train/s_t", "train/s_r"} <= set(metrics)
     last = tmp_path / "run" / "checkpoints" / "last.ckpt"
     module = VOModule.load_from_checkpoint(last, map_location="cpu", weights_only=True)
@@ -175,7 +178,7 @@ def test_learned_weights_move_and_reload(tiny_kitti: Path, tmp_path: Path) -> No
 @pytest.mark.parametrize("loss", ALL_LOSSES)
 def test_checkpoint_monitor_is_the_same_for_every_loss(tiny_kitti: Path, tmp_path: Path, loss: str) -> None:
     cfg = compose_train([*tiny_overrides(tiny_kitti, tmp_path), f"loss={loss}"], tmp_path / "run")
-    _, module, trainer = train.build(cfg)
+    _, module, trainer = fitting.build(cfg)
     monitors = {c.monitor for c in trainer.checkpoint_callbacks}
     assert monitors == {"val/score", None} and cfg.optimized_metric == "val/score"  # best, and last
     assert module.hparams.monitor == "val/score"

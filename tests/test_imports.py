@@ -1,4 +1,5 @@
-"""No import cycles in src/lossvo, counting imports inside functions and under ``if TYPE_CHECKING:``."""
+"""The import graph of src/lossvo, counting imports inside functions and under ``if TYPE_CHECKING:``: no
+cycles, and no module importing a layer above its own."""
 
 from __future__ import annotations
 
@@ -74,7 +75,7 @@ def find_cycle(edges: dict[str, set[str]]) -> list[str] | None:
 
 def test_no_import_cycles() -> None:
     edges = graph()
-    assert len(edges) > 30 and "lossvo.training.train" in edges["lossvo.train"]
+    assert len(edges) > 30 and "lossvo.training.fitting" in edges["lossvo.train"]
     cycle = find_cycle(edges)
     assert cycle is None, "import cycle: " + " -> ".join(cycle or [])
 
@@ -95,3 +96,60 @@ def test_imports_inside_functions_and_type_checking_count() -> None:
     )
     modules = {"lossvo", "lossvo.a", "lossvo.b", "lossvo.c", "lossvo.d", "lossvo.e"}
     assert imported(source, "lossvo.a", False, modules) == {"lossvo.b", "lossvo.c", "lossvo.d"}
+
+
+ENTRIES = {
+    "lossvo.train", "lossvo.eval", "lossvo.metrics", "lossvo.report.cli", "lossvo.report.__main__",
+    "lossvo.data.synthetic.cli", "lossvo.data.synthetic.__main__", "lossvo.data.motion",
+    "lossvo.geometry.axioms", "lossvo.geometry.__main__",
+}  # fmt: skip
+"""Modules that parse a command line: the entry points, including the CLIs inside data/ and geometry/."""
+
+LAYERS = (
+    ("report",),
+    ("training",),
+    ("evaluation",),
+    ("data", "losses", "weighting", "models"),
+    ("geometry",),
+    ("console", "atomic", "processes"),
+)
+"""The library's layers, top to bottom, by the first name under ``lossvo``; each imports only its own
+layer and the ones below it."""
+
+
+def layer(module: str) -> int:
+    """0 for an entry point, then 1, 2, ... down the :data:`LAYERS`; the package ``lossvo`` is the lowest."""
+    if module in ENTRIES:
+        return 0
+    parts = module.split(".")
+    if len(parts) == 1:
+        return len(LAYERS) + 1
+    return 1 + next(i for i, names in enumerate(LAYERS) if parts[1] in names)
+
+
+def upward_imports(edges: dict[str, set[str]]) -> list[str]:
+    """``"a -> b"`` for each import of a module ``b`` in a layer above ``a``'s (an entry counts as the
+    top layer, so a library module importing any entry point is listed)."""
+    return sorted(f"{a} -> {b}" for a, targets in edges.items() for b in targets if layer(b) < layer(a))
+
+
+def test_every_module_has_a_layer() -> None:
+    for module in graph():
+        layer(module)  # StopIteration for a package the layers do not name
+
+
+def test_no_module_imports_a_layer_above_its_own() -> None:
+    edges = graph()
+    assert set(edges) >= ENTRIES - {"lossvo.report.__main__"}  # the entries listed exist
+    assert upward_imports(edges) == []
+
+
+def test_upward_imports_are_found() -> None:
+    edges = {
+        "lossvo.evaluation.results": {"lossvo.training.module"},
+        "lossvo.training.fitting": {"lossvo.evaluation.results", "lossvo.train"},
+        "lossvo.train": {"lossvo.training.fitting"},
+    }
+    assert upward_imports(edges) == [
+        "lossvo.evaluation.results -> lossvo.training.module", "lossvo.training.fitting -> lossvo.train"
+    ]  # fmt: skip

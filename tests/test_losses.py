@@ -13,7 +13,6 @@ from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 from scipy.spatial.transform import Rotation
 
-import lossvo.training.train  # noqa: F401  (registers the config resolvers)
 from lossvo import geometry as g
 from lossvo.losses import (
     ChordalLoss,
@@ -25,8 +24,10 @@ from lossvo.losses import (
     SVDLoss,
     SymMatrixQuatLoss,
 )
+from lossvo.training import resolvers
 
 CONF = Path(__file__).resolve().parents[1] / "src" / "lossvo" / "conf"
+resolvers.register()  # the loss and weighting configs interpolate them
 LOSSES = [EulerLoss, QuaternionLoss, ChordalLoss, GeodesicLoss, SixDLoss, SVDLoss, SymMatrixQuatLoss]
 KEYS = {"loss", "trans_loss", "rot_loss", "trans_err_m", "rot_err_rad"}
 NEAR_PI = math.radians(179.9)

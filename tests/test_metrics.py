@@ -19,6 +19,7 @@ from evo.tools import file_interface
 
 from helpers import DEVICES
 from lossvo import geometry
+from lossvo import metrics as metrics_cli
 from lossvo.data.kitti import read_poses
 from lossvo.evaluation import metrics
 
@@ -450,7 +451,7 @@ def cli_files(tmp_path_factory) -> tuple[Path, Path, Path]:
 
 def test_cli_json(cli_files, capsys):
     gt_file, est_file, _ = cli_files
-    assert metrics.main([str(gt_file), str(est_file), "--align", "se3", "--delta", "2", "--json"]) == 0
+    assert metrics_cli.main([str(gt_file), str(est_file), "--align", "se3", "--delta", "2", "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert set(result) == {"ape", "rpe", "kitti"}
     for key in ("ape", "rpe"):
@@ -468,7 +469,7 @@ def test_cli_survives_a_closed_pipe(cli_files, monkeypatch):
     os.close(read_end)
     with os.fdopen(write_end, "w") as pipe:
         monkeypatch.setattr(sys, "stdout", pipe)
-        assert metrics.main([str(gt_file), str(est_file), "--json"]) == 0
+        assert metrics_cli.main([str(gt_file), str(est_file), "--json"]) == 0
         monkeypatch.undo()
 
 
@@ -486,7 +487,7 @@ def test_output_into_a_closed_pipe_ends_the_interpreter_cleanly():
 
 def test_cli_malformed_file(cli_files, capsys):
     gt_file, _, bad = cli_files
-    assert metrics.main([str(gt_file), str(bad)]) == 2
+    assert metrics_cli.main([str(gt_file), str(bad)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "Traceback" not in err
     assert f"{bad}:4" in err
@@ -497,10 +498,10 @@ def test_cli_table_and_short_sequence(tmp_path, capsys):
     ref = make_reference(30)
     gt_file = write_kitti(tmp_path / "gt.txt", ref)
     est_file = write_kitti(tmp_path / "est.txt", make_estimate(ref))
-    assert metrics.main([str(gt_file), str(est_file)]) == 0
+    assert metrics_cli.main([str(gt_file), str(est_file)]) == 0
     table = capsys.readouterr().out
     assert "APE trans" in table and "RPE rot" in table and "too short" in table
-    assert metrics.main([str(gt_file), str(est_file), "--json"]) == 0
+    assert metrics_cli.main([str(gt_file), str(est_file), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["kitti"] == {"t_err_pct": None, "r_err_deg_per_100m": None}
-    assert metrics.main([str(gt_file), str(tmp_path / "missing.txt")]) == 2
+    assert metrics_cli.main([str(gt_file), str(tmp_path / "missing.txt")]) == 2
     assert "missing.txt" in capsys.readouterr().err

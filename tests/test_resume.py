@@ -17,9 +17,9 @@ import lightning as L
 import pytest
 import torch
 
-from helpers import train_main
-from lossvo.training import checkpoints, train
-from lossvo.training.job_folder import InterruptedRun
+from helpers import fit, train_main
+from lossvo.training import checkpoints
+from lossvo.training.lifecycle import InterruptedRun
 from test_train import compose_train, tiny_overrides
 
 REPO = Path(__file__).resolve().parents[1]
@@ -66,18 +66,18 @@ def _weights(run: Path) -> dict[str, torch.Tensor]:
 def test_resume_equals_uninterrupted(tiny_kitti: Path, tmp_path: Path, restore_sigint) -> None:
     cache = tmp_path / "cache"
     whole = tmp_path / "whole"
-    train.train(compose_train(_overrides(tiny_kitti, cache, "trainer.max_epochs=3"), whole))
+    fit(compose_train(_overrides(tiny_kitti, cache, "trainer.max_epochs=3"), whole))
 
     parts = tmp_path / "parts"
     stop = ["+callbacks.stop._target_=test_resume.InterruptAtEpoch", "+callbacks.stop.epoch=1"]
-    with pytest.raises(InterruptedRun, match="SIGINT during epoch 1"):
-        train.train(compose_train(_overrides(tiny_kitti, cache, "trainer.max_epochs=3", *stop), parts))
+    with pytest.raises(InterruptedRun, match="SIGINT during epoch 2"):  # counted from 1
+        fit(compose_train(_overrides(tiny_kitti, cache, "trainer.max_epochs=3", *stop), parts))
     assert checkpoints.read(parts / "checkpoints" / "last.ckpt")["epoch"] == 0
     assert (parts / "checkpoints" / "interrupted.ckpt").is_file()
     resumed = _overrides(
         tiny_kitti, cache, "trainer.max_epochs=3", f"ckpt_path={parts}/checkpoints/last.ckpt"
     )
-    train.train(compose_train(resumed, parts))
+    fit(compose_train(resumed, parts))
 
     ours, theirs = _weights(parts), _weights(whole)
     for name in theirs:
@@ -90,10 +90,10 @@ def test_resume_equals_uninterrupted(tiny_kitti: Path, tmp_path: Path, restore_s
 
 def test_extending_a_finished_run_continues_the_schedule(tiny_kitti: Path, tmp_path: Path) -> None:
     cache, run = tmp_path / "cache", tmp_path / "run"
-    train.train(compose_train(_overrides(tiny_kitti, cache, "trainer.max_epochs=2"), run))
+    fit(compose_train(_overrides(tiny_kitti, cache, "trainer.max_epochs=2"), run))
     before = _weights(run)
     longer = _overrides(tiny_kitti, cache, "trainer.max_epochs=3", f"ckpt_path={run}/checkpoints/last.ckpt")
-    train.train(compose_train(longer, run))
+    fit(compose_train(longer, run))
     lr = [value for _, _, value in _values(run, "lr-Adam")]
     assert len(lr) == 3
     # cosine over 3 epochs at epoch 2: lr0 (1 + cos(2 pi / 3)) / 2 = lr0 / 4, not the old schedule's 0
@@ -107,11 +107,13 @@ def test_a_full_disk_keeps_the_previous_checkpoint(tmp_path: Path, monkeypatch: 
     path = tmp_path / "last.ckpt"
     io.save_checkpoint({"epoch": 1, "weights": torch.ones(3)}, path)
 
-    def full_disk(obj, f, *args, **kwargs):
-        Path(f).write_bytes(b"PK\x03\x04 half a checkpoint")
-        raise OSError(errno.ENOSPC, "No space left on device")
+    write_bytes = Path.write_bytes
 
-    monkeypatch.setattr(checkpoints.torch, "save", full_disk)
+    def full_disk(self: Path, data: bytes) -> int:
+        write_bytes(self, bytes(data)[:10])  # half a checkpoint, then the disk is full
+        raise OSError(errno.ENOSPC, "No space left on device", str(self))
+
+    monkeypatch.setattr(Path, "write_bytes", full_disk)
     with pytest.raises(OSError, match="No space left"):
         io.save_checkpoint({"epoch": 2, "weights": torch.zeros(3)}, path)
     assert torch.load(path)["epoch"] == 1  # the previous one, whole
@@ -148,14 +150,14 @@ def test_signals_leave_an_interrupted_job_that_resumes_by_itself(
     assert status["status"] == "interrupted" and status["signal"] == name
     assert status["resume_from"] == str(last)
     done = checkpoints.read(last)["epoch"]  # loadable
-    assert status["epoch"] >= done  # the signal may come between saving an epoch and starting the next
+    assert status["epoch"] >= done + 1  # counted from 1; the signal may come between two epochs
     assert checkpoints.read(tmp_path / "run" / "checkpoints" / "interrupted.ckpt")["epoch"] >= done
     assert "Traceback" not in output and f"interrupted by {name}" in output
     if signum != signal.SIGTERM:
         return
     # The same command, in process: the same job folder resumes by itself.
     assert train_main(_args(tiny_kitti, tmp_path, f"trainer.max_epochs={done + 2}"), monkeypatch) == 0
-    assert "resuming the interrupted run" in capsys.readouterr().out
+    assert f"(resuming from {last})" in capsys.readouterr().out
     assert json.loads((tmp_path / "run" / "status.json").read_text())["status"] == "completed"
     epochs = [int(float(r["epoch"])) for r in _rows(tmp_path / "run") if r.get("val/score")]
     assert epochs == list(range(done + 2))  # every epoch once

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from lossvo.data import motion, synthetic
+from lossvo.data.synthetic import cli as synthetic_cli
 from lossvo.data.synthetic import routes
 
 LONG = 4000  # frames: enough manoeuvres of every kind for statistics
@@ -237,7 +238,7 @@ def test_a_changed_route_spec_renders_the_dataset_again(tmp_path: Path) -> None:
 
 def test_cli_mix_and_its_errors(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     args = ["--out", str(tmp_path), "--sequences", "11", "--frames", "3", "--height", "32", "--width", "96"]
-    assert synthetic.main([*args, "--quiet", "--mix", "11=expressway:2+stop_and_go"]) == 0
+    assert synthetic_cli.main([*args, "--quiet", "--mix", "11=expressway:2+stop_and_go"]) == 0
     assert synthetic.read_manifest(tmp_path)["routes"]["mixes"]["11"] == {
         "expressway": pytest.approx(2 / 3), "stop_and_go": pytest.approx(1 / 3)}  # fmt: skip
     bad_mixes = [
@@ -247,6 +248,6 @@ def test_cli_mix_and_its_errors(tmp_path: Path, capsys: pytest.CaptureFixture) -
     ]
     for bad, message in bad_mixes:
         with pytest.raises(SystemExit):
-            synthetic.main([*args, "--mix", bad])
+            synthetic_cli.main([*args, "--mix", bad])
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and message in err[0], err

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from lossvo.data import motion, synthetic
+from lossvo.data.synthetic import cli as synthetic_cli
 from lossvo.data.synthetic import routes, writer
 
 GEOMETRY_SEQUENCES = ("00", "07", "11")
@@ -271,7 +272,7 @@ def test_mirrored_frames_move_as_the_mirrored_poses() -> None:
 
 def test_cli_writes_a_dataset(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     """In process (tests/test_bad_input.py runs the real command line)."""
-    assert synthetic.main(["--out", str(tmp_path / "d"), "--sequences", "00", "--frames", "5"]) == 0
+    assert synthetic_cli.main(["--out", str(tmp_path / "d"), "--sequences", "00", "--frames", "5"]) == 0
     err = capsys.readouterr().err
     size = sum(p.stat().st_size for p in (tmp_path / "d").rglob("*") if p.is_file() and p.suffix != ".json")
     assert f"wrote {tmp_path / 'd'} in " in err and f", {size / 1e6:.0f} MB" in err

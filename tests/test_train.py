@@ -11,7 +11,9 @@ from hydra import compose, initialize_config_dir
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, open_dict
 
-from lossvo.training import train
+from helpers import fit
+from lossvo.train import CONFIG_DIR
+from lossvo.training import fitting
 from lossvo.training.module import NonFiniteLossError, VOModule
 
 
@@ -27,7 +29,7 @@ def tiny_overrides(root: Path, cache: Path) -> list[str]:
 
 def compose_train(overrides: list[str], out: Path) -> DictConfig:
     """Compose conf/train.yaml as `python -m lossvo.train` would, with its output folder set to ``out``."""
-    with initialize_config_dir(config_dir=train.CONFIG_DIR, version_base="1.3"):
+    with initialize_config_dir(config_dir=CONFIG_DIR, version_base="1.3"):
         cfg = compose("train", overrides=overrides, return_hydra_config=True)
     with open_dict(cfg):
         cfg.hydra.runtime.output_dir = str(out)
@@ -42,7 +44,7 @@ def compose_train(overrides: list[str], out: Path) -> DictConfig:
 def test_fast_dev_run_for_every_loss(tiny_kitti: Path, tmp_path: Path, loss: str) -> None:
     overrides = [*tiny_overrides(tiny_kitti, tmp_path / "cache"), f"loss={loss}", "+trainer.fast_dev_run=1"]
     cfg = compose_train(overrides, tmp_path / "run")
-    metrics = train.train(cfg)
+    metrics = fit(cfg)
     assert {"train/loss", "val/loss", "val/score", "val/rot_err_rad", "val/trans_err_m"} <= set(metrics)
     assert all(torch.isfinite(torch.tensor(v)) for v in metrics.values())
 
@@ -54,7 +56,7 @@ def test_checkpoint_reloads_with_weights_only(tiny_kitti: Path, tmp_path: Path) 
     (tmp_path / "run" / "train.log").write_text("")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        train.train(cfg)
+        fit(cfg)
     assert not [w for w in caught if "will be deleted" in str(w.message)]  # nothing to delete: no warning
     ckpt = tmp_path / "run" / "checkpoints" / "best.ckpt"
     assert ckpt.is_file() and (tmp_path / "run" / "checkpoints" / "last.ckpt").is_file()
@@ -80,7 +82,7 @@ def test_non_finite_loss_names_step_batch_and_term(tiny_kitti: Path, tmp_path: P
     cfg = compose_train(overrides, tmp_path / "run")
     expected = r"non-finite loss at epoch \d+, global step \d+, batch \d+: trans_loss, rot_loss = nan"
     with pytest.raises(NonFiniteLossError, match=expected):
-        train.train(cfg)
+        fit(cfg)
 
 
 @pytest.mark.parametrize(
@@ -100,11 +102,11 @@ def test_bad_names_fail_with_hydra_message(tmp_path: Path, override: str, messag
 def test_callback_without_target_fails_before_training(tiny_kitti: Path, tmp_path: Path) -> None:
     cfg = compose_train([*tiny_overrides(tiny_kitti, tmp_path), "+callbacks.oops.x=1"], tmp_path / "run")
     with pytest.raises(ValueError, match=r"callbacks\.oops: expected a config with a _target_"):
-        train.build(cfg)
+        fitting.build(cfg)
 
 
 @pytest.mark.parametrize("override", ["scheduler=none", "~scheduler"])
 def test_no_scheduler(tiny_kitti: Path, tmp_path: Path, override: str) -> None:
     cfg = compose_train([*tiny_overrides(tiny_kitti, tmp_path / "cache"), override], tmp_path / "run")
-    _, module, _ = train.build(cfg)
+    _, module, _ = fitting.build(cfg)
     assert module.hparams["scheduler"] is None

@@ -9,6 +9,7 @@ in the environment shows the full traceback instead, as ``HYDRA_FULL_ERROR=1`` d
 from __future__ import annotations
 
 import argparse
+import errno
 import functools
 import os
 import re
@@ -30,6 +31,9 @@ FULL_ERROR = "LOSSVO_FULL_ERROR"
 
 USER_ERRORS = (ValueError, TypeError, ImportError)
 """Errors a constructor raises on a config value it refuses (or a ``_target_`` that does not import)."""
+
+DISK_ERRORS = (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM)
+"""OS errors that are the disk's or the user's (full, read-only, not permitted), not lossvo's."""
 
 _HYDRA_FULL_ERROR = "HYDRA_FULL_ERROR"
 _P = ParamSpec("_P")
@@ -74,6 +78,15 @@ def first_line(text: object) -> str:
 def one_line(text: object) -> str:
     """A message on one line: its non-empty lines, stripped, joined by "; "."""
     return "; ".join(line.strip() for line in str(text).splitlines() if line.strip())
+
+
+def disk_error(error: BaseException) -> str | None:
+    """One line for an OS error of :data:`DISK_ERRORS`, naming the path and the cause
+    (``/data/run/status.json: No space left on device``); None for any other error."""
+    if not isinstance(error, OSError) or error.errno not in DISK_ERRORS:
+        return None
+    cause = error.strerror or errno.errorcode.get(error.errno or 0, "OS error")
+    return f"{error.filename}: {cause}" if error.filename else cause
 
 
 def hydra_message(error: HydraException) -> str:
@@ -122,9 +135,10 @@ def _check_flags(argv: list[str]) -> None:
 
 def one_line_errors(hydra_main: Callable[_P, _R]) -> Callable[_P, _R]:
     """A ``@hydra.main`` entry point whose config errors (an unknown config group option, an override
-    of a key the config lacks, a malformed override) end in one line on stderr with exit status 2,
-    instead of Hydra's multi-line report with exit status 1. Errors that are not the user's keep their
-    traceback; ``LOSSVO_FULL_ERROR=1`` (or ``HYDRA_FULL_ERROR=1``) keeps it for every error."""
+    of a key the config lacks, a malformed override) and disk errors (:func:`disk_error`) end in one
+    line on stderr with exit status 2, instead of Hydra's multi-line report with exit status 1. Errors
+    that are not the user's keep their traceback; ``LOSSVO_FULL_ERROR=1`` (or ``HYDRA_FULL_ERROR=1``)
+    keeps it for every error."""
 
     @functools.wraps(hydra_main)
     def main(*args: _P.args, **kwargs: _P.kwargs) -> _R:
@@ -137,6 +151,11 @@ def one_line_errors(hydra_main: Callable[_P, _R]) -> Callable[_P, _R]:
             if full_error() or given == "1" or not _user_error(e):
                 raise
             print(f"error: {hydra_message(e)}", file=sys.stderr)
+            raise SystemExit(2) from None
+        except OSError as e:  # e.g. Hydra creating an output folder where it may not
+            if full_error() or given == "1" or disk_error(e) is None:
+                raise
+            print(f"error: {disk_error(e)}", file=sys.stderr)
             raise SystemExit(2) from None
         finally:
             if given is None:

@@ -1,6 +1,137 @@
-"""``python -m lossvo.eval``: runs :func:`lossvo.evaluation.eval.main`."""
+"""``python -m lossvo.eval``: evaluate a checkpoint (Hydra, ``lossvo/conf/eval.yaml``)::
 
-from lossvo.evaluation.eval import main
+    python -m lossvo.eval ckpt_path=outputs/multirun/<time>/0_loss-euler+seed-0/checkpoints/best.ckpt
+    python -m lossvo.eval ckpt_path=... data=kitti data.root=/data/kitti data.test=[09,10]
+
+The checkpoint says how its network was trained (:mod:`lossvo.evaluation.checkpoints`): frame size,
+``seq_len``, normalisation and its statistics, and the data it was trained on, which is what is evaluated
+unless ``data=...`` chooses another dataset or ``data.KEY=...`` changes a setting; the other data need
+hold no training sequence. An override of the frame size, ``seq_len`` or normalisation that contradicts
+the checkpoint is an error, as is any other bad input (one line naming it, exit status 2; with
+``LOSSVO_FULL_ERROR=1`` its traceback instead). The output folder (``outputs/eval/<time>/``, or
+``hydra.run.dir``) receives what :func:`lossvo.evaluation.results.evaluate_run` writes.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, cast
+
+import hydra
+import torch
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig
+
+from lossvo.console import one_line, one_line_errors, raise_if_full_error
+from lossvo.evaluation import checkpoints
+from lossvo.evaluation.metrics import ALIGN_MODES
+from lossvo.evaluation.results import Results, evaluate_run
+from lossvo.processes import restore_start_method
+
+log = logging.getLogger("lossvo")
+
+CONFIG_DIR = str(Path(__file__).resolve().parent / "conf")
+
+
+def _resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+def check_config(cfg: Any) -> None:
+    """Raise ``ValueError`` (one line naming the key, the value and what was expected) for a config of
+    ``python -m lossvo.eval`` that would fail only after the checkpoint is loaded."""
+    from omegaconf import OmegaConf
+
+    if OmegaConf.is_missing(cfg, "ckpt_path"):
+        raise ValueError("ckpt_path is required: python -m lossvo.eval ckpt_path=PATH")
+    missing = sorted(OmegaConf.missing_keys(cfg))
+    if missing:
+        raise ValueError(f"{missing[0]}: a value is required: add {missing[0]}=... to the command line")
+    device = cfg.get("device", "auto")
+    if device != "auto":
+        try:
+            kind = torch.device(str(device)).type
+        except RuntimeError:
+            raise ValueError(f"device: expected auto, cpu, cuda or cuda:N, got {device!r}") from None
+        if kind == "cuda" and not torch.cuda.is_available():
+            raise ValueError(f"device: {device!r}, but CUDA is not available here (expected auto or cpu)")
+    if cfg.get("align", "none") not in ALIGN_MODES:
+        raise ValueError(f"align: expected one of {', '.join(ALIGN_MODES)}, got {cfg.get('align')!r}")
+    delta = cfg.get("delta", 1)
+    if isinstance(delta, bool) or not isinstance(delta, int) or delta < 1:
+        raise ValueError(f"delta: expected an integer >= 1 (frames), got {delta!r}")
+    if not isinstance(cfg.get("carry_state", False), bool):
+        raise ValueError(f"carry_state: expected true or false, got {cfg.get('carry_state')!r}")
+
+
+def data_overrides(overrides: Sequence[str]) -> tuple[bool, list[str]]:
+    """From command-line overrides: whether a data config was chosen (``data=kitti``) and the data keys
+    set (``data.root=...`` gives ``root``)."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    chosen, keys = False, []
+    for override in OverridesParser.create().parse_overrides(list(overrides)):
+        key = override.key_or_group
+        if key == "data":
+            chosen = True
+        elif key.startswith("data."):
+            keys.append(key.split(".")[1])
+    return chosen, list(dict.fromkeys(keys))
+
+
+def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
+    """The body of ``python -m lossvo.eval``: load the checkpoint, build the data it describes (with the
+    command line's ``overrides`` of data settings), evaluate the test and unseen-motion sequences."""
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+
+    device = _resolve_device(str(cfg.get("device", "auto")))
+    network = checkpoints.load_network(cfg.ckpt_path, device)
+    chosen, keys = data_overrides(overrides)
+    given = cast("dict[str, Any]", OmegaConf.to_container(cfg.data, resolve=True))
+    recorded = checkpoints.recorded_data(cfg.ckpt_path, network)
+    explicit = {k: given[k] for k in keys if k in given}
+    data_cfg = checkpoints.evaluation_data(recorded, given if chosen else None, explicit)
+    datamodule = instantiate(data_cfg, _convert_="all")
+    datamodule.prepare_data()
+    datamodule.setup("test")
+    sequences = list(cfg.sequences) if cfg.get("sequences") else datamodule.evaluated
+    sequences = [f"{s:02d}" if isinstance(s, int) else str(s) for s in sequences]
+    available = list(getattr(datamodule, "sequences", None) or sequences)
+    unknown = [s for s in sequences if s not in available]
+    if unknown:
+        raise ValueError(f"sequences: {unknown[0]!r} is not a sequence of the evaluated data (expected one "
+                         f"of {', '.join(available)}; data.test=[...] chooses them)")  # fmt: skip
+    return evaluate_run(network, datamodule, out_dir, sequences, checkpoint=Path(cfg.ckpt_path).resolve(),
+                        align=cfg.get("align", "none"), delta=int(cfg.get("delta", 1)),
+                        carry_state=bool(cfg.get("carry_state", False)), threads=network.threads)  # fmt: skip
+
+
+@one_line_errors
+@hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="eval")
+def main(cfg: DictConfig) -> None:
+    """Evaluate ``cfg.ckpt_path`` into this Hydra job's folder; bad input is one line, exit status 2."""
+    restore_start_method()  # a joblib-launched job: let its loader workers start
+    out_dir = Path(HydraConfig.get().runtime.output_dir)
+    try:
+        check_config(cfg)
+        result = run(cfg, out_dir, HydraConfig.get().overrides.task)
+    except (FileNotFoundError, ValueError) as e:  # KittiFormatError, CheckpointError are ValueErrors
+        raise_if_full_error()
+        print(f"error: {one_line(e)}", file=sys.stderr)
+        sys.exit(2)
+    overall = result.overall
+    if overall.scores is not None:
+        names = ", ".join(overall.sequences)
+        ape, rpe = overall.scores.ape.trans.rmse, overall.scores.rpe.trans.rmse
+        log.info("overall (%s): APE trans RMSE %.4g m, RPE trans RMSE %.4g m", names, ape, rpe)
+    log.info("results: %s", out_dir / "results.json")
+
 
 if __name__ == "__main__":
     main()

@@ -1,6 +1,78 @@
-"""``python -m lossvo.metrics``: runs :func:`lossvo.evaluation.metrics.main`."""
+"""``python -m lossvo.metrics GT_FILE EST_FILE [--align ...] [--delta N] [--json]``: APE, RPE and the KITTI
+odometry error of an estimated KITTI pose file against a ground-truth one
+(:mod:`lossvo.evaluation.metrics`), as a table or JSON.
+"""
 
-from lossvo.evaluation.metrics import main
+from __future__ import annotations
+
+import json
+import math
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+import torch
+
+from lossvo.console import OneLineParser, emit, raise_if_full_error
+from lossvo.data.kitti import read_poses
+from lossvo.evaluation.metrics import ALIGN_MODES, PAIRS_FROM, STATISTICS, evaluate
+
+DESCRIPTION = "APE, RPE and the KITTI odometry error of an estimated KITTI pose file against a reference"
+
+
+def format_table(result: dict[str, Any]) -> str:
+    """A plain-text table of :func:`evaluate`'s result."""
+    lines = [f"{'':14}" + "".join(f"{name:>12}" for name in STATISTICS)]
+    for metric in ("ape", "rpe"):
+        for part, unit in (("trans", "m"), ("rot_rad", "rad")):
+            stats = result[metric][part]
+            label = f"{metric.upper()} {part.split('_')[0]} ({unit})"
+            lines.append(f"{label:14}" + "".join(f"{stats[name]:12.6g}" for name in STATISTICS))
+    kitti = result["kitti"]
+    if kitti["t_err_pct"] is None:
+        lines.append("KITTI: sequence too short for any segment (100-800 m)")
+    else:
+        lines.append(
+            f"KITTI: t_err {kitti['t_err_pct']:.4f} %, r_err {kitti['r_err_deg_per_100m']:.4f} deg/100 m"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m lossvo.metrics GT_FILE EST_FILE``; one-line errors with exit status 2."""
+    parser = OneLineParser(prog="python -m lossvo.metrics", description=DESCRIPTION)
+    parser.add_argument("gt", help="ground-truth KITTI pose file")
+    parser.add_argument("est", help="estimated KITTI pose file")
+    parser.add_argument("--align", choices=ALIGN_MODES, default="none", help="APE alignment (evo's)")
+    parser.add_argument(
+        "--delta", type=float, default=1, help="RPE delta, in frames or metres (--delta-unit)"
+    )
+    parser.add_argument(
+        "--delta-unit", choices=("f", "m"), default="f", help="RPE delta unit: frames or metres"
+    )
+    parser.add_argument("--pairs-from", choices=PAIRS_FROM, default="estimate",
+                        help="whose path picks RPE pairs in metres (evo: pairs_from_reference)")  # fmt: skip
+    parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    args = parser.parse_args(argv)
+    frames = args.delta_unit == "f"
+    if not (math.isfinite(args.delta) and args.delta > 0 and (not frames or float(args.delta).is_integer())):
+        unit = "an integer number of frames >= 1" if frames else "a distance in metres > 0"
+        parser.error(f"--delta: expected {unit}, got {args.delta:g}")
+    try:
+        gt = torch.from_numpy(read_poses(args.gt))
+        est = torch.from_numpy(read_poses(args.est))
+        if len(gt) != len(est):
+            raise ValueError(f"{args.est} has {len(est)} poses, {args.gt} has {len(gt)}: expected one pose "
+                             f"per frame of the same sequence in both")  # fmt: skip
+        delta = int(args.delta) if frames else args.delta
+        result = evaluate(gt, est, args.align, delta, args.delta_unit, args.pairs_from)
+    except ValueError as e:  # KittiFormatError is a ValueError
+        raise_if_full_error()
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    emit(json.dumps(result, indent=2) if args.json else format_table(result))
+    return 0
+
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(main())

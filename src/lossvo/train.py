@@ -1,6 +1,52 @@
-"""``python -m lossvo.train``: runs :func:`lossvo.training.train.main`."""
+"""``python -m lossvo.train [overrides]``: train a VO network, sweeps with ``-m``.
 
-from lossvo.training.train import main
+Examples::
+
+    python -m lossvo.train                                   # chordal loss, embedded synthetic data
+    python -m lossvo.train -m loss=euler,quat,chordal        # the study's three-way comparison
+    python -m lossvo.train -m loss=euler,quat,chordal seed=0,1,2 hydra/launcher=joblib
+    python -m lossvo.train experiment=paper data.root=/data/kitti trainer=gpu
+
+A run writes to ``outputs/runs/<time>/``, a sweep job to ``outputs/multirun/<time>/<num>_<overrides>/``:
+the resolved config (``.hydra/``), ``status.json``, ``checkpoints/`` (best on the selection score and
+last), ``metrics.csv``, and from the best checkpoint evaluated on the test sequences ``results.json``,
+``trajectories/`` and ``plots/`` (``evaluate=false`` skips that evaluation, as ``trainer.fast_dev_run``
+does). What a run does in a folder that already ran (skip, resume, refuse) and how it ends:
+:mod:`lossvo.training.lifecycle`; what it builds and trains: :mod:`lossvo.training.fitting`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig
+
+from lossvo.console import one_line_errors
+from lossvo.processes import restore_start_method
+from lossvo.training import fitting, lifecycle, resolvers
+
+resolvers.register()  # at import: a launcher's worker process unpickles main and composes configs there
+
+CONFIG_DIR = str(Path(__file__).resolve().parent / "conf")
+
+
+@one_line_errors
+@hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")
+def main(cfg: DictConfig) -> float | None:
+    """Train in this Hydra job's folder; returns ``cfg.optimized_metric`` for hyperparameter sweepers.
+
+    A user error (a config value, a data file, a checkpoint that does not fit, a full or read-only disk)
+    ends the job in one line with exit status 2, before anything is written where the config alone
+    tells; ``LOSSVO_FULL_ERROR=1`` shows its traceback instead. In a sweep the other jobs go on.
+    """
+    restore_start_method()  # a joblib-launched job: let its loader workers and renderer start
+    with lifecycle.job(cfg) as run:
+        if run.completed is not None:
+            return run.optimized_metric(run.completed.get("metrics", {}))
+        fitting.train(cfg, run)
+    return run.optimized_metric(lifecycle.read_status(run.out_dir).get("metrics", {}))
+
 
 if __name__ == "__main__":
     main()

@@ -18,14 +18,12 @@ Definitions (checked against evo 1.x, ``evo/core/metrics.py`` and ``evo/core/geo
   ``[r | t]``; ``scale`` only scales the translations.
 - KITTI (devkit ``evaluate_odometry.cpp``): see :func:`kitti_segment_errors`.
 
-Run ``python -m lossvo.metrics GT_FILE EST_FILE [--align ...] [--delta N] [--json]`` on two KITTI pose files.
+The command line over two KITTI pose files is :mod:`lossvo.metrics`.
 """
 
 from __future__ import annotations
 
-import json
 import math
-import sys
 from collections.abc import Sequence
 from typing import Any, Literal
 
@@ -36,7 +34,6 @@ from torchmetrics import Metric
 from torchmetrics.utilities import dim_zero_cat
 
 from lossvo import geometry
-from lossvo.console import OneLineParser, emit, raise_if_full_error
 from lossvo.evaluation.trajectories import integrate
 
 AlignMode = Literal["none", "se3", "sim3", "scale"]
@@ -567,63 +564,3 @@ def evaluate_relative(
     for metric in pooled:
         metric.update(est, gt_t)
     return est, evaluate(gt_t, est, align, delta)
-
-
-def format_table(result: dict[str, Any]) -> str:
-    """A plain-text table of :func:`evaluate`'s result."""
-    lines = [f"{'':14}" + "".join(f"{name:>12}" for name in STATISTICS)]
-    for metric in ("ape", "rpe"):
-        for part, unit in (("trans", "m"), ("rot_rad", "rad")):
-            stats = result[metric][part]
-            label = f"{metric.upper()} {part.split('_')[0]} ({unit})"
-            lines.append(f"{label:14}" + "".join(f"{stats[name]:12.6g}" for name in STATISTICS))
-    kitti = result["kitti"]
-    if kitti["t_err_pct"] is None:
-        lines.append("KITTI: sequence too short for any segment (100-800 m)")
-    else:
-        lines.append(
-            f"KITTI: t_err {kitti['t_err_pct']:.4f} %, r_err {kitti['r_err_deg_per_100m']:.4f} deg/100 m"
-        )
-    return "\n".join(lines)
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m lossvo.metrics GT_FILE EST_FILE``; one-line errors with exit status 2."""
-    from lossvo.data.kitti import read_poses
-
-    parser = OneLineParser(prog="python -m lossvo.metrics", description=__doc__.splitlines()[0])
-    parser.add_argument("gt", help="ground-truth KITTI pose file")
-    parser.add_argument("est", help="estimated KITTI pose file")
-    parser.add_argument("--align", choices=ALIGN_MODES, default="none", help="APE alignment (evo's)")
-    parser.add_argument(
-        "--delta", type=float, default=1, help="RPE delta, in frames or metres (--delta-unit)"
-    )
-    parser.add_argument(
-        "--delta-unit", choices=("f", "m"), default="f", help="RPE delta unit: frames or metres"
-    )
-    parser.add_argument("--pairs-from", choices=PAIRS_FROM, default="estimate",
-                        help="whose path picks RPE pairs in metres (evo: pairs_from_reference)")  # fmt: skip
-    parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    args = parser.parse_args(argv)
-    frames = args.delta_unit == "f"
-    if not (math.isfinite(args.delta) and args.delta > 0 and (not frames or float(args.delta).is_integer())):
-        unit = "an integer number of frames >= 1" if frames else "a distance in metres > 0"
-        parser.error(f"--delta: expected {unit}, got {args.delta:g}")
-    try:
-        gt = torch.from_numpy(read_poses(args.gt))
-        est = torch.from_numpy(read_poses(args.est))
-        if len(gt) != len(est):
-            raise ValueError(f"{args.est} has {len(est)} poses, {args.gt} has {len(gt)}: expected one pose "
-                             f"per frame of the same sequence in both")  # fmt: skip
-        delta = int(args.delta) if frames else args.delta
-        result = evaluate(gt, est, args.align, delta, args.delta_unit, args.pairs_from)
-    except ValueError as e:  # KittiFormatError is a ValueError
-        raise_if_full_error()
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    emit(json.dumps(result, indent=2) if args.json else format_table(result))
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

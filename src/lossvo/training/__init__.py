@@ -1,4 +1,5 @@
 """Training: the LightningModule (:mod:`~lossvo.training.module`), the selection score
-(:mod:`~lossvo.training.selection`), callbacks, checkpoints as the contract with evaluation
-(:mod:`~lossvo.training.checkpoints`) and the ``python -m lossvo.train`` entry
-(:mod:`~lossvo.training.train`)."""
+(:mod:`~lossvo.training.selection`), callbacks, the fit (:mod:`~lossvo.training.fitting`), the run's
+life in its job folder (:mod:`~lossvo.training.lifecycle`) and ``metrics.csv``
+(:mod:`~lossvo.training.metrics_log`).
+The command line is :mod:`lossvo.train`."""

@@ -1,27 +1,25 @@
 """Lightning callbacks that no library provides in this form.
 
-- :func:`progress` picks Lightning's Rich progress bar on a terminal and, when output goes to a file or
-  a cluster log (no TTY), one plain summary line per epoch instead of thousands of redrawn bars.
+- :class:`EpochSummary` logs one line per epoch (terminal and ``train.log``) with the validation metrics;
+  :func:`progress` adds Lightning's Rich progress bar on a terminal (epochs counted from 1, the
+  validation metrics beside the training loss) and none when output goes to a file or a cluster log.
 - :class:`TrajectoryValidation` integrates the whole validation sequences during fit and logs trajectory
   errors (APE / RPE / KITTI), the numbers the study compares, next to the per-window losses.
 - :class:`InterruptCheckpoint` saves the weights when SIGINT or SIGTERM stops a fit.
-- :class:`MetricsHistory` puts a resumed run's earlier epochs back into its ``metrics.csv``, which
-  Lightning's CSV logger starts afresh.
 """
 
 from __future__ import annotations
 
-import csv
 import logging
 import os
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import lightning as L
 import torch
 from lightning.pytorch.callbacks import Callback, RichProgressBar
-from lightning.pytorch.loggers import CSVLogger
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 
 from lossvo.evaluation import metrics
@@ -45,11 +43,28 @@ class EpochSummary(Callback):
         log.info("epoch %d/%d (%.1f s) %s", trainer.current_epoch + 1, trainer.max_epochs, elapsed, values)
 
 
-def progress(rich_on_tty: bool = True) -> Callback:
-    """A Rich progress bar when stdout is a terminal, else :class:`EpochSummary` lines."""
-    if rich_on_tty and sys.stdout.isatty():
-        return RichProgressBar()
-    return EpochSummary()
+class EpochProgressBar(RichProgressBar):
+    """Lightning's Rich bar with epochs counted from 1 (``Epoch 2/2`` for the second of two) and the
+    selection score and validation loss shown beside the training loss."""
+
+    SHOWN = ("val/loss", "val/score")
+
+    def _get_train_description(self, current_epoch: int) -> str:
+        total = self.trainer.max_epochs
+        return f"Epoch {current_epoch + 1}" + (f"/{total}" if total is not None and total > 0 else "")
+
+    def get_metrics(self, trainer: L.Trainer, pl_module: L.LightningModule) -> dict[str, Any]:
+        shown = {
+            k: f"{trainer.callback_metrics[k].item():.4g}"
+            for k in self.SHOWN
+            if k in trainer.callback_metrics
+        }
+        return {**super().get_metrics(trainer, pl_module), **shown}
+
+
+def progress(rich_on_tty: bool = True) -> Callback | None:
+    """An :class:`EpochProgressBar` when stdout is a terminal, else None (no bar)."""
+    return EpochProgressBar() if rich_on_tty and sys.stdout.isatty() else None
 
 
 class TrajectoryValidation(Callback):
@@ -68,7 +83,7 @@ class TrajectoryValidation(Callback):
 
     Args:
         every_n_epochs: run after the validation of every n-th epoch (>= 1).
-        align: APE alignment (:func:`lossvo.metrics.align`).
+        align: APE alignment (:func:`lossvo.evaluation.metrics.align`).
         delta: RPE delta in frames.
     """
 
@@ -152,41 +167,3 @@ class InterruptCheckpoint(Callback):
             trainer.save_checkpoint(self.path)
         except Exception as e:  # a full disk must not hide the interrupt
             log.warning("could not save %s: %s", self.path, e)
-
-
-class MetricsHistory(Callback):
-    """The rows of an earlier ``metrics.csv`` up to a resumed epoch, logged again before training goes on,
-    so that the file holds every epoch once across resumes.
-
-    Args:
-        rows: the earlier rows (``csv.DictReader`` dicts).
-        last_epoch, global_step: the checkpoint's epoch and step. Rows of later epochs, and rows without
-            an epoch (the learning rate) logged at or after that step, are dropped: they come again.
-    """
-
-    def __init__(self, rows: list[dict[str, str]], last_epoch: int, global_step: int) -> None:
-        self.rows = [r for r in rows if _before(r, last_epoch, global_step)]
-
-    @classmethod
-    def from_file(cls, path: Path, last_epoch: int, global_step: int) -> MetricsHistory:
-        with path.open(newline="") as f:
-            return cls(list(csv.DictReader(f)), last_epoch, global_step)
-
-    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        for logger in trainer.loggers:
-            if isinstance(logger, CSVLogger):
-                for row in self.rows:
-                    values = {k: _number(v) for k, v in row.items() if v != "" and k != "step"}
-                    logger.experiment.log_metrics(values, int(float(row.get("step") or 0)))
-                logger.save()
-
-
-def _number(text: str) -> float | int:
-    value = float(text)
-    return int(value) if value.is_integer() and "." not in text and "e" not in text.lower() else value
-
-
-def _before(row: dict[str, str], last_epoch: int, global_step: int) -> bool:
-    if row.get("epoch"):
-        return int(float(row["epoch"])) <= last_epoch
-    return bool(row.get("step")) and int(float(row["step"])) < global_step

@@ -7,7 +7,7 @@ loss without Hydra. Every key the loss returns is logged per epoch as ``train/<k
 ``val/<key>`` (``loss``, ``trans_loss``, ``rot_loss``, ``trans_err_m``, ``rot_err_rad``; ``s_t``, ``s_r``
 under the learned weighting), and validation also logs the loss-independent selection score
 ``val/score`` (:mod:`lossvo.training.selection`). Checkpoints also record the training data
-(:mod:`lossvo.training.checkpoints`).
+(:mod:`lossvo.evaluation.checkpoints`).
 """
 
 from __future__ import annotations
@@ -70,14 +70,16 @@ class VOModule(L.LightningModule):
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         """Record the training data's description (``checkpoint["data"]``, see
-        :mod:`lossvo.training.checkpoints`) when the datamodule gives one, and the random streams
-        (``checkpoint["rng"]``), which a resumed fit restores (Lightning restores the rest)."""
+        :mod:`lossvo.evaluation.checkpoints`) when the datamodule gives one, the CPU thread count
+        (``checkpoint["threads"]``), and the random streams (``checkpoint["rng"]``), which a resumed fit
+        restores (Lightning restores the rest)."""
         datamodule = getattr(self.trainer, "datamodule", None)
         describe = getattr(datamodule, "description", None)
         if callable(describe):
             checkpoint["data"] = describe()
         elif self.data is not None:
             checkpoint["data"] = self.data
+        checkpoint["threads"] = torch.get_num_threads()
         checkpoint["rng"] = random_streams.collect()
 
     def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:

@@ -29,12 +29,12 @@ The modules, each after what it holds:
 - :mod:`~lossvo.data.synthetic.manifest`: the manifest, and which sequences of a dataset can be reused;
 - :mod:`~lossvo.data.synthetic.writer`: rendering sequences into a dataset (:func:`generate`,
   :func:`ensure_dataset`);
-- :mod:`~lossvo.data.synthetic.cli`: the command line, ``python -m lossvo.data.synthetic --out DIR
-  [--sequences 00,07] [--frames N] [--height H --width W] [--seed S]``.
+- :mod:`~lossvo.data.synthetic.cli`: the command line (an entry point, not imported here),
+  ``python -m lossvo.data.synthetic --out DIR [--sequences 00,07] [--frames N] [--height H --width W]
+  [--seed S]``.
 """
 
 from lossvo.data.synthetic.camera import intrinsics
-from lossvo.data.synthetic.cli import main
 from lossvo.data.synthetic.manifest import MANIFEST, VERSION, read_manifest
 from lossvo.data.synthetic.parameters import DEFAULT_FRAMES, DEFAULT_HEIGHT, DEFAULT_WIDTH, SEQUENCES
 from lossvo.data.synthetic.render import Renderer
@@ -54,7 +54,6 @@ __all__ = [
     "ensure_dataset",
     "generate",
     "intrinsics",
-    "main",
     "read_manifest",
     "scene",
     "sequence_route",

@@ -55,8 +55,10 @@ def render_sequence(
     renderer = Renderer(world, K, height, width)
     for k, T in enumerate(poses):
         path = folder / sequence / "image_2" / f"{k:06d}.png"
-        if not cv2.imwrite(str(path), renderer.render(T, noise), PNG_PARAMS):
-            raise OSError(f"could not write {path}")
+        encoded, png = cv2.imencode(".png", renderer.render(T, noise), PNG_PARAMS)
+        if not encoded:
+            raise RuntimeError(f"OpenCV could not encode {path}")
+        path.write_bytes(png.tobytes())  # a full disk is an OSError naming the file and the cause
     kitti.write_poses(folder / f"{sequence}.txt", poses)
 
 

@@ -1,0 +1,140 @@
+"""Reading lossvo checkpoints: the trained network and a description of how it was trained.
+
+A lossvo checkpoint is a Lightning checkpoint of :class:`lossvo.training.module.VOModule` that holds only
+primitives (it loads with torch's default ``weights_only``):
+
+- ``hyper_parameters``: the network, loss, optimiser and scheduler configs the module was built from;
+- ``state_dict``: the weights (``model.*`` and ``loss.*``);
+- ``data``: :meth:`lossvo.data.datamodules.KittiDataModule.description` of the training data: the
+  datamodule's ``_target_`` and arguments (frame size, ``seq_len``, splits, normalisation mode ...),
+  ``dataset_root`` and the normalisation ``statistics`` the network was trained with;
+- ``threads``: the CPU thread count (``torch.get_num_threads()``) the network was trained with.
+
+:func:`load_network` rebuilds the network and its loss from the configs alone (no LightningModule),
+which is all evaluation needs; :func:`evaluation_data` builds the data config that evaluates it.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import torch
+from hydra.utils import instantiate
+from torch import Tensor, nn
+
+from lossvo.console import first_line
+from lossvo.losses import PoseLoss
+
+TRAINED_WITH = ("height", "width", "seq_len", "normalization")
+"""Data settings a trained network depends on: evaluation takes them from its checkpoint."""
+
+RECORD_ONLY = ("statistics", "dataset_root")
+"""Entries of a checkpoint's ``data`` that describe the training data but are not datamodule arguments."""
+
+
+class CheckpointError(ValueError):
+    """A file that is not a usable lossvo checkpoint, or a run that contradicts one; the message is one
+    line naming the file or the key."""
+
+
+class TrainedNetwork(nn.Module):
+    """A network and the loss that owns its parameterisation, as a checkpoint describes them.
+
+    Attributes:
+        model: the network, frames (B, L, 3, H, W) -> outputs (B, L-1, loss.dim).
+        loss: the :class:`lossvo.losses.PoseLoss` that decodes those outputs.
+        data: the training data's description (the checkpoint's ``data``), or None.
+        threads: the CPU thread count it was trained with, or None where the checkpoint records none.
+    """
+
+    def __init__(self, model: nn.Module, loss: PoseLoss, data: dict[str, Any] | None = None,
+                 threads: int | None = None) -> None:  # fmt: skip
+        super().__init__()
+        self.model, self.loss = model, loss
+        self.data, self.threads = data, threads
+
+    def forward(self, frames: Tensor) -> Tensor:
+        """Network outputs (B, L-1, dim) for frames (B, L, 3, H, W)."""
+        return self.model(frames)
+
+    def decode(self, pred: Tensor) -> Tensor:
+        """Relative poses (..., 4, 4) from network outputs (..., dim)."""
+        return self.loss.decode(pred)
+
+
+def read(path: str | os.PathLike) -> dict[str, Any]:
+    """The content of a lossvo checkpoint, loaded on the CPU with ``weights_only``.
+
+    Raises:
+        CheckpointError: no such file, or not a (complete) lossvo checkpoint.
+    """
+    path = Path(path).expanduser()
+    if not path.is_file():
+        raise CheckpointError(f"checkpoint not found: {path}")
+    try:
+        content = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # a truncated or foreign file: one line naming it, not torch's traceback
+        raise CheckpointError(f"{path}: cannot load as a lossvo checkpoint ({type(e).__name__}: "
+                              f"{first_line(e)})") from None  # fmt: skip
+    hparams = content.get("hyper_parameters") if isinstance(content, dict) else None
+    complete = isinstance(hparams, dict) and {"model", "loss"} <= hparams.keys() and "state_dict" in content
+    if not complete:
+        raise CheckpointError(f"{path}: cannot load as a lossvo checkpoint (no lossvo network, loss and "
+                              f"weights in it)")  # fmt: skip
+    return content
+
+
+def load_network(path: str | os.PathLike, device: str | torch.device = "cpu") -> TrainedNetwork:
+    """The network of a checkpoint, with its loss and its training record, on ``device``."""
+    content = read(path)
+    hparams = content["hyper_parameters"]
+    try:
+        network = TrainedNetwork(instantiate(hparams["model"]), instantiate(hparams["loss"]),
+                                 content.get("data"), content.get("threads"))  # fmt: skip
+        network.load_state_dict(content["state_dict"])
+    except Exception as e:  # e.g. a loss or network class that no longer exists
+        raise CheckpointError(f"{path}: cannot rebuild its network ({type(e).__name__}: "
+                              f"{first_line(e)})") from None  # fmt: skip
+    return network.to(torch.device(device))
+
+
+def recorded_data(path: str | os.PathLike, network: TrainedNetwork) -> dict[str, Any]:
+    """The checkpoint's description of its training data; an error naming the file when it has none."""
+    if not isinstance(network.data, dict) or not network.data.get("statistics"):
+        raise CheckpointError(f"{path}: the checkpoint records no data settings (frame size, seq_len, "
+                              f"normalisation statistics) to evaluate it with")  # fmt: skip
+    return network.data
+
+
+def evaluation_data(
+    recorded: Mapping[str, Any], selected: Mapping[str, Any] | None, explicit: Mapping[str, Any]
+) -> dict[str, Any]:
+    """The data config that evaluates a checkpoint.
+
+    Args:
+        recorded: the checkpoint's ``data`` (:func:`recorded_data`).
+        selected: the composed data config when another dataset was chosen (``data=kitti``), else None:
+            the recorded one is used.
+        explicit: the ``data.KEY=VALUE`` overrides given on the command line, by key.
+    Returns:
+        A datamodule config: the chosen (or recorded) one with the explicit overrides, the frame size,
+        ``seq_len`` and normalisation of the checkpoint, its ``statistics``, and no training or
+        validation sequences (the data need not hold any).
+    Raises:
+        CheckpointError: an explicit override contradicts what the network was trained with.
+    """
+    for key in TRAINED_WITH:
+        if key in explicit and explicit[key] != recorded.get(key):
+            raise CheckpointError(
+                f"data.{key}={explicit[key]!r} contradicts the checkpoint, whose network was trained with "
+                f"data.{key}={recorded.get(key)!r}: drop the override"
+            )
+    base = dict(selected) if selected is not None else {
+        k: v for k, v in recorded.items() if k not in RECORD_ONLY
+    }  # fmt: skip
+    base.update(explicit)
+    base.update({key: recorded[key] for key in TRAINED_WITH if key in recorded})
+    return {**base, "train": [], "val": [], "statistics": recorded["statistics"]}

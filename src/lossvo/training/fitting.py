@@ -1,0 +1,174 @@
+"""A training run from a composed config: build the data, network, loss and trainer, fit, then evaluate
+the best checkpoint on the test sequences.
+
+Everything (data, network, loss, loggers, callbacks, trainer) is built and the data set up before
+:meth:`lossvo.training.lifecycle.Run.start` claims the job folder, so that a wrong name, argument or
+data file fails at once, leaving no run behind.
+"""
+
+from __future__ import annotations
+
+import logging
+import warnings
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
+
+import lightning as L
+import torch
+from hydra.utils import instantiate
+from lightning.pytorch.callbacks import Callback, ModelCheckpoint, ProgressBar
+from lightning.pytorch.loggers import Logger, WandbLogger
+from lightning.pytorch.utilities.exceptions import SIGTERMException
+from omegaconf import DictConfig, OmegaConf, open_dict
+
+from lossvo.console import one_line
+from lossvo.evaluation.checkpoints import load_network
+from lossvo.evaluation.results import evaluate_run
+from lossvo.models import load_flownet
+from lossvo.training import checkpoints, metrics_log
+from lossvo.training.lifecycle import InterruptedRun, Run
+from lossvo.training.module import VOModule
+from lossvo.training.selection import SCORE_KEY
+
+if TYPE_CHECKING:
+    from lossvo.data.datamodules import KittiDataModule
+
+log = logging.getLogger("lossvo")
+
+
+def _instantiate_group(group: DictConfig | None, name: str) -> list[Any]:
+    """Instantiate every entry of a dict-of-configs group (callbacks, logger); each needs a _target_.
+    An entry switched off (``callbacks.key=null``), or whose factory returns None, is left out."""
+    objects = []
+    for key, entry in (group or {}).items():
+        if entry is None:
+            continue
+        if not isinstance(entry, DictConfig) or "_target_" not in entry:
+            raise ValueError(f"{name}.{key!s}: expected a config with a _target_, got {entry!r}")
+        built = instantiate(entry)
+        if built is not None:
+            objects.append(built)
+    return objects
+
+
+def _container(cfg: DictConfig) -> dict[str, Any]:
+    return cast("dict[str, Any]", OmegaConf.to_container(cfg, resolve=True))  # a DictConfig: str keys
+
+
+def _load_flownet(module: VOModule, path: str) -> None:
+    """FlowNetS weights into the encoder; any problem with the file is one line naming the key."""
+    try:
+        report = load_flownet(module.model, path)
+    except (OSError, ValueError) as e:
+        raise ValueError(f"model.flownet: {one_line(e)}") from None
+    log.info("FlowNetS initialisation: %s", report.summary())
+
+
+def build(cfg: DictConfig) -> tuple[KittiDataModule, VOModule, L.Trainer]:
+    """Data (set up for fitting), module and trainer from a composed config; nothing is trained yet."""
+    if cfg.model.get("flownet"):
+        # FlowNetS weights were trained on img/255 - 0.5; the dataset statistics would not match them.
+        cfg.data.normalization = "flownet"
+    datamodule = instantiate(cfg.data, _convert_="all")
+    # The FlowNet file initialises the encoder once, here; it is kept out of the module's
+    # hyperparameters so that a checkpoint reloads without that file.
+    model_cfg = _container(cfg.model)
+    flownet = model_cfg.pop("flownet", None)
+    module = VOModule(
+        model=model_cfg,
+        loss=_container(cfg.loss),
+        optimizer=_container(cfg.optimizer),
+        scheduler=_container(cfg.scheduler) if cfg.get("scheduler") else None,
+        monitor=cfg.selection.monitor if cfg.get("selection") else SCORE_KEY,
+    )
+    if flownet:
+        _load_flownet(module, flownet)
+    _sync_batchnorm_where_supported(cfg)
+    callbacks: list[Callback] = _instantiate_group(cfg.get("callbacks"), "callbacks")
+    loggers: list[Logger] = _instantiate_group(cfg.get("logger"), "logger")
+    trainer = instantiate(
+        cfg.trainer,
+        plugins=[checkpoints.AtomicCheckpointIO()],
+        callbacks=callbacks,
+        logger=loggers or False,
+        enable_progress_bar=any(isinstance(c, ProgressBar) for c in callbacks),
+    )
+    datamodule.prepare_data()  # data errors now, before the run starts (Lightning's fit finds it done)
+    datamodule.setup("fit")
+    return datamodule, module, trainer
+
+
+def _sync_batchnorm_where_supported(cfg: DictConfig) -> None:
+    """Sync batch-norm needs CUDA (torch's SyncBatchNorm); off on CPUs, with a log line."""
+    accelerator = str(cfg.trainer.get("accelerator", "auto"))
+    on_cpu = accelerator == "cpu" or (accelerator == "auto" and not torch.cuda.is_available())
+    if cfg.trainer.get("sync_batchnorm") and on_cpu:
+        log.info("trainer.sync_batchnorm: off on CPU (torch's SyncBatchNorm needs CUDA)")
+        with open_dict(cfg):
+            cfg.trainer.sync_batchnorm = False
+
+
+def train(cfg: DictConfig, run: Run) -> dict[str, float]:
+    """Seed, build, start the run, fit, evaluate the best checkpoint (``evaluate=true``); returns the
+    trainer's final callback metrics."""
+    if cfg.get("threads") is not None:
+        torch.set_num_threads(cfg.threads)
+    if cfg.get("seed") is not None:  # seed 0 is a seed
+        L.seed_everything(cfg.seed, workers=True, verbose=False)
+    datamodule, module, trainer = build(cfg)
+    ckpt_path = cfg.get("ckpt_path") or run.resume_from
+    epoch, step = -1, 0
+    if ckpt_path:
+        epoch, step = checkpoints.check_resume(ckpt_path, module, dict(datamodule.hparams))
+    run.start(threads=torch.get_num_threads())
+    log.info("%s: %s%s", run.label, run.out_dir, f" (resuming from {ckpt_path})" if ckpt_path else "")
+    source = Path(ckpt_path).parent.parent / metrics_log.NAME if ckpt_path else run.metrics_csv
+    metrics_log.continue_history(run.metrics_csv, source, epoch, step)
+    for logger in trainer.loggers:
+        logger.log_hyperparams(_container(cfg))
+    try:
+        try:
+            with warnings.catch_warnings():
+                # a resumed run's folder holds its earlier checkpoints, by design
+                warnings.filterwarnings("ignore", message="Checkpoint directory .* is not empty")
+                trainer.fit(module, datamodule=datamodule, ckpt_path=ckpt_path)
+        except (KeyboardInterrupt, SystemExit) as e:
+            raise _interrupted(e, trainer.current_epoch + 1) from None
+        # Lightning sets Trainer.fast_dev_run in its setup without declaring it.
+        fast_dev_run = trainer.fast_dev_run  # type: ignore[attr-defined]
+        if cfg.get("evaluate", True) and not fast_dev_run and trainer.is_global_zero:
+            evaluate_after_fit(trainer, module, datamodule, run.out_dir)
+        return {key: float(value) for key, value in trainer.callback_metrics.items()}
+    finally:
+        if any(isinstance(logger, WandbLogger) for logger in trainer.loggers):
+            import wandb  # one W&B run per sweep job: the next job in this process starts a new one
+
+            wandb.finish()
+
+
+def _interrupted(error: BaseException, epoch: int) -> BaseException:
+    """Lightning ends a fit on SIGINT with ``sys.exit(1)`` (after a KeyboardInterrupt) and on SIGTERM
+    with its ``SIGTERMException``: an :class:`InterruptedRun` (``epoch`` from 1); any other exit as it was."""
+    if isinstance(error, SIGTERMException):
+        return InterruptedRun("SIGTERM", epoch)
+    if isinstance(error, KeyboardInterrupt) or isinstance(error.__context__, KeyboardInterrupt):
+        return InterruptedRun("SIGINT", epoch)
+    return error
+
+
+def evaluate_after_fit(
+    trainer: L.Trainer, module: VOModule, datamodule: KittiDataModule, out_dir: Path
+) -> Any:
+    """Evaluate the best checkpoint (the last weights if there is none) on the test sequences, writing
+    ``results.json``, ``trajectories/`` and ``plots/`` into ``out_dir``."""
+    best = next((c.best_model_path for c in trainer.checkpoint_callbacks if isinstance(c, ModelCheckpoint)
+                 and c.monitor and Path(c.best_model_path or "/nonexistent").is_file()), None)  # fmt: skip
+    device = trainer.strategy.root_device  # Lightning moves the module back to the CPU after fit
+    network: torch.nn.Module = load_network(best, device) if best else module.to(device)
+    if not best:
+        log.warning("no best checkpoint: evaluating the last weights")
+    result = evaluate_run(network, datamodule, out_dir, datamodule.evaluated, checkpoint=best,
+                          threads=torch.get_num_threads())  # fmt: skip
+    log.info("evaluation of %s on %s: %s", best or "the last weights", ", ".join(datamodule.evaluated),
+             out_dir / "results.json")  # fmt: skip
+    return result

@@ -1,0 +1,347 @@
+"""A run's life in its job folder, in one place: start, resume, skip, stop, fail and finish.
+
+:func:`job` wraps the body of ``python -m lossvo.train``. Before anything is written it checks the
+config (:func:`~lossvo.training.config_checks.check_train_config`, :func:`lossvo.weighting.check_config`)
+and, in a folder that already ran, that the recorded config defines the same run (:data:`RUN_KEYS`).
+A completed folder is skipped; an interrupted, killed or failed one with a ``checkpoints/last.ckpt`` is
+resumed from it. The folder is claimed (``.hydra/`` written, ``status.json`` "running") by
+:meth:`Run.start`, once everything is built; an error before that leaves no run folder behind (in a
+sweep the job's folder stays, marked failed, so that the report lists it).
+
+``status.json`` is always true: ``{"status": "running" | "completed" | "failed" | "interrupted", ...}``
+with the metrics of a completed run (the last row of each column of ``metrics.csv``), the error of a
+failed one, the signal and the stage (``"epoch": N`` counted from 1, or ``"stage": "evaluation"``) of an
+interrupted one. A user error (a config value, a data file, a checkpoint that does not fit, a disk that
+is full, read-only or not ours) ends the run in one line with exit status 2; ``LOSSVO_FULL_ERROR=1``
+shows its traceback instead. Any other failure keeps its traceback.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+import signal
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hydra.core.hydra_config import HydraConfig
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.errors import InstantiationException
+from hydra.types import RunMode
+from lightning.fabric.utilities.exceptions import MisconfigurationException
+from lightning.pytorch.utilities import rank_zero_only
+from omegaconf import DictConfig, ListConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from lossvo import weighting
+from lossvo.atomic import write_text_atomic
+from lossvo.console import USER_ERRORS, disk_error, full_error, hydra_message, one_line
+from lossvo.training import metrics_log
+from lossvo.training.config_checks import check_train_config
+
+log = logging.getLogger("lossvo")
+
+LAST_CHECKPOINT = Path("checkpoints") / "last.ckpt"
+STATUS = "status.json"
+
+RUN_KEYS = ("data", "model", "loss", "weighting", "selection", "seed", "optimizer", "threads")
+"""Config keys that define a run: a folder whose recorded config differs in one is refused."""
+
+NOT_DEFINING = ("data.root", "data.cache_dir", "data.num_workers")
+"""Keys under :data:`RUN_KEYS` that say where the data lies or how it is loaded, not what is trained."""
+
+
+class InterruptedRun(Exception):  # noqa: N818 (a run, not an error)
+    """A run stopped by SIGINT or SIGTERM.
+
+    Args:
+        signal_name: ``"SIGINT"`` or ``"SIGTERM"``.
+        epoch: the epoch that was running, counted from 1; None when the stop came outside training.
+    """
+
+    def __init__(self, signal_name: str, epoch: int | None = None) -> None:
+        self.signal_name, self.epoch = signal_name, epoch
+        super().__init__(f"{signal_name} during {self.stage}")
+
+    @property
+    def stage(self) -> str:
+        return f"epoch {self.epoch}" if self.epoch is not None else "the evaluation"
+
+    @property
+    def exit_code(self) -> int:
+        """128 + the signal number, as a shell reports a process ended by that signal."""
+        return 128 + int(getattr(signal, self.signal_name))
+
+
+class JobError(Exception):
+    """A user error in one job of a sweep: the job fails (Hydra reports it) and the others go on."""
+
+
+def write_status(out_dir: Path, status: str, **details: Any) -> None:
+    """Write ``status.json`` atomically; in a multi-process (DDP) run, only the first process does."""
+    if getattr(rank_zero_only, "rank", 0) != 0:  # set by Lightning from the launcher's environment
+        return
+    write_text_atomic(out_dir / STATUS, json.dumps({"status": status, **details}, indent=2) + "\n")
+
+
+def read_status(out_dir: Path) -> dict[str, Any]:
+    """The job folder's ``status.json``, or ``{}`` if there is none (or it is unreadable)."""
+    try:
+        status = json.loads((out_dir / STATUS).read_text())
+    except (OSError, ValueError):
+        return {}
+    return status if isinstance(status, dict) else {}
+
+
+def _flat(node: Any, prefix: str) -> dict[str, Any]:
+    if isinstance(node, Mapping):
+        return {k: v for key, value in node.items() for k, v in _flat(value, f"{prefix}.{key}").items()}
+    return {prefix: node}
+
+
+def _defining(cfg: DictConfig | ListConfig) -> dict[str, Any]:
+    """The run-defining entries of a config as dotted keys, resolved where they resolve."""
+    try:
+        container = OmegaConf.to_container(cfg, resolve=True)
+    except OmegaConfBaseException:
+        container = OmegaConf.to_container(cfg, resolve=False)
+    assert isinstance(container, dict)
+    flat = {k: v for key in RUN_KEYS for k, v in _flat(container.get(key), key).items()}
+    return {k: v for k, v in flat.items() if not k.startswith(NOT_DEFINING)}
+
+
+def config_drift(recorded: DictConfig | ListConfig, requested: DictConfig) -> list[str]:
+    """The run-defining keys (:data:`RUN_KEYS`) whose values differ between two configs."""
+    theirs, ours = _defining(recorded), _defining(requested)
+    return sorted(k for k in theirs.keys() | ours.keys() if theirs.get(k) != ours.get(k))
+
+
+def sweep_size() -> int | None:
+    """How many jobs this sweep runs: the product of the sweep's value lists (Hydra's basic sweeper, read
+    from the sweep folder's ``multirun.yaml``) or the Optuna sweeper's ``n_trials``; None when unknown."""
+    hydra_cfg = HydraConfig.get()
+    trials = hydra_cfg.sweeper.get("n_trials")
+    if isinstance(trials, int):
+        return trials
+    try:
+        sweep = OmegaConf.load(Path(hydra_cfg.sweep.dir) / "multirun.yaml")
+        overrides = OverridesParser.create().parse_overrides(list(sweep.hydra.overrides.task))
+    except Exception:  # no multirun.yaml (another launcher): the job number alone
+        return None
+    size = 1
+    for override in overrides:
+        if override.is_sweep_override():
+            size *= len(list(override.sweep_iterator()))
+    return size
+
+
+def job_label() -> str:
+    """``"job 3/9 (loss=quat seed=0)"`` for a sweep's job, ``"run"`` for a single run."""
+    hydra_cfg = HydraConfig.get()
+    if hydra_cfg.mode != RunMode.MULTIRUN:
+        return "run"
+    total = sweep_size()
+    number = f"{hydra_cfg.job.num + 1}/{total}" if total else f"{hydra_cfg.job.num + 1}"
+    return f"job {number} ({' '.join(hydra_cfg.overrides.task)})"
+
+
+def save_config(out_dir: Path, cfg: DictConfig) -> None:
+    """``.hydra/config.yaml``, ``hydra.yaml`` and ``overrides.yaml`` as Hydra writes them, written here
+    once the run is accepted, so that a refused run leaves a folder's record as it was (the train
+    config sets ``hydra.output_subdir: null``)."""
+    hydra_cfg = HydraConfig.get()
+    folder = out_dir / ".hydra"
+    files = {"config.yaml": cfg, "hydra.yaml": OmegaConf.create({"hydra": hydra_cfg}),
+             "overrides.yaml": hydra_cfg.overrides.task}  # fmt: skip
+    for name, content in files.items():
+        write_text_atomic(folder / name, OmegaConf.to_yaml(content))
+
+
+@dataclass
+class Run:
+    """A job folder and what this process does in it.
+
+    Attributes:
+        out_dir: the job folder. label: ``"run"`` or ``"job i/N (overrides)"``.
+        completed: the status of a completed run (the job is skipped), else None.
+        resume_from: the ``last.ckpt`` to continue from, else None (a fresh start, or ``ckpt_path``).
+        started: whether :meth:`start` claimed the folder.
+        details: entries of every ``status.json`` the run writes (its thread count).
+    """
+
+    cfg: DictConfig
+    out_dir: Path
+    label: str
+    fresh: bool
+    completed: dict[str, Any] | None = None
+    resume_from: Path | None = None
+    started: bool = False
+    details: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def metrics_csv(self) -> Path:
+        return self.out_dir / metrics_log.NAME
+
+    def start(self, **details: Any) -> None:
+        """Claim the folder: ``.hydra/`` and ``status.json`` "running" (with ``details``)."""
+        self.details = details
+        if getattr(rank_zero_only, "rank", 0) == 0:
+            save_config(self.out_dir, self.cfg)
+        write_status(self.out_dir, "running", **details)
+        self.started = True
+
+    def optimized_metric(self, metrics: Mapping[str, Any]) -> float | None:
+        value = metrics.get(self.cfg.get("optimized_metric"))
+        return None if value is None else float(value)
+
+
+def _resume_point(out_dir: Path, status: str | None) -> Path | None:
+    last = out_dir / LAST_CHECKPOINT
+    return last if status in ("interrupted", "running", "failed") and last.is_file() else None
+
+
+def _accept(run: Run) -> None:
+    """Check the config and the folder, and set what the run does. Raises ValueError (one line)."""
+    cfg, out_dir = run.cfg, run.out_dir
+    if cfg.get("weighting") is not None:
+        weighting.check_config(cfg.weighting, cfg.loss)
+    check_train_config(cfg)
+    recorded = out_dir / ".hydra" / "config.yaml"
+    if run.fresh:
+        return
+    if not cfg.get("resume", True):
+        raise ValueError(f"{out_dir}: holds a run already (resume=false starts afresh only in a new folder: "
+                         f"another hydra.run.dir or hydra.sweep.dir)")  # fmt: skip
+    if recorded.exists():
+        drift = config_drift(OmegaConf.load(recorded), cfg)
+        if drift:
+            raise ValueError(f"{out_dir}: holds a run of another configuration ({', '.join(drift)} differ "
+                             f"from {recorded}): use a new folder")  # fmt: skip
+    status = read_status(out_dir).get("status")
+    if status == "completed" and not cfg.get("ckpt_path"):
+        run.completed = read_status(out_dir)
+    elif not cfg.get("ckpt_path"):
+        run.resume_from = _resume_point(out_dir, status)
+
+
+def _user_error(message: str) -> BaseException:
+    """A user error as one line: exit status 2, or in a sweep a :class:`JobError` so that the sweep's
+    other jobs (or a search's other trials) still run."""
+    log.error("%s", message)
+    if HydraConfig.get().mode == RunMode.MULTIRUN:
+        return JobError(message)
+    return SystemExit(2)
+
+
+def _user_message(error: BaseException) -> str | None:
+    """The one line of a user error, or None for an error that keeps its traceback."""
+    if isinstance(error, OSError):
+        return disk_error(error)
+    if isinstance(error, InstantiationException):
+        cause = error.__cause__
+        if isinstance(cause, OSError):
+            return _user_message(cause)
+        return hydra_message(error) if isinstance(cause, (*USER_ERRORS, MisconfigurationException)) else None
+    if isinstance(error, ValueError):  # config values, data files, checkpoints (CheckpointError)
+        return one_line(error)
+    return None
+
+
+def _sigterm(signum: int, frame: Any) -> None:
+    """SIGTERM outside a fit (Lightning handles it during one, calling this handler too)."""
+    if signal.getsignal(signal.SIGTERM) is _sigterm:
+        raise InterruptedRun("SIGTERM")
+
+
+@contextmanager
+def _sigterm_raises() -> Iterator[None]:
+    try:
+        previous = signal.signal(signal.SIGTERM, _sigterm)
+    except ValueError:  # not the main thread (a launcher's worker thread): nothing to install
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _leave(run: Run) -> None:
+    """An error before the run started: a single run's fresh folder (holding at most its log) is
+    removed; a sweep job's folder records the failure for the report."""
+    if HydraConfig.get().mode == RunMode.MULTIRUN:
+        if run.fresh:
+            run.start()
+        return
+    ours = {f"{HydraConfig.get().job.name}.log"}
+    if run.fresh and run.out_dir.is_dir() and {p.name for p in run.out_dir.iterdir()} <= ours:
+        shutil.rmtree(run.out_dir, ignore_errors=True)
+
+
+def _failed(run: Run, error: BaseException) -> None:
+    """Record a failure: before the run started, see :func:`_leave`; then in ``status.json`` where it
+    can be written (a full or read-only disk may refuse it too)."""
+    if not run.started:
+        _leave(run)
+    if not run.started:
+        return
+    try:
+        write_status(run.out_dir, "failed", **run.details, error=f"{type(error).__name__}: {one_line(error)}")
+    except OSError as e:
+        log.error("could not write %s: %s", run.out_dir / STATUS, e.strerror or e)
+
+
+def _interrupted(run: Run, stop: InterruptedRun) -> None:
+    """Record a stop in ``status.json`` and say how to resume."""
+    if run.started:
+        last = run.out_dir / LAST_CHECKPOINT
+        where = {"epoch": stop.epoch} if stop.epoch is not None else {"stage": "evaluation"}
+        write_status(run.out_dir, "interrupted", **run.details, signal=stop.signal_name, **where,
+                     resume_from=str(last) if last.is_file() else None)  # fmt: skip
+    log.error("%s: interrupted by %s during %s; run the same command to resume", run.label,
+              stop.signal_name, stop.stage)  # fmt: skip
+
+
+@contextmanager
+def job(cfg: DictConfig) -> Iterator[Run]:
+    """The run in this Hydra job's output folder, from its checks to its final ``status.json``.
+
+    The body builds and trains when ``run.completed`` is None, calling :meth:`Run.start` once all is
+    built, and raises :class:`InterruptedRun` on a signal; on leaving, ``status.json`` says "completed"
+    with the final metrics of ``metrics.csv``, or what stopped the run.
+    """
+    out_dir = Path(HydraConfig.get().runtime.output_dir)
+    fresh = not (out_dir / ".hydra").exists() and not (out_dir / STATUS).exists()
+    run = Run(cfg, out_dir, job_label(), fresh)
+    try:
+        _accept(run)
+    except ValueError as e:
+        _failed(run, e)
+        if full_error():
+            raise
+        raise _user_error(one_line(e)) from None
+    if run.completed is not None:
+        log.info("%s: already completed (resume=true): %s", run.label, out_dir / STATUS)
+        yield run
+        return
+    try:
+        with _sigterm_raises():
+            yield run
+            write_status(out_dir, "completed", **run.details,
+                         metrics=metrics_log.final_metrics(run.metrics_csv))  # fmt: skip
+    except (InterruptedRun, KeyboardInterrupt) as e:
+        stop = e if isinstance(e, InterruptedRun) else InterruptedRun("SIGINT")
+        _interrupted(run, stop)
+        raise SystemExit(stop.exit_code) from None
+    except Exception as e:
+        message = _user_message(e)
+        _failed(run, e)
+        if message is None or full_error():
+            if message is None:
+                log.error("%s failed: %s: %s", run.label, type(e).__name__, e)
+            raise
+        raise _user_error(message) from None

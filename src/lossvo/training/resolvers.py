@@ -1,0 +1,88 @@
+"""The OmegaConf resolvers lossvo's configs use; the entry points register them (:func:`register`).
+
+- ``dim_of``, ``identity_of``: a loss class's head size and its no-motion output (the model's ``out_dim``
+  and ``head_bias`` interpolate them);
+- ``matched_k``, ``paper_k``: ``weighting=matched`` and ``weighting=paper``'s k
+  (:func:`lossvo.weighting.preset_k`);
+- ``path_safe``: a sweep job's folder name from its overrides, short and pasteable into an override;
+- ``sqlite_storage``: an SQLite URL for an Optuna study, its folder created first.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, cast
+
+from hydra.utils import get_class
+from omegaconf import ListConfig, OmegaConf
+
+from lossvo import weighting
+from lossvo.losses import PoseLoss
+
+PATH_SAFE = str.maketrans({"/": "_", "=": "-", ",": "+", " ": None, "'": None, '"': None,
+                           "[": None, "]": None, "{": None, "}": None, "(": None, ")": None})  # fmt: skip
+"""Characters of overrides that Hydra's override grammar does not take unquoted (or that would nest
+folders), and what they become in a job folder's name."""
+
+MAX_NAME = 64
+"""Longest folder name :func:`path_safe` returns (file systems allow 255 bytes a name)."""
+
+
+def _loss_class(target: str) -> type[PoseLoss]:
+    """The loss class a loss config's ``_target_`` names (get_class types any class as ``type``)."""
+    return cast("type[PoseLoss]", get_class(target))
+
+
+def dim_of(target: str) -> int:
+    """Head size of a loss class given its ``_target_``."""
+    return int(_loss_class(target).dim)
+
+
+def identity_of(target: str) -> ListConfig:
+    """The output of a loss class that decodes to no motion."""
+    return ListConfig(_loss_class(target)(k=1.0).identity_output().tolist())
+
+
+def matched_k(target: str, c: Any, squared: bool = True) -> float | None:
+    """``weighting=matched``'s k for a loss class."""
+    return weighting.preset_k(target, "matched", c, squared)
+
+
+def paper_k(target: str) -> float | None:
+    """``weighting=paper``'s k for a loss class."""
+    return weighting.preset_k(target, "paper")
+
+
+def path_safe(text: str) -> str:
+    """A sweep job's folder name from its overrides, e.g. ``loss-euler+seed-0``, that can be pasted
+    unquoted into an override (``ckpt_path=.../0_loss-euler+seed-0/checkpoints/best.ckpt``). A name
+    longer than :data:`MAX_NAME` keeps its beginning and ends in a hash of the whole (``-h`` and 10 hex
+    digits): stable for the same overrides, and the full overrides stay in ``.hydra/overrides.yaml``."""
+    name = str(text).translate(PATH_SAFE)
+    if len(name) <= MAX_NAME:
+        return name
+    digest = hashlib.sha256(name.encode()).hexdigest()[:10]
+    return f"{name[: MAX_NAME - 12]}-h{digest}"
+
+
+def sqlite_storage(path: str) -> str:
+    """An SQLite URL for an Optuna study stored at ``path``, whose folder is created first (the sweep
+    folder does not exist yet when the sweeper opens its study)."""
+    db = Path(path).expanduser().resolve()
+    db.parent.mkdir(parents=True, exist_ok=True)
+    return f"sqlite:///{db}"
+
+
+RESOLVERS: dict[str, Callable[..., Any]] = {
+    "dim_of": dim_of, "identity_of": identity_of, "matched_k": matched_k, "paper_k": paper_k,
+    "path_safe": path_safe, "sqlite_storage": sqlite_storage,
+}  # fmt: skip
+
+
+def register() -> None:
+    """Register lossvo's resolvers with OmegaConf (idempotent)."""
+    for name, resolver in RESOLVERS.items():
+        if not OmegaConf.has_resolver(name):
+            OmegaConf.register_new_resolver(name, resolver)
