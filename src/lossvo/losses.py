@@ -36,6 +36,7 @@ import torch
 from torch import Tensor, nn
 
 from lossvo import geometry as g
+from lossvo.checks import is_number
 from lossvo.weighting import DEFAULT_C, HomoscedasticWeighting, learned_from_config
 
 
@@ -69,9 +70,7 @@ class PoseLoss(nn.Module):
             )
         if self.weighting is None and k is None:
             k = self.matched_k()
-        if k is not None and (
-            isinstance(k, bool) or not isinstance(k, (int, float)) or not math.isfinite(k) or k < 0
-        ):
+        if k is not None and (not is_number(k) or not math.isfinite(k) or k < 0):
             raise ValueError(f"loss.k: expected a finite number >= 0 for {name}, got {k!r}")
         self.k = None if k is None else float(k)
 

@@ -27,6 +27,8 @@ import torch
 from hydra.utils import get_class
 from torch import Tensor, nn
 
+from lossvo.checks import is_number
+
 DEFAULT_C = 100.0
 """The matched preset's small-angle rotation weight: the study's Euler k1, whose gain is 1."""
 
@@ -35,7 +37,7 @@ PRESETS = ("matched", "paper", "learned")
 
 def check_c(c: Any) -> float:
     """``weighting.c`` as a float; one clear error for anything but a finite number > 0."""
-    if isinstance(c, bool) or not isinstance(c, (int, float)) or not math.isfinite(c) or c <= 0:
+    if not is_number(c) or not math.isfinite(c) or c <= 0:
         raise ValueError(f"weighting.c: expected a finite number > 0, got {c!r}")
     return float(c)
 
@@ -103,7 +105,7 @@ class HomoscedasticWeighting(nn.Module):
     def __init__(self, s_t: float = 0.0, s_r: float = 0.0) -> None:
         super().__init__()
         for name, value in (("s_t", s_t), ("s_r", s_r)):
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            if not is_number(value) or not math.isfinite(value):
                 raise ValueError(f"weighting.learned.{name}: expected a finite number, got {value!r}")
         self.log_vars = nn.Parameter(torch.tensor([float(s_t), float(s_r)]))
 

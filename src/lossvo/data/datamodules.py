@@ -33,6 +33,7 @@ from torch.utils.data import DataLoader, Dataset, Sampler, SequentialSampler
 
 from lossvo import geometry
 from lossvo.atomic import write_text_atomic
+from lossvo.checks import is_integer, is_number
 from lossvo.data import frame_cache, synthetic, windows
 from lossvo.data.kitti import Sequence, find_root, load_sequence, relative_targets
 from lossvo.data.synthetic import routes
@@ -336,11 +337,11 @@ class KittiDataModule(L.LightningDataModule):
             "unseen": _names(unseen, "unseen"),
         }
         for key, value in (("height", height), ("width", width)):
-            if not isinstance(value, int) or value < 16:
+            if not is_integer(value, 16):
                 raise ValueError(f"data.{key}: expected an integer >= 16 pixels, got {value!r}")
-        if not isinstance(seq_len, int) or seq_len < 2:
+        if not is_integer(seq_len, 2):
             raise ValueError(f"data.seq_len: expected an integer >= 2 frames, got {seq_len!r}")
-        if not isinstance(stride, int) or stride < 1:
+        if not is_integer(stride, 1):
             raise ValueError(f"data.stride: expected an integer >= 1, got {stride!r}")
         if normalization not in NORMALIZATIONS:
             raise ValueError(f"data.normalization: expected one of {NORMALIZATIONS}, got {normalization!r}")
@@ -349,22 +350,20 @@ class KittiDataModule(L.LightningDataModule):
             raise ValueError("data.train: expected at least one training sequence")
         self.height, self.width, self.seq_len, self.stride = height, width, seq_len, stride
         self.batch_size, self.num_workers, self.pin_memory = batch_size, num_workers, pin_memory
-        if windows_per_epoch is not None and (
-            not isinstance(windows_per_epoch, int) or windows_per_epoch < 1
-        ):
+        if windows_per_epoch is not None and not is_integer(windows_per_epoch, 1):
             raise ValueError(
                 f"data.windows_per_epoch: expected null or an integer >= 1, got {windows_per_epoch!r}"
             )
         self.windows_per_epoch = windows_per_epoch
         steps = list(frame_steps) if isinstance(frame_steps, Seq) and not isinstance(frame_steps, str) else []
-        if not steps or any(isinstance(v, bool) or not isinstance(v, int) or v < 1 for v in steps):
+        if not steps or any(not is_integer(v, 1) for v in steps):
             raise ValueError(
                 f"data.frame_steps: expected a list of integers >= 1 like [1, 2], got {frame_steps!r}"
             )
         self.frame_steps = tuple(dict.fromkeys(steps))
         self.cache_dir = Path(cache_dir).expanduser() if cache_dir else frame_cache.default_cache_dir()
         for name, p in (("reverse", reverse), ("standstill", standstill), ("mirror", mirror)):
-            if isinstance(p, bool) or not isinstance(p, (int, float)) or not 0.0 <= p <= 1.0:
+            if not is_number(p) or not 0.0 <= p <= 1.0:
                 raise ValueError(f"data.{name}: expected a probability in [0, 1], got {p!r}")
         self.normalization, self.augment, self.reverse = normalization, augment, float(reverse)
         self.standstill, self.mirror = float(standstill), float(mirror)

@@ -24,6 +24,7 @@ import torch
 
 from lossvo import geometry
 from lossvo.atomic import write_text_atomic
+from lossvo.checks import is_integer
 
 ORTHONORMAL_TOLERANCE = 1e-3
 """Largest |R^T R - I| entry accepted in a pose file (KITTI stores 7 to 9 significant digits)."""
@@ -65,7 +66,7 @@ def find_root(root: str | os.PathLike) -> Path:
 def sequence_name(item: object) -> str:
     """A sequence name as the KITTI layout writes it: ``7`` -> ``"07"``, ``" 07"`` -> ``"07"`` (a YAML
     ``07`` arrives as the integer 7)."""
-    return f"{item:02d}" if isinstance(item, int) and not isinstance(item, bool) else str(item).strip()
+    return f"{item:02d}" if is_integer(item) else str(item).strip()
 
 
 def sequence_names(value: str | int | Iterable[object] | None) -> list[str]:

@@ -34,6 +34,7 @@ from torchmetrics import Metric
 from torchmetrics.utilities import dim_zero_cat
 
 from lossvo import geometry
+from lossvo.checks import is_integer
 from lossvo.evaluation.trajectories import integrate
 
 AlignMode = Literal["none", "se3", "sim3", "scale"]
@@ -248,7 +249,7 @@ def check_rpe_settings(delta: float, delta_unit: str, pairs_from: str) -> None:
         raise ValueError(f"delta_unit must be 'f' (frames) or 'm' (metres), got {delta_unit!r}")
     if pairs_from not in PAIRS_FROM:
         raise ValueError(f"pairs_from must be one of {', '.join(PAIRS_FROM)}, got {pairs_from!r}")
-    if delta_unit == "f" and (isinstance(delta, bool) or not isinstance(delta, int) or delta < 1):
+    if delta_unit == "f" and not is_integer(delta, 1):
         raise ValueError(f"delta must be a positive integer number of frames, got {delta!r}")
     if delta_unit == "m" and not (isinstance(delta, (int, float)) and math.isfinite(delta) and delta > 0):
         raise ValueError(f"delta must be a positive path distance in metres, got {delta!r}")

@@ -30,6 +30,7 @@ import torch
 from torch import nn
 
 from lossvo.atomic import write_text_atomic
+from lossvo.checks import is_integer, is_number
 from lossvo.data.kitti import KittiFormatError, pose_path, sequence_names, write_poses
 from lossvo.evaluation import metrics
 from lossvo.evaluation.inference import predict_sequence
@@ -86,7 +87,7 @@ def _field(obj: dict[str, Any], key: str, where: str) -> Any:
 def _number(value: Any, where: str, optional: bool = False) -> float | None:
     if value is None and optional:
         return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    if not is_number(value):
         raise _MalformedError(
             f"{where}: expected a number{' or null' if optional else ''}, got {value!r:.40}"
         )
@@ -96,7 +97,7 @@ def _number(value: Any, where: str, optional: bool = False) -> float | None:
 def _integer(value: Any, where: str, optional: bool = False) -> int | None:
     if value is None and optional:
         return None
-    if isinstance(value, bool) or not isinstance(value, int):
+    if not is_integer(value):
         raise _MalformedError(
             f"{where}: expected an integer{' or null' if optional else ''}, got {value!r:.40}"
         )

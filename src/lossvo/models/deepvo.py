@@ -56,6 +56,7 @@ from pathlib import Path
 import torch
 from torch import Tensor, nn
 
+from lossvo.checks import is_integer, is_number
 from lossvo.models.flownet import load_flownet
 
 log = logging.getLogger(__name__)
@@ -94,15 +95,14 @@ def _head_bias(value: object, out_dim: int) -> Tensor:
 
 
 def _check_int(name: str, value: object, minimum: int, why: str = "") -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+    if not is_integer(value, minimum):
         raise ValueError(f"model.{name}: expected an integer >= {minimum}{why}, got {value!r}")
     return value
 
 
 def _check_float(name: str, value: object, low: float, high: float, high_open: bool, what: str) -> float:
     if (
-        isinstance(value, (int, float))
-        and not isinstance(value, bool)
+        is_number(value)
         and math.isfinite(value)
         and (low <= value < high if high_open else low < value <= high)
     ):

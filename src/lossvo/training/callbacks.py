@@ -22,6 +22,7 @@ import torch
 from lightning.pytorch.callbacks import Callback, RichProgressBar
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 
+from lossvo.checks import is_integer
 from lossvo.evaluation import metrics
 from lossvo.evaluation.inference import predict_sequence
 
@@ -88,7 +89,7 @@ class TrajectoryValidation(Callback):
     """
 
     def __init__(self, every_n_epochs: int = 1, align: metrics.AlignMode = "none", delta: int = 1) -> None:
-        if isinstance(every_n_epochs, bool) or not isinstance(every_n_epochs, int) or every_n_epochs < 1:
+        if not is_integer(every_n_epochs, 1):
             raise ValueError(f"every_n_epochs: expected an integer >= 1, got {every_n_epochs!r}")
         self.every_n_epochs, self.align, self.delta = every_n_epochs, align, delta
 

@@ -17,18 +17,14 @@ from typing import Any, cast
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
+from lossvo.checks import is_integer, is_number
 from lossvo.console import first_line
 
 _ABSENT = object()
 
 
-def _integer(value: Any, low: int) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool) and value >= low
-
-
 def _finite(value: Any, low: float) -> bool:
-    number = isinstance(value, int | float) and not isinstance(value, bool)
-    return number and math.isfinite(value) and value >= low
+    return is_number(value) and math.isfinite(value) and value >= low
 
 
 def _positive(value: Any) -> bool:
@@ -36,19 +32,19 @@ def _positive(value: Any) -> bool:
 
 
 def _limit(value: Any) -> bool:
-    return _integer(value, 1) or (_integer(value, -1) and value == -1)
+    return is_integer(value, 1) or (is_integer(value, -1) and value == -1)
 
 
 NO_LIMIT = "an integer >= 1, or -1 for no limit"
 
 SCALARS: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
-    ("seed", lambda v: v is None or (_integer(v, 0) and v < 2**32), "null or an integer in [0, 2**32)"),
-    ("data.batch_size", lambda v: _integer(v, 1), "an integer >= 1"),
-    ("data.num_workers", lambda v: _integer(v, 0), "an integer >= 0"),
+    ("seed", lambda v: v is None or (is_integer(v, 0) and v < 2**32), "null or an integer in [0, 2**32)"),
+    ("data.batch_size", lambda v: is_integer(v, 1), "an integer >= 1"),
+    ("data.num_workers", lambda v: is_integer(v, 0), "an integer >= 0"),
     ("trainer.max_epochs", _limit, NO_LIMIT),
     ("trainer.max_steps", _limit, NO_LIMIT),
-    ("trainer.log_every_n_steps", lambda v: _integer(v, 1), "an integer >= 1"),
-    ("trainer.check_val_every_n_epoch", lambda v: v is None or _integer(v, 1), "null or an integer >= 1"),
+    ("trainer.log_every_n_steps", lambda v: is_integer(v, 1), "an integer >= 1"),
+    ("trainer.check_val_every_n_epoch", lambda v: v is None or is_integer(v, 1), "null or an integer >= 1"),
     ("trainer.gradient_clip_val", lambda v: v is None or _finite(v, 0.0), "null or a finite number >= 0"),
     ("optimizer.lr", _positive, "a finite number > 0"),
     ("optimizer.weight_decay", lambda v: _finite(v, 0.0), "a finite number >= 0"),
@@ -86,7 +82,7 @@ def check_train_config(cfg: DictConfig) -> None:
     scheduler = resolved.get("scheduler") or {}
     if str(scheduler.get("_target_", "")).endswith("CosineAnnealingLR"):
         t_max = scheduler.get("T_max")
-        if not _integer(t_max, 1):
+        if not is_integer(t_max, 1):
             raise ValueError(f"scheduler.T_max: expected an integer >= 1 (the cosine schedule's length in "
                              f"epochs, trainer.max_epochs by default), got {t_max!r}")  # fmt: skip
     ckpt_path = resolved.get("ckpt_path")

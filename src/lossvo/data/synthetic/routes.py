@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from lossvo import geometry
+from lossvo.checks import is_number
 
 STRETCH = 60
 """Frames (at least) driven in one family before the next family is drawn from the sequence's mix."""
@@ -130,7 +131,7 @@ def check_mix(mix: Mapping[str, float], families: Mapping[str, Family] = FAMILIE
     unknown = [name for name in mix if name not in families]
     if unknown:
         raise ValueError(f"unknown route family {unknown[0]!r}: expected one of {', '.join(families)}")
-    weights = [w for w in mix.values() if isinstance(w, int | float) and not isinstance(w, bool)]
+    weights = [w for w in mix.values() if is_number(w)]
     if not mix or len(weights) < len(mix) or any(not (w >= 0 and math.isfinite(w)) for w in weights):
         raise ValueError(f"route mix: expected non-negative weights with a positive sum, got {dict(mix)}")
     total = sum(weights)
