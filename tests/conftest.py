@@ -32,9 +32,19 @@ LONG_FILES = (
 """The test files that take longest (the first eight mostly in subprocesses), in the order to start them."""
 
 
+SLOW_FIXTURES = ("study_sweep",)
+"""Fixtures that make every test using them (directly or through another fixture) ``slow``: the shared sweep
+trains four jobs (~1.5 min on 2 cores)."""
+
+
+@pytest.hookimpl(tryfirst=True)  # before ``-m`` deselects by marker
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """LONG_FILES first, in their order: pytest-xdist hands each worker whole files in collection order,
-    so the workers then finish together on the short files."""
+    """Tests using a SLOW_FIXTURES fixture marked ``slow``; then LONG_FILES first, in their order:
+    pytest-xdist hands each worker whole files in collection order, so the workers then finish together on
+    the short files."""
+    for item in items:
+        if any(name in getattr(item, "fixturenames", ()) for name in SLOW_FIXTURES):
+            item.add_marker(pytest.mark.slow)
     rank = {name: k for k, name in enumerate(LONG_FILES)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: each file keeps its order
 

@@ -90,6 +90,7 @@ def strategy(axiom: str) -> st.SearchStrategy:
     return triples() if axiom == "triangle inequality" else st.tuples(rotations(), rotations())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("name", "axiom"), HOLDS)
 def test_axiom_holds(name: str, axiom: str) -> None:
     @given(strategy(axiom))
@@ -123,6 +124,7 @@ def test_euler_distance_jumps_at_the_wrap() -> None:
     assert g.euler_distance(a, b).item() == pytest.approx(2 * math.pi - 2e-3)
 
 
+@pytest.mark.slow
 def test_generated_table_agrees_with_the_mathematics() -> None:
     results = axioms.check_all()
     for name, verdicts in results.items():
@@ -130,6 +132,7 @@ def test_generated_table_agrees_with_the_mathematics() -> None:
         assert failing == FAILS[name], name
 
 
+@pytest.mark.slow
 def test_readme_shows_the_generated_table() -> None:
     table = axioms.markdown_table()
     readme = DOC.read_text(encoding="utf-8")

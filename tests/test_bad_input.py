@@ -186,6 +186,7 @@ def check_nothing_done(row: Row, places: dict[str, str], tmp_path: Path) -> None
         assert not (Path(places[folder]) / "report").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("row", ROWS, ids=[row.id for row in ROWS])
 def test_row(row: Row, places: dict[str, str], tiny_kitti: Path, tmp_path: Path,
              monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
@@ -229,6 +230,7 @@ def real_runs(tiny_kitti: Path, tmp_path_factory: pytest.TempPathFactory) -> dic
     return done
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", REAL)
 def test_the_real_command_line(real_runs: dict[str, tuple], command: str) -> None:
     row, message, status, out, err = real_runs[command]
@@ -240,6 +242,7 @@ def test_the_real_command_line(real_runs: dict[str, tuple], command: str) -> Non
 # -- LOSSVO_FULL_ERROR -----------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("command", "args", "error"),
     [

@@ -305,6 +305,7 @@ def test_sequence_names_from_hydra_integers(tiny_kitti: Path, tmp_path: Path) ->
     assert dm.splits == {"train": ("00", "01"), "val": ("02",), "test": ("02",), "unseen": ()}
 
 
+@pytest.mark.slow
 def test_synthetic_datamodule_renders_on_first_use(tmp_path: Path) -> None:
     dm = SyntheticDataModule(root=str(tmp_path / "synth"), frames=6, render_height=48, render_width=160,
                              train=["00"], val=["01"], test=["01"], height=32, width=96, seq_len=3,

@@ -20,6 +20,7 @@ from lossvo.evaluation.inference import predict_sequence
 from lossvo.training.module import VOModule
 from test_train import tiny_overrides
 
+pytestmark = pytest.mark.slow  # DDP training in two processes
 REPO = Path(__file__).resolve().parents[1]
 
 

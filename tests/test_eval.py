@@ -164,6 +164,7 @@ def _check_outputs(run: Path, tiny_kitti: Path) -> dict:
     return result
 
 
+@pytest.mark.slow
 def test_training_writes_results_trajectories_and_plots(trained_run: Path, tiny_kitti: Path) -> None:
     result = _check_outputs(trained_run, tiny_kitti)
     assert result["checkpoint"] == str(trained_run / "checkpoints" / "best.ckpt")
@@ -175,6 +176,7 @@ def test_training_writes_results_trajectories_and_plots(trained_run: Path, tiny_
     assert "val/kitti_t_err" not in header  # no segment: not logged, never 0
 
 
+@pytest.mark.slow
 def test_eval_cli_writes_the_same_files(
     trained_run: Path, tiny_kitti: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture,
@@ -210,6 +212,7 @@ def test_eval_cli_errors_are_one_line(
     assert status == 2 and err.strip() == "error: ckpt_path is required: python -m lossvo.eval ckpt_path=PATH"
 
 
+@pytest.mark.slow
 def test_sequence_without_ground_truth(trained_run: Path, kitti_copy: Path, tmp_path: Path) -> None:
     network = load_network(trained_run / "checkpoints" / "best.ckpt")
     next(kitti_copy.rglob("poses/02.txt")).unlink()  # sequence 02 without its ground truth (a test split)

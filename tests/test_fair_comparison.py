@@ -47,6 +47,7 @@ def backbone(module: VOModule) -> dict[str, torch.Tensor]:
     return {k: v for k, v in module.model.state_dict().items() if not k.startswith("head.")}
 
 
+@pytest.mark.slow
 def test_same_start_for_every_loss(tiny_kitti: Path, tmp_path: Path) -> None:
     reference, ref_state, ref_batches = built(tiny_kitti, tmp_path, "euler")
     ref_backbone = backbone(reference)
@@ -63,6 +64,7 @@ def test_same_start_for_every_loss(tiny_kitti: Path, tmp_path: Path) -> None:
         assert module.model.head.out_features == resolvers.dim_of(module.hparams.loss["_target_"])
 
 
+@pytest.mark.slow
 def test_weighting_shifts_no_stream(tiny_kitti: Path, tmp_path: Path) -> None:
     _, matched, batches = built(tiny_kitti, tmp_path, "quat")
     module, learned, other = built(tiny_kitti, tmp_path / "learned", "quat", "weighting=learned")
@@ -71,6 +73,7 @@ def test_weighting_shifts_no_stream(tiny_kitti: Path, tmp_path: Path) -> None:
     assert isinstance(module.loss.weighting, HomoscedasticWeighting)
 
 
+@pytest.mark.slow
 def test_another_seed_is_another_start(tiny_kitti: Path, tmp_path: Path) -> None:
     a, _, _ = built(tiny_kitti, tmp_path, "euler")
     b, _, _ = built(tiny_kitti, tmp_path / "s1", "euler", "seed=1")
@@ -91,6 +94,7 @@ def rotated(R: torch.Tensor, theta: float, axis: tuple[float, float, float]) -> 
     return R @ g.so3_exp(omega / omega.norm() * theta)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("loss_name", ALL_LOSSES)
 @pytest.mark.parametrize("c", [100.0, 30.0])
 def test_matched_weights_make_every_rotation_term_c_theta_squared(loss_name: str, c: float) -> None:
@@ -153,6 +157,7 @@ def test_learned_weights_get_gradients() -> None:
     )
 
 
+@pytest.mark.slow
 def test_learned_weights_move_and_reload(tiny_kitti: Path, tmp_path: Path) -> None:
     overrides = [*tiny_overrides(tiny_kitti, tmp_path / "cache"), "loss=quat", "weighting=learned",
                  "weighting.learned.s_r=1.0", "trainer.max_epochs=2", "optimizer.lr=0.05"]  # fmt: skip
@@ -175,6 +180,7 @@ def test_learned_weights_move_and_reload(tiny_kitti: Path, tmp_path: Path) -> No
 # -- one selection rule -----------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("loss", ALL_LOSSES)
 def test_checkpoint_monitor_is_the_same_for_every_loss(tiny_kitti: Path, tmp_path: Path, loss: str) -> None:
     cfg = compose_train([*tiny_overrides(tiny_kitti, tmp_path), f"loss={loss}"], tmp_path / "run")

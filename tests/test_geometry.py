@@ -271,6 +271,7 @@ def test_se3_chordal_distance() -> None:
 # -- gradients --------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_gradcheck() -> None:
     xi = twists(5, torch.float64).requires_grad_()
     assert torch.autograd.gradcheck(g.se3_exp, (xi,))

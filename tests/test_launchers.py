@@ -5,6 +5,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
+pytestmark = pytest.mark.slow  # sweeps through submitit and an Optuna study
+
 
 def test_submitit_local_sweep(run_tiny_sweep_here, tmp_path: Path) -> None:
     """The sweep launched from this process; submitit runs each job in a process of its own."""

@@ -144,6 +144,7 @@ def assert_stats_close(ours: dict, theirs: dict, rot_rtol: float, where: str) ->
 # --------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", MODES)
 def test_ape_equals_evo(cases, mode):
     for name, est, ref, evo_est, evo_ref in cases:
@@ -153,6 +154,7 @@ def test_ape_equals_evo(cases, mode):
         assert_stats_close(ours, evo_ape(evo_est, evo_ref, mode), rot_rtol, f"{name} align={mode}")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", MODES)
 def test_rpe_after_alignment_equals_evo_rpe_with_align_and_correct_scale(cases, mode):
     for name, est, ref, evo_est, evo_ref in cases:
@@ -194,6 +196,7 @@ def test_rpe_settings_are_checked(delta, unit, pairs_from, message):
         metrics.RPE(delta=delta, delta_unit=unit, pairs_from=pairs_from)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("delta", [1, 7])
 def test_rpe_equals_evo(cases, delta):
     for name, est, ref, evo_est, evo_ref in cases:

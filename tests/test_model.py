@@ -76,6 +76,7 @@ def test_pairs_are_consecutive_frames_in_order() -> None:
 # -- initialisation and training behaviour ------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "loss_cls",
     [losses.EulerLoss, losses.QuaternionLoss, losses.ChordalLoss, losses.SixDLoss, losses.SVDLoss,
@@ -111,6 +112,7 @@ def test_eval_disables_dropout() -> None:
         assert not torch.equal(model(x), model(x))
 
 
+@pytest.mark.slow
 def test_forward_with_state_carries_over_chunks() -> None:
     model = small().eval()
     x = frames(2, 7)

@@ -7,6 +7,9 @@ import sys
 import zipfile
 from pathlib import Path
 
+import pytest
+
+pytestmark = pytest.mark.slow  # builds, installs and runs a wheel
 ROOT = Path(__file__).resolve().parents[1]
 
 

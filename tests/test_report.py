@@ -689,6 +689,7 @@ def output_sweep(tmp_path: Path, root: Path, kind: str | None = None) -> Path:
     return sweep
 
 
+@pytest.mark.slow
 def test_baselines_and_ground_truth_come_from_the_data_results_json_records(
     tiny_kitti: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -704,6 +705,7 @@ def test_baselines_and_ground_truth_come_from_the_data_results_json_records(
         assert png_size(path.parent / "figures" / f"trajectory_{s}.png")[0] > 300
 
 
+@pytest.mark.slow
 def test_without_the_recorded_data_the_report_renders_and_says_why_once(
     tiny_kitti: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

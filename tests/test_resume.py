@@ -63,6 +63,7 @@ def _weights(run: Path) -> dict[str, torch.Tensor]:
     return checkpoints.read(run / "checkpoints" / "last.ckpt")["state_dict"]
 
 
+@pytest.mark.slow
 def test_resume_equals_uninterrupted(tiny_kitti: Path, tmp_path: Path, restore_sigint) -> None:
     cache = tmp_path / "cache"
     whole = tmp_path / "whole"
@@ -88,6 +89,7 @@ def test_resume_equals_uninterrupted(tiny_kitti: Path, tmp_path: Path, restore_s
     assert epochs == [0, 1, 2]  # every epoch once, across the resume
 
 
+@pytest.mark.slow
 def test_extending_a_finished_run_continues_the_schedule(tiny_kitti: Path, tmp_path: Path) -> None:
     cache, run = tmp_path / "cache", tmp_path / "run"
     fit(compose_train(_overrides(tiny_kitti, cache, "trainer.max_epochs=2"), run))
@@ -131,6 +133,7 @@ def _start(tiny_kitti: Path, base: Path, *extra: str) -> subprocess.Popen:
                             text=True)  # fmt: skip
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 def test_signals_leave_an_interrupted_job_that_resumes_by_itself(
     tiny_kitti: Path, tmp_path: Path, signum: int, monkeypatch: pytest.MonkeyPatch,

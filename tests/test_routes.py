@@ -226,6 +226,7 @@ def test_bad_route_config_names_the_key(families, mixes, message: str) -> None:
         routes.route_spec(families, mixes, prefix="data.")
 
 
+@pytest.mark.slow
 def test_a_changed_route_spec_renders_the_dataset_again(tmp_path: Path) -> None:
     root = synthetic.generate(tmp_path, ["11"], 4, height=32, width=96, progress=False, workers=1)
     before = (root / "poses" / "11.txt").read_text()
@@ -236,6 +237,7 @@ def test_a_changed_route_spec_renders_the_dataset_again(tmp_path: Path) -> None:
     assert manifest is not None and manifest["routes"]["mixes"]["11"] == {"expressway": 1.0}
 
 
+@pytest.mark.slow
 def test_cli_mix_and_its_errors(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     args = ["--out", str(tmp_path), "--sequences", "11", "--frames", "3", "--height", "32", "--width", "96"]
     assert synthetic_cli.main([*args, "--quiet", "--mix", "11=expressway:2+stop_and_go"]) == 0

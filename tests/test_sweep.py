@@ -14,6 +14,8 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from conftest import STUDY_LOSSES, STUDY_SEEDS
 from lossvo.training.module import NonFiniteLossError
 
+pytestmark = pytest.mark.slow  # the shared sweep and two sweeps of its own
+
 
 def test_sweep_over_losses_and_seeds_with_joblib_and_wandb(study_sweep: Path) -> None:
     jobs = sorted(p for p in study_sweep.iterdir() if p.is_dir())

@@ -121,6 +121,7 @@ def check_geometry(label: str, rot: np.ndarray, trans: np.ndarray, poses: np.nda
     assert rot_med <= 0.3 and dir_med <= 5.0, report
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sequence", GEOMETRY_SEQUENCES)
 def test_orb_essential_matrix_recovers_written_poses(dataset: Path, sequence: str) -> None:
     rot, trans = relative_pose_errors(dataset, sequence)
@@ -133,6 +134,7 @@ def test_orb_essential_matrix_recovers_written_poses(dataset: Path, sequence: st
 # --------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_layout_and_formats(dataset: Path) -> None:
     h, w = synthetic.DEFAULT_HEIGHT, synthetic.DEFAULT_WIDTH
     for seq in GEOMETRY_SEQUENCES:
@@ -188,6 +190,7 @@ def test_small_datasets_render_in_this_process() -> None:
     assert writer._worker_count(1, 2, writer.PARALLEL_PIXELS) == 1  # at most one process a sequence
 
 
+@pytest.mark.slow
 def test_same_seed_same_bytes_and_sequences_differ(tmp_path: Path, dataset: Path) -> None:
     a = synthetic.generate(tmp_path / "a", ["03"], 4, progress=False, workers=1)
     b = synthetic.generate(tmp_path / "b", ["04", "03"], 4, progress=False, workers=2)  # in a worker process
@@ -209,6 +212,7 @@ def test_same_seed_same_bytes_and_sequences_differ(tmp_path: Path, dataset: Path
 # --------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_written_poses_are_the_sequences_routes(dataset: Path) -> None:
     for seq in GEOMETRY_SEQUENCES:
         written = read_poses(dataset / "poses" / f"{seq}.txt")
@@ -241,6 +245,7 @@ def busiest_frames(family: str) -> tuple[list[np.ndarray], np.ndarray, np.ndarra
     return [cv2.cvtColor(renderer.render(T, rng), cv2.COLOR_BGR2GRAY) for T in window], window, K
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("family", list(routes.FAMILIES))
 def test_orb_essential_matrix_recovers_every_route_familys_poses(family: str) -> None:
     """The render-geometry check on 30 frame pairs around each family's busiest rotation."""
@@ -249,6 +254,7 @@ def test_orb_essential_matrix_recovers_every_route_familys_poses(family: str) ->
     check_geometry(family, rot, trans, poses)
 
 
+@pytest.mark.slow
 def test_mirrored_frames_move_as_the_mirrored_poses() -> None:
     """What data.mirror trains on: frames flipped left to right, seen through the mirrored principal point
     (cx -> W - 1 - cx), move as S @ T_w_c @ S with S = diag(-1, 1, 1, 1); the unmirrored poses, which
@@ -286,6 +292,7 @@ def test_cli_writes_a_dataset(tmp_path: Path, capsys: pytest.CaptureFixture) -> 
 # --------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_ensure_dataset_generates_once_and_again_on_new_parameters(tmp_path: Path) -> None:
     params = {"sequences": ["04"], "frames": 3, "progress": False, "workers": 1}
     root = synthetic.ensure_dataset(tmp_path, **params)

@@ -40,6 +40,7 @@ def compose_train(overrides: list[str], out: Path) -> DictConfig:
     return cfg
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("loss", ["euler", "quat", "chordal", "geodesic", "sixd", "svd", "quat10d"])
 def test_fast_dev_run_for_every_loss(tiny_kitti: Path, tmp_path: Path, loss: str) -> None:
     overrides = [*tiny_overrides(tiny_kitti, tmp_path / "cache"), f"loss={loss}", "+trainer.fast_dev_run=1"]
@@ -49,6 +50,7 @@ def test_fast_dev_run_for_every_loss(tiny_kitti: Path, tmp_path: Path, loss: str
     assert all(torch.isfinite(torch.tensor(v)) for v in metrics.values())
 
 
+@pytest.mark.slow
 def test_checkpoint_reloads_with_weights_only(tiny_kitti: Path, tmp_path: Path) -> None:
     overrides = [*tiny_overrides(tiny_kitti, tmp_path / "cache"), "loss=quat", "trainer.max_epochs=1"]
     cfg = compose_train(overrides, tmp_path / "run")
@@ -70,6 +72,7 @@ def test_checkpoint_reloads_with_weights_only(tiny_kitti: Path, tmp_path: Path) 
     assert "val/rot_err_rad" in metrics_csv.read_text().splitlines()[0]
 
 
+@pytest.mark.slow
 def test_head_size_follows_the_loss(tiny_kitti: Path, tmp_path: Path) -> None:
     for loss, dim in (("euler", 6), ("quat", 7), ("sixd", 9), ("svd", 12), ("quat10d", 13)):
         cfg = compose_train([*tiny_overrides(tiny_kitti, tmp_path), f"loss={loss}"], tmp_path / "run")

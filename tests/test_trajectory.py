@@ -42,6 +42,7 @@ def test_integrate_inverts_relative_poses() -> None:
     torch.testing.assert_close(integrate(rel, poses[0]), poses, atol=1e-9, rtol=0)
 
 
+@pytest.mark.slow
 def test_chained_rotations_stay_orthonormal() -> None:
     rel = relative_steps(5000, seed=2).float().double()  # rounded steps, slightly non-orthonormal
     R = integrate(rel)[:, :3, :3]
