@@ -27,7 +27,7 @@ from omegaconf import DictConfig
 
 from lossvo.console import one_line, one_line_errors, raise_if_full_error
 from lossvo.evaluation import checkpoints
-from lossvo.evaluation.metrics import ALIGN_MODES
+from lossvo.evaluation.metrics import ALIGN_MODES, is_rpe_delta
 from lossvo.evaluation.results import Results, evaluate_run
 from lossvo.processes import restore_start_method
 
@@ -63,7 +63,7 @@ def check_config(cfg: Any) -> None:
     if cfg.get("align", "none") not in ALIGN_MODES:
         raise ValueError(f"align: expected one of {', '.join(ALIGN_MODES)}, got {cfg.get('align')!r}")
     delta = cfg.get("delta", 1)
-    if isinstance(delta, bool) or not isinstance(delta, int) or delta < 1:
+    if not is_rpe_delta(delta):
         raise ValueError(f"delta: expected an integer >= 1 (frames), got {delta!r}")
     if not isinstance(cfg.get("carry_state", False), bool):
         raise ValueError(f"carry_state: expected true or false, got {cfg.get('carry_state')!r}")

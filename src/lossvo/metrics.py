@@ -6,7 +6,6 @@ odometry error of an estimated KITTI pose file against a ground-truth one
 from __future__ import annotations
 
 import json
-import math
 import sys
 from collections.abc import Sequence
 from typing import Any
@@ -15,7 +14,7 @@ import torch
 
 from lossvo.console import OneLineParser, emit, raise_if_full_error
 from lossvo.data.kitti import read_poses
-from lossvo.evaluation.metrics import ALIGN_MODES, PAIRS_FROM, STATISTICS, evaluate
+from lossvo.evaluation.metrics import ALIGN_MODES, PAIRS_FROM, STATISTICS, evaluate, is_rpe_delta
 
 DESCRIPTION = "APE, RPE and the KITTI odometry error of an estimated KITTI pose file against a reference"
 
@@ -55,7 +54,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
     args = parser.parse_args(argv)
     frames = args.delta_unit == "f"
-    if not (math.isfinite(args.delta) and args.delta > 0 and (not frames or float(args.delta).is_integer())):
+    delta = int(args.delta) if frames and float(args.delta).is_integer() else args.delta
+    if not is_rpe_delta(delta, args.delta_unit):
         unit = "an integer number of frames >= 1" if frames else "a distance in metres > 0"
         parser.error(f"--delta: expected {unit}, got {args.delta:g}")
     try:
@@ -64,7 +64,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         if len(gt) != len(est):
             raise ValueError(f"{args.est} has {len(est)} poses, {args.gt} has {len(gt)}: expected one pose "
                              f"per frame of the same sequence in both")  # fmt: skip
-        delta = int(args.delta) if frames else args.delta
         result = evaluate(gt, est, args.align, delta, args.delta_unit, args.pairs_from)
     except ValueError as e:  # KittiFormatError is a ValueError
         raise_if_full_error()

@@ -34,7 +34,7 @@ from torchmetrics import Metric
 from torchmetrics.utilities import dim_zero_cat
 
 from lossvo import geometry
-from lossvo.checks import is_integer
+from lossvo.checks import is_integer, is_number
 from lossvo.evaluation.trajectories import integrate
 
 AlignMode = Literal["none", "se3", "sim3", "scale"]
@@ -243,16 +243,23 @@ def rpe_errors(
     return torch.linalg.vector_norm(E[:, :3, 3], dim=-1), geometry.rotation_angle(E[:, :3, :3])
 
 
+def is_rpe_delta(delta: object, delta_unit: str = "f") -> bool:
+    """Whether ``delta`` is an RPE delta in ``delta_unit``: an integer >= 1 in frames (``"f"``), a finite
+    distance > 0 in metres (``"m"``). The one rule for every caller; each names the setting its own way."""
+    if delta_unit == "f":
+        return is_integer(delta, 1)
+    return is_number(delta) and math.isfinite(delta) and delta > 0
+
+
 def check_rpe_settings(delta: float, delta_unit: str, pairs_from: str) -> None:
     """One line naming the setting that is not a valid RPE delta, unit or pair source."""
     if delta_unit not in ("f", "m"):
         raise ValueError(f"delta_unit must be 'f' (frames) or 'm' (metres), got {delta_unit!r}")
     if pairs_from not in PAIRS_FROM:
         raise ValueError(f"pairs_from must be one of {', '.join(PAIRS_FROM)}, got {pairs_from!r}")
-    if delta_unit == "f" and not is_integer(delta, 1):
-        raise ValueError(f"delta must be a positive integer number of frames, got {delta!r}")
-    if delta_unit == "m" and not (isinstance(delta, (int, float)) and math.isfinite(delta) and delta > 0):
-        raise ValueError(f"delta must be a positive path distance in metres, got {delta!r}")
+    if not is_rpe_delta(delta, delta_unit):
+        what = "integer number of frames" if delta_unit == "f" else "path distance in metres"
+        raise ValueError(f"delta must be a positive {what}, got {delta!r}")
 
 
 def _rpe_pairs(

@@ -91,6 +91,8 @@ class TrajectoryValidation(Callback):
     def __init__(self, every_n_epochs: int = 1, align: metrics.AlignMode = "none", delta: int = 1) -> None:
         if not is_integer(every_n_epochs, 1):
             raise ValueError(f"every_n_epochs: expected an integer >= 1, got {every_n_epochs!r}")
+        if not metrics.is_rpe_delta(delta):
+            raise ValueError(f"delta: expected an integer >= 1 (frames), got {delta!r}")
         self.every_n_epochs, self.align, self.delta = every_n_epochs, align, delta
 
     @staticmethod
