@@ -37,7 +37,7 @@ from torch import Tensor, nn
 
 from lossvo import geometry as g
 from lossvo.checks import is_number
-from lossvo.weighting import DEFAULT_C, HomoscedasticWeighting, learned_from_config
+from lossvo.weighting import DEFAULT_C, HomoscedasticWeighting, check_k, check_unsquared, learned_from_config
 
 
 class PoseLoss(nn.Module):
@@ -63,11 +63,7 @@ class PoseLoss(nn.Module):
         super().__init__()
         name = type(self).__name__
         self.weighting: HomoscedasticWeighting | None = learned_from_config(learned)
-        if self.weighting is not None and k is not None:
-            raise ValueError(
-                f"loss.k={k!r} cannot be combined with weighting=learned (the learned weights replace k): "
-                "drop loss.k, or choose weighting=matched or weighting=paper"
-            )
+        check_k(k, learned=self.weighting is not None)
         if self.weighting is None and k is None:
             k = self.matched_k()
         if k is not None and (not is_number(k) or not math.isfinite(k) or k < 0):
@@ -221,11 +217,7 @@ class QuaternionLoss(PoseLoss):
     ) -> None:
         if not isinstance(squared, bool):
             raise ValueError(f"loss.squared: expected true or false, got {squared!r}")
-        if not squared and k is None and learned is None:
-            raise ValueError(
-                "loss.squared=false: the unsquared quaternion distance (~ theta / 2) has no matched k; "
-                "set loss.k (the study's 14 with weighting=paper) or use weighting=learned"
-            )
+        check_unsquared(squared, k, learned=learned is not None)
         self.squared = squared
         super().__init__(k, learned)
 

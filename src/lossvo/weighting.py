@@ -67,6 +67,25 @@ def preset_k(target: str, preset: str, c: float = DEFAULT_C, squared: bool = Tru
     return matched_k(cls.small_angle_gain, c) if squared else None
 
 
+def check_k(k: Any, learned: bool) -> None:
+    """Refuse an explicit ``loss.k`` together with the learned weighting (the learned weights replace k)."""
+    if learned and k is not None:
+        raise ValueError(
+            f"loss.k={k!r} cannot be combined with weighting=learned (the learned weights replace k): "
+            "drop loss.k, or choose weighting=matched or weighting=paper"
+        )
+
+
+def check_unsquared(squared: Any, k: Any, learned: bool) -> None:
+    """Refuse ``loss.squared=false`` with neither ``loss.k`` nor the learned weighting: the unsquared
+    quaternion distance has no matched k."""
+    if squared is False and k is None and not learned:
+        raise ValueError(
+            "loss.squared=false: the unsquared quaternion distance (~ theta / 2) has no matched k; "
+            "set loss.k (the study's 14 with weighting=paper) or use weighting=learned"
+        )
+
+
 def check_config(weighting: Mapping[str, Any], loss: Mapping[str, Any]) -> None:
     """Check a job's ``weighting`` and ``loss`` config entries before anything is built.
 
@@ -79,16 +98,8 @@ def check_config(weighting: Mapping[str, Any], loss: Mapping[str, Any]) -> None:
         raise ValueError(f"weighting.preset: expected one of {PRESETS}, got {preset!r}")
     if preset == "matched":
         check_c(weighting.get("c"))
-        if loss.get("squared") is False and loss.get("k") is None:
-            raise ValueError(
-                "loss.squared=false: the unsquared quaternion distance (~ theta / 2) has no matched k; "
-                "set loss.k (the study's 14 with weighting=paper) or use weighting=learned"
-            )
-    if preset == "learned" and loss.get("k") is not None:
-        raise ValueError(
-            f"loss.k={loss.get('k')!r} cannot be combined with weighting=learned (the learned weights "
-            "replace k): drop loss.k, or choose weighting=matched or weighting=paper"
-        )
+        check_unsquared(loss.get("squared"), loss.get("k"), learned=False)
+    check_k(loss.get("k"), learned=preset == "learned")
 
 
 class HomoscedasticWeighting(nn.Module):
