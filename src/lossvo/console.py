@@ -80,13 +80,15 @@ def one_line(text: object) -> str:
     return "; ".join(line.strip() for line in str(text).splitlines() if line.strip())
 
 
-def disk_error(error: BaseException) -> str | None:
+def disk_error(error: BaseException, folder: object = None) -> str | None:
     """One line for an OS error of :data:`DISK_ERRORS`, naming the path and the cause
-    (``/data/run/status.json: No space left on device``); None for any other error."""
+    (``/data/run/status.json: No space left on device``), or ``folder`` where the error names no file;
+    None for any other error."""
     if not isinstance(error, OSError) or error.errno not in DISK_ERRORS:
         return None
     cause = error.strerror or errno.errorcode.get(error.errno or 0, "OS error")
-    return f"{error.filename}: {cause}" if error.filename else cause
+    where = error.filename or folder
+    return f"{where}: {cause}" if where else cause
 
 
 def hydra_message(error: HydraException) -> str:

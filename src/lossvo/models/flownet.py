@@ -39,6 +39,8 @@ class LoadReport:
 
 
 def _read_state_dict(path: Path) -> dict[str, Tensor]:
+    if path.is_dir():
+        raise ValueError(f"FlowNet checkpoint {path} is a folder, expected a file")
     if not path.is_file():
         raise FileNotFoundError(f"FlowNet checkpoint not found: {path}")
     try:

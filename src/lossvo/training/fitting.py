@@ -119,7 +119,11 @@ def train(cfg: DictConfig, run: Run) -> dict[str, float]:
     ckpt_path = cfg.get("ckpt_path") or run.resume_from
     epoch, step = -1, 0
     if ckpt_path:
-        epoch, step = checkpoints.check_resume(ckpt_path, module, dict(datamodule.hparams))
+        try:
+            epoch, step = checkpoints.check_resume(ckpt_path, module, dict(datamodule.hparams))
+        except checkpoints.CheckpointError as e:
+            key = "ckpt_path" if cfg.get("ckpt_path") else "resume"
+            raise checkpoints.CheckpointError(f"{key}: {e}") from None
     run.start(threads=torch.get_num_threads())
     log.info("%s: %s%s", run.label, run.out_dir, f" (resuming from {ckpt_path})" if ckpt_path else "")
     source = Path(ckpt_path).parent.parent / metrics_log.NAME if ckpt_path else run.metrics_csv

@@ -229,22 +229,21 @@ def _accept(run: Run) -> None:
 
 
 def _user_error(message: str) -> BaseException:
-    """A user error as one line: exit status 2, or in a sweep a :class:`JobError` so that the sweep's
-    other jobs (or a search's other trials) still run."""
-    log.error("%s", message)
+    """What ends a job after a user error's one line was logged: exit status 2, or in a sweep a
+    :class:`JobError` so that the sweep's other jobs (or a search's other trials) still run."""
     if HydraConfig.get().mode == RunMode.MULTIRUN:
         return JobError(message)
     return SystemExit(2)
 
 
-def _user_message(error: BaseException) -> str | None:
+def _user_message(error: BaseException, out_dir: Path) -> str | None:
     """The one line of a user error, or None for an error that keeps its traceback."""
     if isinstance(error, OSError):
-        return disk_error(error)
+        return disk_error(error, out_dir)
     if isinstance(error, InstantiationException):
         cause = error.__cause__
         if isinstance(cause, OSError):
-            return _user_message(cause)
+            return _user_message(cause, out_dir)
         return hydra_message(error) if isinstance(cause, (*USER_ERRORS, MisconfigurationException)) else None
     if isinstance(error, ValueError):  # config values, data files, checkpoints (CheckpointError)
         return one_line(error)
@@ -320,6 +319,8 @@ def job(cfg: DictConfig) -> Iterator[Run]:
     try:
         _accept(run)
     except ValueError as e:
+        if not full_error():
+            log.error("%s", one_line(e))  # before the folder goes: the log opens train.log in it
         _failed(run, e)
         if full_error():
             raise
@@ -338,10 +339,12 @@ def job(cfg: DictConfig) -> Iterator[Run]:
         _interrupted(run, stop)
         raise SystemExit(stop.exit_code) from None
     except Exception as e:
-        message = _user_message(e)
+        message = _user_message(e, out_dir)
+        if message is None:
+            log.error("%s failed: %s: %s", run.label, type(e).__name__, e)
+        elif not full_error():
+            log.error("%s", message)  # before the folder goes: the log opens train.log in it
         _failed(run, e)
         if message is None or full_error():
-            if message is None:
-                log.error("%s failed: %s: %s", run.label, type(e).__name__, e)
             raise
         raise _user_error(message) from None

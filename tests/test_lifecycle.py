@@ -1,0 +1,294 @@
+"""A run's life in its job folder: a stop during the final evaluation, a folder of another config, full and
+read-only disks, short job folder names, the thread count, what a person reads (epochs from 1)."""
+
+from __future__ import annotations
+
+import csv
+import errno
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+import torch
+import yaml
+
+from helpers import train_main
+from lossvo.training import fitting
+from lossvo.training.callbacks import EpochProgressBar
+from lossvo.training.resolvers import MAX_NAME, path_safe
+from test_train import tiny_overrides
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _args(tiny_kitti: Path, run: Path, *extra: str) -> list[str]:
+    return [*tiny_overrides(tiny_kitti, run.parent / "cache"), f"hydra.run.dir={run}",
+            "trainer.max_epochs=2", "trainer.deterministic=true", *extra]  # fmt: skip
+
+
+def _rows(run: Path) -> list[dict[str, str]]:
+    with (run / "metrics.csv").open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _status(run: Path) -> dict:
+    return json.loads((run / "status.json").read_text())
+
+
+def _scores(run: Path) -> dict:
+    """results.json without the path of the checkpoint it evaluated."""
+    results = json.loads((run / "results.json").read_text())
+    return {k: v for k, v in results.items() if k != "checkpoint"}
+
+
+def _error_lines(output: str) -> list[str]:
+    return [line for line in output.splitlines() if "[ERROR]" in line or line.startswith("error:")]
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tiny_kitti: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """A run of two epochs, start to finish, in process."""
+    run = tmp_path_factory.mktemp("whole") / "run"
+    monkeypatch = pytest.MonkeyPatch()
+    assert train_main(_args(tiny_kitti, run), monkeypatch) == 0
+    monkeypatch.undo()
+    yield run
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_during_the_final_evaluation_resumes_the_evaluation(
+    signum: int, uninterrupted: Path, tiny_kitti: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    run = tmp_path / "run"
+    evaluate_run = fitting.evaluate_run
+
+    def stopped(*args, **kwargs):
+        (run / "trajectories").mkdir(parents=True)
+        (run / "trajectories" / "00.txt").write_text("half\n")
+        os.kill(os.getpid(), signum)  # SIGINT raises KeyboardInterrupt here, SIGTERM lossvo's handler's
+        raise AssertionError("the signal did not stop the evaluation")
+
+    monkeypatch.setattr(fitting, "evaluate_run", stopped)
+    assert train_main(_args(tiny_kitti, run), monkeypatch) == 128 + signum
+    status = _status(run)
+    assert status["status"] == "interrupted" and status["stage"] == "evaluation"
+    assert status["signal"] == signal.Signals(signum).name and status["resume_from"].endswith("last.ckpt")
+    written = _rows(run)
+    assert [r["epoch"] for r in written if r.get("val/score")] == ["0", "1"]
+
+    monkeypatch.setattr(fitting, "evaluate_run", evaluate_run)
+    assert train_main(_args(tiny_kitti, run), monkeypatch) == 0  # the same command
+    assert _rows(run) == written == _rows(uninterrupted)  # nothing deleted, nothing repeated
+    assert _status(run) == _status(uninterrupted) and _status(run)["metrics"]["val/score"] > 0
+    assert _scores(run) == _scores(uninterrupted)
+
+
+def test_a_changed_config_in_a_completed_folder_is_refused(
+    uninterrupted: Path, tmp_path: Path, tiny_kitti: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # fmt: skip
+    run = tmp_path / "run"
+    shutil.copytree(uninterrupted, run)
+    before = {
+        name: (run / name).read_bytes() for name in (".hydra/config.yaml", "status.json", "metrics.csv")
+    }
+    capsys.readouterr()
+    args = _args(tiny_kitti, run, "loss=euler", "trainer.max_epochs=5")
+    assert train_main(args, monkeypatch) == 2
+    (line,) = _error_lines(capsys.readouterr().out)
+    assert f"{run}: holds a run of another configuration (" in line
+    assert "loss._target_" in line and "trainer.max_epochs" not in line
+    assert {name: (run / name).read_bytes() for name in before} == before
+
+    same = _args(tiny_kitti, run, "trainer.max_epochs=3", f"ckpt_path={run}/checkpoints/last.ckpt")
+    assert train_main(same, monkeypatch) == 0  # extending a finished run
+    assert [r["epoch"] for r in _rows(run) if r.get("val/score")] == ["0", "1", "2"]
+    assert _status(run)["status"] == "completed"
+
+
+def test_resume_false_in_a_used_folder_is_refused(
+    uninterrupted: Path, tmp_path: Path, tiny_kitti: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # fmt: skip
+    run = tmp_path / "run"
+    shutil.copytree(uninterrupted, run)
+    assert train_main(_args(tiny_kitti, run, "resume=false"), monkeypatch) == 2
+    (line,) = _error_lines(capsys.readouterr().out)
+    assert "resume=false starts afresh only in a new folder" in line
+    assert _rows(run) == _rows(uninterrupted)
+
+
+@pytest.mark.parametrize(
+    ("code", "cause"), [(errno.ENOSPC, "No space left on device"), (errno.EROFS, "Read-only file system")]
+)
+def test_a_disk_error_during_training_is_one_line(
+    code: int, cause: str, tmp_path: Path, tiny_kitti: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # fmt: skip
+    write_bytes = Path.write_bytes
+
+    def refused(self: Path, data: bytes) -> int:
+        if self.suffix == ".ckpt":
+            raise OSError(code, os.strerror(code), str(self))
+        return write_bytes(self, data)
+
+    monkeypatch.setattr(Path, "write_bytes", refused)
+    run = tmp_path / "run"
+    assert train_main(_args(tiny_kitti, run), monkeypatch) == 2
+    out = capsys.readouterr().out
+    (line,) = _error_lines(out)
+    assert line.endswith(f"{run}/checkpoints/best.ckpt: {cause}") and "Traceback" not in out
+    status = _status(run)
+    assert status["status"] == "failed" and cause in status["error"]
+
+
+def test_an_unwritable_run_folder_is_one_line(
+    tmp_path: Path, tiny_kitti: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    run = tmp_path / "readonly" / "run"
+    mkdir = Path.mkdir
+
+    def refused(self: Path, *args, **kwargs) -> None:
+        if self == run:
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(self))
+        mkdir(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "mkdir", refused)
+    assert train_main(_args(tiny_kitti, run), monkeypatch) == 2
+    captured = capsys.readouterr()
+    assert captured.err.strip() == f"error: {run}: Read-only file system" and not run.exists()
+
+
+def _mount(args: list[str]) -> None:
+    result = subprocess.run(["mount", *args], capture_output=True, text=True)
+    if result.returncode:
+        pytest.skip(f"mount {' '.join(args)}: {result.stderr.strip() or 'not permitted'}")
+
+
+@pytest.fixture
+def small_disk(tmp_path: Path) -> Iterator[Path]:
+    """A 384 KiB tmpfs: room for a run's config and logs, not for its checkpoints."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    _mount(["-t", "tmpfs", "-o", "size=384k", "tmpfs", str(disk)])
+    yield disk
+    subprocess.run(["umount", str(disk)], check=False)
+
+
+@pytest.fixture
+def read_only(tmp_path: Path) -> Iterator[Path]:
+    """A read-only bind mount of an empty folder."""
+    source, target = tmp_path / "source", tmp_path / "readonly"
+    source.mkdir()
+    target.mkdir()
+    _mount(["--bind", str(source), str(target)])
+    _mount(["-o", "remount,bind,ro", str(target)])
+    yield target
+    subprocess.run(["umount", str(target)], check=False)
+
+
+def _train(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(REPO / "src")}
+    env.pop("LOSSVO_FULL_ERROR", None)
+    return subprocess.run([sys.executable, "-m", "lossvo.train", *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+
+
+@pytest.mark.slow
+def test_a_run_on_a_full_disk(small_disk: Path, tiny_kitti: Path, tmp_path: Path) -> None:
+    run = small_disk / "run"
+    args = [*tiny_overrides(tiny_kitti, tmp_path / "cache"), f"hydra.run.dir={run}"]
+    proc = _train(args, tmp_path)
+    assert proc.returncode == 2, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "Traceback" not in proc.stdout + proc.stderr
+    (line,) = _error_lines(proc.stdout + proc.stderr)
+    assert line.endswith(": No space left on device") and f"{run}/" in line
+    status = _status(run)
+    assert status["status"] == "failed" and "No space left on device" in status["error"]
+
+
+@pytest.mark.slow
+def test_a_run_on_a_read_only_disk(read_only: Path, tiny_kitti: Path, tmp_path: Path) -> None:
+    run = read_only / "run"
+    proc = _train([*tiny_overrides(tiny_kitti, tmp_path / "cache"), f"hydra.run.dir={run}"], tmp_path)
+    assert proc.returncode == 2 and proc.stderr.strip() == f"error: {run}: Read-only file system"
+    assert not proc.stdout.strip()
+
+
+def test_long_override_lists_give_short_stable_folder_names() -> None:
+    overrides = "+".join(f"data.setting_{i}-{i / 7:.12f}" for i in range(20))
+    name = path_safe(overrides)
+    assert len(name) == MAX_NAME and name == path_safe(overrides) and name.startswith("data.setting_0-0.0")
+    assert path_safe(overrides.replace("19-", "19-1")) != name  # another list, another name
+    assert path_safe("loss=euler,seed=0") == "loss-euler+seed-0"  # short ones read as before
+
+
+TWENTY = ["optimizer.lr=0.001", "optimizer.weight_decay=0.0", "trainer.log_every_n_steps=1",
+          "trainer.gradient_clip_val=null", "trainer.check_val_every_n_epoch=1", "data.num_workers=0",
+          "data.batch_size=4", "data.seq_len=3", "data.height=64", "data.width=96", "model.hidden_size=16",
+          "model.width_mult=0.0625", "weighting.c=100.0", "selection=score", "scheduler=cosine",
+          "logger=csv", "+evaluate=false", "trainer.max_epochs=1", "loss=euler,quat"]  # fmt: skip
+
+
+@pytest.mark.slow
+def test_a_sweep_of_twenty_overrides_has_short_folder_names(
+    run_tiny_sweep_here, tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    sweep = tmp_path / "sweep"
+    assert run_tiny_sweep_here(tmp_path, sweep, [*TWENTY, "seed=0"]) == 0
+    jobs = sorted(p for p in sweep.iterdir() if p.is_dir())
+    assert len(jobs) == 2 and all(len(j.name) <= 2 + MAX_NAME and "-h" in j.name for j in jobs)
+    for job in jobs:
+        assert len(yaml.safe_load((job / ".hydra" / "overrides.yaml").read_text())) == 21  # experiment too
+        assert _status(job)["status"] == "completed"
+    log = "".join(capfd.readouterr())
+    assert "job 1/2 (" in log and "job 2/2 (" in log
+
+
+@pytest.mark.slow
+def test_an_optuna_search_has_short_folder_names(run_tiny_sweep_here, tmp_path: Path) -> None:
+    sweep = tmp_path / "sweep"
+    args = ["hparams_search=k_search", "hydra.sweeper.n_trials=2", *TWENTY[:12]]
+    assert run_tiny_sweep_here(tmp_path, sweep, args) == 0
+    jobs = sorted(p for p in sweep.iterdir() if (p / ".hydra").is_dir())
+    assert len(jobs) == 2 and all(len(j.name) <= 2 + MAX_NAME for j in jobs)
+    assert all(_status(j)["status"] == "completed" for j in jobs)
+
+
+@pytest.mark.slow
+def test_one_thread_setting_gives_the_same_numbers_alone_and_in_a_sweep(
+    run_tiny_sweep, tiny_kitti: Path, tmp_path: Path
+) -> None:
+    sweep = tmp_path / "sweep"
+    args = ["seed=0,1", "threads=1", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
+            "trainer.deterministic=true"]  # fmt: skip
+    swept = run_tiny_sweep(tmp_path / "s", sweep, args)
+    assert swept.returncode == 0, swept.stderr[-3000:]
+    (job,) = sweep.glob("*+seed-0+threads-1+*")
+    alone = tmp_path / "alone"
+    conf = tmp_path / "s" / "conf"
+    proc = _train(["--config-dir", str(conf), "experiment=tiny", "seed=0", "threads=1",
+                   "trainer.deterministic=true", f"hydra.run.dir={alone}"], tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert _rows(alone) == _rows(job)
+    assert _scores(alone) == _scores(job) and _scores(alone)["threads"] == 1
+    assert _status(alone) == _status(job) and _status(alone)["threads"] == 1
+    checkpoint = torch.load(alone / "checkpoints" / "best.ckpt", weights_only=True)
+    assert checkpoint["threads"] == 1
+
+
+def test_epochs_are_counted_from_one_where_a_person_reads_them(uninterrupted: Path) -> None:
+    log = (uninterrupted / "train.log").read_text()
+    assert "epoch 1/2 (" in log and "epoch 2/2 (" in log and "val/score=" in log
+    bar = EpochProgressBar()
+    trainer = SimpleNamespace(max_epochs=2)
+    bar._trainer = trainer  # type: ignore[attr-defined]
+    assert bar._get_train_description(1) == "Epoch 2/2"  # the second of two
+    assert [r["epoch"] for r in _rows(uninterrupted) if r.get("val/score")] == ["0", "1"]  # Lightning's
