@@ -26,6 +26,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 from lossvo.console import one_line, one_line_errors, raise_if_full_error
+from lossvo.data.kitti import sequence_names
 from lossvo.evaluation import checkpoints
 from lossvo.evaluation.metrics import ALIGN_MODES, is_rpe_delta
 from lossvo.evaluation.results import Results, evaluate_run
@@ -100,8 +101,7 @@ def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
     datamodule = instantiate(data_cfg, _convert_="all")
     datamodule.prepare_data()
     datamodule.setup("test")
-    sequences = list(cfg.sequences) if cfg.get("sequences") else datamodule.evaluated
-    sequences = [f"{s:02d}" if isinstance(s, int) else str(s) for s in sequences]
+    sequences = sequence_names(cfg.sequences if cfg.get("sequences") else datamodule.evaluated)
     available = list(getattr(datamodule, "sequences", None) or sequences)
     unknown = [s for s in sequences if s not in available]
     if unknown:

@@ -35,7 +35,7 @@ from lossvo import geometry
 from lossvo.atomic import write_text_atomic
 from lossvo.checks import is_integer, is_number
 from lossvo.data import frame_cache, synthetic, windows
-from lossvo.data.kitti import Sequence, find_root, load_sequence, relative_targets
+from lossvo.data.kitti import Sequence, find_root, load_sequence, relative_targets, sequence_name
 from lossvo.data.synthetic import routes
 
 PAPER_TRAIN = ("00", "02", "03", "04", "05", "06", "08")
@@ -55,7 +55,7 @@ def _names(value: str | int | Seq[str | int], key: str) -> tuple[str, ...]:
         items = list(value)
     names = []
     for item in items:
-        text = f"{item:02d}" if isinstance(item, int) and not isinstance(item, bool) else str(item).strip()
+        text = sequence_name(item)
         if not text:
             raise ValueError(f"data.{key}: empty sequence name in {value!r}")
         names.append(text)

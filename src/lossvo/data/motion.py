@@ -23,16 +23,12 @@ import torch
 from lossvo import geometry
 from lossvo.console import OneLineParser, emit
 from lossvo.data import frame_cache, kitti
+from lossvo.data.datamodules import PAPER_TEST, PAPER_TRAIN, PAPER_VAL
 from lossvo.data.synthetic import routes
 
 STANDING = 0.01
 """Metres per frame below which a pair counts as standing still."""
-PAPER_SPLITS = {
-    "train": ("00", "02", "03", "04", "05", "06", "08"),
-    "val": ("07", "09"),
-    "test": tuple(f"{i:02d}" for i in range(11)),
-    "unseen": routes.UNSEEN_SEQUENCES,
-}
+PAPER_SPLITS = {"train": PAPER_TRAIN, "val": PAPER_VAL, "test": PAPER_TEST, "unseen": routes.UNSEEN_SEQUENCES}
 """The default splits: the paper's, plus the synthetic dataset's unseen-motion sequences."""
 COLUMNS = (
     "pairs", "speed mean", "speed RMS", "speed p5", "speed p50", "speed p95", "speed max", "standing",
@@ -124,7 +120,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     root = args.root or frame_cache.default_cache_dir() / "synthetic"
     try:
         root = kitti.find_root(root)
-        splits = {s: [n.strip() for n in getattr(args, s).split(",") if n.strip()] for s in PAPER_SPLITS}
+        splits = {s: kitti.sequence_names(getattr(args, s)) for s in PAPER_SPLITS}
         motion = read_motion(root, sorted({n for names in splits.values() for n in names}))
     except ValueError as err:  # KittiFormatError too
         parser.error(str(err))

@@ -12,11 +12,12 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 
+from lossvo.data.kitti import sequence_name
 from lossvo.data.synthetic import routes
 
 DEFAULT_HEIGHT = 160
 DEFAULT_WIDTH = 512
-SEQUENCES = tuple(f"{i:02d}" for i in range(11)) + routes.UNSEEN_SEQUENCES
+SEQUENCES = tuple(map(sequence_name, range(11))) + routes.UNSEEN_SEQUENCES
 DEFAULT_FRAMES = {
     "00": 240, "01": 120, "02": 240, "03": 120, "04": 100, "05": 200,
     "06": 150, "07": 120, "08": 240, "09": 150, "10": 120, "11": 150, "12": 150,

@@ -27,6 +27,7 @@ import torch
 
 from lossvo import geometry
 from lossvo.checks import is_number
+from lossvo.data.kitti import sequence_name
 
 STRETCH = 60
 """Frames (at least) driven in one family before the next family is drawn from the sequence's mix."""
@@ -118,7 +119,7 @@ UNSEEN_MIX: dict[str, float] = {"stop_and_go": 0.5, "expressway": 0.5}
 UNSEEN_SEQUENCES = ("11", "12")
 """The unseen-motion sequences: routes of families that no other sequence drives."""
 MIXES: dict[str, dict[str, float]] = {
-    **{f"{i:02d}": TRAINING_MIX for i in range(11)},
+    **{sequence_name(i): TRAINING_MIX for i in range(11)},
     **dict.fromkeys(UNSEEN_SEQUENCES, UNSEEN_MIX),
 }
 """Family mix of each sequence; sequences not listed drive TRAINING_MIX."""
@@ -200,7 +201,7 @@ def route_spec(
         table[name] = Family(name=str(name), **values)
     chosen = dict(MIXES)
     for sequence, mix in (mixes or {}).items():
-        key = f"{int(sequence):02d}" if isinstance(sequence, int) else str(sequence)
+        key = sequence_name(sequence)
         try:
             chosen[key] = check_mix(mix, table)
         except ValueError as err:
