@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import torch
-from torch import nn
+from torch import Tensor, nn
 
 from lossvo.atomic import write_text_atomic
 from lossvo.checks import is_integer, is_number
@@ -485,6 +485,67 @@ def data_record(
     )
 
 
+class PooledScores:
+    """APE, RPE and the KITTI error pooled over several sequences (torchmetrics: list and sum states that
+    hold every sequence scored), with the alignment and RPE delta that every sequence is scored with.
+
+    Args:
+        align, delta: APE alignment and RPE delta in frames (:func:`lossvo.evaluation.metrics.evaluate`).
+        sync: whether ``compute`` gathers the states of every DDP process (torchmetrics'
+            ``sync_on_compute``); False where one process scores every sequence.
+    """
+
+    def __init__(self, align: metrics.AlignMode = "none", delta: int = 1, sync: bool = True) -> None:
+        self.align, self.delta = align, delta
+        self.ape = metrics.APE(align=align, sync_on_compute=sync)
+        self.rpe = metrics.RPE(delta=delta, align=align, sync_on_compute=sync)
+        self.kitti = metrics.KittiOdometryError(sync_on_compute=sync)
+
+    def compute(self) -> dict[str, Any] | None:
+        """:func:`lossvo.evaluation.metrics.evaluate`'s dict over every sequence scored; None before the
+        first."""
+        if not self.ape.trans:
+            return None
+        return {"ape": self.ape.compute(), "rpe": self.rpe.compute(), "kitti": self.kitti.compute()}
+
+
+def predict_and_score(
+    module: nn.Module,
+    datamodule: KittiDataModule,
+    name: str,
+    gt: np.ndarray | None,
+    pooled: PooledScores,
+    carry_state: bool = False,
+    device: torch.device | None = None,
+) -> tuple[Tensor, dict[str, Any] | None]:
+    """One sequence through the network, chained and scored: the path that validation during training
+    (:class:`lossvo.training.callbacks.TrajectoryValidation`) and :func:`evaluate_run` share.
+
+    The sequence's frames go through :func:`lossvo.evaluation.inference.predict_sequence`; the relative
+    poses are chained from the first ground-truth pose and scored against ``gt`` into ``pooled``
+    (:func:`lossvo.evaluation.metrics.evaluate_relative`). Without ground truth the trajectory starts at
+    the identity and nothing is scored.
+
+    Args:
+        module, carry_state: the network and :func:`predict_sequence`'s option.
+        datamodule: gives the sequence's frames, the normalisation and ``seq_len``.
+        name: the sequence.
+        gt: (N, 4, 4) ground-truth poses, or None.
+        pooled: the metrics the sequence is added to.
+        device: where the trajectory is chained and scored (default: the CPU).
+    Returns:
+        the trajectory (N, 4, 4) float64 and the sequence's :func:`lossvo.evaluation.metrics.evaluate`
+        dict (None without ground truth).
+    """
+    relative = predict_sequence(module, datamodule.sequence_frames(name), datamodule.normalize,
+                                datamodule.seq_len, carry_state=carry_state)  # fmt: skip
+    if gt is None:
+        return integrate(torch.from_numpy(relative)), None
+    gt_t, relative_t = (torch.as_tensor(a, dtype=torch.float64, device=device) for a in (gt, relative))
+    pooled_metrics = (pooled.ape, pooled.rpe, pooled.kitti)
+    return metrics.evaluate_relative(relative_t, gt_t, pooled.align, pooled.delta, pooled_metrics)
+
+
 def _ground_truth(datamodule: KittiDataModule, name: str) -> np.ndarray | None:
     try:
         poses = datamodule.sequence_poses(name)
@@ -523,25 +584,19 @@ def evaluate_run(
     out_dir = Path(out_dir)
     datamodule.setup("test")
     # Evaluation runs in one process (rank 0 of a DDP run): nothing to gather from the others.
-    pooled = (metrics.APE(align=align, sync_on_compute=False),
-              metrics.RPE(delta=delta, align=align, sync_on_compute=False),
-              metrics.KittiOdometryError(sync_on_compute=False))  # fmt: skip
+    pooled = PooledScores(align, delta, sync=False)
     loss = cast("PoseLoss", module.loss)
     record = LossRecord(type(loss).__name__, loss.k)
     unseen = set(datamodule.splits["unseen"])
     per_sequence: dict[str, SequenceResult] = {}
     for name in sequences:
-        relative = predict_sequence(module, datamodule.sequence_frames(name), datamodule.normalize,
-                                    datamodule.seq_len, carry_state=carry_state)  # fmt: skip
         gt = _ground_truth(datamodule, name)
+        est, scores = predict_and_score(module, datamodule, name, gt, pooled, carry_state)
         gt_file = None if gt is None else str(pose_path(datamodule.dataset_root(), name))
-        per_sequence[name] = _score_sequence(relative, gt, name, out_dir, record, pooled, align, delta,
-                                             gt_file, name in unseen)  # fmt: skip
+        per_sequence[name] = _sequence_result(name, est, gt, scores, out_dir, record, gt_file, name in unseen)
     evaluated = [name for name, entry in per_sequence.items() if entry.scores is not None]
-    overall = Overall([], note=NO_METRICS_NOTE)
-    if evaluated:
-        ape, rpe, kitti = (m.compute() for m in pooled)
-        overall = Overall(evaluated, _scores({"ape": ape, "rpe": rpe, "kitti": kitti}))
+    computed = pooled.compute()
+    overall = Overall([], note=NO_METRICS_NOTE) if computed is None else Overall(evaluated, _scores(computed))
     result = Results(
         checkpoint=None if checkpoint is None else str(checkpoint),
         loss=record,
@@ -569,21 +624,19 @@ def _scores(computed: dict[str, Any]) -> Scores:
     return scores
 
 
-def _score_sequence(
-    relative: np.ndarray, gt: np.ndarray | None, name: str, out_dir: Path, loss: LossRecord,
-    pooled: Sequence[Any], align: metrics.AlignMode, delta: int, gt_file: str | None, unseen: bool,
+def _sequence_result(
+    name: str, est: Tensor, gt: np.ndarray | None, scores: dict[str, Any] | None, out_dir: Path,
+    loss: LossRecord, gt_file: str | None, unseen: bool,
 ) -> SequenceResult:  # fmt: skip
-    """One sequence's trajectory file, plot and scores
-    (:func:`lossvo.evaluation.metrics.evaluate_relative`)."""
+    """One sequence's trajectory file, plot and entry in ``results.json``, from :func:`predict_and_score`'s
+    trajectory and scores."""
     trajectory, plot = f"trajectories/{name}.txt", f"plots/{name}.png"
-    if gt is None:
-        est = integrate(torch.from_numpy(relative))
-        entry = SequenceResult(len(relative) + 1, trajectory, plot, gt_file, unseen, note=NO_GT_NOTE)
+    if scores is None:
+        entry = SequenceResult(len(est), trajectory, plot, gt_file, unseen, note=NO_GT_NOTE)
         log.info("sequence %s: %s", name, NO_GT_NOTE)
     else:
-        est, scores = metrics.evaluate_relative(relative, gt, align, delta, pooled)
         typed = _scores(scores)
-        entry = SequenceResult(len(relative) + 1, trajectory, plot, gt_file, unseen, typed)
+        entry = SequenceResult(len(est), trajectory, plot, gt_file, unseen, typed)
         log.info("sequence %s: APE trans RMSE %.4g m, RPE trans RMSE %.4g m", name,
                  typed.ape.trans.rmse, typed.rpe.trans.rmse)  # fmt: skip
     write_poses(out_dir / trajectory, est)

@@ -24,7 +24,7 @@ from lightning.pytorch.utilities.exceptions import SIGTERMException
 
 from lossvo.checks import is_integer
 from lossvo.evaluation import metrics
-from lossvo.evaluation.inference import predict_sequence
+from lossvo.evaluation.results import PooledScores, predict_and_score
 
 log = logging.getLogger("lossvo")
 
@@ -71,7 +71,7 @@ def progress(rich_on_tty: bool = True) -> Callback | None:
 class TrajectoryValidation(Callback):
     """Every ``every_n_epochs`` epochs, integrate the validation sequences and log trajectory errors.
 
-    Each validation sequence goes through :func:`lossvo.evaluation.inference.predict_sequence` (eval mode, the
+    Each validation sequence goes through :func:`lossvo.evaluation.results.predict_and_score` (eval mode, the
     validation windows) and is chained from its first ground-truth pose; the errors are pooled over all
     validation sequences and logged (so they land in ``metrics.csv``) as ``val/ape_trans_rmse``,
     ``val/rpe_trans_rmse``, ``val/rpe_rot_rmse`` and, where the sequences hold at least one 100 m segment,
@@ -119,28 +119,21 @@ class TrajectoryValidation(Callback):
         datamodule = trainer.datamodule  # type: ignore[attr-defined]
         if not self._usable(datamodule) or not datamodule.splits.get("val"):
             return
-        ape, rpe = metrics.APE(align=self.align), metrics.RPE(delta=self.delta, align=self.align)
-        kitti = metrics.KittiOdometryError()
+        pooled = PooledScores(self.align, self.delta)
         names, device = self._share(list(datamodule.splits["val"]), trainer, pl_module)
         for name in names:
             gt = datamodule.sequence_poses(name)
-            if gt is None:
-                continue
-            relative = predict_sequence(pl_module, datamodule.sequence_frames(name), datamodule.normalize,
-                                        datamodule.seq_len)  # fmt: skip
-            gt_t, relative_t = (
-                torch.as_tensor(a, dtype=torch.float64, device=device) for a in (gt, relative)
-            )
-            metrics.evaluate_relative(relative_t, gt_t, self.align, self.delta, pooled=(ape, rpe, kitti))
-        if not ape.trans:
+            if gt is not None:
+                predict_and_score(pl_module, datamodule, name, gt, pooled, device=device)
+        computed = pooled.compute()
+        if computed is None:
             return
-        ape_out, rpe_out, kitti_out = ape.compute(), rpe.compute(), kitti.compute()
         values = {
-            "val/ape_trans_rmse": ape_out["trans"]["rmse"],
-            "val/rpe_trans_rmse": rpe_out["trans"]["rmse"],
-            "val/rpe_rot_rmse": rpe_out["rot_rad"]["rmse"],
+            "val/ape_trans_rmse": computed["ape"]["trans"]["rmse"],
+            "val/rpe_trans_rmse": computed["rpe"]["trans"]["rmse"],
+            "val/rpe_rot_rmse": computed["rpe"]["rot_rad"]["rmse"],
         }
-        t_err, r_err = kitti_out["t_err_pct"], kitti_out["r_err_deg_per_100m"]
+        t_err, r_err = computed["kitti"]["t_err_pct"], computed["kitti"]["r_err_deg_per_100m"]
         if t_err is not None and r_err is not None:  # both or neither: no segment
             values["val/kitti_t_err"] = t_err
             values["val/kitti_r_err"] = r_err
