@@ -131,6 +131,16 @@ def check_png(path: Path) -> None:
 # --------------------------------------------------------------------------------------------------
 
 
+def numbered_lines(path: Path, what: str) -> list[tuple[int, str]]:
+    """The non-empty lines of a text file with their numbers (from 1); ``KittiFormatError``
+    ``<path>: cannot read <what> (<reason>)`` when the file cannot be read."""
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as e:
+        raise KittiFormatError(f"{path}: cannot read {what} ({e.strerror})") from None
+    return [(i, line) for i, line in enumerate(lines, start=1) if line.strip()]
+
+
 def _parse_numbers(path: Path, line_no: int, line: str, count: int) -> list[float]:
     fields = line.split()
     if len(fields) != count:
@@ -165,11 +175,7 @@ def read_poses(path: str | os.PathLike) -> np.ndarray:
             rotation block far from orthonormal.
     """
     path = Path(path)
-    try:
-        lines = path.read_text().splitlines()
-    except OSError as e:
-        raise KittiFormatError(f"{path}: cannot read pose file ({e.strerror})") from None
-    rows = [(i, line) for i, line in enumerate(lines, start=1) if line.strip()]
+    rows = numbered_lines(path, "pose file")
     if not rows:
         raise KittiFormatError(f"{path}: empty pose file (expected one line of 12 numbers per frame)")
     values = np.array([_parse_numbers(path, i, line, 12) for i, line in rows], dtype=np.float64)
@@ -244,14 +250,8 @@ def read_calib(path: str | os.PathLike) -> Calib:
         KittiFormatError: naming the file (and line) if it is unreadable, malformed or lacks P2.
     """
     path = Path(path)
-    try:
-        lines = path.read_text().splitlines()
-    except OSError as e:
-        raise KittiFormatError(f"{path}: cannot read calibration ({e.strerror})") from None
     entries: dict[str, np.ndarray] = {}
-    for i, line in enumerate(lines, start=1):
-        if not line.strip():
-            continue
+    for i, line in numbered_lines(path, "calibration"):
         key, sep, rest = line.partition(":")
         if not sep:
             raise KittiFormatError(f"{_where(path, i)}: expected 'KEY: 12 numbers', got {line.strip()!r}")
@@ -264,11 +264,7 @@ def read_calib(path: str | os.PathLike) -> Calib:
 def read_times(path: str | os.PathLike) -> np.ndarray:
     """Read ``times.txt``: (N,) float64 timestamps in seconds, one per line."""
     path = Path(path)
-    try:
-        lines = path.read_text().splitlines()
-    except OSError as e:
-        raise KittiFormatError(f"{path}: cannot read timestamps ({e.strerror})") from None
-    rows = [(i, line) for i, line in enumerate(lines, start=1) if line.strip()]
+    rows = numbered_lines(path, "timestamps")
     return np.array([_parse_numbers(path, i, line, 1)[0] for i, line in rows], dtype=np.float64)
 
 

@@ -84,53 +84,38 @@ def _field(obj: dict[str, Any], key: str, where: str) -> Any:
     return obj[key]
 
 
+def _expect(value: Any, where: str, fits: bool, what: str, optional: bool = False) -> Any:
+    """``value`` where it ``fits`` (or is None and ``optional``); else ``<where>: expected <what>``."""
+    if fits or (value is None and optional):
+        return value
+    raise _MalformedError(f"{where}: expected {what}{' or null' if optional else ''}, got {value!r:.40}")
+
+
 def _number(value: Any, where: str, optional: bool = False) -> float | None:
-    if value is None and optional:
-        return None
-    if not is_number(value):
-        raise _MalformedError(
-            f"{where}: expected a number{' or null' if optional else ''}, got {value!r:.40}"
-        )
-    return float(value)
+    value = _expect(value, where, is_number(value), "a number", optional)
+    return None if value is None else float(value)
 
 
 def _integer(value: Any, where: str, optional: bool = False) -> int | None:
-    if value is None and optional:
-        return None
-    if not is_integer(value):
-        raise _MalformedError(
-            f"{where}: expected an integer{' or null' if optional else ''}, got {value!r:.40}"
-        )
-    return value
+    return _expect(value, where, is_integer(value), "an integer", optional)
 
 
 def _text(value: Any, where: str, optional: bool = False) -> str | None:
-    if value is None and optional:
-        return None
-    if not isinstance(value, str):
-        raise _MalformedError(
-            f"{where}: expected a string{' or null' if optional else ''}, got {value!r:.40}"
-        )
-    return value
+    return _expect(value, where, isinstance(value, str), "a string", optional)
 
 
 def _flag(value: Any, where: str) -> bool:
-    if not isinstance(value, bool):
-        raise _MalformedError(f"{where}: expected true or false, got {value!r:.40}")
-    return value
+    return _expect(value, where, isinstance(value, bool), "true or false")
 
 
 def _names(value: Any, where: str) -> list[str]:
-    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-        raise _MalformedError(f"{where}: expected a list of sequence names, got {value!r:.40}")
-    return list(value)
+    fits = isinstance(value, list) and all(isinstance(v, str) for v in value)
+    return list(_expect(value, where, fits, "a list of sequence names"))
 
 
 def _numbers(value: Any, where: str) -> list[float] | None:
-    if value is None:
+    if _expect(value, where, isinstance(value, list), "a list of numbers", optional=True) is None:
         return None
-    if not isinstance(value, list):
-        raise _MalformedError(f"{where}: expected a list of numbers or null, got {value!r:.40}")
     return [cast("float", _number(v, f"{where}[{i}]")) for i, v in enumerate(value)]
 
 
