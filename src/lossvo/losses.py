@@ -234,15 +234,25 @@ class QuaternionLoss(PoseLoss):
         return g.quat_distance(q, q_target)
 
 
-class ChordalLoss(PoseLoss):
+class _ChordalTerm(PoseLoss):
+    """The chordal rotation term ``|R - R^|_F^2`` of every loss that compares the decoded rotation
+    matrices, whatever the parameterisation (subclasses set ``dim``, :meth:`decode_rt`, :meth:`encode`);
+    the study's weight is the chordal loss's k3."""
+
+    small_angle_gain = 2.0  # |R - R^|_F^2 = 8 sin^2(theta / 2) = 2 theta^2 + O(theta^4)
+    paper_k = 153.0
+
+    def rotation_term(self, pred: Tensor, R: Tensor, R_target: Tensor) -> Tensor:
+        return g.so3_chordal_distance(R, R_target).square()
+
+
+class ChordalLoss(_ChordalTerm):
     """SE(3) + chordal: ``|t - t^|^2 + k |R - R^|_F^2`` with ``(R^, t^) = Exp(xi^)`` (study: k3 = 153).
 
     Output the se(3) vector ``xi = (rho, omega)``; the translation is ``t^ = V(omega) rho``, not rho.
     """
 
     dim = 6
-    small_angle_gain = 2.0  # |R - R^|_F^2 = 8 sin^2(theta / 2) = 2 theta^2 + O(theta^4)
-    paper_k = 153.0
 
     def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
         T = g.se3_exp(pred)
@@ -250,9 +260,6 @@ class ChordalLoss(PoseLoss):
 
     def encode(self, pose: Tensor) -> Tensor:
         return g.se3_log(pose)
-
-    def rotation_term(self, pred: Tensor, R: Tensor, R_target: Tensor) -> Tensor:
-        return g.so3_chordal_distance(R, R_target).square()
 
 
 class GeodesicLoss(PoseLoss):
@@ -276,7 +283,7 @@ class GeodesicLoss(PoseLoss):
         return g.so3_geodesic_distance(R, R_target).square()
 
 
-class SixDLoss(PoseLoss):
+class SixDLoss(_ChordalTerm):
     """6-D rotation (two columns, Gram-Schmidt) + chordal: ``|t - t^|^2 + k |R - R^|_F^2``.
 
     Output ``[t (3), c1 (3), c2 (3)]`` (Zhou et al. 2019); ``paper_k`` is the chordal loss's k3, as the
@@ -284,8 +291,6 @@ class SixDLoss(PoseLoss):
     """
 
     dim = 9
-    small_angle_gain = 2.0
-    paper_k = 153.0
 
     def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
         return g.sixd_to_matrix(pred[..., 3:]), pred[..., :3]
@@ -293,11 +298,8 @@ class SixDLoss(PoseLoss):
     def encode(self, pose: Tensor) -> Tensor:
         return torch.cat((pose[..., :3, 3], g.matrix_to_sixd(pose[..., :3, :3])), dim=-1)
 
-    def rotation_term(self, pred: Tensor, R: Tensor, R_target: Tensor) -> Tensor:
-        return g.so3_chordal_distance(R, R_target).square()
 
-
-class SVDLoss(PoseLoss):
+class SVDLoss(_ChordalTerm):
     """9-D rotation (special Procrustes / SVD) + chordal: ``|t - t^|^2 + k |R - R^|_F^2``.
 
     Output ``[t (3), M (9)]`` with M a 3x3 matrix in row-major order, projected onto SO(3) by
@@ -307,8 +309,6 @@ class SVDLoss(PoseLoss):
     """
 
     dim = 12
-    small_angle_gain = 2.0
-    paper_k = 153.0
 
     def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
         M = pred[..., 3:].unflatten(-1, (3, 3))
@@ -317,11 +317,8 @@ class SVDLoss(PoseLoss):
     def encode(self, pose: Tensor) -> Tensor:
         return torch.cat((pose[..., :3, 3], pose[..., :3, :3].flatten(-2)), dim=-1)
 
-    def rotation_term(self, pred: Tensor, R: Tensor, R_target: Tensor) -> Tensor:
-        return g.so3_chordal_distance(R, R_target).square()
 
-
-class SymMatrixQuatLoss(PoseLoss):
+class SymMatrixQuatLoss(_ChordalTerm):
     """10-D symmetric-matrix quaternion + chordal: ``|t - t^|^2 + k |R - R^|_F^2``.
 
     Output ``[t (3), a (10)]``: the upper triangle of a symmetric 4x4 matrix A (roma's order a00, a10,
@@ -332,8 +329,6 @@ class SymMatrixQuatLoss(PoseLoss):
     """
 
     dim = 13
-    small_angle_gain = 2.0
-    paper_k = 153.0
 
     _UPPER = (0, 4, 8, 12, 5, 9, 13, 10, 14, 15)
     """Indices of roma's 10 entries in the row-major flattened 4x4 matrix (its lower triangle by columns)."""
@@ -347,6 +342,3 @@ class SymMatrixQuatLoss(PoseLoss):
         q = roma.rotmat_to_unitquat(pose[..., :3, :3])
         A = torch.eye(4, dtype=q.dtype, device=q.device) - q[..., :, None] * q[..., None, :]
         return torch.cat((pose[..., :3, 3], A.flatten(-2)[..., list(self._UPPER)]), dim=-1)
-
-    def rotation_term(self, pred: Tensor, R: Tensor, R_target: Tensor) -> Tensor:
-        return g.so3_chordal_distance(R, R_target).square()
