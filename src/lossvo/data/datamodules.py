@@ -35,7 +35,7 @@ from lossvo import geometry
 from lossvo.atomic import write_text_atomic
 from lossvo.checks import is_integer, is_number
 from lossvo.data import frame_cache, synthetic, windows
-from lossvo.data.kitti import Sequence, find_root, load_sequence, relative_targets, sequence_name
+from lossvo.data.kitti import Sequence, find_root, load_sequence, relative_targets, split_names
 from lossvo.data.synthetic import routes
 
 PAPER_TRAIN = ("00", "02", "03", "04", "05", "06", "08")
@@ -46,19 +46,9 @@ NORMALIZATIONS = ("dataset", "flownet")
 
 def _names(value: str | int | Seq[str | int], key: str) -> tuple[str, ...]:
     """Sequence names from a config value: ["00", "07"], "00,07", [0, 7] or 7 (Hydra turns 07 into 7)."""
-    items: Seq[str | int]
-    if isinstance(value, str):
-        items = value.split(",")
-    elif isinstance(value, int):
-        items = [value]
-    else:
-        items = list(value)
-    names = []
-    for item in items:
-        text = sequence_name(item)
-        if not text:
-            raise ValueError(f"data.{key}: empty sequence name in {value!r}")
-        names.append(text)
+    names = split_names(value)
+    if "" in names:
+        raise ValueError(f"data.{key}: empty sequence name in {value!r}")
     return tuple(names)
 
 

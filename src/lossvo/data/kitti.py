@@ -69,9 +69,9 @@ def sequence_name(item: object) -> str:
     return f"{item:02d}" if is_integer(item) else str(item).strip()
 
 
-def sequence_names(value: str | int | Iterable[object] | None) -> list[str]:
-    """Sequence names from a list, a comma-separated string or one integer, in order, without empties or
-    repeats: ``"00, 07"``, ``[0, 7]`` -> ``["00", "07"]``."""
+def split_names(value: str | int | Iterable[object] | None) -> list[str]:
+    """Every name of a list, a comma-separated string or one integer, in order, as :func:`sequence_name`
+    writes it, empties (``""``) and repeats kept: ``"00,,7"`` -> ``["00", "", "07"]``."""
     items: Iterable[object]
     if isinstance(value, str):
         items = value.split(",")
@@ -79,7 +79,13 @@ def sequence_names(value: str | int | Iterable[object] | None) -> list[str]:
         items = [value]
     else:
         items = value or []
-    return list(dict.fromkeys(name for name in map(sequence_name, items) if name))
+    return [sequence_name(item) for item in items]
+
+
+def sequence_names(value: str | int | Iterable[object] | None) -> list[str]:
+    """Sequence names from a list, a comma-separated string or one integer, in order, without empties or
+    repeats: ``"00, 07"``, ``[0, 7]`` -> ``["00", "07"]``."""
+    return list(dict.fromkeys(name for name in split_names(value) if name))
 
 
 def list_sequences(root: Path) -> list[str]:
