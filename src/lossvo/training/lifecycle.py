@@ -278,7 +278,18 @@ def _leave(run: Run) -> None:
         return
     ours = {f"{HydraConfig.get().job.name}.log"}
     if run.fresh and run.out_dir.is_dir() and {p.name for p in run.out_dir.iterdir()} <= ours:
+        _close_logs_in(run.out_dir)
         shutil.rmtree(run.out_dir, ignore_errors=True)
+
+
+def _close_logs_in(folder: Path) -> None:
+    """Close and detach the log files (Hydra's ``train.log``) kept in a folder about to be removed."""
+    loggers = [logging.getLogger(), *logging.Logger.manager.loggerDict.values()]
+    for logger in (item for item in loggers if isinstance(item, logging.Logger)):
+        for handler in list(logger.handlers):
+            if isinstance(handler, logging.FileHandler) and Path(handler.baseFilename).parent == folder:
+                handler.close()
+                logger.removeHandler(handler)
 
 
 def _failed(run: Run, error: BaseException) -> None:
