@@ -62,6 +62,7 @@ def uninterrupted(tiny_kitti: Path, tmp_path_factory: pytest.TempPathFactory) ->
     yield run
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 def test_a_stop_during_the_final_evaluation_resumes_the_evaluation(
     signum: int, uninterrupted: Path, tiny_kitti: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
@@ -90,6 +91,7 @@ def test_a_stop_during_the_final_evaluation_resumes_the_evaluation(
     assert _scores(run) == _scores(uninterrupted)
 
 
+@pytest.mark.slow
 def test_a_changed_config_in_a_completed_folder_is_refused(
     uninterrupted: Path, tmp_path: Path, tiny_kitti: Path, monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
@@ -113,6 +115,7 @@ def test_a_changed_config_in_a_completed_folder_is_refused(
     assert _status(run)["status"] == "completed"
 
 
+@pytest.mark.slow
 def test_resume_false_in_a_used_folder_is_refused(
     uninterrupted: Path, tmp_path: Path, tiny_kitti: Path, monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
@@ -125,6 +128,7 @@ def test_resume_false_in_a_used_folder_is_refused(
     assert _rows(run) == _rows(uninterrupted)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("code", "cause"), [(errno.ENOSPC, "No space left on device"), (errno.EROFS, "Read-only file system")]
 )
@@ -284,6 +288,7 @@ def test_one_thread_setting_gives_the_same_numbers_alone_and_in_a_sweep(
     assert checkpoint["threads"] == 1
 
 
+@pytest.mark.slow
 def test_epochs_are_counted_from_one_where_a_person_reads_them(uninterrupted: Path) -> None:
     log = (uninterrupted / "train.log").read_text()
     assert "epoch 1/2 (" in log and "epoch 2/2 (" in log and "val/score=" in log
