@@ -34,11 +34,16 @@ BESIDE_MYPY = $(RUFF) || exit 1; $(MYPY) > $(VENV)/mypy.log 2>&1 & mypy=$$!; \
 	$(PY) -m pytest $(1); tests=$$?; wait $$mypy; typed=$$?; \
 	cat $(VENV)/mypy.log; [ $$tests -eq 0 ] && [ $$typed -eq 0 ]
 
+# `make test` (CI: .ci/run) runs every test, the `slow` ones included (the shared sweep, launchers, DDP, the
+# wheel, signals, subprocesses, training runs: ~700 tests, ~12 CPU-minutes). The quick loop while editing
+# leaves those out (~470 tests, ~100 CPU-seconds, a third of it the workers' start):
+#   .venv/bin/python -m pytest -m "not slow"
+# `make test-all`: every test with the thorough hypothesis profile (1,000 examples a property, not 100).
 test: venv
 	$(call BESIDE_MYPY,)
 
 test-all: venv
-	$(call BESIDE_MYPY,-m '' --hypothesis-profile=thorough)
+	$(call BESIDE_MYPY,--hypothesis-profile=thorough)
 
 bench: venv
 	$(PY) benchmarks/losses.py
