@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from lossvo.checks import is_number
 from lossvo.console import first_line
 from lossvo.data.kitti import KittiFormatError, read_poses, sequence_names
 from lossvo.evaluation.results import DataRecord, Results, ResultsError, Scores
@@ -61,7 +62,7 @@ def metric_value(scores: Scores | None, path: Sequence[str]) -> float | None:
 
 def finite_number(value: Any) -> float | None:
     """``value`` as a float if it is a finite number (not a bool), else None."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if not is_number(value) or not math.isfinite(value):
         return None
     return float(value)
 
