@@ -36,13 +36,19 @@ def test_optuna_search_of_three_trials_goes_on_after_a_failing_one(
     run_tiny_sweep_here, tmp_path: Path
 ) -> None:
     """hparams_search=k_search (TPE, seed 0, SQLite) with the learning rate drawn from {1e30, 1e-3}: seed
-    0 draws both in three trials; the diverging trials fail and the search still finishes. In process
-    (the sweeper runs its trials in the calling process)."""
+    0 draws both in three trials; the diverging trials fail and the search still finishes, its job
+    folders named short despite a dozen overrides. In process (the sweeper runs its trials in the calling
+    process)."""
     (tmp_path / "conf" / "hparams_search").mkdir(parents=True)
     (tmp_path / "conf" / "hparams_search" / "failing.yaml").write_text(FAILING_SEARCH)
-    args = ["hparams_search=[k_search,failing]", "hydra.sweeper.n_trials=3"]
+    long = ["optimizer.weight_decay=0.0", "trainer.log_every_n_steps=1", "trainer.gradient_clip_val=null",
+            "data.num_workers=0", "data.batch_size=4", "data.seq_len=3", "model.hidden_size=16",
+            "weighting.c=100.0", "selection=score", "scheduler=cosine"]  # fmt: skip
+    args = ["hparams_search=[k_search,failing]", "hydra.sweeper.n_trials=3", *long]
     assert run_tiny_sweep_here(tmp_path, tmp_path / "sweep", args) == 0
     sweep = tmp_path / "sweep"
+    jobs = [p for p in sweep.iterdir() if (p / ".hydra").is_dir()]
+    assert len(jobs) == 3 and all(len(p.name) <= 66 for p in jobs)  # long override lists end in a hash
     assert (sweep / "optuna.db").is_file()
     assert "best_value" in (sweep / "optimization_results.yaml").read_text()
     statuses = [json.loads((j / "status.json").read_text())["status"] for j in sorted(sweep.iterdir())

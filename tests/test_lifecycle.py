@@ -238,54 +238,38 @@ TWENTY = ["optimizer.lr=0.001", "optimizer.weight_decay=0.0", "trainer.log_every
           "trainer.gradient_clip_val=null", "trainer.check_val_every_n_epoch=1", "data.num_workers=0",
           "data.batch_size=4", "data.seq_len=3", "data.height=64", "data.width=96", "model.hidden_size=16",
           "model.width_mult=0.0625", "weighting.c=100.0", "selection=score", "scheduler=cosine",
-          "logger=csv", "+evaluate=false", "trainer.max_epochs=1", "loss=euler,quat"]  # fmt: skip
+          "logger=csv", "trainer.max_epochs=1", "trainer.deterministic=true", "threads=1"]  # fmt: skip
+"""Nineteen overrides that leave the tiny experiment as it is, the thread count set; with the swept
+``loss=euler,quat`` a job has twenty."""
 
 
 @pytest.mark.slow
-def test_a_sweep_of_twenty_overrides_has_short_folder_names(
-    run_tiny_sweep_here, tmp_path: Path, capfd: pytest.CaptureFixture[str]
+def test_a_sweep_of_twenty_overrides_has_short_names_and_one_threads_numbers(
+    run_tiny_sweep, tmp_path: Path
 ) -> None:
+    """A joblib sweep of two jobs with twenty overrides each: short folder names, ``job i/N`` lines, and
+    the numbers of one job equal those of the same config run alone with the same thread count."""
     sweep = tmp_path / "sweep"
-    assert run_tiny_sweep_here(tmp_path, sweep, [*TWENTY, "seed=0"]) == 0
+    swept = run_tiny_sweep(tmp_path / "s", sweep, [*TWENTY, "loss=euler,quat", "hydra/launcher=joblib",
+                                                   "hydra.launcher.n_jobs=2"])  # fmt: skip
+    assert swept.returncode == 0, swept.stderr[-3000:]
     jobs = sorted(p for p in sweep.iterdir() if p.is_dir())
     assert len(jobs) == 2 and all(len(j.name) <= 2 + MAX_NAME and "-h" in j.name for j in jobs)
     for job in jobs:
         assert len(yaml.safe_load((job / ".hydra" / "overrides.yaml").read_text())) == 21  # experiment too
-        assert _status(job)["status"] == "completed"
-    log = "".join(capfd.readouterr())
-    assert "job 1/2 (" in log and "job 2/2 (" in log
+        assert _status(job)["status"] == "completed" and _status(job)["threads"] == 1
+    assert "job 1/2 (" in swept.stdout + swept.stderr and "job 2/2 (" in swept.stdout + swept.stderr
 
-
-@pytest.mark.slow
-def test_an_optuna_search_has_short_folder_names(run_tiny_sweep_here, tmp_path: Path) -> None:
-    sweep = tmp_path / "sweep"
-    args = ["hparams_search=k_search", "hydra.sweeper.n_trials=2", *TWENTY[:12]]
-    assert run_tiny_sweep_here(tmp_path, sweep, args) == 0
-    jobs = sorted(p for p in sweep.iterdir() if (p / ".hydra").is_dir())
-    assert len(jobs) == 2 and all(len(j.name) <= 2 + MAX_NAME for j in jobs)
-    assert all(_status(j)["status"] == "completed" for j in jobs)
-
-
-@pytest.mark.slow
-def test_one_thread_setting_gives_the_same_numbers_alone_and_in_a_sweep(
-    run_tiny_sweep, tiny_kitti: Path, tmp_path: Path
-) -> None:
-    sweep = tmp_path / "sweep"
-    args = ["seed=0,1", "threads=1", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
-            "trainer.deterministic=true"]  # fmt: skip
-    swept = run_tiny_sweep(tmp_path / "s", sweep, args)
-    assert swept.returncode == 0, swept.stderr[-3000:]
-    (job,) = sweep.glob("*+seed-0+threads-1+*")
     alone = tmp_path / "alone"
     conf = tmp_path / "s" / "conf"
-    proc = _train(["--config-dir", str(conf), "experiment=tiny", "seed=0", "threads=1",
-                   "trainer.deterministic=true", f"hydra.run.dir={alone}"], tmp_path)  # fmt: skip
+    args = ["--config-dir", str(conf), "experiment=tiny", *TWENTY, "loss=euler", f"hydra.run.dir={alone}"]
+    proc = _train(args, tmp_path)
     assert proc.returncode == 0, proc.stderr[-3000:]
+    (job,) = (j for j in jobs if "loss=euler" in (j / ".hydra" / "overrides.yaml").read_text())
     assert _rows(alone) == _rows(job)
     assert _scores(alone) == _scores(job) and _scores(alone)["threads"] == 1
-    assert _status(alone) == _status(job) and _status(alone)["threads"] == 1
-    checkpoint = torch.load(alone / "checkpoints" / "best.ckpt", weights_only=True)
-    assert checkpoint["threads"] == 1
+    assert _status(alone) == _status(job)
+    assert torch.load(alone / "checkpoints" / "best.ckpt", weights_only=True)["threads"] == 1
 
 
 @pytest.mark.slow
