@@ -93,8 +93,7 @@ def build(cfg: DictConfig) -> tuple[KittiDataModule, VOModule, L.Trainer]:
         logger=loggers or False,
         enable_progress_bar=any(isinstance(c, ProgressBar) for c in callbacks),
     )
-    datamodule.prepare_data()  # data errors now, before the run starts (Lightning's fit finds it done)
-    datamodule.setup("fit")
+    datamodule.setup("fit")  # reads the data and builds the cache: data errors now, before the run starts
     return datamodule, module, trainer
 
 
