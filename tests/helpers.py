@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import csv
+import json
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -59,3 +61,19 @@ def fit(cfg: DictConfig) -> dict[str, float]:
     (``test_train.compose_train``), as a fresh run: the trainer's final callback metrics."""
     out = Path(HydraConfig.get().runtime.output_dir)
     return fitting.train(cfg, lifecycle.Run(cfg, out, "run", fresh=True))
+
+
+def metrics_rows(run: Path) -> list[dict[str, str]]:
+    """The rows of a job folder's ``metrics.csv``."""
+    with (run / "metrics.csv").open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def status_of(run: Path) -> dict:
+    """A job folder's ``status.json``."""
+    return json.loads((run / "status.json").read_text())
+
+
+def scores_of(run: Path) -> dict:
+    """A job folder's ``results.json`` without the path of the checkpoint it evaluated."""
+    return {k: v for k, v in json.loads((run / "results.json").read_text()).items() if k != "checkpoint"}

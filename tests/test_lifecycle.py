@@ -3,9 +3,7 @@ read-only disks, short job folder names, the thread count, what a person reads (
 
 from __future__ import annotations
 
-import csv
 import errno
-import json
 import os
 import shutil
 import signal
@@ -18,7 +16,7 @@ import pytest
 import torch
 import yaml
 
-from helpers import train_main
+from helpers import metrics_rows, scores_of, status_of, train_main
 from lossvo.training import fitting
 from lossvo.training.callbacks import EpochProgressBar
 from lossvo.training.resolvers import MAX_NAME, path_safe
@@ -28,21 +26,6 @@ from test_train import tiny_overrides
 def _args(tiny_kitti: Path, run: Path, *extra: str) -> list[str]:
     return [*tiny_overrides(tiny_kitti, run.parent / "cache"), f"hydra.run.dir={run}",
             "trainer.max_epochs=2", "trainer.deterministic=true", *extra]  # fmt: skip
-
-
-def _rows(run: Path) -> list[dict[str, str]]:
-    with (run / "metrics.csv").open(newline="") as f:
-        return list(csv.DictReader(f))
-
-
-def _status(run: Path) -> dict:
-    return json.loads((run / "status.json").read_text())
-
-
-def _scores(run: Path) -> dict:
-    """results.json without the path of the checkpoint it evaluated."""
-    results = json.loads((run / "results.json").read_text())
-    return {k: v for k, v in results.items() if k != "checkpoint"}
 
 
 def _error_lines(output: str) -> list[str]:
@@ -81,17 +64,17 @@ def test_a_stop_during_the_final_evaluation_resumes_the_evaluation(
         assert train_main(_args(tiny_kitti, run), monkeypatch) == 128 + signum
     finally:
         signal.signal(signal.SIGINT, previous)
-    status = _status(run)
+    status = status_of(run)
     assert status["status"] == "interrupted" and status["stage"] == "evaluation"
     assert status["signal"] == signal.Signals(signum).name and status["resume_from"].endswith("last.ckpt")
-    written = _rows(run)
+    written = metrics_rows(run)
     assert [r["epoch"] for r in written if r.get("val/score")] == ["0", "1"]
 
     monkeypatch.setattr(fitting, "evaluate_run", evaluate_run)
     assert train_main(_args(tiny_kitti, run), monkeypatch) == 0  # the same command
-    assert _rows(run) == written == _rows(uninterrupted)  # nothing deleted, nothing repeated
-    assert _status(run) == _status(uninterrupted) and _status(run)["metrics"]["val/score"] > 0
-    assert _scores(run) == _scores(uninterrupted)
+    assert metrics_rows(run) == written == metrics_rows(uninterrupted)  # nothing deleted, nothing repeated
+    assert status_of(run) == status_of(uninterrupted) and status_of(run)["metrics"]["val/score"] > 0
+    assert scores_of(run) == scores_of(uninterrupted)
 
 
 @pytest.mark.slow
@@ -114,8 +97,8 @@ def test_a_changed_config_in_a_completed_folder_is_refused(
 
     same = _args(tiny_kitti, run, "trainer.max_epochs=3", f"ckpt_path={run}/checkpoints/last.ckpt")
     assert train_main(same, monkeypatch) == 0  # extending a finished run
-    assert [r["epoch"] for r in _rows(run) if r.get("val/score")] == ["0", "1", "2"]
-    assert _status(run)["status"] == "completed"
+    assert [r["epoch"] for r in metrics_rows(run) if r.get("val/score")] == ["0", "1", "2"]
+    assert status_of(run)["status"] == "completed"
 
 
 @pytest.mark.slow
@@ -128,7 +111,7 @@ def test_resume_false_in_a_used_folder_is_refused(
     assert train_main(_args(tiny_kitti, run, "resume=false"), monkeypatch) == 2
     (line,) = _error_lines(capsys.readouterr().out)
     assert "resume=false starts afresh only in a new folder" in line
-    assert _rows(run) == _rows(uninterrupted)
+    assert metrics_rows(run) == metrics_rows(uninterrupted)
 
 
 @pytest.mark.slow
@@ -152,7 +135,7 @@ def test_a_disk_error_during_training_is_one_line(
     out = capsys.readouterr().out
     (line,) = _error_lines(out)
     assert line.endswith(f"{run}/checkpoints/best.ckpt: {cause}") and "Traceback" not in out
-    status = _status(run)
+    status = status_of(run)
     assert status["status"] == "failed" and cause in status["error"]
 
 
@@ -213,7 +196,7 @@ def test_a_run_on_a_full_disk(
     assert "Traceback" not in captured.out + captured.err
     (line,) = _error_lines(captured.out + captured.err)
     assert line.endswith(": No space left on device") and f"{run}/" in line
-    status = _status(run)
+    status = status_of(run)
     assert status["status"] == "failed" and "No space left on device" in status["error"]
 
 
@@ -247,35 +230,24 @@ TWENTY = ["optimizer.lr=0.001", "optimizer.weight_decay=0.0", "trainer.log_every
 
 
 @pytest.mark.slow
-def test_a_sweep_of_twenty_overrides_has_short_names_and_one_threads_numbers(
-    run_tiny_sweep, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+def test_a_sweep_of_twenty_overrides_has_short_names_and_numbered_jobs(
+    run_tiny_sweep_here, tmp_path: Path, capfd: pytest.CaptureFixture[str]
 ) -> None:
-    """A joblib sweep of two jobs with twenty overrides each: short folder names, ``job i/N`` lines, and
-    the numbers of one job equal those of the same config run alone with the same thread count."""
+    """A sweep of two jobs with twenty overrides each (in process): short folder names, ``job i/N``
+    lines. (A sweep job's numbers against the same config run alone: ``test_sweep.py``.)"""
     sweep = tmp_path / "sweep"
-    swept = run_tiny_sweep(tmp_path / "s", sweep, [*TWENTY, "loss=euler,quat", "hydra/launcher=joblib",
-                                                   "hydra.launcher.n_jobs=2"])  # fmt: skip
-    assert swept.returncode == 0, swept.stderr[-3000:]
+    threads = torch.get_num_threads()
+    try:  # in this process: threads=1 sets its thread count
+        assert run_tiny_sweep_here(tmp_path / "s", sweep, [*TWENTY, "loss=euler,quat"]) == 0
+    finally:
+        torch.set_num_threads(threads)
     jobs = sorted(p for p in sweep.iterdir() if p.is_dir())
     assert len(jobs) == 2 and all(len(j.name) <= 2 + MAX_NAME and "-h" in j.name for j in jobs)
     for job in jobs:
         assert len(yaml.safe_load((job / ".hydra" / "overrides.yaml").read_text())) == 21  # experiment too
-        assert _status(job)["status"] == "completed" and _status(job)["threads"] == 1
-    assert "job 1/2 (" in swept.stdout + swept.stderr and "job 2/2 (" in swept.stdout + swept.stderr
-
-    alone = tmp_path / "alone"
-    conf = tmp_path / "s" / "conf"
-    args = ["--config-dir", str(conf), "experiment=tiny", *TWENTY, "loss=euler", f"hydra.run.dir={alone}"]
-    threads = torch.get_num_threads()
-    try:  # in this process: threads=1 sets its thread count
-        assert train_main(args, monkeypatch) == 0
-    finally:
-        torch.set_num_threads(threads)
-    (job,) = (j for j in jobs if "loss=euler" in (j / ".hydra" / "overrides.yaml").read_text())
-    assert _rows(alone) == _rows(job)
-    assert _scores(alone) == _scores(job) and _scores(alone)["threads"] == 1
-    assert _status(alone) == _status(job)
-    assert torch.load(alone / "checkpoints" / "best.ckpt", weights_only=True)["threads"] == 1
+        assert status_of(job)["status"] == "completed" and status_of(job)["threads"] == 1
+    log = "".join(capfd.readouterr())
+    assert "job 1/2 (" in log and "job 2/2 (" in log
 
 
 @pytest.mark.slow
@@ -286,4 +258,4 @@ def test_epochs_are_counted_from_one_where_a_person_reads_them(uninterrupted: Pa
     trainer = SimpleNamespace(max_epochs=2)
     bar._trainer = trainer  # type: ignore[attr-defined]
     assert bar._get_train_description(1) == "Epoch 2/2"  # the second of two
-    assert [r["epoch"] for r in _rows(uninterrupted) if r.get("val/score")] == ["0", "1"]  # Lightning's
+    assert [r["epoch"] for r in metrics_rows(uninterrupted) if r.get("val/score")] == ["0", "1"]  # Lightning

@@ -3,7 +3,6 @@ extending a finished run, atomic checkpoints on a full disk, SIGINT / SIGTERM an
 
 from __future__ import annotations
 
-import csv
 import errno
 import json
 import os
@@ -17,7 +16,7 @@ import lightning as L
 import pytest
 import torch
 
-from helpers import fit, train_main
+from helpers import fit, metrics_rows, train_main
 from lossvo.training import checkpoints
 from lossvo.training.lifecycle import InterruptedRun
 from test_train import compose_train, tiny_overrides
@@ -49,14 +48,9 @@ def _overrides(tiny_kitti: Path, cache: Path, *extra: str) -> list[str]:
             "data.reverse=0.5", "data.augment=true", *extra]  # fmt: skip
 
 
-def _rows(run: Path) -> list[dict[str, str]]:
-    with (run / "metrics.csv").open(newline="") as f:
-        return list(csv.DictReader(f))
-
-
 def _values(run: Path, key: str) -> list[tuple[str, str, float]]:
     """(epoch, step, value) of every row logging ``key``, in file order."""
-    return [(r.get("epoch", ""), r["step"], float(r[key])) for r in _rows(run) if r.get(key)]
+    return [(r.get("epoch", ""), r["step"], float(r[key])) for r in metrics_rows(run) if r.get(key)]
 
 
 def _weights(run: Path) -> dict[str, torch.Tensor]:
@@ -85,7 +79,7 @@ def test_resume_equals_uninterrupted(tiny_kitti: Path, tmp_path: Path, restore_s
         torch.testing.assert_close(ours[name], theirs[name], rtol=0, atol=0, msg=name)
     for key in ("train/loss", "val/score", "val/rpe_trans_rmse", "lr-Adam"):
         assert _values(parts, key) == _values(whole, key), key
-    epochs = [int(float(r["epoch"])) for r in _rows(parts) if r.get("val/score")]
+    epochs = [int(float(r["epoch"])) for r in metrics_rows(parts) if r.get("val/score")]
     assert epochs == [0, 1, 2]  # every epoch once, across the resume
 
 
@@ -162,5 +156,5 @@ def test_signals_leave_an_interrupted_job_that_resumes_by_itself(
     assert train_main(_args(tiny_kitti, tmp_path, f"trainer.max_epochs={done + 2}"), monkeypatch) == 0
     assert f"(resuming from {last})" in capsys.readouterr().out
     assert json.loads((tmp_path / "run" / "status.json").read_text())["status"] == "completed"
-    epochs = [int(float(r["epoch"])) for r in _rows(tmp_path / "run") if r.get("val/score")]
+    epochs = [int(float(r["epoch"])) for r in metrics_rows(tmp_path / "run") if r.get("val/score")]
     assert epochs == list(range(done + 2))  # every epoch once

@@ -1,5 +1,6 @@
 """Real Hydra multiruns: job folders, checkpoints, metrics and W&B runs of the shared sweep (a subprocess,
-joblib launcher); failing jobs that keep the others and re-running a sweep (in process)."""
+joblib launcher), one of its jobs against the same config run alone; failing jobs that keep the others and
+re-running a sweep (in process)."""
 
 from __future__ import annotations
 
@@ -8,10 +9,12 @@ import json
 from pathlib import Path
 
 import pytest
+import torch
 import yaml
 from hydra.core.override_parser.overrides_parser import OverridesParser
 
 from conftest import STUDY_LOSSES, STUDY_SEEDS
+from helpers import metrics_rows, scores_of, status_of, train_main
 from lossvo.training.module import NonFiniteLossError
 
 pytestmark = pytest.mark.slow  # the shared sweep and two sweeps of its own
@@ -42,6 +45,28 @@ def test_sweep_over_losses_and_seeds_with_joblib_and_wandb(study_sweep: Path) ->
         assert max(counts, key=counts.get) == loss, counts
         data = json.loads((job / "results.json").read_text())["data"]
         assert data["train"] == ["00", "01"] and data["root"] == data["train_root"]
+
+
+def test_a_sweep_job_equals_its_config_run_alone_on_its_thread_count(
+    study_sweep: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A job of the shared sweep (a joblib worker, ``threads=null``) records its thread count; the same
+    config trained alone in this process with ``threads=`` that count gives every number again."""
+    (job,) = study_sweep.glob("*+loss-euler+seed-0")
+    threads = status_of(job)["threads"]
+    assert isinstance(threads, int) and threads >= 1
+    conf = study_sweep.parents[1] / "conf"
+    alone = tmp_path / "alone"
+    args = ["--config-dir", str(conf), "experiment=tiny", "loss=euler", "seed=0", f"threads={threads}",
+            "logger=csv", f"hydra.run.dir={alone}"]  # fmt: skip
+    found = torch.get_num_threads()
+    try:
+        assert train_main(args, monkeypatch) == 0
+    finally:
+        torch.set_num_threads(found)
+    assert metrics_rows(alone) == metrics_rows(job) and status_of(alone) == status_of(job)
+    assert scores_of(alone) == scores_of(job) and scores_of(alone)["threads"] == threads
+    assert torch.load(alone / "checkpoints" / "best.ckpt", weights_only=True)["threads"] == threads
 
 
 def test_failing_jobs_keep_the_others(run_tiny_sweep_here, tmp_path: Path, capfd: pytest.CaptureFixture
