@@ -35,8 +35,9 @@ BESIDE_MYPY = $(RUFF) || exit 1; $(MYPY) > $(VENV)/mypy.log 2>&1 & mypy=$$!; \
 	cat $(VENV)/mypy.log; [ $$tests -eq 0 ] && [ $$typed -eq 0 ]
 
 # `make test` (CI: .ci/run) runs every test, the `slow` ones included (the shared sweep, launchers, DDP, the
-# wheel, signals, subprocesses, training runs: ~700 tests, ~12 CPU-minutes). The quick loop while editing
-# leaves those out (~470 tests, ~100 CPU-seconds, a third of it the workers' start):
+# wheel, signals, subprocesses, training runs: ~700 tests, ~6 CPU-minutes). The quick loop while editing
+# leaves those out (~460 tests, ~1 CPU-minute, much of it the workers' start). Each pytest-xdist worker gives
+# torch and OpenCV its share of the cores (tests/conftest.py): all of them in every worker oversubscribes.
 #   .venv/bin/python -m pytest -m "not slow"
 # `make test-all`: every test with the thorough hypothesis profile (1,000 examples a property, not 100).
 test: venv

@@ -51,6 +51,21 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: each file keeps its order
 
 
+@pytest.fixture(scope="session", autouse=True)
+def threads_per_worker() -> None:
+    """Under pytest-xdist, each worker's torch and OpenCV get an equal share of the cores (the library
+    default, every core in every worker, oversubscribes them: threads then wait for each other).
+    Commands the tests start as subprocesses choose their own."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if workers > 1:
+        import cv2
+        import torch
+
+        share = max(1, (os.cpu_count() or 1) // workers)
+        torch.set_num_threads(share)
+        cv2.setNumThreads(share)
+
+
 def made_once(factory: pytest.TempPathFactory, name: str, make: Callable[[Path], object]) -> Path:
     """The folder ``name`` in the test session's temporary directory, made by ``make(folder)`` the first
     time it is asked for: once a session, also when pytest-xdist's worker processes share the session
