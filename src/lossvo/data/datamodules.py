@@ -34,6 +34,7 @@ from torch.utils.data import DataLoader, Dataset, Sampler, SequentialSampler
 from lossvo import geometry
 from lossvo.atomic import write_text_atomic
 from lossvo.checks import is_integer, is_number
+from lossvo.data import flow as optical_flow
 from lossvo.data import frame_cache, synthetic, windows
 from lossvo.data.kitti import Sequence, find_root, load_sequence, relative_targets, split_names
 from lossvo.data.synthetic import routes
@@ -288,6 +289,9 @@ class KittiDataModule(L.LightningDataModule):
         statistics: ``{"mean": [3], "std": [3]}`` per channel of ``x / 255``: the normalisation of a
             trained network (its checkpoint's), used instead of computing it from the training split,
             which may then be empty (evaluation on data that holds only test sequences).
+        flow: optical flow cached beside the frames (:mod:`lossvo.data.flow`): ``"dis"``,
+            ``"farneback"`` or ``"none"``; for every frame pair training (each of ``frame_steps``) and
+            evaluation (consecutive frames) use. flow_preset: DIS's preset (ultrafast, fast, medium).
 
     :meth:`description` records the arguments, the dataset root and the normalisation statistics: a
     checkpoint stores it (:mod:`lossvo.training.checkpoints`), so that evaluation needs nothing else.
@@ -316,6 +320,8 @@ class KittiDataModule(L.LightningDataModule):
         frame_steps: Seq[int] = (1,),
         mirror: float = 0.0,
         statistics: Mapping[str, Seq[float]] | None = None,
+        flow: str = "none",
+        flow_preset: str = "medium",
     ) -> None:
         super().__init__()
         self.save_hyperparameters(logger=False)
@@ -336,6 +342,7 @@ class KittiDataModule(L.LightningDataModule):
         if normalization not in NORMALIZATIONS:
             raise ValueError(f"data.normalization: expected one of {NORMALIZATIONS}, got {normalization!r}")
         self.statistics = _statistics(statistics)
+        self.flow = optical_flow.FlowSetting(flow, flow_preset)
         if not self.splits["train"] and self.statistics is None:
             raise ValueError("data.train: expected at least one training sequence")
         self.height, self.width, self.seq_len, self.stride = height, width, seq_len, stride
@@ -399,6 +406,7 @@ class KittiDataModule(L.LightningDataModule):
             for n, s in self.sequences.items()
         }
         self._stats(folder, frames)
+        self._ensure_flow(folder, frames)
 
     def _stats_path(self, folder: Path) -> Path:
         key = hashlib.sha1(",".join(self.splits["train"]).encode()).hexdigest()[:10]
@@ -412,9 +420,7 @@ class KittiDataModule(L.LightningDataModule):
         if self.normalization == "flownet":
             return np.full(3, 0.5), np.ones(3)  # (x/255 - 0.5) / 1
         path = self._stats_path(folder)
-        sources = {
-            n: json.loads(frame_cache.files(folder, n)[1].read_text())["source"] for n in self.splits["train"]
-        }
+        sources = {n: frame_cache.source_of(folder, n) for n in self.splits["train"]}
         try:
             saved = json.loads(path.read_text())
             if saved["sources"] == sources:
@@ -425,6 +431,24 @@ class KittiDataModule(L.LightningDataModule):
         write_text_atomic(path, json.dumps({"train": self.splits["train"], "sources": sources,
                                             "mean": mean.tolist(), "std": std.tolist()}))  # fmt: skip
         return mean, std
+
+    def flow_steps(self) -> dict[str, tuple[int, ...]]:
+        """Sequence -> the frame steps of the pairs a network sees in it: each of ``frame_steps`` in a
+        training sequence, and 1 (consecutive frames) in every sequence."""
+        train = set(self.splits["train"])
+        return {n: tuple(sorted({1, *(self.frame_steps if n in train else ())})) for n in self.all_names}
+
+    def _ensure_flow(self, folder: Path, frames: dict[str, np.ndarray]) -> dict[tuple[str, int], np.ndarray]:
+        """The cached flow of every (sequence, step) of :meth:`flow_steps`, computed where missing or
+        stale; none without ``flow``."""
+        if not self.flow.enabled:
+            return {}
+        return {
+            (n, step): optical_flow.ensure_flow(
+                folder, n, frames[n], frame_cache.source_of(folder, n), step, self.flow
+            )
+            for n, steps in self.flow_steps().items() for step in steps
+        }  # fmt: skip
 
     def setup(self, stage: str | None = None) -> None:
         """Open the cache (rebuilding anything missing or stale) and build the split datasets."""
@@ -437,6 +461,7 @@ class KittiDataModule(L.LightningDataModule):
             for n, s in self.sequences.items()
         }
         self.mean, self.std = self._stats(folder, frames)
+        self._ensure_flow(folder, frames)
         for split, names in self.splits.items():
             labelled = [(n, p) for n in names if (p := self.sequences[n].poses) is not None]  # labelled ones
             self.datasets[split] = WindowDataset(

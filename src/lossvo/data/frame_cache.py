@@ -9,27 +9,24 @@ and is written last, so a cache from an interrupted run, a truncated file or a c
 detected and rebuilt, never read as garbage.
 
 numpy's memmap and OpenCV do this well; what no library does is the KITTI-specific bookkeeping
-(which frames, which size, whether the cache is complete), which is what this module holds.
+(which frames, which size), which is what this module holds (whether a cached array is complete:
+:mod:`lossvo.data.array_cache`).
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import logging
 import os
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
 import numpy as np
-from filelock import FileLock
 from tqdm import tqdm
 
-from lossvo.atomic import write_text_atomic
+from lossvo.data import array_cache
 from lossvo.data.kitti import KittiFormatError, Sequence, check_png
-
-log = logging.getLogger(__name__)
 
 CACHE_VERSION = 2
 
@@ -61,27 +58,22 @@ def files(folder: Path, name: str) -> tuple[Path, Path]:
     return folder / f"{name}.npy", folder / f"{name}.json"
 
 
+def source_of(folder: Path, name: str) -> dict:
+    """What the cached frames of sequence ``name`` were built from (names, bytes, mtime of its images),
+    as their manifest records it; call once the cache is built."""
+    return json.loads(files(folder, name)[1].read_text())["source"]
+
+
+def _expected(seq: Sequence) -> dict:
+    """What a sequence's cached frames are built from (:mod:`lossvo.data.array_cache` manifests)."""
+    return {"version": CACHE_VERSION, "sequence": seq.name, "source": _fingerprint(seq)}
+
+
 def open_frames(folder: Path, seq: Sequence, height: int, width: int) -> np.ndarray | None:
     """The cached (N, 3, H, W) uint8 RGB frames of ``seq`` as a read-only memory map, or None if the cache
     is missing, incomplete or stale (it is then rebuilt by :func:`build_frames`)."""
-    data, manifest = files(folder, seq.name)
-    try:
-        meta = json.loads(manifest.read_text())
-        frames = np.load(data, mmap_mode="r")
-    except (OSError, ValueError) as e:
-        if manifest.exists() or data.exists():
-            log.warning("frame cache %s is unreadable (%s): rebuilding", data, e)
-        return None
-    expected = (len(seq.images), 3, height, width)
-    if (
-        meta.get("version") != CACHE_VERSION
-        or meta.get("source") != _fingerprint(seq)
-        or frames.shape != expected
-        or frames.dtype != np.uint8
-    ):
-        log.warning("frame cache %s is stale or incomplete: rebuilding", data)
-        return None
-    return frames
+    shape = (len(seq.images), 3, height, width)
+    return array_cache.open_array(files(folder, seq.name)[0], _expected(seq), shape, np.uint8)
 
 
 def _read_frame(path: Path, height: int, width: int) -> tuple[np.ndarray, tuple[int, int]]:
@@ -96,22 +88,17 @@ def _read_frame(path: Path, height: int, width: int) -> tuple[np.ndarray, tuple[
     return cv2.cvtColor(resized, cv2.COLOR_BGR2RGB).transpose(2, 0, 1), size
 
 
-def build_frames(
-    folder: Path, seq: Sequence, height: int, width: int, workers: int = 4, progress: bool = True
-) -> np.ndarray:
-    """Decode, resize and store every frame of ``seq``; return the memory map.
+def _decoder(seq: Sequence, height: int, width: int, workers: int, progress: bool) -> array_cache.Fill:
+    """Fills a sequence's frame array: decoded and resized on ``workers`` threads (OpenCV releases the
+    GIL while decoding); the manifest entry ``source_size_hw``.
 
     Raises:
         KittiFormatError: an unreadable or truncated PNG, or frames of differing sizes (naming the file).
     """
-    folder.mkdir(parents=True, exist_ok=True)
-    data, manifest = files(folder, seq.name)
-    manifest.unlink(missing_ok=True)  # the manifest marks a complete cache; none while writing
-    tmp = data.with_name(f".{data.name}.{os.getpid()}.tmp")
-    out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.uint8, shape=(len(seq.images), 3, height, width))
-    try:
+
+    def fill(out: np.ndarray) -> dict:
         first_size: tuple[int, int] | None = None
-        with ThreadPoolExecutor(workers) as pool:  # OpenCV releases the GIL while decoding
+        with ThreadPoolExecutor(workers) as pool:
             jobs = pool.map(lambda p: _read_frame(p, height, width), seq.images)
             bar = tqdm(jobs, total=len(seq.images), desc=f"caching {seq.name} at {height}x{width}",
                        unit="frame", disable=not progress, leave=False)  # fmt: skip
@@ -123,17 +110,23 @@ def build_frames(
                         f"frame is {first_size[1]}x{first_size[0]}: expected one size per sequence"
                     )
                 out[i] = frame
-        out.flush()
-        del out
-        os.replace(tmp, data)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    assert first_size is not None  # a Sequence has frames (kitti.image_paths raises on none)
-    meta = {"version": CACHE_VERSION, "sequence": seq.name, "shape": [len(seq.images), 3, height, width],
-            "source_size_hw": list(first_size), "source": _fingerprint(seq)}  # fmt: skip
-    write_text_atomic(manifest, json.dumps(meta))
-    return np.load(data, mmap_mode="r")
+        assert first_size is not None  # a Sequence has frames (kitti.image_paths raises on none)
+        return {"source_size_hw": list(first_size)}
+
+    return fill
+
+
+def build_frames(
+    folder: Path, seq: Sequence, height: int, width: int, workers: int = 4, progress: bool = True
+) -> np.ndarray:
+    """Decode, resize and store every frame of ``seq``; return the memory map.
+
+    Raises:
+        KittiFormatError: an unreadable or truncated PNG, or frames of differing sizes (naming the file).
+    """
+    shape = (len(seq.images), 3, height, width)
+    fill = _decoder(seq, height, width, workers, progress)
+    return array_cache.build_array(files(folder, seq.name)[0], _expected(seq), shape, np.uint8, fill)
 
 
 def ensure_frames(
@@ -143,15 +136,9 @@ def ensure_frames(
 
     A file lock makes concurrent jobs (a parallel sweep sharing one cache) build each sequence once.
     """
-    frames = open_frames(folder, seq, height, width)
-    if frames is not None:
-        return frames
-    folder.mkdir(parents=True, exist_ok=True)
-    with FileLock(folder / f".{seq.name}.lock"):
-        frames = open_frames(folder, seq, height, width)  # another job may have built it meanwhile
-        if frames is None:
-            frames = build_frames(folder, seq, height, width, workers, progress)
-    return frames
+    shape = (len(seq.images), 3, height, width)
+    fill = _decoder(seq, height, width, workers, progress)
+    return array_cache.ensure_array(files(folder, seq.name)[0], _expected(seq), shape, np.uint8, fill)
 
 
 def channel_stats(frames: list[np.ndarray], chunk: int = 256) -> tuple[np.ndarray, np.ndarray]:

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from lossvo.data.camera import resized_intrinsics
+
 KITTI_SIZE = (376, 1241)
 """(height, width) in pixels of KITTI odometry colour images."""
 KITTI_INTRINSICS = (718.856, 718.856, 607.1928, 185.2157)
@@ -19,14 +21,11 @@ CAMERA_HEIGHT = 1.65
 
 
 def intrinsics(height: int, width: int) -> np.ndarray:
-    """KITTI's P2 intrinsics scaled to (height, width) pixels: (3, 3) float64 K.
-
-    Each axis is scaled by its own ratio (as resizing a KITTI frame does), about pixel centres:
-    c' = (c + 0.5) * s - 0.5.
-    """
+    """KITTI's P2 intrinsics scaled to (height, width) pixels, as resizing a KITTI frame scales them
+    (:func:`lossvo.data.camera.resized_intrinsics`): (3, 3) float64 K."""
     fx, fy, cx, cy = KITTI_INTRINSICS
-    sx, sy = width / KITTI_SIZE[1], height / KITTI_SIZE[0]
-    return np.array([[fx * sx, 0.0, (cx + 0.5) * sx - 0.5], [0.0, fy * sy, (cy + 0.5) * sy - 0.5], [0, 0, 1]])
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    return resized_intrinsics(K, KITTI_SIZE, (height, width))
 
 
 def calib_text(K: np.ndarray) -> str:

@@ -1,0 +1,160 @@
+"""Optical flow between cached frames: OpenCV's DIS or Farneback, computed once per sequence and frame step.
+
+A flow field is ``(2, H, W)``: ``(u, v)`` in pixels of the cached frames (the network's input size), the
+displacement that carries pixel ``(x, y)`` of frame ``k`` to ``(x + u, y + v)`` in frame ``k + s`` (s: the
+frame step). A sequence of N frames has ``N - s`` fields at step s, stored as float16 (a quarter of a pixel
+resolves to 1/2048 px at 1 px and 1/64 px at 32 px) in one ``.npy`` beside its frames
+(:mod:`lossvo.data.frame_cache`), with a manifest naming the frames it was computed from
+(:mod:`lossvo.data.array_cache`): a changed frame cache, flow setting or interrupted build is recomputed.
+
+OpenCV computes the flow; what this module holds is which flow (method, preset), for which pairs, and the
+flow's geometry under the augmentations (:func:`mirror_flow`).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from lossvo.data import array_cache
+
+FLOW_VERSION = 1
+METHODS = ("dis", "farneback", "none")
+DIS_PRESETS = {
+    "ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
+    "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
+    "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM,
+}
+
+
+@dataclass(frozen=True)
+class FlowSetting:
+    """Which flow a dataset caches: ``method`` one of METHODS (``"none"``: no flow), ``preset`` one of
+    DIS_PRESETS (DIS only). Raises ValueError naming the key (``data.flow``, ``data.flow_preset``)."""
+
+    method: str = "dis"
+    preset: str = "medium"
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"data.flow: expected one of {', '.join(METHODS)}, got {self.method!r}")
+        if self.method == "dis" and self.preset not in DIS_PRESETS:
+            raise ValueError(
+                f"data.flow_preset: expected one of {', '.join(DIS_PRESETS)}, got {self.preset!r}"
+            )
+
+    @property
+    def enabled(self) -> bool:
+        return self.method != "none"
+
+    @property
+    def key(self) -> str:
+        """The setting in file names and manifests: ``"dis-medium"``, ``"farneback"``."""
+        return f"dis-{self.preset}" if self.method == "dis" else self.method
+
+
+def _gray(frame: np.ndarray) -> np.ndarray:
+    """(3, H, W) uint8 RGB -> (H, W) uint8 grey, contiguous (what OpenCV's flows take)."""
+    return cv2.cvtColor(np.ascontiguousarray(frame.transpose(1, 2, 0)), cv2.COLOR_RGB2GRAY)
+
+
+class _Estimator:
+    """One flow estimator per thread (OpenCV's DIS object keeps state between calls)."""
+
+    def __init__(self, setting: FlowSetting) -> None:
+        self.setting = setting
+        self.local = threading.local()
+
+    def __call__(self, first: np.ndarray, second: np.ndarray) -> np.ndarray:
+        """(2, H, W) float32 flow from ``first`` to ``second``, both (H, W) uint8 grey."""
+        if self.setting.method == "dis":
+            dis = getattr(self.local, "dis", None)
+            if dis is None:
+                dis = self.local.dis = cv2.DISOpticalFlow.create(DIS_PRESETS[self.setting.preset])
+            flow = dis.calc(first, second, None)  # type: ignore[call-overload]  # None: OpenCV allocates it
+        else:  # Farneback with OpenCV's documented example parameters
+            flow = cv2.calcOpticalFlowFarneback(first, second, None, 0.5, 3, 15, 3, 5, 1.2, 0)
+        return flow.transpose(2, 0, 1)
+
+
+def pair_flow(first: np.ndarray, second: np.ndarray, setting: FlowSetting = FlowSetting()) -> np.ndarray:
+    """Flow from one frame to another.
+
+    Args:
+        first, second: (3, H, W) uint8 RGB frames.
+    Returns:
+        (2, H, W) float32 (u, v) in pixels: pixel (x, y) of ``first`` is at (x + u, y + v) in ``second``.
+    """
+    if not setting.enabled:
+        raise ValueError("data.flow: none computes no flow")
+    return _Estimator(setting)(_gray(first), _gray(second))
+
+
+def _pairs(frames: np.ndarray, step: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    for k in range(len(frames) - step):
+        yield _gray(frames[k]), _gray(frames[k + step])
+
+
+def _computer(frames: np.ndarray, step: int, setting: FlowSetting, name: str, workers: int,
+              progress: bool) -> array_cache.Fill:  # fmt: skip
+    """Fills a sequence's flow array at one step, pair by pair on ``workers`` threads (OpenCV releases
+    the GIL)."""
+
+    def fill(out: np.ndarray) -> dict:
+        estimate = _Estimator(setting)
+        with ThreadPoolExecutor(workers) as pool:
+            fields = pool.map(lambda pair: estimate(*pair), _pairs(frames, step))
+            bar = tqdm(fields, total=len(out), desc=f"flow {name} (step {step}, {setting.key})",
+                       unit="pair", disable=not progress, leave=False)  # fmt: skip
+            for k, field in enumerate(bar):
+                out[k] = field
+        return {}
+
+    return fill
+
+
+def flow_file(folder: Path, name: str, step: int, setting: FlowSetting) -> Path:
+    """The flow array of sequence ``name`` at frame step ``step`` in a frame-cache folder."""
+    return folder / f"{name}.flow-{setting.key}-s{step}.npy"
+
+
+def ensure_flow(folder: Path, name: str, frames: np.ndarray, frames_source: dict, step: int,
+                setting: FlowSetting, workers: int = 2, progress: bool = True) -> np.ndarray:  # fmt: skip
+    """The cached flow of a sequence's frames at one frame step, computed first where it is missing,
+    incomplete or stale (its frames changed: ``frames_source``, the frame cache's record of them).
+
+    Args:
+        folder: the frame-cache folder of the sequence's dataset and size; name: the sequence.
+        frames: (N, 3, H, W) uint8 RGB, the cached frames; step: frames from first to second (>= 1).
+    Returns:
+        (max(N - step, 0), 2, H, W) float16 memory map.
+    """
+    if not setting.enabled:
+        raise ValueError("data.flow: none computes no flow")
+    n, _, height, width = frames.shape
+    shape = (max(n - step, 0), 2, height, width)
+    expected = {"version": FLOW_VERSION, "sequence": name, "step": step, "flow": setting.key,
+                "frames": frames_source}  # fmt: skip
+    fill = _computer(frames, step, setting, name, workers, progress)
+    return array_cache.ensure_array(flow_file(folder, name, step, setting), expected, shape, np.float16, fill)
+
+
+def mirror_flow(flow: torch.Tensor) -> torch.Tensor:
+    """The flow of horizontally mirrored frames: fields flipped left to right, ``u`` negated (a pixel at
+    x moving by u is, mirrored, at W - 1 - x moving by -u).
+
+    Args:
+        flow: (..., 2, H, W).
+    Returns:
+        (..., 2, H, W).
+    """
+    sign = torch.tensor([-1.0, 1.0], dtype=flow.dtype, device=flow.device).view(2, 1, 1)
+    return flow.flip(-1) * sign
