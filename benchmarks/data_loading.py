@@ -35,13 +35,13 @@ class PngWindows(Dataset):
     def __len__(self) -> int:
         return len(self.cached)
 
-    def __getitem__(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
-        seq, start = (int(v) for v in self.cached.index[i])
-        paths = self.images[seq][start : start + self.cached.seq_len]
+    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+        seq, start, stop, step = (int(v) for v in self.cached.index[i])
+        paths = self.images[seq][start:stop:step]
         frames = [cv2.cvtColor(cv2.resize(cv2.imread(str(p)), self.size, interpolation=cv2.INTER_AREA),
                                cv2.COLOR_BGR2RGB).transpose(2, 0, 1) for p in paths]  # fmt: skip
-        x = torch.from_numpy(np.stack(frames))
-        return x, self.cached.targets[seq][start : start + len(paths) - 1]
+        return {"frames": torch.from_numpy(np.stack(frames)), "K": self.cached.intrinsics[seq],
+                "targets": self.cached.targets[step][seq][start : stop - 1 : step]}  # fmt: skip
 
 
 def frames_per_second(
@@ -53,7 +53,7 @@ def frames_per_second(
     rates = []
     for _ in range(repeats):
         start = time.perf_counter()
-        n = sum(dm.on_after_batch_transfer(batch, 0)[0].shape[:2].numel() for batch in loader)
+        n = sum(dm.on_after_batch_transfer(batch, 0)["frames"].shape[:2].numel() for batch in loader)
         rates.append(n / (time.perf_counter() - start))
     return float(np.median(rates))
 

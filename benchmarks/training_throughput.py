@@ -53,7 +53,7 @@ class Windows(L.LightningDataModule):
         return DataLoader(self.dataset, batch_size=self.batch_size, shuffle=False)
 
     def on_after_batch_transfer(self, batch, dataloader_idx: int):
-        return normalize(batch[0]), batch[1]
+        return {"frames": normalize(batch[0]), "targets": batch[1]}
 
 
 class EpochTimer(L.Callback):

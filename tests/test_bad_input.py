@@ -122,10 +122,13 @@ def fill(text: str, places: dict[str, str]) -> str:
 
 
 def train_argv(args: list[str], tiny_kitti: Path, tmp_path: Path) -> list[str]:
-    """The training command line of a row: the working one with the row's input added, or the row's
-    input alone where it chooses ``data=``."""
+    """The training command line of a row: the working one with the row's input added (without its
+    network's settings where the row chooses ``model=``), or the row's input alone where it chooses
+    ``data=``."""
     chooses_data = any(arg.startswith("data=") for arg in args)
     base = [] if chooses_data else tiny_overrides(tiny_kitti, tmp_path / "cache")
+    if any(arg.startswith("model=") for arg in args):  # the tiny DeepVO's settings are not another network's
+        base = [arg for arg in base if not arg.startswith("model.")]
     return [f"hydra.run.dir={tmp_path / 'run'}", *base, *args]
 
 

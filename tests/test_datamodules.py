@@ -35,13 +35,15 @@ def make_dm(root: Path, cache: Path, **kwargs) -> KittiDataModule:
 def test_windows_and_targets(tiny_kitti: Path, tmp_path: Path) -> None:
     dm = make_dm(tiny_kitti, tmp_path)
     batch = next(iter(dm.train_dataloader()))
-    assert batch[0].shape == (3, 4, 3, 32, 96) and batch[0].dtype == torch.uint8  # as loaded
-    frames, targets = dm.on_after_batch_transfer(batch, 0)  # as the model receives it
+    assert batch["frames"].shape == (3, 4, 3, 32, 96) and batch["frames"].dtype == torch.uint8  # as loaded
+    prepared = dm.on_after_batch_transfer(batch, 0)  # as the model receives it
+    frames, targets = prepared["frames"], prepared["targets"]
+    assert prepared["K"].shape == (3, 3, 3) and "flow" not in prepared
     assert frames.shape == (3, 4, 3, 32, 96) and frames.dtype == torch.float32
     assert targets.shape == (3, 3, 4, 4) and targets.dtype == torch.float32
     # stride 1: 10 - 4 + 1 windows per training sequence
     assert len(dm.datasets["train"]) == 2 * 7
-    _, y = dm.datasets["train"][8]  # sequence 01, window starting at frame 1
+    y = dm.datasets["train"][8]["targets"]  # sequence 01, window starting at frame 1
     poses = kitti.read_poses(tiny_kitti / "poses" / "01.txt")
     expected = np.linalg.inv(poses[1:4]) @ poses[2:5]
     np.testing.assert_allclose(y.numpy(), expected, atol=1e-6)
@@ -54,7 +56,7 @@ def test_frames_are_area_resized_rgb_in_h_w_order(tiny_kitti: Path, tmp_path: Pa
     bgr = cv2.imread(str(tiny_kitti / "sequences" / "02" / "image_2" / "000003.png"))
     expected = cv2.cvtColor(cv2.resize(bgr, (96, 32), interpolation=cv2.INTER_AREA), cv2.COLOR_BGR2RGB)
     np.testing.assert_array_equal(cached[3], expected.transpose(2, 0, 1))
-    x, _ = dm.datasets["val"][0]
+    x = dm.datasets["val"][0]["frames"]
     assert x.shape == (4, 3, 32, 96)
     np.testing.assert_array_equal(x.numpy(), cached[0:4])
 
@@ -65,7 +67,7 @@ def test_validation_sees_every_pair_exactly_once(tiny_kitti: Path, tmp_path: Pat
     starts = ds.index[:, 1].tolist()
     pairs = [p for s in starts for p in range(s, s + 3)]
     assert sorted(pairs) == list(range(9))
-    ys = torch.cat([ds[i][1] for i in range(len(ds))])
+    ys = torch.cat([ds[i]["targets"] for i in range(len(ds))])
     targets = kitti.relative_targets(kitti.read_poses(tiny_kitti / "poses" / "02.txt"))
     np.testing.assert_allclose(ys.numpy(), targets, atol=1e-6)
 
@@ -78,9 +80,11 @@ def test_statistics_come_from_the_training_split(tiny_kitti: Path, tmp_path: Pat
     other = make_dm(tiny_kitti, tmp_path, train=["02"], val=["00"])
     assert not np.allclose(other.mean, dm.mean)
     flownet = make_dm(tiny_kitti, tmp_path, normalization="flownet")
-    x, _ = flownet.datasets["train"][0]
+    x = flownet.datasets["train"][0]["frames"]
     torch.testing.assert_close(flownet.normalize(x), x.float() / 255.0 - 0.5)
-    normalized = dm.normalize(torch.cat([dm.datasets["train"][i][0] for i in (0, 7)]))  # both sequences
+    normalized = dm.normalize(
+        torch.cat([dm.datasets["train"][i]["frames"] for i in (0, 7)])
+    )  # both sequences
     assert normalized.mean().abs() < 0.5 and normalized.dtype == torch.float32
 
 
@@ -123,18 +127,18 @@ def test_changed_dataset_invalidates_the_cache(kitti_copy: Path, tmp_path: Path)
 def test_workers_load_the_same_windows(tiny_kitti: Path, tmp_path: Path) -> None:
     dm = make_dm(tiny_kitti, tmp_path)
     worker_dm = make_dm(tiny_kitti, tmp_path, num_workers=1)
-    a = torch.cat([x for x, _ in dm.val_dataloader()])
-    b = torch.cat([x for x, _ in worker_dm.val_dataloader()])
+    a = torch.cat([batch["frames"] for batch in dm.val_dataloader()])
+    b = torch.cat([batch["frames"] for batch in worker_dm.val_dataloader()])
     torch.testing.assert_close(a, b)
 
 
 def test_augmentation_only_when_asked_and_only_in_training(tiny_kitti: Path, tmp_path: Path) -> None:
     batch = next(iter(make_dm(tiny_kitti, tmp_path).val_dataloader()))
-    plain = make_dm(tiny_kitti, tmp_path).normalize(batch[0])
+    plain = make_dm(tiny_kitti, tmp_path).normalize(batch["frames"])
     for augment, training in ((True, True), (True, False), (False, True)):
         dm = make_dm(tiny_kitti, tmp_path, augment=augment)
         dm.trainer = SimpleNamespace(training=training)
-        frames, _ = dm.on_after_batch_transfer(batch, 0)
+        frames = dm.on_after_batch_transfer(batch, 0)["frames"]
         assert torch.equal(frames, plain) != (augment and training)
 
 
@@ -144,7 +148,7 @@ def test_windows_per_epoch_draws_a_fresh_subset(tiny_kitti: Path, tmp_path: Path
     epochs = []
     for epoch in (0, 1, 0):  # Lightning sets the sampler's epoch before each training epoch
         loader.sampler.set_epoch(epoch)
-        epochs.append(torch.cat([targets for _, targets in loader]))
+        epochs.append(torch.cat([batch["targets"] for batch in loader]))
     assert [len(e) for e in epochs] == [6, 6, 6]
     assert not torch.equal(epochs[0], epochs[1])
     assert torch.equal(epochs[0], epochs[2])  # the order depends on the seed and the epoch only
@@ -187,20 +191,20 @@ def test_mirror_only_in_training(tiny_kitti: Path, tmp_path: Path) -> None:
     batch = next(iter(make_dm(tiny_kitti, tmp_path).val_dataloader()))
     dm = make_dm(tiny_kitti, tmp_path, mirror=1.0)
     dm.trainer = SimpleNamespace(training=True)
-    frames, _ = dm.on_after_batch_transfer(batch, 0)
-    torch.testing.assert_close(frames, dm.normalize(batch[0].flip(-1)))
+    frames = dm.on_after_batch_transfer(batch, 0)["frames"]
+    torch.testing.assert_close(frames, dm.normalize(batch["frames"].flip(-1)))
     dm.trainer = SimpleNamespace(training=False)
-    assert torch.equal(dm.on_after_batch_transfer(batch, 0)[0], dm.normalize(batch[0]))
+    assert torch.equal(dm.on_after_batch_transfer(batch, 0)["frames"], dm.normalize(batch["frames"]))
 
 
 def test_reverse_only_in_training(tiny_kitti: Path, tmp_path: Path) -> None:
     batch = next(iter(make_dm(tiny_kitti, tmp_path).val_dataloader()))
     dm = make_dm(tiny_kitti, tmp_path, reverse=1.0)
     dm.trainer = SimpleNamespace(training=True)
-    frames, _ = dm.on_after_batch_transfer(batch, 0)
-    torch.testing.assert_close(frames, dm.normalize(batch[0].flip(1)))
+    frames = dm.on_after_batch_transfer(batch, 0)["frames"]
+    torch.testing.assert_close(frames, dm.normalize(batch["frames"].flip(1)))
     dm.trainer = SimpleNamespace(training=False)
-    assert torch.equal(dm.on_after_batch_transfer(batch, 0)[1], batch[1])
+    assert torch.equal(dm.on_after_batch_transfer(batch, 0)["targets"], batch["targets"])
 
 
 def test_standing_windows_show_no_motion_with_fresh_noise() -> None:
@@ -222,10 +226,10 @@ def test_standstill_only_in_training(tiny_kitti: Path, tmp_path: Path) -> None:
     batch = next(iter(make_dm(tiny_kitti, tmp_path).val_dataloader()))
     dm = make_dm(tiny_kitti, tmp_path, standstill=1.0)
     dm.trainer = SimpleNamespace(training=True)
-    _, targets = dm.on_after_batch_transfer(batch, 0)
+    targets = dm.on_after_batch_transfer(batch, 0)["targets"]
     assert torch.equal(targets, torch.eye(4, dtype=targets.dtype).expand_as(targets))
     dm.trainer = SimpleNamespace(training=False)
-    assert torch.equal(dm.on_after_batch_transfer(batch, 0)[1], batch[1])
+    assert torch.equal(dm.on_after_batch_transfer(batch, 0)["targets"], batch["targets"])
 
 
 def test_jitter_is_one_draw_per_window() -> None:
@@ -313,8 +317,8 @@ def test_synthetic_datamodule_renders_on_first_use(tmp_path: Path) -> None:
     dm.prepare_data()
     dm.setup("fit")
     assert (tmp_path / "synth" / "poses" / "00.txt").is_file()
-    x, y = next(iter(dm.train_dataloader()))
-    assert x.shape[1:] == (3, 3, 32, 96) and y.shape[1:] == (2, 4, 4)
+    batch = next(iter(dm.train_dataloader()))
+    assert batch["frames"].shape[1:] == (3, 3, 32, 96) and batch["targets"].shape[1:] == (2, 4, 4)
 
 
 def test_frame_steps_add_windows_of_every_other_frame_with_recomputed_targets(
@@ -328,7 +332,7 @@ def test_frame_steps_add_windows_of_every_other_frame_with_recomputed_targets(
     train = dm.datasets["train"]
     n = len(poses)
     assert len(train) == (n - 2) + (n - 4)  # windows of 3 frames at step 1, then at step 2
-    frames, targets = train[n - 2]  # the first step-2 window: frames 0, 2, 4
+    frames, targets = train[n - 2]["frames"], train[n - 2]["targets"]  # the first step-2 window: 0, 2, 4
     cached = dm.sequence_frames("00")
     np.testing.assert_array_equal(frames.numpy(), cached[[0, 2, 4]])
     expected = [np.linalg.inv(poses[k]) @ poses[k + 2] for k in (0, 2)]

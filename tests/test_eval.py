@@ -36,15 +36,23 @@ class PairStub(nn.Module):
         self.seen: list[Tensor] = []
         self.modes: list[bool] = []
 
-    def forward(self, frames: Tensor) -> Tensor:
+    def forward(self, batch: dict[str, Tensor]) -> Tensor:
         self.modes.append(self.training)
-        index = frames[:, :, 0, 0, 0]  # (B, L)
+        index = batch["frames"][:, :, 0, 0, 0]  # (B, L)
         out = torch.stack((index[:, :-1], index[:, 1:]), dim=-1)
         self.seen.append(out.reshape(-1, 2))
         return out
 
     def decode(self, pred: Tensor) -> Tensor:
         return self.relative[pred[..., 0].long()]
+
+
+def _float(inputs: dict[str, Tensor]) -> dict[str, Tensor]:
+    return {**inputs, "frames": inputs["frames"].float()}
+
+
+def _scaled(inputs: dict[str, Tensor]) -> dict[str, Tensor]:
+    return {**inputs, "frames": inputs["frames"].float() / 255}
 
 
 def _random_poses(n: int, seed: int = 0) -> Tensor:
@@ -63,7 +71,7 @@ def test_predict_sequence_covers_every_pair_once(n: int, seq_len: int, batch: in
     relative = _random_poses(n)
     stub = PairStub(relative)
     frames = np.broadcast_to(np.arange(n, dtype=np.uint8)[:, None, None, None], (n, 3, 4, 5))
-    out = predict_sequence(stub, frames, lambda x: x.float(), seq_len, batch_windows=batch)
+    out = predict_sequence(stub, {"frames": frames}, _float, seq_len, batch_windows=batch)
     assert out.shape == (n - 1, 4, 4) and out.dtype == np.float64
     np.testing.assert_array_equal(out, relative.numpy())
     pairs = torch.cat(stub.seen)
@@ -76,10 +84,10 @@ def test_predict_sequence_uses_eval_mode_and_restores_it(tiny_kitti: Path, tmp_p
     stub = PairStub(_random_poses(6))
     frames = np.broadcast_to(np.arange(6, dtype=np.uint8)[:, None, None, None], (6, 3, 4, 5))
     stub.train()
-    predict_sequence(stub, frames, lambda x: x.float(), 3)
+    predict_sequence(stub, {"frames": frames}, _float, 3)
     assert stub.modes and not any(stub.modes) and stub.training
     stub.eval()
-    predict_sequence(stub, frames, lambda x: x.float(), 3)
+    predict_sequence(stub, {"frames": frames}, _float, 3)
     assert not stub.training
 
     module = VOModule(
@@ -90,17 +98,17 @@ def test_predict_sequence_uses_eval_mode_and_restores_it(tiny_kitti: Path, tmp_p
     )  # fmt: skip
     module.train()
     images = np.random.default_rng(0).integers(0, 256, (9, 3, 64, 64), dtype=np.uint8)
-    a = predict_sequence(module, images, lambda x: x.float() / 255, 4)
-    b = predict_sequence(module, images, lambda x: x.float() / 255, 4)
+    a = predict_sequence(module, {"frames": images}, _scaled, 4)
+    b = predict_sequence(module, {"frames": images}, _scaled, 4)
     np.testing.assert_array_equal(a, b)  # dropout off
     assert module.training
     # equal to per-window forward calls, LSTM reset per window
     module.eval()
     with torch.no_grad():
         x = torch.from_numpy(images).float() / 255
-        windows = [module.decode(module(x[s:e][None]))[0] for s, e in tile(9, 4)]
+        windows = [module.decode(module({"frames": x[s:e][None]}))[0] for s, e in tile(9, 4)]
     np.testing.assert_allclose(a, torch.cat(windows).double().numpy(), atol=1e-5)
-    carried = predict_sequence(module, images, lambda x: x.float() / 255, 4, carry_state=True)
+    carried = predict_sequence(module, {"frames": images}, _scaled, 4, carry_state=True)
     assert carried.shape == (8, 4, 4)
 
 

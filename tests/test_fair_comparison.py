@@ -59,8 +59,10 @@ def test_same_start_for_every_loss(tiny_kitti: Path, tmp_path: Path) -> None:
         for key, value in ref_backbone.items():
             assert torch.equal(weights[key], value), f"{loss}: {key} differs from euler's"
         assert torch.equal(state, ref_state), f"{loss}: the random stream after building differs"
-        for (frames, targets), (ref_frames, ref_targets) in zip(batches, ref_batches, strict=True):
-            assert torch.equal(frames, ref_frames) and torch.equal(targets, ref_targets)
+        for batch, ref in zip(batches, ref_batches, strict=True):
+            assert torch.equal(batch["frames"], ref["frames"]) and torch.equal(
+                batch["targets"], ref["targets"]
+            )
         assert module.model.head.out_features == resolvers.dim_of(module.hparams.loss["_target_"])
 
 
@@ -69,7 +71,7 @@ def test_weighting_shifts_no_stream(tiny_kitti: Path, tmp_path: Path) -> None:
     _, matched, batches = built(tiny_kitti, tmp_path, "quat")
     module, learned, other = built(tiny_kitti, tmp_path / "learned", "quat", "weighting=learned")
     assert torch.equal(matched, learned)
-    assert all(torch.equal(a[0], b[0]) for a, b in zip(batches, other, strict=True))
+    assert all(torch.equal(a["frames"], b["frames"]) for a, b in zip(batches, other, strict=True))
     assert isinstance(module.loss.weighting, HomoscedasticWeighting)
 
 

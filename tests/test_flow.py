@@ -155,3 +155,35 @@ def test_a_datamodule_caches_the_flow_of_every_pair_it_uses_once(tiny_kitti, tmp
     assert len(calls) == 43  # another job of the sweep: read, not computed
     make_dm(tiny_kitti, tmp_path)  # data.flow=none (the default): no flow
     assert len(calls) == 43
+
+
+def test_windows_carry_their_pairs_flow_and_k_and_mirror_them_together(tiny_kitti, tmp_path) -> None:
+    """A step-2 training window holds fields start, start + 2, ... of the step-2 flow; mirrored in training,
+    its flow is mirrored (:func:`flow.mirror_flow`) and its K's principal point too."""
+    from types import SimpleNamespace
+
+    from test_datamodules import make_dm
+
+    dm = make_dm(tiny_kitti, tmp_path, flow="dis", flow_preset="ultrafast", frame_steps=[1, 2], mirror=1.0)
+    train = dm.datasets["train"]
+    i = int(np.flatnonzero(train.index[:, 3] == 2)[1])  # the second step-2 window: frames 1, 3, 5, 7
+    seq, start, _, step = (int(v) for v in train.index[i])
+    item = train[i]
+    cached = np.load(flow.flow_file(dm.cache_path(), "00", 2, dm.flow))
+    assert (seq, start, step) == (0, 1, 2) and item["flow"].dtype == torch.float16
+    np.testing.assert_array_equal(item["flow"].numpy(), cached[[1, 3, 5]])
+    torch.testing.assert_close(item["K"], torch.from_numpy(dm.intrinsics("00")).float())
+    batch = {name: value[None] for name, value in item.items()}
+    dm.trainer = SimpleNamespace(training=True)
+    out = dm.on_after_batch_transfer(batch, 0)
+    torch.testing.assert_close(out["flow"], flow.mirror_flow(batch["flow"].float()))
+    assert out["K"][0, 0, 2] == 96 - 1 - batch["K"][0, 0, 2] and out["K"][0, 1, 2] == batch["K"][0, 1, 2]
+    whole = dm.sequence_inputs("02")
+    assert whole["flow"].shape == (9, 2, 32, 96) and whole["K"].shape == (3, 3)
+
+
+def test_reversed_windows_need_no_flow(tiny_kitti, tmp_path) -> None:
+    from test_datamodules import make_dm
+
+    with pytest.raises(ValueError, match=r"^data\.reverse: expected 0 with data\.flow=dis .*got 0\.5$"):
+        make_dm(tiny_kitti, tmp_path, flow="dis", reverse=0.5)

@@ -67,7 +67,7 @@ def test_checkpoint_reloads_with_weights_only(tiny_kitti: Path, tmp_path: Path) 
     assert module.loss.dim == 7 and module.loss.k == 400.0  # matched: 100 / (1/4)
     frames = torch.rand(2, 3, 3, 64, 96)
     module.eval()
-    assert module(frames).shape == (2, 2, 7)
+    assert module({"frames": frames}).shape == (2, 2, 7)
     metrics_csv = tmp_path / "run" / "metrics.csv"
     assert "val/rot_err_rad" in metrics_csv.read_text().splitlines()[0]
 

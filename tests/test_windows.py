@@ -55,8 +55,9 @@ def test_validation_loader_sees_every_pair_once(tiny_kitti, tmp_path) -> None:
     dm.prepare_data()
     dm.setup()
     batches = list(dm.val_dataloader())
-    assert sorted(y.shape[1] for _, y in batches) == [1, 4, 4]  # 4 full windows in 2 batches, 2 short in 1
-    targets = torch.cat([y.reshape(-1, 4, 4) for _, y in batches]).double().numpy()
+    ys = [batch["targets"] for batch in batches]
+    assert sorted(y.shape[1] for y in ys) == [1, 4, 4]  # 4 full windows in 2 batches, 2 short in 1
+    targets = torch.cat([y.reshape(-1, 4, 4) for y in ys]).double().numpy()
     expected = np.concatenate([relative_targets(dm.sequences[n].poses) for n in ("01", "02")])
     assert len(targets) == len(expected) == 18  # every pair of both sequences, none twice
     order = np.lexsort(targets.reshape(len(targets), -1).T)

@@ -1,10 +1,12 @@
 """LightningDataModules for KITTI odometry and for the embedded synthetic KITTI-layout dataset.
 
 A sample is a window of ``seq_len`` consecutive frames and its ``seq_len - 1`` relative-pose targets;
-the batches the model receives are::
+a batch is a dict, as the model receives it::
 
-    frames:  (B, seq_len, 3, H, W) float32, normalised per channel
-    targets: (B, seq_len - 1, 4, 4) float32, inv(T_w_k) @ T_w_{k+1} computed in float64
+    "frames":  (B, seq_len, 3, H, W) float32, normalised per channel
+    "targets": (B, seq_len - 1, 4, 4) float32, inv(T_w_k) @ T_w_{k+1} computed in float64
+    "K":       (B, 3, 3) float32, the intrinsics of the cached frames (pixels)
+    "flow":    (B, seq_len - 1, 2, H, W) float32, optical flow of each pair in pixels (with ``flow``)
 
 The loaders carry frames as uint8 (a window is one copy out of the memory map) and the DataModule
 normalises them on the training device in ``on_after_batch_transfer``, Lightning's hook for this.
@@ -34,8 +36,8 @@ from torch.utils.data import DataLoader, Dataset, Sampler, SequentialSampler
 from lossvo import geometry
 from lossvo.atomic import write_text_atomic
 from lossvo.checks import is_integer, is_number
+from lossvo.data import camera, frame_cache, synthetic, windows
 from lossvo.data import flow as optical_flow
-from lossvo.data import frame_cache, synthetic, windows
 from lossvo.data.kitti import Sequence, find_root, load_sequence, relative_targets, split_names
 from lossvo.data.synthetic import routes
 
@@ -80,13 +82,14 @@ def _primitive(value: Any) -> Any:
 class WindowDataset(Dataset):
     """Windows of cached frames with their relative-pose targets.
 
-    Items are ``(frames (L, 3, H, W) uint8, targets (L - 1, 4, 4) float32)``: a window costs one memory
-    copy. Training windows (:func:`lossvo.data.windows.training_starts`) have ``seq_len`` frames, start
-    every ``stride`` frames and exist at each frame step s of ``steps``: every s-th frame, with targets
-    ``inv(T_w_k) @ T_w_{k+s}`` computed from the poses in float64 (s = 2 doubles the speeds and rotations
-    the network sees). Tiled windows (``tiled=True``, validation and test) follow
-    :func:`lossvo.data.windows.tile`: every consecutive pair exactly once, the last window of a sequence
-    possibly shorter. Conversion to float, normalisation and augmentation happen per batch on the training
+    Items are dicts: ``frames`` (L, 3, H, W) uint8, ``targets`` (L - 1, 4, 4) float32, ``K`` (3, 3)
+    float32 and, with flow, ``flow`` (L - 1, 2, H, W) float16: a window costs one memory copy. Training
+    windows (:func:`lossvo.data.windows.training_starts`) have ``seq_len`` frames, start every ``stride``
+    frames and exist at each frame step s of ``steps``: every s-th frame, with targets ``inv(T_w_k) @
+    T_w_{k+s}`` computed from the poses in float64 (s = 2 doubles the speeds and rotations the network
+    sees). Tiled windows (``tiled=True``, validation and test) follow :func:`lossvo.data.windows.tile`:
+    every consecutive pair exactly once, the last window of a sequence possibly shorter. Conversion to
+    float, normalisation and augmentation happen per batch on the training
     device (:meth:`KittiDataModule.on_after_batch_transfer`), which also moves 4x fewer bytes to the GPU.
     The memory maps are opened lazily in each process (a pickled memmap would be copied whole into every
     DataLoader worker).
@@ -95,14 +98,21 @@ class WindowDataset(Dataset):
         cache_files: one cached frame array per sequence; poses: (N_i, 4, 4) T_w_c per sequence.
         seq_len: frames per window; stride: frames between training window starts; steps: frame steps of
             the training windows (1: consecutive); tiled: tile the sequences instead (stride, steps unused).
+        intrinsics: (3, 3) K of each sequence's cached frames (None: the identity).
+        flow_files: step -> one cached flow array per sequence (:mod:`lossvo.data.flow`), for every step
+            used; None: no flow.
     """
 
     def __init__(
         self, cache_files: list[Path], poses: list[np.ndarray], seq_len: int, stride: int = 1,
-        steps: Seq[int] = (1,), tiled: bool = False,
+        steps: Seq[int] = (1,), tiled: bool = False, intrinsics: list[np.ndarray] | None = None,
+        flow_files: dict[int, list[Path]] | None = None,
     ) -> None:  # fmt: skip
         self.cache_files = cache_files
+        self.flow_files = flow_files
         self.seq_len = seq_len
+        Ks = intrinsics if intrinsics is not None else [np.eye(3)] * len(poses)
+        self.intrinsics = [torch.from_numpy(np.asarray(K, dtype=np.float32)) for K in Ks]
         steps = (1,) if tiled else tuple(steps)
         self.targets = {
             s: [torch.from_numpy(relative_targets(p, s).astype(np.float32)) for p in poses] for s in steps
@@ -112,6 +122,7 @@ class WindowDataset(Dataset):
                 for s in steps for i, n in enumerate(lengths) if n >= 2]  # fmt: skip
         self.index = np.concatenate(rows) if rows else np.zeros((0, 4), dtype=np.int64)
         self._frames: list[np.ndarray] | None = None
+        self._flow: dict[int, list[np.ndarray]] | None = None
 
     @staticmethod
     def _training(seq: int, n: int, seq_len: int, stride: int, step: int) -> np.ndarray:
@@ -133,7 +144,7 @@ class WindowDataset(Dataset):
         return (self.index[:, 2] - self.index[:, 1] - 1) // self.index[:, 3] + 1
 
     def __getstate__(self) -> dict:
-        return {**self.__dict__, "_frames": None}
+        return {**self.__dict__, "_frames": None, "_flow": None}
 
     @property
     def frames(self) -> list[np.ndarray]:
@@ -144,10 +155,23 @@ class WindowDataset(Dataset):
     def __len__(self) -> int:
         return len(self.index)
 
-    def __getitem__(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
+    @property
+    def flow(self) -> dict[int, list[np.ndarray]]:
+        if self._flow is None:
+            files = self.flow_files or {}
+            self._flow = {step: [np.load(f, mmap_mode="r") for f in paths] for step, paths in files.items()}
+        return self._flow
+
+    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
         seq, start, stop, step = (int(v) for v in self.index[i])
-        window = torch.from_numpy(np.array(self.frames[seq][start:stop:step]))  # one copy
-        return window, self.targets[step][seq][start : stop - 1 : step]
+        item = {
+            "frames": torch.from_numpy(np.array(self.frames[seq][start:stop:step])),  # one copy
+            "targets": self.targets[step][seq][start : stop - 1 : step],
+            "K": self.intrinsics[seq],
+        }
+        if self.flow_files is not None:  # pair (k, k + step) is field k of the step's flow
+            item["flow"] = torch.from_numpy(np.array(self.flow[step][seq][start : stop - 1 : step]))
+        return item
 
 
 def reverse_windows(
@@ -362,6 +386,11 @@ class KittiDataModule(L.LightningDataModule):
         for name, p in (("reverse", reverse), ("standstill", standstill), ("mirror", mirror)):
             if not is_number(p) or not 0.0 <= p <= 1.0:
                 raise ValueError(f"data.{name}: expected a probability in [0, 1], got {p!r}")
+        if self.flow.enabled and reverse > 0:
+            raise ValueError(
+                f"data.reverse: expected 0 with data.flow={flow} (the cache holds each pair's forward "
+                f"flow only), got {reverse!r}"
+            )
         self.normalization, self.augment, self.reverse = normalization, augment, float(reverse)
         self.standstill, self.mirror = float(standstill), float(mirror)
         self.sequences: dict[str, Sequence] = {}
@@ -464,9 +493,15 @@ class KittiDataModule(L.LightningDataModule):
         self._ensure_flow(folder, frames)
         for split, names in self.splits.items():
             labelled = [(n, p) for n in names if (p := self.sequences[n].poses) is not None]  # labelled ones
+            steps = (1,) if split != "train" else self.frame_steps
+            flow_files = None if not self.flow.enabled else {
+                step: [optical_flow.flow_file(folder, n, step, self.flow) for n, _ in labelled]
+                for step in steps
+            }  # fmt: skip
             self.datasets[split] = WindowDataset(
                 [frame_cache.files(folder, n)[0] for n, _ in labelled], [p for _, p in labelled],
                 self.seq_len, self.stride, self.frame_steps, tiled=split != "train",
+                intrinsics=[self.intrinsics(n) for n, _ in labelled], flow_files=flow_files,
             )  # fmt: skip
         if len(self.datasets["train"]) == 0 and self.splits["train"]:
             shortest = min(len(self.sequences[n].images) for n in self.splits["train"])
@@ -489,6 +524,13 @@ class KittiDataModule(L.LightningDataModule):
     def dataset_root(self) -> Path:
         """The absolute folder holding ``sequences/`` and ``poses/``."""
         return find_root(self.root).resolve()
+
+    def intrinsics(self, name: str) -> np.ndarray:
+        """(3, 3) float64 K of a sequence's cached frames: calib.txt's P2, resized from the source images'
+        size to (height, width) (:func:`lossvo.data.camera.resized_intrinsics`); after :meth:`setup`."""
+        manifest = json.loads(frame_cache.files(self.cache_path(), name)[1].read_text())
+        source = tuple(manifest["source_size_hw"])
+        return camera.resized_intrinsics(self.sequences[name].calib.K, source, (self.height, self.width))
 
     # -- loaders --------------------------------------------------------------------------------------
 
@@ -533,20 +575,52 @@ class KittiDataModule(L.LightningDataModule):
         std = torch.as_tensor(self.std, dtype=torch.float32, device=frames.device).view(3, 1, 1)
         return frames.float().mul_(1.0 / (255.0 * std)).sub_(mean / std)  # in place: one pass less
 
-    def on_after_batch_transfer(self, batch: tuple[torch.Tensor, torch.Tensor], dataloader_idx: int):
-        """On the training device: uint8 windows -> normalised float32; when training, stopped
-        (``standstill``), mirrored (``mirror``), played backwards (``reverse``) and jittered (``augment``)."""
-        frames, targets = batch
+    def prepare(self, inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """Loaded inputs, on their device, as a network reads them: frames normalised (:meth:`normalize`),
+        flow as float32; the other entries as they are."""
+        prepared = {**inputs, "frames": self.normalize(inputs["frames"])}
+        if "flow" in inputs:
+            prepared["flow"] = inputs["flow"].float()
+        return prepared
+
+    def on_after_batch_transfer(
+        self, batch: dict[str, torch.Tensor], dataloader_idx: int
+    ) -> dict[str, torch.Tensor]:
+        """On the training device: :meth:`prepare`; when training, windows first stopped
+        (``standstill``: no flow), mirrored (``mirror``: the flow and K too), played backwards (``reverse``)
+        and jittered (``augment``)."""
+        batch = dict(batch)
+        frames, targets = batch["frames"], batch["targets"]
         training = self.trainer is not None and self.trainer.training
         if training and self.standstill > 0:
-            frames, targets = standing_windows(frames, targets, torch.rand(frames.shape[0]) < self.standstill)
+            which = torch.rand(frames.shape[0]) < self.standstill
+            frames, targets = standing_windows(frames, targets, which)
+            if "flow" in batch:
+                batch["flow"] = batch["flow"] * ~which.to(frames.device).view(-1, 1, 1, 1, 1)
         if training and self.mirror > 0:
-            frames, targets = mirror_windows(frames, targets, torch.rand(frames.shape[0]) < self.mirror)
+            which = torch.rand(frames.shape[0]) < self.mirror
+            frames, targets = mirror_windows(frames, targets, which)
+            where = which.to(frames.device)
+            if "flow" in batch:
+                mirrored = optical_flow.mirror_flow(batch["flow"])
+                batch["flow"] = torch.where(where.view(-1, 1, 1, 1, 1), mirrored, batch["flow"])
+            mirrored_K = camera.mirrored_intrinsics(batch["K"], self.width)
+            batch["K"] = torch.where(where.view(-1, 1, 1), mirrored_K, batch["K"])
         if training and self.reverse > 0:
             frames, targets = reverse_windows(frames, targets, torch.rand(frames.shape[0]) < self.reverse)
         if training and self.augment:
             frames = jitter(frames.float()).round()
-        return self.normalize(frames), targets
+        return self.prepare({**batch, "frames": frames, "targets": targets})
+
+    def sequence_inputs(self, name: str) -> dict[str, np.ndarray]:
+        """A whole sequence's inputs: ``frames`` (N, 3, H, W) uint8 (memory map), ``K`` (3, 3) float32 and,
+        with flow, ``flow`` (N - 1, 2, H, W) float16 (memory map), each consecutive pair's."""
+        inputs = {"frames": self.sequence_frames(name), "K": self.intrinsics(name).astype(np.float32)}
+        if self.flow.enabled:
+            inputs["flow"] = np.load(
+                optical_flow.flow_file(self.cache_path(), name, 1, self.flow), mmap_mode="r"
+            )
+        return inputs
 
     def sequence_frames(self, name: str) -> np.ndarray:
         """(N, 3, H, W) uint8 RGB cached frames of one sequence (memory map; every frame, in order)."""

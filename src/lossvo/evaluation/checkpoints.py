@@ -25,6 +25,7 @@ import torch
 from hydra.utils import instantiate
 from torch import Tensor, nn
 
+from lossvo import models
 from lossvo.console import first_line
 from lossvo.losses import PoseLoss
 
@@ -44,7 +45,7 @@ class TrainedNetwork(nn.Module):
     """A network and the loss that owns its parameterisation, as a checkpoint describes them.
 
     Attributes:
-        model: the network, frames (B, L, 3, H, W) -> outputs (B, L-1, loss.dim).
+        model: the network, a batch's entries it reads -> outputs (B, L-1, loss.dim).
         loss: the :class:`lossvo.losses.PoseLoss` that decodes those outputs.
         data: the training data's description (the checkpoint's ``data``), or None.
         threads: the CPU thread count it was trained with, or None where the checkpoint records none.
@@ -56,9 +57,9 @@ class TrainedNetwork(nn.Module):
         self.model, self.loss = model, loss
         self.data, self.threads = data, threads
 
-    def forward(self, frames: Tensor) -> Tensor:
-        """Network outputs (B, L-1, dim) for frames (B, L, 3, H, W)."""
-        return self.model(frames)
+    def forward(self, batch: Mapping[str, Tensor]) -> Tensor:
+        """Network outputs (B, L-1, dim) for a batch of windows (:func:`lossvo.models.apply`)."""
+        return models.apply(self.model, batch)
 
     def decode(self, pred: Tensor) -> Tensor:
         """Relative poses (..., 4, 4) from network outputs (..., dim)."""

@@ -3,7 +3,7 @@ exactly once, in the windows of :func:`lossvo.data.windows.tile`."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, cast
 
 import numpy as np
@@ -24,10 +24,15 @@ def _device_of(module: nn.Module) -> torch.device:
     return param.device if param is not None else torch.device("cpu")
 
 
+Inputs = Mapping[str, "np.ndarray | Tensor"]
+"""A whole sequence's inputs (:meth:`lossvo.data.datamodules.KittiDataModule.sequence_inputs`): ``frames``
+(N, 3, H, W) uint8, optionally ``flow`` (N - 1, 2, H, W) of each consecutive pair and ``K`` (3, 3)."""
+
+
 def predict_sequence(
     module: nn.Module,
-    frames: np.ndarray | Tensor,
-    normalize: Callable[[Tensor], Tensor],
+    inputs: Inputs,
+    prepare: Callable[[dict[str, Tensor]], dict[str, Tensor]],
     seq_len: int,
     batch_windows: int = 16,
     carry_state: bool = False,
@@ -35,27 +40,29 @@ def predict_sequence(
     """Relative poses of a whole sequence, every consecutive pair predicted exactly once.
 
     The sequence is cut into windows as in validation: ``seq_len`` frames overlapping by one
-    (:func:`lossvo.data.windows.tile`). By default the LSTM starts from zeros in every window, which is what
-    the network saw in training (one window per sample); ``batch_windows`` windows go through the network in
-    one forward pass. With ``carry_state=True`` the LSTM state is carried from one window to the next
-    (``model.forward_with_state``; the windows then run one after the other): an option for networks trained
-    on longer sequences, not what training does.
+    (:func:`lossvo.data.windows.tile`), each with its pairs' flow and the sequence's K. By default the LSTM
+    starts from zeros in every window, which is what the network saw in training (one window per sample);
+    ``batch_windows`` windows go through the network in one forward pass. With ``carry_state=True`` the
+    LSTM state is carried from one window to the next (``model.forward_with_state``, DeepVO's; the windows
+    then run one after the other): an option for networks trained on longer sequences, not what training
+    does.
 
     The module is put in eval mode (dropout off, BatchNorm running statistics) under ``torch.no_grad``,
     and its previous mode is restored afterwards.
 
     Args:
-        module: a :class:`lossvo.training.module.VOModule` (or anything with
-            ``forward(frames (B, L, 3, H, W)) -> (B, L-1, dim)`` and ``decode(outputs) -> (..., 4, 4)``).
-        frames: (N, 3, H, W) uint8 frames (a memory map is read window batch by window batch).
-        normalize: uint8 tensor (..., 3, H, W) -> normalised float tensor, e.g. the datamodule's.
+        module: a :class:`lossvo.training.module.VOModule` (or anything with ``forward(batch) ->
+            (B, L-1, dim)`` for a batch of windows and ``decode(outputs) -> (..., 4, 4)``).
+        inputs: the sequence's :data:`Inputs` (memory maps are read window batch by window batch).
+        prepare: loaded inputs -> what the network reads, e.g. the datamodule's ``prepare`` (normalised
+            frames, float flow).
         seq_len: frames per window.
         batch_windows: windows per forward pass.
         carry_state: carry the LSTM state across windows.
     Returns:
         (N-1, 4, 4) float64 relative poses ``T_k`` (frame k+1 seen from frame k).
     """
-    n = len(frames)
+    n = len(inputs["frames"])
     windows = [(int(a), int(b)) for a, b in tile(n, seq_len)]
     device = _device_of(module)
     was_training = module.training
@@ -69,23 +76,22 @@ def predict_sequence(
                 model = cast("DeepVO", module.model)
                 state: LSTMState | None = None
                 for start, stop in windows:
-                    x = _load(frames, start, stop, device, normalize)[None]
+                    x = prepare(_load(inputs, start, stop, device))["frames"][None]
                     pred, state = model.forward_with_state(x, state)
                     outputs.append(decode(pred)[0].double().cpu())
             else:
                 full = [w for w in windows if w[1] - w[0] == seq_len]
                 short = [w for w in windows if w[1] - w[0] != seq_len]  # at most the last one
-                offsets = torch.arange(seq_len)
                 for i in range(0, len(full), batch_windows):
                     group = full[i : i + batch_windows]
                     first, last = group[0][0], group[-1][1]  # consecutive windows: one contiguous read
-                    chunk = _load(frames, first, last, device, normalize)
-                    index = (torch.tensor([s - first for s, _ in group])[:, None] + offsets).to(device)
-                    pred = module(chunk[index])  # (B, seq_len, 3, H, W) -> (B, seq_len - 1, dim)
+                    chunk = prepare(_load(inputs, first, last, device))
+                    batch = _windows(chunk, [s - first for s, _ in group], seq_len)
+                    pred = module(batch)  # (B, seq_len - 1, dim)
                     outputs.append(decode(pred).reshape(-1, 4, 4).double().cpu())
                 for start, stop in short:
-                    pred = module(_load(frames, start, stop, device, normalize)[None])
-                    outputs.append(decode(pred)[0].double().cpu())
+                    batch = _windows(prepare(_load(inputs, start, stop, device)), [0], stop - start)
+                    outputs.append(decode(module(batch))[0].double().cpu())
     finally:
         module.train(was_training)
     relative = torch.cat(outputs)
@@ -94,7 +100,28 @@ def predict_sequence(
     return relative.numpy()
 
 
-def _load(frames: np.ndarray | Tensor, start: int, stop: int, device: torch.device, normalize) -> Tensor:
-    chunk = frames[start:stop]
-    chunk = chunk if isinstance(chunk, Tensor) else torch.from_numpy(np.array(chunk))  # one copy of the map
-    return normalize(chunk.to(device))
+def _tensor(array: np.ndarray | Tensor) -> Tensor:
+    return array if isinstance(array, Tensor) else torch.from_numpy(np.array(array))  # one copy of a map
+
+
+def _load(inputs: Inputs, start: int, stop: int, device: torch.device) -> dict[str, Tensor]:
+    """Frames [start, stop) of a sequence with their pairs' flow (start .. stop - 2) and K, on ``device``."""
+    loaded = {"frames": _tensor(inputs["frames"][start:stop])}
+    if "flow" in inputs:
+        loaded["flow"] = _tensor(inputs["flow"][start : stop - 1])
+    if "K" in inputs:
+        loaded["K"] = _tensor(inputs["K"])
+    return {name: value.to(device) for name, value in loaded.items()}
+
+
+def _windows(chunk: dict[str, Tensor], starts: list[int], length: int) -> dict[str, Tensor]:
+    """A batch of windows of ``length`` frames starting at ``starts`` (indices into the chunk's frames)."""
+    index = torch.tensor(starts, device=chunk["frames"].device)[:, None] + torch.arange(
+        length, device=chunk["frames"].device
+    )
+    batch = {"frames": chunk["frames"][index]}
+    if "flow" in chunk:
+        batch["flow"] = chunk["flow"][index[:, :-1]]
+    if "K" in chunk:
+        batch["K"] = chunk["K"].expand(len(starts), 3, 3)
+    return batch

@@ -506,14 +506,14 @@ def predict_and_score(
     """One sequence through the network, chained and scored: the path that validation during training
     (:class:`lossvo.training.callbacks.TrajectoryValidation`) and :func:`evaluate_run` share.
 
-    The sequence's frames go through :func:`lossvo.evaluation.inference.predict_sequence`; the relative
+    The sequence's inputs go through :func:`lossvo.evaluation.inference.predict_sequence`; the relative
     poses are chained from the first ground-truth pose and scored against ``gt`` into ``pooled``
     (:func:`lossvo.evaluation.metrics.evaluate_relative`). Without ground truth the trajectory starts at
     the identity and nothing is scored.
 
     Args:
         module, carry_state: the network and :func:`predict_sequence`'s option.
-        datamodule: gives the sequence's frames, the normalisation and ``seq_len``.
+        datamodule: gives the sequence's inputs, their preparation and ``seq_len``.
         name: the sequence.
         gt: (N, 4, 4) ground-truth poses, or None.
         pooled: the metrics the sequence is added to.
@@ -522,7 +522,7 @@ def predict_and_score(
         the trajectory (N, 4, 4) float64 and the sequence's :func:`lossvo.evaluation.metrics.evaluate`
         dict (None without ground truth).
     """
-    relative = predict_sequence(module, datamodule.sequence_frames(name), datamodule.normalize,
+    relative = predict_sequence(module, datamodule.sequence_inputs(name), datamodule.prepare,
                                 datamodule.seq_len, carry_state=carry_state)  # fmt: skip
     if gt is None:
         return integrate(torch.from_numpy(relative)), None

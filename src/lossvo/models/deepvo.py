@@ -146,6 +146,9 @@ class DeepVO(nn.Module):
             memory order, so with conv dropout a run differs from a contiguous-layout run).
     """
 
+    INPUTS = ("frames",)
+    """The batch entries :meth:`forward` takes (:mod:`lossvo.data.datamodules`)."""
+
     _head_bias: Tensor  # a buffer (register_buffer); nn.Module's __getattr__ would type it Tensor | Module
 
     def __init__(

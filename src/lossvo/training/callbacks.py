@@ -78,8 +78,8 @@ class TrajectoryValidation(Callback):
     ``val/kitti_t_err`` (%) and ``val/kitti_r_err`` (deg / 100 m); without a segment those two are not logged
     (never 0).
 
-    It uses ``trainer.datamodule`` and does nothing for a datamodule without ``sequence_frames``,
-    ``sequence_poses`` and ``normalize`` (e.g. a benchmark's dummy data), and nothing during the sanity
+    It uses ``trainer.datamodule`` and does nothing for a datamodule without ``sequence_inputs``,
+    ``sequence_poses`` and ``prepare`` (e.g. a benchmark's dummy data), and nothing during the sanity
     check.
 
     Args:
@@ -97,7 +97,7 @@ class TrajectoryValidation(Callback):
 
     @staticmethod
     def _usable(datamodule: object) -> bool:
-        needed = ("sequence_frames", "sequence_poses", "normalize", "seq_len", "splits")
+        needed = ("sequence_inputs", "sequence_poses", "prepare", "seq_len", "splits")
         return datamodule is not None and all(hasattr(datamodule, name) for name in needed)
 
     @staticmethod

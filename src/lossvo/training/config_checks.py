@@ -85,6 +85,15 @@ def check_train_config(cfg: DictConfig) -> None:
         if not is_integer(t_max, 1):
             raise ValueError(f"scheduler.T_max: expected an integer >= 1 (the cosine schedule's length in "
                              f"epochs, trainer.max_epochs by default), got {t_max!r}")  # fmt: skip
+    _check_flow(resolved)
     ckpt_path = resolved.get("ckpt_path")
     if ckpt_path is not None and not Path(str(ckpt_path)).expanduser().is_file():
         raise ValueError(f"ckpt_path: checkpoint not found: {ckpt_path}")
+
+
+def _check_flow(resolved: Mapping[str, Any]) -> None:
+    """A network that reads optical flow (its config names one: ``model.flow``) needs data with flow."""
+    needs, has = _select(resolved, "model.flow"), _select(resolved, "data.flow")
+    if needs is not _ABSENT and needs is not None and has in ("none", None):
+        raise ValueError(f"model.flow: the network reads optical flow ({needs}) but data.flow={has} caches "
+                         f"none: expected data.flow=dis or farneback")  # fmt: skip

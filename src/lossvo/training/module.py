@@ -12,6 +12,7 @@ under the learned weighting), and validation also logs the loss-independent sele
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import lightning as L
@@ -19,6 +20,7 @@ import torch
 from hydra.utils import instantiate
 from torch import Tensor
 
+from lossvo import models
 from lossvo.losses import PoseLoss
 from lossvo.training import random_streams
 from lossvo.training.schedules import extend_cosine
@@ -34,7 +36,8 @@ class VOModule(L.LightningModule):
 
     Args:
         model: config of the network (``_target_`` and arguments), e.g. :class:`lossvo.models.DeepVO`;
-            it maps frames (B, L, 3, H, W) to outputs (B, L-1, loss.dim).
+            it maps the batch entries its ``INPUTS`` names (``("frames",)`` if it names none: frames
+            (B, L, 3, H, W)) to outputs (B, L-1, loss.dim).
         loss: config of a :class:`lossvo.losses.PoseLoss`.
         optimizer: config of a partial optimiser (``_partial_: true``), called with the parameters.
         scheduler: optional config of a partial LR scheduler, called with the optimiser; stepped per
@@ -58,9 +61,10 @@ class VOModule(L.LightningModule):
         self.data: dict[str, Any] | None = None  # the training data's description, from a checkpoint
         self._resumed_rng: dict[str, Any] | None = None  # random streams of a checkpoint to resume
 
-    def forward(self, frames: Tensor) -> Tensor:
-        """Network output (B, L-1, dim) for frames (B, L, 3, H, W)."""
-        return self.model(frames)
+    def forward(self, batch: Mapping[str, Tensor]) -> Tensor:
+        """Network output (B, L-1, dim) for a batch of windows (:mod:`lossvo.data.datamodules`), of which
+        it reads the entries the network names (:func:`lossvo.models.apply`)."""
+        return models.apply(self.model, batch)
 
     def decode(self, pred: Tensor) -> Tensor:
         """Relative poses (..., 4, 4) from network outputs (..., dim)."""
@@ -97,9 +101,9 @@ class VOModule(L.LightningModule):
 
     # -- steps ----------------------------------------------------------------------------------------
 
-    def _step(self, batch: tuple[Tensor, Tensor], batch_idx: int, stage: str) -> Tensor:
-        frames, targets = batch  # epoch means weight each batch by its frame pairs
-        pred = self(frames)
+    def _step(self, batch: Mapping[str, Tensor], batch_idx: int, stage: str) -> Tensor:
+        targets = batch["targets"]  # epoch means weight each batch by its frame pairs
+        pred = self(batch)
         out = self.loss(pred, targets)
         if stage == "train":
             self._check_finite(out, pred, batch_idx)
@@ -114,13 +118,13 @@ class VOModule(L.LightningModule):
             self.log(SCORE_KEY, self.val_score, on_step=False, on_epoch=True)
         return out["loss"]
 
-    def training_step(self, batch: tuple[Tensor, Tensor], batch_idx: int) -> Tensor:
+    def training_step(self, batch: Mapping[str, Tensor], batch_idx: int) -> Tensor:
         return self._step(batch, batch_idx, "train")
 
-    def validation_step(self, batch: tuple[Tensor, Tensor], batch_idx: int) -> Tensor:
+    def validation_step(self, batch: Mapping[str, Tensor], batch_idx: int) -> Tensor:
         return self._step(batch, batch_idx, "val")
 
-    def test_step(self, batch: tuple[Tensor, Tensor], batch_idx: int) -> Tensor:
+    def test_step(self, batch: Mapping[str, Tensor], batch_idx: int) -> Tensor:
         return self._step(batch, batch_idx, "test")
 
     def _check_finite(self, out: dict[str, Tensor], pred: Tensor, batch_idx: int) -> None:

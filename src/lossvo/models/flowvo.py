@@ -1,0 +1,183 @@
+"""FlowVO: a pose network on optical flow and the camera's intrinsics layer (after TartanVO, Wang et al.
+2020).
+
+Each frame pair is measured on its own, from the geometry in the image rather than its appearance::
+
+    flow (B, P, 2, H, W) px   ->  flow * gain / (W, H)             scaled by the image size
+    K (B, 3, 3)               ->  (x - cx) / fx, (y - cy) / fy      the intrinsics layer, (B, 2, H, W)
+                              ->  encoder (B*P, C, H/16, W/16)      a stem, three residual stages
+                              ->  flattened features (B*P, F)       where in the image a motion is, is kept
+                              ->  translation head (B, P, 3)        separate heads: the translation and
+                                  rotation head (B, P, out_dim - 3)  the rotation part of the loss's output
+
+P = L - 1 frame pairs of a window. The output is ``[t (3), r (D)]`` as in :mod:`lossvo.losses` (for the
+SE(3) loss the first three are rho). The rotation follows from the flow and K alone (a rotation's flow does
+not depend on depth); the translation's direction too, its length only through what the scene implies
+(metric scale).
+
+Initialisation: convolutions Kaiming normal (ReLU, fan-out), BatchNorm weight 1 and bias 0 (the last of each
+residual branch 0, so every stage starts as its shortcut), head layers Kaiming uniform, last layers normal
+with std 1e-3 and the loss's identity output as bias. Random streams as in :class:`lossvo.models.DeepVO`: one
+draw from the caller's stream seeds the backbone (encoder and translation head, which is the same for every
+loss) and, plus one, the rotation head, so that for one seed every loss starts from the same encoder.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+from torch import Tensor, nn
+
+from lossvo.checks import is_integer
+from lossvo.data.camera import intrinsics_channels
+from lossvo.models.deepvo import _check_float, _check_int, _dropout, _head_bias
+
+TOTAL_STRIDE = 16
+"""Product of the encoder's strides: features are (ceil(H / 16), ceil(W / 16))."""
+TRANSLATION_DIM = 3
+
+
+class Residual(nn.Module):
+    """Two 3x3 convs with BatchNorm, the first strided, beside a 1x1 strided shortcut; ReLU of the sum."""
+
+    def __init__(self, c_in: int, c_out: int, stride: int) -> None:
+        super().__init__()
+        self.branch = nn.Sequential(
+            nn.Conv2d(c_in, c_out, 3, stride=stride, padding=1, bias=False), nn.BatchNorm2d(c_out),
+            nn.ReLU(inplace=True), nn.Conv2d(c_out, c_out, 3, padding=1, bias=False),
+        )  # fmt: skip
+        self.branch_norm = nn.BatchNorm2d(c_out)
+        self.shortcut = nn.Sequential(
+            nn.Conv2d(c_in, c_out, 1, stride=stride, bias=False), nn.BatchNorm2d(c_out)
+        )
+
+    def forward(self, x: Tensor) -> Tensor:
+        return torch.relu(self.branch_norm(self.branch(x)) + self.shortcut(x))
+
+
+class Head(nn.Module):
+    """Dropout, a hidden layer with ReLU, a linear output."""
+
+    def __init__(self, features: int, hidden: int, out: int, p: float) -> None:
+        super().__init__()
+        self.dropout = nn.Dropout(p)
+        self.hidden = nn.Linear(features, hidden)
+        self.out = nn.Linear(hidden, out)
+
+    def forward(self, x: Tensor) -> Tensor:
+        return self.out(torch.relu(self.hidden(self.dropout(x))))
+
+
+class FlowVO(nn.Module):
+    """Pose from optical flow and intrinsics, one frame pair at a time, translation and rotation heads apart.
+
+    Args:
+        out_dim: head size per frame pair (the loss's ``dim``): 3 translation outputs, then the rotation's.
+        height, width: input size in pixels; each >= 16.
+        channels: output channels of the stem and of the three residual stages (4 numbers).
+        hidden: hidden units of each head.
+        flow_gain: the flow enters as ``flow * flow_gain / (W, H)``: a fraction of the image, of order 1.
+        head_dropout: dropout on the features before each head.
+        head_bias: the heads' initial output (out_dim,), the loss's identity output; null: zeros.
+        flow: the optical flow the network reads (``data.flow``), recorded with it.
+    """
+
+    INPUTS = ("flow", "K")
+    """The batch entries :meth:`forward` takes (:mod:`lossvo.data.datamodules`)."""
+
+    _head_bias: Tensor
+
+    def __init__(self, out_dim: int, height: int, width: int, channels: Sequence[int] = (32, 64, 96, 128),
+                 hidden: int = 128, flow_gain: float = 20.0, head_dropout: float = 0.0,
+                 head_bias: list[float] | None = None, flow: str = "dis") -> None:  # fmt: skip
+        super().__init__()
+        self.out_dim = _check_int(
+            "out_dim", out_dim, TRANSLATION_DIM + 1, " (3 translation outputs and a rotation)"
+        )
+        why = f" so that the encoder (stride {TOTAL_STRIDE}) has at least 1 {{}}"
+        self.height = _check_int("height", height, TOTAL_STRIDE, why.format("row"))
+        self.width = _check_int("width", width, TOTAL_STRIDE, why.format("column"))
+        widths = list(channels) if isinstance(channels, Sequence) and not isinstance(channels, str) else []
+        if len(widths) != 4 or not all(is_integer(c, 1) for c in widths):
+            raise ValueError(f"model.channels: expected 4 integers >= 1, got {channels!r}")
+        self.channels = tuple(widths)
+        self.hidden = _check_int("hidden", hidden, 1)
+        self.flow_gain = _check_float("flow_gain", flow_gain, 0.0, math.inf, False, "a number > 0")
+        p = _dropout("head_dropout", head_dropout)
+        self.flow = flow
+        self.register_buffer("_head_bias", _head_bias(head_bias, self.out_dim), persistent=False)
+        init_seed = int(torch.randint(0, 2**62, ()))  # the one draw from the caller's stream
+        with torch.random.fork_rng(devices=[]):  # the layers' default initialisation is overwritten
+            self._build(p)
+        self.reset_parameters(init_seed)
+
+    def _build(self, p: float) -> None:
+        c0, c1, c2, c3 = self.channels
+        self.stem = nn.Sequential(nn.Conv2d(4, c0, 5, stride=2, padding=2, bias=False), nn.BatchNorm2d(c0),
+                                  nn.ReLU(inplace=True))  # fmt: skip
+        self.stages = nn.Sequential(Residual(c0, c1, 2), Residual(c1, c2, 2), Residual(c2, c3, 2))
+        self.feature_shape = (c3, -(-self.height // TOTAL_STRIDE), -(-self.width // TOTAL_STRIDE))
+        features = math.prod(self.feature_shape)
+        self.translation_head = Head(features, self.hidden, TRANSLATION_DIM, p)
+        self.rotation_head = Head(features, self.hidden, self.out_dim - TRANSLATION_DIM, p)
+
+    @torch.no_grad()
+    def reset_parameters(self, seed: int | None = None) -> None:
+        """Initialise every layer as the module docstring says: the encoder and translation head from a
+        generator seeded with ``seed``, the rotation head from one seeded with ``seed + 1``."""
+        if seed is None:
+            seed = int(torch.randint(0, 2**62, ()))
+        backbone = torch.Generator().manual_seed(seed)
+        rotation = torch.Generator().manual_seed(seed + 1)
+        for m in (*self.stem.modules(), *self.stages.modules()):
+            if isinstance(m, nn.Conv2d):
+                nn.init.kaiming_normal_(m.weight, mode="fan_out", nonlinearity="relu", generator=backbone)
+            elif isinstance(m, nn.BatchNorm2d):
+                m.reset_running_stats()
+                nn.init.ones_(m.weight)
+                nn.init.zeros_(m.bias)
+        for stage in self.stages.modules():
+            if isinstance(stage, Residual):
+                nn.init.zeros_(stage.branch_norm.weight)  # each stage starts as its shortcut
+        bias = self._head_bias.split([TRANSLATION_DIM, self.out_dim - TRANSLATION_DIM])
+        for head, generator, b in (
+            (self.translation_head, backbone, bias[0]), (self.rotation_head, rotation, bias[1])
+        ):  # fmt: skip
+            nn.init.kaiming_uniform_(head.hidden.weight, nonlinearity="relu", generator=generator)
+            nn.init.zeros_(head.hidden.bias)
+            nn.init.normal_(head.out.weight, std=1e-3, generator=generator)
+            head.out.bias.copy_(b)
+
+    def extra_repr(self) -> str:
+        return (
+            f"out_dim={self.out_dim}, size=({self.height}, {self.width}), feature_shape={self.feature_shape}"
+        )
+
+    def encoder_input(self, flow: Tensor, K: Tensor) -> Tensor:
+        """The encoder's input (B*P, 4, H, W): the scaled flow and the intrinsics layer of each pair.
+
+        Args:
+            flow: (B, P, 2, H, W) pixels; K: (B, 3, 3) pixels of frames of (H, W).
+        """
+        expected = f"(B, P, 2, {self.height}, {self.width})"
+        if flow.dim() != 5 or flow.shape[2] != 2 or tuple(flow.shape[3:]) != (self.height, self.width):
+            raise ValueError(f"FlowVO expects flow of shape {expected}, got {tuple(flow.shape)}")
+        if K.shape != (flow.shape[0], 3, 3):
+            raise ValueError(f"FlowVO expects K of shape ({flow.shape[0]}, 3, 3), got {tuple(K.shape)}")
+        B, P = flow.shape[:2]
+        size = torch.tensor([self.width, self.height], dtype=torch.float32, device=flow.device)
+        scaled = flow.float() * (self.flow_gain / size).view(2, 1, 1)
+        layer = intrinsics_channels(K.float(), self.height, self.width)[:, None].expand(
+            B, P, 2, self.height, self.width
+        )
+        return torch.cat((scaled, layer), dim=2).reshape(B * P, 4, self.height, self.width)
+
+    def forward(self, flow: Tensor, K: Tensor) -> Tensor:
+        """Outputs (B, P, out_dim), ``[t (3), r (out_dim - 3)]`` per pair, from flow (B, P, 2, H, W) in
+        pixels and K (B, 3, 3)."""
+        B, P = flow.shape[:2]
+        x = self.stages(self.stem(self.encoder_input(flow, K))).flatten(1)
+        out = torch.cat((self.translation_head(x), self.rotation_head(x)), dim=-1)
+        return out.reshape(B, P, self.out_dim)

@@ -1,0 +1,111 @@
+"""FlowVO: shapes, the inputs it builds (scaled flow, the intrinsics layer), its heads, the same start for
+every loss, finite gradients from the first step, and its bad arguments."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+import torch
+
+from lossvo.data import synthetic
+from lossvo.data.camera import intrinsics_channels
+from lossvo.losses import ChordalLoss, QuaternionLoss, SixDLoss, SVDLoss
+from lossvo.models.flowvo import FlowVO
+
+H, W = 64, 208
+
+
+def _batch(B: int = 2, P: int = 3) -> tuple[torch.Tensor, torch.Tensor]:
+    flow = torch.randn(B, P, 2, H, W, generator=torch.Generator().manual_seed(0)) * 3
+    K = torch.from_numpy(synthetic.intrinsics(H, W)).float().expand(B, 3, 3)
+    return flow, K
+
+
+def test_outputs_one_vector_per_pair_translation_first() -> None:
+    torch.manual_seed(0)
+    bias = [0.1, 0.2, 0.3, 1.0, 0.0, 0.0, 0.0]
+    net = FlowVO(7, H, W, head_bias=bias)
+    flow, K = _batch()
+    out = net(flow, K)
+    assert out.shape == (2, 3, 7) and net.feature_shape == (128, 4, 13)
+    torch.testing.assert_close(out, torch.tensor(bias).expand(2, 3, 7), atol=0.05, rtol=0)  # identity first
+
+
+def test_inputs_are_the_scaled_flow_and_the_intrinsics_layer() -> None:
+    torch.manual_seed(0)
+    net = FlowVO(6, H, W, flow_gain=20.0)
+    flow, K = _batch(B=2, P=3)
+    x = net.encoder_input(flow, K).view(2, 3, 4, H, W)
+    torch.testing.assert_close(x[:, :, 0], flow[:, :, 0] * 20 / W)
+    torch.testing.assert_close(x[:, :, 1], flow[:, :, 1] * 20 / H)
+    torch.testing.assert_close(x[1, 2, 2:], intrinsics_channels(K[1], H, W))
+
+
+def test_every_loss_starts_from_the_same_encoder_and_translation_head() -> None:
+    """The same seed, heads of every loss's size: one encoder, one translation head."""
+    nets, after = [], []
+    for loss in (ChordalLoss, QuaternionLoss, SixDLoss, SVDLoss):  # rotation parts of 3, 4, 6 and 9
+        torch.manual_seed(3)
+        nets.append(FlowVO(loss.dim, H, W))
+        after.append(torch.rand(()))  # the caller's stream after the network
+    first = nets[0].state_dict()
+    shared = [name for name in first if not name.startswith("rotation_head")]
+    for net in nets[1:]:
+        for name in shared:
+            assert torch.equal(net.state_dict()[name], first[name]), name
+    assert len({float(a) for a in after}) == 1  # one draw from the caller's stream, whatever the head
+    torch.manual_seed(4)
+    assert not torch.equal(FlowVO(6, H, W).stem[0].weight, nets[0].stem[0].weight)  # another seed
+
+
+def test_gradients_are_finite_and_reach_the_stem_from_the_first_step() -> None:
+    torch.manual_seed(0)
+    net = FlowVO(6, H, W)
+    flow, K = _batch()
+    net(flow, K).square().sum().backward()
+    for name, param in net.named_parameters():
+        assert param.grad is not None and torch.isfinite(param.grad).all(), name
+    assert net.stem[0].weight.grad.abs().sum() > 0
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [({"out_dim": 3}, "model.out_dim: expected an integer >= 4"),
+     ({"height": 8}, "model.height: expected an integer >= 16"),
+     ({"channels": [32, 64]}, "model.channels: expected 4 integers >= 1, got [32, 64]"),
+     ({"flow_gain": 0}, "model.flow_gain: expected a number > 0, got 0"),
+     ({"head_dropout": 1.5}, "model.head_dropout: expected a probability in [0, 1), got 1.5")],
+)  # fmt: skip
+def test_bad_arguments_name_the_key(kwargs: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=f"^{re.escape(message)}"):
+        FlowVO(**({"out_dim": 6, "height": H, "width": W} | kwargs))
+
+
+def test_inputs_of_the_wrong_shape_say_what_was_expected() -> None:
+    net = FlowVO(6, H, W)
+    flow, K = _batch()
+    with pytest.raises(
+        ValueError, match=r"FlowVO expects flow of shape \(B, P, 2, 64, 208\), got \(2, 3, 2, 32, 208\)"
+    ):
+        net(flow[..., :32, :], K)
+    with pytest.raises(ValueError, match=r"FlowVO expects K of shape \(2, 3, 3\), got \(3, 3\)"):
+        net(flow, K[0])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("loss", ["euler", "quat", "chordal"])
+def test_model_flowvo_trains_on_the_flow_it_selects(loss: str, tiny_kitti, tmp_path) -> None:
+    """``model=flowvo`` alone: data.flow follows the network (DIS), the flow is cached, a fit runs and the
+    checkpoint records the flow its data had."""
+    from helpers import fit
+    from test_train import compose_train, tiny_overrides
+
+    tiny = [arg for arg in tiny_overrides(tiny_kitti, tmp_path / "cache") if not arg.startswith("model.")]
+    overrides = [*tiny, "model=flowvo", "model.channels=[8,8,16,16]", "model.hidden=16", f"loss={loss}",
+                 "+trainer.fast_dev_run=1"]  # fmt: skip
+    cfg = compose_train(overrides, tmp_path / "run")
+    assert cfg.data.flow == "dis"
+    metrics = fit(cfg)
+    assert all(torch.isfinite(torch.tensor(v)) for v in metrics.values())
+    assert list((tmp_path / "cache").rglob("*.flow-dis-medium-s1.npy"))
