@@ -139,6 +139,19 @@ def test_evaluation_data_takes_the_network_s_settings() -> None:
         checkpoints.evaluation_data(RECORDED, kitti, {"normalization": "dataset"})
 
 
+def test_evaluation_data_keeps_the_flow_the_network_read() -> None:
+    """eval.yaml composes no network, so a chosen dataset's ``data.flow`` (which follows ``model.flow``)
+    reads none: the checkpoint's flow setting wins, and an override that contradicts it is refused."""
+    flowvo = {**RECORDED, "flow": "dis", "flow_preset": "fast"}
+    kitti = {"_target_": "lossvo.data.datamodules.KittiDataModule", "root": "/kitti", "flow": "none",
+             "flow_preset": "medium"}  # fmt: skip
+    chosen = checkpoints.evaluation_data(flowvo, kitti, {"root": "/kitti"})
+    assert (chosen["flow"], chosen["flow_preset"]) == ("dis", "fast")
+    with pytest.raises(checkpoints.CheckpointError, match=r"data\.flow='farneback' contradicts"):
+        checkpoints.evaluation_data(flowvo, kitti, {"flow": "farneback"})
+    assert "flow" not in checkpoints.evaluation_data(RECORDED, None, {})  # a network from before flow existed
+
+
 def test_foreign_files_are_one_line(tmp_path: Path) -> None:
     other = tmp_path / "other.ckpt"
     torch.save({"state_dict": {}, "epoch": 3}, other)  # a Lightning-like checkpoint of something else
