@@ -93,19 +93,50 @@ def test_inputs_of_the_wrong_shape_say_what_was_expected() -> None:
         net(flow, K[0])
 
 
+def _flowvo_overrides(tiny_kitti, cache) -> list[str]:
+    """The tiny experiment with a small FlowVO instead of the tiny DeepVO."""
+    from test_train import tiny_overrides
+
+    tiny = [arg for arg in tiny_overrides(tiny_kitti, cache) if not arg.startswith("model.")]
+    return [*tiny, "model=flowvo", "model.channels=[8,8,16,16]", "model.hidden=16"]
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("loss", ["euler", "quat", "chordal"])
 def test_model_flowvo_trains_on_the_flow_it_selects(loss: str, tiny_kitti, tmp_path) -> None:
-    """``model=flowvo`` alone: data.flow follows the network (DIS), the flow is cached, a fit runs and the
-    checkpoint records the flow its data had."""
+    """``model=flowvo`` alone: data.flow follows the network (DIS), the flow is cached, a fit runs."""
     from helpers import fit
-    from test_train import compose_train, tiny_overrides
+    from test_train import compose_train
 
-    tiny = [arg for arg in tiny_overrides(tiny_kitti, tmp_path / "cache") if not arg.startswith("model.")]
-    overrides = [*tiny, "model=flowvo", "model.channels=[8,8,16,16]", "model.hidden=16", f"loss={loss}",
-                 "+trainer.fast_dev_run=1"]  # fmt: skip
+    overrides = [
+        *_flowvo_overrides(tiny_kitti, tmp_path / "cache"),
+        f"loss={loss}",
+        "+trainer.fast_dev_run=1",
+    ]
     cfg = compose_train(overrides, tmp_path / "run")
     assert cfg.data.flow == "dis"
     metrics = fit(cfg)
     assert all(torch.isfinite(torch.tensor(v)) for v in metrics.values())
     assert list((tmp_path / "cache").rglob("*.flow-dis-medium-s1.npy"))
+
+
+@pytest.mark.slow
+def test_a_flowvo_checkpoint_evaluates_where_no_flow_is_cached(
+    tiny_kitti, tmp_path, monkeypatch, capsys
+) -> None:
+    """``python -m lossvo.eval ... data=kitti`` composes no network, so the chosen data's ``data.flow``
+    reads none: the flow comes from the checkpoint, is computed into an empty cache, and the results equal
+    those of the training run's own evaluation."""
+    from helpers import eval_main, fit, scores_of
+    from test_train import compose_train
+
+    run = tmp_path / "run"
+    fit(compose_train([*_flowvo_overrides(tiny_kitti, tmp_path / "cache"), "trainer.max_epochs=1"], run))
+    out = tmp_path / "eval"
+    args = [f"ckpt_path={run}/checkpoints/best.ckpt", "data=kitti", f"data.root={tiny_kitti}",
+            "data.test=[02]", f"data.cache_dir={tmp_path / 'empty'}", f"hydra.run.dir={out}"]  # fmt: skip
+    status, err = eval_main(args, monkeypatch, capsys)
+    assert status == 0, err
+    assert list((tmp_path / "empty").rglob("02.flow-dis-medium-s1.npy"))
+    evaluated, trained = scores_of(out), scores_of(run)
+    assert evaluated["sequences"] == trained["sequences"]
