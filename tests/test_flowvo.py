@@ -69,13 +69,28 @@ def test_gradients_are_finite_and_reach_the_stem_from_the_first_step() -> None:
     assert net.stem[0].weight.grad.abs().sum() > 0
 
 
+def test_channels_last_gives_the_same_values() -> None:
+    flow, K = _batch()
+    outs, grads = [], []
+    for channels_last in (False, True):
+        torch.manual_seed(0)
+        net = FlowVO(6, H, W, channels_last=channels_last)
+        out = net(flow, K)
+        out.square().sum().backward()
+        outs.append(out)
+        grads.append(net.stem[0].weight.grad)
+    torch.testing.assert_close(outs[0], outs[1], rtol=1e-4, atol=1e-5)
+    torch.testing.assert_close(grads[0], grads[1], rtol=1e-3, atol=1e-5)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [({"out_dim": 3}, "model.out_dim: expected an integer >= 4"),
      ({"height": 8}, "model.height: expected an integer >= 16"),
      ({"channels": [32, 64]}, "model.channels: expected 4 integers >= 1, got [32, 64]"),
      ({"flow_gain": 0}, "model.flow_gain: expected a number > 0, got 0"),
-     ({"head_dropout": 1.5}, "model.head_dropout: expected a probability in [0, 1), got 1.5")],
+     ({"head_dropout": 1.5}, "model.head_dropout: expected a probability in [0, 1), got 1.5"),
+     ({"channels_last": "yes"}, "model.channels_last: expected true or false, got 'yes'")],
 )  # fmt: skip
 def test_bad_arguments_name_the_key(kwargs: dict, message: str) -> None:
     with pytest.raises(ValueError, match=f"^{re.escape(message)}"):

@@ -82,6 +82,8 @@ class FlowVO(nn.Module):
         head_dropout: dropout on the features before each head.
         head_bias: the heads' initial output (out_dim,), the loss's identity output; null: zeros.
         flow: the optical flow the network reads (``data.flow``), recorded with it.
+        channels_last: run the encoder in the channels-last memory layout (NHWC), which the oneDNN CPU
+            kernels and GPU tensor cores prefer; the values are the same.
     """
 
     INPUTS = ("flow", "K")
@@ -91,7 +93,8 @@ class FlowVO(nn.Module):
 
     def __init__(self, out_dim: int, height: int, width: int, channels: Sequence[int] = (32, 64, 96, 128),
                  hidden: int = 128, flow_gain: float = 20.0, head_dropout: float = 0.0,
-                 head_bias: list[float] | None = None, flow: str = "dis") -> None:  # fmt: skip
+                 head_bias: list[float] | None = None, flow: str = "dis",
+                 channels_last: bool = False) -> None:  # fmt: skip
         super().__init__()
         self.out_dim = _check_int(
             "out_dim", out_dim, TRANSLATION_DIM + 1, " (3 translation outputs and a rotation)"
@@ -107,11 +110,16 @@ class FlowVO(nn.Module):
         self.flow_gain = _check_float("flow_gain", flow_gain, 0.0, math.inf, False, "a number > 0")
         p = _dropout("head_dropout", head_dropout)
         self.flow = flow
+        if not isinstance(channels_last, bool):
+            raise ValueError(f"model.channels_last: expected true or false, got {channels_last!r}")
+        self.memory_format = torch.channels_last if channels_last else torch.contiguous_format
         self.register_buffer("_head_bias", _head_bias(head_bias, self.out_dim), persistent=False)
         init_seed = int(torch.randint(0, 2**62, ()))  # the one draw from the caller's stream
         with torch.random.fork_rng(devices=[]):  # the layers' default initialisation is overwritten
             self._build(p)
         self.reset_parameters(init_seed)
+        for part in (self.stem, self.stages):  # nn.Module.to takes memory_format; torch's overloads omit it
+            part.to(memory_format=self.memory_format)  # type: ignore[call-overload]
 
     def _build(self, p: float) -> None:
         c0, c1, c2, c3 = self.channels
@@ -172,7 +180,8 @@ class FlowVO(nn.Module):
         layer = intrinsics_channels(K.float(), self.height, self.width)[:, None].expand(
             B, P, 2, self.height, self.width
         )
-        return torch.cat((scaled, layer), dim=2).reshape(B * P, 4, self.height, self.width)
+        inputs = torch.cat((scaled, layer), dim=2).reshape(B * P, 4, self.height, self.width)
+        return inputs.contiguous(memory_format=self.memory_format)
 
     def forward(self, flow: Tensor, K: Tensor) -> Tensor:
         """Outputs (B, P, out_dim), ``[t (3), r (out_dim - 3)]`` per pair, from flow (B, P, 2, H, W) in
