@@ -50,13 +50,13 @@ from __future__ import annotations
 import logging
 import math
 from collections import OrderedDict
-from collections.abc import Iterable
 from pathlib import Path
 
 import torch
 from torch import Tensor, nn
 
-from lossvo.checks import is_integer, is_number
+from lossvo.models.arguments import check_float, check_int, dropout, memory_format, seeded_build
+from lossvo.models.arguments import head_bias as head_bias_of
 from lossvo.models.flownet import load_flownet
 
 log = logging.getLogger(__name__)
@@ -79,39 +79,6 @@ FLOWNETS_ENCODER: tuple[tuple[str, int, int, int, int], ...] = (
 TOTAL_STRIDE = 64
 """Product of the encoder's strides: conv6 features are (ceil(H / 64), ceil(W / 64))."""
 MIN_SIZE = TOTAL_STRIDE
-
-
-def _head_bias(value: object, out_dim: int) -> Tensor:
-    if value is None:
-        return torch.zeros(out_dim)
-    try:
-        numbers = [float(v) for v in value] if isinstance(value, Iterable) else []
-        bias = torch.as_tensor(numbers, dtype=torch.float32)
-    except (TypeError, ValueError):
-        bias = torch.empty(0)
-    if bias.shape != (out_dim,) or not torch.isfinite(bias).all():
-        raise ValueError(f"model.head_bias: expected null or {out_dim} finite numbers, got {value!r}")
-    return bias
-
-
-def _check_int(name: str, value: object, minimum: int, why: str = "") -> int:
-    if not is_integer(value, minimum):
-        raise ValueError(f"model.{name}: expected an integer >= {minimum}{why}, got {value!r}")
-    return value
-
-
-def _check_float(name: str, value: object, low: float, high: float, high_open: bool, what: str) -> float:
-    if (
-        is_number(value)
-        and math.isfinite(value)
-        and (low <= value < high if high_open else low < value <= high)
-    ):
-        return float(value)
-    raise ValueError(f"model.{name}: expected {what}, got {value!r}")
-
-
-def _dropout(name: str, value: object) -> float:
-    return _check_float(name, value, 0.0, 1.0, True, "a probability in [0, 1)")
 
 
 def _conv_block(c_in: int, c_out: int, kernel: int, stride: int, batch_norm: bool, p: float) -> nn.Sequential:
@@ -170,28 +137,24 @@ class DeepVO(nn.Module):
     ) -> None:
         super().__init__()
         why = f" so that conv6 (stride {TOTAL_STRIDE}) has at least 1 {{}}"
-        self.out_dim = _check_int("out_dim", out_dim, 1)
-        self.height = _check_int("height", height, MIN_SIZE, why.format("row"))
-        self.width = _check_int("width", width, MIN_SIZE, why.format("column"))
-        self.width_mult = _check_float("width_mult", width_mult, 0.0, 16.0, False, "a number in (0, 16]")
-        self.hidden_size = _check_int("hidden_size", hidden_size, 1)
-        self.lstm_layers = _check_int("lstm_layers", lstm_layers, 1)
-        conv_p = _dropout("conv_dropout", conv_dropout)
-        conv6_p = _dropout("conv6_dropout", conv6_dropout)
-        lstm_p = _dropout("lstm_dropout", lstm_dropout)
-        head_p = _dropout("head_dropout", head_dropout)
+        self.out_dim = check_int("out_dim", out_dim, 1)
+        self.height = check_int("height", height, MIN_SIZE, why.format("row"))
+        self.width = check_int("width", width, MIN_SIZE, why.format("column"))
+        self.width_mult = check_float("width_mult", width_mult, 0.0, 16.0, False, "a number in (0, 16]")
+        self.hidden_size = check_int("hidden_size", hidden_size, 1)
+        self.lstm_layers = check_int("lstm_layers", lstm_layers, 1)
+        conv_p = dropout("conv_dropout", conv_dropout)
+        conv6_p = dropout("conv6_dropout", conv6_dropout)
+        lstm_p = dropout("lstm_dropout", lstm_dropout)
+        head_p = dropout("head_dropout", head_dropout)
         if not isinstance(batch_norm, bool):
             raise ValueError(f"model.batch_norm: expected true or false, got {batch_norm!r}")
         if flownet is not None and not isinstance(flownet, (str, Path)):
             raise ValueError(f"model.flownet: expected a path or null, got {flownet!r}")
-        if not isinstance(channels_last, bool):
-            raise ValueError(f"model.channels_last: expected true or false, got {channels_last!r}")
-        self.memory_format = torch.channels_last if channels_last else torch.contiguous_format
-        self.register_buffer("_head_bias", _head_bias(head_bias, self.out_dim), persistent=False)
+        self.memory_format = memory_format(channels_last)
+        self.register_buffer("_head_bias", head_bias_of(head_bias, self.out_dim), persistent=False)
 
-        init_seed = int(torch.randint(0, 2**62, ()))  # the one draw from the caller's stream
-        with torch.random.fork_rng(devices=[]):  # the layers' default initialisation is overwritten
-            self._build(conv_p, conv6_p, lstm_p, head_p, batch_norm)
+        init_seed = seeded_build(lambda: self._build(conv_p, conv6_p, lstm_p, head_p, batch_norm))
         self.reset_parameters(init_seed)
         # nn.Module.to takes memory_format (documented, and at run time); torch's overloads omit it.
         self.encoder.to(memory_format=self.memory_format)  # type: ignore[call-overload]

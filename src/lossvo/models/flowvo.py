@@ -32,7 +32,8 @@ from torch import Tensor, nn
 
 from lossvo.checks import is_integer
 from lossvo.data.camera import intrinsics_channels
-from lossvo.models.deepvo import _check_float, _check_int, _dropout, _head_bias
+from lossvo.models.arguments import check_float, check_int, dropout, memory_format, seeded_build
+from lossvo.models.arguments import head_bias as head_bias_of
 
 TOTAL_STRIDE = 16
 """Product of the encoder's strides: features are (ceil(H / 16), ceil(W / 16))."""
@@ -96,28 +97,23 @@ class FlowVO(nn.Module):
                  head_bias: list[float] | None = None, flow: str = "dis",
                  channels_last: bool = False) -> None:  # fmt: skip
         super().__init__()
-        self.out_dim = _check_int(
+        self.out_dim = check_int(
             "out_dim", out_dim, TRANSLATION_DIM + 1, " (3 translation outputs and a rotation)"
         )
         why = f" so that the encoder (stride {TOTAL_STRIDE}) has at least 1 {{}}"
-        self.height = _check_int("height", height, TOTAL_STRIDE, why.format("row"))
-        self.width = _check_int("width", width, TOTAL_STRIDE, why.format("column"))
+        self.height = check_int("height", height, TOTAL_STRIDE, why.format("row"))
+        self.width = check_int("width", width, TOTAL_STRIDE, why.format("column"))
         widths = list(channels) if isinstance(channels, Sequence) and not isinstance(channels, str) else []
         if len(widths) != 4 or not all(is_integer(c, 1) for c in widths):
             raise ValueError(f"model.channels: expected 4 integers >= 1, got {channels!r}")
         self.channels = tuple(widths)
-        self.hidden = _check_int("hidden", hidden, 1)
-        self.flow_gain = _check_float("flow_gain", flow_gain, 0.0, math.inf, False, "a number > 0")
-        p = _dropout("head_dropout", head_dropout)
+        self.hidden = check_int("hidden", hidden, 1)
+        self.flow_gain = check_float("flow_gain", flow_gain, 0.0, math.inf, False, "a number > 0")
+        p = dropout("head_dropout", head_dropout)
         self.flow = flow
-        if not isinstance(channels_last, bool):
-            raise ValueError(f"model.channels_last: expected true or false, got {channels_last!r}")
-        self.memory_format = torch.channels_last if channels_last else torch.contiguous_format
-        self.register_buffer("_head_bias", _head_bias(head_bias, self.out_dim), persistent=False)
-        init_seed = int(torch.randint(0, 2**62, ()))  # the one draw from the caller's stream
-        with torch.random.fork_rng(devices=[]):  # the layers' default initialisation is overwritten
-            self._build(p)
-        self.reset_parameters(init_seed)
+        self.memory_format = memory_format(channels_last)
+        self.register_buffer("_head_bias", head_bias_of(head_bias, self.out_dim), persistent=False)
+        self.reset_parameters(seeded_build(lambda: self._build(p)))
         for part in (self.stem, self.stages):  # nn.Module.to takes memory_format; torch's overloads omit it
             part.to(memory_format=self.memory_format)  # type: ignore[call-overload]
 
