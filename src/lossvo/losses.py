@@ -7,10 +7,26 @@ Each loss owns its parameterisation:
 - ``encode(pose) -> (..., dim)``: the output that decodes to a given pose (for tests and baselines);
 - ``forward(pred, target) -> dict``: the loss and its parts.
 
-Per frame pair the loss is ``|t - t^|^2 + k * rot_term``; the translation term is the same squared
-Euclidean distance for every loss, so that only the rotation term differs between compared runs.
-The result is the mean over all pairs (batch and time). The study sums over time instead; dividing by
-the number of pairs keeps ``k`` independent of the window length (multiply by ``T`` to compare).
+Per frame pair the loss is ``trans_term + k * rot_term``; the translation term is the same for every
+loss, so that only the rotation term differs between compared runs. The result is the mean over all
+pairs (batch and time). The study sums over time instead; dividing by the number of pairs keeps ``k``
+independent of the window length (multiply by ``T`` to compare).
+
+The translation term (``translation``, config ``loss.translation``), with ``t`` the decoded translation
+(for the SE(3) loss ``t = V(omega) rho``, not rho) and ``t^`` the target's:
+
+- ``metric`` (default): ``|t - t^|^2``, the study's.
+- ``direction``: only the direction, up to scale: ``w * |t / |t| - t^ / |t^||^2`` with
+  ``w = DIRECTION_WEIGHT_M2 = 1 m^2``. Calibration: for an angle alpha between the two directions
+  ``|u - u^|^2 = 2 - 2 cos(alpha) = alpha^2 + O(alpha^4)``, so the term is exactly the metric term of a
+  1 m step predicted with the right length and a direction error alpha (a step of length L weighs
+  L^2 alpha^2 under ``metric``). The norm of ``t`` is floored at :data:`MIN_STEP_M`, so value and
+  gradient are finite at ``t = 0`` (an output that some heads give at initialisation), and the term
+  does not change when ``t`` is scaled by any factor that keeps ``|t| >= MIN_STEP_M``. A ground-truth
+  step shorter than :data:`MIN_STEP_M` (a standing car) has no direction: that pair's translation term
+  is 0, and the mean still divides by the number of all pairs. Metric scale is left to whatever
+  supplies it: evaluation scales each predicted step to the ground-truth step length
+  (:func:`lossvo.evaluation.trajectories.scale_steps`), as the ORB+E baseline does.
 
 Each class states ``small_angle_gain``: its rotation term is ``gain * theta^2 + O(theta^3)`` for a
 rotation error of angle theta (at an identity target; for Euler angles at zero pitch). ``k`` defaults to
@@ -20,7 +36,10 @@ study's values are ``paper_k`` (see :mod:`lossvo.weighting` for the presets and 
 Besides ``loss``, ``forward`` returns the unweighted means ``trans_loss`` and ``rot_loss`` and two
 yardsticks that are the same for every loss, so that runs with different losses can be compared on
 one scale: ``trans_err_m`` (mean ``|t - t^|``, metres) and ``rot_err_rad`` (mean geodesic angle between
-target and decoded rotation, radians). The yardsticks carry no gradient.
+target and decoded rotation, radians). The yardsticks carry no gradient. With ``translation="direction"``
+``trans_err_m`` is the mean ``|t / |t| * |t^| - t^|`` (each predicted step scaled to the ground-truth
+step length, :func:`lossvo.geometry.scale_to_length`, the rule evaluation uses), so that it stays
+comparable with the metric runs' value.
 
 The loss is computed in float32 (float64 if the prediction is float64) with autocast disabled, so
 that bf16 mixed precision does not reach the rotation maths. Non-finite predictions give non-finite
@@ -39,6 +58,18 @@ from lossvo import geometry as g
 from lossvo.checks import is_number
 from lossvo.weighting import DEFAULT_C, HomoscedasticWeighting, check_k, check_unsquared, learned_from_config
 
+TRANSLATIONS = ("metric", "direction")
+"""The translation terms (``loss.translation``): ``|t - t^|^2``, or the direction only, up to scale."""
+
+MIN_STEP_M = 1e-3
+"""The shortest step with a direction, in metres. ``translation="direction"``: a ground-truth step
+shorter than this (a standing car) has no translation term, and a predicted ``t`` is divided by
+``max(|t|, MIN_STEP_M)`` instead of ``|t|`` (finite value and gradient at ``t = 0``)."""
+
+DIRECTION_WEIGHT_M2 = 1.0
+"""The weight of the direction term in m^2: the term is then the metric term ``|t - t^|^2`` of a 1 m
+step of the right length with the same direction error."""
+
 
 class PoseLoss(nn.Module):
     """Base class: shape checks, the shared translation term, the weighting, the yardsticks.
@@ -50,6 +81,8 @@ class PoseLoss(nn.Module):
         k: rotation weight; None: the matched weighting ``100 / small_angle_gain``.
         learned: initial log-variances ``{"s_t": .., "s_r": ..}`` for the learned (homoscedastic)
             weighting instead of k (then k must be None).
+        translation: ``"metric"`` (``|t - t^|^2``) or ``"direction"`` (the direction only; see the
+            module docstring).
     """
 
     dim: int
@@ -59,9 +92,15 @@ class PoseLoss(nn.Module):
     """The study's weight for this loss (for losses the study did not have: the study's weight of the
     loss with the same rotation distance)."""
 
-    def __init__(self, k: float | None = None, learned: dict[str, float] | None = None) -> None:
+    def __init__(
+        self, k: float | None = None, learned: dict[str, float] | None = None, translation: str = "metric"
+    ) -> None:
         super().__init__()
         name = type(self).__name__
+        if not isinstance(translation, str) or translation not in TRANSLATIONS:
+            expected = ", ".join(TRANSLATIONS)
+            raise ValueError(f"loss.translation: expected one of {expected}, got {translation!r}")
+        self.translation = translation
         self.weighting: HomoscedasticWeighting | None = learned_from_config(learned)
         check_k(k, learned=self.weighting is not None)
         if self.weighting is None and k is None:
@@ -76,7 +115,7 @@ class PoseLoss(nn.Module):
 
     def extra_repr(self) -> str:
         weight = "learned" if self.k is None else f"{self.k:g}"
-        return f"dim={self.dim}, k={weight}"
+        return f"dim={self.dim}, k={weight}, translation={self.translation}"
 
     def identity_output(self) -> Tensor:
         """The output (dim,) float32 that decodes to the identity pose (the head's initial bias)."""
@@ -133,12 +172,11 @@ class PoseLoss(nn.Module):
             pred, target = pred.to(dtype), target.to(dtype)
             R_target, t_target = target[..., :3, :3], target[..., :3, 3]
             R, t = self.decode_rt(pred)
-            trans_sq = (t - t_target).square().sum(-1)
+            trans, trans_err = self.translation_term(t, t_target)
             rot = self.rotation_term(pred, R, R_target)
             with torch.no_grad():
-                trans_err = torch.sqrt(trans_sq).mean()
                 rot_err = g.so3_geodesic_distance(R_target, R).mean()
-            trans_loss, rot_loss = trans_sq.mean(), rot.mean()
+            trans_loss, rot_loss = trans.mean(), rot.mean()
             out = {
                 "loss": self.weigh(trans_loss, rot_loss),
                 "trans_loss": trans_loss,
@@ -149,6 +187,31 @@ class PoseLoss(nn.Module):
             if self.weighting is not None:
                 out.update(self.weighting.values())
             return out
+
+    def translation_term(self, t: Tensor, t_target: Tensor) -> tuple[Tensor, Tensor]:
+        """The translation term per pair and the yardstick ``trans_err_m`` (its mean, no gradient).
+
+        Args:
+            t: (..., 3) decoded translations (metres).
+            t_target: (..., 3) target translations (metres).
+        Returns:
+            (...) terms: ``|t - t^|^2`` (``metric``) or the direction term (``direction``, 0 where
+            ``|t^| < MIN_STEP_M``); and the scalar mean of ``|t - t^|`` (``metric``) or of
+            ``|t / |t| * |t^| - t^|`` (``direction``).
+        """
+        if self.translation == "metric":
+            trans_sq = (t - t_target).square().sum(-1)
+            with torch.no_grad():
+                return trans_sq, torch.sqrt(trans_sq).mean()
+        step = torch.linalg.vector_norm(t_target, dim=-1)
+        # sqrt of the floored squared norm: no 0/0 in the value or the gradient at t = 0
+        unit = t / torch.sqrt(t.square().sum(-1, keepdim=True).clamp_min(MIN_STEP_M**2))
+        unit_target = t_target / step.clamp_min(MIN_STEP_M)[..., None]
+        moving = step >= MIN_STEP_M  # a standing car has no direction: no translation term
+        term = torch.where(moving, (unit - unit_target).square().sum(-1), 0.0) * DIRECTION_WEIGHT_M2
+        with torch.no_grad():
+            err = torch.linalg.vector_norm(g.scale_to_length(t, step) - t_target, dim=-1).mean()
+        return term, err
 
     def weigh(self, trans_loss: Tensor, rot_loss: Tensor) -> Tensor:
         """The loss from the unweighted mean terms: ``L_t + k L_r``, or the learned weighting."""
@@ -213,13 +276,17 @@ class QuaternionLoss(PoseLoss):
     paper_k = 14.0
 
     def __init__(
-        self, k: float | None = None, learned: dict[str, float] | None = None, squared: bool = True
+        self,
+        k: float | None = None,
+        learned: dict[str, float] | None = None,
+        squared: bool = True,
+        translation: str = "metric",
     ) -> None:
         if not isinstance(squared, bool):
             raise ValueError(f"loss.squared: expected true or false, got {squared!r}")
         check_unsquared(squared, k, learned=learned is not None)
         self.squared = squared
-        super().__init__(k, learned)
+        super().__init__(k, learned, translation)
 
     def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
         return g.quat_to_matrix(g.quat_normalize(pred[..., 3:])), pred[..., :3]

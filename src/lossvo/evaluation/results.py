@@ -6,7 +6,9 @@ readable by evo, first pose = ground truth's) and ``plots/NN.png`` (bird's-eye x
 ``results.json``: a :class:`Results`, written by :meth:`Results.write` and read back by
 :meth:`Results.read`, nowhere else. It holds APE / RPE / KITTI error per sequence and pooled over all
 (:class:`Scores`), the data evaluated and the data the network was trained on (:class:`DataRecord`), the
-evaluation settings and :data:`SCHEMA_VERSION`. Reading a file that is missing, not JSON, of another
+evaluation settings (among them ``translation``: whether each predicted step was scaled to the
+ground-truth step length, for networks trained with ``loss.translation=direction``) and
+:data:`SCHEMA_VERSION`. Reading a file that is missing, not JSON, of another
 schema version or of another shape raises :class:`ResultsError`, one line naming the file and the problem.
 ``python -m lossvo.train`` calls :func:`evaluate_run` after fitting, ``python -m lossvo.eval`` for a
 checkpoint.
@@ -29,13 +31,14 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from lossvo import geometry
 from lossvo.atomic import write_text_atomic
 from lossvo.checks import is_integer, is_number
 from lossvo.data.kitti import KittiFormatError, pose_path, sequence_names, write_poses
 from lossvo.evaluation import metrics
 from lossvo.evaluation.inference import predict_sequence
 from lossvo.evaluation.plots import plot_birdseye
-from lossvo.evaluation.trajectories import integrate
+from lossvo.evaluation.trajectories import integrate, scale_steps
 
 if TYPE_CHECKING:
     from lossvo.data.datamodules import KittiDataModule
@@ -43,8 +46,13 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("lossvo")
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 """The version of :class:`Results` that this code writes and reads."""
+TRANSLATION_METRIC = "metric"
+TRANSLATION_SCALED = "direction (scaled to the ground-truth step length)"
+TRANSLATIONS = {"metric": TRANSLATION_METRIC, "direction": TRANSLATION_SCALED}
+"""``Results.translation`` for each ``loss.translation`` (:data:`lossvo.losses.TRANSLATIONS`): a network
+trained on the direction only is scored with each predicted step scaled to the ground-truth step length."""
 NO_SEGMENT_NOTE = "sequence too short for any KITTI segment (100-800 m): no KITTI error"
 NO_GT_NOTE = "no ground truth (no pose file): trajectory starts at identity, no metrics"
 NO_METRICS_NOTE = "no sequence with ground truth: no metrics"
@@ -111,6 +119,11 @@ def _flag(value: Any, where: str) -> bool:
 def _names(value: Any, where: str) -> list[str]:
     fits = isinstance(value, list) and all(isinstance(v, str) for v in value)
     return list(_expect(value, where, fits, "a list of sequence names"))
+
+
+def _translation(value: Any, where: str) -> str:
+    fits = isinstance(value, str) and value in TRANSLATIONS.values()
+    return _expect(value, where, fits, " or ".join(repr(v) for v in TRANSLATIONS.values()))
 
 
 def _numbers(value: Any, where: str) -> list[float] | None:
@@ -345,7 +358,11 @@ class Results:
     ``delta``: the APE alignment and RPE delta (frames) of every score; ``seq_len``: the window length
     (frames) inferred with; ``carry_state``: whether the recurrent state was carried between windows;
     ``threads``: the CPU thread count the network was trained with (None: not recorded); ``data``;
-    ``sequences``: per evaluated sequence; ``overall``: pooled over the sequences with ground truth.
+    ``sequences``: per evaluated sequence; ``overall``: pooled over the sequences with ground truth;
+    ``translation``: :data:`TRANSLATION_METRIC`, the predicted steps as the network gave them, or
+    :data:`TRANSLATION_SCALED`, each predicted step scaled to the ground-truth step length before
+    chaining and scoring (a network trained with ``loss.translation=direction``; optimistic, as the ORB+E
+    baseline with ground-truth scale).
     """
 
     checkpoint: str | None
@@ -358,6 +375,7 @@ class Results:
     sequences: dict[str, SequenceResult]
     overall: Overall
     threads: int | None = None
+    translation: str = TRANSLATION_METRIC
     schema_version: int = field(default=SCHEMA_VERSION)
 
     def scored(self) -> dict[str, Scores]:
@@ -377,6 +395,7 @@ class Results:
             "delta": self.delta,
             "seq_len": self.seq_len,
             "carry_state": self.carry_state,
+            "translation": self.translation,
             "threads": self.threads,
             "data": self.data.to_json(),
             "sequences": {name: s.to_json() for name, s in self.sequences.items()},
@@ -400,6 +419,7 @@ class Results:
             delta=cast("int", _integer(_field(obj, "delta", ""), "delta")),
             seq_len=cast("int", _integer(_field(obj, "seq_len", ""), "seq_len")),
             carry_state=_flag(_field(obj, "carry_state", ""), "carry_state"),
+            translation=_translation(_field(obj, "translation", ""), "translation"),
             threads=_integer(_field(obj, "threads", ""), "threads", optional=True),
             data=DataRecord.from_json(_field(obj, "data", "")),
             sequences={n: SequenceResult.from_json(e, f"sequences.{n}") for n, e in sequences.items()},
@@ -506,13 +526,16 @@ def predict_and_score(
     """One sequence through the network, chained and scored: the path that validation during training
     (:class:`lossvo.training.callbacks.TrajectoryValidation`) and :func:`evaluate_run` share.
 
-    The sequence's inputs go through :func:`lossvo.evaluation.inference.predict_sequence`; the relative
-    poses are chained from the first ground-truth pose and scored against ``gt`` into ``pooled``
+    The sequence's inputs go through :func:`lossvo.evaluation.inference.predict_sequence`; for a network
+    trained on the translation's direction only (its loss's ``translation == "direction"``) each step is
+    scaled to the ground-truth step length (:func:`lossvo.evaluation.trajectories.scale_steps`); the
+    relative poses are chained from the first ground-truth pose and scored against ``gt`` into ``pooled``
     (:func:`lossvo.evaluation.metrics.evaluate_relative`). Without ground truth the trajectory starts at
-    the identity and nothing is scored.
+    the identity, its steps as predicted (there is no length to scale to), and nothing is scored.
 
     Args:
-        module, carry_state: the network and :func:`predict_sequence`'s option.
+        module, carry_state: the network (with its ``loss``, a :class:`lossvo.losses.PoseLoss`) and
+            :func:`predict_sequence`'s option.
         datamodule: gives the sequence's inputs, their preparation and ``seq_len``.
         name: the sequence.
         gt: (N, 4, 4) ground-truth poses, or None.
@@ -527,8 +550,15 @@ def predict_and_score(
     if gt is None:
         return integrate(torch.from_numpy(relative)), None
     gt_t, relative_t = (torch.as_tensor(a, dtype=torch.float64, device=device) for a in (gt, relative))
+    if translation_record(module) == TRANSLATION_SCALED:
+        relative_t = scale_steps(relative_t, geometry.consecutive_relative_poses(gt_t))
     pooled_metrics = (pooled.ape, pooled.rpe, pooled.kitti)
     return metrics.evaluate_relative(relative_t, gt_t, pooled.align, pooled.delta, pooled_metrics)
+
+
+def translation_record(module: nn.Module) -> str:
+    """How ``module``'s predicted steps are scored (:data:`TRANSLATIONS` of its loss's ``translation``)."""
+    return TRANSLATIONS[cast("PoseLoss", module.loss).translation]
 
 
 def _ground_truth(datamodule: KittiDataModule, name: str) -> np.ndarray | None:
@@ -554,8 +584,9 @@ def evaluate_run(
 
     Args:
         module: the trained :class:`lossvo.training.module.VOModule` (on the device to run on): its
-            ``loss`` (a :class:`lossvo.losses.PoseLoss`) and ``data`` (the training data's description
-            from its checkpoint, or None).
+            ``loss`` (a :class:`lossvo.losses.PoseLoss`; its ``translation`` decides
+            :attr:`Results.translation`) and ``data`` (the training data's description from its
+            checkpoint, or None).
         datamodule: the evaluated :class:`lossvo.data.datamodules.KittiDataModule` (set up here).
         out_dir: folder receiving ``trajectories/NN.txt``, ``plots/NN.png`` and ``results.json``.
         sequences: sequence names, e.g. ``datamodule.evaluated``.
@@ -572,13 +603,15 @@ def evaluate_run(
     pooled = PooledScores(align, delta, sync=False)
     loss = cast("PoseLoss", module.loss)
     record = LossRecord(type(loss).__name__, loss.k)
+    translation = translation_record(module)
     unseen = set(datamodule.splits["unseen"])
     per_sequence: dict[str, SequenceResult] = {}
     for name in sequences:
         gt = _ground_truth(datamodule, name)
         est, scores = predict_and_score(module, datamodule, name, gt, pooled, carry_state)
         gt_file = None if gt is None else str(pose_path(datamodule.dataset_root(), name))
-        per_sequence[name] = _sequence_result(name, est, gt, scores, out_dir, record, gt_file, name in unseen)
+        per_sequence[name] = _sequence_result(name, est, gt, scores, out_dir, record, gt_file, name in unseen,
+                                              translation)  # fmt: skip
     evaluated = [name for name, entry in per_sequence.items() if entry.scores is not None]
     computed = pooled.compute()
     overall = Overall([], note=NO_METRICS_NOTE) if computed is None else Overall(evaluated, _scores(computed))
@@ -590,6 +623,7 @@ def evaluate_run(
         seq_len=int(datamodule.seq_len),
         carry_state=carry_state,
         threads=threads,
+        translation=translation,
         data=data_record(
             cast("dict[str, Any] | None", module.data), datamodule.description(), datamodule.splits
         ),
@@ -611,7 +645,7 @@ def _scores(computed: dict[str, Any]) -> Scores:
 
 def _sequence_result(
     name: str, est: Tensor, gt: np.ndarray | None, scores: dict[str, Any] | None, out_dir: Path,
-    loss: LossRecord, gt_file: str | None, unseen: bool,
+    loss: LossRecord, gt_file: str | None, unseen: bool, translation: str = TRANSLATION_METRIC,
 ) -> SequenceResult:  # fmt: skip
     """One sequence's trajectory file, plot and entry in ``results.json``, from :func:`predict_and_score`'s
     trajectory and scores."""
@@ -626,5 +660,7 @@ def _sequence_result(
                  typed.ape.trans.rmse, typed.rpe.trans.rmse)  # fmt: skip
     write_poses(out_dir / trajectory, est)
     label = f"estimate ({loss.name}, k={loss.k:g})" if loss.k is not None else "estimate"
+    if translation == TRANSLATION_SCALED and gt is not None:
+        label += ", steps scaled to the ground truth's"
     plot_birdseye(out_dir / plot, gt, {label: est.numpy()}, f"sequence {name}")
     return entry

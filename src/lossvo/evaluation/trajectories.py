@@ -46,6 +46,28 @@ def integrate(relative: Tensor, start: Tensor | None = None) -> Tensor:
     return prefix
 
 
+def scale_steps(relative: Tensor, reference: Tensor) -> Tensor:
+    """Relative poses with each step's translation scaled to the reference step's length.
+
+    ``t_k -> t_k / |t_k| * |t^_k|`` (:func:`lossvo.geometry.scale_to_length`: a zero translation
+    becomes a step straight ahead), rotations unchanged: how a network trained without metric scale
+    (``loss.translation=direction``) is evaluated, with ground-truth scale as the ORB+E baseline.
+
+    Args:
+        relative: (..., 4, 4) predicted relative poses ``T_k``.
+        reference: (..., 4, 4) the ground truth's relative poses (their translations' lengths are used).
+    Returns:
+        (..., 4, 4) poses in the promoted dtype.
+    """
+    geometry.check_shape(relative, (4, 4), "relative")
+    geometry.check_shape(reference, (4, 4), "reference")
+    if relative.shape != reference.shape:
+        raise ValueError(f"relative {tuple(relative.shape)} and reference {tuple(reference.shape)} differ")
+    lengths = torch.linalg.vector_norm(reference[..., :3, 3], dim=-1)
+    t = geometry.scale_to_length(relative[..., :3, 3], lengths)
+    return geometry.make_pose(relative[..., :3, :3].to(t.dtype), t)
+
+
 def _reorthonormalize(T: Tensor) -> Tensor:
     """(..., 4, 4) poses with their rotation blocks projected back onto SO(3)."""
     return geometry.make_pose(geometry.orthonormalize(T[..., :3, :3]), T[..., :3, 3])

@@ -341,6 +341,35 @@ def orthonormalize(R: Tensor) -> Tensor:
 
 
 # --------------------------------------------------------------------------------------------------
+# Translations
+# --------------------------------------------------------------------------------------------------
+
+
+def scale_to_length(t: Tensor, length: Tensor) -> Tensor:
+    """Translations rescaled to given lengths, ``t / |t| * length``, their directions kept.
+
+    A zero vector has no direction: it becomes ``length`` straight ahead (+z, the camera's forward
+    axis), the rule of the ORB+E baseline (:mod:`lossvo.evaluation.baselines`). Values and gradients
+    are finite everywhere (at ``t = 0`` the gradient with respect to ``t`` is 0).
+
+    Args:
+        t: (..., 3) translations.
+        length: (...) lengths (broadcast against ``t``'s leading dims), e.g. ground-truth step lengths.
+    Returns:
+        (..., 3) translations of norm ``|length|``, in the promoted dtype.
+    """
+    check_shape(t, (3,), "t")
+    dtype = torch.promote_types(t.dtype, length.dtype)
+    t, length = t.to(dtype), length.to(dtype)
+    squared = t.square().sum(-1, keepdim=True)
+    moving = squared > 0
+    unit = t / torch.sqrt(squared.clamp_min(torch.finfo(dtype).tiny))  # no 0/0, also in the backward
+    ahead = torch.zeros_like(unit)
+    ahead[..., 2] = 1.0
+    return torch.where(moving, unit, ahead) * length[..., None]
+
+
+# --------------------------------------------------------------------------------------------------
 # 4x4 poses
 # --------------------------------------------------------------------------------------------------
 

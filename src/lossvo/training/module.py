@@ -6,8 +6,9 @@ are its hyperparameters: a checkpoint holds only primitives and reloads with tor
 loss without Hydra. Every key the loss returns is logged per epoch as ``train/<key>`` and
 ``val/<key>`` (``loss``, ``trans_loss``, ``rot_loss``, ``trans_err_m``, ``rot_err_rad``; ``s_t``, ``s_r``
 under the learned weighting), and validation also logs the loss-independent selection score
-``val/score`` (:mod:`lossvo.training.selection`). Checkpoints also record the training data
-(:mod:`lossvo.evaluation.checkpoints`).
+``val/score`` (:mod:`lossvo.training.selection`; for a loss with ``translation="direction"`` on the
+predicted steps scaled to the target step lengths, as evaluation scores them). Checkpoints also record
+the training data (:mod:`lossvo.evaluation.checkpoints`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from hydra.utils import instantiate
 from torch import Tensor
 
 from lossvo import models
+from lossvo.evaluation.trajectories import scale_steps
 from lossvo.losses import PoseLoss
 from lossvo.training import random_streams
 from lossvo.training.schedules import extend_cosine
@@ -114,7 +116,10 @@ class VOModule(L.LightningModule):
         if stage == "train":
             self.log("loss", out["loss"], on_step=True, on_epoch=False, prog_bar=True, logger=False)
         if stage == "val":
-            self.val_score.update(self.decode(pred.detach().float()), targets)
+            decoded = self.decode(pred.detach().float())
+            if self.loss.translation == "direction":  # no metric scale: the target's, as evaluation
+                decoded = scale_steps(decoded, targets)
+            self.val_score.update(decoded, targets)
             self.log(SCORE_KEY, self.val_score, on_step=False, on_epoch=True)
         return out["loss"]
 
