@@ -1,7 +1,8 @@
 """The baselines on hand-written KITTI-layout sequences (noise frames, known poses): the own-mean-motion
 oracle equals an independent computation, its scores equal evo's, and it is exact on constant-velocity
 motion; the zero-motion and mean-motion scores equal evo's; the sequences and the training split come from
-the recorded data; cache files that lack a baseline, or whose recorded data differs, are recomputed."""
+the recorded data; cache files that lack a baseline, or whose recorded data, training flow or flow
+settings differ, are recomputed (the flow baseline itself: tests/test_flow_baselines.py)."""
 
 from __future__ import annotations
 
@@ -84,7 +85,7 @@ def check_against_evo(scores: Scores, gt: np.ndarray, est: np.ndarray) -> None:
 def test_own_mean_motion_is_the_sequences_mean_motion_repeated(tmp_path: Path) -> None:
     gt = varied_poses(0)
     sequence = write_sequence(tmp_path, "00", gt, seed=0)
-    results = baselines.sequence_baselines(sequence, train_mean=np.eye(4))
+    results = baselines.sequence_baselines(sequence, train_mean=np.eye(4), speed_scale=0.1)
     assert tuple(results) == baselines.NAMES and baselines.OWN in baselines.NAMES
     steps = np.linalg.inv(gt[:-1]) @ gt[1:]
     u, _, vt = np.linalg.svd(steps[:, :3, :3].mean(axis=0))  # chordal L2 mean, projected onto SO(3)
@@ -101,7 +102,7 @@ def test_own_mean_motion_is_the_sequences_mean_motion_repeated(tmp_path: Path) -
 def test_zero_and_training_mean_motion_scores_equal_evos(tmp_path: Path) -> None:
     gt = varied_poses(5)
     train_step = step(0.01, 0.7, -0.02)
-    results = baselines.sequence_baselines(write_sequence(tmp_path, "00", gt, seed=7), train_mean=train_step)
+    results = baselines.sequence_baselines(write_sequence(tmp_path, "00", gt, seed=7), train_step, 0.1)
     standing = np.repeat(gt[:1], len(gt), axis=0)  # zero motion: the first pose forever
     np.testing.assert_allclose(results[baselines.ZERO].trajectory, standing, atol=1e-12)
     check_against_evo(results[baselines.ZERO].scores, gt, standing)
@@ -113,7 +114,8 @@ def test_zero_and_training_mean_motion_scores_equal_evos(tmp_path: Path) -> None
 
 def test_own_mean_motion_is_exact_on_constant_velocity(tmp_path: Path) -> None:
     gt = chain([step(0.03, 0.8, 0.05)] * (FRAMES - 1))
-    own = baselines.sequence_baselines(write_sequence(tmp_path, "00", gt, seed=1), np.eye(4))[baselines.OWN]
+    results = baselines.sequence_baselines(write_sequence(tmp_path, "00", gt, seed=1), np.eye(4), 0.1)
+    own = results[baselines.OWN]
     np.testing.assert_allclose(own.trajectory, gt, atol=1e-9)
     for kind in ("trans", "rot_rad"):
         assert getattr(own.scores.rpe, kind).rmse < 1e-6 and getattr(own.scores.ape, kind).rmse < 1e-6
@@ -170,15 +172,24 @@ def test_training_mean_motion_comes_from_the_recorded_training_data(tmp_path: Pa
         baselines.training_mean_motion(data_record(root, train_root, ()))
 
 
-def test_cache_key_changes_with_the_recorded_data_and_the_training_mean(tmp_path: Path) -> None:
+def test_cache_key_changes_with_the_recorded_data_the_training_mean_and_flow(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     sequence = write_sequence(tmp_path / "kitti", "01", varied_poses(4), seed=6)
     data = recorded_data(tmp_path / "kitti")
-    key = baselines.cache_key(data.identity(), sequence, np.eye(4), "none", 1)
+    flow = ["00-0123"]
+    key = baselines.cache_key(data.identity(), sequence, np.eye(4), flow, "none", 1)
     assert key.startswith("01-") and key == baselines.cache_key(
-        data.identity(), sequence, np.eye(4), "none", 1
+        data.identity(), sequence, np.eye(4), flow, "none", 1
     )
     other_split = recorded_data(tmp_path / "kitti", ("00", "02")).identity()
     moved = step(0.0, 1.0)
-    assert len({key, baselines.cache_key(other_split, sequence, np.eye(4), "none", 1),
-                baselines.cache_key(data.identity(), sequence, moved, "none", 1),
-                baselines.cache_key(data.identity(), sequence, np.eye(4), "se3", 1)}) == 4  # fmt: skip
+    keys = {key, baselines.cache_key(other_split, sequence, np.eye(4), flow, "none", 1),
+            baselines.cache_key(data.identity(), sequence, moved, flow, "none", 1),
+            baselines.cache_key(data.identity(), sequence, np.eye(4), ["00-4567"], "none", 1),
+            baselines.cache_key(data.identity(), sequence, np.eye(4), flow, "se3", 1)}  # fmt: skip
+    flow_key = baselines.flow_key(sequence)
+    monkeypatch.setattr(baselines, "ROAD_ROWS", (0.5, 1.0))  # another road region: other features
+    assert baselines.flow_key(sequence) != flow_key
+    keys.add(baselines.cache_key(data.identity(), sequence, np.eye(4), flow, "none", 1))
+    assert len(keys) == 6

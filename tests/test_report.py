@@ -150,7 +150,7 @@ def test_bold_marks_the_row_minimum_over_all_columns(report: Path) -> None:
     bold_seen = 0
     for metric in TRANSLATION:
         columns = [h for h in header if h.endswith(f": {metric}")]
-        assert len(columns) == len(LOSSES) + 4  # four baselines
+        assert len(columns) == len(LOSSES) + 5  # five baselines
         for sequence in (*SEQUENCES, "mean"):
             means = {c: float(rows_csv[sequence][c.replace(": ", " | ", 1)]) for c in columns}
             best = min(means, key=means.get)

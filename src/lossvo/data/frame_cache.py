@@ -76,8 +76,9 @@ def open_frames(folder: Path, seq: Sequence, height: int, width: int) -> np.ndar
     return array_cache.open_array(files(folder, seq.name)[0], _expected(seq), shape, np.uint8)
 
 
-def _read_frame(path: Path, height: int, width: int) -> tuple[np.ndarray, tuple[int, int]]:
-    """Decode one PNG (checked complete first), resize it: (3, height, width) RGB uint8."""
+def read_frame(path: Path, height: int, width: int) -> tuple[np.ndarray, tuple[int, int]]:
+    """Decode one PNG (checked complete first), resize it with area interpolation: (3, height, width) RGB
+    uint8, and the PNG's own size (H, W)."""
     check_png(path)
     image = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if image is None:
@@ -99,7 +100,7 @@ def _decoder(seq: Sequence, height: int, width: int, workers: int, progress: boo
     def fill(out: np.ndarray) -> dict:
         first_size: tuple[int, int] | None = None
         with ThreadPoolExecutor(workers) as pool:
-            jobs = pool.map(lambda p: _read_frame(p, height, width), seq.images)
+            jobs = pool.map(lambda p: read_frame(p, height, width), seq.images)
             bar = tqdm(jobs, total=len(seq.images), desc=f"caching {seq.name} at {height}x{width}",
                        unit="frame", disable=not progress, leave=False)  # fmt: skip
             for i, (frame, size) in enumerate(bar):

@@ -1,7 +1,7 @@
 """Non-learned baselines, evaluated exactly as the networks are (the sweep report puts them beside every
 network).
 
-Four estimators of the relative poses ``T_k = inv(T_w_k) @ T_w_{k+1}`` (frame k+1 seen from frame k) of a
+Five estimators of the relative poses ``T_k = inv(T_w_k) @ T_w_{k+1}`` (frame k+1 seen from frame k) of a
 sequence, each integrated from the first ground-truth pose and scored by
 :func:`lossvo.evaluation.metrics.evaluate_relative` (the networks' path, with the same APE alignment and
 RPE delta as the runs' ``results.json``), so that their numbers sit in the same table as the networks':
@@ -20,7 +20,16 @@ RPE delta as the runs' ``results.json``), so that their numbers sit in the same 
   rescaled the same way; the report counts these failures;
 - ``own mean motion (oracle)``: the sequence's own mean relative pose (as ``mean motion (train)``, over
   the sequence's ground truth) at every step: an oracle that knows the sequence's average motion, which
-  a network that learned only an average motion cannot beat.
+  a network that learned only an average motion cannot beat;
+- ``flow yaw + road speed (one line)``: DIS optical flow (:func:`lossvo.data.flow.pair_flow`, preset
+  medium: the flow networks' default ``data.flow``) between consecutive frames, at the frames' stored
+  size (frames wider than :data:`FLOW_MAX_WIDTH` downscaled; the networks read it at their input size).
+  Each pair's yaw is the median horizontal flow of the upper half of the frame turned into an angle with
+  fx (:func:`flow_yaw`), its speed one constant times the median vertical flow of the road just ahead
+  (:func:`road_speed_feature`), the constant fitted by least squares to the training split's
+  ground-truth step lengths (:func:`fit_speed_scale`); the relative pose is ``Ry(yaw)`` with translation
+  ``(0, 0, speed)``, no pitch or roll. It is the floor for the networks on flow: a learned network
+  reading the same flow must beat a one-line estimator on it.
 
 The sequences are read from the dataset that a run's results.json records
 (:class:`lossvo.evaluation.results.DataRecord`: ``root``, in the KITTI layout, read with
@@ -29,7 +38,10 @@ split's mean motion from the pose files of the training data it records (``train
 datamodule is built and nothing is rendered. Results are cached per sequence in
 ``<cache_dir>/<key>.npz`` so that re-running a report costs nothing; the key covers everything the
 numbers depend on (the recorded roots and training split, the training mean motion, the sequence's
-files, alignment, delta, the ORB settings and :data:`VERSION`).
+files, alignment, delta, the ORB and flow settings, the training sequences' flow features and
+:data:`VERSION`). The flow features of every sequence they are computed for, the training split's
+included (the speed fit's input), are cached in ``<cache_dir>/flow/<key>.npz``, keyed by the
+sequence's frames, K and the flow settings: a second report computes no flow.
 """
 
 from __future__ import annotations
@@ -37,6 +49,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import struct
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,9 +60,13 @@ import numpy as np
 import roma
 import torch
 
+from lossvo import geometry
 from lossvo.atomic import atomic_path
+from lossvo.data import camera
+from lossvo.data.flow import FlowSetting, pair_flow
+from lossvo.data.frame_cache import read_frame
+from lossvo.data.kitti import KittiFormatError, check_png, find_root, load_sequence
 from lossvo.data.kitti import Sequence as KittiSequence
-from lossvo.data.kitti import find_root, load_sequence
 from lossvo.evaluation import metrics
 from lossvo.evaluation.results import DataRecord, Scores
 
@@ -57,9 +74,9 @@ log = logging.getLogger("lossvo")
 T = TypeVar("T")
 
 ZERO, MEAN, ORB = "zero motion", "mean motion (train)", "ORB+E (GT scale)"
-OWN = "own mean motion (oracle)"
-NAMES: tuple[str, ...] = (ZERO, MEAN, ORB, OWN)
-VERSION = 3
+OWN, FLOW = "own mean motion (oracle)", "flow yaw + road speed (one line)"
+NAMES: tuple[str, ...] = (ZERO, MEAN, ORB, OWN, FLOW)
+VERSION = 4
 """Bump when a baseline's computation changes: cached results then no longer match."""
 
 MIN_MATCHES = 8
@@ -77,6 +94,23 @@ RATIO = 0.9
 RANSAC_THRESHOLD_PX = 0.5
 """RANSAC inlier threshold for frames narrower than 640 pixels (1 pixel for larger ones, e.g. KITTI's)."""
 ORB_FEATURES = 500
+
+FLOW_SETTING = FlowSetting("dis", "medium")
+"""The flow baseline's flow: OpenCV's DIS, preset medium (``data.flow=dis`` with its default preset)."""
+FLOW_MAX_WIDTH = 320
+"""Frames wider than this (pixels) are downscaled to it (area interpolation, aspect ratio kept) before the
+flow: the synthetic 96x320 frames are used as stored (7-8 ms a pair on one core), KITTI's 376x1241 at
+97x320."""
+YAW_ROWS, YAW_COLUMNS = (0.0, 0.5), (0.0, 1.0)
+"""Rows and columns (fractions of the height and width, from the top left) whose median horizontal flow is
+the yaw: the upper half, mostly far away, where the translation moves pixels least and symmetrically
+about the centre; the whole width."""
+ROAD_ROWS, ROAD_COLUMNS = (0.75, 1.0), (1 / 3, 2 / 3)
+"""The road just ahead (fractions of the height and width): the bottom quarter, the middle third."""
+FLOW_CHUNK = 32
+"""Frame pairs whose flow fields are held at once (the features are computed a chunk at a time)."""
+FLOW_CACHE = "flow"
+"""Folder of the cached flow features, inside the baselines' cache folder."""
 
 
 @dataclass
@@ -269,19 +303,171 @@ def _with_step_lengths(unit: np.ndarray, step_lengths: np.ndarray) -> np.ndarray
 
 
 # --------------------------------------------------------------------------------------------------
+# Flow yaw + road speed: one line each on DIS flow
+# --------------------------------------------------------------------------------------------------
+
+
+def _band(size: int, fractions: tuple[float, float]) -> slice:
+    """The pixels from ``fractions[0] * size`` to ``fractions[1] * size`` (rounded)."""
+    return slice(round(fractions[0] * size), round(fractions[1] * size))
+
+
+def _median_per_pair(values: np.ndarray) -> np.ndarray:
+    """(N, ...) -> (N,) float64 median of each pair's values."""
+    flat = values.reshape(values.shape[0], int(np.prod(values.shape[1:])))
+    return np.median(flat.astype(np.float64), axis=1)
+
+
+def flow_yaw(flow: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Each pair's yaw from its flow: ``atan(-median(u) / fx)``, the median over the rows
+    :data:`YAW_ROWS` (the upper half) and columns :data:`YAW_COLUMNS`.
+
+    A yaw (``R = Ry(yaw)``, about the camera's y axis, down; positive turns the camera to its right, as
+    lossvo's Euler convention) moves the image centre by ``u = -fx tan(yaw)``: turning right, the world
+    moves left. Far away, translation moves pixels little, and its sideways flow on either side of the
+    centre cancels in the median. Off the centre a yaw moves pixels by ``1 + ((x - cx) / fx)^2`` times
+    more, so over the whole width a pure yaw reads about 1.2x too large at the synthetic camera's 80°
+    field of view.
+
+    Args:
+        flow: (N, 2, H, W) flow fields ``(u, v)`` in pixels (:func:`lossvo.data.flow.pair_flow`).
+        K: (3, 3) intrinsics of the flow's frames (H x W), in pixels.
+    Returns:
+        (N,) float64 yaw in radians.
+    """
+    u = flow[:, 0, _band(flow.shape[-2], YAW_ROWS), _band(flow.shape[-1], YAW_COLUMNS)]
+    return np.arctan(-_median_per_pair(u) / float(K[0, 0]))
+
+
+def road_speed_feature(flow: np.ndarray) -> np.ndarray:
+    """Each pair's median vertical flow of the road just ahead (rows :data:`ROAD_ROWS`, columns
+    :data:`ROAD_COLUMNS`): a feature proportional to the step length.
+
+    Driving a step d forward, a road point at image row y (camera height h above the road) moves down by
+    ``v ≈ (y - cy)^2 d / (fy h)``: at fixed pixels, proportional to d (:func:`fit_speed_scale` fits the
+    constant).
+
+    Args:
+        flow: (N, 2, H, W) flow fields ``(u, v)`` in pixels.
+    Returns:
+        (N,) float64 in pixels (positive: the road moves down the image, driving forward).
+    """
+    v = flow[:, 1, _band(flow.shape[-2], ROAD_ROWS), _band(flow.shape[-1], ROAD_COLUMNS)]
+    return _median_per_pair(v)
+
+
+def fit_speed_scale(features: np.ndarray, steps: np.ndarray) -> float:
+    """The least-squares constant s (m/px) of ``|t_k| ≈ s f_k``: ``s = Σ f_k |t_k| / Σ f_k^2`` (0 where
+    every feature is 0).
+
+    Args:
+        features: (M,) road-speed features in pixels (:func:`road_speed_feature`).
+        steps: (M,) ground-truth step lengths ``|t_k|`` in metres.
+    """
+    f, t = np.asarray(features, dtype=np.float64), np.asarray(steps, dtype=np.float64)
+    energy = float(f @ f)
+    return float(f @ t) / energy if energy > 0 else 0.0
+
+
+def flow_motion(yaw: np.ndarray, speed: np.ndarray) -> np.ndarray:
+    """The flow baseline's relative poses: ``R = Ry(yaw)`` (no pitch or roll), ``t = (0, 0, speed)``.
+
+    Args:
+        yaw: (N,) radians; speed: (N,) metres per frame pair.
+    Returns:
+        (N, 4, 4) float64.
+    """
+    yaw_t = torch.as_tensor(np.asarray(yaw, dtype=np.float64))
+    angles = torch.stack((yaw_t, torch.zeros_like(yaw_t), torch.zeros_like(yaw_t)), dim=-1)
+    t = torch.zeros_like(angles)
+    t[:, 2] = torch.as_tensor(np.asarray(speed, dtype=np.float64))
+    return geometry.make_pose(geometry.euler_to_matrix(angles), t).numpy()
+
+
+@dataclass
+class FlowFeatures:
+    """A sequence's flow features, one per frame pair: yaw (N-1,) float64 radians (:func:`flow_yaw`) and
+    road (N-1,) float64 pixels (:func:`road_speed_feature`)."""
+
+    yaw: np.ndarray
+    road: np.ndarray
+
+
+def flow_size(source_hw: tuple[int, int]) -> tuple[int, int]:
+    """(H, W) at which the flow of frames of ``source_hw`` is computed: as stored, or downscaled to
+    :data:`FLOW_MAX_WIDTH` pixels wide (aspect ratio kept) where wider."""
+    height, width = source_hw
+    if width <= FLOW_MAX_WIDTH:
+        return height, width
+    return max(1, round(height * FLOW_MAX_WIDTH / width)), FLOW_MAX_WIDTH
+
+
+def png_size(path: Path) -> tuple[int, int]:
+    """(H, W) of a PNG file, from its header (IHDR: width, height, big-endian, at bytes 16-24)."""
+    check_png(path)
+    with path.open("rb") as f:
+        width, height = struct.unpack(">II", f.read(24)[16:24])
+    return height, width
+
+
+def flow_features(images: Sequence[Path], K: np.ndarray) -> FlowFeatures:
+    """The flow features of a sequence's consecutive frames.
+
+    The frames are decoded one at a time (:func:`lossvo.data.frame_cache.read_frame`, at
+    :func:`flow_size`), the flow (:data:`FLOW_SETTING`) held for :data:`FLOW_CHUNK` pairs at a time: the
+    memory stays small at any sequence length.
+
+    Args:
+        images: the sequence's N frame paths (PNG), in order.
+        K: (3, 3) intrinsics of those frames (calib.txt's), scaled here to the flow's size.
+    Raises:
+        KittiFormatError: an unreadable frame, or one of another size than the first.
+    """
+    if len(images) < 2:
+        return FlowFeatures(np.zeros(0), np.zeros(0))
+    source = png_size(images[0])
+    size = flow_size(source)
+    K_flow = camera.resized_intrinsics(K, source, size)
+    yaw: list[np.ndarray] = []
+    road: list[np.ndarray] = []
+    fields: list[np.ndarray] = []
+    previous, _ = read_frame(images[0], *size)
+    for i, path in enumerate(images[1:], start=1):
+        frame, shape = read_frame(path, *size)
+        if shape != source:
+            raise KittiFormatError(f"{path}: {shape[0]}x{shape[1]} pixels, expected {source[0]}x{source[1]} "
+                                   "(the size of the sequence's first frame)")  # fmt: skip
+        fields.append(pair_flow(previous, frame, FLOW_SETTING))
+        previous = frame
+        if len(fields) == FLOW_CHUNK or i == len(images) - 1:
+            chunk = np.stack(fields)
+            yaw.append(flow_yaw(chunk, K_flow))
+            road.append(road_speed_feature(chunk))
+            fields = []
+    return FlowFeatures(np.concatenate(yaw), np.concatenate(road))
+
+
+# --------------------------------------------------------------------------------------------------
 # Evaluation of one sequence
 # --------------------------------------------------------------------------------------------------
 
 
 def sequence_baselines(
-    sequence: KittiSequence, train_mean: np.ndarray, align: metrics.AlignMode = "none", delta: int = 1
+    sequence: KittiSequence,
+    train_mean: np.ndarray,
+    speed_scale: float,
+    align: metrics.AlignMode = "none",
+    delta: int = 1,
+    features: FlowFeatures | None = None,
 ) -> dict[str, BaselineResult]:
     """All baselines on one sequence with ground truth.
 
     Args:
         sequence: a KITTI-layout sequence with poses (images, poses (N, 4, 4), calib).
         train_mean: (4, 4) mean relative pose of the training split (:func:`mean_motion`).
+        speed_scale: metres per pixel of road flow, fitted on the training split (:func:`fit_speed_scale`).
         align, delta: as the runs' results.json.
+        features: the sequence's flow features (:func:`flow_features`, computed here if None).
     Returns:
         {baseline name: BaselineResult}, in the order of :data:`NAMES`.
     """
@@ -289,11 +475,14 @@ def sequence_baselines(
     targets = sequence.targets
     steps = np.linalg.norm(targets[:, :3, 3], axis=1)
     orb, failed = orb_essential(sequence.images, sequence.calib.K, steps, train_mean)
+    if features is None:
+        features = flow_features(sequence.images, sequence.calib.K)
     relatives = {
         ZERO: zero_motion(len(targets)),
         MEAN: repeat_motion(train_mean, len(targets)),
         ORB: orb,
         OWN: repeat_motion(mean_motion([targets]), len(targets)),
+        FLOW: flow_motion(features.yaw, speed_scale * features.road),
     }
     out = {}
     for name, relative in relatives.items():
@@ -308,9 +497,8 @@ def sequence_baselines(
 # --------------------------------------------------------------------------------------------------
 
 
-def training_mean_motion(data: DataRecord) -> np.ndarray:
-    """(4, 4) mean relative pose (:func:`mean_motion`) of the training split recorded in ``data``, read
-    from the pose files under ``data.train_root``.
+def training_sequences(data: DataRecord) -> list[KittiSequence]:
+    """The training split recorded in ``data``: its sequences under ``data.train_root`` (poses required).
 
     Raises:
         ValueError: no training data or sequence recorded; KittiFormatError for a sequence that is not
@@ -319,23 +507,82 @@ def training_mean_motion(data: DataRecord) -> np.ndarray:
     if not data.train or data.train_root is None:
         raise ValueError("the recorded training split (data.train) is empty: no training mean motion")
     root = find_root(data.train_root)
-    return mean_motion([load_sequence(root, name).targets for name in data.train])
+    return [load_sequence(root, name) for name in data.train]
 
 
-def cache_key(
-    identity: Mapping[str, Any], sequence: KittiSequence, train_mean: np.ndarray, align: str, delta: int
-) -> str:
-    """A file-name-safe key of one sequence's baselines: the data's identity
-    (:meth:`lossvo.evaluation.results.DataRecord.identity`), the (4, 4) training mean motion, the
-    sequence's files and the settings."""
+def training_mean_motion(data: DataRecord) -> np.ndarray:
+    """(4, 4) mean relative pose (:func:`mean_motion`) of the training split recorded in ``data``, read
+    from the pose files under ``data.train_root`` (:func:`training_sequences`)."""
+    return mean_motion([sequence.targets for sequence in training_sequences(data)])
+
+
+def _files(sequence: KittiSequence) -> dict[str, Any]:
+    """What identifies a sequence's frames and camera: their count, total size, latest change, K."""
     stats = [p.stat() for p in sequence.images]
-    files = {
+    return {
         "frames": len(stats),
         "bytes": sum(s.st_size for s in stats),
         "mtime_ns": max(s.st_mtime_ns for s in stats) if stats else 0,
-        "poses": hashlib.sha1(np.ascontiguousarray(sequence.poses).tobytes()).hexdigest(),
         "K": np.asarray(sequence.calib.K).tolist(),
+    }
+
+
+def _digest(value: object) -> str:
+    return hashlib.sha1(json.dumps(value, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def flow_key(sequence: KittiSequence) -> str:
+    """A file-name-safe key of one sequence's flow features: its frames' folder and files, K, the flow
+    settings and :data:`VERSION`."""
+    folder = str(sequence.images[0].parent.resolve()) if sequence.images else ""
+    settings = [VERSION, FLOW_SETTING.key, FLOW_MAX_WIDTH, YAW_ROWS, YAW_COLUMNS, ROAD_ROWS, ROAD_COLUMNS]
+    return f"{sequence.name}-{_digest([settings, folder, _files(sequence)])}"
+
+
+def cached_flow_features(sequence: KittiSequence, folder: Path) -> FlowFeatures:
+    """One sequence's flow features from ``folder/<flow_key>.npz``, computed (:func:`flow_features`) and
+    written there (atomically) where missing or unreadable."""
+    path = folder / f"{flow_key(sequence)}.npz"
+    try:
+        with np.load(path) as cached:
+            features = FlowFeatures(np.asarray(cached["yaw"]), np.asarray(cached["road"]))
+        if len(features.yaw) == len(features.road) == max(len(sequence.images) - 1, 0):
+            return features
+    except (OSError, ValueError, KeyError):
+        pass
+    features = flow_features(sequence.images, sequence.calib.K)
+    with atomic_path(path, suffix=".npz") as tmp:
+        np.savez(tmp, yaw=features.yaw, road=features.road)
+    return features
+
+
+def training_speed_scale(training: Sequence[KittiSequence], folder: Path, n_jobs: int = 1) -> float:
+    """The road-speed constant (m/px, :func:`fit_speed_scale`) of the training sequences: their road
+    features (cached in ``folder``, computed ``n_jobs`` sequences at a time) against their ground-truth
+    step lengths."""
+    features = _parallel(lambda sequence: cached_flow_features(sequence, folder), training, n_jobs)
+    road = np.concatenate([f.road for f in features])
+    steps = np.concatenate([np.linalg.norm(s.targets[:, :3, 3], axis=1) for s in training])
+    return fit_speed_scale(road, steps)
+
+
+def cache_key(
+    identity: Mapping[str, Any],
+    sequence: KittiSequence,
+    train_mean: np.ndarray,
+    train_flow: Sequence[str],
+    align: str,
+    delta: int,
+) -> str:
+    """A file-name-safe key of one sequence's baselines: the data's identity
+    (:meth:`lossvo.evaluation.results.DataRecord.identity`), the (4, 4) training mean motion, the
+    training sequences' flow keys (:func:`flow_key`: the speed fit's input), the sequence's files and
+    the settings."""
+    files = {
+        **_files(sequence),
+        "poses": hashlib.sha1(np.ascontiguousarray(sequence.poses).tobytes()).hexdigest(),
         "train_mean": hashlib.sha1(np.ascontiguousarray(train_mean, dtype=np.float64).tobytes()).hexdigest(),
+        "train_flow": list(train_flow),
     }
     settings = [
         VERSION,
@@ -345,9 +592,9 @@ def cache_key(
         MIN_PARALLAX_PX,
         MAX_HAMMING,
         RANSAC_THRESHOLD_PX,
+        flow_key(sequence),
     ]
-    blob = json.dumps([settings, dict(identity), files, align, delta], sort_keys=True, default=str)
-    return f"{sequence.name}-{hashlib.sha1(blob.encode()).hexdigest()[:16]}"
+    return f"{sequence.name}-{_digest([settings, dict(identity), files, align, delta])}"
 
 
 def save_cached(path: Path, results: Mapping[str, BaselineResult]) -> None:
@@ -409,7 +656,7 @@ def compute_baselines(
         data: a run's record of its evaluated dataset and training data (its results.json's ``data``).
         sequences: names of sequences with ground truth under ``data.root`` (e.g. those of the runs'
             results.json).
-        cache_dir: folder of the cached ``.npz`` results.
+        cache_dir: folder of the cached ``.npz`` results (and of the flow features, under ``flow/``).
         align, delta: as the runs' results.json.
         n_jobs: sequences computed in parallel (threads: OpenCV releases the GIL).
     Returns:
@@ -417,32 +664,35 @@ def compute_baselines(
     Raises:
         ValueError (KittiFormatError among them): a root, a sequence or a pose file that is not there.
     """
-    train_mean = training_mean_motion(data)
+    training = training_sequences(data)
+    train_mean = mean_motion([s.targets for s in training])
+    train_flow = [flow_key(s) for s in training]
     root = find_root(data.root)
     loaded = {n: load_sequence(root, n) for n in sequences}
     paths = {
-        n: cache_dir / f"{cache_key(data.identity(), loaded[n], train_mean, align, delta)}.npz"
+        n: cache_dir / f"{cache_key(data.identity(), loaded[n], train_mean, train_flow, align, delta)}.npz"
         for n in sequences
     }
     found = {n: r for n, p in paths.items() if (r := load_cached(p)) is not None}
     todo = [n for n in sequences if n not in found]
     if todo:
         log.info("baselines: computing %d sequence(s) (%s)", len(todo), ", ".join(todo))
-        computed = _compute_parallel([loaded[n] for n in todo], train_mean, align, delta, n_jobs)
+        flow_dir = cache_dir / FLOW_CACHE
+        speed_scale = training_speed_scale(training, flow_dir, n_jobs)
+
+        def compute(sequence: KittiSequence) -> dict[str, BaselineResult]:
+            features = cached_flow_features(sequence, flow_dir)
+            return sequence_baselines(sequence, train_mean, speed_scale, align, delta, features)
+
+        computed = _parallel(compute, [loaded[n] for n in todo], n_jobs)
         for name, result in zip(todo, computed, strict=True):
             save_cached(paths[name], result)
             found[name] = result
     return {n: found[n] for n in sequences}
 
 
-def _compute_parallel(
-    sequences: Sequence[KittiSequence],
-    train_mean: np.ndarray,
-    align: metrics.AlignMode,
-    delta: int,
-    n_jobs: int,
-) -> list[dict[str, BaselineResult]]:
-    """:func:`sequence_baselines` of each sequence, in order, ``n_jobs`` sequences at a time (threads).
+def _parallel(fn: Callable[[KittiSequence], T], sequences: Sequence[KittiSequence], n_jobs: int) -> list[T]:
+    """``fn`` of each sequence, in order, ``n_jobs`` sequences at a time (threads).
 
     One sequence per thread, each with single-threaded torch and OpenCV: nested thread pools on a few
     cores are many times slower. OpenCV's setting is global, so it is made around the pool; the longest
@@ -450,13 +700,14 @@ def _compute_parallel(
     """
     from joblib import Parallel, delayed
 
+    if not sequences:
+        return []
     order = sorted(range(len(sequences)), key=lambda i: -len(sequences[i].images))
     cv2_threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
         computed = Parallel(n_jobs=max(1, min(n_jobs, len(sequences))), prefer="threads")(
-            delayed(_torch_single_threaded(sequence_baselines))(sequences[i], train_mean, align, delta)
-            for i in order
+            delayed(_torch_single_threaded(fn))(sequences[i]) for i in order
         )
     finally:
         cv2.setNumThreads(cv2_threads)
