@@ -364,6 +364,14 @@ def test_figures_are_pngs_of_every_sequence(report: Path) -> None:
     assert all(f"(figures/{name})" in text for name in names)
 
 
+def test_a_single_architecture_sweep_has_no_architecture_column_section_or_file(report: Path) -> None:
+    assert "architecture" not in (report / "report.md").read_text().lower()
+    tables = {p.name for p in (report / "tables").iterdir()}
+    per_sequence = {f"{t}.{ext}" for t in ("translation", "rotation", "kitti") for ext in ("csv", "tex")}
+    assert tables == per_sequence | {"pairwise.csv", "configurations.csv", "convergence.csv", "claims.csv"}
+    assert not any("architecture" in (report / "tables" / name).read_text() for name in tables)
+
+
 def test_latest_reports_the_newest_sweep_and_prints_the_path(
     sweep: Path, report: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -13,7 +13,8 @@ job's results.json.
 
 Configurations are named by the overrides that differ between jobs (``loss=euler`` vs ``loss=quat``, or
 ``loss.k=50`` vs ``loss.k=100``); ``seed`` is the replicate axis: with several seeds a cell is the mean ±
-sample standard deviation (ddof = 1) over seeds.
+sample standard deviation (ddof = 1) over seeds. Where the configurations span several architectures (the
+``model`` config group's choice), the tables, curves, pairs and claims are given per architecture.
 
 Modules, by concern:
 
@@ -23,9 +24,11 @@ Modules, by concern:
 - :mod:`~lossvo.report.render`: the one table renderer (markdown, CSV, LaTeX) of every section's rows;
 - :mod:`~lossvo.report.tables`: the per-sequence tables (cells, mean row, bold minima) and their rows;
 - :mod:`~lossvo.report.statistics`: the paired test, the significance level, the verdict rule,
-  convergence epochs;
+  convergence epochs, the architecture x loss interaction test;
 - :mod:`~lossvo.report.comparison`, :mod:`~lossvo.report.convergence`, :mod:`~lossvo.report.claims`:
   the pairwise comparison, the convergence epochs and the study's claims;
+- :mod:`~lossvo.report.architectures`: where a sweep varies the architecture (``model=deepvo_small,flowvo``),
+  each architecture's ranking of the losses and the interaction test;
 - :mod:`~lossvo.report.against_baselines`: the baselines (:mod:`lossvo.evaluation.baselines`) as
   columns and a section, each job against them;
 - :mod:`~lossvo.report.figures`: curves, trajectories, APE bars;

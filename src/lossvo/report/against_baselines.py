@@ -33,7 +33,7 @@ from lossvo.report.jobs import (
     finite_number,
     metric_value,
 )
-from lossvo.report.render import Rows
+from lossvo.report.render import Rows, prepend_column
 from lossvo.report.tables import BASELINE, Column, fmt
 
 UNSEEN_KEY = "data.unseen"
@@ -174,9 +174,13 @@ def _baseline(base: BaselineRun, name: str) -> Column | None:
     return next((c for c in base.columns if c.label == name), None)
 
 
-def learning_markdown(networks: Sequence[Column], base: BaselineRun) -> str:
+def _architecture(column: Column) -> str:
+    return column.architecture or "?"
+
+
+def learning_markdown(networks: Sequence[Column], base: BaselineRun, by_architecture: bool = False) -> str:
     """Per job and validation sequence (the configs' ``data.val``): how far below the mean-motion
-    baseline its RPE lies."""
+    baseline its RPE lies (with ``by_architecture`` the job's architecture first)."""
     mean_motion = _baseline(base, baselines.MEAN)
     sequences = config_sequences((j for c in networks for j in c.jobs), "data.val")
     if mean_motion is None or not sequences:
@@ -197,7 +201,10 @@ def learning_markdown(networks: Sequence[Column], base: BaselineRun) -> str:
         "How far each job's RPE RMSE lies below the mean-motion baseline's on the validation sequences "
         "(1 − network / baseline; negative: worse than predicting the training set's mean motion)."
     )
-    return "\n".join([text, "", render.markdown(Rows(header, rows))])
+    table = Rows(header, rows)
+    if by_architecture:
+        table = prepend_column(table, "architecture", [_architecture(c) for c in networks for _ in c.jobs])
+    return "\n".join([text, "", render.markdown(table)])
 
 
 @dataclass(frozen=True)
@@ -254,15 +261,18 @@ UNSEEN_TEXT = (
 )
 
 
-def unseen_markdown(networks: Sequence[Column], base: BaselineRun, unseen: Sequence[str]) -> str:
+def unseen_markdown(
+    networks: Sequence[Column], base: BaselineRun, unseen: Sequence[str], by_architecture: bool = False
+) -> str:
     """Per job and unseen-motion sequence: RPE rotation against zero motion, RPE translation against the
     sequence's own mean motion, whether both criteria are met; then how many jobs meet both on every
-    unseen sequence."""
+    unseen sequence. With ``by_architecture`` the job's architecture first and a count per architecture."""
     zero, own = _baseline(base, baselines.ZERO), _baseline(base, baselines.OWN)
     if zero is None or own is None:
         return "No zero-motion or own-mean-motion baseline: nothing to compare."
     rows: list[list[object]] = []
-    passed, total = 0, 0
+    architectures: list[str] = []
+    passed: dict[str, list[bool]] = {}
     for column in networks:
         for job, results in zip(column.jobs, column.results, strict=True):
             checks = [
@@ -271,8 +281,14 @@ def unseen_markdown(networks: Sequence[Column], base: BaselineRun, unseen: Seque
             rows += [
                 [column.label, job.seed, s, *_check_cells(c)] for s, c in zip(unseen, checks, strict=True)
             ]
-            passed += all(c.met for c in checks)
-            total += 1
+            architectures += [_architecture(column)] * len(unseen)
+            passed.setdefault(_architecture(column), []).append(all(c.met for c in checks))
     table = Rows(["configuration", "seed", "sequence", *UNSEEN_HEADER], rows)
-    summary = f"{passed} of {total} jobs meet both on every unseen sequence."
+    if by_architecture:
+        table = prepend_column(table, "architecture", architectures)
+        counts = "; ".join(f"{a}: {sum(met)} of {len(met)}" for a, met in passed.items())
+        summary = f"Jobs that meet both on every unseen sequence, per architecture: {counts}."
+    else:
+        met = [m for ms in passed.values() for m in ms]
+        summary = f"{sum(met)} of {len(met)} jobs meet both on every unseen sequence."
     return "\n".join([UNSEEN_TEXT, "", render.markdown(table), "", summary])

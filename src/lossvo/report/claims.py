@@ -1,7 +1,8 @@
 """The study's claims, tested on the numbers: (a) "the chordal loss gives the lowest errors" (on the
 sequences outside the training split) and (b) "it converges fastest", each for every chordal
 configuration against every other, with paired tests and a verdict by the rule of
-:mod:`lossvo.report.statistics` (the last section of report.md and the rows of ``tables/claims.csv``)."""
+:mod:`lossvo.report.statistics` (the last section of report.md and the rows of ``tables/claims.csv``);
+where a sweep varies the architecture, within each architecture (:func:`claims_by_architecture`)."""
 
 from __future__ import annotations
 
@@ -13,10 +14,10 @@ import numpy as np
 
 from lossvo.report import render, statistics
 from lossvo.report.comparison import paired_values
-from lossvo.report.configurations import SCORE, loss_class_name
+from lossvo.report.configurations import SCORE, UNKNOWN_ARCHITECTURE, architecture_groups, loss_class_name
 from lossvo.report.convergence import Convergence, epoch_text
 from lossvo.report.jobs import APE_TRANS, RPE_ROT, RPE_TRANS, trained_sequences
-from lossvo.report.render import Rows
+from lossvo.report.render import Rows, prepend_column
 from lossvo.report.statistics import PairedTest
 from lossvo.report.tables import NETWORK, Cell, Column, fmt, mean_std_text, samples
 
@@ -45,7 +46,8 @@ class QuantityTests:
 class Claim:
     """One claim about one claimed configuration: what was paired (``scope``), per configuration the
     measured numbers ``{label: {quantity: Cell over seeds}}``, the tests per quantity, the overall
-    verdict and notes. ``untested`` says why there are no tests (then ``verdict`` is empty)."""
+    verdict and notes. ``untested`` says why there are no tests (then ``verdict`` is empty).
+    ``architecture``: the architecture it was tested within (:func:`claims_by_architecture`), else None."""
 
     statement: str
     configuration: str
@@ -55,6 +57,7 @@ class Claim:
     verdict: str = ""
     notes: list[str] = field(default_factory=list)
     untested: str | None = None
+    architecture: str | None = None
 
 
 def is_claimed(column: Column) -> bool:
@@ -169,6 +172,20 @@ def study_claims(
     return out
 
 
+def claims_by_architecture(
+    columns: Sequence[Column], items: Sequence[Convergence], sequences: Sequence[str]
+) -> list[Claim]:
+    """:func:`study_claims` within each architecture (its chordal configurations against its other
+    configurations), architecture by architecture, each claim naming its architecture."""
+    out = []
+    for architecture, group in architecture_groups(columns).items():
+        labels = {c.label for c in group}
+        for claim in study_claims(group, [i for i in items if i.label in labels], sequences):
+            claim.architecture = architecture
+            out.append(claim)
+    return out
+
+
 # --------------------------------------------------------------------------------------------------
 # Text and rows
 # --------------------------------------------------------------------------------------------------
@@ -211,9 +228,10 @@ def _tests_rows(claim: Claim) -> Rows:
     return Rows(header, rows)
 
 
-def claim_markdown(claim: Claim, letter: str) -> str:
-    """One claim: measured numbers (mean ± std over seeds), the paired tests and the verdict."""
-    head = f'### ({letter}) "{claim.statement}"'
+def claim_markdown(claim: Claim, letter: str, level: str = "###") -> str:
+    """One claim under a heading of ``level``: measured numbers (mean ± std over seeds), the paired tests
+    and the verdict."""
+    head = f'{level} ({letter}) "{claim.statement}"'
     head += f" ({claim.configuration})" if claim.configuration else ""
     if claim.untested:
         return f"{head}\n\nCannot be tested: {claim.untested}."
@@ -231,9 +249,26 @@ def claim_markdown(claim: Claim, letter: str) -> str:
     return "\n".join(lines)
 
 
-def claims_markdown(items: Sequence[Claim]) -> str:
+BY_ARCHITECTURE_TEXT = (
+    "This sweep varies the architecture: each claim is tested within each architecture, its chordal "
+    "configuration against that architecture's other configurations, with a verdict per architecture."
+)
+
+
+def claims_markdown(items: Sequence[Claim], by_architecture: bool = False) -> str:
+    """The rule and every claim; with ``by_architecture`` a subsection per architecture."""
     letters = {CLAIM_A: "a", CLAIM_B: "b"}
-    return "\n\n".join([CLAIMS_RULE, *(claim_markdown(c, letters[c.statement]) for c in items)])
+    if not by_architecture:
+        return "\n\n".join([CLAIMS_RULE, *(claim_markdown(c, letters[c.statement]) for c in items)])
+    parts = [CLAIMS_RULE, BY_ARCHITECTURE_TEXT]
+    for architecture in dict.fromkeys(c.architecture or UNKNOWN_ARCHITECTURE for c in items):
+        parts.append(f"### Architecture `{architecture}`")
+        parts += [
+            claim_markdown(c, letters[c.statement], "####")
+            for c in items
+            if (c.architecture or UNKNOWN_ARCHITECTURE) == architecture
+        ]
+    return "\n\n".join(parts)
 
 
 CLAIMS_HEADER = [
@@ -256,24 +291,28 @@ def _test_numbers(t: PairedTest) -> list[object]:
     return [t.n, repr(t.mean), repr(t.versus_mean), repr(t.p_value), repr(statistics.smallest_p(t.n))]
 
 
-def claims_csv_rows(items: Sequence[Claim]) -> Rows:
+def claims_csv_rows(items: Sequence[Claim], by_architecture: bool = False) -> Rows:
     """``tables/claims.csv``: one row per paired test (``verdict``: that quantity's), then one ``all`` row
     per claim with its verdict; an untested claim is one row with verdict ``cannot be tested`` and the
-    reason in ``note``."""
+    reason in ``note``; with ``by_architecture`` the claim's architecture first."""
     rows: list[list[object]] = []
+    architectures: list[str] = []
     for c in items:
+        start = len(rows)
         if c.untested:
             rows.append([c.statement, c.configuration, *[""] * 7, "cannot be tested", c.untested])
-            continue
-        for q in c.quantities:
-            for t in q.tests:
-                rows.append(
-                    [c.statement, c.configuration, t.versus, q.quantity, *_test_numbers(t), q.verdict, ""]
-                )
-        rows.append([c.statement, c.configuration, "all", "all", *[""] * 5, c.verdict, " ".join(c.notes)])
-    return Rows(CLAIMS_HEADER, rows)
+        else:
+            for q in c.quantities:
+                for t in q.tests:
+                    rows.append(
+                        [c.statement, c.configuration, t.versus, q.quantity, *_test_numbers(t), q.verdict, ""]
+                    )
+            rows.append([c.statement, c.configuration, "all", "all", *[""] * 5, c.verdict, " ".join(c.notes)])
+        architectures += [c.architecture or UNKNOWN_ARCHITECTURE] * (len(rows) - start)
+    table = Rows(CLAIMS_HEADER, rows)
+    return prepend_column(table, "architecture", architectures) if by_architecture else table
 
 
-def claims_csv(items: Sequence[Claim]) -> str:
+def claims_csv(items: Sequence[Claim], by_architecture: bool = False) -> str:
     """:func:`claims_csv_rows` as CSV text."""
-    return render.csv_text(claims_csv_rows(items))
+    return render.csv_text(claims_csv_rows(items, by_architecture))

@@ -1,6 +1,7 @@
-"""The pairwise comparison of configurations: every pair on the APE / RPE RMSEs, paired over
-(seed, sequence), with the report's paired test (:func:`lossvo.report.statistics.paired_test`; rows of
-``tables/pairwise.csv`` and of its section of report.md)."""
+"""The pairwise comparison of configurations: every pair (of one architecture, where the sweep varies it)
+on the APE / RPE RMSEs, paired over (seed, sequence), with the report's paired test
+(:func:`lossvo.report.statistics.paired_test`; rows of ``tables/pairwise.csv`` and of its section of
+report.md)."""
 
 from __future__ import annotations
 
@@ -10,8 +11,9 @@ from itertools import combinations
 
 import numpy as np
 
+from lossvo.report.configurations import UNKNOWN_ARCHITECTURE, architecture_groups
 from lossvo.report.jobs import APE_TRANS, RPE_ROT, RPE_TRANS, metric_value
-from lossvo.report.render import Rows
+from lossvo.report.render import Rows, prepend_column
 from lossvo.report.statistics import ALPHA, PairedTest, paired_test
 from lossvo.report.tables import NETWORK, Column, fmt
 
@@ -25,13 +27,15 @@ COMPARED = (
 @dataclass
 class Comparison:
     """A vs B on one metric over paired (seed, sequence) values (``test.median_diff``: A - B in the
-    metric's unit; ``test.lower``: pairs where A is lower), on ``seeds`` common seeds."""
+    metric's unit; ``test.lower``: pairs where A is lower), on ``seeds`` common seeds; ``architecture``:
+    A's (and B's)."""
 
     a: str
     b: str
     metric: str
     test: PairedTest
     seeds: int
+    architecture: str | None = None
 
     @property
     def verdict(self) -> str:
@@ -56,19 +60,31 @@ def paired_values(a: Column, b: Column, path: Sequence[str]) -> tuple[np.ndarray
     return np.array(xs), np.array(ys), len(seeds)
 
 
-def compare(columns: Sequence[Column]) -> list[Comparison]:
-    """Every pair of network columns on each metric of :data:`COMPARED`."""
+def compare(columns: Sequence[Column], by_architecture: bool = False) -> list[Comparison]:
+    """Every pair of network columns on each metric of :data:`COMPARED`; with ``by_architecture`` every
+    pair of one architecture, architecture by architecture."""
     networks = [c for c in columns if c.kind == NETWORK]
+    groups = architecture_groups(networks).values() if by_architecture else [networks]
     out = []
-    for a, b in combinations(networks, 2):
-        for metric, path in COMPARED:
-            x, y, seeds = paired_values(a, b, path)
-            out.append(Comparison(a.label, b.label, metric, paired_test(b.label, x, y), seeds))
+    for group in groups:
+        for a, b in combinations(group, 2):
+            for metric, path in COMPARED:
+                x, y, seeds = paired_values(a, b, path)
+                test = paired_test(b.label, x, y)
+                out.append(Comparison(a.label, b.label, metric, test, seeds, a.architecture))
     return out
 
 
-def comparison_rows(comparisons: Sequence[Comparison]) -> Rows:
-    """The section's table."""
+def _with_architecture(table: Rows, comparisons: Sequence[Comparison], by_architecture: bool) -> Rows:
+    if not by_architecture:
+        return table
+    return prepend_column(
+        table, "architecture", [c.architecture or UNKNOWN_ARCHITECTURE for c in comparisons]
+    )
+
+
+def comparison_rows(comparisons: Sequence[Comparison], by_architecture: bool = False) -> Rows:
+    """The section's table (with ``by_architecture`` an ``architecture`` column first)."""
     header = [
         "A",
         "B",
@@ -84,15 +100,15 @@ def comparison_rows(comparisons: Sequence[Comparison]) -> Rows:
          fmt(c.test.p_value, 3), c.verdict]
         for c in comparisons
     ]  # fmt: skip
-    return Rows(header, rows)
+    return _with_architecture(Rows(header, rows), comparisons, by_architecture)
 
 
-def comparison_csv_rows(comparisons: Sequence[Comparison]) -> Rows:
-    """``tables/pairwise.csv``: full precision."""
+def comparison_csv_rows(comparisons: Sequence[Comparison], by_architecture: bool = False) -> Rows:
+    """``tables/pairwise.csv``: full precision (with ``by_architecture`` an ``architecture`` column first)."""
     header = ["a", "b", "metric", "pairs", "seeds", "median_diff", "a_lower", "p_value", "verdict"]
     rows: list[list[object]] = [
         [c.a, c.b, c.metric, c.test.n, c.seeds, repr(c.test.median_diff), c.test.lower, repr(c.test.p_value),
          c.verdict]
         for c in comparisons
     ]  # fmt: skip
-    return Rows(header, rows)
+    return _with_architecture(Rows(header, rows), comparisons, by_architecture)

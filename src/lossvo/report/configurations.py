@@ -1,6 +1,7 @@
 """The compared configurations of a sweep: jobs grouped by the overrides that differ (seeds as
-replicates), each configuration's rotation weighting (k · gain) and the metric that selected its best
-checkpoint, and the configurations table of report.md and ``tables/configurations.csv``.
+replicates), each with its architecture, grouped by architecture where the sweep varies it; each
+configuration's rotation weighting (k · gain) and the metric that selected its best checkpoint, and the
+configurations table of report.md and ``tables/configurations.csv``.
 
 Everything is read from the jobs' ``.hydra/config.yaml`` (and metrics.csv for learned weighting); the loss
 classes are looked up by their ``_target_`` only for their ``small_angle_gain`` and, through
@@ -9,6 +10,7 @@ classes are looked up by their ``_target_`` only for their ``small_angle_gain`` 
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -16,8 +18,16 @@ from typing import Any
 import numpy as np
 
 from lossvo import weighting
-from lossvo.report.jobs import REPLICATE_KEY, Curves, Job, config_value, finite_number, job_number
-from lossvo.report.render import Rows
+from lossvo.report.jobs import (
+    ARCHITECTURE_KEY,
+    REPLICATE_KEY,
+    Curves,
+    Job,
+    config_value,
+    finite_number,
+    job_number,
+)
+from lossvo.report.render import Rows, prepend_column
 from lossvo.report.tables import NETWORK, Cell, Column, mean_std_text
 
 SCORE = "val/score"
@@ -54,8 +64,9 @@ def label_jobs(jobs: Sequence[Job]) -> None:
 
 
 def network_columns(jobs: Sequence[Job]) -> list[Column]:
-    """One column per configuration (jobs with equal labels), replicates ordered by seed; only included
-    jobs; in the order of the configurations' first job."""
+    """One column per configuration (jobs with equal labels), replicates ordered by seed, with its
+    architecture (:func:`column_architecture`); only included jobs; in the order of the configurations'
+    first job."""
     columns: dict[str, Column] = {}
     for job in jobs:
         if job.included:
@@ -64,7 +75,61 @@ def network_columns(jobs: Sequence[Job]) -> list[Column]:
         column.jobs.sort(key=lambda j: (_seed_order(j.seed), job_number(j.path)))
         column.replicates = [f"{REPLICATE_KEY}={j.seed}" for j in column.jobs]
         column.results = [j.included_results.scored() for j in column.jobs]
+        column.architecture = column_architecture(column.jobs)
     return list(columns.values())
+
+
+# --------------------------------------------------------------------------------------------------
+# Architectures
+# --------------------------------------------------------------------------------------------------
+
+UNKNOWN_ARCHITECTURE = "?"
+"""The architecture of a job whose folder names none (:func:`lossvo.report.jobs.read_architecture`)."""
+
+
+def column_architecture(jobs: Sequence[Job]) -> str:
+    """The architecture of a configuration's jobs (``flowvo``); several, should its seeds differ, joined
+    by ``" + "``; :data:`UNKNOWN_ARCHITECTURE` where none is known."""
+    return " + ".join(sorted({j.architecture or UNKNOWN_ARCHITECTURE for j in jobs})) or UNKNOWN_ARCHITECTURE
+
+
+def architecture_groups(columns: Sequence[Column]) -> dict[str, list[Column]]:
+    """The network columns by architecture, architectures in the order of their first configuration."""
+    groups: dict[str, list[Column]] = {}
+    for column in columns:
+        if column.kind == NETWORK:
+            groups.setdefault(column.architecture or UNKNOWN_ARCHITECTURE, []).append(column)
+    return groups
+
+
+def varies_architecture(columns: Sequence[Column]) -> bool:
+    """Whether the network columns span more than one architecture (then the report is given per
+    architecture)."""
+    return len(architecture_groups(columns)) > 1
+
+
+def architecture_file_name(architecture: str) -> str:
+    """An architecture's name as part of a file name (``flowvo``; characters other than letters, digits,
+    ``_``, ``.`` and ``-`` replaced by ``-``; ``unknown`` for :data:`UNKNOWN_ARCHITECTURE`)."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "-", architecture).strip("-.") or "unknown"
+
+
+def treatments(columns: Sequence[Column]) -> dict[str, str]:
+    """``{label: treatment}`` of the network columns: a configuration's varying overrides without
+    :data:`lossvo.report.jobs.ARCHITECTURE_KEY` (``model=flowvo,loss=euler`` -> ``loss=euler``), which
+    names the same loss (and weights, ...) in every architecture; ``defaults`` where nothing else varies."""
+    networks = [c for c in columns if c.kind == NETWORK and c.jobs]
+    keys = [k for k in varying_keys([j for c in networks for j in c.jobs]) if k != ARCHITECTURE_KEY]
+    out = {}
+    for column in networks:
+        overrides = column.jobs[0].overrides
+        out[column.label] = ",".join(f"{k}={overrides[k]}" for k in keys if k in overrides) or "defaults"
+    return out
+
+
+def architecture_cells(columns: Sequence[Column]) -> list[str]:
+    """The architecture of each column, for a table's ``architecture`` column."""
+    return [c.architecture or UNKNOWN_ARCHITECTURE for c in columns]
 
 
 def _seed_order(seed: Any) -> tuple[int, float, str]:
@@ -289,15 +354,18 @@ def configuration_row(column: Column) -> list[str]:
     ]
 
 
-def configuration_rows(columns: Sequence[Column]) -> Rows:
-    """Per configuration: loss class, weighting preset, k, gain, k·gain and the selection metric."""
-    rows = [configuration_row(c) for c in columns if c.kind == NETWORK]
-    return Rows([h for h, _ in CONFIGURATION_FIELDS], rows)
+def configuration_rows(columns: Sequence[Column], by_architecture: bool = False) -> Rows:
+    """Per configuration: loss class, weighting preset, k, gain, k·gain and the selection metric; with
+    ``by_architecture`` an ``architecture`` column first."""
+    networks = [c for c in columns if c.kind == NETWORK]
+    table = Rows([h for h, _ in CONFIGURATION_FIELDS], [configuration_row(c) for c in networks])
+    return prepend_column(table, "architecture", architecture_cells(networks)) if by_architecture else table
 
 
-def configuration_csv_rows(columns: Sequence[Column]) -> Rows:
-    """:data:`CONFIGURATION_FIELDS` per configuration, as in report.md (backticks dropped)."""
-    rows: list[list[object]] = [
-        [v.replace("`", "") for v in configuration_row(c)] for c in columns if c.kind == NETWORK
-    ]
-    return Rows([name for _, name in CONFIGURATION_FIELDS], rows)
+def configuration_csv_rows(columns: Sequence[Column], by_architecture: bool = False) -> Rows:
+    """:data:`CONFIGURATION_FIELDS` per configuration, as in report.md (backticks dropped); with
+    ``by_architecture`` an ``architecture`` column first."""
+    networks = [c for c in columns if c.kind == NETWORK]
+    rows: list[list[object]] = [[v.replace("`", "") for v in configuration_row(c)] for c in networks]
+    table = Rows([name for _, name in CONFIGURATION_FIELDS], rows)
+    return prepend_column(table, "architecture", architecture_cells(networks)) if by_architecture else table

@@ -9,9 +9,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from lossvo.report import render, statistics
-from lossvo.report.configurations import SCORE, job_selection
+from lossvo.report.configurations import SCORE, UNKNOWN_ARCHITECTURE, job_selection
 from lossvo.report.jobs import Job
-from lossvo.report.render import Rows
+from lossvo.report.render import Rows, prepend_column
 from lossvo.report.tables import NETWORK, Cell, Column
 
 
@@ -28,13 +28,14 @@ def convergence_metric(job: Job) -> tuple[str, str]:
 class Convergence:
     """A configuration's convergence: per replicate (seed) the column used, the first epoch (1-based,
     = metrics.csv epoch + 1) within :data:`lossvo.report.statistics.CONVERGENCE_TOLERANCE` of its best
-    value (None without that column) and the number of epochs logged."""
+    value (None without that column) and the number of epochs logged; the configuration's architecture."""
 
     label: str
     replicates: list[str]
     metrics: list[str]
     epochs: list[int | None]
     logged: list[int]
+    architecture: str | None = None
 
     def cell(self) -> Cell:
         return Cell.of(np.array([e if e is not None else np.nan for e in self.epochs], dtype=np.float64))
@@ -63,7 +64,7 @@ def convergence(columns: Sequence[Column]) -> list[Convergence]:
         metrics = [m for m, _, _ in per_job]
         epochs = [e for _, e, _ in per_job]
         logged = [n for _, _, n in per_job]
-        out.append(Convergence(c.label, list(c.replicates), metrics, epochs, logged))
+        out.append(Convergence(c.label, list(c.replicates), metrics, epochs, logged, c.architecture))
     return out
 
 
@@ -85,7 +86,9 @@ def convergence_rule() -> list[str]:
     ]
 
 
-def convergence_markdown(items: Sequence[Convergence]) -> str:
+def convergence_markdown(items: Sequence[Convergence], by_architecture: bool = False) -> str:
+    """The rule, a note on curves measured on another metric, the table (with ``by_architecture`` an
+    ``architecture`` column first)."""
     lines = convergence_rule()
     fallback = sorted({m for c in items for m in c.metrics if m != SCORE})
     if fallback:
@@ -94,11 +97,16 @@ def convergence_markdown(items: Sequence[Convergence]) -> str:
             f"*Note:* `{SCORE}` is not in every metrics.csv: those jobs are measured on their selection "
             f"monitor ({', '.join(f'`{m}`' for m in fallback)}), which is not on one scale across losses.",
         ]
-    return "\n".join([*lines, "", render.markdown(convergence_rows(items))])
+    return "\n".join([*lines, "", render.markdown(convergence_rows(items, by_architecture))])
 
 
-def convergence_rows(items: Sequence[Convergence]) -> Rows:
-    """Per configuration: the metric, seeds with a curve, the epoch (mean ± std), per seed, epochs logged."""
+def _architectures(items: Sequence[Convergence]) -> list[str]:
+    return [c.architecture or UNKNOWN_ARCHITECTURE for c in items]
+
+
+def convergence_rows(items: Sequence[Convergence], by_architecture: bool = False) -> Rows:
+    """Per configuration: the metric, seeds with a curve, the epoch (mean ± std), per seed, epochs logged;
+    with ``by_architecture`` the configuration's architecture first."""
     header = [
         "configuration",
         "metric",
@@ -114,18 +122,22 @@ def convergence_rows(items: Sequence[Convergence]) -> Rows:
         cell = c.cell()
         rows.append([c.label, ", ".join(sorted(set(c.metrics))), cell.n, epoch_text(cell), per_seed,
                      ", ".join(map(str, sorted(set(c.logged))))])  # fmt: skip
-    return Rows(header, rows)
+    table = Rows(header, rows)
+    return prepend_column(table, "architecture", _architectures(items)) if by_architecture else table
 
 
-def convergence_csv_rows(items: Sequence[Convergence]) -> Rows:
+def convergence_csv_rows(items: Sequence[Convergence], by_architecture: bool = False) -> Rows:
     """One row per configuration and seed: ``configuration, seed, metric, epoch`` (1-based, empty if
     none), ``epochs_logged``; then per configuration a row with seed ``mean`` (mean epoch) and one with
-    seed ``std`` (sample std)."""
+    seed ``std`` (sample std); with ``by_architecture`` the configuration's architecture first."""
     rows: list[list[object]] = []
-    for c in items:
+    architectures: list[str] = []
+    for c, architecture in zip(items, _architectures(items), strict=True):
         for r, m, e, n in zip(c.replicates, c.metrics, c.epochs, c.logged, strict=True):
             rows.append([c.label, r, m, "" if e is None else e, n])
         cell, metric = c.cell(), ",".join(sorted(set(c.metrics)))
         rows.append([c.label, "mean", metric, repr(cell.mean) if cell.n else "", ""])
         rows.append([c.label, "std", metric, repr(cell.std) if cell.n > 1 else "", ""])
-    return Rows(["configuration", "seed", "metric", "epoch", "epochs_logged"], rows)
+        architectures += [architecture] * (len(c.replicates) + 2)
+    table = Rows(["configuration", "seed", "metric", "epoch", "epochs_logged"], rows)
+    return prepend_column(table, "architecture", architectures) if by_architecture else table

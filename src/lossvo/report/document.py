@@ -6,7 +6,15 @@ metrics; the configurations (:mod:`~lossvo.report.configurations`); Tables I-III
 (:mod:`~lossvo.report.tables`); the pairwise comparison (:mod:`~lossvo.report.comparison`); convergence
 (:mod:`~lossvo.report.convergence`); the baselines and each job against them
 (:mod:`~lossvo.report.against_baselines`); the jobs, included or skipped and why; the files; the figures
-(:mod:`~lossvo.report.figures`); and last the study's claims (:mod:`~lossvo.report.claims`).
+(:mod:`~lossvo.report.figures`); where the sweep varies the architecture, whether the architectures rank
+the losses alike (:mod:`~lossvo.report.architectures`); and last the study's claims
+(:mod:`~lossvo.report.claims`).
+
+Where the sweep varies the architecture (:func:`~lossvo.report.configurations.varies_architecture`), the
+tables whose rows are configurations (or jobs) get an ``architecture`` column, Tables I-III, the curves and
+the APE bars are given per architecture (``tables/translation_<architecture>.csv``,
+``figures/curves_<architecture>.png``), pairs are compared and claims tested within an architecture; a
+single-architecture sweep's report is unchanged.
 """
 
 from __future__ import annotations
@@ -15,7 +23,7 @@ import logging
 import os
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from lossvo.atomic import write_text_atomic
@@ -29,25 +37,37 @@ from lossvo.report.against_baselines import (
     run_baselines,
     unseen_markdown,
 )
-from lossvo.report.claims import Claim, claims_csv_rows, claims_markdown, study_claims
+from lossvo.report.architectures import (
+    Agreement,
+    agreement_markdown,
+    architecture_agreement,
+    interaction_csv_rows,
+    rankings_csv_rows,
+)
+from lossvo.report.claims import Claim, claims_by_architecture, claims_csv_rows, claims_markdown, study_claims
 from lossvo.report.comparison import Comparison, compare, comparison_csv_rows, comparison_rows
 from lossvo.report.configurations import (
+    UNKNOWN_ARCHITECTURE,
+    architecture_file_name,
+    architecture_groups,
     configuration_csv_rows,
     configuration_rows,
     label_jobs,
     network_columns,
     selection_warning,
+    varies_architecture,
 )
 from lossvo.report.convergence import Convergence, convergence, convergence_csv_rows, convergence_markdown
 from lossvo.report.figures import plot_ape_bars, plot_curves, plot_trajectories
 from lossvo.report.jobs import Job, ground_truth, job_dirs, load_job, unseen_sequences
-from lossvo.report.render import Rows
+from lossvo.report.render import Rows, prepend_column
 from lossvo.report.statistics import ALPHA
 from lossvo.report.tables import (
     NETWORK,
     TABLES,
     Column,
     Table,
+    TableSpec,
     build_table,
     table_csv,
     table_latex,
@@ -59,6 +79,8 @@ log = logging.getLogger("lossvo")
 UNSEEN_NOTE = "unseen motion"
 """The note beside an unseen-motion sequence's name in the per-sequence tables."""
 TABLE_FILES = ("pairwise.csv", "configurations.csv", "convergence.csv", "claims.csv")
+ARCHITECTURE_FILES = ("rankings.csv", "interaction.csv")
+"""The tables of the *Architectures* section, written where the sweep varies the architecture."""
 
 
 # --------------------------------------------------------------------------------------------------
@@ -69,12 +91,16 @@ TABLE_FILES = ("pairwise.csv", "configurations.csv", "convergence.csv", "claims.
 @dataclass
 class Study:
     """What a report measures besides the tables: the configurations (network columns), their
-    convergence, the study's claims and the evaluated sequences of unseen motion."""
+    convergence, the study's claims and the evaluated sequences of unseen motion; where the sweep varies
+    the architecture (``by_architecture``), whether the architectures rank the losses alike
+    (``agreement``)."""
 
     networks: list[Column]
     convergence: list[Convergence]
     claims: list[Claim]
     unseen: list[str] = field(default_factory=list)
+    by_architecture: bool = False
+    agreement: Agreement | None = None
 
 
 def evaluated_sequences(columns: Sequence[Column]) -> list[str]:
@@ -91,10 +117,38 @@ def unseen_of(networks: Sequence[Column], sequences: Sequence[str]) -> list[str]
 
 def analyse(networks: Sequence[Column], sequences: Sequence[str]) -> Study:
     """Convergence, claims and unseen-motion sequences of the network columns on the evaluated
-    ``sequences``."""
+    ``sequences``; where they span several architectures, the claims within each and the agreement of
+    the architectures' rankings."""
     items = convergence(networks)
-    claimed = study_claims(networks, items, sequences)
-    return Study(list(networks), items, claimed, unseen_of(networks, sequences))
+    unseen = unseen_of(networks, sequences)
+    if not varies_architecture(networks):
+        return Study(list(networks), items, study_claims(networks, items, sequences), unseen)
+    claimed = claims_by_architecture(networks, items, sequences)
+    return Study(list(networks), items, claimed, unseen, True, architecture_agreement(networks, sequences))
+
+
+def architecture_spec(spec: TableSpec, architecture: str) -> TableSpec:
+    """A table of ``spec`` for one architecture's configurations: its key (the file name) and title name
+    the architecture."""
+    key = f"{spec.key}_{architecture_file_name(architecture)}"
+    return replace(spec, key=key, title=f"{spec.title}, architecture {architecture}")
+
+
+def build_tables(
+    networks: Sequence[Column], baselines: Sequence[Column], sequences: Sequence[str], notes: dict[str, str]
+) -> list[Table]:
+    """Tables I-III of the networks beside the baselines; where the networks span several architectures,
+    each table per architecture (table by table, architectures in order); none without networks."""
+    if not networks:
+        return []
+    if not varies_architecture(networks):
+        return [build_table(spec, [*networks, *baselines], sequences, notes) for spec in TABLES]
+    groups = architecture_groups(networks)
+    return [
+        build_table(architecture_spec(spec, architecture), [*group, *baselines], sequences, notes)
+        for spec in TABLES
+        for architecture, group in groups.items()
+    ]
 
 
 @dataclass
@@ -110,15 +164,18 @@ class Figures:
 # --------------------------------------------------------------------------------------------------
 
 
-def jobs_rows(jobs: Sequence[Job]) -> Rows:
+def jobs_rows(jobs: Sequence[Job], by_architecture: bool = False) -> Rows:
     """Every job: its folder, configuration, seed, status, whether it is in the tables (or why not: the
-    file it could not use and why) and notes."""
+    file it could not use and why) and notes; with ``by_architecture`` its architecture first."""
     rows: list[list[object]] = [
         [f"`{job.path.name}`", job.label or "?", job.seed, job.status,
          "yes" if job.skip is None else f"no: {job.skip}", "; ".join(job.notes)]
         for job in jobs
     ]  # fmt: skip
-    return Rows(["job", "configuration", "seed", "status", "in tables", "notes"], rows)
+    table = Rows(["job", "configuration", "seed", "status", "in tables", "notes"], rows)
+    if not by_architecture:
+        return table
+    return prepend_column(table, "architecture", [job.architecture or UNKNOWN_ARCHITECTURE for job in jobs])
 
 
 def seeds_text(columns: Sequence[Column]) -> str:
@@ -154,8 +211,21 @@ def header_lines(sweep: Path, jobs: Sequence[Job], study: Study) -> list[str]:
         f"Generated {time.strftime('%Y-%m-%d %H:%M:%S')} by `python -m lossvo.report`. "
         f"{len(jobs)} job(s): {included} included, {len(jobs) - included} skipped (see *Jobs*).",
     ]
+    if study.by_architecture:
+        groups = architecture_groups(study.networks)
+        names = ", ".join(f"`{a}` ({sum(len(c.jobs) for c in g)} jobs)" for a, g in groups.items())
+        lines += ["", ARCHITECTURES_TEXT.format(names=names)]
     warning = selection_warning(study.networks)
     return lines + (["", warning] if warning else [])
+
+
+ARCHITECTURES_TEXT = (
+    "This sweep varies the architecture (the `model` config group's choice, else the network's class): "
+    "{names}. Tables I-III, the curves and the APE bars are given per architecture, the tables of "
+    "configurations and jobs have an `architecture` column, pairs are compared and the study's claims "
+    "tested within an architecture, and *Architectures* asks whether the architectures rank the losses "
+    "alike."
+)
 
 
 CONFIGURATIONS_TEXT = (
@@ -170,7 +240,7 @@ CONFIGURATIONS_TEXT = (
 def configurations_lines(study: Study) -> list[str]:
     if not study.networks:
         return []
-    table = render.markdown(configuration_rows(study.networks))
+    table = render.markdown(configuration_rows(study.networks, study.by_architecture))
     return ["", "## Configurations", "", CONFIGURATIONS_TEXT, "", table]
 
 
@@ -192,9 +262,11 @@ def tables_lines(
         f"Test sequences: {', '.join(sequences)}. APE alignment: `{align}`; RPE delta: {delta} "
         "frame(s) (as in the jobs' results.json). Columns are named by the overrides that differ "
         "between jobs; **bold**: the lowest value of the row over all columns, baselines "
-        "included, so a winning baseline shows." + unseen,
+        "included, so a winning baseline shows."
+        + unseen
+        + (PER_ARCHITECTURE_TEXT if study.by_architecture else ""),
         "",
-        seeds_text([*tables[0].columns]),
+        seeds_text(study.networks),
     ]
     for table in tables:
         lines += ["", f"## {table.spec.title}", "", table_markdown(table)]
@@ -204,6 +276,10 @@ def tables_lines(
     return lines
 
 
+PER_ARCHITECTURE_TEXT = (
+    " Each table is given per architecture: that architecture's configurations beside the baselines, bold "
+    "over that table's columns."
+)
 PAIRWISE_TEXT = (
     "Paired over (seed, sequence): the per-sequence RMSE of A and of B from the same seed on the "
     "same sequence. Two-sided Wilcoxon signed-rank test (`scipy.stats.wilcoxon`) on the differences "
@@ -212,7 +288,12 @@ PAIRWISE_TEXT = (
 )
 
 
-def pairwise_lines(comparisons: Sequence[Comparison]) -> list[str]:
+PAIRWISE_BY_ARCHITECTURE_TEXT = (
+    " Pairs of one architecture (the architectures are compared in *Architectures*)."
+)
+
+
+def pairwise_lines(comparisons: Sequence[Comparison], by_architecture: bool = False) -> list[str]:
     if not comparisons:
         return [
             "",
@@ -220,8 +301,9 @@ def pairwise_lines(comparisons: Sequence[Comparison]) -> list[str]:
             "",
             "Fewer than two configurations with results: nothing to compare.",
         ]
-    table = render.markdown(comparison_rows(comparisons))
-    return ["", "## Pairwise comparison", "", PAIRWISE_TEXT, "", table]
+    table = render.markdown(comparison_rows(comparisons, by_architecture))
+    text = PAIRWISE_TEXT + (PAIRWISE_BY_ARCHITECTURE_TEXT if by_architecture else "")
+    return ["", "## Pairwise comparison", "", text, "", table]
 
 
 def baseline_lines(
@@ -231,16 +313,18 @@ def baseline_lines(
     lines = ["", "## Baselines", "", baselines_markdown(base, baselines_on)]
     if not (baselines_on and any_included):
         return lines
-    networks = [c for c in tables[0].columns if c.kind == NETWORK] if tables else []
-    lines += ["", "## Against the mean motion, per job", "", learning_markdown(networks, base)]
+    networks = [c for c in study.networks if c.kind == NETWORK] if tables else []
+    by = study.by_architecture
+    lines += ["", "## Against the mean motion, per job", "", learning_markdown(networks, base, by)]
     if study.unseen:
-        lines += ["", "## Unseen motion", "", unseen_markdown(networks, base, study.unseen)]
+        lines += ["", "## Unseen motion", "", unseen_markdown(networks, base, study.unseen, by)]
     return lines
 
 
-def files_lines(tables: Sequence[Table]) -> list[str]:
+def files_lines(tables: Sequence[Table], by_architecture: bool = False) -> list[str]:
     files = [f"`tables/{t.spec.key}.{ext}`" for t in tables for ext in ("csv", "tex")]
-    files += [f"`tables/{name}`" for name in TABLE_FILES]
+    names = [*TABLE_FILES, *(ARCHITECTURE_FILES if by_architecture else ())]
+    files += [f"`tables/{name}`" for name in names]
     return ["", "## Files", "", f"Tables as CSV and LaTeX (booktabs): {', '.join(files)}."]
 
 
@@ -270,15 +354,23 @@ def render_report(sweep: Path, out: Path, contents: Contents) -> str:
     included = [j for j in c.jobs if j.included]
     lines = header_lines(sweep, c.jobs, c.study)
     lines += configurations_lines(c.study)
+    by = c.study.by_architecture
     lines += tables_lines(included, c.tables, c.sequences, c.study)
-    lines += pairwise_lines(c.comparisons)
+    lines += pairwise_lines(c.comparisons, by)
     if c.study.convergence:
-        lines += ["", "## Convergence", "", convergence_markdown(c.study.convergence)]
+        lines += ["", "## Convergence", "", convergence_markdown(c.study.convergence, by)]
     lines += baseline_lines(c.base, c.baselines_on, c.tables, c.study, bool(included))
-    lines += ["", "## Jobs", "", render.markdown(jobs_rows(c.jobs)), "", DAMAGED_CURVES_TEXT]
-    lines += files_lines(c.tables)
+    lines += ["", "## Jobs", "", render.markdown(jobs_rows(c.jobs, by)), "", DAMAGED_CURVES_TEXT]
+    lines += files_lines(c.tables, by)
     lines += ["", "## Figures", "", figures_markdown(c.figures, out)]
-    lines += ["", "## The study's claims", "", claims_markdown(c.study.claims)]
+    if c.study.agreement is not None:
+        lines += [
+            "",
+            "## Architectures: does the loss ranking agree?",
+            "",
+            agreement_markdown(c.study.agreement),
+        ]
+    lines += ["", "## The study's claims", "", claims_markdown(c.study.claims, by)]
     return "\n".join(lines) + "\n"
 
 
@@ -290,18 +382,24 @@ def render_report(sweep: Path, out: Path, contents: Contents) -> str:
 def write_tables(
     tables: Sequence[Table], comparisons: Sequence[Comparison], study: Study, folder: Path
 ) -> None:
-    """Tables I-III as CSV and LaTeX, and :data:`TABLE_FILES`, into ``folder``."""
+    """Tables I-III as CSV and LaTeX, :data:`TABLE_FILES` and, where the sweep varies the architecture,
+    :data:`ARCHITECTURE_FILES`, into ``folder``."""
     for table in tables:
         write_text_atomic(folder / f"{table.spec.key}.csv", table_csv(table))
         write_text_atomic(folder / f"{table.spec.key}.tex", table_latex(table))
+    by = study.by_architecture
     rows = (
-        comparison_csv_rows(comparisons),
-        configuration_csv_rows(study.networks),
-        convergence_csv_rows(study.convergence),
-        claims_csv_rows(study.claims),
+        comparison_csv_rows(comparisons, by),
+        configuration_csv_rows(study.networks, by),
+        convergence_csv_rows(study.convergence, by),
+        claims_csv_rows(study.claims, by),
     )
     for name, content in zip(TABLE_FILES, rows, strict=True):
         write_text_atomic(folder / name, render.csv_text(content))
+    if study.agreement is not None:
+        extra = (rankings_csv_rows(study.agreement), interaction_csv_rows(study.agreement))
+        for name, content in zip(ARCHITECTURE_FILES, extra, strict=True):
+            write_text_atomic(folder / name, render.csv_text(content))
 
 
 def ground_truth_note(missing: dict[str, str]) -> list[str]:
@@ -324,14 +422,18 @@ def write_figures(
     source: Job | None,
 ) -> Figures:
     """Every figure, the ground truth read from the pose files that ``source``'s results.json names
-    (:func:`lossvo.report.jobs.ground_truth`). Returns the paths written and a note if some trajectory
-    figure lacks ground truth."""
+    (:func:`lossvo.report.jobs.ground_truth`); the curves and the APE bars per architecture where the
+    networks span several (``curves_<architecture>.png``). Returns the paths written and a note if some
+    trajectory figure lacks ground truth."""
     figures = Figures()
-    if networks and plot_curves(networks, folder / "curves.png"):
-        figures.paths.append(folder / "curves.png")
-    if tables and tables[0].columns:
-        plot_ape_bars(tables[0], folder / "ape_trans_rmse.png")
-        figures.paths.append(folder / "ape_trans_rmse.png")
+    groups = architecture_groups(networks) if varies_architecture(networks) else {"": list(networks)}
+    for (architecture, group), table in zip(groups.items(), tables, strict=False):  # Table I's first
+        suffix = f"_{architecture_file_name(architecture)}" if architecture else ""
+        if group and plot_curves(group, folder / f"curves{suffix}.png"):
+            figures.paths.append(folder / f"curves{suffix}.png")
+        if table.columns:
+            plot_ape_bars(table, folder / f"ape_trans_rmse{suffix}.png")
+            figures.paths.append(folder / f"ape_trans_rmse{suffix}.png")
     gt, missing = ground_truth(source, sequences) if source is not None else ({}, {})
     figures.notes += ground_truth_note(missing)
     for s in sequences:
@@ -365,9 +467,8 @@ def make_report(
         base = run_baselines(included, sequences, out / "cache", n_jobs or os.cpu_count() or 1)
     study = analyse(networks, sequences)
     notes = dict.fromkeys(study.unseen, UNSEEN_NOTE)
-    columns = [*networks, *base.columns]
-    tables = [build_table(spec, columns, sequences, notes) for spec in TABLES] if networks else []
-    comparisons = compare(networks)
+    tables = build_tables(networks, base.columns, sequences, notes)
+    comparisons = compare(networks, study.by_architecture)
     write_tables(tables, comparisons, study, out / "tables")
     figures = None
     if with_figures:

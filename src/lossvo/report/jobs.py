@@ -1,9 +1,10 @@
 """Reading a sweep folder and its job folders: what each job is, what happened, what it produced.
 
 A Hydra multirun leaves one job folder per run, ``SWEEP_DIR/<num>_<overrides>/``, holding
-``.hydra/{config,overrides}.yaml``, ``status.json``, ``metrics.csv``, ``results.json`` and
+``.hydra/{config,hydra,overrides}.yaml``, ``status.json``, ``metrics.csv``, ``results.json`` and
 ``trajectories/NN.txt``. :func:`load_job` reads one into a :class:`Job` and never raises: what cannot be
-used is recorded in ``Job.skip`` (naming the file and why) or ``Job.notes``.
+used is recorded in ``Job.skip`` (naming the file and why) or ``Job.notes``. A job's architecture is its
+``model`` config group choice (:func:`read_architecture`).
 
 ``results.json`` is read only through its contract, :class:`lossvo.evaluation.results.Results`. The data
 a job was evaluated on comes from its ``data`` record (the evaluated dataset's root and splits, the
@@ -36,6 +37,8 @@ from lossvo.evaluation.results import DataRecord, Results, ResultsError, Scores
 
 REPLICATE_KEY = "seed"
 """The override that names a replicate of a configuration; every other varying override names one."""
+ARCHITECTURE_KEY = "model"
+"""The config group whose choice names a job's architecture (``model=deepvo_small``, ``model=flowvo``)."""
 
 APE_TRANS = ("ape", "trans", "rmse")
 APE_ROT = ("ape", "rot_rad", "rmse")
@@ -129,7 +132,8 @@ class Curves:
 
 @dataclass
 class Job:
-    """One job folder as read: what it is (overrides, seed), what happened (status), what it produced."""
+    """One job folder as read: what it is (overrides, seed, architecture), what happened (status), what it
+    produced."""
 
     path: Path
     overrides: dict[str, str] = field(default_factory=dict)
@@ -142,6 +146,7 @@ class Job:
     skip: str | None = None
     notes: list[str] = field(default_factory=list)
     label: str = ""
+    architecture: str | None = None
 
     @property
     def included(self) -> bool:
@@ -274,6 +279,28 @@ def _read_config(job: Job) -> None:
     overrides = job.path / ".hydra" / "overrides.yaml"
     job.overrides = read_overrides(overrides) if overrides.is_file() else {}
     job.seed = job.config.get(REPLICATE_KEY, job.overrides.get(REPLICATE_KEY))
+    job.architecture = read_architecture(job.path / ".hydra" / "hydra.yaml", job.overrides, job.config)
+
+
+def read_architecture(hydra_yaml: Path, overrides: dict[str, str], config: Any) -> str | None:
+    """A job's architecture as a short name: the :data:`ARCHITECTURE_KEY` config group's choice recorded in
+    ``.hydra/hydra.yaml`` (``hydra.runtime.choices.model``: ``deepvo_small``, ``flowvo``), else the
+    ``model=`` override, else the class name of ``model._target_`` (``DeepVO``); None without any. A
+    missing or unreadable hydra.yaml falls back (it decides nothing else)."""
+    import yaml
+
+    choice: Any = None
+    try:
+        if hydra_yaml.is_file():
+            choice = yaml.safe_load(hydra_yaml.read_text())["hydra"]["runtime"]["choices"][ARCHITECTURE_KEY]
+    except Exception:  # YAML errors of many classes, another shape: fall back
+        choice = None
+    if choice is None:
+        choice = overrides.get(ARCHITECTURE_KEY)
+    if choice is None:
+        target = config_value(config, f"{ARCHITECTURE_KEY}._target_")
+        choice = str(target).rsplit(".", 1)[-1] if target is not None else None
+    return str(choice) if choice is not None else None
 
 
 def _read_curves(job: Job) -> None:

@@ -37,6 +37,13 @@ class Rows:
     rows: Sequence[Sequence[object]]
 
 
+def prepend_column(table: Rows, header: str, cells: Sequence[object]) -> Rows:
+    """``table`` with a first column ``header`` holding ``cells[i]`` in row i."""
+    if len(cells) != len(table.rows):
+        raise ValueError(f"{len(cells)} cells for {len(table.rows)} rows")
+    return Rows([header, *table.header], [[cell, *row] for cell, row in zip(cells, table.rows, strict=True)])
+
+
 def md(text: object) -> str:
     """Text for a markdown table cell: one line, ``|`` escaped (it would end the cell)."""
     return " ".join(str(text).split()).replace("|", "\\|")

@@ -32,7 +32,8 @@ class Column:
 
     ``results[i]`` is ``{sequence: Scores}`` (results.json's scores) of replicate ``i`` (a seed),
     ``replicates[i]`` its name; ``kind`` is :data:`NETWORK` or :data:`BASELINE`; ``jobs`` are a network's
-    job folders in replicate order (none for a baseline).
+    job folders in replicate order (none for a baseline); ``architecture`` a network's architecture
+    (:attr:`lossvo.report.jobs.Job.architecture`; None for a baseline or where unknown).
     """
 
     label: str
@@ -40,6 +41,7 @@ class Column:
     replicates: list[str]
     results: list[dict[str, Scores]]
     jobs: list[Job] = field(default_factory=list)
+    architecture: str | None = None
 
 
 # --------------------------------------------------------------------------------------------------

@@ -1,0 +1,254 @@
+"""Where a sweep varies the architecture: does the loss ranking agree between the architectures?
+
+For each quantity of claim (a) (:data:`lossvo.report.claims.CLAIM_ERRORS`: RPE translation and rotation
+and APE translation RMSE), a seed's score is its mean over the evaluated sequences outside the training
+split, as in claim (a). Each architecture ranks its configurations, named by their treatment (the varying
+overrides without the architecture, :func:`lossvo.report.configurations.treatments`: ``loss=euler``), by
+the mean over seeds. For every pair of architectures, on the treatments both have and the seeds every one
+of those configurations has, the architecture x loss interaction is tested by
+:func:`lossvo.report.statistics.interaction_test` and worded by
+:func:`~lossvo.report.statistics.interaction_verdict` (the *Architectures* section of report.md,
+``tables/rankings.csv`` and ``tables/interaction.csv``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from itertools import combinations
+
+import numpy as np
+
+from lossvo.report import render, statistics
+from lossvo.report.claims import CLAIM_ERRORS, training_sequences
+from lossvo.report.configurations import architecture_groups, treatments
+from lossvo.report.render import Rows
+from lossvo.report.statistics import InteractionTest
+from lossvo.report.tables import Cell, Column, fmt, mean_std_text, samples
+
+UNTESTED = "cannot be tested"
+
+
+@dataclass
+class Ranking:
+    """One architecture's configurations on one quantity, lowest mean first: (treatment, mean ± std over
+    seeds of each seed's score) each."""
+
+    quantity: str
+    architecture: str
+    entries: list[tuple[str, Cell]]
+
+    def order(self, among: Sequence[str]) -> list[str]:
+        """The treatments of ``among`` in this ranking's order."""
+        return [t for t, _ in self.entries if t in among]
+
+
+@dataclass
+class Interaction:
+    """The interaction test of one pair of architectures (A, B) on one quantity: the treatments and seeds
+    it used, whether the two rankings order those treatments alike, the test (None where untested, then
+    ``untested`` says why) and its verdict."""
+
+    quantity: str
+    architectures: tuple[str, str]
+    treatments: list[str]
+    seeds: list[str]
+    same_order: bool
+    test: InteractionTest | None
+    verdict: str
+    untested: str | None = None
+
+
+@dataclass
+class Agreement:
+    """The section: the held-out ``sequences`` the scores average, the rankings and interaction tests per
+    quantity; ``untested`` says why there are none."""
+
+    sequences: list[str] = field(default_factory=list)
+    rankings: list[Ranking] = field(default_factory=list)
+    interactions: list[Interaction] = field(default_factory=list)
+    untested: str | None = None
+
+
+def seed_scores(column: Column, path: Sequence[str], sequences: Sequence[str]) -> dict[str, float]:
+    """``{replicate: mean over sequences}`` of one metric (m or rad) of a configuration; a seed missing a
+    sequence is left out (as :func:`lossvo.report.claims.seed_means`)."""
+    values = samples(column, path, sequences)  # (seeds, sequences)
+    means = values.mean(axis=1) if values.shape[1] else np.full(len(values), np.nan)
+    return {r: float(m) for r, m in zip(column.replicates, means, strict=True) if math.isfinite(m)}
+
+
+def rank(quantity: str, architecture: str, scores: dict[str, dict[str, float]]) -> Ranking:
+    """``scores`` ({treatment: {seed: score}}) ranked by the mean over seeds, lowest first (none last)."""
+    cells = {t: Cell.of(np.array(list(v.values()), dtype=np.float64)) for t, v in scores.items()}
+    order = sorted(cells, key=lambda t: (cells[t].n == 0, cells[t].mean if cells[t].n else 0.0))
+    return Ranking(quantity, architecture, [(t, cells[t]) for t in order])
+
+
+def interaction(
+    quantity: str, pair: tuple[Ranking, Ranking], scores: tuple[dict[str, dict[str, float]], ...]
+) -> Interaction:
+    """The interaction test of architectures A, B (their rankings and {treatment: {seed: score}})."""
+    (a, b), (sa, sb) = pair, scores
+    common = [t for t in a.order(list(sa)) if t in sb]
+    seeds = [r for r in sa[common[0]] if all(r in s[t] for s in (sa, sb) for t in common)] if common else []
+    names = (a.architecture, b.architecture)
+    same = a.order(common) == b.order(common)
+    if len(common) < 2:
+        why = "fewer than two configurations in both architectures (nothing to rank)"
+        return Interaction(quantity, names, common, seeds, same, None, UNTESTED, why)
+    if not seeds:
+        why = "no seed with a score in every configuration of both architectures"
+        return Interaction(quantity, names, common, seeds, same, None, UNTESTED, why)
+    d = np.array([[sb[t][r] - sa[t][r] for r in seeds] for t in common])  # (L, S): B - A
+    test = statistics.interaction_test(d)
+    return Interaction(quantity, names, common, seeds, same, test, statistics.interaction_verdict(test))
+
+
+def architecture_agreement(networks: Sequence[Column], sequences: Sequence[str]) -> Agreement:
+    """Rankings per architecture and interaction tests per pair of architectures, on each quantity of
+    :data:`lossvo.report.claims.CLAIM_ERRORS`, over the evaluated ``sequences`` outside the training
+    split."""
+    groups = architecture_groups(networks)
+    names = treatments(networks)
+    train = training_sequences([c for g in groups.values() for c in g])
+    heldout = [s for s in sequences if s not in train]
+    if not heldout:
+        return Agreement(untested="no evaluated sequence is outside the training split")
+    out = Agreement(heldout)
+    for quantity, path in CLAIM_ERRORS:
+        scores = {
+            architecture: {names[c.label]: seed_scores(c, path, heldout) for c in group}
+            for architecture, group in groups.items()
+        }
+        rankings = {architecture: rank(quantity, architecture, s) for architecture, s in scores.items()}
+        out.rankings += rankings.values()
+        for x, y in combinations(groups, 2):
+            out.interactions.append(interaction(quantity, (rankings[x], rankings[y]), (scores[x], scores[y])))
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
+# Text and rows
+# --------------------------------------------------------------------------------------------------
+
+AGREEMENT_TEXT = (
+    "The sweep varies the architecture. A seed's score is its mean over the sequences outside the training "
+    "split ({sequences}), as in claim (a); each architecture ranks its configurations, named without the "
+    "architecture, by the mean over seeds, lowest first. For each pair of architectures A, B, on the "
+    "configurations both have and the seeds every one of them has, the differences d[l, s] = y[B, l, s] − "
+    "y[A, l, s] (configuration l, seed s) are tested for an architecture × loss interaction "
+    "(`lossvo.report.statistics.interaction_test`): F is the interaction F of the two-way ANOVA with seeds "
+    "as blocks, and p (exact) the fraction of the (L!)^S relabellings of the configurations within each "
+    "seed whose F is at least the observed one. Relabelling every seed alike leaves F unchanged, so p cannot "
+    "go below (L!)^(1−S): 1/36 ≈ 0.028 with 3 losses × 3 seeds, 0.5 with 2 × 2; where that is not below "
+    f"{statistics.ALPHA} the test **{statistics.CANNOT_DECIDE}**. p < {statistics.ALPHA}: "
+    f"**{statistics.INTERACTION}**; otherwise **{statistics.NO_INTERACTION}**, which is no evidence that "
+    "the rankings agree."
+)
+
+
+def _ranking_text(ranking: Ranking) -> str:
+    return " < ".join(f"{t} ({mean_std_text(cell)})" for t, cell in ranking.entries) or "none"
+
+
+def ranking_rows(agreement: Agreement) -> Rows:
+    """Per quantity and architecture, the configurations lowest first with their mean ± std."""
+    rows: list[list[object]] = [[r.quantity, r.architecture, _ranking_text(r)] for r in agreement.rankings]
+    return Rows(["quantity", "architecture", "ranking (lowest first; mean ± std over seeds)"], rows)
+
+
+def _test_cells(i: Interaction) -> list[object]:
+    t = i.test
+    if t is None:
+        return ["n/a"] * 4
+    kind = "exact" if t.exact else "random"
+    return [fmt(t.statistic, 3), fmt(t.p_value, 3), f"{t.permutations} ({kind})", fmt(t.smallest_p, 3)]
+
+
+def interaction_rows(agreement: Agreement) -> Rows:
+    """Per quantity and pair of architectures: the configurations, seeds, whether the rankings agree in
+    order, F, p, the relabellings, the smallest p at this n and the verdict."""
+    header = ["quantity", "architectures", "configurations", "seeds", "same order", "F", "p",
+              "relabellings", "smallest p at this n", "verdict"]  # fmt: skip
+    rows: list[list[object]] = [
+        [i.quantity, " vs ".join(i.architectures), ", ".join(i.treatments), len(i.seeds),
+         "yes" if i.same_order else "no", *_test_cells(i), i.verdict]
+        for i in agreement.interactions
+    ]  # fmt: skip
+    return Rows(header, rows)
+
+
+def verdict_line(i: Interaction) -> str:
+    """The verdict of one test in one line: the quantity and architectures, the verdict, n, the test, F
+    and p, and why it cannot decide where it cannot."""
+    head = f"**{i.quantity}, {' vs '.join(i.architectures)}: {i.verdict}.**"
+    if i.test is None:
+        return f"{head} {i.untested}."
+    t = i.test
+    n = (
+        f"n = {t.seeds} seeds ({', '.join(i.seeds)}) × {t.losses} configurations ({', '.join(i.treatments)}) "
+        "× 2 architectures"
+    )
+    how = "exact" if t.exact else f"{t.permutations} random"
+    test = (
+        f"{how} randomisation test of the interaction (the configurations' labels permuted within each "
+        f"seed{f', {t.permutations} relabellings' if t.exact else ''}): F = {fmt(t.statistic, 3)}, "
+        f"p = {fmt(t.p_value, 3)}"
+    )
+    if t.p_value < statistics.ALPHA:
+        why = f" < {statistics.ALPHA}"
+    elif not t.can_decide:
+        why = f"; the smallest p it can give at this n is {fmt(t.smallest_p, 3)} ≥ {statistics.ALPHA}"
+    else:
+        why = f" ≥ {statistics.ALPHA}"
+    return f"{head} {n}; {test}{why}."
+
+
+def agreement_markdown(agreement: Agreement) -> str:
+    """The *Architectures* section's body: the rule, the rankings, the tests and a verdict line each."""
+    if agreement.untested:
+        return f"Cannot be tested: {agreement.untested}."
+    lines = [
+        AGREEMENT_TEXT.format(sequences=", ".join(agreement.sequences)),
+        "",
+        render.markdown(ranking_rows(agreement)),
+        "",
+        render.markdown(interaction_rows(agreement)),
+    ]
+    for i in agreement.interactions:
+        lines += ["", verdict_line(i)]
+    return "\n".join(lines)
+
+
+def rankings_csv_rows(agreement: Agreement) -> Rows:
+    """``tables/rankings.csv``: per quantity, architecture and rank (1 = lowest) the configuration and its
+    mean, std (empty for n < 2) and n, full precision."""
+    rows: list[list[object]] = [
+        [r.quantity, r.architecture, k, t, repr(c.mean) if c.n else "", repr(c.std) if c.n > 1 else "", c.n]
+        for r in agreement.rankings
+        for k, (t, c) in enumerate(r.entries, start=1)
+    ]
+    return Rows(["quantity", "architecture", "rank", "configuration", "mean", "std", "n"], rows)
+
+
+def interaction_csv_rows(agreement: Agreement) -> Rows:
+    """``tables/interaction.csv``: one row per quantity and pair of architectures, full precision; an
+    untested pair has verdict ``cannot be tested`` and the reason in ``note`` (a section that cannot be
+    tested at all: one such row)."""
+    header = ["quantity", "architecture_a", "architecture_b", "configurations", "seeds", "same_order",
+              "statistic", "p_value", "permutations", "exact", "smallest_p", "verdict", "note"]  # fmt: skip
+    if agreement.untested:
+        return Rows(header, [["", "", "", "", "", "", "", "", "", "", "", UNTESTED, agreement.untested]])
+    rows: list[list[object]] = []
+    for i in agreement.interactions:
+        t = i.test
+        numbers = (
+            [repr(t.statistic), repr(t.p_value), t.permutations, t.exact, repr(t.smallest_p)]
+            if t is not None
+            else [""] * 5
+        )
+        rows.append([i.quantity, *i.architectures, ";".join(i.treatments), ";".join(i.seeds), i.same_order,
+                     *numbers, i.verdict, i.untested or ""])  # fmt: skip
+    return Rows(header, rows)
