@@ -51,17 +51,19 @@ bench: venv
 	$(PY) benchmarks/data_loading.py
 	$(PY) benchmarks/channels_last.py
 
-# The study's comparison on the embedded synthetic dataset (rendered on first use): euler, quat and
-# chordal x seeds 0, 1, 2 with calibrated weights (weighting=matched) and one loss-independent selection
-# score (selection=score), then the sweep's report (prints the path of report.md). Two jobs run side by
-# side (Hydra's joblib launcher, one thread each): on 2 CPU cores that trains ~1.5x faster than one job
-# after another, as a small network uses a second thread poorly. The sweep folder is named here, so the
-# report is of this sweep; it is written even when a job failed (it lists the failure), and make then
+# The study's comparison on the embedded synthetic dataset (rendered on first use), across architectures:
+# DeepVO on frames (deepvo_small) and FlowVO on optical flow and intrinsics (flowvo) x euler, quat and chordal
+# x seeds 0, 1, 2, with calibrated weights (weighting=matched) and one loss-independent selection score
+# (selection=score), then the sweep's report, grouped by architecture (prints the path of report.md). Two
+# jobs run side by side (Hydra's joblib launcher, one thread each): on 2 CPU cores that trains ~1.5x faster
+# than one job after another, as a small network uses a second thread poorly. The sweep folder is named here,
+# so the report is of this sweep; it is written even when a job failed (it lists the failure), and make then
 # exits with the sweep's status. `make sweep-paper`: the study's own setting, the same seeds with its
 # weights (weighting=paper) and each loss's own val/loss for selection (selection=loss).
 SWEEP_DIR := outputs/multirun/$(shell date +%Y-%m-%d_%H-%M-%S)
 SEEDS     ?= 0,1,2
-SWEEP      = $(PY) -m lossvo.train -m loss=euler,quat,chordal seed=$(SEEDS) hydra/launcher=joblib \
+MODELS    ?= deepvo_small,flowvo
+SWEEP      = $(PY) -m lossvo.train -m model=$(MODELS) loss=euler,quat,chordal seed=$(SEEDS) hydra/launcher=joblib \
 	hydra.launcher.n_jobs=2 hydra.sweep.dir=$(SWEEP_DIR)
 REPORT     = status=$$?; $(PY) -m lossvo.report $(SWEEP_DIR) || exit $$?; exit $$status
 

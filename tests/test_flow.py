@@ -120,6 +120,56 @@ def test_unknown_flow_settings_list_the_choices(method: str, preset: str, messag
         FlowSetting(method, preset)
 
 
+@pytest.mark.parametrize("scale", [0.5, 5, "1.5", None])
+def test_a_flow_scale_outside_one_to_four_is_refused(scale) -> None:
+    with pytest.raises(
+        ValueError, match=rf"^data\.flow_scale: expected a number in \[1, 4\], got {scale!r}$"
+    ):
+        FlowSetting("dis", "medium", scale)
+
+
+def test_a_resized_flow_keeps_each_pixels_displacement_in_the_new_pixels() -> None:
+    """A field computed on (h, w) frames moves a pixel as far, measured in the frames of (H, W): u scales
+    by W / w and v by H / h; at the same size it is the field itself."""
+    field = np.stack((np.full((96, 312), 3.0), np.full((96, 312), -1.5))).astype(np.float32)
+    field[:, :, :156] *= 2  # the left half moves twice as far
+    resized = flow.resized_flow(field, H, W)
+    assert resized.shape == (2, H, W) and resized.dtype == np.float32
+    right, left = resized[:, :, W // 2 + 2 :], resized[:, :, : W // 2 - 2]
+    np.testing.assert_allclose(right[0], 3.0 * W / 312, rtol=1e-6)
+    np.testing.assert_allclose(right[1], -1.5 * H / 96, rtol=1e-6)
+    np.testing.assert_allclose(left[0], 6.0 * W / 312, rtol=1e-6)
+    np.testing.assert_allclose(left[1], -3.0 * H / 96, rtol=1e-6)
+    assert flow.resized_flow(field, 96, 312) is field
+
+
+def test_a_flow_scale_computes_on_the_source_images_at_that_scale(tiny_kitti, tmp_path, monkeypatch) -> None:
+    """data.flow_scale=2: every field is computed between the sequence's PNGs read at twice the cached size
+    and resized to it; cached under its own key, beside the flow of scale 1, each computed once."""
+    from test_datamodules import make_dm
+
+    sizes: list[tuple[int, ...]] = []
+    compute = flow._Estimator.__call__
+    monkeypatch.setattr(
+        flow._Estimator, "__call__", lambda self, a, b: sizes.append(a.shape) or compute(self, a, b)
+    )
+    fine = make_dm(tiny_kitti, tmp_path, flow="dis", flow_preset="ultrafast", flow_scale=2)
+    assert set(sizes) == {(64, 192)} and len(sizes) == 27  # the tiny dataset caches 32x96 frames
+    images = fine.sequences["00"].images
+    first, second = (flow.frame_cache.read_frame(p, 64, 192)[0] for p in images[3:5])
+    expected = flow.resized_flow(flow.pair_flow(first, second, fine.flow), 32, 96)
+    cached = np.load(flow.flow_file(fine.cache_path(), "00", 1, fine.flow))
+    np.testing.assert_allclose(cached[3], expected, atol=0.01)
+    assert fine.description()["flow_scale"] == 2
+    sizes.clear()
+    coarse = make_dm(tiny_kitti, tmp_path, flow="dis", flow_preset="ultrafast")
+    assert set(sizes) == {(32, 96)} and len(sizes) == 27
+    assert not np.array_equal(np.load(flow.flow_file(coarse.cache_path(), "00", 1, coarse.flow)), cached)
+    sizes.clear()
+    make_dm(tiny_kitti, tmp_path, flow="dis", flow_preset="ultrafast", flow_scale=2)
+    assert sizes == []
+
+
 def test_the_intrinsics_channels_are_k_after_resizing() -> None:
     """The synthetic dataset's calib.txt holds K at its render size; resized to the network's input it is
     the K the renderer would use at that size, and the channels are (x - cx) / fx, (y - cy) / fy."""

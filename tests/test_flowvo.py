@@ -40,6 +40,13 @@ def test_inputs_are_the_scaled_flow_and_the_intrinsics_layer() -> None:
     torch.testing.assert_close(x[:, :, 0], flow[:, :, 0] * 20 / W)
     torch.testing.assert_close(x[:, :, 1], flow[:, :, 1] * 20 / H)
     torch.testing.assert_close(x[1, 2, 2:], intrinsics_channels(K[1], H, W))
+    pooled = FlowVO(6, H, W, flow_gain=20.0, pool=2)  # each 2x2 block's mean: a quarter of the pixels
+    assert pooled.feature_shape == (128, 2, 7)
+    torch.testing.assert_close(
+        pooled.encoder_input(flow, K).view(2, 3, 4, H // 2, W // 2),
+        x.view(2, 3, 4, H // 2, 2, W // 2, 2).mean((4, 6)),
+    )
+    assert pooled(flow, K).shape == (2, 3, 6)
 
 
 def test_every_loss_starts_from_the_same_encoder_and_translation_head() -> None:
@@ -89,6 +96,7 @@ def test_channels_last_gives_the_same_values() -> None:
      ({"height": 8}, "model.height: expected an integer >= 16"),
      ({"channels": [32, 64]}, "model.channels: expected 4 integers >= 1, got [32, 64]"),
      ({"flow_gain": 0}, "model.flow_gain: expected a number > 0, got 0"),
+     ({"pool": 0}, "model.pool: expected an integer >= 1, got 0"),
      ({"head_dropout": 1.5}, "model.head_dropout: expected a probability in [0, 1), got 1.5"),
      ({"channels_last": "yes"}, "model.channels_last: expected true or false, got 'yes'")],
 )  # fmt: skip

@@ -316,6 +316,8 @@ class KittiDataModule(L.LightningDataModule):
         flow: optical flow cached beside the frames (:mod:`lossvo.data.flow`): ``"dis"``,
             ``"farneback"`` or ``"none"``; for every frame pair training (each of ``frame_steps``) and
             evaluation (consecutive frames) use. flow_preset: DIS's preset (ultrafast, fast, medium).
+            flow_scale: the flow is computed on the source images resized to ``flow_scale`` times
+            (height, width), then resized to (height, width) (:class:`lossvo.data.flow.FlowSetting`).
 
     :meth:`description` records the arguments, the dataset root and the normalisation statistics: a
     checkpoint stores it (:mod:`lossvo.training.checkpoints`), so that evaluation needs nothing else.
@@ -346,6 +348,7 @@ class KittiDataModule(L.LightningDataModule):
         statistics: Mapping[str, Seq[float]] | None = None,
         flow: str = "none",
         flow_preset: str = "medium",
+        flow_scale: float = 1.0,
     ) -> None:
         super().__init__()
         self.save_hyperparameters(logger=False)
@@ -366,7 +369,7 @@ class KittiDataModule(L.LightningDataModule):
         if normalization not in NORMALIZATIONS:
             raise ValueError(f"data.normalization: expected one of {NORMALIZATIONS}, got {normalization!r}")
         self.statistics = _statistics(statistics)
-        self.flow = optical_flow.FlowSetting(flow, flow_preset)
+        self.flow = optical_flow.FlowSetting(flow, flow_preset, flow_scale)
         if not self.splits["train"] and self.statistics is None:
             raise ValueError("data.train: expected at least one training sequence")
         self.height, self.width, self.seq_len, self.stride = height, width, seq_len, stride
@@ -474,7 +477,8 @@ class KittiDataModule(L.LightningDataModule):
             return {}
         return {
             (n, step): optical_flow.ensure_flow(
-                folder, n, frames[n], frame_cache.source_of(folder, n), step, self.flow
+                folder, n, frames[n], frame_cache.source_of(folder, n), step, self.flow,
+                self.sequences[n].images,
             )
             for n, steps in self.flow_steps().items() for step in steps
         }  # fmt: skip

@@ -14,7 +14,7 @@ flow's geometry under the augmentations (:func:`mirror_flow`).
 from __future__ import annotations
 
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,10 +24,15 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from lossvo.data import array_cache
+from lossvo.checks import is_number
+from lossvo.data import array_cache, frame_cache
 
 FLOW_VERSION = 1
 METHODS = ("dis", "farneback", "none")
+MAX_SCALE = 4.0
+"""Largest ``scale``: finer frames cost DIS time in proportion to their pixels."""
+CHUNK = 64
+"""Pairs computed together: the frames a chunk needs are read once, then dropped."""
 DIS_PRESETS = {
     "ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
     "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
@@ -38,10 +43,14 @@ DIS_PRESETS = {
 @dataclass(frozen=True)
 class FlowSetting:
     """Which flow a dataset caches: ``method`` one of METHODS (``"none"``: no flow), ``preset`` one of
-    DIS_PRESETS (DIS only). Raises ValueError naming the key (``data.flow``, ``data.flow_preset``)."""
+    DIS_PRESETS (DIS only), ``scale``: the flow is computed between frames resized from their source images
+    to ``scale`` times the cached size, then resized to the cached size (values scaled with it): DIS resolves
+    small motions (a slow car's road, a far wall) better on the finer frames. Raises ValueError naming the
+    key (``data.flow``, ``data.flow_preset``, ``data.flow_scale``)."""
 
     method: str = "dis"
     preset: str = "medium"
+    scale: float = 1.0
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -50,6 +59,8 @@ class FlowSetting:
             raise ValueError(
                 f"data.flow_preset: expected one of {', '.join(DIS_PRESETS)}, got {self.preset!r}"
             )
+        if not is_number(self.scale) or not 1.0 <= self.scale <= MAX_SCALE:
+            raise ValueError(f"data.flow_scale: expected a number in [1, {MAX_SCALE:g}], got {self.scale!r}")
 
     @property
     def enabled(self) -> bool:
@@ -57,8 +68,14 @@ class FlowSetting:
 
     @property
     def key(self) -> str:
-        """The setting in file names and manifests: ``"dis-medium"``, ``"farneback"``."""
-        return f"dis-{self.preset}" if self.method == "dis" else self.method
+        """The setting in file names and manifests: ``"dis-medium"``, ``"dis-medium-x1.5"``,
+        ``"farneback"``."""
+        name = f"dis-{self.preset}" if self.method == "dis" else self.method
+        return name if self.scale == 1 else f"{name}-x{self.scale:g}"
+
+    def size(self, height: int, width: int) -> tuple[int, int]:
+        """(h, w) of the frames the flow of a (height, width) cache is computed on."""
+        return round(height * self.scale), round(width * self.scale)
 
 
 def _gray(frame: np.ndarray) -> np.ndarray:
@@ -98,27 +115,51 @@ def pair_flow(first: np.ndarray, second: np.ndarray, setting: FlowSetting = Flow
     return _Estimator(setting)(_gray(first), _gray(second))
 
 
-def _pairs(frames: np.ndarray, step: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-    for k in range(len(frames) - step):
-        yield _gray(frames[k]), _gray(frames[k + step])
+def resized_flow(field: np.ndarray, height: int, width: int) -> np.ndarray:
+    """A (2, h, w) flow in pixels of (h, w) frames as the flow of the same frames at (height, width): area
+    interpolation, u scaled by width / w and v by height / h."""
+    h, w = field.shape[1:]
+    if (h, w) == (height, width):
+        return field
+    resized = cv2.resize(field.transpose(1, 2, 0), dsize=(width, height), interpolation=cv2.INTER_AREA)
+    return resized.transpose(2, 0, 1) * np.array([width / w, height / h], dtype=np.float32).reshape(2, 1, 1)
 
 
-def _computer(frames: np.ndarray, step: int, setting: FlowSetting, name: str, workers: int,
-              progress: bool) -> array_cache.Fill:  # fmt: skip
-    """Fills a sequence's flow array at one step, pair by pair on ``workers`` threads (OpenCV releases
-    the GIL)."""
+def _computer(read: Callable[[int], np.ndarray], step: int, setting: FlowSetting, name: str,
+              size_hw: tuple[int, int], workers: int, progress: bool) -> array_cache.Fill:  # fmt: skip
+    """Fills a sequence's flow array at one step, :data:`CHUNK` pairs at a time on ``workers`` threads
+    (OpenCV releases the GIL): ``read(k)`` is frame k, (h, w) uint8 grey, each read once a chunk."""
 
     def fill(out: np.ndarray) -> dict:
         estimate = _Estimator(setting)
-        with ThreadPoolExecutor(workers) as pool:
-            fields = pool.map(lambda pair: estimate(*pair), _pairs(frames, step))
-            bar = tqdm(fields, total=len(out), desc=f"flow {name} (step {step}, {setting.key})",
-                       unit="pair", disable=not progress, leave=False)  # fmt: skip
-            for k, field in enumerate(bar):
-                out[k] = field
+        with ThreadPoolExecutor(workers) as pool, tqdm(
+            total=len(out), desc=f"flow {name} (step {step}, {setting.key})", unit="pair",
+            disable=not progress, leave=False,
+        ) as bar:  # fmt: skip
+            for lo in range(0, len(out), CHUNK):
+                hi = min(lo + CHUNK, len(out))
+                grey = list(pool.map(read, range(lo, hi + step)))
+                fields = pool.map(estimate, grey[: hi - lo], grey[step:])
+                for k, field in enumerate(fields, lo):
+                    out[k] = resized_flow(field, *size_hw)
+                bar.update(hi - lo)
         return {}
 
     return fill
+
+
+def _reader(frames: np.ndarray, images: Sequence[Path], setting: FlowSetting) -> Callable[[int], np.ndarray]:
+    """Frame k, (h, w) uint8 grey at the size the flow is computed at: the cached frame (``scale`` 1) or
+    its source image read again at ``setting.size``."""
+    n, _, height, width = frames.shape
+    if setting.scale == 1:
+        return lambda k: _gray(frames[k])
+    if len(images) != n:
+        raise ValueError(
+            f"data.flow_scale={setting.scale:g} reads the source images: expected {n}, got {len(images)}"
+        )
+    h, w = setting.size(height, width)
+    return lambda k: _gray(frame_cache.read_frame(images[k], h, w)[0])
 
 
 def flow_file(folder: Path, name: str, step: int, setting: FlowSetting) -> Path:
@@ -127,13 +168,15 @@ def flow_file(folder: Path, name: str, step: int, setting: FlowSetting) -> Path:
 
 
 def ensure_flow(folder: Path, name: str, frames: np.ndarray, frames_source: dict, step: int,
-                setting: FlowSetting, workers: int = 2, progress: bool = True) -> np.ndarray:  # fmt: skip
+                setting: FlowSetting, images: Sequence[Path] = (), workers: int = 2,
+                progress: bool = True) -> np.ndarray:  # fmt: skip
     """The cached flow of a sequence's frames at one frame step, computed first where it is missing,
     incomplete or stale (its frames changed: ``frames_source``, the frame cache's record of them).
 
     Args:
         folder: the frame-cache folder of the sequence's dataset and size; name: the sequence.
         frames: (N, 3, H, W) uint8 RGB, the cached frames; step: frames from first to second (>= 1).
+        images: the N source images, read again at ``setting.size(H, W)`` when ``setting.scale > 1``.
     Returns:
         (max(N - step, 0), 2, H, W) float16 memory map.
     """
@@ -143,7 +186,9 @@ def ensure_flow(folder: Path, name: str, frames: np.ndarray, frames_source: dict
     shape = (max(n - step, 0), 2, height, width)
     expected = {"version": FLOW_VERSION, "sequence": name, "step": step, "flow": setting.key,
                 "frames": frames_source}  # fmt: skip
-    fill = _computer(frames, step, setting, name, workers, progress)
+    fill = _computer(
+        _reader(frames, images, setting), step, setting, name, (height, width), workers, progress
+    )
     return array_cache.ensure_array(flow_file(folder, name, step, setting), expected, shape, np.float16, fill)
 
 

@@ -29,7 +29,7 @@ from lossvo import models
 from lossvo.console import first_line
 from lossvo.losses import PoseLoss
 
-TRAINED_WITH = ("height", "width", "seq_len", "normalization", "flow", "flow_preset")
+TRAINED_WITH = ("height", "width", "seq_len", "normalization", "flow", "flow_preset", "flow_scale")
 """Data settings a trained network depends on: evaluation takes them from its checkpoint."""
 
 RECORD_ONLY = ("statistics", "dataset_root")

@@ -135,7 +135,11 @@ BASELINES_TEXT = [
     "pair's motion (counted below as a failure);",
     "- **own mean motion (oracle)**: the sequence's own mean relative pose (from its ground truth) at "
     "every step: it knows the sequence's average motion, so a network that learned only an average "
-    "motion cannot beat it.",
+    "motion cannot beat it;",
+    "- **flow yaw + road speed (one line)**: DIS optical flow between consecutive frames; the yaw is "
+    "atan(-median horizontal flow of the upper half / fx), the step straight ahead with a length of one "
+    "constant (least squares on the training split's step lengths) times the median vertical flow of the "
+    "road just ahead; no pitch or roll. The floor a network that reads the same flow must clear.",
 ]
 
 

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from lossvo.evaluation import baselines
 from lossvo.evaluation.plots import colors, new_figure, plot_birdseye, save_png
 from lossvo.report.jobs import Job, read_trajectory
 from lossvo.report.tables import BASELINE, Column, Table
@@ -116,8 +117,11 @@ def _format_panels(axes: Iterable[Axes]) -> None:
             ax.set_yscale("log")
 
 
-BASELINE_STYLES = ({"color": "0.45"}, {"color": "tab:olive"}, {"color": "tab:cyan"})
-"""Colours of the baselines' dashed lines in the trajectory figures, in the order they are given."""
+BASELINE_STYLES = {
+    baselines.MEAN: {"color": "0.45"}, baselines.ORB: {"color": "tab:olive"},
+    baselines.OWN: {"color": "tab:cyan"}, baselines.FLOW: {"color": "tab:purple"},
+}  # fmt: skip
+"""Colours of the baselines' dashed lines in the trajectory figures (any other: light grey)."""
 
 
 def plot_trajectories(
@@ -141,7 +145,8 @@ def plot_trajectories(
         if est is not None:
             label = f"{column.label} ({column.replicates[0]})"
             trajectories[label], styles[label] = est, {"color": color}
-    for (name, est), style in zip(extra.items(), BASELINE_STYLES, strict=False):
+    for name, est in extra.items():
+        style = BASELINE_STYLES.get(name, {"color": "0.7"})
         trajectories[name], styles[name] = est, {**style, "linestyle": "--", "lw": 1.0}
     plot_birdseye(path, gt, trajectories, f"sequence {sequence}", styles)
 
