@@ -97,6 +97,7 @@ def test_channels_last_gives_the_same_values() -> None:
      ({"channels": [32, 64]}, "model.channels: expected 4 integers >= 1, got [32, 64]"),
      ({"flow_gain": 0}, "model.flow_gain: expected a number > 0, got 0"),
      ({"pool": 0}, "model.pool: expected an integer >= 1, got 0"),
+     ({"pool": 3}, "model.pool: expected a divisor of the input size (64, 208), got 3"),
      ({"head_dropout": 1.5}, "model.head_dropout: expected a probability in [0, 1), got 1.5"),
      ({"channels_last": "yes"}, "model.channels_last: expected true or false, got 'yes'")],
 )  # fmt: skip

@@ -323,3 +323,9 @@ def test_a_direction_run_records_it_and_is_scored_with_ground_truth_step_lengths
     gt = torch.from_numpy(read_poses(next(tiny_kitti.rglob("poses/02.txt"))))
     trajectory = torch.from_numpy(read_poses(run / "trajectories" / "02.txt"))
     torch.testing.assert_close(step_lengths(trajectory), step_lengths(gt), rtol=1e-6, atol=1e-6)
+    from lossvo.report.jobs import load_job
+
+    status = json.loads((run / "status.json").read_text())  # fit() trains in process: no lifecycle end
+    (run / "status.json").write_text(json.dumps({**status, "status": "completed"}))
+    note = f"translation scored as {TRANSLATION_SCALED}: no metric scale, as ORB+E's"
+    assert note in load_job(run).notes  # the report's jobs table says so

@@ -33,7 +33,7 @@ import numpy as np
 from lossvo.checks import is_number
 from lossvo.console import first_line
 from lossvo.data.kitti import KittiFormatError, read_poses, sequence_names
-from lossvo.evaluation.results import DataRecord, Results, ResultsError, Scores
+from lossvo.evaluation.results import TRANSLATION_METRIC, DataRecord, Results, ResultsError, Scores
 
 REPLICATE_KEY = "seed"
 """The override that names a replicate of a configuration; every other varying override names one."""
@@ -261,6 +261,8 @@ def load_job(path: Path) -> Job:
             job.results = Results.read(path / "results.json")
         except ResultsError as e:
             job.skip = f"results.json: {e.reason}"
+    if job.results is not None and job.results.translation != TRANSLATION_METRIC:
+        job.notes.append(f"translation scored as {job.results.translation}: no metric scale, as ORB+E's")
     if job.status == "unknown" and job.skip is None:
         job.notes.append("no status.json")
     _read_curves(job)
