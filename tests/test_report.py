@@ -964,3 +964,30 @@ def test_the_report_builds_no_datamodule() -> None:
         data = {m for m in imported(path, modules) if m.startswith("lossvo.data")}
         assert "instantiate" not in names, path.name
         assert data <= {"lossvo.data", "lossvo.data.kitti"}, (path.name, data)  # the format, no datamodule
+
+
+def test_the_speed_section_follows_the_jobs_trajectories(sweep: Path, report: Path) -> None:
+    """tables/speed.csv and its report.md section: per configuration and sequence outside the training
+    split, the predicted over the true mean step length on the slowest and fastest fifth of the pairs,
+    mean over seeds, recomputed here with numpy from the jobs' trajectories and the pose files."""
+    with (report / "tables" / "speed.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert rows and "## Speed on the slowest and fastest stretches" in (report / "report.md").read_text()
+    results = job_results(sweep)
+    train = set(next(iter(results.values()))["data"]["train"])
+    assert {row["sequence"] for row in rows}.isdisjoint(train)
+    for row in rows:
+        loss, sequence = row["configuration"].removeprefix("loss="), row["sequence"]
+        jobs = [job for job in sweep.iterdir() if f"loss-{loss}+" in job.name]
+        gt = read_pose_file(Path(results[(loss, 0)]["sequences"][sequence]["ground_truth"]))
+        true = np.linalg.norm(np.linalg.solve(gt[:-1], gt[1:])[:, :3, 3], axis=1)
+        slow = np.argsort(true, kind="stable")[: round(0.2 * len(true))]
+        ratios = []
+        for job in jobs:
+            est = read_pose_file(job / "trajectories" / f"{sequence}.txt")
+            predicted = np.linalg.norm(np.linalg.solve(est[:-1], est[1:])[:, :3, 3], axis=1)
+            ratios.append(predicted[slow].mean() / true[slow].mean())
+        assert float(row["slowest: true [m]"]) == pytest.approx(true[slow].mean(), rel=2e-3)
+        assert float(row["slowest: predicted / true"].split(" ± ")[0]) == pytest.approx(
+            np.mean(ratios), rel=5e-3
+        )

@@ -61,6 +61,7 @@ from lossvo.report.convergence import Convergence, convergence, convergence_csv_
 from lossvo.report.figures import plot_ape_bars, plot_curves, plot_trajectories
 from lossvo.report.jobs import Job, ground_truth, job_dirs, load_job, unseen_sequences
 from lossvo.report.render import Rows, prepend_column
+from lossvo.report.speed import SPEED_TEXT, SPEED_TITLE, speed_rows
 from lossvo.report.statistics import ALPHA
 from lossvo.report.tables import (
     NETWORK,
@@ -346,6 +347,7 @@ class Contents:
     baselines_on: bool
     figures: Figures | None
     study: Study
+    speed: Rows | None = None
 
 
 def render_report(sweep: Path, out: Path, contents: Contents) -> str:
@@ -370,6 +372,8 @@ def render_report(sweep: Path, out: Path, contents: Contents) -> str:
             "",
             agreement_markdown(c.study.agreement),
         ]
+    if c.speed is not None and c.speed.rows:
+        lines += ["", f"## {SPEED_TITLE}", "", SPEED_TEXT, "", render.markdown(c.speed)]
     lines += ["", "## The study's claims", "", claims_markdown(c.study.claims, by)]
     return "\n".join(lines) + "\n"
 
@@ -471,9 +475,12 @@ def make_report(
     comparisons = compare(networks, study.by_architecture)
     write_tables(tables, comparisons, study, out / "tables")
     figures = None
+    source = included[0] if included else None
     if with_figures:
-        source = included[0] if included else None
         figures = write_figures(networks, tables, base, sequences, out / "figures", source)
-    contents = Contents(jobs, sequences, tables, comparisons, base, with_baselines, figures, study)
+    speed = speed_rows(networks, ground_truth(source, sequences)[0], sequences) if source else None
+    if speed is not None:
+        write_text_atomic(out / "tables" / "speed.csv", render.csv_text(speed))
+    contents = Contents(jobs, sequences, tables, comparisons, base, with_baselines, figures, study, speed)
     write_text_atomic(out / "report.md", render_report(sweep, out, contents))
     return out / "report.md"

@@ -1,0 +1,90 @@
+"""How the predicted speed follows the true one, where metric scale is hardest: on the slowest and the
+fastest stretches of each sequence the networks were not trained on.
+
+A sequence's frame pairs are ranked by their true step length ``|t_k|`` (metres a frame, from the ground
+truth); the slowest and the fastest :data:`SHARE` of them are its slow and fast stretches. Per job the
+*speed ratio* of a set of pairs is the mean predicted step length over the mean true one (1: right on
+average; 1.2: reads 20 % too fast), from the job's trajectory (``trajectories/NN.txt``, whose steps are the
+network's relative poses); each cell is the mean ± std of the ratio over a configuration's seeds.
+A configuration scored with ground-truth step lengths (``loss.translation=direction``) has ratio 1 by
+construction.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from lossvo.report.claims import training_sequences
+from lossvo.report.configurations import architecture_groups, varies_architecture
+from lossvo.report.jobs import read_trajectory
+from lossvo.report.render import Rows
+from lossvo.report.tables import Cell, Column, fmt, mean_std_text
+
+SHARE = 0.2
+"""Fraction of a sequence's frame pairs in each of its slow and fast stretches."""
+STRETCHES = ("slowest", "fastest", "all")
+
+SPEED_TITLE = "Speed on the slowest and fastest stretches"
+SPEED_TEXT = (
+    f"Frame pairs ranked by their true step length: the slowest and the fastest {100 * SHARE:.0f} % of a "
+    "sequence's pairs, and all of them. *true*: their mean true step length [m a frame]; *predicted / true*: "
+    "the mean predicted step length over the mean true one (1: right on average; above 1: too fast), "
+    "mean ± std over seeds. Sequences the networks were not trained on."
+)
+
+
+def step_lengths(poses: np.ndarray) -> np.ndarray:
+    """(N - 1,) metres: the length of each relative translation of a trajectory ``poses`` (N, 4, 4)."""
+    relative = np.linalg.solve(poses[:-1], poses[1:])
+    return np.linalg.norm(relative[:, :3, 3], axis=-1)
+
+
+def stretches(true: np.ndarray) -> dict[str, np.ndarray]:
+    """Boolean masks (N,) of the slowest and fastest :data:`SHARE` of pairs by true step length, and all."""
+    order = np.argsort(true, kind="stable")
+    k = max(1, round(SHARE * len(true)))
+    slow, fast = np.zeros(len(true), bool), np.zeros(len(true), bool)
+    slow[order[:k]], fast[order[-k:]] = True, True
+    return {"slowest": slow, "fastest": fast, "all": np.ones(len(true), bool)}
+
+
+def speed_ratios(estimate: np.ndarray, gt: np.ndarray) -> dict[str, float]:
+    """Stretch -> mean predicted over mean true step length, for an estimated trajectory and its ground
+    truth, both (N, 4, 4) in metres."""
+    true, predicted = step_lengths(gt), step_lengths(estimate)
+    return {name: float(predicted[m].mean() / true[m].mean()) for name, m in stretches(true).items()}
+
+
+def speed_rows(networks: Sequence[Column], gt: Mapping[str, np.ndarray], sequences: Sequence[str]) -> Rows:
+    """One row per architecture, configuration and sequence outside the training split with ground truth:
+    each stretch's mean true step length and the predicted / true ratio over seeds."""
+    outside = [s for s in sequences if s in gt and s not in training_sequences(networks)]
+    groups = architecture_groups(networks) if varies_architecture(networks) else {"": list(networks)}
+    header = ["configuration", "sequence"]
+    header += [f"{name}: {what}" for name in STRETCHES for what in ("true [m]", "predicted / true")]
+    rows: list[list[object]] = []
+    for architecture, group in groups.items():
+        for column in group:
+            label = f"{architecture}: {column.label}" if architecture else column.label
+            for s in outside:
+                rows.append([label, s, *_cells(column, s, gt[s])])
+    return Rows(header, rows)
+
+
+def _cells(column: Column, sequence: str, gt: np.ndarray) -> list[str]:
+    true = step_lengths(gt)
+    masks = stretches(true)
+    ratios = [speed_ratios(t, gt) for t in _trajectories(column, sequence, len(gt))]
+    cells: list[str] = []
+    for name in STRETCHES:
+        cell = Cell.of(np.array([r[name] for r in ratios]))
+        cells += [fmt(float(true[masks[name]].mean()), 3), mean_std_text(cell, 3)]
+    return cells
+
+
+def _trajectories(column: Column, sequence: str, frames: int) -> list[np.ndarray]:
+    """The column's replicates' trajectories of ``sequence`` that exist and match its ground truth."""
+    found = (read_trajectory(job, sequence) for job in column.jobs)
+    return [t for t in found if t is not None and len(t) == frames]
