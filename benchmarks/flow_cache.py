@@ -1,6 +1,7 @@
 """The optical-flow cache of a dataset: how long each flow setting takes to build it and how large it is.
 
-Run: ``.venv/bin/python benchmarks/flow_cache.py [--rounds 2] [--settings dis-fast dis-medium ...]``.
+Run: ``.venv/bin/python benchmarks/flow_cache.py [--rounds 2] [--settings dis-fast dis-medium-x1.5 ...]``
+(``-xS``: ``data.flow_scale=S``, the flow computed on the source images at S times the cached size).
 It reads the default synthetic dataset's frame cache (the default ``data=synthetic`` config: 6,300 frames
 at 64x208, under ``$LOSSVO_CACHE``, rendered first if missing), then builds the flow cache of each setting
 (consecutive pairs of every sequence, each training frame step's pairs of the training ones) into a fresh
@@ -42,17 +43,28 @@ def _build(dm: KittiDataModule, setting: flow.FlowSetting, folder: Path) -> tupl
         frames = dm.sequence_frames(name)
         source = {"frames": name}  # a fresh folder: nothing to compare with
         for step in steps:
-            pairs += len(flow.ensure_flow(folder, name, frames, source, step, setting, progress=False))
+            images = dm.sequences[name].images
+            fields = flow.ensure_flow(folder, name, frames, source, step, setting, images, progress=False)
+            pairs += len(fields)
     seconds = time.perf_counter() - start
     return seconds, pairs, sum(p.stat().st_size for p in folder.glob("*.npy"))
+
+
+def _setting(name: str) -> flow.FlowSetting:
+    """``dis-medium`` or ``dis-medium-x1.5`` as a setting."""
+    method, _, rest = name.partition("-")
+    preset, _, scale = rest.partition("-x")
+    return flow.FlowSetting(method, preset or "medium", float(scale or 1))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--rounds", type=int, default=2)
-    parser.add_argument("--settings", nargs="+", default=["dis-ultrafast", "dis-fast", "dis-medium"])
+    parser.add_argument(
+        "--settings", nargs="+", default=["dis-ultrafast", "dis-fast", "dis-medium", "dis-medium-x1.5"]
+    )
     args = parser.parse_args()
-    settings = [flow.FlowSetting(*name.split("-", 1)) for name in args.settings]
+    settings = [_setting(name) for name in args.settings]
     with tempfile.TemporaryDirectory() as tmp:
         dm = _datamodule()
         times: dict[str, list[float]] = {s.key: [] for s in settings}

@@ -141,7 +141,7 @@ def test_model_flowvo_trains_on_the_flow_it_selects(loss: str, tiny_kitti, tmp_p
     assert cfg.data.flow == "dis"
     metrics = fit(cfg)
     assert all(torch.isfinite(torch.tensor(v)) for v in metrics.values())
-    assert list((tmp_path / "cache").rglob("*.flow-dis-medium-s1.npy"))
+    assert list((tmp_path / "cache").rglob("*.flow-dis-medium-x1.5-s1.npy"))
 
 
 @pytest.mark.slow
@@ -161,6 +161,6 @@ def test_a_flowvo_checkpoint_evaluates_where_no_flow_is_cached(
             "data.test=[02]", f"data.cache_dir={tmp_path / 'empty'}", f"hydra.run.dir={out}"]  # fmt: skip
     status, err = eval_main(args, monkeypatch, capsys)
     assert status == 0, err
-    assert list((tmp_path / "empty").rglob("02.flow-dis-medium-s1.npy"))
+    assert list((tmp_path / "empty").rglob("02.flow-dis-medium-x1.5-s1.npy"))
     evaluated, trained = scores_of(out), scores_of(run)
     assert evaluated["sequences"] == trained["sequences"]

@@ -64,3 +64,20 @@ def test_rows_give_each_configuration_mean_and_std_over_seeds(tmp_path: Path, mo
     label, sequence, *cells = rows.rows[0]
     assert (label, sequence) == ("loss=euler", "07")
     assert cells == ["0.150", "1.20 ± 0.14", "0.950", "1.20 ± 0.14", "0.550", "1.20 ± 0.14"]
+
+
+def test_rows_of_several_architectures_name_each_rows_architecture(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setattr(speed, "training_sequences", lambda columns: set())
+    columns = []
+    for architecture in ("deepvo_small", "flowvo"):
+        job = Job(tmp_path / architecture)
+        (job.path / "trajectories").mkdir(parents=True)
+        write_poses(job.path / "trajectories" / "07.txt", _straight(TRUE))
+        label = f"model={architecture},loss=euler"
+        columns.append(Column(label, NETWORK, ["seed=0"], [{}], [job], architecture=architecture))
+    rows = speed.speed_rows(columns, {"07": _straight(TRUE)}, ["07"])
+    assert rows.header[:3] == ["architecture", "configuration", "sequence"]
+    assert [row[:3] for row in rows.rows] == [
+        ["deepvo_small", "model=deepvo_small,loss=euler", "07"], ["flowvo", "model=flowvo,loss=euler", "07"]
+    ]  # fmt: skip
+    assert rows.rows[0][4] == "1.00"  # one seed: no std

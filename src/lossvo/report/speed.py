@@ -17,10 +17,10 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from lossvo.report.claims import training_sequences
-from lossvo.report.configurations import architecture_groups, varies_architecture
+from lossvo.report.configurations import varies_architecture
 from lossvo.report.jobs import read_trajectory
-from lossvo.report.render import Rows
-from lossvo.report.tables import Cell, Column, fmt, mean_std_text
+from lossvo.report.render import Rows, prepend_column
+from lossvo.report.tables import NETWORK, Cell, Column, fmt, mean_std_text
 
 SHARE = 0.2
 """Fraction of a sequence's frame pairs in each of its slow and fast stretches."""
@@ -58,19 +58,17 @@ def speed_ratios(estimate: np.ndarray, gt: np.ndarray) -> dict[str, float]:
 
 
 def speed_rows(networks: Sequence[Column], gt: Mapping[str, np.ndarray], sequences: Sequence[str]) -> Rows:
-    """One row per architecture, configuration and sequence outside the training split with ground truth:
-    each stretch's mean true step length and the predicted / true ratio over seeds."""
+    """One row per configuration and sequence outside the training split with ground truth (with an
+    ``architecture`` column first where the networks span several): each stretch's mean true step length
+    and the predicted / true ratio over seeds."""
     outside = [s for s in sequences if s in gt and s not in training_sequences(networks)]
-    groups = architecture_groups(networks) if varies_architecture(networks) else {"": list(networks)}
     header = ["configuration", "sequence"]
     header += [f"{name}: {what}" for name in STRETCHES for what in ("true [m]", "predicted / true")]
-    rows: list[list[object]] = []
-    for architecture, group in groups.items():
-        for column in group:
-            label = f"{architecture}: {column.label}" if architecture else column.label
-            for s in outside:
-                rows.append([label, s, *_cells(column, s, gt[s])])
-    return Rows(header, rows)
+    columns = [c for c in networks if c.kind == NETWORK]
+    rows = Rows(header, [[c.label, s, *_cells(c, s, gt[s])] for c in columns for s in outside])
+    if not varies_architecture(networks):
+        return rows
+    return prepend_column(rows, "architecture", [c.architecture for c in columns for _ in outside])
 
 
 def _cells(column: Column, sequence: str, gt: np.ndarray) -> list[str]:
