@@ -85,7 +85,7 @@ class FlowVO(nn.Module):
         head_bias: the heads' initial output (out_dim,), the loss's identity output; null: zeros.
         flow: the optical flow the network reads (``data.flow``), recorded with it.
         pool: the encoder's input (flow and intrinsics layer) is average-pooled by this factor: a
-            quarter of the pixels at 2, where the flow field is smooth and a step costs ~0.4x.
+            quarter of the pixels at 2, where the flow field is smooth; a training step costs 0.28-0.37x.
         channels_last: run the encoder in the channels-last memory layout (NHWC), which the oneDNN CPU
             kernels and GPU tensor cores prefer; the values are the same.
     """
