@@ -276,15 +276,10 @@ def orb_essential(
         estimates.append(pair_motion(points[k][i], points[k + 1][j], K, threshold))
     failed = np.array([e is None for e in estimates], dtype=bool)
     unit = np.stack([np.eye(4) if e is None else e for e in estimates]) if estimates else np.zeros((0, 4, 4))
-    unit = _fill_forward(unit, failed, _unit_translation(fallback))
-    return _with_step_lengths(unit, step_lengths), failed
-
-
-def _unit_translation(pose: np.ndarray) -> np.ndarray:
-    out = np.array(pose, dtype=np.float64)
-    norm = np.linalg.norm(out[:3, 3])
-    out[:3, 3] = out[:3, 3] / norm if norm > 0 else np.array([0.0, 0.0, 1.0])
-    return out
+    motion = _fill_forward(unit, failed, np.asarray(fallback, dtype=np.float64))
+    lengths = torch.from_numpy(np.asarray(step_lengths, dtype=np.float64))
+    motion[:, :3, 3] = geometry.scale_to_length(torch.from_numpy(motion[:, :3, 3]), lengths).numpy()
+    return motion, failed
 
 
 def _fill_forward(poses: np.ndarray, failed: np.ndarray, first: np.ndarray) -> np.ndarray:
@@ -293,13 +288,6 @@ def _fill_forward(poses: np.ndarray, failed: np.ndarray, first: np.ndarray) -> n
     last_good = np.maximum.accumulate(good) if len(good) else good
     table = np.concatenate((first[None], poses))
     return table[last_good + 1]
-
-
-def _with_step_lengths(unit: np.ndarray, step_lengths: np.ndarray) -> np.ndarray:
-    """(M, 4, 4) poses with unit translations scaled to (M,) lengths."""
-    out = unit.copy()
-    out[:, :3, 3] *= np.asarray(step_lengths, dtype=np.float64)[:, None]
-    return out
 
 
 # --------------------------------------------------------------------------------------------------
