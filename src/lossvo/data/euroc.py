@@ -1,0 +1,481 @@
+"""The EuRoC MAV dataset in its own ASL layout, read into lossvo's :class:`~lossvo.data.sequence.Sequence`.
+
+Layout (one folder per sequence, named as EuRoC names them: ``MH_01_easy``, ``V1_02_medium``)::
+
+    ROOT/<sequence>/mav0/cam0/data.csv              '#timestamp [ns],filename', then one frame a line
+    ROOT/<sequence>/mav0/cam0/data/<timestamp>.png  752x480 single-channel frames
+    ROOT/<sequence>/mav0/cam0/sensor.yaml           T_BS, resolution, intrinsics, distortion
+    ROOT/<sequence>/mav0/state_groundtruth_estimate0/data.csv
+                                                    17 columns at 200 Hz: timestamp [ns], p_RS_R x y z [m],
+                                                    q_RS w x y z, velocity, gyroscope and accelerometer biases
+
+Conventions (from the dataset's own files and its paper, Burri et al., "The EuRoC micro aerial vehicle
+datasets", IJRR 2016):
+
+- Timestamps are integer nanoseconds; they become float64 seconds through :func:`ns_to_seconds` (one
+  rounding, so that stamps near 1.4e18 ns keep their sub-microsecond order). Frame times come from
+  ``data.csv``, never from file names.
+- The ground truth is the pose of the BODY (the IMU, ``S`` in ``p_RS_R``/``q_RS``) in the world ``R``:
+  T_w_b, quaternions in (w, x, y, z) order. ``sensor.yaml``'s ``T_BS`` is the camera's pose in the body
+  frame ("sensor extrinsics wrt. the body-frame": p_B = T_BS p_S), so the camera's pose is
+  ``T_w_c(t) = T_w_b(t) @ T_BS``. cam0's axes are already lossvo's (x right, y down, z forward).
+- T_w_b at a frame's time is interpolated between the two bracketing ground-truth rows (found in integer
+  nanoseconds): translation linearly, rotation along the geodesic (slerp). Frames outside the ground
+  truth's span, and frames whose bracketing rows are more than ``max_gap`` seconds apart (several missing
+  200 Hz rows), are dropped and counted in ``Sequence.dropped``. A dropped frame inside a sequence leaves a
+  hole in ``Sequence.times``; the datamodule cuts windows there, so that no window spans a gap.
+- ``distortion_coefficients`` are radial-tangential (k1, k2, p1, p2), returned as OpenCV's five
+  (k1, k2, p1, p2, 0). ``sensor.yaml`` files written by OpenCV tools start with a ``%YAML:1.0`` line,
+  which PyYAML rejects: it is skipped.
+
+Every bad input raises one :class:`~lossvo.data.sequence.DatasetFormatError` line naming the file (and the
+1-based line or the YAML key) and what was expected.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from scipy.spatial.transform import Rotation
+
+from lossvo.data.sequence import DatasetFormatError, Sequence, png_size, where
+
+CAMERA = "cam0"
+GROUND_TRUTH = "state_groundtruth_estimate0"
+GROUND_TRUTH_COLUMNS = 17
+"""timestamp, p_RS_R (3), q_RS (w, x, y, z), v_RS_R (3), b_w_RS_S (3), b_a_RS_S (3)."""
+
+MAX_GAP_S = 0.02
+"""Default largest spacing (s) of the two ground-truth rows a frame is interpolated between (rows are 5 ms
+apart at 200 Hz)."""
+
+RIGID_TOLERANCE = 1e-4
+"""Largest |RᵀR − I| entry and |det R − 1| accepted in ``T_BS`` (EuRoC writes 12 significant digits)."""
+
+QUATERNION_TOLERANCE = 1e-3
+"""Largest | |q| − 1 | accepted in the ground truth (EuRoC writes 6 decimals)."""
+
+_NS_PER_S = 1_000_000_000
+_DIGITS = re.compile(r"[0-9]+")
+
+
+# --------------------------------------------------------------------------------------------------
+# Timestamps and CSV files
+# --------------------------------------------------------------------------------------------------
+
+
+def ns_to_seconds(ns: np.ndarray) -> np.ndarray:
+    """Integer nanoseconds to float64 seconds with one rounding: whole seconds and the nanosecond remainder
+    are converted separately (both exactly), so a stamp near 1.4e18 ns is off by at most about one float64
+    spacing (2.4e-7 s) instead of the 256 ns lost by converting the integer to float64 first.
+
+    Args:
+        ns: (N,) int64 nanoseconds.
+    Returns:
+        (N,) float64 seconds.
+    """
+    ns = np.asarray(ns, dtype=np.int64)
+    whole, rest = np.divmod(ns, _NS_PER_S)
+    return whole.astype(np.float64) + rest.astype(np.float64) / _NS_PER_S
+
+
+def _csv_rows(path: Path, what: str, columns: int) -> list[tuple[int, list[str]]]:
+    """The data lines of an ASL CSV file (lines starting with '#' and empty lines skipped), each with its
+    1-based number and its ``columns`` stripped fields."""
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as e:
+        raise DatasetFormatError(f"{path}: cannot read {what} ({e.strerror})") from None
+    rows = []
+    for i, line in enumerate(lines, start=1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        fields = [field.strip() for field in line.split(",")]
+        if len(fields) != columns:
+            raise DatasetFormatError(
+                f"{where(path, i)}: expected {columns} comma-separated columns in {what}, got {len(fields)}"
+            )
+        rows.append((i, fields))
+    if not rows:
+        raise DatasetFormatError(f"{path}: no data lines in {what} (expected {columns} columns a line)")
+    return rows
+
+
+def _parse_ns(path: Path, line: int, text: str) -> int:
+    if not _DIGITS.fullmatch(text):
+        raise DatasetFormatError(
+            f"{where(path, line)}: expected a timestamp in integer nanoseconds, got {text!r}"
+        )
+    return int(text)
+
+
+def _parse_floats(path: Path, line: int, fields: list[str]) -> list[float]:
+    values = []
+    for text in fields:
+        try:
+            value = float(text)
+        except ValueError:
+            raise DatasetFormatError(f"{where(path, line)}: expected a number, got {text!r}") from None
+        if not np.isfinite(value):
+            raise DatasetFormatError(f"{where(path, line)}: expected a finite number, got {text!r}")
+        values.append(value)
+    return values
+
+
+def _stamps(path: Path, rows: list[tuple[int, list[str]]]) -> np.ndarray:
+    """(N,) int64 nanoseconds of the rows' first field, checked strictly increasing, and far enough apart
+    to stay distinct as float64 seconds."""
+    ns = np.array([_parse_ns(path, i, fields[0]) for i, fields in rows], dtype=np.int64)
+    bad = np.flatnonzero(np.diff(ns) <= 0)
+    if bad.size:
+        k = bad[0] + 1
+        raise DatasetFormatError(
+            f"{where(path, rows[k][0])}: timestamp {ns[k]} ns does not follow {ns[k - 1]} ns on line "
+            f"{rows[k - 1][0]} (expected strictly increasing timestamps)"
+        )
+    bad = np.flatnonzero(np.diff(ns_to_seconds(ns)) <= 0)
+    if bad.size:
+        k = bad[0] + 1
+        raise DatasetFormatError(
+            f"{where(path, rows[k][0])}: timestamp {ns[k]} ns is {ns[k] - ns[k - 1]} ns after line "
+            f"{rows[k - 1][0]}'s (expected stamps far enough apart to differ as float64 seconds)"
+        )
+    return ns
+
+
+def read_camera_stamps(path: str | os.PathLike) -> tuple[np.ndarray, list[str]]:
+    """:func:`read_camera_list` with the times as (N,) int64 nanoseconds, as the file writes them."""
+    path = Path(path)
+    rows = _csv_rows(path, "camera list", 2)
+    for i, (_, name) in rows:
+        if not name:
+            raise DatasetFormatError(f"{where(path, i)}: empty file name (expected '<timestamp>.png')")
+    return _stamps(path, rows), [fields[1] for _, fields in rows]
+
+
+def read_camera_list(path: str | os.PathLike) -> tuple[np.ndarray, list[str]]:
+    """Read ``cam0/data.csv``: ``timestamp [ns],filename`` a line after a '#' header.
+
+    Returns:
+        (N,) float64 times in seconds, strictly increasing; N file names relative to ``cam0/data``.
+    Raises:
+        DatasetFormatError: naming the file and line for a missing file, a line without 2 columns, a
+            timestamp that is not an integer, that repeats or goes backwards, or an empty file name.
+    """
+    ns, names = read_camera_stamps(path)
+    return ns_to_seconds(ns), names
+
+
+def read_groundtruth_stamps(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`read_groundtruth` with the times as (M,) int64 nanoseconds, as the file writes them."""
+    path = Path(path)
+    rows = _csv_rows(path, "ground truth", GROUND_TRUTH_COLUMNS)
+    if len(rows) < 2:
+        raise DatasetFormatError(f"{path}: one ground-truth row (expected at least 2 to interpolate between)")
+    ns = _stamps(path, rows)
+    values = np.array([_parse_floats(path, i, fields[1:8]) for i, fields in rows], dtype=np.float64)
+    norm = np.linalg.norm(values[:, 3:7], axis=1)
+    bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_TOLERANCE)
+    if bad.size:
+        k = bad[0]
+        raise DatasetFormatError(
+            f"{where(path, rows[k][0])}: quaternion q_RS of norm {norm[k]:.6g} "
+            "(expected a unit quaternion w x y z)"
+        )
+    return ns, _poses(values[:, :3], values[:, 3:7])
+
+
+def read_groundtruth(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Read ``state_groundtruth_estimate0/data.csv``: 17 columns a line, timestamp [ns], p_RS_R (x, y, z) in
+    metres, q_RS (w, x, y, z), then velocity and IMU biases (ignored).
+
+    Returns:
+        (M,) float64 times in seconds, strictly increasing; (M, 4, 4) float64 body poses T_w_b.
+    Raises:
+        DatasetFormatError: naming the file and line for a missing file, a line without 17 columns, a
+            non-number, a timestamp that repeats or goes backwards, a quaternion far from unit norm, or
+            fewer than two rows (nothing to interpolate between).
+    """
+    ns, T_w_b = read_groundtruth_stamps(path)
+    return ns_to_seconds(ns), T_w_b
+
+
+def _poses(t: np.ndarray, q_wxyz: np.ndarray) -> np.ndarray:
+    """(M, 4, 4) float64 poses from (M, 3) translations and (M, 4) quaternions (w, x, y, z), normalised."""
+    poses = np.zeros((len(t), 4, 4))
+    poses[:, :3, :3] = Rotation.from_quat(q_wxyz[:, [1, 2, 3, 0]]).as_matrix()
+    poses[:, :3, 3] = t
+    poses[:, 3, 3] = 1.0
+    return poses
+
+
+# --------------------------------------------------------------------------------------------------
+# sensor.yaml
+# --------------------------------------------------------------------------------------------------
+
+
+def _load_yaml(path: Path) -> dict[str, Any]:
+    """The mapping in ``path``, an OpenCV ``%YAML:1.0`` first line skipped (kept as an empty line, so that
+    line numbers stay those of the file)."""
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise DatasetFormatError(f"{path}: cannot read camera calibration ({e.strerror})") from None
+    lines = text.splitlines()
+    if lines and lines[0].startswith("%YAML:"):
+        lines[0] = ""
+    try:
+        data = yaml.safe_load("\n".join(lines))
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        line = mark.line + 1 if mark is not None else None
+        problem = getattr(e, "problem", None) or type(e).__name__
+        raise DatasetFormatError(f"{where(path, line)}: not valid YAML ({problem})") from None
+    if not isinstance(data, dict):
+        raise DatasetFormatError(f"{path}: expected a YAML mapping with T_BS, resolution and intrinsics")
+    return data
+
+
+def _numbers(path: Path, data: dict[str, Any], key: str, count: int, meaning: str) -> np.ndarray:
+    """``data[key]`` as (count,) float64, or DatasetFormatError naming the file and key."""
+    if key not in data:
+        raise DatasetFormatError(f"{path}: key '{key}' missing (expected {meaning})")
+    value = data[key]
+    ok = (
+        isinstance(value, list)
+        and len(value) == count
+        and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+    )
+    if not ok or not np.all(np.isfinite(np.asarray(value, dtype=np.float64))):
+        raise DatasetFormatError(f"{path}: key '{key}': expected {meaning}, got {value!r}")
+    return np.asarray(value, dtype=np.float64)
+
+
+def _check_choice(path: Path, data: dict[str, Any], key: str, expected: str) -> None:
+    if key in data and data[key] != expected:
+        raise DatasetFormatError(f"{path}: key '{key}': expected {expected!r}, got {data[key]!r}")
+
+
+def _read_T_BS(path: Path, data: dict[str, Any]) -> np.ndarray:
+    block = data.get("T_BS")
+    if not isinstance(block, dict):
+        raise DatasetFormatError(
+            f"{path}: key 'T_BS' missing or not a mapping "
+            "(expected T_BS: {cols: 4, rows: 4, data: [16 numbers]})"
+        )
+    for key in ("rows", "cols"):
+        if key in block and block[key] != 4:
+            raise DatasetFormatError(f"{path}: key 'T_BS.{key}': expected 4, got {block[key]!r}")
+    T = _numbers(path, block, "data", 16, "the 16 numbers of T_BS, row-major").reshape(4, 4)
+    _check_rigid(path, T)
+    return T
+
+
+def _check_rigid(path: Path, T: np.ndarray) -> None:
+    """DatasetFormatError naming the file's key 'T_BS' unless T is a rigid transform."""
+    R = T[:3, :3]
+    error = np.abs(R.T @ R - np.eye(3)).max()
+    det = np.linalg.det(R)
+    if error > RIGID_TOLERANCE or abs(det - 1.0) > RIGID_TOLERANCE:
+        raise DatasetFormatError(
+            f"{path}: key 'T_BS': rotation block is not a rotation (max |RᵀR − I| = {error:.2g}, "
+            f"det = {det:.4g}; expected orthonormal, det +1)"
+        )
+    if not np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0]):
+        raise DatasetFormatError(f"{path}: key 'T_BS': last row {T[3].tolist()} (expected 0 0 0 1)")
+
+
+def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]:
+    """Read a camera's ``sensor.yaml``.
+
+    Returns:
+        K: (3, 3) float64 from ``intrinsics: [fu, fv, cu, cv]`` (pixels);
+        distortion: (4,) float64 ``distortion_coefficients`` (k1, k2, p1, p2), radial-tangential;
+        T_BS: (4, 4) float64 pose of the camera in the body (IMU) frame;
+        size: (H, W) in pixels, from ``resolution: [W, H]``.
+    Raises:
+        DatasetFormatError: naming the file and the key for a missing file, invalid YAML, a missing or
+            malformed key, a camera model other than pinhole / radial-tangential, or a T_BS that is not a
+            rigid transform (rotation not orthonormal, det != 1, last row not 0 0 0 1).
+    """
+    path = Path(path)
+    data = _load_yaml(path)
+    _check_choice(path, data, "camera_model", "pinhole")
+    _check_choice(path, data, "distortion_model", "radial-tangential")
+    fu, fv, cu, cv = _numbers(path, data, "intrinsics", 4, "[fu, fv, cu, cv] in pixels")
+    if fu <= 0 or fv <= 0:
+        raise DatasetFormatError(f"{path}: key 'intrinsics': expected positive focal lengths, got {fu}, {fv}")
+    distortion = _numbers(path, data, "distortion_coefficients", 4, "[k1, k2, p1, p2]")
+    width, height = _numbers(path, data, "resolution", 2, "[width, height] in pixels")
+    if width != int(width) or height != int(height) or width <= 0 or height <= 0:
+        raise DatasetFormatError(
+            f"{path}: key 'resolution': expected two positive integers [width, height], "
+            f"got {data['resolution']!r}"
+        )
+    K = np.array([[fu, 0.0, cu], [0.0, fv, cv], [0.0, 0.0, 1.0]])
+    return K, distortion, _read_T_BS(path, data), (int(height), int(width))
+
+
+# --------------------------------------------------------------------------------------------------
+# Poses at the frames' times
+# --------------------------------------------------------------------------------------------------
+
+
+def bracket(
+    gt_ns: np.ndarray, ns: np.ndarray, max_gap: float = MAX_GAP_S
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ground-truth rows each stamp lies between, computed in integer nanoseconds (as float64 seconds,
+    stamps near 1.4e9 s carry up to 0.24 µs of rounding: 5e-5 of a 5 ms interval).
+
+    Args:
+        gt_ns: (M,) int64 strictly increasing nanoseconds, M >= 2; ns: (N,) int64 nanoseconds;
+        max_gap: the largest spacing (s) of two bracketing rows.
+    Returns:
+        index: (N,) int, the row at or before each stamp (``index + 1`` is the row after);
+        fraction: (N,) float64 in [0, 1], where the stamp lies between the two rows;
+        keep: (N,) bool, False for stamps outside ``[gt_ns[0], gt_ns[-1]]`` or between rows more than
+            ``max_gap`` apart (index and fraction are then meaningless).
+    """
+    gt_ns, ns = np.asarray(gt_ns, dtype=np.int64), np.asarray(ns, dtype=np.int64)
+    index = np.clip(np.searchsorted(gt_ns, ns, side="right") - 1, 0, len(gt_ns) - 2)
+    spacing = gt_ns[index + 1] - gt_ns[index]
+    fraction = np.clip((ns - gt_ns[index]) / spacing, 0.0, 1.0)
+    keep = (ns >= gt_ns[0]) & (ns <= gt_ns[-1]) & (spacing <= max_gap * _NS_PER_S)
+    return index, fraction, keep
+
+
+def interpolate_poses(T0: np.ndarray, T1: np.ndarray, fraction: np.ndarray) -> np.ndarray:
+    """Poses between T0 and T1: translation linear, rotation along the shortest geodesic (slerp),
+    ``R = R0 exp(f log(R0ᵀ R1))``.
+
+    Args:
+        T0, T1: (N, 4, 4) float64 poses; fraction: (N,) in [0, 1] (0 gives T0, 1 gives T1).
+    Returns:
+        (N, 4, 4) float64.
+    """
+    f = np.asarray(fraction, dtype=np.float64)[:, None]
+    R0 = Rotation.from_matrix(T0[:, :3, :3])
+    step = (R0.inv() * Rotation.from_matrix(T1[:, :3, :3])).as_rotvec()
+    poses = np.zeros((len(f), 4, 4))
+    poses[:, :3, :3] = (R0 * Rotation.from_rotvec(f * step)).as_matrix()
+    poses[:, :3, 3] = (1.0 - f) * T0[:, :3, 3] + f * T1[:, :3, 3]
+    poses[:, 3, 3] = 1.0
+    return poses
+
+
+def camera_poses(
+    gt_ns: np.ndarray, T_w_b: np.ndarray, T_BS: np.ndarray, ns: np.ndarray, max_gap: float = MAX_GAP_S
+) -> tuple[np.ndarray, np.ndarray]:
+    """Camera poses ``T_w_c(t) = T_w_b(t) @ T_BS`` at the frames' stamps, T_w_b interpolated (see
+    :func:`bracket`, :func:`interpolate_poses`).
+
+    Args:
+        gt_ns: (M,) int64 ground-truth stamps in nanoseconds; T_w_b: (M, 4, 4) body poses; T_BS: (4, 4)
+            camera in body; ns: (N,) int64 frame stamps in nanoseconds; max_gap: see :func:`bracket`.
+    Returns:
+        (K, 4, 4) float64 T_w_c of the kept frames, and the (N,) bool mask of the kept frames (K of them).
+    """
+    index, fraction, keep = bracket(gt_ns, ns, max_gap)
+    index, fraction = index[keep], fraction[keep]
+    T_w_b_t = interpolate_poses(T_w_b[index], T_w_b[index + 1], fraction)
+    return T_w_b_t @ np.asarray(T_BS, dtype=np.float64), keep
+
+
+# --------------------------------------------------------------------------------------------------
+# Sequences
+# --------------------------------------------------------------------------------------------------
+
+
+def _check_root(root: Path) -> None:
+    if not root.is_dir():
+        raise DatasetFormatError(f"{root}: dataset root does not exist (expected ROOT/<sequence>/mav0)")
+
+
+def list_sequences(root: str | os.PathLike) -> list[str]:
+    """Names of the sequences under ``root`` (folders holding ``mav0``), sorted."""
+    root = Path(root).expanduser()
+    _check_root(root)
+    return sorted(p.name for p in root.iterdir() if (p / "mav0").is_dir())
+
+
+def sequence_dir(root: str | os.PathLike, name: str) -> Path:
+    """``root/name/mav0``; DatasetFormatError naming the missing folder and the sequences found."""
+    root = Path(root).expanduser()
+    path = root / name / "mav0"
+    if not path.is_dir():
+        found = ", ".join(list_sequences(root)) or "none"
+        raise DatasetFormatError(
+            f"{path}: sequence {name!r} not found (expected ROOT/<name>/mav0; found: {found})"
+        )
+    return path
+
+
+def _image_paths(csv_path: Path, folder: Path, names: list[str]) -> list[Path]:
+    """``folder/name`` for each name, each checked to exist (else the error names ``csv_path``'s line)."""
+    paths = [folder / name for name in names]
+    missing = next((k for k, p in enumerate(paths) if not p.is_file()), None)
+    if missing is not None:
+        line = _data_line(csv_path, missing)
+        raise DatasetFormatError(f"{where(csv_path, line)}: frame {paths[missing]} does not exist")
+    return paths
+
+
+def _data_line(path: Path, k: int) -> int:
+    """The 1-based line number of the k-th data line of an ASL CSV file."""
+    rows = _csv_rows(path, "camera list", 2)
+    return rows[k][0]
+
+
+def load_sequence(
+    root: str | os.PathLike, name: str, require_poses: bool = True, max_gap: float = MAX_GAP_S
+) -> Sequence:
+    """Read and check one sequence's metadata (frame list, camera, ground truth); no image is decoded.
+
+    Frames outside the ground truth's span, or between ground-truth rows more than ``max_gap`` seconds
+    apart, are dropped and counted in ``dropped``; the datamodule cuts windows where frames were dropped.
+
+    Args:
+        root: the folder holding the sequences; name: a sequence as EuRoC names it (``"V1_02_medium"``);
+        require_poses: raise when the ground truth is missing (else the sequence has ``poses=None``).
+    Returns:
+        Sequence with T_w_c of cam0 (``T_w_b(t) @ T_BS``), K, distortion (k1, k2, p1, p2, 0), size (H, W).
+    Raises:
+        DatasetFormatError: an unknown sequence (naming those found), a missing or malformed file, a frame
+            whose size differs from sensor.yaml's resolution, or no frame within the ground truth's span.
+    """
+    mav0 = sequence_dir(root, name)
+    camera = mav0 / CAMERA
+    csv_path = camera / "data.csv"
+    ns, names = read_camera_stamps(csv_path)
+    times = ns_to_seconds(ns)
+    images = _image_paths(csv_path, camera / "data", names)
+    K, distortion, T_BS, size = read_sensor(camera / "sensor.yaml")
+    found = png_size(images[0])
+    if found != size:
+        raise DatasetFormatError(
+            f"{images[0]}: frame of {found[1]}x{found[0]} pixels, but {camera / 'sensor.yaml'} key "
+            f"'resolution' says {size[1]}x{size[0]}"
+        )
+    distortion5 = np.concatenate([distortion, [0.0]])
+    gt_path = mav0 / GROUND_TRUTH / "data.csv"
+    if not gt_path.is_file():
+        if require_poses:
+            raise DatasetFormatError(
+                f"{gt_path}: no ground truth for sequence {name} (needed for training/evaluation)"
+            )
+        return Sequence(name, images, times, None, K, distortion5, size)
+    gt_ns, T_w_b = read_groundtruth_stamps(gt_path)
+    poses, keep = camera_poses(gt_ns, T_w_b, T_BS, ns, max_gap)
+    if not keep.any():
+        raise DatasetFormatError(
+            f"{gt_path}: no frame of {csv_path} within the ground truth's span "
+            f"[{gt_ns[0]}, {gt_ns[-1]}] ns without gaps over {max_gap} s "
+            f"(frames span [{ns[0]}, {ns[-1]}] ns)"
+        )
+    kept = [path for path, k in zip(images, keep, strict=True) if k]
+    return Sequence(name, kept, times[keep], poses, K, distortion5, size, dropped=int((~keep).sum()))

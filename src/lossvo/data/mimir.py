@@ -1,0 +1,377 @@
+"""The MIMIR-UW underwater dataset (Álvarez-Tuñón et al., IROS 2023) in its own layout: the dataset of the
+study "Loss it right".
+
+Layout (the dataset's README, https://github.com/remaro-network/MIMIR-UW, "Dataset structure")::
+
+    ROOT/<env>/auv0/<track>/rgb/cam0/data/<timestamp>.png    frames (cam0, cam1, cam2: three cameras)
+    ROOT/<env>/auv0/<track>/rgb/cam0/data.csv                the frame list, EuRoC's ASL format
+    ROOT/<env>/auv0/<track>/rgb/cam0/sensor.yaml             T_BS, rate_hz, resolution, intrinsics, distortion
+    ROOT/<env>/auv0/<track>/pose_groundtruth/data.csv        the ground truth
+
+Sequences are named by their path under ROOT: ``"SeaFloor/auv0/track0"``. The study's own configurations
+(``remaro-network/Loss_VO_right``, ``configs/data_loader/MIMIR/SeaFloor/track0.yml``) and the authors'
+ORB-SLAM3 scripts (``olayasturias/ORB_SLAM3``, ``Examples/mimir_mono.sh``) use ``<env>/<track>/auv0`` instead;
+both orders are found, and the name is whichever path holds ``rgb/``.
+
+Conventions, and where each comes from:
+
+- The README: "a dataset format similar to the ASL format proposed by EuRoC", ``T_BS`` "the transform between
+  body and sensor frame", and a ``sensor.yaml`` (JSON, which YAML reads) whose ``T_BS`` is a nested 4x4 list,
+  ``intrinsics`` a nested 3x3 K, ``resolution`` ``[width, height]``, ``distortion_coefficients`` five
+  radial-tangential numbers. Its example ``front_left`` camera has T_BS = a 15 degree rotation about y and
+  (0.45, -0.06, 0) m: the camera frame S has the body's axes (AirSim's x forward, y right, z down; the
+  rotation pitches the camera down by 15 degrees), not optical ones.
+- The README is silent on the ground truth's columns and on the time unit. The study's loader
+  (``Loss_VO_right``, ``data_loader/mimir.py`` via ``utils/general.py`` ``load_poses_from_txt_euroc``) reads a
+  ground-truth line as ``timestamp, tx, ty, tz, qw, qx, qy, qz`` (EuRoC's first 8 columns, further columns
+  ignored) and skips a ``#timestamp``/``timestamp`` header; it matches frame-file stamps with ground-truth
+  stamps in the same unit. The authors' ORB-SLAM3 fork (``Examples/Monocular/mono_mimir.cc``) reads the
+  frame stamps as integer nanoseconds (19-digit stamps in ``MIMIR_TimeStamps/*.txt``, multiplied by 1e-9).
+  So: integer nanoseconds everywhere; ``rgb/cam0/data.csv`` as EuRoC's ``timestamp [ns],filename``.
+- The ground truth is taken as the body pose T_w_b in AirSim's NED world (x north, y east, z down) with body
+  axes x forward, y right, z down (EuRoC's ``p_RS_R``/``q_RS`` reading, AirSim's frames); the study's loader
+  used it as the camera pose directly, ignoring T_BS and the axes. Here the camera's pose is
+  ``ned_to_camera(T_w_b(t) @ T_BS)`` (:func:`lossvo.data.tartanair.ned_to_camera`: body and world axes both
+  turned to x right, y down, z forward).
+- The ground truth's rate is not documented: T_w_b at a frame's time is interpolated between the two
+  bracketing rows (translation linearly, rotation by slerp; :func:`lossvo.data.euroc.camera_poses`); frames
+  outside its span or between rows more than ``max_gap`` apart are dropped and counted in
+  ``Sequence.dropped``.
+
+Every bad input raises one :class:`~lossvo.data.sequence.DatasetFormatError` line naming the file (and the
+1-based line or the YAML key) and what was expected.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from lossvo.data import euroc
+from lossvo.data.sequence import DatasetFormatError, Sequence, png_size, where
+from lossvo.data.tartanair import ned_to_camera, pose_matrices
+
+CAMERA = "cam0"
+GROUND_TRUTH = "pose_groundtruth"
+GROUND_TRUTH_COLUMNS = 8
+"""At least: timestamp [ns], position x y z [m], orientation q w x y z (the study's loader's order)."""
+
+MAX_GAP_S = 0.1
+"""Default largest spacing (s) of the two ground-truth rows a frame is interpolated between: a few rows at any
+rate of 30 Hz or more (MIMIR documents no ground-truth rate)."""
+
+QUATERNION_TOLERANCE = 1e-3
+"""Largest | ||q|| - 1 | accepted in the ground truth."""
+
+RIGID_TOLERANCE = 1e-4
+"""Largest |RᵀR − I| entry and |det R − 1| accepted in ``T_BS``."""
+
+_DIGITS = re.compile(r"[0-9]+")
+
+
+# --------------------------------------------------------------------------------------------------
+# Ground truth
+# --------------------------------------------------------------------------------------------------
+
+
+def _groundtruth_rows(path: Path) -> list[tuple[int, list[str]]]:
+    """The data lines of ``pose_groundtruth/data.csv`` with their 1-based numbers and stripped fields: '#'
+    lines, empty lines and a first line starting with ``timestamp`` skipped; every line with the first line's
+    count of columns, at least :data:`GROUND_TRUTH_COLUMNS`."""
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as e:
+        raise DatasetFormatError(f"{path}: cannot read ground truth ({e.strerror})") from None
+    rows: list[tuple[int, list[str]]] = []
+    for i, line in enumerate(lines, start=1):
+        text = line.strip()
+        if not text or text.startswith("#") or (not rows and text.lower().startswith("timestamp")):
+            continue
+        fields = [field.strip() for field in text.split(",")]
+        count = len(rows[0][1]) if rows else GROUND_TRUTH_COLUMNS
+        if len(fields) < GROUND_TRUTH_COLUMNS or (rows and len(fields) != count):
+            expected = (
+                f"{count} comma-separated columns like line {rows[0][0]}"
+                if rows
+                else (
+                    f"at least {GROUND_TRUTH_COLUMNS} comma-separated columns "
+                    "'timestamp, tx, ty, tz, qw, qx, qy, qz'"
+                )
+            )
+            raise DatasetFormatError(f"{where(path, i)}: expected {expected}, got {len(fields)}")
+        rows.append((i, fields))
+    if len(rows) < 2:
+        raise DatasetFormatError(
+            f"{path}: {len(rows)} ground-truth rows (expected at least 2 lines "
+            "'timestamp, tx, ty, tz, qw, qx, qy, qz' to interpolate between)"
+        )
+    return rows
+
+
+def _parse_row(path: Path, line: int, fields: list[str]) -> tuple[int, list[float]]:
+    """The integer-nanosecond timestamp and the 7 finite numbers (tx ty tz qw qx qy qz) of a row."""
+    if not _DIGITS.fullmatch(fields[0]):
+        raise DatasetFormatError(
+            f"{where(path, line)}: expected a timestamp in integer nanoseconds, got {fields[0]!r}"
+        )
+    values = []
+    for text in fields[1:GROUND_TRUTH_COLUMNS]:
+        try:
+            value = float(text)
+        except ValueError:
+            raise DatasetFormatError(f"{where(path, line)}: expected a number, got {text!r}") from None
+        if not np.isfinite(value):
+            raise DatasetFormatError(f"{where(path, line)}: expected a finite number, got {text!r}")
+        values.append(value)
+    return int(fields[0]), values
+
+
+def read_groundtruth(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Read ``pose_groundtruth/data.csv``: lines ``timestamp [ns], tx, ty, tz, qw, qx, qy, qz[, ...]``.
+
+    Returns:
+        (M,) int64 stamps in nanoseconds, strictly increasing; (M, 4, 4) float64 body poses T_w_b with NED
+        axes (world and body), quaternions normalised.
+    Raises:
+        DatasetFormatError: naming the file and line for a missing file, fewer than two rows, a line with
+            fewer than 8 columns or another count than the first, a non-number, a timestamp that repeats or
+            goes backwards, or a quaternion far from unit norm.
+    """
+    path = Path(path)
+    rows = _groundtruth_rows(path)
+    parsed = [_parse_row(path, i, fields) for i, fields in rows]
+    ns = np.array([stamp for stamp, _ in parsed], dtype=np.int64)
+    back = np.flatnonzero(np.diff(ns) <= 0)
+    if back.size:
+        k = back[0] + 1
+        raise DatasetFormatError(
+            f"{where(path, rows[k][0])}: timestamp {ns[k]} ns does not follow {ns[k - 1]} ns on line "
+            f"{rows[k - 1][0]} (expected strictly increasing timestamps)"
+        )
+    values = np.array([v for _, v in parsed], dtype=np.float64)
+    norm = np.linalg.norm(values[:, 3:7], axis=1)
+    bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_TOLERANCE)
+    if bad.size:
+        k = bad[0]
+        raise DatasetFormatError(
+            f"{where(path, rows[k][0])}: quaternion (qw qx qy qz) of norm {norm[k]:.6g} "
+            f"(expected a unit quaternion, within {QUATERNION_TOLERANCE})"
+        )
+    q_xyzw = values[:, [4, 5, 6, 3]] / norm[:, None]
+    return ns, pose_matrices(values[:, :3], q_xyzw)
+
+
+# --------------------------------------------------------------------------------------------------
+# sensor.yaml
+# --------------------------------------------------------------------------------------------------
+
+
+def _load_yaml(path: Path) -> dict[str, Any]:
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise DatasetFormatError(f"{path}: cannot read camera calibration ({e.strerror})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        line = mark.line + 1 if mark is not None else None
+        raise DatasetFormatError(
+            f"{where(path, line)}: not valid YAML/JSON ({getattr(e, 'problem', e)})"
+        ) from None
+    if not isinstance(data, dict):
+        raise DatasetFormatError(f"{path}: expected a mapping with T_BS, resolution and intrinsics")
+    return data
+
+
+def _matrix(path: Path, data: dict[str, Any], key: str, shape: tuple[int, ...], meaning: str) -> np.ndarray:
+    """``data[key]`` as a finite float64 array of ``shape``, or DatasetFormatError naming the file and key."""
+    if key not in data:
+        raise DatasetFormatError(f"{path}: key '{key}' missing (expected {meaning})")
+    value = data[key]
+    try:
+        array = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        array = np.zeros(0)
+    if (
+        array.shape != shape
+        or not all(_is_number(v) for v in np.asarray(value, dtype=object).ravel())
+        or not np.all(np.isfinite(array))
+    ):
+        raise DatasetFormatError(f"{path}: key '{key}': expected {meaning}, got {value!r}")
+    return array
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _check_rigid(path: Path, T: np.ndarray) -> None:
+    R = T[:3, :3]
+    error = np.abs(R.T @ R - np.eye(3)).max()
+    det = np.linalg.det(R)
+    if error > RIGID_TOLERANCE or abs(det - 1.0) > RIGID_TOLERANCE:
+        raise DatasetFormatError(
+            f"{path}: key 'T_BS': rotation block is not a rotation (max |RᵀR − I| = {error:.2g}, "
+            f"det = {det:.4g}; expected orthonormal, det +1)"
+        )
+    if not np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0]):
+        raise DatasetFormatError(f"{path}: key 'T_BS': last row {T[3].tolist()} (expected 0 0 0 1)")
+
+
+def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]:
+    """Read a camera's ``sensor.yaml`` (the README's keys).
+
+    Returns:
+        K: (3, 3) float64 ``intrinsics`` in pixels;
+        distortion: (5,) float64 OpenCV (k1, k2, p1, p2, k3) from ``distortion_coefficients`` (4 or 5 of
+            them, padded with 0);
+        T_BS: (4, 4) float64 pose of the camera in the body frame, both with body (x forward, y right, z down)
+            axes;
+        size: (H, W) in pixels, from ``resolution: [W, H]``.
+    Raises:
+        DatasetFormatError: naming the file and the key for a missing file, invalid YAML, a missing or
+            malformed key, a model other than pinhole / radial-tangential, a K that is not
+            ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` with positive focal lengths, or a T_BS that is not
+            rigid.
+    """
+    path = Path(path)
+    data = _load_yaml(path)
+    for key, expected in (("camera_model", "pinhole"), ("distortion_model", "radial-tangential")):
+        if key in data and data[key] != expected:
+            raise DatasetFormatError(f"{path}: key '{key}': expected {expected!r}, got {data[key]!r}")
+    K = _matrix(
+        path, data, "intrinsics", (3, 3), "a 3x3 list [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels"
+    )
+    if K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or not np.array_equal(K[2], [0.0, 0.0, 1.0]):
+        raise DatasetFormatError(
+            f"{path}: key 'intrinsics': expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, "
+            f"got {data['intrinsics']!r}"
+        )
+    if len(data.get("distortion_coefficients") or []) == 4:
+        distortion = np.append(_matrix(path, data, "distortion_coefficients", (4,), "[k1, k2, p1, p2]"), 0.0)
+    else:
+        distortion = _matrix(path, data, "distortion_coefficients", (5,), "[k1, k2, p1, p2, k3]")
+    width, height = _matrix(path, data, "resolution", (2,), "[width, height] in pixels")
+    if width != int(width) or height != int(height) or width <= 0 or height <= 0:
+        raise DatasetFormatError(
+            f"{path}: key 'resolution': expected two positive integers [width, height], "
+            f"got {data['resolution']!r}"
+        )
+    T_BS = _matrix(path, data, "T_BS", (4, 4), "a 4x4 list, the camera's pose in the body frame")
+    _check_rigid(path, T_BS)
+    return K, distortion, T_BS, (int(height), int(width))
+
+
+# --------------------------------------------------------------------------------------------------
+# Sequences
+# --------------------------------------------------------------------------------------------------
+
+
+def _root(root: str | os.PathLike) -> Path:
+    path = Path(root).expanduser()
+    if not path.is_dir():
+        raise DatasetFormatError(
+            f"{path}: dataset root does not exist (expected ROOT/<env>/auv0/<track>/rgb)"
+        )
+    return path
+
+
+def list_sequences(root: str | os.PathLike, camera: str = CAMERA) -> list[str]:
+    """Names of the tracks under ``root`` that hold ``rgb/<camera>``: ``<env>/auv0/<track>`` (the README's
+    order) or ``<env>/<track>/auv0`` (the study's), sorted.
+
+    Raises:
+        DatasetFormatError: if ``root`` is not a folder.
+    """
+    base = _root(root)
+    found = [*base.glob(f"*/auv0/*/rgb/{camera}"), *base.glob(f"*/*/auv0/rgb/{camera}")]
+    return sorted({p.parent.parent.relative_to(base).as_posix() for p in found if p.is_dir()})
+
+
+def sequence_dir(root: str | os.PathLike, name: str, camera: str = CAMERA) -> Path:
+    """``root/name``, checked to hold ``rgb/<camera>``; DatasetFormatError naming the missing folder and the
+    sequences found."""
+    path = _root(root) / name
+    if not (path / "rgb" / camera).is_dir():
+        found = ", ".join(list_sequences(root, camera)) or "none"
+        raise DatasetFormatError(
+            f"{path / 'rgb' / camera}: sequence {name!r} not found "
+            f"(expected ROOT/<env>/auv0/<track>/rgb/{camera}; found: {found})"
+        )
+    return path
+
+
+def _image_paths(csv_path: Path, folder: Path, names: list[str]) -> list[Path]:
+    """``folder/name`` for each name of ``data.csv``, checked to exist (else the error names its line)."""
+    paths = [folder / name for name in names]
+    missing = next((k for k, p in enumerate(paths) if not p.is_file()), None)
+    if missing is not None:
+        lines = csv_path.read_text().splitlines()
+        data_lines = [
+            i for i, line in enumerate(lines, start=1) if line.strip() and not line.lstrip().startswith("#")
+        ]
+        raise DatasetFormatError(
+            f"{where(csv_path, data_lines[missing])}: frame {paths[missing]} does not exist"
+        )
+    return paths
+
+
+def load_sequence(
+    root: str | os.PathLike,
+    name: str,
+    require_poses: bool = True,
+    camera: str = CAMERA,
+    max_gap: float = MAX_GAP_S,
+) -> Sequence:
+    """Read and check one sequence's metadata (frame list, camera, ground truth); no frame is decoded.
+
+    Args:
+        root: the folder holding the environments; name: ``"<env>/auv0/<track>"``; require_poses: raise when
+            the ground truth is missing (else the sequence has ``poses=None`` and keeps every frame);
+        camera: ``cam0``, ``cam1`` or ``cam2``; max_gap: see :func:`lossvo.data.euroc.bracket` (s).
+    Returns:
+        Sequence with T_w_c = ``ned_to_camera(T_w_b(t) @ T_BS)`` in lossvo's convention, K, distortion
+        (k1, k2, p1, p2, k3), size (H, W); frames outside the ground truth's span dropped and counted.
+    Raises:
+        DatasetFormatError: an unknown sequence (naming those found), a missing or malformed file, a frame
+            whose size differs from ``resolution``, or no frame within the ground truth's span.
+    """
+    folder = sequence_dir(root, name, camera)
+    camera_dir = folder / "rgb" / camera
+    csv_path = camera_dir / "data.csv"
+    ns, names = euroc.read_camera_stamps(csv_path)
+    times = euroc.ns_to_seconds(ns)
+    images = _image_paths(csv_path, camera_dir / "data", names)
+    yaml_path = camera_dir / "sensor.yaml"
+    K, distortion, T_BS, size = read_sensor(yaml_path)
+    found = png_size(images[0])
+    if found != size:
+        raise DatasetFormatError(
+            f"{images[0]}: frame of {found[1]}x{found[0]} pixels, but {yaml_path} key 'resolution' says "
+            f"{size[1]}x{size[0]}"
+        )
+    gt_path = folder / GROUND_TRUTH / "data.csv"
+    if not gt_path.is_file():
+        if require_poses:
+            raise DatasetFormatError(
+                f"{gt_path}: no ground truth for sequence {name!r} (needed for training/evaluation)"
+            )
+        return Sequence(name, images, times, None, K, distortion, size)
+    gt_ns, T_w_b = read_groundtruth(gt_path)
+    T_w_s, keep = euroc.camera_poses(gt_ns, T_w_b, T_BS, ns, max_gap)
+    if not keep.any():
+        raise DatasetFormatError(
+            f"{gt_path}: no frame of {csv_path} within the ground truth's span "
+            f"[{gt_ns[0]}, {gt_ns[-1]}] ns without gaps over {max_gap} s "
+            f"(frames span [{ns[0]}, {ns[-1]}] ns)"
+        )
+    kept = [path for path, k in zip(images, keep, strict=True) if k]
+    return Sequence(
+        name, kept, times[keep], ned_to_camera(T_w_s), K, distortion, size, dropped=int((~keep).sum())
+    )

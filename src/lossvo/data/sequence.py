@@ -1,0 +1,82 @@
+"""The data contract every dataset reader returns: one sequence's frames, timestamps, camera poses and camera.
+
+Readers (``kitti``, ``tum``, ``euroc``, ``tartanair``, ``mimir``) read a dataset in its own layout and convert
+at the reader, so that everything after them sees one convention: poses are 4x4 camera-to-world matrices
+T_w_c in float64 with the camera's x right, y down, z forward (KITTI's and OpenCV's), timestamps are seconds,
+K and the distortion are those of the frames as stored on disk (before any resize).
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+
+class DatasetFormatError(ValueError):
+    """A file or folder that does not follow a dataset's layout: the message names the file (and line or key)
+    and what was expected."""
+
+
+def where(path: Path, line: int | None = None) -> str:
+    """``path`` or ``path:line`` (1-based) for an error message."""
+    return f"{path}:{line}" if line is not None else str(path)
+
+
+@dataclass(frozen=True)
+class Sequence:
+    """One sequence in lossvo's convention.
+
+    Attributes:
+        name: the sequence's name as the dataset names it (``"07"``, ``"rgbd_dataset_freiburg1_xyz"``,
+            ``"V1_02_medium"``, ``"abandonedfactory/Easy/P000"``).
+        images: (N,) frame paths in time order.
+        times: (N,) float64 timestamps in seconds, strictly increasing.
+        poses: (N, 4, 4) float64 T_w_c at the frames' timestamps, or None for a sequence without ground truth
+            (usable for inference only).
+        K: (3, 3) float64 intrinsics in pixels of the frames on disk.
+        distortion: (D,) float64 OpenCV distortion coefficients (k1, k2, p1, p2[, k3]); all zeros when the
+            frames are undistorted.
+        size: (H, W) of the frames on disk, in pixels.
+        dropped: frames the reader left out (for example outside the ground truth's time span).
+    """
+
+    name: str
+    images: list[Path]
+    times: np.ndarray
+    poses: np.ndarray | None
+    K: np.ndarray
+    distortion: np.ndarray = field(default_factory=lambda: np.zeros(5))
+    size: tuple[int, int] = (0, 0)
+    dropped: int = 0
+
+    def __post_init__(self) -> None:
+        n = len(self.images)
+        if self.times.shape != (n,):
+            raise ValueError(f"sequence {self.name}: {self.times.shape} timestamps for {n} frames")
+        if self.poses is not None and self.poses.shape != (n, 4, 4):
+            raise ValueError(f"sequence {self.name}: poses of shape {self.poses.shape} for {n} frames")
+        if self.K.shape != (3, 3):
+            raise ValueError(f"sequence {self.name}: K of shape {self.K.shape}, expected (3, 3)")
+
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def png_size(path: Path) -> tuple[int, int]:
+    """(H, W) of a PNG file from its header, without decoding it.
+
+    Raises:
+        DatasetFormatError: naming the file if it cannot be read or is not a PNG.
+    """
+    try:
+        with path.open("rb") as f:
+            head = f.read(24)
+    except OSError as e:
+        raise DatasetFormatError(f"{path}: unreadable image ({e.strerror})") from None
+    if len(head) < 24 or not head.startswith(_PNG_SIGNATURE) or head[12:16] != b"IHDR":
+        raise DatasetFormatError(f"{path}: not a PNG file (expected a PNG frame)")
+    width, height = struct.unpack(">II", head[16:24])
+    return int(height), int(width)
