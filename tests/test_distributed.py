@@ -66,7 +66,8 @@ def _one_process_metrics(run: Path) -> dict[str, float]:
     dm.setup("fit")
     ape, rpe, kitti = metrics.APE(), metrics.RPE(delta=1), metrics.KittiOdometryError()
     for name in dm.splits["val"]:
-        relative = predict_sequence(module, dm.sequence_inputs(name), dm.prepare, dm.seq_len)
+        relative = predict_sequence(module, dm.sequence_inputs(name), dm.prepare, dm.seq_len,
+                                    mirror_average=True)  # the training default  # fmt: skip
         gt, est = (torch.as_tensor(a, dtype=torch.float64) for a in (dm.sequence_poses(name), relative))
         metrics.evaluate_relative(est, gt, "none", 1, pooled=(ape, rpe, kitti))
     ape_out, rpe_out = ape.compute(), rpe.compute()

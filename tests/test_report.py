@@ -786,6 +786,7 @@ def test_results_json_round_trip(tmp_path: Path) -> None:
         "delta",
         "seq_len",
         "carry_state",
+        "mirror_average",
         "translation",
         "threads",
         "data",

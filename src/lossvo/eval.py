@@ -66,8 +66,9 @@ def check_config(cfg: Any) -> None:
     delta = cfg.get("delta", 1)
     if not is_rpe_delta(delta):
         raise ValueError(f"delta: expected an integer >= 1 (frames), got {delta!r}")
-    if not isinstance(cfg.get("carry_state", False), bool):
-        raise ValueError(f"carry_state: expected true or false, got {cfg.get('carry_state')!r}")
+    for key in ("carry_state", "mirror_average"):
+        if not isinstance(cfg.get(key, False), bool):
+            raise ValueError(f"{key}: expected true or false, got {cfg.get(key)!r}")
 
 
 def data_overrides(overrides: Sequence[str]) -> tuple[bool, list[str]]:
@@ -109,7 +110,8 @@ def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
                          f"of {', '.join(available)}; data.test=[...] chooses them)")  # fmt: skip
     return evaluate_run(network, datamodule, out_dir, sequences, checkpoint=Path(cfg.ckpt_path).resolve(),
                         align=cfg.get("align", "none"), delta=int(cfg.get("delta", 1)),
-                        carry_state=bool(cfg.get("carry_state", False)), threads=network.threads)  # fmt: skip
+                        carry_state=bool(cfg.get("carry_state", False)), threads=network.threads,
+                        mirror_average=bool(cfg.get("mirror_average", False)))  # fmt: skip
 
 
 @one_line_errors

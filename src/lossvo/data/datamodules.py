@@ -216,6 +216,24 @@ def mirror_windows(
     )
 
 
+def mirror_inputs(inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """A sequence's inputs as a mirrored world looks through the mirrored camera: frames flipped left to
+    right, the flow mirrored (:func:`lossvo.data.flow.mirror_flow`) and K's principal point mirrored
+    (:func:`lossvo.data.camera.mirrored_intrinsics`), as :func:`mirror_windows` does in training.
+
+    Args:
+        inputs: ``frames`` (..., 3, H, W), optionally ``flow`` (..., 2, H, W) and ``K`` (..., 3, 3).
+    Returns:
+        the same entries, mirrored (other entries as they are).
+    """
+    mirrored = {**inputs, "frames": inputs["frames"].flip(-1)}
+    if "flow" in inputs:
+        mirrored["flow"] = optical_flow.mirror_flow(inputs["flow"])
+    if "K" in inputs:
+        mirrored["K"] = camera.mirrored_intrinsics(inputs["K"], inputs["frames"].shape[-1])
+    return mirrored
+
+
 STANDSTILL_NOISE = 1.5
 """Standard deviation (grey levels) of the sensor noise added to each frame of a standing window."""
 

@@ -7,9 +7,11 @@ from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, cast
 
 import numpy as np
+import roma
 import torch
 from torch import Tensor, nn
 
+from lossvo.data.datamodules import mirror_inputs
 from lossvo.data.windows import tile
 
 if TYPE_CHECKING:
@@ -36,6 +38,7 @@ def predict_sequence(
     seq_len: int,
     batch_windows: int = 16,
     carry_state: bool = False,
+    mirror_average: bool = False,
 ) -> np.ndarray:
     """Relative poses of a whole sequence, every consecutive pair predicted exactly once.
 
@@ -59,9 +62,50 @@ def predict_sequence(
         seq_len: frames per window.
         batch_windows: windows per forward pass.
         carry_state: carry the LSTM state across windows.
+        mirror_average: also predict the mirrored sequence (:func:`lossvo.data.datamodules.mirror_inputs`,
+            the mirroring training uses), mirror those poses back and return each pair's average of the
+            two (:func:`average_with_mirror`): twice the inference, a prediction symmetric under mirroring.
     Returns:
         (N-1, 4, 4) float64 relative poses ``T_k`` (frame k+1 seen from frame k).
     """
+    plain = _predict(module, inputs, prepare, seq_len, batch_windows, carry_state)
+    if not mirror_average:
+        return plain
+    mirrored = _predict(module, inputs, lambda x: prepare(mirror_inputs(x)), seq_len, batch_windows,
+                        carry_state)  # fmt: skip
+    return average_with_mirror(torch.from_numpy(plain), torch.from_numpy(mirrored)).numpy()
+
+
+def average_with_mirror(plain: Tensor, mirrored: Tensor) -> Tensor:
+    """The average of relative poses and those predicted on the mirrored inputs: the mirrored poses are
+    conjugated back by the reflection S = diag(-1, 1, 1, 1) (``S T S``), then each pair's two rotations are
+    averaged along their geodesic (the midpoint ``R_a exp(log(R_a^T R_b) / 2)``) and the translations
+    arithmetically.
+
+    Args:
+        plain, mirrored: (..., 4, 4) float64 relative poses.
+    Returns:
+        (..., 4, 4) float64.
+    """
+    sign = torch.tensor([-1.0, 1.0, 1.0, 1.0], dtype=mirrored.dtype, device=mirrored.device)
+    back = mirrored * (sign[:, None] * sign)
+    Ra, Rb = plain[..., :3, :3], back[..., :3, :3]
+    half = roma.rotvec_to_rotmat(roma.rotmat_to_rotvec(Ra.transpose(-1, -2) @ Rb) / 2)
+    average = plain.clone()
+    average[..., :3, :3] = Ra @ half
+    average[..., :3, 3] = (plain[..., :3, 3] + back[..., :3, 3]) / 2
+    return average
+
+
+def _predict(
+    module: nn.Module,
+    inputs: Inputs,
+    prepare: Callable[[dict[str, Tensor]], dict[str, Tensor]],
+    seq_len: int,
+    batch_windows: int,
+    carry_state: bool,
+) -> np.ndarray:
+    """:func:`predict_sequence` without mirror averaging."""
     n = len(inputs["frames"])
     windows = [(int(a), int(b)) for a, b in tile(n, seq_len)]
     device = _device_of(module)

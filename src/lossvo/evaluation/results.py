@@ -357,6 +357,8 @@ class Results:
     ``checkpoint``: the weights evaluated (None: the last weights of a fit); ``loss``; ``align`` and
     ``delta``: the APE alignment and RPE delta (frames) of every score; ``seq_len``: the window length
     (frames) inferred with; ``carry_state``: whether the recurrent state was carried between windows;
+    ``mirror_average``: whether each pose is the average with the mirrored inputs' (absent in older files:
+    False);
     ``threads``: the CPU thread count the network was trained with (None: not recorded); ``data``;
     ``sequences``: per evaluated sequence; ``overall``: pooled over the sequences with ground truth;
     ``translation``: :data:`TRANSLATION_METRIC`, the predicted steps as the network gave them, or
@@ -376,6 +378,7 @@ class Results:
     overall: Overall
     threads: int | None = None
     translation: str = TRANSLATION_METRIC
+    mirror_average: bool = False
     schema_version: int = field(default=SCHEMA_VERSION)
 
     def scored(self) -> dict[str, Scores]:
@@ -395,6 +398,7 @@ class Results:
             "delta": self.delta,
             "seq_len": self.seq_len,
             "carry_state": self.carry_state,
+            "mirror_average": self.mirror_average,
             "translation": self.translation,
             "threads": self.threads,
             "data": self.data.to_json(),
@@ -419,6 +423,7 @@ class Results:
             delta=cast("int", _integer(_field(obj, "delta", ""), "delta")),
             seq_len=cast("int", _integer(_field(obj, "seq_len", ""), "seq_len")),
             carry_state=_flag(_field(obj, "carry_state", ""), "carry_state"),
+            mirror_average=_flag(obj.get("mirror_average", False), "mirror_average"),
             translation=_translation(_field(obj, "translation", ""), "translation"),
             threads=_integer(_field(obj, "threads", ""), "threads", optional=True),
             data=DataRecord.from_json(_field(obj, "data", "")),
@@ -522,6 +527,7 @@ def predict_and_score(
     pooled: PooledScores,
     carry_state: bool = False,
     device: torch.device | None = None,
+    mirror_average: bool = False,
 ) -> tuple[Tensor, dict[str, Any] | None]:
     """One sequence through the network, chained and scored: the path that validation during training
     (:class:`lossvo.training.callbacks.TrajectoryValidation`) and :func:`evaluate_run` share.
@@ -534,8 +540,8 @@ def predict_and_score(
     the identity, its steps as predicted (there is no length to scale to), and nothing is scored.
 
     Args:
-        module, carry_state: the network (with its ``loss``, a :class:`lossvo.losses.PoseLoss`) and
-            :func:`predict_sequence`'s option.
+        module, carry_state, mirror_average: the network (with its ``loss``, a
+            :class:`lossvo.losses.PoseLoss`) and :func:`predict_sequence`'s options.
         datamodule: gives the sequence's inputs, their preparation and ``seq_len``.
         name: the sequence.
         gt: (N, 4, 4) ground-truth poses, or None.
@@ -546,7 +552,8 @@ def predict_and_score(
         dict (None without ground truth).
     """
     relative = predict_sequence(module, datamodule.sequence_inputs(name), datamodule.prepare,
-                                datamodule.seq_len, carry_state=carry_state)  # fmt: skip
+                                datamodule.seq_len, carry_state=carry_state,
+                                mirror_average=mirror_average)  # fmt: skip
     if gt is None:
         return integrate(torch.from_numpy(relative)), None
     gt_t, relative_t = (torch.as_tensor(a, dtype=torch.float64, device=device) for a in (gt, relative))
@@ -579,6 +586,7 @@ def evaluate_run(
     delta: int = 1,
     carry_state: bool = False,
     threads: int | None = None,
+    mirror_average: bool = False,
 ) -> Results:
     """Integrate each sequence with ``module`` and write trajectories, plots and ``results.json``.
 
@@ -592,7 +600,7 @@ def evaluate_run(
         sequences: sequence names, e.g. ``datamodule.evaluated``.
         checkpoint: the checkpoint the weights came from (recorded in ``results.json``).
         align, delta: APE alignment and RPE delta (:func:`lossvo.evaluation.metrics.evaluate`).
-        carry_state: see :func:`predict_sequence`.
+        carry_state, mirror_average: see :func:`predict_sequence`.
         threads: the CPU thread count the network was trained with, recorded as given.
     Returns:
         The :class:`Results` written to ``out_dir/results.json``.
@@ -608,7 +616,8 @@ def evaluate_run(
     per_sequence: dict[str, SequenceResult] = {}
     for name in sequences:
         gt = _ground_truth(datamodule, name)
-        est, scores = predict_and_score(module, datamodule, name, gt, pooled, carry_state)
+        est, scores = predict_and_score(module, datamodule, name, gt, pooled, carry_state,
+                                        mirror_average=mirror_average)  # fmt: skip
         gt_file = None if gt is None else str(pose_path(datamodule.dataset_root(), name))
         per_sequence[name] = _sequence_result(name, est, gt, scores, out_dir, record, gt_file, name in unseen,
                                               translation)  # fmt: skip
@@ -622,6 +631,7 @@ def evaluate_run(
         delta=delta,
         seq_len=int(datamodule.seq_len),
         carry_state=carry_state,
+        mirror_average=mirror_average,
         threads=threads,
         translation=translation,
         data=data_record(

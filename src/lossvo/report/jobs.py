@@ -263,6 +263,8 @@ def load_job(path: Path) -> Job:
             job.skip = f"results.json: {e.reason}"
     if job.results is not None and job.results.translation != TRANSLATION_METRIC:
         job.notes.append(f"translation scored as {job.results.translation}: no metric scale, as ORB+E's")
+    if job.results is not None and job.results.mirror_average:
+        job.notes.append("evaluated with mirror averaging (each pose averaged with the mirrored inputs')")
     if job.status == "unknown" and job.skip is None:
         job.notes.append("no status.json")
     _read_curves(job)

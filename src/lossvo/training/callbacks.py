@@ -86,14 +86,19 @@ class TrajectoryValidation(Callback):
         every_n_epochs: run after the validation of every n-th epoch (>= 1).
         align: APE alignment (:func:`lossvo.evaluation.metrics.align`).
         delta: RPE delta in frames.
+        mirror_average: see :func:`lossvo.evaluation.inference.predict_sequence`.
     """
 
-    def __init__(self, every_n_epochs: int = 1, align: metrics.AlignMode = "none", delta: int = 1) -> None:
+    def __init__(self, every_n_epochs: int = 1, align: metrics.AlignMode = "none", delta: int = 1,
+                 mirror_average: bool = False) -> None:  # fmt: skip
         if not is_integer(every_n_epochs, 1):
             raise ValueError(f"every_n_epochs: expected an integer >= 1, got {every_n_epochs!r}")
         if not metrics.is_rpe_delta(delta):
             raise ValueError(f"delta: expected an integer >= 1 (frames), got {delta!r}")
+        if not isinstance(mirror_average, bool):
+            raise ValueError(f"mirror_average: expected true or false, got {mirror_average!r}")
         self.every_n_epochs, self.align, self.delta = every_n_epochs, align, delta
+        self.mirror_average = mirror_average
 
     @staticmethod
     def _usable(datamodule: object) -> bool:
@@ -124,7 +129,8 @@ class TrajectoryValidation(Callback):
         for name in names:
             gt = datamodule.sequence_poses(name)
             if gt is not None:
-                predict_and_score(pl_module, datamodule, name, gt, pooled, device=device)
+                predict_and_score(pl_module, datamodule, name, gt, pooled, device=device,
+                                  mirror_average=self.mirror_average)  # fmt: skip
         computed = pooled.compute()
         if computed is None:
             return

@@ -50,6 +50,7 @@ SCALARS: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
     ("optimizer.weight_decay", lambda v: _finite(v, 0.0), "a finite number >= 0"),
     ("resume", lambda v: isinstance(v, bool), "true or false"),
     ("evaluate", lambda v: isinstance(v, bool), "true or false"),
+    ("mirror_average", lambda v: isinstance(v, bool), "true or false"),
 )
 """(key, test, what is expected) of the scalar settings checked; a key the config lacks is skipped."""
 

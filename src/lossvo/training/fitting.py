@@ -140,7 +140,8 @@ def train(cfg: DictConfig, run: Run) -> dict[str, float]:
         # Lightning sets Trainer.fast_dev_run in its setup without declaring it.
         fast_dev_run = trainer.fast_dev_run  # type: ignore[attr-defined]
         if cfg.get("evaluate", True) and not fast_dev_run and trainer.is_global_zero:
-            evaluate_after_fit(trainer, module, datamodule, run.out_dir)
+            mirror = bool(cfg.get("mirror_average", True))
+            evaluate_after_fit(trainer, module, datamodule, run.out_dir, mirror)
         return {key: float(value) for key, value in trainer.callback_metrics.items()}
     finally:
         if any(isinstance(logger, WandbLogger) for logger in trainer.loggers):
@@ -160,10 +161,15 @@ def _interrupted(error: BaseException, epoch: int) -> BaseException:
 
 
 def evaluate_after_fit(
-    trainer: L.Trainer, module: VOModule, datamodule: KittiDataModule, out_dir: Path
+    trainer: L.Trainer,
+    module: VOModule,
+    datamodule: KittiDataModule,
+    out_dir: Path,
+    mirror_average: bool = True,
 ) -> Any:
     """Evaluate the best checkpoint (the last weights if there is none) on the test sequences, writing
-    ``results.json``, ``trajectories/`` and ``plots/`` into ``out_dir``."""
+    ``results.json``, ``trajectories/`` and ``plots/`` into ``out_dir`` (``mirror_average``: see
+    :func:`lossvo.evaluation.inference.predict_sequence`)."""
     best = next((c.best_model_path for c in trainer.checkpoint_callbacks if isinstance(c, ModelCheckpoint)
                  and c.monitor and Path(c.best_model_path or "/nonexistent").is_file()), None)  # fmt: skip
     device = trainer.strategy.root_device  # Lightning moves the module back to the CPU after fit
@@ -171,7 +177,7 @@ def evaluate_after_fit(
     if not best:
         log.warning("no best checkpoint: evaluating the last weights")
     result = evaluate_run(network, datamodule, out_dir, datamodule.evaluated, checkpoint=best,
-                          threads=torch.get_num_threads())  # fmt: skip
+                          threads=torch.get_num_threads(), mirror_average=mirror_average)  # fmt: skip
     log.info("evaluation of %s on %s: %s", best or "the last weights", ", ".join(datamodule.evaluated),
              out_dir / "results.json")  # fmt: skip
     return result
