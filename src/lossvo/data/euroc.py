@@ -43,7 +43,7 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from lossvo.data.sequence import DatasetFormatError, Sequence, png_size, where
+from lossvo.data.sequence import DatasetFormatError, Sequence, check_rigid, png_size, pose_matrices, where
 
 CAMERA = "cam0"
 GROUND_TRUTH = "state_groundtruth_estimate0"
@@ -53,9 +53,6 @@ GROUND_TRUTH_COLUMNS = 17
 MAX_GAP_S = 0.02
 """Default largest spacing (s) of the two ground-truth rows a frame is interpolated between (rows are 5 ms
 apart at 200 Hz)."""
-
-RIGID_TOLERANCE = 1e-4
-"""Largest |RᵀR − I| entry and |det R − 1| accepted in ``T_BS`` (EuRoC writes 12 significant digits)."""
 
 QUATERNION_TOLERANCE = 1e-3
 """Largest | |q| − 1 | accepted in the ground truth (EuRoC writes 6 decimals)."""
@@ -187,7 +184,7 @@ def read_groundtruth_stamps(path: str | os.PathLike) -> tuple[np.ndarray, np.nda
             f"{where(path, rows[k][0])}: quaternion q_RS of norm {norm[k]:.6g} "
             "(expected a unit quaternion w x y z)"
         )
-    return ns, _poses(values[:, :3], values[:, 3:7])
+    return ns, pose_matrices(values[:, :3], values[:, [4, 5, 6, 3]])  # q_RS is w x y z
 
 
 def read_groundtruth(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
@@ -203,15 +200,6 @@ def read_groundtruth(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """
     ns, T_w_b = read_groundtruth_stamps(path)
     return ns_to_seconds(ns), T_w_b
-
-
-def _poses(t: np.ndarray, q_wxyz: np.ndarray) -> np.ndarray:
-    """(M, 4, 4) float64 poses from (M, 3) translations and (M, 4) quaternions (w, x, y, z), normalised."""
-    poses = np.zeros((len(t), 4, 4))
-    poses[:, :3, :3] = Rotation.from_quat(q_wxyz[:, [1, 2, 3, 0]]).as_matrix()
-    poses[:, :3, 3] = t
-    poses[:, 3, 3] = 1.0
-    return poses
 
 
 # --------------------------------------------------------------------------------------------------
@@ -272,22 +260,8 @@ def _read_T_BS(path: Path, data: dict[str, Any]) -> np.ndarray:
         if key in block and block[key] != 4:
             raise DatasetFormatError(f"{path}: key 'T_BS.{key}': expected 4, got {block[key]!r}")
     T = _numbers(path, block, "data", 16, "the 16 numbers of T_BS, row-major").reshape(4, 4)
-    _check_rigid(path, T)
+    check_rigid(path, T, "T_BS")
     return T
-
-
-def _check_rigid(path: Path, T: np.ndarray) -> None:
-    """DatasetFormatError naming the file's key 'T_BS' unless T is a rigid transform."""
-    R = T[:3, :3]
-    error = np.abs(R.T @ R - np.eye(3)).max()
-    det = np.linalg.det(R)
-    if error > RIGID_TOLERANCE or abs(det - 1.0) > RIGID_TOLERANCE:
-        raise DatasetFormatError(
-            f"{path}: key 'T_BS': rotation block is not a rotation (max |RᵀR − I| = {error:.2g}, "
-            f"det = {det:.4g}; expected orthonormal, det +1)"
-        )
-    if not np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0]):
-        raise DatasetFormatError(f"{path}: key 'T_BS': last row {T[3].tolist()} (expected 0 0 0 1)")
 
 
 def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]:

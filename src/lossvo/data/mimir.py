@@ -53,8 +53,8 @@ import numpy as np
 import yaml
 
 from lossvo.data import euroc
-from lossvo.data.sequence import DatasetFormatError, Sequence, png_size, where
-from lossvo.data.tartanair import ned_to_camera, pose_matrices
+from lossvo.data.sequence import DatasetFormatError, Sequence, check_rigid, png_size, pose_matrices, where
+from lossvo.data.tartanair import ned_to_camera
 
 CAMERA = "cam0"
 GROUND_TRUTH = "pose_groundtruth"
@@ -67,9 +67,6 @@ rate of 30 Hz or more (MIMIR documents no ground-truth rate)."""
 
 QUATERNION_TOLERANCE = 1e-3
 """Largest | ||q|| - 1 | accepted in the ground truth."""
-
-RIGID_TOLERANCE = 1e-4
-"""Largest |RᵀR − I| entry and |det R − 1| accepted in ``T_BS``."""
 
 _DIGITS = re.compile(r"[0-9]+")
 
@@ -211,19 +208,6 @@ def _is_number(value: object) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)
 
 
-def _check_rigid(path: Path, T: np.ndarray) -> None:
-    R = T[:3, :3]
-    error = np.abs(R.T @ R - np.eye(3)).max()
-    det = np.linalg.det(R)
-    if error > RIGID_TOLERANCE or abs(det - 1.0) > RIGID_TOLERANCE:
-        raise DatasetFormatError(
-            f"{path}: key 'T_BS': rotation block is not a rotation (max |RᵀR − I| = {error:.2g}, "
-            f"det = {det:.4g}; expected orthonormal, det +1)"
-        )
-    if not np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0]):
-        raise DatasetFormatError(f"{path}: key 'T_BS': last row {T[3].tolist()} (expected 0 0 0 1)")
-
-
 def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]:
     """Read a camera's ``sensor.yaml`` (the README's keys).
 
@@ -264,7 +248,7 @@ def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.nda
             f"got {data['resolution']!r}"
         )
     T_BS = _matrix(path, data, "T_BS", (4, 4), "a 4x4 list, the camera's pose in the body frame")
-    _check_rigid(path, T_BS)
+    check_rigid(path, T_BS, "T_BS")
     return K, distortion, T_BS, (int(height), int(width))
 
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 
 class DatasetFormatError(ValueError):
@@ -60,6 +61,41 @@ class Sequence:
             raise ValueError(f"sequence {self.name}: poses of shape {self.poses.shape} for {n} frames")
         if self.K.shape != (3, 3):
             raise ValueError(f"sequence {self.name}: K of shape {self.K.shape}, expected (3, 3)")
+
+
+RIGID_TOLERANCE = 1e-4
+"""Largest |RᵀR − I| entry and |det R − 1| accepted in a calibration's rigid transform (12 significant digits
+in EuRoC's files)."""
+
+
+def pose_matrices(t: np.ndarray, q_xyzw: np.ndarray) -> np.ndarray:
+    """4x4 poses from translations and unit quaternions.
+
+    Args:
+        t: (M, 3) translations in metres; q_xyzw: (M, 4) unit quaternions (x, y, z, w).
+    Returns:
+        (M, 4, 4) float64 ``[[R(q), t], [0, 1]]``.
+    """
+    poses = np.zeros((len(t), 4, 4))
+    poses[:, :3, :3] = Rotation.from_quat(q_xyzw).as_matrix()
+    poses[:, :3, 3] = t
+    poses[:, 3, 3] = 1.0
+    return poses
+
+
+def check_rigid(path: Path, T: np.ndarray, key: str) -> None:
+    """DatasetFormatError naming ``path`` and ``key`` unless the (4, 4) ``T`` is a rigid transform: rotation
+    block orthonormal with det +1 (within :data:`RIGID_TOLERANCE`), last row 0 0 0 1."""
+    R = T[:3, :3]
+    error = np.abs(R.T @ R - np.eye(3)).max()
+    det = np.linalg.det(R)
+    if error > RIGID_TOLERANCE or abs(det - 1.0) > RIGID_TOLERANCE:
+        raise DatasetFormatError(
+            f"{path}: key '{key}': rotation block is not a rotation (max |RᵀR − I| = {error:.2g}, "
+            f"det = {det:.4g}; expected orthonormal, det +1)"
+        )
+    if not np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0]):
+        raise DatasetFormatError(f"{path}: key '{key}': last row {T[3].tolist()} (expected 0 0 0 1)")
 
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

@@ -34,9 +34,8 @@ import re
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from lossvo.data.sequence import DatasetFormatError, Sequence, png_size, where
+from lossvo.data.sequence import DatasetFormatError, Sequence, png_size, pose_matrices, where
 
 IMAGES = "image_left"
 POSES = "pose_left.txt"
@@ -80,21 +79,6 @@ def ned_to_camera(T_ned: np.ndarray) -> np.ndarray:
     P4 = np.eye(4)
     P4[:3, :3] = NED_TO_CAMERA
     return P4 @ np.asarray(T_ned, dtype=np.float64) @ P4.T
-
-
-def pose_matrices(t: np.ndarray, q_xyzw: np.ndarray) -> np.ndarray:
-    """4x4 poses from translations and unit quaternions.
-
-    Args:
-        t: (M, 3) translations in metres; q_xyzw: (M, 4) unit quaternions (x, y, z, w).
-    Returns:
-        (M, 4, 4) float64 ``[[R(q), t], [0, 1]]``.
-    """
-    poses = np.zeros((len(t), 4, 4))
-    poses[:, :3, :3] = Rotation.from_quat(q_xyzw).as_matrix()
-    poses[:, :3, 3] = t
-    poses[:, 3, 3] = 1.0
-    return poses
 
 
 # --------------------------------------------------------------------------------------------------

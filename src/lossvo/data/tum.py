@@ -22,9 +22,8 @@ import re
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from lossvo.data.sequence import DatasetFormatError, Sequence, png_size, where
+from lossvo.data.sequence import DatasetFormatError, Sequence, png_size, pose_matrices, where
 
 MAX_DIFFERENCE_S = 0.02
 """TUM's ``associate.py`` default: a frame and a ground-truth stamp pair only if less than 0.02 s apart."""
@@ -175,21 +174,6 @@ def _unit_quaternions(path: Path, q: np.ndarray, line_numbers: list[int]) -> np.
             f"(expected a unit quaternion, within {QUATERNION_NORM_TOLERANCE})"
         )
     return q / norm[:, None]
-
-
-def pose_matrices(t: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """4x4 poses from translations and unit quaternions.
-
-    Args:
-        t: (M, 3) translations; q: (M, 4) unit quaternions (x, y, z, w), TUM's order.
-    Returns:
-        (M, 4, 4) float64 ``[[R(q), t], [0, 1]]``.
-    """
-    poses = np.zeros((len(t), 4, 4))
-    poses[:, :3, :3] = Rotation.from_quat(q).as_matrix()
-    poses[:, :3, 3] = t
-    poses[:, 3, 3] = 1.0
-    return poses
 
 
 # --------------------------------------------------------------------------------------------------
