@@ -40,10 +40,18 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from scipy.spatial.transform import Rotation
 
-from lossvo.data.sequence import DatasetFormatError, Sequence, check_rigid, png_size, pose_matrices, where
+from lossvo.data.sequence import (
+    DatasetFormatError,
+    Sequence,
+    check_rigid,
+    dataset_root,
+    load_mapping,
+    png_size,
+    pose_matrices,
+    where,
+)
 
 CAMERA = "cam0"
 GROUND_TRUTH = "state_groundtruth_estimate0"
@@ -207,28 +215,6 @@ def read_groundtruth(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------------------------------
 
 
-def _load_yaml(path: Path) -> dict[str, Any]:
-    """The mapping in ``path``, an OpenCV ``%YAML:1.0`` first line skipped (kept as an empty line, so that
-    line numbers stay those of the file)."""
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise DatasetFormatError(f"{path}: cannot read camera calibration ({e.strerror})") from None
-    lines = text.splitlines()
-    if lines and lines[0].startswith("%YAML:"):
-        lines[0] = ""
-    try:
-        data = yaml.safe_load("\n".join(lines))
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        line = mark.line + 1 if mark is not None else None
-        problem = getattr(e, "problem", None) or type(e).__name__
-        raise DatasetFormatError(f"{where(path, line)}: not valid YAML ({problem})") from None
-    if not isinstance(data, dict):
-        raise DatasetFormatError(f"{path}: expected a YAML mapping with T_BS, resolution and intrinsics")
-    return data
-
-
 def _numbers(path: Path, data: dict[str, Any], key: str, count: int, meaning: str) -> np.ndarray:
     """``data[key]`` as (count,) float64, or DatasetFormatError naming the file and key."""
     if key not in data:
@@ -278,7 +264,7 @@ def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.nda
             rigid transform (rotation not orthonormal, det != 1, last row not 0 0 0 1).
     """
     path = Path(path)
-    data = _load_yaml(path)
+    data = load_mapping(path, "T_BS, resolution and intrinsics")
     _check_choice(path, data, "camera_model", "pinhole")
     _check_choice(path, data, "distortion_model", "radial-tangential")
     fu, fv, cu, cv = _numbers(path, data, "intrinsics", 4, "[fu, fv, cu, cv] in pixels")
@@ -365,16 +351,10 @@ def camera_poses(
 # --------------------------------------------------------------------------------------------------
 
 
-def _check_root(root: Path) -> None:
-    if not root.is_dir():
-        raise DatasetFormatError(f"{root}: dataset root does not exist (expected ROOT/<sequence>/mav0)")
-
-
 def list_sequences(root: str | os.PathLike) -> list[str]:
     """Names of the sequences under ``root`` (folders holding ``mav0``), sorted."""
-    root = Path(root).expanduser()
-    _check_root(root)
-    return sorted(p.name for p in root.iterdir() if (p / "mav0").is_dir())
+    folder = dataset_root(root, "ROOT/<sequence>/mav0")
+    return sorted(p.name for p in folder.iterdir() if (p / "mav0").is_dir())
 
 
 def sequence_dir(root: str | os.PathLike, name: str) -> Path:
@@ -389,7 +369,7 @@ def sequence_dir(root: str | os.PathLike, name: str) -> Path:
     return path
 
 
-def _image_paths(csv_path: Path, folder: Path, names: list[str]) -> list[Path]:
+def frame_paths(csv_path: Path, folder: Path, names: list[str]) -> list[Path]:
     """``folder/name`` for each name, each checked to exist (else the error names ``csv_path``'s line)."""
     paths = [folder / name for name in names]
     missing = next((k for k, p in enumerate(paths) if not p.is_file()), None)
@@ -427,7 +407,7 @@ def load_sequence(
     csv_path = camera / "data.csv"
     ns, names = read_camera_stamps(csv_path)
     times = ns_to_seconds(ns)
-    images = _image_paths(csv_path, camera / "data", names)
+    images = frame_paths(csv_path, camera / "data", names)
     K, distortion, T_BS, size = read_sensor(camera / "sensor.yaml")
     found = png_size(images[0])
     if found != size:

@@ -50,10 +50,18 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from lossvo.data import euroc
-from lossvo.data.sequence import DatasetFormatError, Sequence, check_rigid, png_size, pose_matrices, where
+from lossvo.data.sequence import (
+    DatasetFormatError,
+    Sequence,
+    check_rigid,
+    dataset_root,
+    load_mapping,
+    png_size,
+    pose_matrices,
+    where,
+)
 from lossvo.data.tartanair import ned_to_camera
 
 CAMERA = "cam0"
@@ -168,24 +176,6 @@ def read_groundtruth(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------------------------------
 
 
-def _load_yaml(path: Path) -> dict[str, Any]:
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise DatasetFormatError(f"{path}: cannot read camera calibration ({e.strerror})") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        line = mark.line + 1 if mark is not None else None
-        raise DatasetFormatError(
-            f"{where(path, line)}: not valid YAML/JSON ({getattr(e, 'problem', e)})"
-        ) from None
-    if not isinstance(data, dict):
-        raise DatasetFormatError(f"{path}: expected a mapping with T_BS, resolution and intrinsics")
-    return data
-
-
 def _matrix(path: Path, data: dict[str, Any], key: str, shape: tuple[int, ...], meaning: str) -> np.ndarray:
     """``data[key]`` as a finite float64 array of ``shape``, or DatasetFormatError naming the file and key."""
     if key not in data:
@@ -225,7 +215,7 @@ def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.nda
             rigid.
     """
     path = Path(path)
-    data = _load_yaml(path)
+    data = load_mapping(path, "T_BS, resolution and intrinsics")
     for key, expected in (("camera_model", "pinhole"), ("distortion_model", "radial-tangential")):
         if key in data and data[key] != expected:
             raise DatasetFormatError(f"{path}: key '{key}': expected {expected!r}, got {data[key]!r}")
@@ -257,15 +247,6 @@ def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.nda
 # --------------------------------------------------------------------------------------------------
 
 
-def _root(root: str | os.PathLike) -> Path:
-    path = Path(root).expanduser()
-    if not path.is_dir():
-        raise DatasetFormatError(
-            f"{path}: dataset root does not exist (expected ROOT/<env>/auv0/<track>/rgb)"
-        )
-    return path
-
-
 def list_sequences(root: str | os.PathLike, camera: str = CAMERA) -> list[str]:
     """Names of the tracks under ``root`` that hold ``rgb/<camera>``: ``<env>/auv0/<track>`` (the README's
     order) or ``<env>/<track>/auv0`` (the study's), sorted.
@@ -273,7 +254,7 @@ def list_sequences(root: str | os.PathLike, camera: str = CAMERA) -> list[str]:
     Raises:
         DatasetFormatError: if ``root`` is not a folder.
     """
-    base = _root(root)
+    base = dataset_root(root, "ROOT/<env>/auv0/<track>/rgb")
     found = [*base.glob(f"*/auv0/*/rgb/{camera}"), *base.glob(f"*/*/auv0/rgb/{camera}")]
     return sorted({p.parent.parent.relative_to(base).as_posix() for p in found if p.is_dir()})
 
@@ -281,7 +262,7 @@ def list_sequences(root: str | os.PathLike, camera: str = CAMERA) -> list[str]:
 def sequence_dir(root: str | os.PathLike, name: str, camera: str = CAMERA) -> Path:
     """``root/name``, checked to hold ``rgb/<camera>``; DatasetFormatError naming the missing folder and the
     sequences found."""
-    path = _root(root) / name
+    path = dataset_root(root, "ROOT/<env>/auv0/<track>/rgb") / name
     if not (path / "rgb" / camera).is_dir():
         found = ", ".join(list_sequences(root, camera)) or "none"
         raise DatasetFormatError(
@@ -289,21 +270,6 @@ def sequence_dir(root: str | os.PathLike, name: str, camera: str = CAMERA) -> Pa
             f"(expected ROOT/<env>/auv0/<track>/rgb/{camera}; found: {found})"
         )
     return path
-
-
-def _image_paths(csv_path: Path, folder: Path, names: list[str]) -> list[Path]:
-    """``folder/name`` for each name of ``data.csv``, checked to exist (else the error names its line)."""
-    paths = [folder / name for name in names]
-    missing = next((k for k, p in enumerate(paths) if not p.is_file()), None)
-    if missing is not None:
-        lines = csv_path.read_text().splitlines()
-        data_lines = [
-            i for i, line in enumerate(lines, start=1) if line.strip() and not line.lstrip().startswith("#")
-        ]
-        raise DatasetFormatError(
-            f"{where(csv_path, data_lines[missing])}: frame {paths[missing]} does not exist"
-        )
-    return paths
 
 
 def load_sequence(
@@ -331,7 +297,7 @@ def load_sequence(
     csv_path = camera_dir / "data.csv"
     ns, names = euroc.read_camera_stamps(csv_path)
     times = euroc.ns_to_seconds(ns)
-    images = _image_paths(csv_path, camera_dir / "data", names)
+    images = euroc.frame_paths(csv_path, camera_dir / "data", names)
     yaml_path = camera_dir / "sensor.yaml"
     K, distortion, T_BS, size = read_sensor(yaml_path)
     found = png_size(images[0])

@@ -8,11 +8,14 @@ K and the distortion are those of the frames as stored on disk (before any resiz
 
 from __future__ import annotations
 
+import os
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import yaml
 from scipy.spatial.transform import Rotation
 
 
@@ -24,6 +27,41 @@ class DatasetFormatError(ValueError):
 def where(path: Path, line: int | None = None) -> str:
     """``path`` or ``path:line`` (1-based) for an error message."""
     return f"{path}:{line}" if line is not None else str(path)
+
+
+def dataset_root(root: str | os.PathLike, layout: str) -> Path:
+    """``root`` as a Path (``~`` expanded); DatasetFormatError naming it and the expected ``layout`` (e.g.
+    ``"ROOT/<sequence>/mav0"``) when it is no folder."""
+    path = Path(root).expanduser()
+    if not path.is_dir():
+        raise DatasetFormatError(f"{path}: dataset root does not exist (expected {layout})")
+    return path
+
+
+def load_mapping(path: Path, what: str) -> dict[str, Any]:
+    """The mapping in a YAML (or JSON) file, an OpenCV ``%YAML:1.0`` first line skipped (kept as an empty
+    line, so that line numbers stay those of the file).
+
+    Raises:
+        DatasetFormatError: naming the file (and line) when it cannot be read, is not valid YAML or holds
+            no mapping; ``what`` says what it should hold.
+    """
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as e:
+        raise DatasetFormatError(f"{path}: cannot read camera calibration ({e.strerror})") from None
+    if lines and lines[0].startswith("%YAML:"):
+        lines[0] = ""
+    try:
+        data = yaml.safe_load("\n".join(lines))
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        line = mark.line + 1 if mark is not None else None
+        problem = getattr(e, "problem", None) or type(e).__name__
+        raise DatasetFormatError(f"{where(path, line)}: not valid YAML/JSON ({problem})") from None
+    if not isinstance(data, dict):
+        raise DatasetFormatError(f"{path}: expected a YAML mapping with {what}")
+    return data
 
 
 @dataclass(frozen=True)

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lossvo.data.sequence import DatasetFormatError, Sequence, png_size, pose_matrices, where
+from lossvo.data.sequence import DatasetFormatError, Sequence, dataset_root, png_size, pose_matrices, where
 
 IMAGES = "image_left"
 POSES = "pose_left.txt"
@@ -140,15 +140,6 @@ def read_poses(path: str | os.PathLike) -> np.ndarray:
 # --------------------------------------------------------------------------------------------------
 
 
-def _root(root: str | os.PathLike) -> Path:
-    path = Path(root).expanduser()
-    if not path.is_dir():
-        raise DatasetFormatError(
-            f"{path}: dataset root does not exist (expected ROOT/<env>/<Easy|Hard>/<Pnnn>/{IMAGES})"
-        )
-    return path
-
-
 def list_sequences(root: str | os.PathLike) -> list[str]:
     """Names ``<env>/<Easy|Hard>/<Pnnn>`` of the folders under ``root`` that hold an ``image_left`` folder
     (sorted).
@@ -156,13 +147,13 @@ def list_sequences(root: str | os.PathLike) -> list[str]:
     Raises:
         DatasetFormatError: if ``root`` is not a folder.
     """
-    base = _root(root)
+    base = dataset_root(root, f"ROOT/<env>/<Easy|Hard>/<Pnnn>/{IMAGES}")
     return sorted(p.parent.relative_to(base).as_posix() for p in base.glob(f"*/*/*/{IMAGES}") if p.is_dir())
 
 
 def sequence_dir(root: str | os.PathLike, name: str) -> Path:
     """``root/name``; DatasetFormatError naming the missing folder and the sequences found."""
-    path = _root(root) / name
+    path = dataset_root(root, f"ROOT/<env>/<Easy|Hard>/<Pnnn>/{IMAGES}") / name
     if not (path / IMAGES).is_dir():
         found = ", ".join(list_sequences(root)) or "none"
         raise DatasetFormatError(

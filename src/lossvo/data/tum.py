@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lossvo.data.sequence import DatasetFormatError, Sequence, png_size, pose_matrices, where
+from lossvo.data.sequence import DatasetFormatError, Sequence, dataset_root, png_size, pose_matrices, where
 
 MAX_DIFFERENCE_S = 0.02
 """TUM's ``associate.py`` default: a frame and a ground-truth stamp pair only if less than 0.02 s apart."""
@@ -299,25 +299,22 @@ def camera(
 # --------------------------------------------------------------------------------------------------
 
 
-def _root(root: str | os.PathLike) -> Path:
-    path = Path(root).expanduser()
-    if not path.is_dir():
-        raise DatasetFormatError(f"{path}: dataset root does not exist (expected ROOT/<sequence>/{RGB_LIST})")
-    return path
-
-
 def list_sequences(root: str | os.PathLike) -> list[str]:
     """Names of the sequences under ``root``: its folders holding an ``rgb.txt`` (sorted).
 
     Raises:
         DatasetFormatError: if ``root`` is not a folder.
     """
-    return sorted(p.name for p in _root(root).iterdir() if (p / RGB_LIST).is_file())
+    return sorted(
+        p.name
+        for p in dataset_root(root, f"ROOT/<sequence>/{RGB_LIST}").iterdir()
+        if (p / RGB_LIST).is_file()
+    )
 
 
 def sequence_dir(root: str | os.PathLike, name: str) -> Path:
     """``root/name``; ``DatasetFormatError`` naming the missing folder and the sequences found."""
-    path = _root(root) / name
+    path = dataset_root(root, f"ROOT/<sequence>/{RGB_LIST}") / name
     if not path.is_dir():
         found = ", ".join(list_sequences(root)) or "none"
         raise DatasetFormatError(f"{path}: sequence {name!r} not found (found: {found})")
