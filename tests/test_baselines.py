@@ -14,8 +14,7 @@ import pytest
 from evo.core import metrics as evo_metrics
 from evo.core.trajectory import PosePath3D
 
-from lossvo.data.kitti import Calib
-from lossvo.data.kitti import Sequence as KittiSequence
+from lossvo.data.sequence import Sequence
 from lossvo.evaluation import baselines
 from lossvo.evaluation.results import DataRecord, Scores
 
@@ -41,7 +40,7 @@ def chain(steps: list[np.ndarray]) -> np.ndarray:
     return np.stack(poses)
 
 
-def write_sequence(root: Path, name: str, poses: np.ndarray, seed: int) -> KittiSequence:
+def write_sequence(root: Path, name: str, poses: np.ndarray, seed: int) -> Sequence:
     """Noise frames, calib.txt and poses/<name>.txt in the KITTI layout under ``root``."""
     folder = root / "sequences" / name / "image_2"
     folder.mkdir(parents=True)
@@ -52,9 +51,11 @@ def write_sequence(root: Path, name: str, poses: np.ndarray, seed: int) -> Kitti
         cv2.imwrite(str(images[-1]), rng.integers(0, 256, (HEIGHT, WIDTH), dtype=np.uint8))
     numbers = " ".join(f"{v:.6f}" for v in P2.ravel())
     (folder.parent / "calib.txt").write_text("".join(f"P{i}: {numbers}\n" for i in range(4)))
+    times = 0.1 * np.arange(len(poses))
+    np.savetxt(folder.parent / "times.txt", times)
     (root / "poses").mkdir(exist_ok=True)
     np.savetxt(root / "poses" / f"{name}.txt", poses[:, :3, :].reshape(len(poses), 12))
-    return KittiSequence(name, images, poses, Calib({"P2": P2}, None))
+    return Sequence(name, images, times, poses, P2[:, :3].copy(), np.zeros(5), (HEIGHT, WIDTH))
 
 
 def varied_poses(seed: int) -> np.ndarray:

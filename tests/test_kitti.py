@@ -13,6 +13,7 @@ from evo.tools import file_interface
 
 from lossvo import geometry
 from lossvo.data import kitti
+from lossvo.data.sequence import DatasetFormatError
 
 
 def random_trajectory(n: int = 50, seed: int = 0) -> np.ndarray:
@@ -52,10 +53,12 @@ def test_sequence_metadata(tiny_kitti: Path) -> None:
     seq = kitti.load_sequence(tiny_kitti, "01")
     assert len(seq.images) == 10 and seq.poses.shape == (10, 4, 4)
     assert seq.targets.shape == (9, 4, 4)
-    K = seq.calib.K
+    K = seq.K
     assert K.shape == (3, 3) and K[0, 0] > 0 and K[2, 2] == 1.0
     times = kitti.read_times(tiny_kitti / "sequences" / "01" / "times.txt")
     np.testing.assert_allclose(np.diff(times), 0.1, atol=1e-9)
+    np.testing.assert_array_equal(seq.times, times)
+    assert seq.size == (64, 208) and not seq.distortion.any()
 
 
 def test_root_may_hold_dataset(tiny_kitti: Path, tmp_path: Path) -> None:
@@ -70,7 +73,7 @@ def test_sequence_without_poses_is_for_inference_only(kitti_copy: Path) -> None:
         kitti.load_sequence(kitti_copy, "02")
     seq = kitti.load_sequence(kitti_copy, "02", require_poses=False)
     assert seq.poses is None and len(seq.images) == 10
-    with pytest.raises(kitti.KittiFormatError, match="usable for inference only"):
+    with pytest.raises(DatasetFormatError, match="usable for inference only"):
         _ = seq.targets
 
 
@@ -148,3 +151,14 @@ def test_no_frames(kitti_copy: Path) -> None:
         p.unlink()
     with pytest.raises(kitti.KittiFormatError, match=r"01/image_2: expected PNG frames"):
         kitti.load_sequence(kitti_copy, "01")
+
+
+def test_times_txt_is_required_and_matches_the_frames(kitti_copy: Path) -> None:
+    path = kitti_copy / "sequences" / "00" / "times.txt"
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join(lines[:-1]) + "\n")
+    with pytest.raises(kitti.KittiFormatError, match=r"times\.txt: 9 timestamps but 10 frames"):
+        kitti.load_sequence(kitti_copy, "00")
+    path.unlink()
+    with pytest.raises(kitti.KittiFormatError, match=r"times\.txt: cannot read timestamps"):
+        kitti.load_sequence(kitti_copy, "00")

@@ -38,7 +38,8 @@ from lossvo.atomic import write_text_atomic
 from lossvo.checks import is_integer, is_number
 from lossvo.data import camera, frame_cache, synthetic, windows
 from lossvo.data import flow as optical_flow
-from lossvo.data.kitti import Sequence, find_root, load_sequence, relative_targets, split_names
+from lossvo.data.kitti import find_root, load_sequence, relative_targets, split_names
+from lossvo.data.sequence import Sequence
 from lossvo.data.synthetic import routes
 
 PAPER_TRAIN = ("00", "02", "03", "04", "05", "06", "08")
@@ -552,7 +553,7 @@ class KittiDataModule(L.LightningDataModule):
         size to (height, width) (:func:`lossvo.data.camera.resized_intrinsics`); after :meth:`setup`."""
         manifest = json.loads(frame_cache.files(self.cache_path(), name)[1].read_text())
         source = tuple(manifest["source_size_hw"])
-        return camera.resized_intrinsics(self.sequences[name].calib.K, source, (self.height, self.width))
+        return camera.resized_intrinsics(self.sequences[name].K, source, (self.height, self.width))
 
     # -- loaders --------------------------------------------------------------------------------------
 

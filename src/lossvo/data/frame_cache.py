@@ -26,7 +26,8 @@ import numpy as np
 from tqdm import tqdm
 
 from lossvo.data import array_cache
-from lossvo.data.kitti import KittiFormatError, Sequence, check_png
+from lossvo.data.kitti import KittiFormatError, check_png
+from lossvo.data.sequence import Sequence
 
 CACHE_VERSION = 2
 

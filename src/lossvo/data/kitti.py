@@ -25,6 +25,7 @@ import torch
 from lossvo import geometry
 from lossvo.atomic import write_text_atomic
 from lossvo.checks import is_integer
+from lossvo.data.sequence import DatasetFormatError, Sequence, png_size
 
 ORTHONORMAL_TOLERANCE = 1e-3
 """Largest |R^T R - I| entry accepted in a pose file (KITTI stores 7 to 9 significant digits)."""
@@ -32,7 +33,7 @@ ORTHONORMAL_TOLERANCE = 1e-3
 _PNG_END = b"IEND\xaeB`\x82"
 
 
-class KittiFormatError(ValueError):
+class KittiFormatError(DatasetFormatError):
     """A file or folder that does not follow the KITTI odometry layout."""
 
 
@@ -279,43 +280,34 @@ def read_times(path: str | os.PathLike) -> np.ndarray:
 # --------------------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class Sequence:
-    """One sequence: frame paths, camera-to-world poses (None if the sequence has no pose file), calib."""
-
-    name: str
-    images: list[Path]
-    poses: np.ndarray | None
-    calib: Calib
-
-    @property
-    def targets(self) -> np.ndarray:
-        """(N - 1, 4, 4) float64 relative poses between consecutive frames."""
-        if self.poses is None:
-            raise KittiFormatError(f"sequence {self.name} has no pose file: it is usable for inference only")
-        return relative_targets(self.poses)
-
-
 def load_sequence(root: str | os.PathLike, name: str, require_poses: bool = True) -> Sequence:
-    """Read and check one sequence's metadata (frame list, poses, calibration); no image is decoded.
+    """Read and check one sequence's metadata (frame list, timestamps, poses, calibration) into the data
+    contract (:class:`lossvo.data.sequence.Sequence`: K from calib.txt's P2, no distortion, the size from
+    the first frame's header); no image is decoded.
 
     Raises:
-        KittiFormatError: missing sequence, pose file (when required) or calib; pose count != frame count.
+        KittiFormatError: missing sequence, pose file (when required), calib or times.txt; a pose or
+            timestamp count that is not the frame count.
     """
     root = find_root(root)
     images = image_paths(root, name)
-    calib = read_calib(sequence_dir(root, name) / "calib.txt")
-    path = pose_path(root, name)
-    if not path.is_file():
-        if require_poses:
-            raise KittiFormatError(
-                f"{path}: no pose file for sequence {name} (needed for training/evaluation)"
-            )
-        return Sequence(name, images, None, calib)
-    poses = read_poses(path)
-    if len(poses) != len(images):
+    folder = sequence_dir(root, name)
+    calib = read_calib(folder / "calib.txt")
+    times = read_times(folder / "times.txt")
+    if len(times) != len(images):
         raise KittiFormatError(
-            f"{path}: {len(poses)} poses but {len(images)} frames in {images[0].parent} "
-            "(expected one pose per frame)"
+            f"{folder / 'times.txt'}: {len(times)} timestamps but {len(images)} frames in {images[0].parent} "
+            "(expected one timestamp per frame)"
         )
-    return Sequence(name, images, poses, calib)
+    path = pose_path(root, name)
+    poses = None
+    if path.is_file():
+        poses = read_poses(path)
+        if len(poses) != len(images):
+            raise KittiFormatError(
+                f"{path}: {len(poses)} poses but {len(images)} frames in {images[0].parent} "
+                "(expected one pose per frame)"
+            )
+    elif require_poses:
+        raise KittiFormatError(f"{path}: no pose file for sequence {name} (needed for training/evaluation)")
+    return Sequence(name, images, times, poses, calib.K, np.zeros(5), png_size(images[0]))

@@ -100,6 +100,15 @@ class Sequence:
         if self.K.shape != (3, 3):
             raise ValueError(f"sequence {self.name}: K of shape {self.K.shape}, expected (3, 3)")
 
+    @property
+    def targets(self) -> np.ndarray:
+        """(N - 1, 4, 4) float64 relative poses between consecutive frames, ``inv(T_k) @ T_{k+1}``."""
+        if self.poses is None:
+            raise DatasetFormatError(
+                f"sequence {self.name} has no ground truth: it is usable for inference only"
+            )
+        return np.linalg.inv(self.poses[:-1]) @ self.poses[1:]
+
 
 RIGID_TOLERANCE = 1e-4
 """Largest |RᵀR − I| entry and |det R − 1| accepted in a calibration's rigid transform (12 significant digits

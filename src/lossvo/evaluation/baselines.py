@@ -66,7 +66,7 @@ from lossvo.data import camera
 from lossvo.data.flow import FlowSetting, pair_flow
 from lossvo.data.frame_cache import read_frame
 from lossvo.data.kitti import KittiFormatError, check_png, find_root, load_sequence
-from lossvo.data.kitti import Sequence as KittiSequence
+from lossvo.data.sequence import Sequence as DatasetSequence
 from lossvo.evaluation import metrics
 from lossvo.evaluation.results import DataRecord, Scores
 
@@ -441,7 +441,7 @@ def flow_features(images: Sequence[Path], K: np.ndarray) -> FlowFeatures:
 
 
 def sequence_baselines(
-    sequence: KittiSequence,
+    sequence: DatasetSequence,
     train_mean: np.ndarray,
     speed_scale: float,
     align: metrics.AlignMode = "none",
@@ -462,9 +462,9 @@ def sequence_baselines(
     gt = np.asarray(sequence.poses, dtype=np.float64)
     targets = sequence.targets
     steps = np.linalg.norm(targets[:, :3, 3], axis=1)
-    orb, failed = orb_essential(sequence.images, sequence.calib.K, steps, train_mean)
+    orb, failed = orb_essential(sequence.images, sequence.K, steps, train_mean)
     if features is None:
-        features = flow_features(sequence.images, sequence.calib.K)
+        features = flow_features(sequence.images, sequence.K)
     relatives = {
         ZERO: zero_motion(len(targets)),
         MEAN: repeat_motion(train_mean, len(targets)),
@@ -485,7 +485,7 @@ def sequence_baselines(
 # --------------------------------------------------------------------------------------------------
 
 
-def training_sequences(data: DataRecord) -> list[KittiSequence]:
+def training_sequences(data: DataRecord) -> list[DatasetSequence]:
     """The training split recorded in ``data``: its sequences under ``data.train_root`` (poses required).
 
     Raises:
@@ -504,14 +504,14 @@ def training_mean_motion(data: DataRecord) -> np.ndarray:
     return mean_motion([sequence.targets for sequence in training_sequences(data)])
 
 
-def _files(sequence: KittiSequence) -> dict[str, Any]:
+def _files(sequence: DatasetSequence) -> dict[str, Any]:
     """What identifies a sequence's frames and camera: their count, total size, latest change, K."""
     stats = [p.stat() for p in sequence.images]
     return {
         "frames": len(stats),
         "bytes": sum(s.st_size for s in stats),
         "mtime_ns": max(s.st_mtime_ns for s in stats) if stats else 0,
-        "K": np.asarray(sequence.calib.K).tolist(),
+        "K": np.asarray(sequence.K).tolist(),
     }
 
 
@@ -519,7 +519,7 @@ def _digest(value: object) -> str:
     return hashlib.sha1(json.dumps(value, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def flow_key(sequence: KittiSequence) -> str:
+def flow_key(sequence: DatasetSequence) -> str:
     """A file-name-safe key of one sequence's flow features: its frames' folder and files, K, the flow
     settings and :data:`VERSION`."""
     folder = str(sequence.images[0].parent.resolve()) if sequence.images else ""
@@ -527,7 +527,7 @@ def flow_key(sequence: KittiSequence) -> str:
     return f"{sequence.name}-{_digest([settings, folder, _files(sequence)])}"
 
 
-def cached_flow_features(sequence: KittiSequence, folder: Path) -> FlowFeatures:
+def cached_flow_features(sequence: DatasetSequence, folder: Path) -> FlowFeatures:
     """One sequence's flow features from ``folder/<flow_key>.npz``, computed (:func:`flow_features`) and
     written there (atomically) where missing or unreadable."""
     path = folder / f"{flow_key(sequence)}.npz"
@@ -538,13 +538,13 @@ def cached_flow_features(sequence: KittiSequence, folder: Path) -> FlowFeatures:
             return features
     except (OSError, ValueError, KeyError):
         pass
-    features = flow_features(sequence.images, sequence.calib.K)
+    features = flow_features(sequence.images, sequence.K)
     with atomic_path(path, suffix=".npz") as tmp:
         np.savez(tmp, yaw=features.yaw, road=features.road)
     return features
 
 
-def training_speed_scale(training: Sequence[KittiSequence], folder: Path, n_jobs: int = 1) -> float:
+def training_speed_scale(training: Sequence[DatasetSequence], folder: Path, n_jobs: int = 1) -> float:
     """The road-speed constant (m/px, :func:`fit_speed_scale`) of the training sequences: their road
     features (cached in ``folder``, computed ``n_jobs`` sequences at a time) against their ground-truth
     step lengths."""
@@ -556,7 +556,7 @@ def training_speed_scale(training: Sequence[KittiSequence], folder: Path, n_jobs
 
 def cache_key(
     identity: Mapping[str, Any],
-    sequence: KittiSequence,
+    sequence: DatasetSequence,
     train_mean: np.ndarray,
     train_flow: Sequence[str],
     align: str,
@@ -668,7 +668,7 @@ def compute_baselines(
         flow_dir = cache_dir / FLOW_CACHE
         speed_scale = training_speed_scale(training, flow_dir, n_jobs)
 
-        def compute(sequence: KittiSequence) -> dict[str, BaselineResult]:
+        def compute(sequence: DatasetSequence) -> dict[str, BaselineResult]:
             features = cached_flow_features(sequence, flow_dir)
             return sequence_baselines(sequence, train_mean, speed_scale, align, delta, features)
 
@@ -679,7 +679,9 @@ def compute_baselines(
     return {n: found[n] for n in sequences}
 
 
-def _parallel(fn: Callable[[KittiSequence], T], sequences: Sequence[KittiSequence], n_jobs: int) -> list[T]:
+def _parallel(
+    fn: Callable[[DatasetSequence], T], sequences: Sequence[DatasetSequence], n_jobs: int
+) -> list[T]:
     """``fn`` of each sequence, in order, ``n_jobs`` sequences at a time (threads).
 
     One sequence per thread, each with single-threaded torch and OpenCV: nested thread pools on a few
