@@ -1,4 +1,4 @@
-"""Per-frame motion statistics of KITTI-layout pose files, by split: how fast and how sharply a dataset moves.
+"""Per-frame motion statistics of a dataset's ground truth, by split: how fast and how sharply it moves.
 
 For each consecutive pair the relative pose ``inv(T_w_k) @ T_w_{k+1}`` gives a speed (its translation's
 norm, m/frame) and a rotation (its angle, rad/frame). A split's row pools its sequences' pairs: mean, RMS,
@@ -6,8 +6,11 @@ norm, m/frame) and a rotation (its angle, rad/frame). A split's row pools its se
 
 Command line: ``python -m lossvo.data.motion [ROOT] [--train 00,02 --val 07,09 --test ... --unseen 11,12]``
 (ROOT: a KITTI odometry root; default: the embedded synthetic dataset in the cache, after a first
-``make sweep`` or ``python -m lossvo.data.synthetic``). Prints a Markdown table: one row per split, then
-one per sequence.
+``make sweep`` or ``python -m lossvo.data.synthetic``), or ``python -m lossvo.data.motion ROOT --layout
+tum|euroc|tartanair|mimir [--sequences A,B]`` for a dataset in its own layout (every sequence found by
+default, as one split ``all``; poses at the frames the reader keeps). Prints a Markdown table: one row per
+split, then one per sequence. Speeds and rotations are per frame: datasets recorded at different frame
+rates differ by that too.
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import torch
 
 from lossvo import geometry
 from lossvo.console import OneLineParser, emit
-from lossvo.data import frame_cache, kitti
+from lossvo.data import euroc, frame_cache, kitti, mimir, tartanair, tum
 from lossvo.data.datamodules import PAPER_TEST, PAPER_TRAIN, PAPER_VAL
 from lossvo.data.synthetic import routes
 
@@ -30,6 +33,9 @@ STANDING = 0.01
 """Metres per frame below which a pair counts as standing still."""
 PAPER_SPLITS = {"train": PAPER_TRAIN, "val": PAPER_VAL, "test": PAPER_TEST, "unseen": routes.UNSEEN_SEQUENCES}
 """The default splits: the paper's, plus the synthetic dataset's unseen-motion sequences."""
+LAYOUTS = {"tum": tum, "euroc": euroc, "tartanair": tartanair, "mimir": mimir}
+"""The readers of the layouts other than KITTI's, by ``--layout`` name (each with ``list_sequences`` and
+``load_sequence``)."""
 COLUMNS = (
     "pairs", "speed mean", "speed RMS", "speed p5", "speed p50", "speed p95", "speed max", "standing",
     "rot mean", "rot RMS", "rot p50", "rot p95", "rot max",
@@ -104,10 +110,25 @@ def read_motion(root: Path, names: Sequence[str]) -> dict[str, tuple[np.ndarray,
     return motion
 
 
+def read_layout_motion(
+    layout: str, root: Path, names: Sequence[str]
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """{sequence: (speed, rotation)} of sequences read by the ``layout``'s reader (:data:`LAYOUTS`): every one
+    found under ``root`` when ``names`` is empty."""
+    reader = LAYOUTS[layout]
+    chosen = list(names) or reader.list_sequences(root)
+    return {name: frame_motion(reader.load_sequence(root, name).poses) for name in chosen}
+
+
 def _parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="python -m lossvo.data.motion", description=__doc__.split("\n\n")[0])
     default_root = "the synthetic dataset in the lossvo cache"
-    p.add_argument("root", nargs="?", type=Path, default=None, help=f"KITTI root (default: {default_root})")
+    p.add_argument("root", nargs="?", type=Path, default=None, help=f"dataset root (default: {default_root})")
+    p.add_argument("--layout", default="kitti", choices=["kitti", *LAYOUTS],
+                   help="the dataset's layout (default: kitti)")  # fmt: skip
+    p.add_argument(
+        "--sequences", default="", help="with --layout other than kitti: the sequences (default: all)"
+    )
     for split, names in PAPER_SPLITS.items():
         p.add_argument(f"--{split}", default=",".join(names), help=f"sequences (default: {','.join(names)})")
     return p
@@ -117,6 +138,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point: prints the table; exit status 2 and one line for a bad root or split."""
     parser = _parser()
     args = parser.parse_args(argv)
+    if args.layout != "kitti":
+        if args.root is None:
+            parser.error(f"--layout {args.layout}: give the dataset root (python -m lossvo.data.motion ROOT)")
+        try:
+            motion = read_layout_motion(args.layout, args.root, kitti.sequence_names(args.sequences))
+        except ValueError as err:  # DatasetFormatError
+            parser.error(str(err))
+        if not motion:
+            parser.error(f"{args.root}: no {args.layout} sequence found")
+        emit(markdown(split_statistics(motion, {"all": list(motion)})))
+        return 0
     root = args.root or frame_cache.default_cache_dir() / "synthetic"
     try:
         root = kitti.find_root(root)
