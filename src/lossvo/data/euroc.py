@@ -47,6 +47,7 @@ from lossvo.data.sequence import (
     Sequence,
     check_rigid,
     dataset_root,
+    finite_numbers,
     load_mapping,
     png_size,
     pose_matrices,
@@ -119,19 +120,6 @@ def _parse_ns(path: Path, line: int, text: str) -> int:
     return int(text)
 
 
-def _parse_floats(path: Path, line: int, fields: list[str]) -> list[float]:
-    values = []
-    for text in fields:
-        try:
-            value = float(text)
-        except ValueError:
-            raise DatasetFormatError(f"{where(path, line)}: expected a number, got {text!r}") from None
-        if not np.isfinite(value):
-            raise DatasetFormatError(f"{where(path, line)}: expected a finite number, got {text!r}")
-        values.append(value)
-    return values
-
-
 def _stamps(path: Path, rows: list[tuple[int, list[str]]]) -> np.ndarray:
     """(N,) int64 nanoseconds of the rows' first field, checked strictly increasing, and far enough apart
     to stay distinct as float64 seconds."""
@@ -183,7 +171,10 @@ def read_groundtruth_stamps(path: str | os.PathLike) -> tuple[np.ndarray, np.nda
     if len(rows) < 2:
         raise DatasetFormatError(f"{path}: one ground-truth row (expected at least 2 to interpolate between)")
     ns = _stamps(path, rows)
-    values = np.array([_parse_floats(path, i, fields[1:8]) for i, fields in rows], dtype=np.float64)
+    values = np.array(
+        [finite_numbers(path, i, fields[1:8], "a number", "a finite number") for i, fields in rows],
+        dtype=np.float64,
+    )
     norm = np.linalg.norm(values[:, 3:7], axis=1)
     bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_TOLERANCE)
     if bad.size:

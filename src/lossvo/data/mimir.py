@@ -57,6 +57,7 @@ from lossvo.data.sequence import (
     Sequence,
     check_rigid,
     dataset_root,
+    finite_numbers,
     load_mapping,
     png_size,
     pose_matrices,
@@ -124,15 +125,7 @@ def _parse_row(path: Path, line: int, fields: list[str]) -> tuple[int, list[floa
         raise DatasetFormatError(
             f"{where(path, line)}: expected a timestamp in integer nanoseconds, got {fields[0]!r}"
         )
-    values = []
-    for text in fields[1:GROUND_TRUTH_COLUMNS]:
-        try:
-            value = float(text)
-        except ValueError:
-            raise DatasetFormatError(f"{where(path, line)}: expected a number, got {text!r}") from None
-        if not np.isfinite(value):
-            raise DatasetFormatError(f"{where(path, line)}: expected a finite number, got {text!r}")
-        values.append(value)
+    values = finite_numbers(path, line, fields[1:GROUND_TRUTH_COLUMNS], "a number", "a finite number")
     return int(fields[0]), values
 
 

@@ -29,6 +29,28 @@ def where(path: Path, line: int | None = None) -> str:
     return f"{path}:{line}" if line is not None else str(path)
 
 
+def finite_numbers(
+    path: Path, line: int, fields: list[str], expected: str, finite: str | None = None
+) -> list[float]:
+    """``fields`` (the text of line ``line`` of ``path``) as finite floats.
+
+    Raises:
+        DatasetFormatError: ``<path>:<line>: expected <expected>, got '<field>'`` at the first field
+            that is no number, and the same with ``finite`` (default ``expected``) at the first that is not
+            finite.
+    """
+    values = []
+    for text in fields:
+        try:
+            value = float(text)
+        except ValueError:
+            raise DatasetFormatError(f"{where(path, line)}: expected {expected}, got {text!r}") from None
+        if not np.isfinite(value):
+            raise DatasetFormatError(f"{where(path, line)}: expected {finite or expected}, got {text!r}")
+        values.append(value)
+    return values
+
+
 def dataset_root(root: str | os.PathLike, layout: str) -> Path:
     """``root`` as a Path (``~`` expanded); DatasetFormatError naming it and the expected ``layout`` (e.g.
     ``"ROOT/<sequence>/mav0"``) when it is no folder."""

@@ -35,7 +35,15 @@ from pathlib import Path
 
 import numpy as np
 
-from lossvo.data.sequence import DatasetFormatError, Sequence, dataset_root, png_size, pose_matrices, where
+from lossvo.data.sequence import (
+    DatasetFormatError,
+    Sequence,
+    dataset_root,
+    finite_numbers,
+    png_size,
+    pose_matrices,
+    where,
+)
 
 IMAGES = "image_left"
 POSES = "pose_left.txt"
@@ -92,16 +100,7 @@ def _parse_line(path: Path, line_no: int, line: str) -> list[float]:
     expected = "7 numbers 'tx ty tz qx qy qz qw'"
     if len(fields) != 7:
         raise DatasetFormatError(f"{where(path, line_no)}: expected {expected}, got {len(fields)} fields")
-    values = []
-    for text in fields:
-        try:
-            value = float(text)
-        except ValueError:
-            raise DatasetFormatError(f"{where(path, line_no)}: expected {expected}, got {text!r}") from None
-        if not np.isfinite(value):
-            raise DatasetFormatError(f"{where(path, line_no)}: expected finite numbers, got {text!r}")
-        values.append(value)
-    return values
+    return finite_numbers(path, line_no, fields, expected, "finite numbers")
 
 
 def read_poses(path: str | os.PathLike) -> np.ndarray:

@@ -23,7 +23,15 @@ from pathlib import Path
 
 import numpy as np
 
-from lossvo.data.sequence import DatasetFormatError, Sequence, dataset_root, png_size, pose_matrices, where
+from lossvo.data.sequence import (
+    DatasetFormatError,
+    Sequence,
+    dataset_root,
+    finite_numbers,
+    png_size,
+    pose_matrices,
+    where,
+)
 
 MAX_DIFFERENCE_S = 0.02
 """TUM's ``associate.py`` default: a frame and a ground-truth stamp pair only if less than 0.02 s apart."""
@@ -72,26 +80,6 @@ def _data_lines(path: Path, what: str) -> list[tuple[int, list[str]]]:
     ]
 
 
-def _numbers(path: Path, line_no: int, fields: list[str], expected: str) -> list[float]:
-    """``fields`` as finite floats; ``DatasetFormatError`` naming ``path:line_no`` and ``expected`` if not."""
-    try:
-        values = [float(v) for v in fields]
-    except ValueError:
-        bad = next(v for v in fields if not _is_float(v))
-        raise DatasetFormatError(f"{where(path, line_no)}: expected {expected}, got {bad!r}") from None
-    if not np.all(np.isfinite(values)):
-        raise DatasetFormatError(f"{where(path, line_no)}: expected {expected}, got {' '.join(fields)!r}")
-    return values
-
-
-def _is_float(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
 def _check_increasing(path: Path, times: np.ndarray, line_numbers: list[int]) -> None:
     """Raise ``DatasetFormatError`` at the first line whose timestamp is not after the previous line's.
 
@@ -127,7 +115,7 @@ def read_rgb_list(path: str | os.PathLike) -> tuple[np.ndarray, list[str]]:
             raise DatasetFormatError(
                 f"{where(path, i)}: expected 2 fields 'timestamp filename', got {len(fields)}"
             )
-        times.append(_numbers(path, i, fields[:1], "a timestamp in seconds")[0])
+        times.append(finite_numbers(path, i, fields[:1], "a timestamp in seconds")[0])
         names.append(fields[1])
     stamps = np.array(times, dtype=np.float64)
     _check_increasing(path, stamps, [i for i, _ in rows])
@@ -154,7 +142,7 @@ def read_groundtruth(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     for i, fields in rows:
         if len(fields) != 8:
             raise DatasetFormatError(f"{where(path, i)}: expected {expected}, got {len(fields)} fields")
-        values.append(_numbers(path, i, fields, expected))
+        values.append(finite_numbers(path, i, fields, expected))
     table = np.array(values, dtype=np.float64)
     line_numbers = [i for i, _ in rows]
     _check_increasing(path, table[:, 0], line_numbers)
