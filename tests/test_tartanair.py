@@ -219,13 +219,13 @@ def test_a_gap_in_the_frame_numbers(tmp_path: Path) -> None:
         tartanair.load_sequence(tmp_path, NAME)
 
 
-def test_frames_of_another_size(tmp_path: Path) -> None:
-    write_frames(tmp_path / NAME / "image_left", 2, size=(8, 12))
+def test_frames_of_another_size_get_K_scaled(tmp_path: Path) -> None:
+    """A 160x120 copy of the 640x480 frames: K scaled by 1/4 as cv2.resize maps pixel centres."""
+    write_frames(tmp_path / NAME / "image_left", 2, size=(120, 160))
     (tmp_path / NAME / "pose_left.txt").write_text(pose_lines(np.stack([pose()] * 2)))
-    with pytest.raises(
-        DatasetFormatError, match=r"000000_left\.png: frame of 12x8 pixels \(expected TartanAir's 640x480"
-    ):
-        tartanair.load_sequence(tmp_path, NAME)
+    seq = tartanair.load_sequence(tmp_path, NAME)
+    assert seq.size == (120, 160)
+    np.testing.assert_allclose(seq.K, [[80.0, 0.0, 79.625], [0.0, 80.0, 59.625], [0.0, 0.0, 1.0]])
 
 
 @pytest.mark.parametrize(

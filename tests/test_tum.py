@@ -279,6 +279,17 @@ def test_unknown_camera_names_the_sequence_and_the_keys(name: str) -> None:
     assert "\n" not in message and repr(name) in message and "K=" in message and "distortion=" in message
 
 
+def test_camera_scaled_to_frames_of_another_size() -> None:
+    full, _ = tum.camera(FR1)
+    half, _ = tum.camera(FR1, size=(240, 320))
+    np.testing.assert_allclose(half[:2, :2], full[:2, :2] / 2)
+    np.testing.assert_allclose(half[:2, 2], (full[:2, 2] + 0.5) / 2 - 0.5)
+    K = np.diag([400.0, 400.0, 1.0])
+    np.testing.assert_array_equal(
+        tum.camera(FR1, K=K, size=(240, 320))[0], K
+    )  # an override is taken as given
+
+
 def test_camera_overrides() -> None:
     K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
     got_K, got_d = tum.camera("office", K=K)
@@ -319,7 +330,13 @@ def test_tiny_sequence(tiny_tum: Path) -> None:
     np.testing.assert_array_equal(seq.times, frames)
     assert seq.images == [folder / f"rgb/{t:.6f}.png" for t in frames]
     np.testing.assert_allclose(seq.poses, expected_poses[nearest], atol=1e-9)
-    np.testing.assert_allclose(seq.K[0], [517.306408, 0, 318.643040])
+    # frames of 8x12 pixels: a resized copy of 480x640 frames, K scaled as cv2.resize maps pixel centres
+    np.testing.assert_allclose(
+        seq.K[0], [517.306408 * WIDTH / 640, 0, (318.643040 + 0.5) * WIDTH / 640 - 0.5]
+    )
+    np.testing.assert_allclose(
+        seq.K[1, 1:], [516.469215 * HEIGHT / 480, (255.313989 + 0.5) * HEIGHT / 480 - 0.5]
+    )
 
 
 def test_frames_outside_the_groundtruth_are_counted(tmp_path: Path) -> None:

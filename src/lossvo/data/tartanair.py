@@ -15,7 +15,8 @@ Conventions, each from tartanair_tools (read at commit 841584a):
   line is T_w_c; "The camera motion is defined in the NED frame ... x-axis is pointing to the camera's
   forward, the y-axis is pointing to the camera's right, the z-axis is pointing to the camera's downward".
 - ``data_type.md`` "Camera intrinsics": fx = fy = 320, cx = 320, cy = 240, 640x480, 90 degree field of view,
-  pinhole without distortion.
+  pinhole without distortion. Frames of another size are taken as a resized copy of the 640x480 frames and K
+  is scaled to them (:func:`lossvo.data.camera.resized_intrinsics`).
 - ``evaluation/trajectory_transform.py`` ``ned2cam`` converts a trajectory with ``T @ pose @ inv(T)``,
   T = [[0,1,0],[0,0,1],[1,0,0]]: the permutation of :data:`NED_TO_CAMERA`, applied to the body and the
   world axes alike (:func:`ned_to_camera`).
@@ -35,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lossvo.data.camera import resized_intrinsics
 from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
@@ -198,11 +200,11 @@ def load_sequence(
         require_poses: raise when ``pose_left.txt`` is missing (else the sequence has ``poses=None``);
         rate_hz: the frame rate giving the times ``index / rate_hz`` (s).
     Returns:
-        Sequence with T_w_c of the left camera in lossvo's convention, :data:`K`, zero distortion, size
-        (H, W).
+        Sequence with T_w_c of the left camera in lossvo's convention, :data:`K` (scaled to frames that are
+        not 640x480), zero distortion, size (H, W).
     Raises:
         DatasetFormatError: an unknown sequence (naming those found), missing or malformed frames or pose
-            file, frames that are not 640x480, a pose count that differs from the frame count.
+            file, a pose count that differs from the frame count.
         ValueError: if ``rate_hz`` is not positive.
     """
     if not rate_hz > 0:
@@ -210,11 +212,7 @@ def load_sequence(
     folder = sequence_dir(root, name)
     images = image_paths(folder / IMAGES)
     size = png_size(images[0])
-    if size != SIZE:
-        raise DatasetFormatError(
-            f"{images[0]}: frame of {size[1]}x{size[0]} pixels (expected TartanAir's {SIZE[1]}x{SIZE[0]}, "
-            "the size its intrinsics fx = fy = 320, cx = 320, cy = 240 belong to)"
-        )
+    K_seq = resized_intrinsics(K, SIZE, size)
     times = np.arange(len(images), dtype=np.float64) / rate_hz
     path = folder / POSES
     if not path.is_file():
@@ -222,11 +220,11 @@ def load_sequence(
             raise DatasetFormatError(
                 f"{path}: no pose file for sequence {name!r} (needed for training/evaluation)"
             )
-        return Sequence(name, images, times, None, K.copy(), np.zeros(5), size)
+        return Sequence(name, images, times, None, K_seq, np.zeros(5), size)
     poses = read_poses(path)
     if len(poses) != len(images):
         raise DatasetFormatError(
             f"{path}: {len(poses)} poses but {len(images)} frames in {folder / IMAGES} "
             "(expected one pose a frame)"
         )
-    return Sequence(name, images, times, poses, K.copy(), np.zeros(5), size)
+    return Sequence(name, images, times, poses, K_seq, np.zeros(5), size)

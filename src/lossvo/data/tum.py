@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lossvo.data.camera import resized_intrinsics
 from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
@@ -39,6 +40,8 @@ MAX_DIFFERENCE_S = 0.02
 QUATERNION_NORM_TOLERANCE = 1e-2
 """Largest | ||q|| - 1 | accepted in a ground-truth line (TUM writes 4 decimals: ||q|| is 1 within ~1e-4)."""
 
+SIZE = (480, 640)
+"""(H, W) of TUM RGB-D's colour frames, the size :data:`CAMERAS` belong to."""
 RGB_LIST = "rgb.txt"
 GROUNDTRUTH = "groundtruth.txt"
 
@@ -250,11 +253,15 @@ def intrinsics(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
 
 
 def camera(
-    name: str, K: np.ndarray | None = None, distortion: np.ndarray | None = None
+    name: str,
+    K: np.ndarray | None = None,
+    distortion: np.ndarray | None = None,
+    size: tuple[int, int] = SIZE,
 ) -> tuple[np.ndarray, np.ndarray]:
     """K and distortion of a sequence's colour camera: the Freiburg set-up its name names (:data:`CAMERAS`),
-    each replaced by the caller's where given. For a name that names no set-up, ``K`` is required and the
-    distortion defaults to zeros (undistorted frames).
+    its K scaled to frames of ``size`` (H, W) when they are not 640x480 (a resized copy;
+    :func:`lossvo.data.camera.resized_intrinsics`), each replaced by the caller's where given. For a name
+    that names no set-up, ``K`` is required and the distortion defaults to zeros (undistorted frames).
 
     Args:
         name: the sequence's name; K: (3, 3) pixels; distortion: (D,) OpenCV (k1, k2, p1, p2[, k3]).
@@ -271,7 +278,7 @@ def camera(
             "set K= (3x3 intrinsics in pixels) and distortion= (k1 k2 p1 p2 k3)"
         )
     if K is None:
-        K = intrinsics(*CAMERAS[str(key)][0])
+        K = resized_intrinsics(intrinsics(*CAMERAS[str(key)][0]), SIZE, size)
     if distortion is None:
         distortion = np.array(CAMERAS[key][1]) if key else np.zeros(5)
     K_out, d_out = np.asarray(K, dtype=np.float64), np.asarray(distortion, dtype=np.float64)
@@ -363,9 +370,9 @@ def load_sequence(
             f"{rgb_path}: no frame list for sequence {name!r} (expected lines 'timestamp rgb/<stamp>.png')"
         )
     times, names = read_rgb_list(rgb_path)
-    K_seq, d_seq = camera(name, K, distortion)
     images = _frame_paths(folder, names, rgb_path)
     size = png_size(images[0])
+    K_seq, d_seq = camera(name, K, distortion, size)
     gt_path = folder / GROUNDTRUTH
     if not gt_path.is_file():
         if require_poses:
