@@ -1,4 +1,5 @@
-"""LightningDataModules for KITTI odometry and for the embedded synthetic KITTI-layout dataset.
+"""LightningDataModules for datasets in their own layouts (KITTI odometry, TUM RGB-D, EuRoC, TartanAir, MIMIR:
+:mod:`lossvo.data.layouts`) and for the embedded synthetic KITTI-layout dataset.
 
 A sample is a window of ``seq_len`` consecutive frames and its ``seq_len - 1`` relative-pose targets;
 a batch is a dict, as the model receives it::
@@ -11,8 +12,9 @@ a batch is a dict, as the model receives it::
 The loaders carry frames as uint8 (a window is one copy out of the memory map) and the DataModule
 normalises them on the training device in ``on_after_batch_transfer``, Lightning's hook for this.
 
-Training windows start every ``stride`` frames; validation and test windows tile each sequence
-(:mod:`lossvo.data.windows`), so that every consecutive pair of a sequence is seen exactly once.
+Training windows start every ``stride`` frames and never span a gap in a sequence's timestamps (frames
+its reader dropped); validation and test windows tile each sequence (:mod:`lossvo.data.windows`), so that
+every consecutive pair of a sequence is seen exactly once.
 ``prepare_data`` checks the dataset (one clear error naming the file) and builds the frame cache
 (:mod:`lossvo.data.frame_cache`) before anything trains. Normalisation statistics come from the training
 sequences only, or are FlowNet's ``x / 255 - 0.5`` when its weights are used.
@@ -20,6 +22,7 @@ sequences only, or are FlowNet's ``x / 255 - 0.5`` when its weights are used.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 from collections.abc import Iterator, Mapping
@@ -36,9 +39,9 @@ from torch.utils.data import DataLoader, Dataset, Sampler, SequentialSampler
 from lossvo import geometry
 from lossvo.atomic import write_text_atomic
 from lossvo.checks import is_integer, is_number
-from lossvo.data import camera, frame_cache, synthetic, windows
+from lossvo.data import camera, frame_cache, layouts, synthetic, windows
 from lossvo.data import flow as optical_flow
-from lossvo.data.kitti import find_root, load_sequence, relative_targets, split_names
+from lossvo.data.kitti import relative_targets, split_names
 from lossvo.data.sequence import Sequence
 from lossvo.data.synthetic import routes
 
@@ -102,12 +105,14 @@ class WindowDataset(Dataset):
         intrinsics: (3, 3) K of each sequence's cached frames (None: the identity).
         flow_files: step -> one cached flow array per sequence (:mod:`lossvo.data.flow`), for every step
             used; None: no flow.
+        times: (N_i,) timestamps (s) per sequence: training windows never span a gap in them
+            (:func:`lossvo.data.windows.gaps`); None: no gaps.
     """
 
     def __init__(
         self, cache_files: list[Path], poses: list[np.ndarray], seq_len: int, stride: int = 1,
         steps: Seq[int] = (1,), tiled: bool = False, intrinsics: list[np.ndarray] | None = None,
-        flow_files: dict[int, list[Path]] | None = None,
+        flow_files: dict[int, list[Path]] | None = None, times: list[np.ndarray] | None = None,
     ) -> None:  # fmt: skip
         self.cache_files = cache_files
         self.flow_files = flow_files
@@ -119,16 +124,19 @@ class WindowDataset(Dataset):
             s: [torch.from_numpy(relative_targets(p, s).astype(np.float32)) for p in poses] for s in steps
         }
         lengths = [len(p) for p in poses]
-        rows = [self._tiles(i, n, seq_len) if tiled else self._training(i, n, seq_len, stride, s)
+        gap = [windows.gaps(t) for t in times] if times is not None else [None] * len(poses)
+        rows = [self._tiles(i, n, seq_len) if tiled else self._training(i, n, seq_len, stride, s, gap[i])
                 for s in steps for i, n in enumerate(lengths) if n >= 2]  # fmt: skip
         self.index = np.concatenate(rows) if rows else np.zeros((0, 4), dtype=np.int64)
         self._frames: list[np.ndarray] | None = None
         self._flow: dict[int, list[np.ndarray]] | None = None
 
     @staticmethod
-    def _training(seq: int, n: int, seq_len: int, stride: int, step: int) -> np.ndarray:
+    def _training(
+        seq: int, n: int, seq_len: int, stride: int, step: int, gap: np.ndarray | None
+    ) -> np.ndarray:
         """(M, 4) rows (sequence, start, stop, step) of a sequence's training windows at one step."""
-        starts = windows.training_starts(n, seq_len, stride, step)
+        starts = windows.training_starts(n, seq_len, stride, step, gap)
         stops = starts + step * (seq_len - 1) + 1
         return np.stack((np.full_like(starts, seq), starts, stops, np.full_like(starts, step)), axis=1)
 
@@ -303,12 +311,16 @@ class EpochShuffle(Sampler[int]):
         return self.count
 
 
-class KittiDataModule(L.LightningDataModule):
-    """KITTI odometry (or any dataset in its layout): cached frames, windows, paper split by default.
+class VODataModule(L.LightningDataModule):
+    """A dataset in its own layout: cached frames, windows, the KITTI paper split by default.
 
     Args:
-        root: folder holding ``sequences/`` and ``poses/`` (or the folder holding ``dataset/``).
-        train, val, test: sequence names (``["00", "02"]`` or ``"00,02"``).
+        root: the dataset's folder: for KITTI the one holding ``sequences/`` and ``poses/`` (or the folder
+            holding ``dataset/``), for the other layouts the one holding the sequences.
+        layout: the dataset's layout (:data:`lossvo.data.layouts.LAYOUTS`): ``kitti``, ``tum``, ``euroc``,
+            ``tartanair`` or ``mimir``.
+        train, val, test: sequence names as the dataset names them (``["00", "02"]`` or ``"00,02"``,
+            ``["V1_02_medium"]``, ``["abandonedfactory/Easy/P000"]``).
         unseen: sequences of motion unlike the training split's (the synthetic dataset's unseen-motion
             routes), evaluated beside the test sequences and marked as such in reports; need poses.
         height, width: frame size in pixels after resizing (area interpolation).
@@ -337,7 +349,12 @@ class KittiDataModule(L.LightningDataModule):
             evaluation (consecutive frames) use. flow_preset: DIS's preset (ultrafast, fast, medium).
             flow_scale: the flow is computed on the source images resized to ``flow_scale`` times
             (height, width), then resized to (height, width) (:class:`lossvo.data.flow.FlowSetting`).
+        keep_every: keep every n-th frame of each sequence (the others are never read): matches frame rates
+            across datasets (3 turns TUM's 30 Hz into KITTI's 10 Hz). Unlike ``frame_steps`` it applies to
+            every split, evaluation included.
 
+    Frames with distortion are undistorted once, when the frame cache is built
+    (:func:`lossvo.data.frame_cache.undistortion`); :meth:`intrinsics` is K of the cached frames.
     :meth:`description` records the arguments, the dataset root and the normalisation statistics: a
     checkpoint stores it (:mod:`lossvo.training.checkpoints`), so that evaluation needs nothing else.
     """
@@ -368,10 +385,16 @@ class KittiDataModule(L.LightningDataModule):
         flow: str = "none",
         flow_preset: str = "medium",
         flow_scale: float = 1.0,
+        layout: str = "kitti",
+        keep_every: int = 1,
     ) -> None:
         super().__init__()
         self.save_hyperparameters(logger=False)
         self.root = Path(root).expanduser()
+        self.layout = layouts.check_layout(layout)
+        if not is_integer(keep_every, 1):
+            raise ValueError(f"data.keep_every: expected an integer >= 1 (frames), got {keep_every!r}")
+        self.keep_every = int(keep_every)
         self.splits = {
             "train": _names(train, "train"),
             "val": _names(val, "val"),
@@ -432,13 +455,23 @@ class KittiDataModule(L.LightningDataModule):
         return list(dict.fromkeys(self.splits["test"] + self.splits["unseen"]))
 
     def _load_metadata(self) -> Path:
-        """Read every sequence's metadata; only test sequences may lack poses (KITTI 11-21)."""
-        root = find_root(self.root)
+        """Read every sequence's metadata (every ``keep_every``-th frame); only test sequences may lack
+        poses (KITTI 11-21)."""
+        root = layouts.dataset_root(self.layout, self.root)
         labelled = set(self.splits["train"]) | set(self.splits["val"]) | set(self.splits["unseen"])
         self.sequences = {
-            name: load_sequence(root, name, require_poses=name in labelled) for name in self.all_names
+            name: self._kept(layouts.load_sequence(self.layout, root, name, require_poses=name in labelled))
+            for name in self.all_names
         }
         return root
+
+    def _kept(self, seq: Sequence) -> Sequence:
+        """Every ``keep_every``-th frame of a sequence."""
+        if self.keep_every == 1:
+            return seq
+        n = self.keep_every
+        poses = None if seq.poses is None else seq.poses[::n]
+        return dataclasses.replace(seq, images=seq.images[::n], times=seq.times[::n], poses=poses)
 
     def load_metadata(self) -> Path:
         """Read and check every sequence's poses, calibration and image list, without building the
@@ -446,7 +479,8 @@ class KittiDataModule(L.LightningDataModule):
         return self._load_metadata()
 
     def cache_path(self) -> Path:
-        return frame_cache.cache_folder(self.cache_dir, find_root(self.root), self.height, self.width)
+        folder = frame_cache.cache_folder(self.cache_dir, self.dataset_root(), self.height, self.width)
+        return folder if self.keep_every == 1 else folder.with_name(f"{folder.name}-every{self.keep_every}")
 
     def prepare_data(self) -> None:
         """Check the dataset and build the frame cache and the normalisation statistics (once)."""
@@ -497,7 +531,7 @@ class KittiDataModule(L.LightningDataModule):
         return {
             (n, step): optical_flow.ensure_flow(
                 folder, n, frames[n], frame_cache.source_of(folder, n), step, self.flow,
-                self.sequences[n].images,
+                self.sequences[n].images, undistort=frame_cache.undistortion(self.sequences[n]),
             )
             for n, steps in self.flow_steps().items() for step in steps
         }  # fmt: skip
@@ -525,6 +559,7 @@ class KittiDataModule(L.LightningDataModule):
                 [frame_cache.files(folder, n)[0] for n, _ in labelled], [p for _, p in labelled],
                 self.seq_len, self.stride, self.frame_steps, tiled=split != "train",
                 intrinsics=[self.intrinsics(n) for n, _ in labelled], flow_files=flow_files,
+                times=[self.sequences[n].times for n, _ in labelled],
             )  # fmt: skip
         if len(self.datasets["train"]) == 0 and self.splits["train"]:
             shortest = min(len(self.sequences[n].images) for n in self.splits["train"])
@@ -545,15 +580,18 @@ class KittiDataModule(L.LightningDataModule):
         return {"_target_": target, **config, "statistics": stats, "dataset_root": str(self.dataset_root())}
 
     def dataset_root(self) -> Path:
-        """The absolute folder holding ``sequences/`` and ``poses/``."""
-        return find_root(self.root).resolve()
+        """The absolute folder the layout's reader reads (for KITTI the one holding ``sequences/``)."""
+        return layouts.dataset_root(self.layout, self.root).resolve()
 
     def intrinsics(self, name: str) -> np.ndarray:
-        """(3, 3) float64 K of a sequence's cached frames: calib.txt's P2, resized from the source images'
-        size to (height, width) (:func:`lossvo.data.camera.resized_intrinsics`); after :meth:`setup`."""
+        """(3, 3) float64 K of a sequence's cached frames: its camera's K (of the undistorted frames where
+        they are undistorted: :func:`lossvo.data.frame_cache.source_intrinsics`), resized from the source
+        images' size to (height, width) (:func:`lossvo.data.camera.resized_intrinsics`); after
+        :meth:`setup`."""
         manifest = json.loads(frame_cache.files(self.cache_path(), name)[1].read_text())
         source = tuple(manifest["source_size_hw"])
-        return camera.resized_intrinsics(self.sequences[name].K, source, (self.height, self.width))
+        K = frame_cache.source_intrinsics(self.sequences[name])
+        return camera.resized_intrinsics(K, source, (self.height, self.width))
 
     # -- loaders --------------------------------------------------------------------------------------
 
@@ -655,8 +693,17 @@ class KittiDataModule(L.LightningDataModule):
         self.setup()
         return self.sequences[name].poses
 
+    def sequence_times(self, name: str) -> np.ndarray:
+        """(N,) float64 timestamps (s) of one sequence's frames."""
+        self.setup()
+        return self.sequences[name].times
 
-class SyntheticDataModule(KittiDataModule):
+
+class KittiDataModule(VODataModule):
+    """KITTI odometry (``data=kitti``): :class:`VODataModule` in its default layout, ``kitti``."""
+
+
+class SyntheticDataModule(VODataModule):
     """The embedded synthetic KITTI-layout dataset, rendered into ``root`` on first use.
 
     Args:

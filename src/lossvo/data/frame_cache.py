@@ -1,15 +1,16 @@
 """Resized frames of a sequence, decoded once and memory-mapped afterwards.
 
-``prepare_data`` decodes every PNG of a sequence once, resizes it to the configured (H, W) with area
-interpolation and stores the frames as one uint8 ``.npy`` (N, 3, H, W) RGB file per sequence
-(channels first, as the network reads them, so that a window is one contiguous slice), next to
-a small JSON manifest. Training and evaluation then read windows straight from the memory map: no
-epoch decodes a PNG. The manifest records what the cache was built from (frame names, sizes, mtimes)
-and is written last, so a cache from an interrupted run, a truncated file or a changed dataset is
-detected and rebuilt, never read as garbage.
+``prepare_data`` decodes every PNG of a sequence once (a single-channel frame, EuRoC's, replicated to three
+channels by OpenCV's colour decoding), undistorts it where the sequence's camera has distortion
+(:class:`Undistortion`), resizes it to the configured (H, W) with area interpolation and stores the frames as
+one uint8 ``.npy`` (N, 3, H, W) RGB file per sequence (channels first, as the network reads them, so that a
+window is one contiguous slice), next to a small JSON manifest. Training and evaluation then read windows
+straight from the memory map: no epoch decodes a PNG. The manifest records what the cache was built from
+(frame names, sizes, mtimes) and is written last, so a cache from an interrupted run, a truncated file or a
+changed dataset is detected and rebuilt, never read as garbage.
 
-numpy's memmap and OpenCV do this well; what no library does is the KITTI-specific bookkeeping
-(which frames, which size), which is what this module holds (whether a cached array is complete:
+numpy's memmap and OpenCV do this well; what no library does is the dataset bookkeeping (which frames, which
+size, which camera), which is what this module holds (whether a cached array is complete:
 :mod:`lossvo.data.array_cache`).
 """
 
@@ -19,6 +20,7 @@ import hashlib
 import json
 import os
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -44,14 +46,57 @@ def cache_folder(cache_dir: str | os.PathLike, root: Path, height: int, width: i
     return Path(cache_dir) / "frames" / f"{Path(resolved).name}-{digest}" / f"{height}x{width}"
 
 
+@dataclass(frozen=True)
+class Undistortion:
+    """How a distorted sequence's frames are undistorted: OpenCV's remap onto a pinhole camera ``K`` of the
+    same size, chosen by ``cv2.getOptimalNewCameraMatrix`` with ``alpha=0`` (every pixel valid, no black
+    border).
+
+    Attributes:
+        K: (3, 3) float64 intrinsics of the undistorted frames, at the source size (pixels).
+        size: (H, W) of the source frames.
+        map_x, map_y: (H, W) float32, where each undistorted pixel is sampled in the source frame.
+    """
+
+    K: np.ndarray
+    size: tuple[int, int]
+    map_x: np.ndarray
+    map_y: np.ndarray
+
+    def apply(self, image: np.ndarray) -> np.ndarray:
+        """(H, W[, C]) uint8 source frame -> the undistorted frame, bilinear."""
+        return cv2.remap(image, self.map_x, self.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def undistortion(seq: Sequence) -> Undistortion | None:
+    """The :class:`Undistortion` of a sequence's frames; None when its distortion is all zeros."""
+    if not np.any(seq.distortion):
+        return None
+    height, width = seq.size
+    K, _ = cv2.getOptimalNewCameraMatrix(seq.K, seq.distortion, (width, height), 0.0, (width, height))
+    map_x, map_y = cv2.initUndistortRectifyMap(seq.K, seq.distortion, None, K, (width, height), cv2.CV_32FC1)
+    return Undistortion(np.asarray(K, dtype=np.float64), (height, width), map_x, map_y)
+
+
+def source_intrinsics(seq: Sequence) -> np.ndarray:
+    """(3, 3) float64 K of a sequence's frames as cached before resizing: its camera's K, or that of the
+    undistorted frames (:func:`undistortion`)."""
+    undistort = undistortion(seq)
+    return seq.K if undistort is None else undistort.K
+
+
 def _fingerprint(seq: Sequence) -> dict:
-    """What the cache depends on: frame names, total size and latest modification time."""
+    """What the cache depends on: frame names, total size and latest modification time, and the camera
+    where the frames are undistorted."""
     stats = [p.stat() for p in seq.images]
-    return {
+    fingerprint = {
         "frames": [p.name for p in seq.images],
         "bytes": sum(s.st_size for s in stats),
         "mtime_ns": max(s.st_mtime_ns for s in stats),
     }
+    if np.any(seq.distortion):
+        fingerprint["undistorted"] = {"K": seq.K.tolist(), "distortion": seq.distortion.tolist()}
+    return fingerprint
 
 
 def files(folder: Path, name: str) -> tuple[Path, Path]:
@@ -77,14 +122,19 @@ def open_frames(folder: Path, seq: Sequence, height: int, width: int) -> np.ndar
     return array_cache.open_array(files(folder, seq.name)[0], _expected(seq), shape, np.uint8)
 
 
-def read_frame(path: Path, height: int, width: int) -> tuple[np.ndarray, tuple[int, int]]:
-    """Decode one PNG (checked complete first), resize it with area interpolation: (3, height, width) RGB
-    uint8, and the PNG's own size (H, W)."""
+def read_frame(
+    path: Path, height: int, width: int, undistort: Undistortion | None = None
+) -> tuple[np.ndarray, tuple[int, int]]:
+    """Decode one PNG (checked complete first; a grey one replicated to three channels), undistort it (when
+    ``undistort`` is given and the frame has its size), resize it with area interpolation: (3, height, width)
+    RGB uint8, and the PNG's own size (H, W)."""
     check_png(path)
     image = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if image is None:
         raise KittiFormatError(f"{path}: unreadable image (OpenCV could not decode it)")
     size = image.shape[:2]
+    if undistort is not None and size == undistort.size:
+        image = undistort.apply(image)
     # OpenCV sizes are (width, height); the swap is a classic bug, hence the explicit names.
     resized = cv2.resize(image, dsize=(width, height), interpolation=cv2.INTER_AREA)
     return cv2.cvtColor(resized, cv2.COLOR_BGR2RGB).transpose(2, 0, 1), size
@@ -98,10 +148,12 @@ def _decoder(seq: Sequence, height: int, width: int, workers: int, progress: boo
         KittiFormatError: an unreadable or truncated PNG, or frames of differing sizes (naming the file).
     """
 
+    undistort = undistortion(seq)
+
     def fill(out: np.ndarray) -> dict:
         first_size: tuple[int, int] | None = None
         with ThreadPoolExecutor(workers) as pool:
-            jobs = pool.map(lambda p: read_frame(p, height, width), seq.images)
+            jobs = pool.map(lambda p: read_frame(p, height, width, undistort), seq.images)
             bar = tqdm(jobs, total=len(seq.images), desc=f"caching {seq.name} at {height}x{width}",
                        unit="frame", disable=not progress, leave=False)  # fmt: skip
             for i, (frame, size) in enumerate(bar):

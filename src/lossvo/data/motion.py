@@ -25,7 +25,7 @@ import torch
 
 from lossvo import geometry
 from lossvo.console import OneLineParser, emit
-from lossvo.data import euroc, frame_cache, kitti, mimir, tartanair, tum
+from lossvo.data import frame_cache, kitti, layouts
 from lossvo.data.datamodules import PAPER_TEST, PAPER_TRAIN, PAPER_VAL
 from lossvo.data.synthetic import routes
 
@@ -33,9 +33,6 @@ STANDING = 0.01
 """Metres per frame below which a pair counts as standing still."""
 PAPER_SPLITS = {"train": PAPER_TRAIN, "val": PAPER_VAL, "test": PAPER_TEST, "unseen": routes.UNSEEN_SEQUENCES}
 """The default splits: the paper's, plus the synthetic dataset's unseen-motion sequences."""
-LAYOUTS = {"tum": tum, "euroc": euroc, "tartanair": tartanair, "mimir": mimir}
-"""The readers of the layouts other than KITTI's, by ``--layout`` name (each with ``list_sequences`` and
-``load_sequence``)."""
 COLUMNS = (
     "pairs", "speed mean", "speed RMS", "speed p5", "speed p50", "speed p95", "speed max", "standing",
     "rot mean", "rot RMS", "rot p50", "rot p95", "rot max",
@@ -113,18 +110,18 @@ def read_motion(root: Path, names: Sequence[str]) -> dict[str, tuple[np.ndarray,
 def read_layout_motion(
     layout: str, root: Path, names: Sequence[str]
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """{sequence: (speed, rotation)} of sequences read by the ``layout``'s reader (:data:`LAYOUTS`): every one
-    found under ``root`` when ``names`` is empty."""
-    reader = LAYOUTS[layout]
-    chosen = list(names) or reader.list_sequences(root)
-    return {name: frame_motion(reader.load_sequence(root, name).poses) for name in chosen}
+    """{sequence: (speed, rotation)} of sequences read by the ``layout``'s reader
+    (:mod:`lossvo.data.layouts`): every one found under ``root`` when ``names`` is empty."""
+    chosen = list(names) or layouts.list_sequences(layout, root)
+    poses = {name: layouts.load_sequence(layout, root, name).poses for name in chosen}
+    return {name: frame_motion(p) for name, p in poses.items() if p is not None}
 
 
 def _parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="python -m lossvo.data.motion", description=__doc__.split("\n\n")[0])
     default_root = "the synthetic dataset in the lossvo cache"
     p.add_argument("root", nargs="?", type=Path, default=None, help=f"dataset root (default: {default_root})")
-    p.add_argument("--layout", default="kitti", choices=["kitti", *LAYOUTS],
+    p.add_argument("--layout", default="kitti", choices=layouts.LAYOUTS,
                    help="the dataset's layout (default: kitti)")  # fmt: skip
     p.add_argument(
         "--sequences", default="", help="with --layout other than kitti: the sequences (default: all)"

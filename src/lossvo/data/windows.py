@@ -32,15 +32,42 @@ def tile(n_frames: int, seq_len: int) -> np.ndarray:
     return np.stack((starts, np.minimum(starts + seq_len, n_frames)), axis=1)
 
 
-def training_starts(n_frames: int, seq_len: int, stride: int, step: int = 1) -> np.ndarray:
-    """First frames of the full training windows of a sequence: every ``stride`` frames, each window
-    taking every ``step``-th frame (it spans ``step (seq_len - 1) + 1`` frames).
+GAP_FACTOR = 1.5
+"""A pair of consecutive frames further apart in time than GAP_FACTOR times the sequence's median frame
+interval spans a gap (frames the reader dropped, e.g. where the ground truth has none)."""
 
+
+def gaps(times: np.ndarray) -> np.ndarray:
+    """Which consecutive pairs of a sequence span a gap (:data:`GAP_FACTOR`).
+
+    Args:
+        times: (N,) timestamps in seconds, increasing.
+    Returns:
+        (N - 1,) bool.
+    """
+    interval = np.diff(np.asarray(times, dtype=np.float64))
+    if interval.size == 0:
+        return np.zeros(0, dtype=bool)
+    return interval > GAP_FACTOR * np.median(interval)
+
+
+def training_starts(
+    n_frames: int, seq_len: int, stride: int, step: int = 1, gap: np.ndarray | None = None
+) -> np.ndarray:
+    """First frames of the full training windows of a sequence: every ``stride`` frames, each window
+    taking every ``step``-th frame (it spans ``step (seq_len - 1) + 1`` frames), none spanning a gap.
+
+    Args:
+        gap: (n_frames - 1,) bool, the consecutive pairs that span a gap (:func:`gaps`); None: none does.
     Returns:
         (M,) int64 start frames (empty when the sequence is shorter than one window).
     """
     span = step * (seq_len - 1) + 1
-    return np.arange(0, max(n_frames - span + 1, 0), stride, dtype=np.int64)
+    starts = np.arange(0, max(n_frames - span + 1, 0), stride, dtype=np.int64)
+    if gap is None or not np.any(gap):
+        return starts
+    crossed = np.concatenate(([0], np.cumsum(gap)))  # gaps among the pairs before frame k
+    return starts[crossed[starts + span - 1] == crossed[starts]]
 
 
 class SameLengthBatches(BatchSampler):

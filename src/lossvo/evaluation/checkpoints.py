@@ -5,7 +5,7 @@ primitives (it loads with torch's default ``weights_only``):
 
 - ``hyper_parameters``: the network, loss, optimiser and scheduler configs the module was built from;
 - ``state_dict``: the weights (``model.*`` and ``loss.*``);
-- ``data``: :meth:`lossvo.data.datamodules.KittiDataModule.description` of the training data: the
+- ``data``: :meth:`lossvo.data.datamodules.VODataModule.description` of the training data: the
   datamodule's ``_target_`` and arguments (frame size, ``seq_len``, splits, normalisation mode ...),
   ``dataset_root`` and the normalisation ``statistics`` the network was trained with;
 - ``threads``: the CPU thread count (``torch.get_num_threads()``) the network was trained with.

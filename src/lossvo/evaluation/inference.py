@@ -27,7 +27,7 @@ def _device_of(module: nn.Module) -> torch.device:
 
 
 Inputs = Mapping[str, "np.ndarray | Tensor"]
-"""A whole sequence's inputs (:meth:`lossvo.data.datamodules.KittiDataModule.sequence_inputs`): ``frames``
+"""A whole sequence's inputs (:meth:`lossvo.data.datamodules.VODataModule.sequence_inputs`): ``frames``
 (N, 3, H, W) uint8, optionally ``flow`` (N - 1, 2, H, W) of each consecutive pair and ``K`` (3, 3)."""
 
 

@@ -41,7 +41,7 @@ from lossvo.evaluation.plots import plot_birdseye
 from lossvo.evaluation.trajectories import integrate, scale_steps
 
 if TYPE_CHECKING:
-    from lossvo.data.datamodules import KittiDataModule
+    from lossvo.data.datamodules import VODataModule
     from lossvo.losses import PoseLoss
 
 log = logging.getLogger("lossvo")
@@ -472,7 +472,7 @@ def data_record(
 
     Args:
         trained: the description of the data the network was trained on, as its checkpoint records it
-            (:meth:`lossvo.data.datamodules.KittiDataModule.description`, ``VOModule.data``); None for a
+            (:meth:`lossvo.data.datamodules.VODataModule.description`, ``VOModule.data``); None for a
             network that was not loaded from a checkpoint: then it is ``evaluated``.
         evaluated: the evaluated datamodule's description.
         splits: the evaluated datamodule's splits (``test``, ``unseen``).
@@ -521,7 +521,7 @@ class PooledScores:
 
 def predict_and_score(
     module: nn.Module,
-    datamodule: KittiDataModule,
+    datamodule: VODataModule,
     name: str,
     gt: np.ndarray | None,
     pooled: PooledScores,
@@ -568,7 +568,7 @@ def translation_record(module: nn.Module) -> str:
     return TRANSLATIONS[cast("PoseLoss", module.loss).translation]
 
 
-def _ground_truth(datamodule: KittiDataModule, name: str) -> np.ndarray | None:
+def _ground_truth(datamodule: VODataModule, name: str) -> np.ndarray | None:
     try:
         poses = datamodule.sequence_poses(name)
     except (KittiFormatError, KeyError):
@@ -578,7 +578,7 @@ def _ground_truth(datamodule: KittiDataModule, name: str) -> np.ndarray | None:
 
 def evaluate_run(
     module: nn.Module,
-    datamodule: KittiDataModule,
+    datamodule: VODataModule,
     out_dir: str | os.PathLike,
     sequences: Sequence[str],
     checkpoint: str | os.PathLike | None = None,
@@ -595,7 +595,7 @@ def evaluate_run(
             ``loss`` (a :class:`lossvo.losses.PoseLoss`; its ``translation`` decides
             :attr:`Results.translation`) and ``data`` (the training data's description from its
             checkpoint, or None).
-        datamodule: the evaluated :class:`lossvo.data.datamodules.KittiDataModule` (set up here).
+        datamodule: the evaluated :class:`lossvo.data.datamodules.VODataModule` (set up here).
         out_dir: folder receiving ``trajectories/NN.txt``, ``plots/NN.png`` and ``results.json``.
         sequences: sequence names, e.g. ``datamodule.evaluated``.
         checkpoint: the checkpoint the weights came from (recorded in ``results.json``).

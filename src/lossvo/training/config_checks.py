@@ -3,7 +3,7 @@
 The settings that Lightning, torch or the data loader would otherwise refuse deep inside a run (or
 misread without a word) are checked first, each failure a ``ValueError`` naming the key, the value and
 what was expected, e.g. ``data.batch_size: expected an integer >= 1, got 'abc'``. The constructors check
-their own arguments (:class:`lossvo.data.datamodules.KittiDataModule`), :func:`lossvo.weighting.check_config`
+their own arguments (:class:`lossvo.data.datamodules.VODataModule`), :func:`lossvo.weighting.check_config`
 the loss weights.
 """
 

@@ -31,7 +31,7 @@ from lossvo.training.module import VOModule
 from lossvo.training.selection import SCORE_KEY
 
 if TYPE_CHECKING:
-    from lossvo.data.datamodules import KittiDataModule
+    from lossvo.data.datamodules import VODataModule
 
 log = logging.getLogger("lossvo")
 
@@ -64,7 +64,7 @@ def _load_flownet(module: VOModule, path: str) -> None:
     log.info("FlowNetS initialisation: %s", report.summary())
 
 
-def build(cfg: DictConfig) -> tuple[KittiDataModule, VOModule, L.Trainer]:
+def build(cfg: DictConfig) -> tuple[VODataModule, VOModule, L.Trainer]:
     """Data (set up for fitting), module and trainer from a composed config; nothing is trained yet."""
     if cfg.model.get("flownet"):
         # FlowNetS weights were trained on img/255 - 0.5; the dataset statistics would not match them.
@@ -163,7 +163,7 @@ def _interrupted(error: BaseException, epoch: int) -> BaseException:
 def evaluate_after_fit(
     trainer: L.Trainer,
     module: VOModule,
-    datamodule: KittiDataModule,
+    datamodule: VODataModule,
     out_dir: Path,
     mirror_average: bool = True,
 ) -> Any:

@@ -1,0 +1,61 @@
+"""The dataset layouts lossvo reads, by name (``data.layout``): where a layout's name becomes its reader.
+
+Each reader module (:mod:`~lossvo.data.kitti`, :mod:`~lossvo.data.tum`, :mod:`~lossvo.data.euroc`,
+:mod:`~lossvo.data.tartanair`, :mod:`~lossvo.data.mimir`) reads its dataset in the dataset's own layout
+and returns :class:`lossvo.data.sequence.Sequence` (frames, timestamps, T_w_c in lossvo's convention, K,
+distortion).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from types import ModuleType
+
+from lossvo.data import euroc, kitti, mimir, tartanair, tum
+from lossvo.data.sequence import Sequence
+
+READERS: dict[str, ModuleType] = {
+    "kitti": kitti,
+    "tum": tum,
+    "euroc": euroc,
+    "tartanair": tartanair,
+    "mimir": mimir,
+}
+"""Reader module of each layout; each has ``load_sequence(root, name, require_poses)`` and
+``list_sequences(root)``."""
+LAYOUTS = tuple(READERS)
+
+
+def check_layout(layout: object, key: str = "data.layout") -> str:
+    """``layout`` if it names a layout; ValueError naming ``key`` and the layouts otherwise."""
+    if layout not in READERS:
+        raise ValueError(f"{key}: unknown dataset layout {layout!r} (expected one of {', '.join(LAYOUTS)})")
+    return str(layout)
+
+
+def dataset_root(layout: str, root: str | os.PathLike) -> Path:
+    """The folder a layout's reader takes: for KITTI the one holding ``sequences/`` (``root`` or
+    ``root/dataset``, :func:`lossvo.data.kitti.find_root`), for the others ``root`` itself.
+
+    Raises:
+        DatasetFormatError: ``root`` is no such folder (naming it and the expected layout).
+    """
+    if check_layout(layout) == "kitti":
+        return kitti.find_root(root)
+    return Path(root).expanduser()
+
+
+def load_sequence(layout: str, root: Path, name: str, require_poses: bool = True) -> Sequence:
+    """One sequence of the dataset at ``root`` (:func:`dataset_root`), read by its layout's reader.
+
+    Raises:
+        DatasetFormatError: a missing or malformed file (naming it), or an unknown sequence (naming
+            those found).
+    """
+    return READERS[check_layout(layout)].load_sequence(root, name, require_poses=require_poses)
+
+
+def list_sequences(layout: str, root: Path) -> list[str]:
+    """Names of the sequences of the dataset at ``root`` (:func:`dataset_root`), sorted."""
+    return list(READERS[check_layout(layout)].list_sequences(root))
