@@ -1,8 +1,11 @@
 """A trained network evaluated on whole sequences, and ``results.json``: the contract between evaluation
 and everything that reads a run (the report, the baselines, users).
 
-:func:`evaluate_run` writes, into a run's folder, per sequence ``trajectories/NN.txt`` (KITTI format,
-readable by evo, first pose = ground truth's) and ``plots/NN.png`` (bird's-eye x-z view), and
+:func:`evaluate_run` writes, into a run's folder, per sequence ``trajectories/<sequence>.txt`` (KITTI format,
+first pose = ground truth's), the same estimate and the ground truth it was scored against in TUM format with
+the frames' timestamps, ``trajectories/<sequence>.tum`` and ``trajectories/<sequence>_gt.tum`` (so that
+``evo_ape tum <sequence>_gt.tum <sequence>.tum`` gives lossvo's APE), ``plots/<sequence>.png`` (bird's-eye x-z
+view), a ``/`` in a sequence's name written ``_`` (:func:`file_stem`), and
 ``results.json``: a :class:`Results`, written by :meth:`Results.write` and read back by
 :meth:`Results.read`, nowhere else. It holds APE / RPE / KITTI error per sequence and pooled over all
 (:class:`Scores`), the data evaluated and the data the network was trained on (:class:`DataRecord`), the
@@ -38,7 +41,7 @@ from lossvo.data.kitti import KittiFormatError, pose_path, sequence_names, write
 from lossvo.evaluation import metrics
 from lossvo.evaluation.inference import predict_sequence
 from lossvo.evaluation.plots import plot_birdseye
-from lossvo.evaluation.trajectories import integrate, scale_steps
+from lossvo.evaluation.trajectories import integrate, scale_steps, write_tum
 
 if TYPE_CHECKING:
     from lossvo.data.datamodules import VODataModule
@@ -618,9 +621,9 @@ def evaluate_run(
         gt = _ground_truth(datamodule, name)
         est, scores = predict_and_score(module, datamodule, name, gt, pooled, carry_state,
                                         mirror_average=mirror_average)  # fmt: skip
-        gt_file = None if gt is None else str(pose_path(datamodule.dataset_root(), name))
-        per_sequence[name] = _sequence_result(name, est, gt, scores, out_dir, record, gt_file, name in unseen,
-                                              translation)  # fmt: skip
+        times = datamodule.sequence_times(name)
+        per_sequence[name] = _sequence_result(name, est, gt, scores, out_dir, record, times, name in unseen,
+                                              translation, _pose_file(datamodule, name, gt))  # fmt: skip
     evaluated = [name for name, entry in per_sequence.items() if entry.scores is not None]
     computed = pooled.compute()
     overall = Overall([], note=NO_METRICS_NOTE) if computed is None else Overall(evaluated, _scores(computed))
@@ -653,13 +656,33 @@ def _scores(computed: dict[str, Any]) -> Scores:
     return scores
 
 
+def file_stem(name: str) -> str:
+    """A sequence's name as a file name: ``"office/Easy/P000"`` -> ``"office_Easy_P000"``."""
+    return name.replace("/", "_")
+
+
+def _pose_file(datamodule: VODataModule, name: str, gt: np.ndarray | None) -> str | None:
+    """The dataset's KITTI pose file of a sequence with ground truth (KITTI layout), else None."""
+    if gt is None or datamodule.layout != "kitti":
+        return None
+    return str(pose_path(datamodule.dataset_root(), name))
+
+
 def _sequence_result(
     name: str, est: Tensor, gt: np.ndarray | None, scores: dict[str, Any] | None, out_dir: Path,
-    loss: LossRecord, gt_file: str | None, unseen: bool, translation: str = TRANSLATION_METRIC,
+    loss: LossRecord, times: np.ndarray, unseen: bool, translation: str = TRANSLATION_METRIC,
+    pose_file: str | None = None,
 ) -> SequenceResult:  # fmt: skip
-    """One sequence's trajectory file, plot and entry in ``results.json``, from :func:`predict_and_score`'s
-    trajectory and scores."""
-    trajectory, plot = f"trajectories/{name}.txt", f"plots/{name}.png"
+    """One sequence's trajectory files, plot and entry in ``results.json``, from :func:`predict_and_score`'s
+    trajectory and scores; ``times`` (N,) s of its frames. The entry's ground truth is ``pose_file`` (the
+    dataset's KITTI pose file) where given, else the ``_gt.tum`` written here."""
+    stem = file_stem(name)
+    trajectory, plot = f"trajectories/{stem}.txt", f"plots/{stem}.png"
+    write_tum(out_dir / f"trajectories/{stem}.tum", times, est)
+    gt_file = None
+    if gt is not None:
+        write_tum(out_dir / f"trajectories/{stem}_gt.tum", times, gt)
+        gt_file = pose_file or str((out_dir / f"trajectories/{stem}_gt.tum").resolve())
     if scores is None:
         entry = SequenceResult(len(est), trajectory, plot, gt_file, unseen, note=NO_GT_NOTE)
         log.info("sequence %s: %s", name, NO_GT_NOTE)

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from lossvo.atomic import write_text_atomic
+from lossvo.evaluation.results import file_stem
 from lossvo.report import render
 from lossvo.report.against_baselines import (
     UNSEEN_KEY,
@@ -442,8 +443,9 @@ def write_figures(
     figures.notes += ground_truth_note(missing)
     for s in sequences:
         extra = {k: v for k, v in base.trajectories.get(s, {}).items() if not k.startswith("zero")}
-        plot_trajectories(s, networks, gt.get(s), extra, folder / f"trajectory_{s}.png")
-        figures.paths.append(folder / f"trajectory_{s}.png")
+        path = folder / f"trajectory_{file_stem(s)}.png"
+        plot_trajectories(s, networks, gt.get(s), extra, path)
+        figures.paths.append(path)
     return figures
 
 

@@ -34,6 +34,7 @@ from lossvo.checks import is_number
 from lossvo.console import first_line
 from lossvo.data.kitti import KittiFormatError, read_poses, sequence_names
 from lossvo.evaluation.results import TRANSLATION_METRIC, DataRecord, Results, ResultsError, Scores
+from lossvo.evaluation.trajectories import read_tum
 
 REPLICATE_KEY = "seed"
 """The override that names a replicate of a configuration; every other varying override names one."""
@@ -401,7 +402,7 @@ def read_trajectory(job: Job, sequence: str) -> np.ndarray | None:
 
 def ground_truth(job: Job, sequences: Sequence[str]) -> tuple[dict[str, np.ndarray], dict[str, str]]:
     """Ground-truth poses (N, 4, 4), translation in m, of the sequences, read from the pose files that the
-    job's results.json names (``sequences[s].ground_truth``).
+    job's results.json names (``sequences[s].ground_truth``: a KITTI pose file, or a TUM file ``.tum``).
 
     Returns:
         ``{sequence: poses}`` of the sequences whose file could be read, and ``{sequence: reason}`` of the
@@ -415,7 +416,7 @@ def ground_truth(job: Job, sequences: Sequence[str]) -> tuple[dict[str, np.ndarr
             missing[s] = f"{job.path.name}/results.json names no ground-truth file"
             continue
         try:
-            found[s] = read_poses(path)
+            found[s] = read_tum(path)[1] if path.endswith(".tum") else read_poses(path)
         except KittiFormatError as e:
             missing[s] = str(e)
     return found, missing
