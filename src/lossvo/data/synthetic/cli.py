@@ -1,5 +1,6 @@
-"""The command line: ``python -m lossvo.data.synthetic --out DIR [--sequences 00,07] [--frames N]
-[--height H --width W] [--seed S] [--workers N] [--mix NN=FAMILY[:W][+FAMILY[:W]]] [--quiet]``.
+"""The command line: ``python -m lossvo.data.synthetic --out DIR [--layout kitti|tum|euroc|tartanair|mimir]
+[--sequences 00,07] [--frames N] [--scale F | --height H --width W] [--seed S] [--workers N]
+[--mix NN=FAMILY[:W][+FAMILY[:W]]] [--quiet]``.
 
 Bad values end in one line on stderr and exit status 2, before anything is written (with
 ``LOSSVO_FULL_ERROR=1`` in the environment, in their traceback instead).
@@ -15,31 +16,40 @@ from pathlib import Path
 
 from lossvo.console import OneLineParser, raise_if_full_error
 from lossvo.data import kitti
-from lossvo.data.synthetic import routes
+from lossvo.data.synthetic import layouts, routes
 from lossvo.data.synthetic.parameters import (
     DEFAULT_HEIGHT,
     DEFAULT_WIDTH,
     SEQUENCES,
-    check_size,
     parse_sequences,
     resolve_frames,
 )
-from lossvo.data.synthetic.writer import generate
+from lossvo.data.synthetic.writer import frame_size, generate
 
-DESCRIPTION = "Synthetic KITTI-odometry dataset: a procedural town rendered along car-like routes."
+DESCRIPTION = (
+    "Synthetic dataset: a procedural town rendered along car-like routes, in the KITTI odometry layout or "
+    "another dataset's (TUM RGB-D, EuRoC, TartanAir, MIMIR)."
+)
 
 
 def _parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="python -m lossvo.data.synthetic", description=DESCRIPTION)
-    p.add_argument("--out", type=Path, required=True, help="dataset root to write (KITTI odometry layout)")
+    p.add_argument("--out", type=Path, required=True, help="dataset root to write")
+    p.add_argument("--layout", default="kitti", choices=layouts.LAYOUTS,
+                   help="the dataset layout to write (default: kitti)")  # fmt: skip
     p.add_argument(
         "--sequences", default=",".join(SEQUENCES), help="comma-separated, e.g. 00,07 (default: 00..12)"
     )
     p.add_argument(
         "--frames", type=int, default=None, help="frames per sequence (default: 100-240 by sequence)"
     )
-    p.add_argument("--height", type=int, default=DEFAULT_HEIGHT, help=f"pixels (default: {DEFAULT_HEIGHT})")
-    p.add_argument("--width", type=int, default=DEFAULT_WIDTH, help=f"pixels (default: {DEFAULT_WIDTH})")
+    p.add_argument("--scale", type=float, default=1.0,
+                   help="times the layout's default size (kitti 160x512, tum/tartanair 640x480, "
+                   "euroc 752x480, mimir 720x540; default: 1)")  # fmt: skip
+    p.add_argument("--height", type=int, default=None,
+                   help=f"pixels (default: the layout's, kitti {DEFAULT_HEIGHT}, times --scale)")  # fmt: skip
+    p.add_argument("--width", type=int, default=None,
+                   help=f"pixels (default: the layout's, kitti {DEFAULT_WIDTH}, times --scale)")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="same seed, same bytes (default: 0)")
     p.add_argument("--workers", type=int, default=None,
                    help="processes (default: one per core; one below 10 million pixels in all)")  # fmt: skip
@@ -75,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         counts = resolve_frames(args.sequences, args.frames, prefix="--")
-        check_size(args.height, args.width, prefix="--")
+        height, width = frame_size(args.layout, args.height, args.width, args.scale, prefix="--")
         if args.workers is not None and args.workers < 1:
             raise ValueError(f"--workers: must be >= 1, got {args.workers}")
         spec = routes.route_spec(mixes=dict(parse_mix(m) for m in args.mix))
@@ -87,20 +97,32 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     try:
         out = generate(
-            args.out, counts, counts, args.height, args.width, args.seed, not args.quiet, args.workers, spec
+            args.out,
+            counts,
+            counts,
+            height,
+            width,
+            args.seed,
+            not args.quiet,
+            args.workers,
+            spec,
+            args.layout,
         )
     except OSError as err:  # a folder it may not write to, a full disk
         raise_if_full_error()
         parser.error(f"--out: cannot write {err.filename or args.out}: {err.strerror or err}")
     if not args.quiet:
-        size = dataset_size(out, counts)
+        size = dataset_size(out, counts, args.layout)
         elapsed = time.perf_counter() - start
         print(f"synthetic: wrote {out} in {elapsed:.1f} s, {size / 1e6:.0f} MB", file=sys.stderr)
     return 0
 
 
-def dataset_size(root: Path, sequences: Iterable[str]) -> int:
+def dataset_size(root: Path, sequences: Iterable[str], layout: str = "kitti") -> int:
     """Bytes on disk of the given sequences' images, calibration, timestamps and pose files."""
+    if layout != "kitti":
+        folders = [root / layouts.sequence_name(layout, s) for s in sequences]
+        return sum(p.stat().st_size for f in folders for p in f.rglob("*") if p.is_file())
     files = [p for s in sequences for p in (root / "sequences" / s).rglob("*") if p.is_file()]
     files += [kitti.pose_path(root, s) for s in sequences]
     return sum(p.stat().st_size for p in files if p.is_file())

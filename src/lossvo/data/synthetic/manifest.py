@@ -11,16 +11,17 @@ import json
 from pathlib import Path
 
 from lossvo.data import kitti
-from lossvo.data.synthetic import routes
+from lossvo.data.synthetic import layouts, routes
 
 MANIFEST = "lossvo_synthetic.json"
 VERSION = 2
 """Bumped whenever the rendered content changes, so that ensure_dataset regenerates old datasets."""
 
 
-def header(height: int, width: int, seed: int, spec: routes.RouteSpec) -> dict:
+def header(height: int, width: int, seed: int, spec: routes.RouteSpec, layout: str = "kitti") -> dict:
     """The manifest entries that every sequence of one dataset shares (JSON-normalised, so that they
-    compare equal to the ones read back from a manifest)."""
+    compare equal to the ones read back from a manifest); a "layout" entry for layouts other than kitti
+    (a manifest without one is a KITTI-layout dataset)."""
     entries = {
         "generator": "lossvo.data.synthetic",
         "version": VERSION,
@@ -29,6 +30,8 @@ def header(height: int, width: int, seed: int, spec: routes.RouteSpec) -> dict:
         "seed": seed,
         "routes": spec.manifest(),
     }
+    if layout != "kitti":
+        entries["layout"] = layout
     return json.loads(json.dumps(entries))
 
 
@@ -51,9 +54,17 @@ def sequence_complete(root: Path, sequence: str, n_frames: int) -> bool:
 
 def complete_sequences(root: Path, shared: dict) -> dict[str, int]:
     """{sequence: frames} of the dataset under root whose manifest has the entries shared (a
-    :func:`header`), for the sequences it lists whose files are all present; {} for any other root."""
+    :func:`header`, the same layout), for the sequences it lists whose files are all present; {} for any
+    other root."""
     manifest = read_manifest(root)
-    if manifest is None or any(manifest.get(k) != v for k, v in shared.items()):
+    layout = shared.get("layout", "kitti")
+    if (
+        manifest is None
+        or any(manifest.get(k) != v for k, v in shared.items())
+        or manifest.get("layout", "kitti") != layout
+    ):
         return {}
     frames = manifest.get("frames", {})
-    return {s: n for s, n in frames.items() if sequence_complete(root, s, n)}
+    if layout == "kitti":
+        return {s: n for s, n in frames.items() if sequence_complete(root, s, n)}
+    return {s: n for s, n in frames.items() if layouts.sequence_complete(root, layout, s, n)}

@@ -5,6 +5,9 @@ ray per pixel is intersected with the ground and with each visible wall and pole
 occluded ones skipped, depth test) into a g-buffer; textures are then looked up once per pixel with
 trilinear mip-mapping via ``cv2.remap`` (texture anti-aliasing; silhouettes are not supersampled by
 default, see SUPERSAMPLE), shaded (Lambert), fogged towards the sky, and sensor noise is added.
+
+A camera with lens distortion is rendered distorted: each pixel's ray is its undistorted normalised
+coordinate (:func:`undistorted_rays`), and objects find their pixels through :class:`RayGrid`.
 """
 
 from __future__ import annotations
@@ -66,15 +69,92 @@ class GBuffer:
             np.copyto(getattr(self, name), value, where=mask, casting="unsafe")
 
 
+UNDISTORT_ITERATIONS = 200
+"""Fixed-point iterations at most when undistorting the pixel grid (stops once converged)."""
+UNDISTORT_TOLERANCE = 1e-10
+"""Largest residual (normalised image units) of an undistorted ray re-distorted onto its pixel."""
+
+
+def distort(x: np.ndarray, y: np.ndarray, distortion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's radial-tangential model: normalised undistorted (x, y) (any shape) -> distorted, with
+    distortion (k1, k2, p1, p2[, k3])."""
+    radial, dx, dy = _lens_terms(x, y, distortion)
+    return x * radial + dx, y * radial + dy
+
+
+def _lens_terms(
+    x: np.ndarray, y: np.ndarray, distortion: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The radial factor and the tangential offsets (dx, dy) of the model at normalised (x, y)."""
+    k1, k2, p1, p2, k3 = np.concatenate([np.asarray(distortion, np.float64), np.zeros(5)])[:5]
+    r2 = x * x + y * y
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    return radial, 2 * p1 * x * y + p2 * (r2 + 2 * x * x), p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+
+
+def undistorted_rays(
+    K: np.ndarray, distortion: np.ndarray, size: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Undistorted normalised coordinates (x/z, y/z) of every pixel centre of a (h, w) = size frame seen
+    through K (3, 3, pixels) and distortion (k1, k2, p1, p2[, k3]): (h, w) float64 each.
+
+    OpenCV's fixed-point iteration (as cv2.undistortPoints), run until every pixel re-distorts onto its
+    centre within UNDISTORT_TOLERANCE; ValueError where it does not converge (a lens model that folds).
+    """
+    h, w = size
+    xd = np.broadcast_to((np.arange(w) - K[0, 2]) / K[0, 0], (h, w))
+    yd = np.broadcast_to((np.arange(h)[:, None] - K[1, 2]) / K[1, 1], (h, w))
+    x, y = xd.copy(), yd.copy()
+    for _ in range(UNDISTORT_ITERATIONS):
+        fx, fy = distort(x, y, distortion)
+        if max(np.abs(fx - xd).max(), np.abs(fy - yd).max()) < UNDISTORT_TOLERANCE:
+            return x, y
+        radial, dx, dy = _lens_terms(x, y, distortion)
+        x, y = (xd - dx) / radial, (yd - dy) / radial
+    raise ValueError(f"distortion {list(distortion)}: the pixel grid does not undistort (no convergence)")
+
+
+@dataclass
+class RayGrid:
+    """Per-pixel rays of a distorted camera: ux, uy (h, w) float32 undistorted normalised coordinates, and
+    monotone envelopes that turn a rectangle of normalised coordinates into the window of the pixels whose
+    rays may fall in it: col_max[c] = max of ux over columns <= c, col_min[c] = min over columns >= c
+    (likewise rows with uy)."""
+
+    ux: np.ndarray
+    uy: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.col_max = np.maximum.accumulate(self.ux.max(0).astype(np.float64))
+        self.col_min = np.minimum.accumulate(self.ux.min(0).astype(np.float64)[::-1])[::-1]
+        self.row_max = np.maximum.accumulate(self.uy.max(1).astype(np.float64))
+        self.row_min = np.minimum.accumulate(self.uy.min(1).astype(np.float64)[::-1])[::-1]
+
+    def windows(self, x0: np.ndarray, x1: np.ndarray, y0: np.ndarray, y1: np.ndarray) -> np.ndarray:
+        """(M, 4) int rows r0, r1, c0, c1 (half-open, one pixel of margin) of the pixels whose rays may
+        fall in the rectangles [x0, x1] x [y0, y1] (M,) of normalised coordinates."""
+        h, w = self.ux.shape
+        c0 = np.searchsorted(self.col_max, x0, side="left") - 1
+        c1 = np.searchsorted(self.col_min, x1, side="right") + 1
+        r0 = np.searchsorted(self.row_max, y0, side="left") - 1
+        r1 = np.searchsorted(self.row_min, y1, side="right") + 1
+        return np.clip(np.stack([r0, r1, c0, c1], 1), 0, [h, h, w, w]).astype(np.int64)
+
+
 def screen_bounds(
-    corners: np.ndarray, edges: np.ndarray, K: np.ndarray, size: tuple[int, int], cull: float
+    corners: np.ndarray,
+    edges: np.ndarray,
+    K: np.ndarray,
+    size: tuple[int, int],
+    cull: float,
+    grid: RayGrid | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Pixel windows of convex objects given their corners (M, n, 3) in camera coordinates (m).
 
     The object is clipped at depth NEAR (corners in front plus edge crossings), projected with K (3, 3)
-    and bounded. Returns (M, 4) int rows r0, r1, c0, c1 (half-open, clipped to size = (h, w); empty
-    windows mark objects out of view or wholly deeper than cull metres) and (M,) the smallest depth (m)
-    of the clipped object.
+    and bounded (through grid's rays instead of K when given). Returns (M, 4) int rows r0, r1, c0, c1
+    (half-open, clipped to size = (h, w); empty windows mark objects out of view or wholly deeper than
+    cull metres) and (M,) the smallest depth (m) of the clipped object.
     """
     a, b = corners[:, edges[:, 0]], corners[:, edges[:, 1]]
     za, zb = a[..., 2], b[..., 2]
@@ -84,12 +164,18 @@ def screen_bounds(
     pts = np.concatenate([corners, a + s[..., None] * (b - a)], 1)
     ok = np.concatenate([corners[..., 2] > NEAR, crossing], 1)
     z = np.where(ok, np.maximum(pts[..., 2], NEAR), 1.0)
-    u, v = K[0, 0] * pts[..., 0] / z + K[0, 2], K[1, 1] * pts[..., 1] / z + K[1, 2]
+    if grid is None:
+        u, v = K[0, 0] * pts[..., 0] / z + K[0, 2], K[1, 1] * pts[..., 1] / z + K[1, 2]
+    else:
+        u, v = pts[..., 0] / z, pts[..., 1] / z
     lo_u, hi_u = np.where(ok, u, np.inf).min(1), np.where(ok, u, -np.inf).max(1)
     lo_v, hi_v = np.where(ok, v, np.inf).min(1), np.where(ok, v, -np.inf).max(1)
     h, w = size
-    bounds = np.stack([np.floor(lo_v) - 1, np.ceil(hi_v) + 2, np.floor(lo_u) - 1, np.ceil(hi_u) + 2], 1)
-    bounds = np.clip(bounds, 0, [h, h, w, w]).astype(np.int64)
+    if grid is None:
+        bounds = np.stack([np.floor(lo_v) - 1, np.ceil(hi_v) + 2, np.floor(lo_u) - 1, np.ceil(hi_u) + 2], 1)
+        bounds = np.clip(bounds, 0, [h, h, w, w]).astype(np.int64)
+    else:
+        bounds = grid.windows(lo_u, hi_u, lo_v, hi_v)
     zmin = np.where(ok, z, np.inf).min(1)
     bounds[zmin > cull] = 0
     return bounds, zmin
@@ -103,22 +189,37 @@ def _lut(values: np.ndarray) -> np.ndarray:
 
 
 class Renderer:
-    """Renders a world from camera poses: (height, width, 3) uint8 BGR frames with intrinsics K (3, 3).
+    """Renders a world from camera poses: (height, width, 3) uint8 BGR frames with intrinsics K (3, 3) and,
+    when given and not all zero, lens distortion (k1, k2, p1, p2[, k3]) (frames rendered distorted).
 
     Deferred shading: each object writes its nearer hits into a g-buffer (one window of pixels per
     object, nearest objects first, occluded ones skipped); one pass then samples the textures, shades,
     fogs and composites over the sky; a last one area-averages the supersampled frame and adds noise.
     """
 
-    def __init__(self, world: World, K: np.ndarray, height: int, width: int, supersample: int | None = None):
+    def __init__(
+        self,
+        world: World,
+        K: np.ndarray,
+        height: int,
+        width: int,
+        supersample: int | None = None,
+        distortion: np.ndarray | None = None,
+    ):
         s = SUPERSAMPLE if supersample is None else supersample
         self.world, self.size, self.s = world, (height, width), s
         self.Ks = np.diag([s, s, 1.0]) @ K
         self.Ks[:2, 2] += 0.5 * (s - 1)  # pixel centres: c' = (c + 0.5) s - 0.5
         self.hs, self.ws = height * s, width * s
-        self.ux = ((np.arange(self.ws) - self.Ks[0, 2]) / self.Ks[0, 0]).astype(np.float32)
-        self.uy = ((np.arange(self.hs) - self.Ks[1, 2]) / self.Ks[1, 1]).astype(np.float32)
-        self.dnorm = np.sqrt(self.ux[None, :] ** 2 + self.uy[:, None] ** 2 + 1.0).astype(np.float32)
+        self.grid: RayGrid | None = None
+        if distortion is not None and np.any(np.asarray(distortion) != 0):
+            ux, uy = undistorted_rays(self.Ks, np.asarray(distortion, np.float64), (self.hs, self.ws))
+            self.grid = RayGrid(ux.astype(np.float32), uy.astype(np.float32))
+            self.ux, self.uy = self.grid.ux, self.grid.uy
+        else:  # (1, ws) and (hs, 1): broadcast over the frame
+            self.ux = ((np.arange(self.ws) - self.Ks[0, 2]) / self.Ks[0, 0]).astype(np.float32)[None, :]
+            self.uy = ((np.arange(self.hs) - self.Ks[1, 2]) / self.Ks[1, 1]).astype(np.float32)[:, None]
+        self.dnorm = np.sqrt(self.ux**2 + self.uy**2 + 1.0).astype(np.float32)
         self.texel_scale = np.float32(TEXELS_PER_M / math.sqrt(self.Ks[0, 0] * self.Ks[1, 1]))
         self.cull = min(CULL, 3.0 * world.fog_distance)
         self.tile_luts = self._tile_luts(world)
@@ -166,10 +267,7 @@ class Renderer:
     def render(self, T_w_c: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Frame (height, width, 3) uint8 BGR seen from pose T_w_c (4, 4); rng draws the sensor noise."""
         R, c = T_w_c[:3, :3], T_w_c[:3, 3]
-        d = [
-            (R[i, 0] * self.ux[None, :] + R[i, 1] * self.uy[:, None] + R[i, 2]).astype(np.float32)
-            for i in range(3)
-        ]
+        d = [(R[i, 0] * self.ux + R[i, 1] * self.uy + R[i, 2]).astype(np.float32) for i in range(3)]
         g = self._ground(d, c)
         for m, window in self._visible(g, (self.wall_corners - c) @ R, _RECT_EDGES):
             self._draw_wall(g.view(window), [a[window] for a in d], m, c)
@@ -183,7 +281,7 @@ class Renderer:
     ) -> Iterator[tuple[int, tuple[slice, slice]]]:
         """(index, pixel window) of the objects in view (corners (M, n, 3) in camera coordinates), nearest
         first, skipping those deeper than max_depth (M,) and those wholly behind what g holds by then."""
-        bounds, zmin = screen_bounds(corners, edges, self.Ks, (self.hs, self.ws), self.cull)
+        bounds, zmin = screen_bounds(corners, edges, self.Ks, (self.hs, self.ws), self.cull, self.grid)
         seen = (bounds[:, 0] < bounds[:, 1]) & (bounds[:, 2] < bounds[:, 3])
         if max_depth is not None:
             seen &= zmin < max_depth

@@ -1,5 +1,6 @@
-"""Writing datasets: each sequence rendered into the KITTI odometry layout and moved into place whole,
-sequences in parallel processes, the manifest last; :func:`generate` and :func:`ensure_dataset`.
+"""Writing datasets: each sequence rendered into the KITTI odometry layout (or another layout,
+:mod:`~lossvo.data.synthetic.layouts`) and moved into place whole, sequences in parallel processes, the
+manifest last; :func:`generate` and :func:`ensure_dataset`.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import cv2
 
 from lossvo.atomic import write_text_atomic
 from lossvo.data import kitti
-from lossvo.data.synthetic import manifest, routes
+from lossvo.data.synthetic import layouts, manifest, routes
 from lossvo.data.synthetic.camera import calib_text, intrinsics
 from lossvo.data.synthetic.parameters import (
     DEFAULT_HEIGHT,
@@ -27,14 +28,12 @@ from lossvo.data.synthetic.parameters import (
     check_size,
     resolve_frames,
 )
+from lossvo.data.synthetic.png import write_png
 from lossvo.data.synthetic.render import Renderer
 from lossvo.data.synthetic.world import scene
 
 FRAME_RATE = 10.0
 """Frames per second (KITTI's 10 Hz): the timestamps of times.txt."""
-PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY]
-if hasattr(cv2, "IMWRITE_PNG_FILTER"):  # OpenCV >= 4.10: one fixed filter is 1.5x faster than choosing
-    PNG_PARAMS += [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_PAETH]
 
 
 def times_text(n_frames: int) -> str:
@@ -54,23 +53,22 @@ def render_sequence(
     (folder / sequence / "times.txt").write_text(times_text(n_frames))
     renderer = Renderer(world, K, height, width)
     for k, T in enumerate(poses):
-        path = folder / sequence / "image_2" / f"{k:06d}.png"
-        encoded, png = cv2.imencode(".png", renderer.render(T, noise), PNG_PARAMS)
-        if not encoded:
-            raise RuntimeError(f"OpenCV could not encode {path}")
-        path.write_bytes(png.tobytes())  # a full disk is an OSError naming the file and the cause
+        write_png(folder / sequence / "image_2" / f"{k:06d}.png", renderer.render(T, noise))
     kitti.write_poses(folder / f"{sequence}.txt", poses)
 
 
 def write_sequence(
     out: Path, sequence: str, n_frames: int, height: int, width: int, seed: int,
-    spec: routes.RouteSpec = routes.DEFAULT_SPEC,
+    spec: routes.RouteSpec = routes.DEFAULT_SPEC, layout: str = "kitti",
 ) -> float:  # fmt: skip
     """Render one sequence into the dataset root out, atomically; returns the seconds it took.
 
-    Everything is rendered into a temporary folder inside out first (removed on failure); the sequence
-    folder and then its poses file are moved into place only once complete.
+    Layouts other than kitti: :func:`lossvo.data.synthetic.layouts.write_sequence`. Everything is
+    rendered into a temporary folder inside out first (removed on failure); the sequence folder and then
+    its poses file are moved into place only once complete.
     """
+    if layout != "kitti":
+        return layouts.write_sequence(out, layout, sequence, n_frames, (height, width), seed, spec)
     start = time.perf_counter()
     tmp = out / f".tmp-{sequence}-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
@@ -103,11 +101,11 @@ def _worker_count(jobs: int, workers: int | None, pixels: int) -> int:
 
 def _render_all(
     out: Path, counts: dict[str, int], height: int, width: int, seed: int, progress: bool,
-    workers: int | None, spec: routes.RouteSpec,
+    workers: int | None, spec: routes.RouteSpec, layout: str = "kitti",
 ) -> None:  # fmt: skip
     """Render the sequences, in parallel spawned worker processes when there are several and cores to spare
     (so a calling script needs the usual ``if __name__ == "__main__":`` guard)."""
-    jobs = [(out, s, n, height, width, seed, spec) for s, n in counts.items()]
+    jobs = [(out, s, n, height, width, seed, spec, layout) for s, n in counts.items()]
     workers = _worker_count(len(jobs), workers, sum(counts.values()) * height * width)
     pool = None
     if workers > 1:
@@ -120,7 +118,8 @@ def _render_all(
         for (_, s, n, *_), seconds in zip(jobs, results, strict=True):
             if progress:
                 print(
-                    f"synthetic: sequence {s}: {n} frames {height}x{width} in {seconds:.1f} s",
+                    f"synthetic: sequence {layouts.sequence_name(layout, s)}: {n} frames {height}x{width} "
+                    f"in {seconds:.1f} s",
                     file=sys.stderr,
                 )
     finally:
@@ -128,33 +127,59 @@ def _render_all(
             pool.shutdown(cancel_futures=True)
 
 
+def frame_size(
+    layout: str = "kitti",
+    height: int | None = None,
+    width: int | None = None,
+    scale: float = 1.0,
+    prefix: str = "",
+) -> tuple[int, int]:
+    """(H, W) pixels a layout is rendered at: height and width where given, else the layout's default
+    (kitti DEFAULT_HEIGHT x DEFAULT_WIDTH, the others their datasets' native sizes) times scale; checked
+    (ValueError, parameter names after prefix)."""
+    layouts.check_layout(layout)
+    default = (DEFAULT_HEIGHT, DEFAULT_WIDTH) if layout == "kitti" else layouts.SPECS[layout].size
+    try:
+        scaled = layouts.scaled_size(default, scale)
+    except ValueError as err:
+        raise ValueError(f"{prefix}{err}") from None
+    size = (scaled[0] if height is None else height, scaled[1] if width is None else width)
+    check_size(*size, prefix=prefix)
+    return size
+
+
 def generate(
     out: str | Path,
     sequences: Iterable[str] = SEQUENCES,
     frames: int | Mapping[str, int] | None = None,
-    height: int = DEFAULT_HEIGHT,
-    width: int = DEFAULT_WIDTH,
+    height: int | None = None,
+    width: int | None = None,
     seed: int = 0,
     progress: bool = True,
     workers: int | None = None,
     spec: routes.RouteSpec = routes.DEFAULT_SPEC,
+    layout: str = "kitti",
+    scale: float = 1.0,
 ) -> Path:
-    """Render the synthetic dataset into out in the KITTI odometry layout; returns out as a Path.
+    """Render the synthetic dataset into out in a layout (:data:`lossvo.data.synthetic.layouts.LAYOUTS`,
+    default the KITTI odometry layout); returns out as a Path.
 
-    sequences: two-digit names; frames: None (DEFAULT_FRAMES), one count for all, or a mapping; height,
-    width: pixels; seed: the same seed gives byte-identical files; spec: route families and mixes
+    sequences: two-digit names (each layout names them its own way,
+    :func:`lossvo.data.synthetic.layouts.sequence_name`); frames: None (DEFAULT_FRAMES), one count for
+    all, or a mapping; height, width: pixels, by default the layout's size times scale
+    (:func:`frame_size`); seed: the same seed gives byte-identical files; spec: route families and mixes
     (:func:`lossvo.data.synthetic.routes.route_spec`). Sequences of an earlier dataset in out generated
-    with the same size, seed and spec are kept. The manifest is removed first and written last, so
-    an interrupted run never looks complete.
+    with the same layout, size, seed and spec are kept. The manifest is removed first and written last,
+    so an interrupted run never looks complete.
     """
     out = Path(out)
     counts = resolve_frames(sequences, frames)
-    check_size(height, width)
+    height, width = frame_size(layout, height, width, scale)
     out.mkdir(parents=True, exist_ok=True)
-    shared = manifest.header(height, width, seed, spec)
+    shared = manifest.header(height, width, seed, spec, layout)
     kept = {s: n for s, n in manifest.complete_sequences(out, shared).items() if s not in counts}
     (out / manifest.MANIFEST).unlink(missing_ok=True)
-    _render_all(out, counts, height, width, seed, progress, workers, spec)
+    _render_all(out, counts, height, width, seed, progress, workers, spec, layout)
     entries = {**shared, "frames": dict(sorted({**kept, **counts}.items()))}
     write_text_atomic(out / manifest.MANIFEST, json.dumps(entries, indent=2) + "\n")
     return out
@@ -164,21 +189,25 @@ def ensure_dataset(
     root: str | Path,
     sequences: Iterable[str] = SEQUENCES,
     frames: int | Mapping[str, int] | None = None,
-    height: int = DEFAULT_HEIGHT,
-    width: int = DEFAULT_WIDTH,
+    height: int | None = None,
+    width: int | None = None,
     seed: int = 0,
     progress: bool = True,
     workers: int | None = None,
     spec: routes.RouteSpec = routes.DEFAULT_SPEC,
+    layout: str = "kitti",
+    scale: float = 1.0,
 ) -> Path:
     """Root as a Path, holding the requested synthetic sequences: generated unless already there.
 
-    Nothing is rendered when root's manifest has the same generator version, size, seed and routes and
-    lists every requested sequence with the requested frame count, and those sequences' files are present.
+    Nothing is rendered when root's manifest has the same generator version, layout, size, seed and routes
+    and lists every requested sequence with the requested frame count, and those sequences' files are
+    present. Parameters as :func:`generate`.
     """
     root = Path(root)
     counts = resolve_frames(sequences, frames)
-    present = manifest.complete_sequences(root, manifest.header(height, width, seed, spec))
+    height, width = frame_size(layout, height, width, scale)
+    present = manifest.complete_sequences(root, manifest.header(height, width, seed, spec, layout))
     if all(present.get(s) == n for s, n in counts.items()):
         return root
-    return generate(root, counts, counts, height, width, seed, progress, workers, spec)
+    return generate(root, counts, counts, height, width, seed, progress, workers, spec, layout)

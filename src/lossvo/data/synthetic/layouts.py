@@ -1,0 +1,434 @@
+"""The town rendered into the other datasets' own layouts (TUM RGB-D, EuRoC ASL, TartanAir, MIMIR), each
+exactly as lossvo's reader of that layout reads it (:mod:`lossvo.data.tum`, :mod:`~lossvo.data.euroc`,
+:mod:`~lossvo.data.tartanair`, :mod:`~lossvo.data.mimir`).
+
+Per layout: its camera (K and distortion at the rendered size, the one its reader returns), its clock
+(frame stamps, ground-truth stamps at its own rate that never coincide with the frames'), its platform
+(:mod:`~lossvo.data.synthetic.platforms`) and its files. Frames are rendered at their stamps, the ground
+truth evaluated at its own stamps, from one continuous trajectory, so the reader's poses are the rendered
+ones (TUM's association by nearest stamp and EuRoC's and MIMIR's interpolation between ground-truth rows
+add their own, sub-millimetre to few-millimetre, differences, as on the real datasets). Every reader
+returns the rendered T_w_c in the town's world (x right, y down, z forward; TartanAir's and MIMIR's NED
+files are its axes permuted).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from lossvo.data import tartanair, tum
+from lossvo.data.camera import resized_intrinsics
+from lossvo.data.synthetic import platforms, routes
+from lossvo.data.synthetic.png import write_png
+from lossvo.data.synthetic.render import Renderer
+from lossvo.data.synthetic.world import scene, sequence_route
+
+LAYOUTS = ("kitti", "tum", "euroc", "tartanair", "mimir")
+"""Every layout the synthetic dataset can be written in (kitti: :mod:`~lossvo.data.synthetic.writer`)."""
+
+
+@dataclass(frozen=True)
+class Layout:
+    """A dataset layout: native frame size (H, W) pixels, camera and ground-truth rates (Hz; None: a pose
+    a frame), the platform that carries the camera, and whether its frames are grey."""
+
+    name: str
+    size: tuple[int, int]
+    rate_hz: float
+    groundtruth_hz: float | None
+    platform: platforms.Platform
+    grey: bool = False
+
+
+SPECS = {
+    "tum": Layout("tum", tum.SIZE, 30.0, 100.0, platforms.PLATFORMS["handheld"]),
+    "euroc": Layout("euroc", (480, 752), 20.0, 200.0, platforms.PLATFORMS["flying"], grey=True),
+    "tartanair": Layout("tartanair", tartanair.SIZE, tartanair.RATE_HZ, None, platforms.PLATFORMS["drone"]),
+    "mimir": Layout("mimir", (540, 720), 10.0, 100.0, platforms.PLATFORMS["auv"]),
+}
+
+EUROC_K = np.array([[458.654, 0.0, 367.215], [0.0, 457.296, 248.375], [0.0, 0.0, 1.0]])
+"""EuRoC cam0's intrinsics (fu, fv, cu, cv) at 752x480 (its sensor.yaml)."""
+EUROC_DISTORTION = np.array([-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05])
+"""EuRoC cam0's radial-tangential (k1, k2, p1, p2)."""
+EUROC_T_BS = np.array([
+    [0.0148655429818, -0.999880929698, 0.00414029679422, -0.0216401454975],
+    [0.999557249008, 0.0149672133247, 0.025715529948, -0.064676986768],
+    [-0.0257744366974, 0.00375618835797, 0.999660727178, 0.00981073058949],
+    [0.0, 0.0, 0.0, 1.0],
+])  # fmt: skip
+"""EuRoC cam0's pose in the body (IMU) frame (its sensor.yaml), orthonormalised below before use."""
+EUROC_BIASES = (-0.002229, 0.020700, 0.076350, -0.012492, 0.547666, 0.068904)
+"""Gyroscope (rad/s) and accelerometer (m/s^2) biases written in every ground-truth row (V1_01's first)."""
+
+MIMIR_K = np.array([[360.0, 0.0, 360.0], [0.0, 360.0, 270.0], [0.0, 0.0, 1.0]])
+"""A 90-degree pinhole (AirSim's default field of view) at 720x540, without distortion (a simulator)."""
+MIMIR_PITCH = math.radians(15)
+"""The camera looks this far down (the README's front camera)."""
+MIMIR_OFFSET = (0.45, -0.06, 0.0)
+"""Metres: the camera in the body frame (x forward, y right, z down), the README's front camera."""
+MIMIR_ENVIRONMENT = "SyntheticTown"
+
+TUM_START_US = 1_305_031_102_175_304
+"""Microseconds: the first frame's nominal stamp (that of freiburg1_xyz)."""
+TUM_JITTER_US = 3000
+"""Microseconds: frame stamps jitter uniformly by up to this much."""
+ASL_START_NS = 1_403_636_579_763_555_584
+"""Nanoseconds: the first frame's stamp (that of MH_01_easy)."""
+GT_MARGIN_S = 0.1
+"""Seconds of ground truth before the first frame and after the last."""
+
+
+def orthonormal(T: np.ndarray) -> np.ndarray:
+    """(4, 4) rigid transform with T's rotation block projected onto SO(3) (SVD)."""
+    u, _, vt = np.linalg.svd(T[:3, :3])
+    out = T.copy()
+    out[:3, :3] = u @ vt
+    return out
+
+
+P4 = np.eye(4)
+P4[:3, :3] = tartanair.NED_TO_CAMERA
+
+
+def ned(T: np.ndarray) -> np.ndarray:
+    """Poses (..., 4, 4) in the town's axes -> NED body and world axes, the inverse of
+    :func:`lossvo.data.tartanair.ned_to_camera`."""
+    return P4.T @ T @ P4
+
+
+def mimir_T_BS() -> np.ndarray:
+    """(4, 4) the camera in the body frame, both NED-like (x forward, y right, z down): pitched down by
+    MIMIR_PITCH (rotated about y by -MIMIR_PITCH), at MIMIR_OFFSET."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("y", -MIMIR_PITCH).as_matrix()
+    T[:3, 3] = MIMIR_OFFSET
+    return T
+
+
+# --------------------------------------------------------------------------------------------------
+# Names, sizes and cameras
+# --------------------------------------------------------------------------------------------------
+
+
+def sequence_name(layout: str, sequence: str) -> str:
+    """The name a layout's reader knows a town sequence by: "00" -> kitti "00", tum
+    "rgbd_dataset_freiburg1_synthetic_00", euroc "synthetic_00", tartanair "synthetic/Easy/P000", mimir
+    "SyntheticTown/auv0/track0"."""
+    names: dict[str, Callable[[str], str]] = {
+        "kitti": lambda s: s,
+        "tum": lambda s: f"rgbd_dataset_freiburg1_synthetic_{s}",
+        "euroc": lambda s: f"synthetic_{s}",
+        "tartanair": lambda s: f"synthetic/Easy/P{int(s):03d}",
+        "mimir": lambda s: f"{MIMIR_ENVIRONMENT}/auv0/track{int(s)}",
+    }
+    return names[check_layout(layout)](sequence)
+
+
+def check_layout(layout: str) -> str:
+    """layout, or ValueError naming the layouts."""
+    if layout not in LAYOUTS:
+        raise ValueError(f"layout: expected one of {', '.join(LAYOUTS)}, got {layout!r}")
+    return layout
+
+
+def scaled_size(size: tuple[int, int], scale: float) -> tuple[int, int]:
+    """(H, W) pixels of size (H, W) scaled by scale, rounded; ValueError for a scale that is not > 0."""
+    if not (isinstance(scale, int | float) and math.isfinite(scale) and scale > 0):
+        raise ValueError(f"scale: must be a number > 0, got {scale!r}")
+    return round(size[0] * scale), round(size[1] * scale)
+
+
+def camera(layout: str, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """K (3, 3) pixels and distortion (5,) (k1, k2, p1, p2, k3) of a layout's frames of size (H, W): what its
+    reader returns for them."""
+    if layout == "tum":
+        return tum.camera(sequence_name("tum", "00"), size=size)
+    if layout == "euroc":
+        return resized_intrinsics(EUROC_K, SPECS["euroc"].size, size), np.append(EUROC_DISTORTION, 0.0)
+    if layout == "tartanair":
+        return resized_intrinsics(tartanair.K, tartanair.SIZE, size), np.zeros(5)
+    if layout == "mimir":
+        return resized_intrinsics(MIMIR_K, SPECS["mimir"].size, size), np.zeros(5)
+    raise ValueError(f"layout {layout!r}: no camera here (kitti: lossvo.data.synthetic.camera)")
+
+
+def mount(layout: str) -> np.ndarray:
+    """(4, 4) the camera in the platform's frame, town axes (identity but for MIMIR's pitched camera)."""
+    return P4 @ mimir_T_BS() @ P4.T if layout == "mimir" else np.eye(4)
+
+
+# --------------------------------------------------------------------------------------------------
+# Clocks
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Clock:
+    """Integer stamps of frames (N,) and ground truth (M,) (M = 0: one pose a frame) in ticks of unit
+    seconds, and the origin (a tick) of the trajectory's time t = (stamp - origin) * unit >= 0."""
+
+    frames: np.ndarray
+    groundtruth: np.ndarray
+    unit: float
+    origin: int
+
+    def seconds(self, stamps: np.ndarray) -> np.ndarray:
+        """(N,) trajectory times (s) of integer stamps (N,)."""
+        return (np.asarray(stamps, np.int64) - self.origin).astype(np.float64) * self.unit
+
+
+def clock(layout: str, n_frames: int, rng: np.random.Generator) -> Clock:
+    """The stamps of a layout's sequence of n_frames frames. TUM: microseconds, 30 Hz with +-3 ms of
+    jitter, ground truth every 10 ms on a 100 us grid (4 decimals, as TUM writes it), any frame stamp that
+    falls on it moved by 1 us. EuRoC and MIMIR: nanoseconds, regular frames, ground truth offset from them
+    by 1.234567 ms. TartanAir: frame indices at 10 Hz."""
+    spec = SPECS[layout]
+    k = np.arange(n_frames)
+    if layout == "tartanair":
+        return Clock(k.astype(np.int64), np.zeros(0, np.int64), 1.0 / spec.rate_hz, 0)
+    assert spec.groundtruth_hz is not None
+    tick = 1e-6 if layout == "tum" else 1e-9
+    per_s = round(1 / tick)
+    start = ASL_START_NS if layout != "tum" else TUM_START_US
+    frames = start + np.round(k * per_s / spec.rate_hz).astype(np.int64)
+    gt_step = round(per_s / spec.groundtruth_hz)
+    if layout == "tum":
+        frames += rng.integers(-TUM_JITTER_US, TUM_JITTER_US + 1, n_frames)
+        first = (frames[0] - round(GT_MARGIN_S * per_s)) // 100 * 100
+    else:
+        first = frames[0] - round(GT_MARGIN_S * per_s) + 1_234_567
+    count = int((frames[-1] + GT_MARGIN_S * per_s - first) // gt_step) + 1
+    groundtruth = first + gt_step * np.arange(count, dtype=np.int64)
+    frames += np.isin(frames, groundtruth)
+    return Clock(frames, groundtruth, tick, int(first))
+
+
+# --------------------------------------------------------------------------------------------------
+# Files
+# --------------------------------------------------------------------------------------------------
+
+
+def _quaternions(T: np.ndarray) -> np.ndarray:
+    """(N, 4) unit quaternions (x, y, z, w), w >= 0, of the rotations of poses T (N, 4, 4)."""
+    q = Rotation.from_matrix(T[:, :3, :3]).as_quat()
+    return q * np.where(q[:, 3:] < 0, -1.0, 1.0)
+
+
+def _rows(values: np.ndarray, sep: str) -> list[str]:
+    """Each row of values (N, C) as numbers of 10 significant digits joined by sep."""
+    return [sep.join(f"{v:.10g}" for v in row) for row in values]
+
+
+def _tum_stamp(us: int, decimals: int) -> str:
+    """Microseconds -> 'seconds.fraction' with 6 or 4 decimals (exact: 4 only on a 100 us grid)."""
+    sec, rest = divmod(int(us), 1_000_000)
+    return f"{sec}.{rest:06d}" if decimals == 6 else f"{sec}.{rest // 100:04d}"
+
+
+def write_tum(folder: Path, name: str, c: Clock, gt: np.ndarray) -> list[Path]:
+    """rgb.txt and groundtruth.txt (gt: (M, 4, 4) T_w_c at c.groundtruth) of a TUM sequence; returns the
+    frame paths to render into."""
+    (folder / "rgb").mkdir(parents=True)
+    frames = [f"rgb/{_tum_stamp(us, 6)}.png" for us in c.frames]
+    header = f"# file: '{name}.bag'\n# timestamp "
+    lines = [f"{_tum_stamp(us, 6)} {f}" for us, f in zip(c.frames, frames, strict=True)]
+    (folder / "rgb.txt").write_text(f"# color images\n{header}filename\n" + "\n".join(lines) + "\n")
+    values = _rows(np.concatenate([gt[:, :3, 3], _quaternions(gt)], 1), " ")
+    lines = [f"{_tum_stamp(us, 4)} {v}" for us, v in zip(c.groundtruth, values, strict=True)]
+    (folder / "groundtruth.txt").write_text(
+        f"# ground truth trajectory\n{header}tx ty tz qx qy qz qw\n" + "\n".join(lines) + "\n"
+    )
+    return [folder / f for f in frames]
+
+
+def _asl_frames(camera_dir: Path, c: Clock) -> list[Path]:
+    """cam0/data.csv of an ASL camera; returns the frame paths (data/<ns>.png) to render into."""
+    (camera_dir / "data").mkdir(parents=True)
+    lines = [f"{ns},{ns}.png" for ns in c.frames]
+    (camera_dir / "data.csv").write_text("#timestamp [ns],filename\n" + "\n".join(lines) + "\n")
+    return [camera_dir / "data" / f"{ns}.png" for ns in c.frames]
+
+
+def _euroc_sensor_yaml(K: np.ndarray, size: tuple[int, int], rate: float) -> str:
+    """EuRoC's cam0 sensor.yaml for intrinsics K (3, 3) of frames of size (H, W)."""
+    T = ", ".join(repr(float(v)) for v in orthonormal(EUROC_T_BS).ravel())
+    intrinsics = ", ".join(repr(float(v)) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
+    distortion = ", ".join(repr(float(v)) for v in EUROC_DISTORTION)
+    return (
+        "# General sensor definitions.\nsensor_type: camera\ncomment: synthetic VI-Sensor cam0\n\n"
+        f"# Sensor extrinsics wrt. the body-frame.\nT_BS:\n  cols: 4\n  rows: 4\n  data: [{T}]\n\n"
+        f"# Camera specific definitions.\nrate_hz: {rate:g}\nresolution: [{size[1]}, {size[0]}]\n"
+        f"camera_model: pinhole\nintrinsics: [{intrinsics}] #fu, fv, cu, cv\n"
+        f"distortion_model: radial-tangential\ndistortion_coefficients: [{distortion}]\n"
+    )
+
+
+def write_euroc(
+    folder: Path, K: np.ndarray, size: tuple[int, int], c: Clock, T_w_b: np.ndarray, velocity: np.ndarray
+) -> list[Path]:
+    """mav0/cam0/{data.csv, sensor.yaml} and mav0/state_groundtruth_estimate0/data.csv (body poses T_w_b
+    (M, 4, 4) and velocities (M, 3) m/s at c.groundtruth); returns the frame paths."""
+    frames = _asl_frames(folder / "mav0" / "cam0", c)
+    (folder / "mav0" / "cam0" / "sensor.yaml").write_text(_euroc_sensor_yaml(K, size, SPECS["euroc"].rate_hz))
+    q = _quaternions(T_w_b)[:, [3, 0, 1, 2]]
+    biases = np.broadcast_to(EUROC_BIASES, (len(T_w_b), 6))
+    values = _rows(np.concatenate([T_w_b[:, :3, 3], q, velocity, biases], 1), ",")
+    header = (
+        "#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z [], "
+        "v_RS_R_x [m s^-1], v_RS_R_y [m s^-1], v_RS_R_z [m s^-1], b_w_RS_S_x [rad s^-1], "
+        "b_w_RS_S_y [rad s^-1], b_w_RS_S_z [rad s^-1], b_a_RS_S_x [m s^-2], b_a_RS_S_y [m s^-2], "
+        "b_a_RS_S_z [m s^-2]\n"
+    )
+    lines = [f"{ns},{v}" for ns, v in zip(c.groundtruth, values, strict=True)]
+    gt_dir = folder / "mav0" / "state_groundtruth_estimate0"
+    gt_dir.mkdir(parents=True)
+    (gt_dir / "data.csv").write_text(header + "\n".join(lines) + "\n")
+    return frames
+
+
+def write_tartanair(folder: Path, c: Clock, T_ned: np.ndarray) -> list[Path]:
+    """pose_left.txt (NED poses T_ned (N, 4, 4), one a frame); returns the frame paths."""
+    (folder / tartanair.IMAGES).mkdir(parents=True)
+    values = _rows(np.concatenate([T_ned[:, :3, 3], _quaternions(T_ned)], 1), " ")
+    (folder / tartanair.POSES).write_text("\n".join(values) + "\n")
+    return [folder / tartanair.IMAGES / f"{k:06d}_left.png" for k in c.frames]
+
+
+def write_mimir(
+    folder: Path, K: np.ndarray, size: tuple[int, int], c: Clock, T_w_b: np.ndarray
+) -> list[Path]:
+    """rgb/cam0/{data.csv, sensor.yaml (JSON)} and pose_groundtruth/data.csv (NED body poses T_w_b (M, 4, 4)
+    at c.groundtruth); returns the frame paths."""
+    camera_dir = folder / "rgb" / "cam0"
+    frames = _asl_frames(camera_dir, c)
+    sensor = {
+        "sensor_type": "camera",
+        "comment": "synthetic front camera",
+        "T_BS": mimir_T_BS().tolist(),
+        "rate_hz": SPECS["mimir"].rate_hz,
+        "resolution": [size[1], size[0]],
+        "camera_model": "pinhole",
+        "intrinsics": K.tolist(),
+        "distortion_model": "radial-tangential",
+        "distortion_coefficients": [0.0] * 5,
+    }
+    (camera_dir / "sensor.yaml").write_text(json.dumps(sensor, indent=2) + "\n")
+    q = _quaternions(T_w_b)[:, [3, 0, 1, 2]]
+    values = _rows(np.concatenate([T_w_b[:, :3, 3], q], 1), ",")
+    lines = [f"{ns},{v}" for ns, v in zip(c.groundtruth, values, strict=True)]
+    (folder / "pose_groundtruth").mkdir()
+    (folder / "pose_groundtruth" / "data.csv").write_text(
+        "#timestamp [ns],tx [m],ty [m],tz [m],qw,qx,qy,qz\n" + "\n".join(lines) + "\n"
+    )
+    return frames
+
+
+def _frame_glob(layout: str) -> tuple[str, tuple[str, ...]]:
+    """(glob of a sequence folder's frames, its other required files) of a layout."""
+    return {
+        "tum": ("rgb/*.png", ("rgb.txt", "groundtruth.txt")),
+        "euroc": ("mav0/cam0/data/*.png", ("mav0/cam0/data.csv", "mav0/cam0/sensor.yaml",
+                                           "mav0/state_groundtruth_estimate0/data.csv")),
+        "tartanair": ("image_left/*_left.png", ("pose_left.txt",)),
+        "mimir": ("rgb/cam0/data/*.png", ("rgb/cam0/data.csv", "rgb/cam0/sensor.yaml",
+                                          "pose_groundtruth/data.csv")),
+    }[layout]  # fmt: skip
+
+
+def sequence_complete(root: Path, layout: str, sequence: str, n_frames: int) -> bool:
+    """Whether root holds a layout's sequence with its files and n_frames frames."""
+    folder = root / sequence_name(layout, sequence)
+    frames, files = _frame_glob(layout)
+    return all((folder / f).is_file() for f in files) and sum(1 for _ in folder.glob(frames)) == n_frames
+
+
+# --------------------------------------------------------------------------------------------------
+# Rendering a sequence
+# --------------------------------------------------------------------------------------------------
+
+
+def _streams(layout: str, sequence: str, seed: int) -> np.random.Generator:
+    """The seeded generator of a layout's motion and clock for a sequence (independent of the town's)."""
+    return np.random.default_rng(np.random.SeedSequence([seed, int(sequence), 1 + LAYOUTS.index(layout)]))
+
+
+def route_frames(sequence: str, distance: float, seed: int, spec: routes.RouteSpec) -> int:
+    """Route frames (10 Hz car poses) whose path is at least distance metres long (doubling from an
+    estimate at 0.5 m a frame)."""
+    n = 20 + math.ceil(distance / 0.5)
+    while True:
+        route = sequence_route(sequence, n, seed, spec)
+        if np.linalg.norm(np.diff(route[:, :3, 3], axis=0), axis=1).sum() >= distance:
+            return n
+        n *= 2
+
+
+def render_sequence(
+    folder: Path, layout: str, sequence: str, n_frames: int, size: tuple[int, int], seed: int,
+    spec: routes.RouteSpec = routes.DEFAULT_SPEC,
+) -> None:  # fmt: skip
+    """Render one town sequence in a layout into folder (the sequence's own folder, created)."""
+    lay, rng = SPECS[layout], _streams(layout, sequence, seed)
+    c = clock(layout, n_frames, rng)
+    t_frames = c.seconds(c.frames)
+    t_end = float(c.seconds(c.groundtruth).max(initial=t_frames[-1]))
+    n_route = route_frames(sequence, platforms.max_distance(lay.platform, t_end) + 5.0, seed, spec)
+    route, world, noise = scene(sequence, n_route, seed, spec)
+    motion = platforms.trajectory(route, lay.platform, rng)
+    T_pc = mount(layout)
+    K, distortion = camera(layout, size)
+    folder.mkdir(parents=True)
+    if layout == "tum":
+        paths = write_tum(folder, sequence_name(layout, sequence), c, motion.poses(c.seconds(c.groundtruth)))
+    elif layout == "euroc":
+        T_w_b, velocity = _euroc_bodies(motion, c.seconds(c.groundtruth))
+        paths = write_euroc(folder, K, size, c, T_w_b, velocity)
+    elif layout == "tartanair":
+        paths = write_tartanair(folder, c, ned(motion.poses(t_frames)))
+    else:
+        paths = write_mimir(folder, K, size, c, ned(motion.poses(c.seconds(c.groundtruth))))
+    renderer = Renderer(world, K, *size, distortion=distortion)
+    for path, T in zip(paths, motion.poses(t_frames) @ T_pc, strict=True):
+        image = renderer.render(T, noise)
+        write_png(path, cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if lay.grey else image)
+
+
+def _euroc_bodies(motion: platforms.Trajectory, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """EuRoC body poses T_w_b = T_w_c @ inv(T_BS) (M, 4, 4) at times t (M,) s, and their velocities (M, 3)
+    m/s (central differences over 1 ms)."""
+    T_SB = np.linalg.inv(orthonormal(EUROC_T_BS))
+    T_w_b = motion.poses(t) @ T_SB
+    ahead, behind = motion.poses(t + 5e-4) @ T_SB, motion.poses(t - 5e-4) @ T_SB
+    return T_w_b, (ahead[:, :3, 3] - behind[:, :3, 3]) / 1e-3
+
+
+def write_sequence(
+    out: Path, layout: str, sequence: str, n_frames: int, size: tuple[int, int], seed: int,
+    spec: routes.RouteSpec = routes.DEFAULT_SPEC,
+) -> float:  # fmt: skip
+    """Render one sequence into the dataset root out, atomically (a temporary folder inside out, moved
+    into place once complete, removed on failure); returns the seconds it took."""
+    start = time.perf_counter()
+    tmp = out / f".tmp-{layout}-{sequence}-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    target = out / sequence_name(layout, sequence)
+    try:
+        render_sequence(tmp / "sequence", layout, sequence, n_frames, size, seed, spec)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.rmtree(target, ignore_errors=True)
+        os.replace(tmp / "sequence", target)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return time.perf_counter() - start
