@@ -306,8 +306,9 @@ class DataRecord:
     ``root``: its absolute KITTI-layout folder, ``sequences/NN/...`` and ``poses/NN.txt``; its ``test``
     and ``unseen`` sequences) and the data the network was trained on (``train_root``, the training
     split ``train``) with its input settings (``height``, ``width`` in pixels, ``seq_len`` in frames,
-    ``normalization``, per-channel ``mean`` and ``std`` of pixel values in [0, 1]). Roots are as
-    recorded; they may no longer exist."""
+    ``normalization``, per-channel ``mean`` and ``std`` of pixel values in [0, 1]), and both datasets'
+    layouts (``layout``, ``train_layout``: :data:`lossvo.data.layouts.LAYOUTS`; absent in older files, which
+    read as KITTI's). Roots are as recorded; they may no longer exist."""
 
     kind: str | None
     root: str
@@ -321,6 +322,8 @@ class DataRecord:
     normalization: str | None = None
     mean: list[float] | None = None
     std: list[float] | None = None
+    layout: str = "kitti"
+    train_layout: str = "kitti"
 
     def identity(self) -> dict[str, Any]:
         """What decides the frames on disk and the training split's poses (a cache key)."""
@@ -347,6 +350,8 @@ class DataRecord:
             normalization=_text(*get("normalization"), optional=True),
             mean=_numbers(*get("mean")),
             std=_numbers(*get("std")),
+            layout=cast("str", _text(obj.get("layout", "kitti"), _key(where, "layout"))),
+            train_layout=cast("str", _text(obj.get("train_layout", "kitti"), _key(where, "train_layout"))),
         )
 
     def to_json(self) -> dict[str, Any]:
@@ -495,6 +500,8 @@ def data_record(
         normalization=trained.get("normalization"),
         mean=stats.get("mean"),
         std=stats.get("std"),
+        layout=str(evaluated.get("layout", "kitti")),
+        train_layout=str(trained.get("layout", "kitti")),
     )
 
 

@@ -29,6 +29,7 @@ from pathlib import Path
 from lossvo.atomic import write_text_atomic
 from lossvo.evaluation.results import file_stem
 from lossvo.report import render
+from lossvo.report.across_datasets import ACROSS_TEXT, ACROSS_TITLE, across_rows, find_evaluations
 from lossvo.report.against_baselines import (
     UNSEEN_KEY,
     BaselineRun,
@@ -349,6 +350,8 @@ class Contents:
     figures: Figures | None
     study: Study
     speed: Rows | None = None
+    across: Rows | None = None
+    across_notes: list[str] = field(default_factory=list)
 
 
 def render_report(sweep: Path, out: Path, contents: Contents) -> str:
@@ -375,8 +378,18 @@ def render_report(sweep: Path, out: Path, contents: Contents) -> str:
         ]
     if c.speed is not None and c.speed.rows:
         lines += ["", f"## {SPEED_TITLE}", "", SPEED_TEXT, "", render.markdown(c.speed)]
+    lines += across_lines(c.across, c.across_notes)
     lines += ["", "## The study's claims", "", claims_markdown(c.study.claims, by)]
     return "\n".join(lines) + "\n"
+
+
+def across_lines(table: Rows | None, notes: Sequence[str]) -> list[str]:
+    """The section "Across datasets" where the sweep's checkpoints were evaluated on other data."""
+    unused = [f"- evaluation not used: {note}" for note in notes]
+    if table is None or not any(row[1] != row[2] for row in table.rows):
+        return ["", *unused] if unused else []
+    lines = ["", f"## {ACROSS_TITLE}", "", ACROSS_TEXT, "", render.markdown(table)]
+    return lines + (["", *unused] if unused else [])
 
 
 # --------------------------------------------------------------------------------------------------
@@ -483,6 +496,11 @@ def make_report(
     speed = speed_rows(networks, ground_truth(source, sequences)[0], sequences) if source else None
     if speed is not None:
         write_text_atomic(out / "tables" / "speed.csv", render.csv_text(speed))
-    contents = Contents(jobs, sequences, tables, comparisons, base, with_baselines, figures, study, speed)
+    evaluations, across_notes = find_evaluations(sweep, included)
+    across = across_rows(included, evaluations) if evaluations else None
+    if across is not None:
+        write_text_atomic(out / "tables" / "across_datasets.csv", render.csv_text(across))
+    contents = Contents(jobs, sequences, tables, comparisons, base, with_baselines, figures, study, speed,
+                        across, across_notes)  # fmt: skip
     write_text_atomic(out / "report.md", render_report(sweep, out, contents))
     return out / "report.md"

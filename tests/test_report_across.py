@@ -1,0 +1,72 @@
+"""The report's table "trained on X, evaluated on Y": evaluations of the sweep's checkpoints on other
+datasets, found under SWEEP/evaluations, pooled per configuration over seeds."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lossvo.evaluation.results import Overall
+from lossvo.report.document import make_report
+from test_report import data_record, entry, results_json, write_job
+
+
+def write_evaluation(
+    folder: Path, job: Path, layout: str, root: Path, rpe_trans: float, trained: Path
+) -> None:
+    """An evaluation's results.json: ``job``'s best checkpoint on ``layout`` data at ``root``, one
+    sequence."""
+    record = replace(data_record(root, ["s"], [], None), layout=layout, train_root=str(trained))
+    scores = entry(rpe_trans, 0.01)
+    results = replace(results_json(record, {"s": scores}), checkpoint=str(job / "checkpoints" / "best.ckpt"),
+                      overall=Overall(["s"], scores))  # fmt: skip
+    results.write(folder / "results.json")
+
+
+@pytest.fixture
+def sweep(tmp_path: Path) -> Path:
+    """Two configurations (euler, quat), each with two seeds; seed 0 and 1 of each evaluated on a
+    TUM-layout dataset (RPE trans 0.2 / 0.4 m for euler, 0.3 / 0.3 m for quat); one evaluation of a
+    foreign checkpoint."""
+    sweep, kitti, tum = tmp_path / "sweep", tmp_path / "synthetic", tmp_path / "tum_synthetic"
+    record = data_record(kitti, ["07"], [])
+    for number, (loss, seed) in enumerate([("euler", 0), ("euler", 1), ("quat", 0), ("quat", 1)]):
+        scores = {"07": entry(0.1, 0.01)}
+        job = write_job(sweep, number, loss, {"train": ["00"], "val": ["07"]}, scores, record)
+        job = job.rename(sweep / f"{number}_loss-{loss}+seed-{seed}")
+        (job / ".hydra" / "overrides.yaml").write_text(f"- loss={loss}\n- seed={seed}\n")
+        results = results_json(record, scores)
+        replace(results, overall=Overall(["07"], scores["07"])).write(job / "results.json")
+        rpe = {"euler": (0.2, 0.4), "quat": (0.3, 0.3)}[loss][seed]
+        write_evaluation(sweep / "evaluations" / "tum" / str(number), job, "tum", tum, rpe, kitti)
+    write_evaluation(
+        sweep / "evaluations" / "foreign", tmp_path / "elsewhere" / "0_job", "tum", tum, 0.1, kitti
+    )
+    return sweep
+
+
+def test_evaluations_on_other_data_make_the_across_datasets_table(sweep: Path, tmp_path: Path) -> None:
+    report = make_report(sweep, tmp_path / "report", with_baselines=False, with_figures=False).read_text()
+    section = report.split("## Across datasets", 1)[1].splitlines()
+    table = [[c.strip() for c in line.strip("|").split("|")] for line in section if line.startswith("|")]
+    assert table[0][:5] == ["network", "trained on", "evaluated on", "sequences", "n"]
+    by_key = {(cells[0], cells[2]): cells for cells in table[2:]}
+    assert len(by_key) == len(table) - 2 == 4
+    euler_tum = by_key[("loss=euler", "tum: tum_synthetic")]
+    assert euler_tum[1] == "kitti: synthetic" and euler_tum[4] == "2"
+    assert euler_tum[6] == f"0.3 ± {np.std([0.2, 0.4], ddof=1):.2g}"  # mean ± sample std over the seeds
+    assert by_key[("loss=quat", "tum: tum_synthetic")][6] == "0.3 ± 0"
+    assert by_key[("loss=euler", "kitti: synthetic")][6] == "0.1 ± 0"  # the sweep's own evaluation
+    assert "evaluation not used" in report and "foreign/results.json" in report and "of no job" in report
+    assert (tmp_path / "report" / "tables" / "across_datasets.csv").is_file()
+
+
+def test_no_evaluations_no_section(sweep: Path, tmp_path: Path) -> None:
+    for path in sorted((sweep / "evaluations").rglob("*"), reverse=True):
+        path.unlink() if path.is_file() else path.rmdir()
+    report = make_report(sweep, tmp_path / "report", with_baselines=False, with_figures=False).read_text()
+    assert "## Across datasets" not in report
+    assert not (tmp_path / "report" / "tables" / "across_datasets.csv").exists()
