@@ -27,14 +27,18 @@ The modules, each after what it holds:
 - :mod:`~lossvo.data.synthetic.render`: the ray-casting renderer;
 - :mod:`~lossvo.data.synthetic.parameters`: sequences, frame counts and image sizes, with their checks;
 - :mod:`~lossvo.data.synthetic.manifest`: the manifest, and which sequences of a dataset can be reused;
+- :mod:`~lossvo.data.synthetic.platforms`: handheld, flying, drone and underwater motion along a route;
+- :mod:`~lossvo.data.synthetic.layouts`: the TUM RGB-D, EuRoC, TartanAir and MIMIR layouts (cameras,
+  clocks, files; :func:`sequence_name`);
 - :mod:`~lossvo.data.synthetic.writer`: rendering sequences into a dataset (:func:`generate`,
-  :func:`ensure_dataset`);
+  :func:`ensure_dataset`, ``layout=``, ``scale=``);
 - :mod:`~lossvo.data.synthetic.cli`: the command line (an entry point, not imported here),
-  ``python -m lossvo.data.synthetic --out DIR [--sequences 00,07] [--frames N] [--height H --width W]
-  [--seed S]``.
+  ``python -m lossvo.data.synthetic --out DIR [--layout kitti|tum|euroc|tartanair|mimir] [--sequences 00,07]
+  [--frames N] [--scale F | --height H --width W] [--seed S]`` (docs/data.md, "Other layouts").
 """
 
 from lossvo.data.synthetic.camera import intrinsics
+from lossvo.data.synthetic.layouts import LAYOUTS, sequence_name
 from lossvo.data.synthetic.manifest import MANIFEST, VERSION, read_manifest
 from lossvo.data.synthetic.parameters import DEFAULT_FRAMES, DEFAULT_HEIGHT, DEFAULT_WIDTH, SEQUENCES
 from lossvo.data.synthetic.render import Renderer
@@ -45,6 +49,7 @@ __all__ = [
     "DEFAULT_FRAMES",
     "DEFAULT_HEIGHT",
     "DEFAULT_WIDTH",
+    "LAYOUTS",
     "MANIFEST",
     "SEQUENCES",
     "VERSION",
@@ -56,5 +61,6 @@ __all__ = [
     "intrinsics",
     "read_manifest",
     "scene",
+    "sequence_name",
     "sequence_route",
 ]
