@@ -77,3 +77,19 @@ def status_of(run: Path) -> dict:
 def scores_of(run: Path) -> dict:
     """A job folder's ``results.json`` without the path of the checkpoint it evaluated."""
     return {k: v for k, v in json.loads((run / "results.json").read_text()).items() if k != "checkpoint"}
+
+
+def check_ape_against_evo(folder: Path, stem: str, ape_rmse: float, frames: int) -> None:
+    """``evo_ape tum <stem>_gt.tum <stem>.tum`` in ``folder`` (evo's association by time, no alignment)
+    gives ``ape_rmse`` (m) over ``frames`` poses."""
+    from evo.core import sync
+    from evo.core.metrics import APE, PoseRelation, StatisticsType
+    from evo.tools import file_interface
+
+    ref = file_interface.read_tum_trajectory_file(str(folder / f"{stem}_gt.tum"))
+    est = file_interface.read_tum_trajectory_file(str(folder / f"{stem}.tum"))
+    ref, est = sync.associate_trajectories(ref, est)
+    assert ref.num_poses == est.num_poses == frames
+    ape = APE(PoseRelation.translation_part)
+    ape.process_data((ref, est))
+    assert ape.get_statistic(StatisticsType.rmse) == pytest.approx(ape_rmse, rel=1e-6)

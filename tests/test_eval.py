@@ -10,12 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from evo.core import sync
-from evo.core.metrics import APE, RPE, PoseRelation, StatisticsType, Unit
+from evo.core.metrics import APE, RPE, PoseRelation, Unit
 from evo.tools import file_interface
 from torch import Tensor, nn
 
-from helpers import eval_main, fit
+from helpers import check_ape_against_evo, eval_main, fit
 from lossvo import geometry
 from lossvo.data.kitti import read_poses
 from lossvo.data.windows import tile
@@ -170,20 +169,8 @@ def _check_outputs(run: Path, tiny_kitti: Path) -> dict:
     assert entry["kitti"]["t_err_pct"] is None and "note" in entry["kitti"]  # 10 frames: no 100 m segment
     assert result["overall"]["ape"]["trans"]["rmse"] == pytest.approx(entry["ape"]["trans"]["rmse"])
     assert (run / "plots" / "02.png").stat().st_size > 1000
-    _check_tum_files(run, entry["ape"]["trans"]["rmse"], len(gt))
+    check_ape_against_evo(run / "trajectories", "02", entry["ape"]["trans"]["rmse"], len(gt))
     return result
-
-
-def _check_tum_files(run: Path, ape_rmse: float, frames: int) -> None:
-    """``evo_ape tum <seq>_gt.tum <seq>.tum`` (evo's association by time, no alignment) gives the APE of
-    results.json."""
-    ref = file_interface.read_tum_trajectory_file(str(run / "trajectories" / "02_gt.tum"))
-    est = file_interface.read_tum_trajectory_file(str(run / "trajectories" / "02.tum"))
-    ref, est = sync.associate_trajectories(ref, est)
-    assert ref.num_poses == est.num_poses == frames
-    ape = APE(PoseRelation.translation_part)
-    ape.process_data((ref, est))
-    assert ape.get_statistic(StatisticsType.rmse) == pytest.approx(ape_rmse, rel=1e-6)
 
 
 @pytest.mark.slow

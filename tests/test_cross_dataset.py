@@ -1,0 +1,97 @@
+"""Training and evaluation across dataset layouts, on the synthetic town written in each layout: a
+fast_dev_run on each dataset (its own reader, undistortion, grey frames, K), and a network trained on the
+KITTI layout evaluated on the TUM, EuRoC and TartanAir layouts from its checkpoint alone."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+
+from helpers import check_ape_against_evo, eval_main, fit
+from lossvo.data import synthetic
+from test_train import compose_train, tiny_overrides
+
+LAYOUTS = ("tum", "euroc", "tartanair", "mimir")
+SCALE = 0.14
+"""Frames of about 90x67 pixels (105x67 for EuRoC)."""
+
+
+@pytest.fixture(scope="module")
+def layouts(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Sequences 00 and 01 of the synthetic town, 14 frames each, in every other layout."""
+    root = tmp_path_factory.mktemp("layouts")
+    for layout in LAYOUTS:
+        synthetic.generate(root / layout, ("00", "01"), frames=14, layout=layout, scale=SCALE, progress=False)
+    return {layout: root / layout for layout in LAYOUTS}
+
+
+def data_overrides(layout: str, root: Path, cache: Path) -> list[str]:
+    """Train on the layout's 00, validate and test on its 01, at 64x96 pixels."""
+    train, test = (synthetic.sequence_name(layout, s) for s in ("00", "01"))
+    return [
+        f"data={layout}", f"data.root={root}", f"data.cache_dir={cache}", f"data.train=[{train}]",
+        f"data.val=[{test}]", f"data.test=[{test}]", "data.height=64", "data.width=96", "data.seq_len=3",
+        "data.batch_size=4", "data.num_workers=0", "data.keep_every=1",
+    ]  # fmt: skip
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_fast_dev_run_on_each_layout(layouts: dict[str, Path], layout: str, tmp_path: Path) -> None:
+    model = ["model.width_mult=0.0625", "model.hidden_size=16", "trainer.log_every_n_steps=1"]
+    cfg = compose_train([*data_overrides(layout, layouts[layout], tmp_path / "cache"), *model,
+                         "+trainer.fast_dev_run=1"], tmp_path / "run")  # fmt: skip
+    metrics = fit(cfg)
+    assert {"train/loss", "val/loss", "val/score"} <= set(metrics)
+    assert all(torch.isfinite(torch.tensor(v)) for v in metrics.values())
+
+
+@pytest.mark.slow
+def test_flowvo_fast_dev_run_on_distorted_grey_frames(layouts: dict[str, Path], tmp_path: Path) -> None:
+    """EuRoC: grey frames, radial-tangential distortion; FlowVO reads the flow of the undistorted frames and
+    their K."""
+    network = ["model=flowvo", "model.channels=[8,8,8,8]", "model.hidden=8", "data.seq_len=2"]
+    overrides = [*data_overrides("euroc", layouts["euroc"], tmp_path / "cache"), *network,
+                 "+trainer.fast_dev_run=1"]  # fmt: skip
+    metrics = fit(compose_train(overrides, tmp_path / "run"))
+    assert all(torch.isfinite(torch.tensor(v)) for v in metrics.values())
+    assert list((tmp_path / "cache").rglob("*.flow-dis-medium-x1.5-s1.npy"))
+
+
+@pytest.fixture(scope="module")
+def kitti_run(tiny_kitti: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One epoch on the tiny synthetic KITTI-layout dataset; the run folder."""
+    tmp = tmp_path_factory.mktemp("kitti_run")
+    fit(compose_train([*tiny_overrides(tiny_kitti, tmp / "cache"), "trainer.max_epochs=1"], tmp / "run"))
+    return tmp / "run"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("layout", ["tum", "euroc", "tartanair"])
+def test_a_kitti_trained_network_evaluates_on_another_layout_from_its_checkpoint(
+    kitti_run: Path, layouts: dict[str, Path], layout: str, tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture,
+) -> None:  # fmt: skip
+    """``python -m lossvo.eval ckpt_path=... data=<layout> data.root=R data.test=[...]``: the frame size,
+    seq_len and normalisation come from the checkpoint; results.json names both datasets; the TUM files
+    beside the estimate reproduce its APE with evo."""
+    name = synthetic.sequence_name(layout, "01")
+    out = tmp_path / "eval"
+    args = [f"ckpt_path={kitti_run / 'checkpoints' / 'best.ckpt'}", f"data={layout}",
+            f"data.root={layouts[layout]}", f"data.test=[{name}]", f"data.cache_dir={tmp_path / 'cache'}",
+            "data.num_workers=0", "device=cpu", f"hydra.run.dir={out}"]  # fmt: skip
+    status, err = eval_main(args, monkeypatch, capsys)
+    assert status == 0, err
+    results = json.loads((out / "results.json").read_text())
+    data = results["data"]
+    assert data["layout"] == layout and data["train_layout"] == "kitti"
+    assert (data["height"], data["width"], data["seq_len"]) == (64, 96, 3)  # the checkpoint's
+    assert list(results["sequences"]) == [name]
+    stem = name.replace("/", "_")
+    entry = results["sequences"][name]
+    assert entry["trajectory"] == f"trajectories/{stem}.txt"
+    assert entry["ground_truth"] == str((out / "trajectories" / f"{stem}_gt.tum").resolve())
+    check_ape_against_evo(out / "trajectories", stem, entry["ape"]["trans"]["rmse"], entry["frames"])
