@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -95,3 +96,75 @@ def test_a_kitti_trained_network_evaluates_on_another_layout_from_its_checkpoint
     assert entry["trajectory"] == f"trajectories/{stem}.txt"
     assert entry["ground_truth"] == str((out / "trajectories" / f"{stem}_gt.tum").resolve())
     check_ape_against_evo(out / "trajectories", stem, entry["ape"]["trans"]["rmse"], entry["frames"])
+
+
+# --------------------------------------------------------------------------------------------------
+# Several datasets in one run
+# --------------------------------------------------------------------------------------------------
+
+
+def multi_overrides(tiny_kitti: Path, layouts: dict[str, Path], cache: Path) -> list[str]:
+    """data=multi: the tiny KITTI-layout dataset (00, 01; validated on 02) and the TUM layout (00; tested on
+    01)."""
+    tum_train, tum_test = (synthetic.sequence_name("tum", s) for s in ("00", "01"))
+    return [
+        "data=multi", f"data.cache_dir={cache}", "data.height=64", "data.width=96", "data.seq_len=3",
+        "data.batch_size=4", "data.num_workers=0", f"data.datasets.kitti.root={tiny_kitti}",
+        "data.datasets.kitti.train=[00,01]", "data.datasets.kitti.val=[02]", "data.datasets.kitti.test=[02]",
+        f"data.datasets.tum.root={layouts['tum']}", f"data.datasets.tum.train=[{tum_train}]",
+        "data.datasets.tum.val=[]", f"data.datasets.tum.test=[{tum_test}]", "data.datasets.tum.keep_every=1",
+        "model.width_mult=0.0625", "model.hidden_size=16", "trainer.max_epochs=1",
+    ]  # fmt: skip
+
+
+@pytest.mark.slow
+def test_one_run_trains_on_two_datasets_and_evaluates_each(
+    tiny_kitti: Path, layouts: dict[str, Path], tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture,
+) -> None:  # fmt: skip
+    """Windows of both datasets in the training set, each with its own K; every test sequence of each
+    evaluated, named <dataset>/<sequence>, with its TUM files."""
+    from hydra.utils import instantiate
+
+    cfg = compose_train(multi_overrides(tiny_kitti, layouts, tmp_path / "cache"), tmp_path / "run")
+    dm = instantiate(cfg.data, _convert_="all")
+    dm.prepare_data()
+    dm.setup()
+    tum_test = f"tum/{synthetic.sequence_name('tum', '01')}"
+    assert list(dm.splits["train"]) == ["kitti/00", "kitti/01", f"tum/{synthetic.sequence_name('tum', '00')}"]
+    assert dm.evaluated == ["kitti/02", tum_test]
+    Ks = {tuple(np.round(K.numpy().ravel(), 4)) for K in dm.datasets["train"].intrinsics}
+    assert len(Ks) == 2  # KITTI's camera and freiburg1's (undistorted), each resized to 64x96
+    starts = dm.datasets["train"].index[:, 0]
+    assert set(starts.tolist()) == {0, 1, 2}  # windows from every training sequence of both datasets
+    fit(cfg)
+    results = json.loads((tmp_path / "run" / "results.json").read_text())
+    assert list(results["sequences"]) == ["kitti/02", tum_test]
+    assert results["data"]["layout"] == "multi"
+    stem = tum_test.replace("/", "_")
+    entry = results["sequences"][tum_test]
+    check_ape_against_evo(
+        tmp_path / "run" / "trajectories", stem, entry["ape"]["trans"]["rmse"], entry["frames"]
+    )
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("data.datasets.tum.layout=rosbag", r"data\.datasets\.tum\.layout: unknown dataset layout 'rosbag'"),
+        (
+            "+data.datasets.tum.height=3",
+            r"data\.datasets\.tum\.height: unknown key \(expected some of layout",
+        ),
+        ("data.datasets.tum.keep_every=0", r"data\.datasets\.tum\.keep_every: expected an integer >= 1"),
+    ],
+)
+def test_bad_dataset_entries_name_the_key(
+    tiny_kitti: Path, tmp_path: Path, override: str, message: str
+) -> None:
+    from hydra.utils import instantiate
+
+    overrides = [o for o in multi_overrides(tiny_kitti, {"tum": tmp_path}, tmp_path) if "trainer" not in o]
+    cfg = compose_train([*overrides, override], tmp_path / "run")
+    with pytest.raises(Exception, match=message):
+        instantiate(cfg.data, _convert_="all")

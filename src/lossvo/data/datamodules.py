@@ -25,8 +25,10 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import os
 from collections.abc import Iterator, Mapping
 from collections.abc import Sequence as Seq
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -72,6 +74,14 @@ def _statistics(value: Mapping[str, Seq[float]] | None) -> tuple[np.ndarray, np.
             f"data.statistics: expected {{mean: [3 floats], std: [3 floats > 0]}}, got {value!r}"
         )
     return mean, std
+
+
+def _kept(seq: Sequence, every: int) -> Sequence:
+    """Every ``every``-th frame of a sequence."""
+    if every == 1:
+        return seq
+    poses = None if seq.poses is None else seq.poses[::every]
+    return dataclasses.replace(seq, images=seq.images[::every], times=seq.times[::every], poses=poses)
 
 
 def _primitive(value: Any) -> Any:
@@ -311,6 +321,16 @@ class EpochShuffle(Sampler[int]):
         return self.count
 
 
+@dataclass(frozen=True)
+class Source:
+    """One dataset a datamodule reads: its ``layout`` (:data:`lossvo.data.layouts.LAYOUTS`), its ``root`` and
+    every how-many-th frame of its sequences is kept (``keep_every``)."""
+
+    layout: str
+    root: Path
+    keep_every: int = 1
+
+
 class VODataModule(L.LightningDataModule):
     """A dataset in its own layout: cached frames, windows, the KITTI paper split by default.
 
@@ -394,7 +414,9 @@ class VODataModule(L.LightningDataModule):
         self.layout = layouts.check_layout(layout)
         if not is_integer(keep_every, 1):
             raise ValueError(f"data.keep_every: expected an integer >= 1 (frames), got {keep_every!r}")
-        self.keep_every = int(keep_every)
+        self.sources = {"": Source(self.layout, self.root, int(keep_every))}
+        """The datasets read, by key: one, keyed ``""``, whose sequences are named as it names them; several
+        (:class:`MultiDataModule`), whose sequences are named ``<key>/<name>``."""
         self.splits = {
             "train": _names(train, "train"),
             "val": _names(val, "val"),
@@ -454,58 +476,77 @@ class VODataModule(L.LightningDataModule):
         """The sequences a trained network is evaluated on: test, then unseen-motion ones."""
         return list(dict.fromkeys(self.splits["test"] + self.splits["unseen"]))
 
-    def _load_metadata(self) -> Path:
+    def source_of(self, name: str) -> tuple[Source, str]:
+        """The dataset a sequence is read from and the sequence's name there."""
+        if "" in self.sources:
+            return self.sources[""], name
+        key, _, local = name.partition("/")
+        return self.sources[key], local
+
+    def _load_metadata(self) -> None:
         """Read every sequence's metadata (every ``keep_every``-th frame); only test sequences may lack
-        poses (KITTI 11-21)."""
-        root = layouts.dataset_root(self.layout, self.root)
+        poses (KITTI 11-21). ``sequences`` is keyed by the names of :attr:`splits`; each Sequence keeps the
+        name its dataset gives it."""
         labelled = set(self.splits["train"]) | set(self.splits["val"]) | set(self.splits["unseen"])
-        self.sequences = {
-            name: self._kept(layouts.load_sequence(self.layout, root, name, require_poses=name in labelled))
-            for name in self.all_names
-        }
-        return root
+        self.sequences = {}
+        for name in self.all_names:
+            source, local = self.source_of(name)
+            root = layouts.dataset_root(source.layout, source.root)
+            seq = layouts.load_sequence(source.layout, root, local, require_poses=name in labelled)
+            self.sequences[name] = _kept(seq, source.keep_every)
 
-    def _kept(self, seq: Sequence) -> Sequence:
-        """Every ``keep_every``-th frame of a sequence."""
-        if self.keep_every == 1:
-            return seq
-        n = self.keep_every
-        poses = None if seq.poses is None else seq.poses[::n]
-        return dataclasses.replace(seq, images=seq.images[::n], times=seq.times[::n], poses=poses)
-
-    def load_metadata(self) -> Path:
+    def load_metadata(self) -> None:
         """Read and check every sequence's poses, calibration and image list, without building the
-        frame cache (for tools that need the ground truth or the PNGs only); returns the dataset root."""
-        return self._load_metadata()
+        frame cache (for tools that need the ground truth or the PNGs only)."""
+        self._load_metadata()
 
-    def cache_path(self) -> Path:
-        folder = frame_cache.cache_folder(self.cache_dir, self.dataset_root(), self.height, self.width)
-        return folder if self.keep_every == 1 else folder.with_name(f"{folder.name}-every{self.keep_every}")
+    def cache_path(self, name: str | None = None) -> Path:
+        """The frame-cache folder of sequence ``name``'s dataset (None: of the only dataset)."""
+        source = next(iter(self.sources.values())) if name is None else self.source_of(name)[0]
+        root = layouts.dataset_root(source.layout, source.root).resolve()
+        folder = frame_cache.cache_folder(self.cache_dir, root, self.height, self.width)
+        every = source.keep_every
+        return folder if every == 1 else folder.with_name(f"{folder.name}-every{every}")
+
+    def _frame_files(self, name: str) -> tuple[Path, Path]:
+        """The cached frames (.npy) and their manifest (.json) of sequence ``name``."""
+        return frame_cache.files(self.cache_path(name), self.sequences[name].name)
+
+    def _flow_file(self, name: str, step: int) -> Path:
+        return optical_flow.flow_file(self.cache_path(name), self.sequences[name].name, step, self.flow)
+
+    def _frames_source(self, name: str) -> dict:
+        """What sequence ``name``'s cached frames were built from (``frame_cache.source_of``)."""
+        return frame_cache.source_of(self.cache_path(name), self.sequences[name].name)
+
+    def _ensure_frames(self) -> dict[str, np.ndarray]:
+        """Every sequence's cached frames, built where missing or stale."""
+        return {
+            n: frame_cache.ensure_frames(self.cache_path(n), s, self.height, self.width)
+            for n, s in self.sequences.items()
+        }
 
     def prepare_data(self) -> None:
         """Check the dataset and build the frame cache and the normalisation statistics (once)."""
         self._load_metadata()
-        folder = self.cache_path()
-        frames = {
-            n: frame_cache.ensure_frames(folder, s, self.height, self.width)
-            for n, s in self.sequences.items()
-        }
-        self._stats(folder, frames)
-        self._ensure_flow(folder, frames)
+        frames = self._ensure_frames()
+        self._stats(frames)
+        self._ensure_flow(frames)
 
-    def _stats_path(self, folder: Path) -> Path:
+    def _stats_path(self) -> Path:
+        """Beside the first training sequence's frames, named after the training split."""
         key = hashlib.sha1(",".join(self.splits["train"]).encode()).hexdigest()[:10]
-        return folder / f"stats-{key}.json"
+        return self.cache_path(self.splits["train"][0]) / f"stats-{key}.json"
 
-    def _stats(self, folder: Path, frames: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    def _stats(self, frames: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """Per-channel mean/std: given (``statistics``), FlowNet's, or of the training sequences (cached
-        with the frames)."""
+        with the frames; pooled over every training sequence of every dataset)."""
         if self.statistics is not None:
             return self.statistics
         if self.normalization == "flownet":
             return np.full(3, 0.5), np.ones(3)  # (x/255 - 0.5) / 1
-        path = self._stats_path(folder)
-        sources = {n: frame_cache.source_of(folder, n) for n in self.splits["train"]}
+        path = self._stats_path()
+        sources = {n: self._frames_source(n) for n in self.splits["train"]}
         try:
             saved = json.loads(path.read_text())
             if saved["sources"] == sources:
@@ -523,15 +564,16 @@ class VODataModule(L.LightningDataModule):
         train = set(self.splits["train"])
         return {n: tuple(sorted({1, *(self.frame_steps if n in train else ())})) for n in self.all_names}
 
-    def _ensure_flow(self, folder: Path, frames: dict[str, np.ndarray]) -> dict[tuple[str, int], np.ndarray]:
+    def _ensure_flow(self, frames: dict[str, np.ndarray]) -> dict[tuple[str, int], np.ndarray]:
         """The cached flow of every (sequence, step) of :meth:`flow_steps`, computed where missing or
         stale; none without ``flow``."""
         if not self.flow.enabled:
             return {}
+        seqs = self.sequences
         return {
             (n, step): optical_flow.ensure_flow(
-                folder, n, frames[n], frame_cache.source_of(folder, n), step, self.flow,
-                self.sequences[n].images, undistort=frame_cache.undistortion(self.sequences[n]),
+                self.cache_path(n), seqs[n].name, frames[n], self._frames_source(n), step, self.flow,
+                seqs[n].images, undistort=frame_cache.undistortion(seqs[n]),
             )
             for n, steps in self.flow_steps().items() for step in steps
         }  # fmt: skip
@@ -541,22 +583,17 @@ class VODataModule(L.LightningDataModule):
         if self.datasets:
             return
         self._load_metadata()
-        folder = self.cache_path()
-        frames = {
-            n: frame_cache.ensure_frames(folder, s, self.height, self.width)
-            for n, s in self.sequences.items()
-        }
-        self.mean, self.std = self._stats(folder, frames)
-        self._ensure_flow(folder, frames)
+        frames = self._ensure_frames()
+        self.mean, self.std = self._stats(frames)
+        self._ensure_flow(frames)
         for split, names in self.splits.items():
             labelled = [(n, p) for n in names if (p := self.sequences[n].poses) is not None]  # labelled ones
             steps = (1,) if split != "train" else self.frame_steps
             flow_files = None if not self.flow.enabled else {
-                step: [optical_flow.flow_file(folder, n, step, self.flow) for n, _ in labelled]
-                for step in steps
+                step: [self._flow_file(n, step) for n, _ in labelled] for step in steps
             }  # fmt: skip
             self.datasets[split] = WindowDataset(
-                [frame_cache.files(folder, n)[0] for n, _ in labelled], [p for _, p in labelled],
+                [self._frame_files(n)[0] for n, _ in labelled], [p for _, p in labelled],
                 self.seq_len, self.stride, self.frame_steps, tiled=split != "train",
                 intrinsics=[self.intrinsics(n) for n, _ in labelled], flow_files=flow_files,
                 times=[self.sequences[n].times for n, _ in labelled],
@@ -580,15 +617,17 @@ class VODataModule(L.LightningDataModule):
         return {"_target_": target, **config, "statistics": stats, "dataset_root": str(self.dataset_root())}
 
     def dataset_root(self) -> Path:
-        """The absolute folder the layout's reader reads (for KITTI the one holding ``sequences/``)."""
-        return layouts.dataset_root(self.layout, self.root).resolve()
+        """The absolute folder the layout's reader reads (for KITTI the one holding ``sequences/``); with
+        several datasets, the folder their roots share."""
+        roots = [str(layouts.dataset_root(s.layout, s.root).resolve()) for s in self.sources.values()]
+        return Path(os.path.commonpath(roots))
 
     def intrinsics(self, name: str) -> np.ndarray:
         """(3, 3) float64 K of a sequence's cached frames: its camera's K (of the undistorted frames where
         they are undistorted: :func:`lossvo.data.frame_cache.source_intrinsics`), resized from the source
         images' size to (height, width) (:func:`lossvo.data.camera.resized_intrinsics`); after
         :meth:`setup`."""
-        manifest = json.loads(frame_cache.files(self.cache_path(), name)[1].read_text())
+        manifest = json.loads(self._frame_files(name)[1].read_text())
         source = tuple(manifest["source_size_hw"])
         K = frame_cache.source_intrinsics(self.sequences[name])
         return camera.resized_intrinsics(K, source, (self.height, self.width))
@@ -678,15 +717,13 @@ class VODataModule(L.LightningDataModule):
         with flow, ``flow`` (N - 1, 2, H, W) float16 (memory map), each consecutive pair's."""
         inputs = {"frames": self.sequence_frames(name), "K": self.intrinsics(name).astype(np.float32)}
         if self.flow.enabled:
-            inputs["flow"] = np.load(
-                optical_flow.flow_file(self.cache_path(), name, 1, self.flow), mmap_mode="r"
-            )
+            inputs["flow"] = np.load(self._flow_file(name, 1), mmap_mode="r")
         return inputs
 
     def sequence_frames(self, name: str) -> np.ndarray:
         """(N, 3, H, W) uint8 RGB cached frames of one sequence (memory map; every frame, in order)."""
         self.setup()
-        return np.load(frame_cache.files(self.cache_path(), name)[0], mmap_mode="r")
+        return np.load(self._frame_files(name)[0], mmap_mode="r")
 
     def sequence_poses(self, name: str) -> np.ndarray | None:
         """(N, 4, 4) float64 ground-truth camera-to-world poses of one sequence (None without a pose file)."""
@@ -701,6 +738,75 @@ class VODataModule(L.LightningDataModule):
 
 class KittiDataModule(VODataModule):
     """KITTI odometry (``data=kitti``): :class:`VODataModule` in its default layout, ``kitti``."""
+
+
+DATASET_KEYS = ("layout", "root", "train", "val", "test", "unseen", "keep_every")
+"""What an entry of :class:`MultiDataModule`'s ``datasets`` may set."""
+DERIVED = ("root", "layout", "train", "val", "test", "unseen", "keep_every")
+""":class:`VODataModule` arguments that :class:`MultiDataModule` derives from its ``datasets``."""
+
+
+def _dataset_entries(datasets: Any) -> dict[str, dict[str, Any]]:
+    """``data.datasets`` checked: a mapping of keys (no ``/``) to entries with a ``layout`` and a ``root`` and
+    only :data:`DATASET_KEYS`; ValueError naming the key otherwise."""
+    if not isinstance(datasets, Mapping) or not datasets:
+        raise ValueError(f"data.datasets: expected a mapping of names to datasets, got {datasets!r}")
+    entries = {}
+    for key, entry in datasets.items():
+        where = f"data.datasets.{key}"
+        if not isinstance(key, str) or not key or "/" in key:
+            raise ValueError(f"data.datasets: expected names without '/', got {key!r}")
+        if not isinstance(entry, Mapping):
+            raise ValueError(f"{where}: expected {{layout: ..., root: ..., train: [...]}}, got {entry!r}")
+        unknown = sorted(set(entry) - set(DATASET_KEYS))
+        if unknown:
+            raise ValueError(
+                f"{where}.{unknown[0]}: unknown key (expected some of {', '.join(DATASET_KEYS)})"
+            )
+        for required in ("layout", "root"):
+            if entry.get(required) is None:
+                raise ValueError(f"{where}.{required}: a value is required")
+        layouts.check_layout(entry["layout"], f"{where}.layout")
+        every = entry.get("keep_every", 1)
+        if not is_integer(every, 1):
+            raise ValueError(f"{where}.keep_every: expected an integer >= 1 (frames), got {every!r}")
+        entries[key] = dict(entry)
+    return entries
+
+
+class MultiDataModule(VODataModule):
+    """Several datasets in one run: windows from each (each with its own K), one normalisation pooled over
+    every training sequence, and the sequences of each evaluated.
+
+    Args:
+        datasets: name -> ``{layout, root, train, val, test, unseen, keep_every}``, each as
+            :class:`VODataModule` takes it; the run's sequences are named ``<name>/<sequence>``
+            (``tum/rgbd_dataset_freiburg1_xyz``).
+        Other arguments as :class:`VODataModule` (frame size, windows, loader, flow), shared by the datasets.
+    """
+
+    def __init__(self, datasets: Mapping[str, Mapping[str, Any]], **kwargs: Any) -> None:
+        entries = _dataset_entries(datasets)
+        shared = {k: v for k, v in kwargs.items() if k not in DERIVED}
+        train, val, test, unseen = (
+            [f"{key}/{name}" for key, e in entries.items()
+             for name in _names(e.get(split) or [], f"datasets.{key}.{split}")]
+            for split in ("train", "val", "test", "unseen")
+        )  # fmt: skip
+        first = next(iter(entries.values()))
+        super().__init__(str(first["root"]), train, val, test, unseen, layout=first["layout"], **shared)
+        self.sources = {
+            key: Source(e["layout"], Path(e["root"]).expanduser(), int(e.get("keep_every", 1)))
+            for key, e in entries.items()
+        }
+        self.layout = "multi"
+
+    def description(self) -> dict[str, Any]:
+        """:meth:`VODataModule.description` with ``layout`` ``multi``, the run's ``train`` names and the
+        ``datasets``, without the arguments derived from them."""
+        described = super().description()
+        dropped = set(DERIVED) - {"train", "layout"}
+        return {k: v for k, v in described.items() if k not in dropped} | {"layout": "multi"}
 
 
 class SyntheticDataModule(VODataModule):
@@ -738,9 +844,9 @@ class SyntheticDataModule(VODataModule):
         with FileLock(self.root.parent / f".{self.root.name}.lock"):
             synthetic.ensure_dataset(self.root, sequences=self.all_names, **self.generator_args)
 
-    def load_metadata(self) -> Path:
+    def load_metadata(self) -> None:
         self._ensure_rendered()
-        return super().load_metadata()
+        super().load_metadata()
 
     def prepare_data(self) -> None:
         self._ensure_rendered()
