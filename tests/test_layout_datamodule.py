@@ -192,3 +192,40 @@ def test_a_sequence_that_does_not_exist_names_those_found(tum_root: Path, tmp_pa
     dm = datamodule(tum_root, tmp_path / "cache", test=["rgbd_dataset_freiburg1_xyz"])
     with pytest.raises(ValueError, match=rf"'rgbd_dataset_freiburg1_xyz' not found \(found: {FR1}\)"):
         dm.prepare_data()
+
+
+# --------------------------------------------------------------------------------------------------
+# Centre crop
+# --------------------------------------------------------------------------------------------------
+
+
+def test_centre_crop_keeps_the_target_aspect_ratio() -> None:
+    assert frame_cache.centre_crop((480, 640), (64, 208)) == (141, 0, 197, 640)  # 640 * 64 / 208 = 196.9
+    assert frame_cache.centre_crop((376, 1241), (64, 208)) == (0, 9, 376, 1222)  # 376 * 208 / 64 = 1222
+    assert frame_cache.centre_crop((48, 64), (24, 32)) == (0, 0, 48, 64)
+    K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
+    np.testing.assert_array_equal(frame_cache.cropped_intrinsics(K, (141, 0, 197, 640))[:, 2], [320, 99, 1])
+
+
+def test_crop_cuts_the_centred_window_and_K_follows(tum_root: Path, tmp_path: Path) -> None:
+    """48x64 frames into 16x32: the centred 32x64 window of the undistorted frame, resized; K of that window
+    resized, with square pixels (fx = fy within the camera's own ratio)."""
+    dm = datamodule(tum_root, tmp_path / "cache", height=16, width=32, crop=True)
+    dm.prepare_data()
+    dm.setup()
+    seq = dm.sequences[FR1]
+    undistort = frame_cache.undistortion(seq)
+    assert undistort is not None
+    source = cv2.imread(str(seq.images[0]), cv2.IMREAD_COLOR)
+    window = undistort.apply(source)[8:40]
+    expected = cv2.cvtColor(cv2.resize(window, (32, 16), interpolation=cv2.INTER_AREA), cv2.COLOR_BGR2RGB)
+    np.testing.assert_array_equal(dm.sequence_frames(FR1)[0], expected.transpose(2, 0, 1))
+    K_window = undistort.K.copy()
+    K_window[1, 2] -= 8
+    np.testing.assert_allclose(dm.intrinsics(FR1), camera.resized_intrinsics(K_window, (32, 64), (16, 32)))
+    K = dm.intrinsics(FR1)
+    assert K[0, 0] / K[1, 1] == pytest.approx(
+        undistort.K[0, 0] / undistort.K[1, 1]
+    )  # pixels keep their shape
+    whole = datamodule(tum_root, tmp_path / "cache", height=16, width=32)
+    assert whole.cache_path() != dm.cache_path()

@@ -369,6 +369,9 @@ class VODataModule(L.LightningDataModule):
             evaluation (consecutive frames) use. flow_preset: DIS's preset (ultrafast, fast, medium).
             flow_scale: the flow is computed on the source images resized to ``flow_scale`` times
             (height, width), then resized to (height, width) (:class:`lossvo.data.flow.FlowSetting`).
+        crop: cut each frame's centred window of the (height, width) aspect ratio before resizing it (K
+            follows), so that pixels keep their shape; false: the whole frame, resized (anisotropically when
+            the aspect ratios differ).
         keep_every: keep every n-th frame of each sequence (the others are never read): matches frame rates
             across datasets (3 turns TUM's 30 Hz into KITTI's 10 Hz). Unlike ``frame_steps`` it applies to
             every split, evaluation included.
@@ -407,6 +410,7 @@ class VODataModule(L.LightningDataModule):
         flow_scale: float = 1.0,
         layout: str = "kitti",
         keep_every: int = 1,
+        crop: bool = False,
     ) -> None:
         super().__init__()
         self.save_hyperparameters(logger=False)
@@ -414,6 +418,9 @@ class VODataModule(L.LightningDataModule):
         self.layout = layouts.check_layout(layout)
         if not is_integer(keep_every, 1):
             raise ValueError(f"data.keep_every: expected an integer >= 1 (frames), got {keep_every!r}")
+        if not isinstance(crop, bool):
+            raise ValueError(f"data.crop: expected true or false, got {crop!r}")
+        self.crop = crop
         self.sources = {"": Source(self.layout, self.root, int(keep_every))}
         """The datasets read, by key: one, keyed ``""``, whose sequences are named as it names them; several
         (:class:`MultiDataModule`), whose sequences are named ``<key>/<name>``."""
@@ -505,8 +512,10 @@ class VODataModule(L.LightningDataModule):
         source = next(iter(self.sources.values())) if name is None else self.source_of(name)[0]
         root = layouts.dataset_root(source.layout, source.root).resolve()
         folder = frame_cache.cache_folder(self.cache_dir, root, self.height, self.width)
-        every = source.keep_every
-        return folder if every == 1 else folder.with_name(f"{folder.name}-every{every}")
+        suffix = (f"-every{source.keep_every}" if source.keep_every > 1 else "") + (
+            "-crop" if self.crop else ""
+        )
+        return folder.with_name(folder.name + suffix) if suffix else folder
 
     def _frame_files(self, name: str) -> tuple[Path, Path]:
         """The cached frames (.npy) and their manifest (.json) of sequence ``name``."""
@@ -522,7 +531,7 @@ class VODataModule(L.LightningDataModule):
     def _ensure_frames(self) -> dict[str, np.ndarray]:
         """Every sequence's cached frames, built where missing or stale."""
         return {
-            n: frame_cache.ensure_frames(self.cache_path(n), s, self.height, self.width)
+            n: frame_cache.ensure_frames(self.cache_path(n), s, self.height, self.width, crop=self.crop)
             for n, s in self.sequences.items()
         }
 
@@ -573,7 +582,7 @@ class VODataModule(L.LightningDataModule):
         return {
             (n, step): optical_flow.ensure_flow(
                 self.cache_path(n), seqs[n].name, frames[n], self._frames_source(n), step, self.flow,
-                seqs[n].images, undistort=frame_cache.undistortion(seqs[n]),
+                seqs[n].images, undistort=frame_cache.undistortion(seqs[n]), crop=self.crop,
             )
             for n, steps in self.flow_steps().items() for step in steps
         }  # fmt: skip
@@ -630,6 +639,9 @@ class VODataModule(L.LightningDataModule):
         manifest = json.loads(self._frame_files(name)[1].read_text())
         source = tuple(manifest["source_size_hw"])
         K = frame_cache.source_intrinsics(self.sequences[name])
+        if self.crop:
+            box = frame_cache.centre_crop(source, (self.height, self.width))
+            K, source = frame_cache.cropped_intrinsics(K, box), box[2:]
         return camera.resized_intrinsics(K, source, (self.height, self.width))
 
     # -- loaders --------------------------------------------------------------------------------------

@@ -150,7 +150,7 @@ def _computer(read: Callable[[int], np.ndarray], step: int, setting: FlowSetting
 
 def _reader(
     frames: np.ndarray, images: Sequence[Path], setting: FlowSetting,
-    undistort: frame_cache.Undistortion | None = None,
+    undistort: frame_cache.Undistortion | None = None, crop: bool = False,
 ) -> Callable[[int], np.ndarray]:  # fmt: skip
     """Frame k, (h, w) uint8 grey at the size the flow is computed at: the cached frame (``scale`` 1) or
     its source image read again at ``setting.size`` (and undistorted as the cached frames are)."""
@@ -162,7 +162,7 @@ def _reader(
             f"data.flow_scale={setting.scale:g} reads the source images: expected {n}, got {len(images)}"
         )
     h, w = setting.size(height, width)
-    return lambda k: _gray(frame_cache.read_frame(images[k], h, w, undistort)[0])
+    return lambda k: _gray(frame_cache.read_frame(images[k], h, w, undistort, crop)[0])
 
 
 def flow_file(folder: Path, name: str, step: int, setting: FlowSetting) -> Path:
@@ -173,7 +173,7 @@ def flow_file(folder: Path, name: str, step: int, setting: FlowSetting) -> Path:
 def ensure_flow(folder: Path, name: str, frames: np.ndarray, frames_source: dict, step: int,
                 setting: FlowSetting, images: Sequence[Path] = (), workers: int = 2,
                 progress: bool = True, undistort: frame_cache.Undistortion | None = None,
-                ) -> np.ndarray:  # fmt: skip
+                crop: bool = False) -> np.ndarray:  # fmt: skip
     """The cached flow of a sequence's frames at one frame step, computed first where it is missing,
     incomplete or stale (its frames changed: ``frames_source``, the frame cache's record of them).
 
@@ -181,7 +181,8 @@ def ensure_flow(folder: Path, name: str, frames: np.ndarray, frames_source: dict
         folder: the frame-cache folder of the sequence's dataset and size; name: the sequence.
         frames: (N, 3, H, W) uint8 RGB, the cached frames; step: frames from first to second (>= 1).
         images: the N source images, read again at ``setting.size(H, W)`` when ``setting.scale > 1`` and
-            undistorted with ``undistort`` (:func:`lossvo.data.frame_cache.undistortion`).
+            undistorted with ``undistort`` (:func:`lossvo.data.frame_cache.undistortion`) and cropped with
+            ``crop`` as the cached frames are.
     Returns:
         (max(N - step, 0), 2, H, W) float16 memory map.
     """
@@ -192,7 +193,13 @@ def ensure_flow(folder: Path, name: str, frames: np.ndarray, frames_source: dict
     expected = {"version": FLOW_VERSION, "sequence": name, "step": step, "flow": setting.key,
                 "frames": frames_source}  # fmt: skip
     fill = _computer(
-        _reader(frames, images, setting, undistort), step, setting, name, (height, width), workers, progress
+        _reader(frames, images, setting, undistort, crop),
+        step,
+        setting,
+        name,
+        (height, width),
+        workers,
+        progress,
     )
     return array_cache.ensure_array(flow_file(folder, name, step, setting), expected, shape, np.float16, fill)
 

@@ -110,9 +110,10 @@ def source_of(folder: Path, name: str) -> dict:
     return json.loads(files(folder, name)[1].read_text())["source"]
 
 
-def _expected(seq: Sequence) -> dict:
+def _expected(seq: Sequence, crop: bool = False) -> dict:
     """What a sequence's cached frames are built from (:mod:`lossvo.data.array_cache` manifests)."""
-    return {"version": CACHE_VERSION, "sequence": seq.name, "source": _fingerprint(seq)}
+    expected = {"version": CACHE_VERSION, "sequence": seq.name, "source": _fingerprint(seq)}
+    return expected | {"crop": "centre"} if crop else expected
 
 
 def open_frames(folder: Path, seq: Sequence, height: int, width: int) -> np.ndarray | None:
@@ -122,12 +123,33 @@ def open_frames(folder: Path, seq: Sequence, height: int, width: int) -> np.ndar
     return array_cache.open_array(files(folder, seq.name)[0], _expected(seq), shape, np.uint8)
 
 
+def centre_crop(size_hw: tuple[int, int], target_hw: tuple[int, int]) -> tuple[int, int, int, int]:
+    """The largest centred window of a frame of ``size_hw`` (H, W) with the aspect ratio of ``target_hw``:
+    ``(y0, x0, h, w)`` in pixels (its top-left corner and size)."""
+    H, W = size_hw
+    th, tw = target_hw
+    if W * th > H * tw:  # wider than the target: keep the full height
+        w = min(W, max(1, round(H * tw / th)))
+        return 0, (W - w) // 2, H, w
+    h = min(H, max(1, round(W * th / tw)))
+    return (H - h) // 2, 0, h, W
+
+
+def cropped_intrinsics(K: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
+    """(3, 3) K of the window ``box`` = (y0, x0, h, w) of a frame: the principal point moved by (x0, y0)."""
+    out = np.array(K, dtype=np.float64)
+    out[0, 2] -= box[1]
+    out[1, 2] -= box[0]
+    return out
+
+
 def read_frame(
-    path: Path, height: int, width: int, undistort: Undistortion | None = None
+    path: Path, height: int, width: int, undistort: Undistortion | None = None, crop: bool = False
 ) -> tuple[np.ndarray, tuple[int, int]]:
     """Decode one PNG (checked complete first; a grey one replicated to three channels), undistort it (when
-    ``undistort`` is given and the frame has its size), resize it with area interpolation: (3, height, width)
-    RGB uint8, and the PNG's own size (H, W)."""
+    ``undistort`` is given and the frame has its size), cut its centred window of the target's aspect ratio
+    (``crop``: :func:`centre_crop`), resize it with area interpolation: (3, height, width) RGB uint8, and the
+    PNG's own size (H, W)."""
     check_png(path)
     image = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if image is None:
@@ -135,12 +157,17 @@ def read_frame(
     size = image.shape[:2]
     if undistort is not None and size == undistort.size:
         image = undistort.apply(image)
+    if crop:
+        y0, x0, h, w = centre_crop(size, (height, width))
+        image = image[y0 : y0 + h, x0 : x0 + w]
     # OpenCV sizes are (width, height); the swap is a classic bug, hence the explicit names.
     resized = cv2.resize(image, dsize=(width, height), interpolation=cv2.INTER_AREA)
     return cv2.cvtColor(resized, cv2.COLOR_BGR2RGB).transpose(2, 0, 1), size
 
 
-def _decoder(seq: Sequence, height: int, width: int, workers: int, progress: bool) -> array_cache.Fill:
+def _decoder(
+    seq: Sequence, height: int, width: int, workers: int, progress: bool, crop: bool = False
+) -> array_cache.Fill:
     """Fills a sequence's frame array: decoded and resized on ``workers`` threads (OpenCV releases the
     GIL while decoding); the manifest entry ``source_size_hw``.
 
@@ -153,7 +180,7 @@ def _decoder(seq: Sequence, height: int, width: int, workers: int, progress: boo
     def fill(out: np.ndarray) -> dict:
         first_size: tuple[int, int] | None = None
         with ThreadPoolExecutor(workers) as pool:
-            jobs = pool.map(lambda p: read_frame(p, height, width, undistort), seq.images)
+            jobs = pool.map(lambda p: read_frame(p, height, width, undistort, crop), seq.images)
             bar = tqdm(jobs, total=len(seq.images), desc=f"caching {seq.name} at {height}x{width}",
                        unit="frame", disable=not progress, leave=False)  # fmt: skip
             for i, (frame, size) in enumerate(bar):
@@ -171,28 +198,32 @@ def _decoder(seq: Sequence, height: int, width: int, workers: int, progress: boo
 
 
 def build_frames(
-    folder: Path, seq: Sequence, height: int, width: int, workers: int = 4, progress: bool = True
-) -> np.ndarray:
+    folder: Path, seq: Sequence, height: int, width: int, workers: int = 4, progress: bool = True,
+    crop: bool = False,
+) -> np.ndarray:  # fmt: skip
     """Decode, resize and store every frame of ``seq``; return the memory map.
 
     Raises:
         KittiFormatError: an unreadable or truncated PNG, or frames of differing sizes (naming the file).
     """
     shape = (len(seq.images), 3, height, width)
-    fill = _decoder(seq, height, width, workers, progress)
-    return array_cache.build_array(files(folder, seq.name)[0], _expected(seq), shape, np.uint8, fill)
+    fill = _decoder(seq, height, width, workers, progress, crop)
+    expected = _expected(seq, crop)
+    return array_cache.build_array(files(folder, seq.name)[0], expected, shape, np.uint8, fill)
 
 
 def ensure_frames(
-    folder: Path, seq: Sequence, height: int, width: int, workers: int = 4, progress: bool = True
-) -> np.ndarray:
+    folder: Path, seq: Sequence, height: int, width: int, workers: int = 4, progress: bool = True,
+    crop: bool = False,
+) -> np.ndarray:  # fmt: skip
     """The cached frames of ``seq``, building them if missing, incomplete or stale.
 
     A file lock makes concurrent jobs (a parallel sweep sharing one cache) build each sequence once.
     """
     shape = (len(seq.images), 3, height, width)
-    fill = _decoder(seq, height, width, workers, progress)
-    return array_cache.ensure_array(files(folder, seq.name)[0], _expected(seq), shape, np.uint8, fill)
+    fill = _decoder(seq, height, width, workers, progress, crop)
+    expected = _expected(seq, crop)
+    return array_cache.ensure_array(files(folder, seq.name)[0], expected, shape, np.uint8, fill)
 
 
 def channel_stats(frames: list[np.ndarray], chunk: int = 256) -> tuple[np.ndarray, np.ndarray]:
