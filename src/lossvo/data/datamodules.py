@@ -35,6 +35,7 @@ from typing import Any
 import lightning as L
 import numpy as np
 import torch
+import torch.nn.functional as F
 from filelock import FileLock
 from torch.utils.data import DataLoader, Dataset, Sampler, SequentialSampler
 
@@ -253,6 +254,54 @@ def mirror_inputs(inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     return mirrored
 
 
+def zoomed_windows(
+    inputs: dict[str, torch.Tensor], zoom: float, generator: torch.Generator | None = None
+) -> dict[str, torch.Tensor]:
+    """Each window seen through a zoomed-in camera, as TartanVO's intrinsics augmentation does: a random
+    window of 1/sx by 1/sy of the frame (sx, sy drawn apart from U[1, zoom], one draw a window) resized to the
+    whole frame; the frames and flow resampled (bilinear), the flow scaled by (sx, sy) and K turned into the
+    window's K (fx sx, fy sy, principal point moved): a training set of one camera then shows the network
+    many, so that the intrinsics layer carries information.
+
+    Args:
+        inputs: ``frames`` (B, L, C, H, W) uint8 or float, ``K`` (B, 3, 3), optionally ``flow``
+            (B, P, 2, H, W) in pixels; zoom: the largest factor (>= 1).
+    Returns:
+        the same entries, zoomed (other entries as they are).
+    """
+    frames, K = inputs["frames"], inputs["K"]
+    B, H, W = frames.shape[0], frames.shape[-2], frames.shape[-1]
+    draw = torch.rand(4, B, generator=generator).to(K.device, torch.float32)
+    sx, sy = 1.0 + (zoom - 1.0) * draw[0], 1.0 + (zoom - 1.0) * draw[1]
+    x0, y0 = draw[2] * W * (1.0 - 1.0 / sx), draw[3] * H * (1.0 - 1.0 / sy)  # window's corner, pixels
+    theta = torch.zeros(B, 2, 3, device=K.device)
+    theta[:, 0, 0], theta[:, 0, 2] = 1.0 / sx, 1.0 / sx + 2.0 * x0 / W - 1.0
+    theta[:, 1, 1], theta[:, 1, 2] = 1.0 / sy, 1.0 / sy + 2.0 * y0 / H - 1.0
+
+    def resample(x: torch.Tensor) -> torch.Tensor:  # (B, T, C, H, W) -> the same, each window its theta
+        T, C = x.shape[1], x.shape[2]
+        grid = F.affine_grid(theta.repeat_interleave(T, 0), [B * T, C, H, W], align_corners=False)
+        out = F.grid_sample(
+            x.reshape(B * T, C, H, W).float(), grid, align_corners=False, padding_mode="border"
+        )
+        return out.reshape(x.shape)
+
+    out = dict(inputs)
+    zoomed = resample(frames)
+    out["frames"] = (
+        zoomed.round().clamp(0, 255).to(frames.dtype) if not frames.is_floating_point() else zoomed
+    )
+    if "flow" in inputs:
+        scale = torch.stack((sx, sy), 1).view(B, 1, 2, 1, 1)
+        out["flow"] = (resample(inputs["flow"]) * scale).to(inputs["flow"].dtype)
+    K_out = K.clone()
+    K_out[:, 0, 0], K_out[:, 1, 1] = K[:, 0, 0] * sx, K[:, 1, 1] * sy
+    K_out[:, 0, 2] = (K[:, 0, 2] - x0 + 0.5) * sx - 0.5
+    K_out[:, 1, 2] = (K[:, 1, 2] - y0 + 0.5) * sy - 0.5
+    out["K"] = K_out
+    return out
+
+
 STANDSTILL_NOISE = 1.5
 """Standard deviation (grey levels) of the sensor noise added to each frame of a standing window."""
 
@@ -372,6 +421,8 @@ class VODataModule(L.LightningDataModule):
         crop: cut each frame's centred window of the (height, width) aspect ratio before resizing it (K
             follows), so that pixels keep their shape; false: the whole frame, resized (anisotropically when
             the aspect ratios differ).
+        zoom: the largest factor of the zoom augmentation of training windows (:func:`zoomed_windows`:
+            random windows of the frame resized to it, K following); 1: none.
         keep_every: keep every n-th frame of each sequence (the others are never read): matches frame rates
             across datasets (3 turns TUM's 30 Hz into KITTI's 10 Hz). Unlike ``frame_steps`` it applies to
             every split, evaluation included.
@@ -411,6 +462,7 @@ class VODataModule(L.LightningDataModule):
         layout: str = "kitti",
         keep_every: int = 1,
         crop: bool = False,
+        zoom: float = 1.0,
     ) -> None:
         super().__init__()
         self.save_hyperparameters(logger=False)
@@ -467,6 +519,9 @@ class VODataModule(L.LightningDataModule):
             )
         self.normalization, self.augment, self.reverse = normalization, augment, float(reverse)
         self.standstill, self.mirror = float(standstill), float(mirror)
+        if not is_number(zoom) or not 1.0 <= zoom <= 4.0:
+            raise ValueError(f"data.zoom: expected a number in [1, 4] (1: no zoom), got {zoom!r}")
+        self.zoom = float(zoom)
         self.sequences: dict[str, Sequence] = {}
         self.mean: np.ndarray | None = None  # per-channel statistics, set by setup
         self.std: np.ndarray | None = None
@@ -699,8 +754,8 @@ class VODataModule(L.LightningDataModule):
         self, batch: dict[str, torch.Tensor], dataloader_idx: int
     ) -> dict[str, torch.Tensor]:
         """On the training device: :meth:`prepare`; when training, windows first stopped
-        (``standstill``: no flow), mirrored (``mirror``: the flow and K too), played backwards (``reverse``)
-        and jittered (``augment``)."""
+        (``standstill``: no flow), zoomed (``zoom``: the flow and K too), mirrored (``mirror``: the flow and
+        K too), played backwards (``reverse``) and jittered (``augment``)."""
         batch = dict(batch)
         frames, targets = batch["frames"], batch["targets"]
         training = self.trainer is not None and self.trainer.training
@@ -709,6 +764,9 @@ class VODataModule(L.LightningDataModule):
             frames, targets = standing_windows(frames, targets, which)
             if "flow" in batch:
                 batch["flow"] = batch["flow"] * ~which.to(frames.device).view(-1, 1, 1, 1, 1)
+        if training and self.zoom > 1:
+            batch = zoomed_windows({**batch, "frames": frames}, self.zoom)
+            frames = batch["frames"]
         if training and self.mirror > 0:
             which = torch.rand(frames.shape[0]) < self.mirror
             frames, targets = mirror_windows(frames, targets, which)
