@@ -139,15 +139,22 @@ def test_tum_layout_through_the_datamodule(tum_root: Path, tmp_path: Path) -> No
     assert frames.shape == (len(seq.images), 3, 24, 32)
 
 
-def test_undistortion_happens_at_cache_build(tum_root: Path, tmp_path: Path) -> None:
-    """The cached frame is the source frame undistorted (OpenCV's remap), then resized."""
-    dm = datamodule(tum_root, tmp_path / "cache")
+def set_up_with_source(
+    tum_root: Path, cache: Path, **kwargs
+) -> tuple[VODataModule, frame_cache.Undistortion, np.ndarray]:
+    """A set-up datamodule on the tiny TUM layout, its undistortion and first source frame (BGR)."""
+    dm = datamodule(tum_root, cache, **kwargs)
     dm.prepare_data()
     dm.setup()
     seq = dm.sequences[FR1]
     undistort = frame_cache.undistortion(seq)
     assert undistort is not None
-    source = cv2.imread(str(seq.images[0]), cv2.IMREAD_COLOR)
+    return dm, undistort, cv2.imread(str(seq.images[0]), cv2.IMREAD_COLOR)
+
+
+def test_undistortion_happens_at_cache_build(tum_root: Path, tmp_path: Path) -> None:
+    """The cached frame is the source frame undistorted (OpenCV's remap), then resized."""
+    dm, undistort, source = set_up_with_source(tum_root, tmp_path / "cache")
     expected = cv2.resize(undistort.apply(source), (32, 24), interpolation=cv2.INTER_AREA)
     expected = cv2.cvtColor(expected, cv2.COLOR_BGR2RGB).transpose(2, 0, 1)
     np.testing.assert_array_equal(dm.sequence_frames(FR1)[0], expected)
@@ -212,13 +219,7 @@ def test_centre_crop_keeps_the_target_aspect_ratio() -> None:
 def test_crop_cuts_the_centred_window_and_K_follows(tum_root: Path, tmp_path: Path) -> None:
     """48x64 frames into 16x32: the centred 32x64 window of the undistorted frame, resized; K of that window
     resized, with square pixels (fx = fy within the camera's own ratio)."""
-    dm = datamodule(tum_root, tmp_path / "cache", height=16, width=32, crop=True)
-    dm.prepare_data()
-    dm.setup()
-    seq = dm.sequences[FR1]
-    undistort = frame_cache.undistortion(seq)
-    assert undistort is not None
-    source = cv2.imread(str(seq.images[0]), cv2.IMREAD_COLOR)
+    dm, undistort, source = set_up_with_source(tum_root, tmp_path / "cache", height=16, width=32, crop=True)
     window = undistort.apply(source)[8:40]
     expected = cv2.cvtColor(cv2.resize(window, (32, 16), interpolation=cv2.INTER_AREA), cv2.COLOR_BGR2RGB)
     np.testing.assert_array_equal(dm.sequence_frames(FR1)[0], expected.transpose(2, 0, 1))
