@@ -96,6 +96,12 @@ def test_a_kitti_trained_network_evaluates_on_another_layout_from_its_checkpoint
     assert entry["trajectory"] == f"trajectories/{stem}.txt"
     assert entry["ground_truth"] == str((out / "trajectories" / f"{stem}_gt.tum").resolve())
     check_ape_against_evo(out / "trajectories", stem, entry["ape"]["trans"]["rmse"], entry["frames"])
+    # the camera the network saw: the layout's K, resized to the checkpoint's 64x96, recorded per sequence
+    K = np.array(entry["K"])
+    assert K.shape == (3, 3) and K[2].tolist() == [0, 0, 1]
+    trained = torch.load(kitti_run / "checkpoints" / "best.ckpt", weights_only=True)
+    training_K = trained["data"]["intrinsics"]
+    assert sorted(training_K) == ["00", "01"] and not np.allclose(K, training_K["00"])
 
 
 # --------------------------------------------------------------------------------------------------

@@ -669,8 +669,9 @@ class VODataModule(L.LightningDataModule):
 
     def description(self) -> dict[str, Any]:
         """What a network trained on this data depends on, as primitives (a checkpoint's ``data``):
-        ``_target_`` (this class) and the constructor's arguments, ``root`` absolute, and
-        ``statistics`` ``{"mean": [3], "std": [3]}`` (after :meth:`setup`; None before)."""
+        ``_target_`` (this class) and the constructor's arguments, ``root`` absolute, and, after
+        :meth:`setup` (None before), ``statistics`` ``{"mean": [3], "std": [3]}`` and ``intrinsics``, the
+        (3, 3) K of each training sequence's cached frames (pixels)."""
         config = {key: _primitive(value) for key, value in self.hparams.items()}
         if config.get("root") is not None:
             config["root"] = str(Path(config["root"]).expanduser().resolve())
@@ -678,7 +679,9 @@ class VODataModule(L.LightningDataModule):
             "mean": [float(v) for v in self.mean], "std": [float(v) for v in self.std]
         }  # fmt: skip
         target = f"{type(self).__module__}.{type(self).__qualname__}"
-        return {"_target_": target, **config, "statistics": stats, "dataset_root": str(self.dataset_root())}
+        cameras = {n: self.intrinsics(n).tolist() for n in self.splits["train"]} if self.datasets else None
+        return {"_target_": target, **config, "statistics": stats, "dataset_root": str(self.dataset_root()),
+                "intrinsics": cameras}  # fmt: skip
 
     def dataset_root(self) -> Path:
         """The absolute folder the layout's reader reads (for KITTI the one holding ``sequences/``); with

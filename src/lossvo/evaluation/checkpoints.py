@@ -32,7 +32,7 @@ from lossvo.losses import PoseLoss
 TRAINED_WITH = ("height", "width", "seq_len", "normalization", "flow", "flow_preset", "flow_scale")
 """Data settings a trained network depends on: evaluation takes them from its checkpoint."""
 
-RECORD_ONLY = ("statistics", "dataset_root")
+RECORD_ONLY = ("statistics", "dataset_root", "intrinsics")
 """Entries of a checkpoint's ``data`` that describe the training data but are not datamodule arguments."""
 
 

@@ -226,8 +226,8 @@ class Scores:
 class SequenceResult:
     """One evaluated sequence: its frame count, trajectory and plot files (relative to the run folder),
     the ground-truth pose file it was scored against (absolute; None without one), whether it is of a
-    route family never trained on, and its :class:`Scores` (None, with a ``note``, without ground
-    truth)."""
+    route family never trained on, its :class:`Scores` (None, with a ``note``, without ground
+    truth) and ``K``, the (3, 3) intrinsics of the frames the network saw (pixels; None in older files)."""
 
     frames: int
     trajectory: str
@@ -236,6 +236,7 @@ class SequenceResult:
     unseen: bool
     scores: Scores | None = None
     note: str | None = None
+    K: list[list[float]] | None = None
 
     @classmethod
     def from_json(cls, obj: Any, where: str) -> SequenceResult:
@@ -252,12 +253,23 @@ class SequenceResult:
             unseen=_flag(_field(obj, "unseen", where), _key(where, "unseen")),
             scores=scores,
             note=note,
+            K=_intrinsics(obj.get("K"), _key(where, "K")),
         )
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {"frames": self.frames, "trajectory": self.trajectory, "plot": self.plot}
         out |= {"note": self.note} if self.scores is None else self.scores.to_json()
+        out |= {"K": self.K} if self.K is not None else {}
         return out | {"ground_truth": self.ground_truth, "unseen": self.unseen}
+
+
+def _intrinsics(value: Any, where: str) -> list[list[float]] | None:
+    """A 3x3 matrix of finite numbers (or None)."""
+    fits = value is None or (
+        isinstance(value, list) and len(value) == 3
+        and all(isinstance(row, list) and len(row) == 3 and all(is_number(v) for v in row) for row in value)
+    )  # fmt: skip
+    return cast("list[list[float]] | None", _expect(value, where, fits, "a 3x3 matrix (pixels)", True))
 
 
 @dataclass(frozen=True)
@@ -629,8 +641,9 @@ def evaluate_run(
         est, scores = predict_and_score(module, datamodule, name, gt, pooled, carry_state,
                                         mirror_average=mirror_average)  # fmt: skip
         times = datamodule.sequence_times(name)
-        per_sequence[name] = _sequence_result(name, est, gt, scores, out_dir, record, times, name in unseen,
-                                              translation, _pose_file(datamodule, name, gt))  # fmt: skip
+        entry = _sequence_result(name, est, gt, scores, out_dir, record, times, name in unseen,
+                                 translation, _pose_file(datamodule, name, gt))  # fmt: skip
+        per_sequence[name] = replace(entry, K=datamodule.intrinsics(name).tolist())
     evaluated = [name for name, entry in per_sequence.items() if entry.scores is not None]
     computed = pooled.compute()
     overall = Overall([], note=NO_METRICS_NOTE) if computed is None else Overall(evaluated, _scores(computed))
