@@ -272,3 +272,27 @@ def test_zoomed_flow_is_the_flow_the_zoomed_camera_sees() -> None:
 def test_bad_zoom_names_the_key(tum_root: Path, tmp_path: Path) -> None:
     with pytest.raises(ValueError, match=r"data\.zoom: expected a number in \[1, 4\]"):
         datamodule(tum_root, tmp_path / "cache", zoom=0.5)
+
+
+def test_a_camera_override_replaces_the_readers(tum_root: Path, tmp_path: Path) -> None:
+    """data.camera: another camera for every sequence (here undistorted, so nothing is undistorted)."""
+    K = [[40.0, 0.0, 31.5], [0.0, 40.0, 23.5], [0.0, 0.0, 1.0]]
+    dm = datamodule(tum_root, tmp_path / "cache", camera={"K": K})
+    dm.setup()
+    seq = dm.sequences[FR1]
+    np.testing.assert_array_equal(seq.K, K)
+    assert not seq.distortion.any() and frame_cache.undistortion(seq) is None
+    np.testing.assert_allclose(dm.intrinsics(FR1), camera.resized_intrinsics(np.array(K), FRAME_HW, (24, 32)))
+
+
+@pytest.mark.parametrize(
+    ("value", "message"),
+    [
+        ({"K": [[1, 0], [0, 1]]}, r"data\.camera\.K: expected a 3x3 matrix"),
+        ({"K": np.eye(3).tolist(), "distortion": [0.1]}, r"data\.camera\.distortion: expected 4, 5, 8"),
+        ({"fx": 3}, r"data\.camera: expected \{K: "),
+    ],
+)
+def test_bad_camera_overrides_name_the_key(tum_root: Path, tmp_path: Path, value: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        datamodule(tum_root, tmp_path / "cache", camera=value)

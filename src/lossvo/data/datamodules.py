@@ -372,12 +372,36 @@ class EpochShuffle(Sampler[int]):
 
 @dataclass(frozen=True)
 class Source:
-    """One dataset a datamodule reads: its ``layout`` (:data:`lossvo.data.layouts.LAYOUTS`), its ``root`` and
-    every how-many-th frame of its sequences is kept (``keep_every``)."""
+    """One dataset a datamodule reads: its ``layout`` (:data:`lossvo.data.layouts.LAYOUTS`), its ``root``,
+    every how-many-th frame of its sequences is kept (``keep_every``) and the camera that replaces the one its
+    reader gives (``camera``: K (3, 3) pixels and OpenCV distortion; None: the reader's)."""
 
     layout: str
     root: Path
     keep_every: int = 1
+    camera: tuple[np.ndarray, np.ndarray] | None = None
+
+
+def _camera(value: Any, key: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """``{K: 3x3, distortion: [4, 5, 8, 12 or 14 numbers]}`` (distortion optional: zeros) as arrays, or None;
+    ValueError naming ``key`` otherwise."""
+    if value is None:
+        return None
+    if not isinstance(value, Mapping) or set(value) - {"K", "distortion"} or "K" not in value:
+        raise ValueError(f"{key}: expected {{K: [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], distortion: [...]}}, "
+                         f"got {value!r}")  # fmt: skip
+    try:
+        K = np.asarray(value["K"], dtype=np.float64)
+        distortion = np.asarray(value.get("distortion") or np.zeros(5), dtype=np.float64)
+    except (TypeError, ValueError):
+        K, distortion = np.zeros(0), np.zeros(0)
+    if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise ValueError(f"{key}.K: expected a 3x3 matrix of pixels with fx, fy > 0, got {value['K']!r}")
+    if distortion.shape not in ((4,), (5,), (8,), (12,), (14,)) or not np.isfinite(distortion).all():
+        raise ValueError(
+            f"{key}.distortion: expected 4, 5, 8, 12 or 14 numbers, got {value.get('distortion')!r}"
+        )
+    return K, distortion
 
 
 class VODataModule(L.LightningDataModule):
@@ -423,6 +447,9 @@ class VODataModule(L.LightningDataModule):
             the aspect ratios differ).
         zoom: the largest factor of the zoom augmentation of training windows (:func:`zoomed_windows`:
             random windows of the frame resized to it, K following); 1: none.
+        camera: ``{K: 3x3, distortion: [k1, k2, p1, p2, k3]}`` replacing the camera the reader gives every
+            sequence (pixels of the frames on disk; e.g. a TUM sequence recorded with another camera); null:
+            the reader's.
         keep_every: keep every n-th frame of each sequence (the others are never read): matches frame rates
             across datasets (3 turns TUM's 30 Hz into KITTI's 10 Hz). Unlike ``frame_steps`` it applies to
             every split, evaluation included.
@@ -463,6 +490,7 @@ class VODataModule(L.LightningDataModule):
         keep_every: int = 1,
         crop: bool = False,
         zoom: float = 1.0,
+        camera: Mapping[str, Any] | None = None,
     ) -> None:
         super().__init__()
         self.save_hyperparameters(logger=False)
@@ -473,7 +501,7 @@ class VODataModule(L.LightningDataModule):
         if not isinstance(crop, bool):
             raise ValueError(f"data.crop: expected true or false, got {crop!r}")
         self.crop = crop
-        self.sources = {"": Source(self.layout, self.root, int(keep_every))}
+        self.sources = {"": Source(self.layout, self.root, int(keep_every), _camera(camera, "data.camera"))}
         """The datasets read, by key: one, keyed ``""``, whose sequences are named as it names them; several
         (:class:`MultiDataModule`), whose sequences are named ``<key>/<name>``."""
         self.splits = {
@@ -555,6 +583,8 @@ class VODataModule(L.LightningDataModule):
             source, local = self.source_of(name)
             root = layouts.dataset_root(source.layout, source.root)
             seq = layouts.load_sequence(source.layout, root, local, require_poses=name in labelled)
+            if source.camera is not None:
+                seq = dataclasses.replace(seq, K=source.camera[0], distortion=source.camera[1])
             self.sequences[name] = _kept(seq, source.keep_every)
 
     def load_metadata(self) -> None:
@@ -813,9 +843,9 @@ class KittiDataModule(VODataModule):
     """KITTI odometry (``data=kitti``): :class:`VODataModule` in its default layout, ``kitti``."""
 
 
-DATASET_KEYS = ("layout", "root", "train", "val", "test", "unseen", "keep_every")
+DATASET_KEYS = ("layout", "root", "train", "val", "test", "unseen", "keep_every", "camera")
 """What an entry of :class:`MultiDataModule`'s ``datasets`` may set."""
-DERIVED = ("root", "layout", "train", "val", "test", "unseen", "keep_every")
+DERIVED = ("root", "layout", "train", "val", "test", "unseen", "keep_every", "camera")
 """:class:`VODataModule` arguments that :class:`MultiDataModule` derives from its ``datasets``."""
 
 
@@ -869,7 +899,12 @@ class MultiDataModule(VODataModule):
         first = next(iter(entries.values()))
         super().__init__(str(first["root"]), train, val, test, unseen, layout=first["layout"], **shared)
         self.sources = {
-            key: Source(e["layout"], Path(e["root"]).expanduser(), int(e.get("keep_every", 1)))
+            key: Source(
+                e["layout"],
+                Path(e["root"]).expanduser(),
+                int(e.get("keep_every", 1)),
+                _camera(e.get("camera"), f"data.datasets.{key}.camera"),
+            )
             for key, e in entries.items()
         }
         self.layout = "multi"
