@@ -77,14 +77,6 @@ def _statistics(value: Mapping[str, Seq[float]] | None) -> tuple[np.ndarray, np.
     return mean, std
 
 
-def _kept(seq: Sequence, every: int) -> Sequence:
-    """Every ``every``-th frame of a sequence."""
-    if every == 1:
-        return seq
-    poses = None if seq.poses is None else seq.poses[::every]
-    return dataclasses.replace(seq, images=seq.images[::every], times=seq.times[::every], poses=poses)
-
-
 def _primitive(value: Any) -> Any:
     """A config value as plain Python (lists, dicts, scalars): what a checkpoint may hold."""
     if isinstance(value, Mapping):
@@ -585,7 +577,7 @@ class VODataModule(L.LightningDataModule):
             seq = layouts.load_sequence(source.layout, root, local, require_poses=name in labelled)
             if source.camera is not None:
                 seq = dataclasses.replace(seq, K=source.camera[0], distortion=source.camera[1])
-            self.sequences[name] = _kept(seq, source.keep_every)
+            self.sequences[name] = seq.every(source.keep_every)
 
     def load_metadata(self) -> None:
         """Read and check every sequence's poses, calibration and image list, without building the

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -121,6 +121,13 @@ class Sequence:
             raise ValueError(f"sequence {self.name}: poses of shape {self.poses.shape} for {n} frames")
         if self.K.shape != (3, 3):
             raise ValueError(f"sequence {self.name}: K of shape {self.K.shape}, expected (3, 3)")
+
+    def every(self, n: int) -> Sequence:
+        """The sequence with every ``n``-th frame kept (frames 0, n, 2n, ...): a lower frame rate."""
+        if n == 1:
+            return self
+        poses = None if self.poses is None else self.poses[::n]
+        return replace(self, images=self.images[::n], times=self.times[::n], poses=poses)
 
     @property
     def targets(self) -> np.ndarray:

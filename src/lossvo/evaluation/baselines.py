@@ -32,16 +32,18 @@ RPE delta as the runs' ``results.json``), so that their numbers sit in the same 
   reading the same flow must beat a one-line estimator on it.
 
 The sequences are read from the dataset that a run's results.json records
-(:class:`lossvo.evaluation.results.DataRecord`: ``root``, in the KITTI layout, read with
-:func:`lossvo.data.kitti.load_sequence`: the frames' PNGs, calib.txt and the pose files), the training
-split's mean motion from the pose files of the training data it records (``train_root``, ``train``): no
-datamodule is built and nothing is rendered. Results are cached per sequence in
+(:class:`lossvo.evaluation.results.DataRecord`: ``root`` in its ``layout``, read with that layout's
+reader, :func:`lossvo.data.layouts.load_sequence`: the frames, the camera and the ground truth, every
+``keep_every``-th frame as the networks saw them), the training split's mean motion from the ground truth of
+the training data it records (``train_root``, ``train``, ``train_layout``, ``train_keep_every``): no
+datamodule is built and nothing is rendered. Distorted frames are undistorted (the ORB keypoints onto K, the
+frames of the flow baseline as the frame cache undistorts them). Results are cached per sequence in
 ``<cache_dir>/<key>.npz`` so that re-running a report costs nothing; the key covers everything the
 numbers depend on (the recorded roots and training split, the training mean motion, the sequence's
 files, alignment, delta, the ORB and flow settings, the training sequences' flow features and
 :data:`VERSION`). The flow features of every sequence they are computed for, the training split's
 included (the speed fit's input), are cached in ``<cache_dir>/flow/<key>.npz``, keyed by the
-sequence's frames, K and the flow settings: a second report computes no flow.
+sequence's frames, K, distortion and the flow settings: a second report computes no flow.
 """
 
 from __future__ import annotations
@@ -62,10 +64,10 @@ import torch
 
 from lossvo import geometry
 from lossvo.atomic import atomic_path
-from lossvo.data import camera
+from lossvo.data import camera, layouts
 from lossvo.data.flow import FlowSetting, pair_flow
-from lossvo.data.frame_cache import read_frame
-from lossvo.data.kitti import KittiFormatError, check_png, find_root, load_sequence
+from lossvo.data.frame_cache import Undistortion, read_frame, undistortion
+from lossvo.data.kitti import KittiFormatError, check_png
 from lossvo.data.sequence import Sequence as DatasetSequence
 from lossvo.evaluation import metrics
 from lossvo.evaluation.results import DataRecord, Scores
@@ -253,13 +255,15 @@ def pair_motion(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, threshold: float)
 
 
 def orb_essential(
-    images: Sequence[Path], K: np.ndarray, step_lengths: np.ndarray, fallback: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+    images: Sequence[Path], K: np.ndarray, step_lengths: np.ndarray, fallback: np.ndarray,
+    distortion: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Monocular ORB + essential-matrix VO with ground-truth step lengths.
 
     Args:
         images: the sequence's N frame paths, in order.
-        K: (3, 3) intrinsics of those frames.
+        K: (3, 3) intrinsics of those frames; distortion: their OpenCV distortion (the keypoints are
+            undistorted onto K), None or zeros for undistorted frames.
         step_lengths: (N-1,) ground-truth translation norms |t_k| in metres.
         fallback: (4, 4) motion used where the first pairs fail (e.g. :func:`mean_motion`).
     Returns:
@@ -269,6 +273,8 @@ def orb_essential(
     features = orb_features(images)
     threshold = RANSAC_THRESHOLD_PX if features.shape[1] < 640 else 1.0
     points, estimates = features.points, []
+    if distortion is not None and np.any(distortion):
+        points = [cv2.undistortPoints(p.reshape(-1, 1, 2), K, distortion, P=K).reshape(-1, 2) for p in points]
     following = signed_bits(features.descriptors[0])
     for k in range(len(points) - 1):  # OpenCV's solvers take one pair at a time
         previous, following = following, signed_bits(features.descriptors[k + 1])
@@ -398,7 +404,9 @@ def png_size(path: Path) -> tuple[int, int]:
     return height, width
 
 
-def flow_features(images: Sequence[Path], K: np.ndarray) -> FlowFeatures:
+def flow_features(
+    images: Sequence[Path], K: np.ndarray, undistort: Undistortion | None = None
+) -> FlowFeatures:
     """The flow features of a sequence's consecutive frames.
 
     The frames are decoded one at a time (:func:`lossvo.data.frame_cache.read_frame`, at
@@ -408,6 +416,8 @@ def flow_features(images: Sequence[Path], K: np.ndarray) -> FlowFeatures:
     Args:
         images: the sequence's N frame paths (PNG), in order.
         K: (3, 3) intrinsics of those frames (calib.txt's), scaled here to the flow's size.
+        undistort: the frames' undistortion (:func:`lossvo.data.frame_cache.undistortion`; its K replaces
+            ``K``), None for undistorted frames.
     Raises:
         KittiFormatError: an unreadable frame, or one of another size than the first.
     """
@@ -415,13 +425,13 @@ def flow_features(images: Sequence[Path], K: np.ndarray) -> FlowFeatures:
         return FlowFeatures(np.zeros(0), np.zeros(0))
     source = png_size(images[0])
     size = flow_size(source)
-    K_flow = camera.resized_intrinsics(K, source, size)
+    K_flow = camera.resized_intrinsics(K if undistort is None else undistort.K, source, size)
     yaw: list[np.ndarray] = []
     road: list[np.ndarray] = []
     fields: list[np.ndarray] = []
-    previous, _ = read_frame(images[0], *size)
+    previous, _ = read_frame(images[0], *size, undistort)
     for i, path in enumerate(images[1:], start=1):
-        frame, shape = read_frame(path, *size)
+        frame, shape = read_frame(path, *size, undistort)
         if shape != source:
             raise KittiFormatError(f"{path}: {shape[0]}x{shape[1]} pixels, expected {source[0]}x{source[1]} "
                                    "(the size of the sequence's first frame)")  # fmt: skip
@@ -462,9 +472,9 @@ def sequence_baselines(
     gt = np.asarray(sequence.poses, dtype=np.float64)
     targets = sequence.targets
     steps = np.linalg.norm(targets[:, :3, 3], axis=1)
-    orb, failed = orb_essential(sequence.images, sequence.K, steps, train_mean)
+    orb, failed = orb_essential(sequence.images, sequence.K, steps, train_mean, sequence.distortion)
     if features is None:
-        features = flow_features(sequence.images, sequence.K)
+        features = flow_features(sequence.images, sequence.K, undistortion(sequence))
     relatives = {
         ZERO: zero_motion(len(targets)),
         MEAN: repeat_motion(train_mean, len(targets)),
@@ -486,7 +496,8 @@ def sequence_baselines(
 
 
 def training_sequences(data: DataRecord) -> list[DatasetSequence]:
-    """The training split recorded in ``data``: its sequences under ``data.train_root`` (poses required).
+    """The training split recorded in ``data``: its sequences under ``data.train_root``, read in
+    ``data.train_layout`` (poses required).
 
     Raises:
         ValueError: no training data or sequence recorded; KittiFormatError for a sequence that is not
@@ -494,8 +505,9 @@ def training_sequences(data: DataRecord) -> list[DatasetSequence]:
     """
     if not data.train or data.train_root is None:
         raise ValueError("the recorded training split (data.train) is empty: no training mean motion")
-    root = find_root(data.train_root)
-    return [load_sequence(root, name) for name in data.train]
+    root = layouts.dataset_root(data.train_layout, data.train_root)
+    every = data.train_keep_every
+    return [layouts.load_sequence(data.train_layout, root, name).every(every) for name in data.train]
 
 
 def training_mean_motion(data: DataRecord) -> np.ndarray:
@@ -512,6 +524,7 @@ def _files(sequence: DatasetSequence) -> dict[str, Any]:
         "bytes": sum(s.st_size for s in stats),
         "mtime_ns": max(s.st_mtime_ns for s in stats) if stats else 0,
         "K": np.asarray(sequence.K).tolist(),
+        "distortion": np.asarray(sequence.distortion).tolist(),
     }
 
 
@@ -524,7 +537,7 @@ def flow_key(sequence: DatasetSequence) -> str:
     settings and :data:`VERSION`."""
     folder = str(sequence.images[0].parent.resolve()) if sequence.images else ""
     settings = [VERSION, FLOW_SETTING.key, FLOW_MAX_WIDTH, YAW_ROWS, YAW_COLUMNS, ROAD_ROWS, ROAD_COLUMNS]
-    return f"{sequence.name}-{_digest([settings, folder, _files(sequence)])}"
+    return f"{sequence.name.replace('/', '_')}-{_digest([settings, folder, _files(sequence)])}"
 
 
 def cached_flow_features(sequence: DatasetSequence, folder: Path) -> FlowFeatures:
@@ -538,7 +551,7 @@ def cached_flow_features(sequence: DatasetSequence, folder: Path) -> FlowFeature
             return features
     except (OSError, ValueError, KeyError):
         pass
-    features = flow_features(sequence.images, sequence.K)
+    features = flow_features(sequence.images, sequence.K, undistortion(sequence))
     with atomic_path(path, suffix=".npz") as tmp:
         np.savez(tmp, yaw=features.yaw, road=features.road)
     return features
@@ -655,8 +668,8 @@ def compute_baselines(
     training = training_sequences(data)
     train_mean = mean_motion([s.targets for s in training])
     train_flow = [flow_key(s) for s in training]
-    root = find_root(data.root)
-    loaded = {n: load_sequence(root, n) for n in sequences}
+    root = layouts.dataset_root(data.layout, data.root)
+    loaded = {n: layouts.load_sequence(data.layout, root, n).every(data.keep_every) for n in sequences}
     paths = {
         n: cache_dir / f"{cache_key(data.identity(), loaded[n], train_mean, train_flow, align, delta)}.npz"
         for n in sequences

@@ -319,8 +319,9 @@ class DataRecord:
     and ``unseen`` sequences) and the data the network was trained on (``train_root``, the training
     split ``train``) with its input settings (``height``, ``width`` in pixels, ``seq_len`` in frames,
     ``normalization``, per-channel ``mean`` and ``std`` of pixel values in [0, 1]), and both datasets'
-    layouts (``layout``, ``train_layout``: :data:`lossvo.data.layouts.LAYOUTS`; absent in older files, which
-    read as KITTI's). Roots are as recorded; they may no longer exist."""
+    layouts (``layout``, ``train_layout``: :data:`lossvo.data.layouts.LAYOUTS`) and every how-many-th frame of
+    each was kept (``keep_every``, ``train_keep_every``); absent in older files, which read as KITTI's, every
+    frame. Roots are as recorded; they may no longer exist."""
 
     kind: str | None
     root: str
@@ -336,6 +337,8 @@ class DataRecord:
     std: list[float] | None = None
     layout: str = "kitti"
     train_layout: str = "kitti"
+    keep_every: int = 1
+    train_keep_every: int = 1
 
     def identity(self) -> dict[str, Any]:
         """What decides the frames on disk and the training split's poses (a cache key)."""
@@ -364,6 +367,10 @@ class DataRecord:
             std=_numbers(*get("std")),
             layout=cast("str", _text(obj.get("layout", "kitti"), _key(where, "layout"))),
             train_layout=cast("str", _text(obj.get("train_layout", "kitti"), _key(where, "train_layout"))),
+            keep_every=cast("int", _integer(obj.get("keep_every", 1), _key(where, "keep_every"))),
+            train_keep_every=cast(
+                "int", _integer(obj.get("train_keep_every", 1), _key(where, "train_keep_every"))
+            ),
         )
 
     def to_json(self) -> dict[str, Any]:
@@ -514,6 +521,8 @@ def data_record(
         std=stats.get("std"),
         layout=str(evaluated.get("layout", "kitti")),
         train_layout=str(trained.get("layout", "kitti")),
+        keep_every=int(evaluated.get("keep_every") or 1),
+        train_keep_every=int(trained.get("keep_every") or 1),
     )
 
 
