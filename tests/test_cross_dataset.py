@@ -174,3 +174,36 @@ def test_bad_dataset_entries_name_the_key(
     cfg = compose_train([*overrides, override], tmp_path / "run")
     with pytest.raises(Exception, match=message):
         instantiate(cfg.data, _convert_="all")
+
+
+@pytest.mark.slow
+def test_baselines_read_other_layouts_at_the_networks_frame_rate(tmp_path: Path) -> None:
+    """The report's baselines on the EuRoC layout (grey, distorted; half its native size, 40 frames): every
+    2nd frame as a run with keep_every=2 saw them; ORB + E on undistorted keypoints reads the flying camera's
+    rotation better than standing still, and worse when the distortion is ignored."""
+    from lossvo.data import euroc
+    from lossvo.evaluation import baselines
+    from lossvo.evaluation.results import DataRecord
+
+    train, test = (synthetic.sequence_name("euroc", s) for s in ("00", "01"))
+    root = str(
+        synthetic.generate(tmp_path / "euroc", ("00", "01"), 40, layout="euroc", scale=0.5, progress=False)
+    )
+    data = DataRecord("lossvo.data.datamodules.VODataModule", root, [test], [], root, [train],
+                      layout="euroc", train_layout="euroc", keep_every=2, train_keep_every=2)  # fmt: skip
+    found = baselines.compute_baselines(data, [test], tmp_path / "cache")[test]
+    frames = len(euroc.load_sequence(root, test).images)
+    assert len(found[baselines.ZERO].trajectory) == (frames + 1) // 2
+    orb, zero = found[baselines.ORB], found[baselines.ZERO]
+    assert orb.scores.rpe.rot_rad.rmse < zero.scores.rpe.rot_rad.rmse
+    seq = euroc.load_sequence(root, test).every(2)
+    steps = np.linalg.norm(seq.targets[:, :3, 3], axis=1)
+    ignored, _ = baselines.orb_essential(seq.images, seq.K, steps, np.eye(4))
+    undistorted, _ = baselines.orb_essential(seq.images, seq.K, steps, np.eye(4), seq.distortion)
+
+    def rotation_errors(relative: np.ndarray) -> np.ndarray:
+        """(N-1,) angle (rad) between each estimated and true relative rotation."""
+        R = np.swapaxes(relative[:, :3, :3], 1, 2) @ seq.targets[:, :3, :3]
+        return np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1, 1))
+
+    assert np.median(rotation_errors(undistorted)) < np.median(rotation_errors(ignored))
