@@ -129,7 +129,8 @@ BASELINES_TEXT = [
     "- **mean motion (train)**: the training split's mean relative pose (mean translation, chordal mean "
     "rotation) at every step;",
     "- **ORB+E (GT scale)**: ORB features, `cv2.findEssentialMat` (RANSAC, OpenCV's USAC) and "
-    "`cv2.recoverPose` with K from calib.txt; each step's translation is scaled to the ground-truth "
+    "`cv2.recoverPose` with the dataset's K (keypoints undistorted where the frames are distorted); "
+    "each step's translation is scaled to the ground-truth "
     "step length (monocular VO has no scale: this is an optimistic baseline). A pair whose matches do "
     "not move is a step straight ahead; a pair with too few matches or inliers takes the previous "
     "pair's motion (counted below as a failure);",
