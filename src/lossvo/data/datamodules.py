@@ -362,6 +362,43 @@ class EpochShuffle(Sampler[int]):
         return self.count
 
 
+def _probability(value: Any) -> bool:
+    return is_number(value) and 0.0 <= value <= 1.0
+
+
+ARGUMENT_CHECKS: tuple[tuple[str, Any, str], ...] = (
+    ("height", lambda v: is_integer(v, 16), "an integer >= 16 pixels"),
+    ("width", lambda v: is_integer(v, 16), "an integer >= 16 pixels"),
+    ("seq_len", lambda v: is_integer(v, 2), "an integer >= 2 frames"),
+    ("stride", lambda v: is_integer(v, 1), "an integer >= 1"),
+    ("keep_every", lambda v: is_integer(v, 1), "an integer >= 1 (frames)"),
+    ("normalization", lambda v: v in NORMALIZATIONS, f"one of {NORMALIZATIONS}"),
+    ("windows_per_epoch", lambda v: v is None or is_integer(v, 1), "null or an integer >= 1"),
+    ("reverse", _probability, "a probability in [0, 1]"),
+    ("standstill", _probability, "a probability in [0, 1]"),
+    ("mirror", _probability, "a probability in [0, 1]"),
+    ("zoom", lambda v: is_number(v) and 1.0 <= v <= 4.0, "a number in [1, 4] (1: no zoom)"),
+    ("crop", lambda v: isinstance(v, bool), "true or false"),
+)
+"""(argument, test, what is expected) of the datamodule's scalar arguments."""
+
+
+def _check_arguments(values: Mapping[str, Any]) -> None:
+    """ValueError ``data.<argument>: expected <what>, got <value>`` at the first argument of
+    :data:`ARGUMENT_CHECKS` that fails its test."""
+    for key, fits, expected in ARGUMENT_CHECKS:
+        if not fits(values[key]):
+            raise ValueError(f"data.{key}: expected {expected}, got {values[key]!r}")
+
+
+def _frame_steps(value: Any) -> tuple[int, ...]:
+    """``data.frame_steps`` as distinct steps in order; ValueError naming the key otherwise."""
+    steps = list(value) if isinstance(value, Seq) and not isinstance(value, str) else []
+    if not steps or any(not is_integer(v, 1) for v in steps):
+        raise ValueError(f"data.frame_steps: expected a list of integers >= 1 like [1, 2], got {value!r}")
+    return tuple(dict.fromkeys(steps))
+
+
 @dataclass(frozen=True)
 class Source:
     """One dataset a datamodule reads: its ``layout`` (:data:`lossvo.data.layouts.LAYOUTS`), its ``root``,
@@ -486,13 +523,13 @@ class VODataModule(L.LightningDataModule):
     ) -> None:
         super().__init__()
         self.save_hyperparameters(logger=False)
+        _check_arguments({
+            "height": height, "width": width, "seq_len": seq_len, "stride": stride, "keep_every": keep_every,
+            "normalization": normalization, "windows_per_epoch": windows_per_epoch, "reverse": reverse,
+            "standstill": standstill, "mirror": mirror, "zoom": zoom, "crop": crop,
+        })  # fmt: skip
         self.root = Path(root).expanduser()
         self.layout = layouts.check_layout(layout)
-        if not is_integer(keep_every, 1):
-            raise ValueError(f"data.keep_every: expected an integer >= 1 (frames), got {keep_every!r}")
-        if not isinstance(crop, bool):
-            raise ValueError(f"data.crop: expected true or false, got {crop!r}")
-        self.crop = crop
         self.sources = {"": Source(self.layout, self.root, int(keep_every), _camera(camera, "data.camera"))}
         """The datasets read, by key: one, keyed ``""``, whose sequences are named as it names them; several
         (:class:`MultiDataModule`), whose sequences are named ``<key>/<name>``."""
@@ -502,46 +539,23 @@ class VODataModule(L.LightningDataModule):
             "test": _names(test, "test"),
             "unseen": _names(unseen, "unseen"),
         }
-        for key, value in (("height", height), ("width", width)):
-            if not is_integer(value, 16):
-                raise ValueError(f"data.{key}: expected an integer >= 16 pixels, got {value!r}")
-        if not is_integer(seq_len, 2):
-            raise ValueError(f"data.seq_len: expected an integer >= 2 frames, got {seq_len!r}")
-        if not is_integer(stride, 1):
-            raise ValueError(f"data.stride: expected an integer >= 1, got {stride!r}")
-        if normalization not in NORMALIZATIONS:
-            raise ValueError(f"data.normalization: expected one of {NORMALIZATIONS}, got {normalization!r}")
         self.statistics = _statistics(statistics)
         self.flow = optical_flow.FlowSetting(flow, flow_preset, flow_scale)
         if not self.splits["train"] and self.statistics is None:
             raise ValueError("data.train: expected at least one training sequence")
-        self.height, self.width, self.seq_len, self.stride = height, width, seq_len, stride
-        self.batch_size, self.num_workers, self.pin_memory = batch_size, num_workers, pin_memory
-        if windows_per_epoch is not None and not is_integer(windows_per_epoch, 1):
-            raise ValueError(
-                f"data.windows_per_epoch: expected null or an integer >= 1, got {windows_per_epoch!r}"
-            )
-        self.windows_per_epoch = windows_per_epoch
-        steps = list(frame_steps) if isinstance(frame_steps, Seq) and not isinstance(frame_steps, str) else []
-        if not steps or any(not is_integer(v, 1) for v in steps):
-            raise ValueError(
-                f"data.frame_steps: expected a list of integers >= 1 like [1, 2], got {frame_steps!r}"
-            )
-        self.frame_steps = tuple(dict.fromkeys(steps))
-        self.cache_dir = Path(cache_dir).expanduser() if cache_dir else frame_cache.default_cache_dir()
-        for name, p in (("reverse", reverse), ("standstill", standstill), ("mirror", mirror)):
-            if not is_number(p) or not 0.0 <= p <= 1.0:
-                raise ValueError(f"data.{name}: expected a probability in [0, 1], got {p!r}")
+        self.frame_steps = _frame_steps(frame_steps)
         if self.flow.enabled and reverse > 0:
             raise ValueError(
                 f"data.reverse: expected 0 with data.flow={flow} (the cache holds each pair's forward "
                 f"flow only), got {reverse!r}"
             )
+        self.height, self.width, self.seq_len, self.stride = height, width, seq_len, stride
+        self.batch_size, self.num_workers, self.pin_memory = batch_size, num_workers, pin_memory
+        self.windows_per_epoch = windows_per_epoch
+        self.cache_dir = Path(cache_dir).expanduser() if cache_dir else frame_cache.default_cache_dir()
         self.normalization, self.augment, self.reverse = normalization, augment, float(reverse)
         self.standstill, self.mirror = float(standstill), float(mirror)
-        if not is_number(zoom) or not 1.0 <= zoom <= 4.0:
-            raise ValueError(f"data.zoom: expected a number in [1, 4] (1: no zoom), got {zoom!r}")
-        self.zoom = float(zoom)
+        self.crop, self.zoom = crop, float(zoom)
         self.sequences: dict[str, Sequence] = {}
         self.mean: np.ndarray | None = None  # per-channel statistics, set by setup
         self.std: np.ndarray | None = None
