@@ -251,3 +251,24 @@ def test_trajectory_validation_skips_datamodules_without_sequences() -> None:
     TrajectoryValidation().on_validation_epoch_end(trainer, NoLog())
     with pytest.raises(ValueError, match="every_n_epochs"):
         TrajectoryValidation(every_n_epochs=0)
+
+
+@pytest.mark.parametrize("carry_state", [False, True])
+def test_predict_sequence_cuts_windows_at_gaps(carry_state: bool) -> None:
+    """Windows tiled between gaps, the pair across a gap alone: still every pair once, in order."""
+    n = 20
+    relative = _random_poses(n)
+    stub = PairStub(relative)
+    if carry_state:  # DeepVO's forward_with_state, through the stub
+        stub.model = type(
+            "Model", (), {"forward_with_state": lambda self, x, state: (stub({"frames": x}), state)}
+        )()
+    frames = np.broadcast_to(np.arange(n, dtype=np.uint8)[:, None, None, None], (n, 3, 4, 5))
+    gap = np.zeros(n - 1, dtype=bool)
+    gap[[6, 13]] = True
+    out = predict_sequence(
+        stub, {"frames": frames}, _float, 5, batch_windows=2, gap=gap, carry_state=carry_state
+    )
+    np.testing.assert_array_equal(out, relative.numpy())
+    windows = [tuple(w) for w in tile(n, 5, gap)]
+    assert (6, 8) in windows and (13, 15) in windows

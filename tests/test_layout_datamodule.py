@@ -296,3 +296,17 @@ def test_a_camera_override_replaces_the_readers(tum_root: Path, tmp_path: Path) 
 def test_bad_camera_overrides_name_the_key(tum_root: Path, tmp_path: Path, value: dict, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         datamodule(tum_root, tmp_path / "cache", camera=value)
+
+
+def test_tiles_cut_at_gaps_and_still_cover_every_pair_once() -> None:
+    gap = np.zeros(19, dtype=bool)
+    gap[[6, 7, 13]] = True  # pairs 6 -> 7, 7 -> 8 and 13 -> 14 span gaps
+    tiles = windows.tile(20, 4, gap)
+    np.testing.assert_array_equal(
+        tiles, [[0, 4], [3, 7], [6, 8], [7, 9], [8, 12], [11, 14], [13, 15], [14, 18], [17, 20]]
+    )
+    pairs = np.concatenate([np.arange(start, stop - 1) for start, stop in tiles])
+    np.testing.assert_array_equal(pairs, np.arange(19))
+    crossing = [(a, b) for a, b in tiles if gap[a : b - 1].any()]
+    assert all(b - a == 2 for a, b in crossing)  # a pair across a gap is a window of its own
+    np.testing.assert_array_equal(windows.tile(20, 4, np.zeros(19, dtype=bool)), windows.tile(20, 4))

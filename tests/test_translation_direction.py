@@ -270,7 +270,9 @@ def test_predict_and_score_scales_the_steps_of_a_direction_network_only(translat
     stub = PairStub(relative)
     stub.loss = EulerLoss(translation=translation)
     frames = torch.arange(len(gt), dtype=torch.uint8)[:, None, None, None].expand(-1, 3, 2, 2)
-    datamodule = SimpleNamespace(sequence_inputs=lambda name: {"frames": frames}, prepare=_float, seq_len=3)
+    times = np.arange(len(gt)) / 10.0
+    datamodule = SimpleNamespace(sequence_inputs=lambda name: {"frames": frames}, prepare=_float, seq_len=3,
+                                 sequence_times=lambda name: times)  # fmt: skip
     trajectory, scores = predict_and_score(stub, datamodule, "00", gt.numpy(), PooledScores())
     assert scores is not None and math.isfinite(scores["ape"]["trans"]["rmse"])
     factor = 1.0 if translation == "direction" else 3.0

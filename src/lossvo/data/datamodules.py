@@ -12,9 +12,10 @@ a batch is a dict, as the model receives it::
 The loaders carry frames as uint8 (a window is one copy out of the memory map) and the DataModule
 normalises them on the training device in ``on_after_batch_transfer``, Lightning's hook for this.
 
-Training windows start every ``stride`` frames and never span a gap in a sequence's timestamps (frames
-its reader dropped); validation and test windows tile each sequence (:mod:`lossvo.data.windows`), so that
-every consecutive pair of a sequence is seen exactly once.
+Training windows start every ``stride`` frames; validation and test windows tile each sequence
+(:mod:`lossvo.data.windows`), so that every consecutive pair of a sequence is seen exactly once. No window
+spans a gap in a sequence's timestamps (frames its reader dropped): tiles cut there, the pair across a gap a
+window of its own.
 ``prepare_data`` checks the dataset (one clear error naming the file) and builds the frame cache
 (:mod:`lossvo.data.frame_cache`) before anything trains. Normalisation statistics come from the training
 sequences only, or are FlowNet's ``x / 255 - 0.5`` when its weights are used.
@@ -128,8 +129,10 @@ class WindowDataset(Dataset):
         }
         lengths = [len(p) for p in poses]
         gap = [windows.gaps(t) for t in times] if times is not None else [None] * len(poses)
-        rows = [self._tiles(i, n, seq_len) if tiled else self._training(i, n, seq_len, stride, s, gap[i])
-                for s in steps for i, n in enumerate(lengths) if n >= 2]  # fmt: skip
+        rows = [
+            self._tiles(i, n, seq_len, gap[i]) if tiled else self._training(i, n, seq_len, stride, s, gap[i])
+            for s in steps for i, n in enumerate(lengths) if n >= 2
+        ]  # fmt: skip
         self.index = np.concatenate(rows) if rows else np.zeros((0, 4), dtype=np.int64)
         self._frames: list[np.ndarray] | None = None
         self._flow: dict[int, list[np.ndarray]] | None = None
@@ -144,9 +147,9 @@ class WindowDataset(Dataset):
         return np.stack((np.full_like(starts, seq), starts, stops, np.full_like(starts, step)), axis=1)
 
     @staticmethod
-    def _tiles(seq: int, n: int, seq_len: int) -> np.ndarray:
+    def _tiles(seq: int, n: int, seq_len: int, gap: np.ndarray | None) -> np.ndarray:
         """(M, 4) rows (sequence, start, stop, 1) of the windows tiling a sequence."""
-        ranges = windows.tile(n, seq_len)
+        ranges = windows.tile(n, seq_len, gap)
         ones = np.ones(len(ranges), dtype=np.int64)
         return np.stack((seq * ones, ranges[:, 0], ranges[:, 1], ones), axis=1)
 

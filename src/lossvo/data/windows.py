@@ -13,14 +13,16 @@ import numpy as np
 from torch.utils.data import BatchSampler, Sampler
 
 
-def tile(n_frames: int, seq_len: int) -> np.ndarray:
+def tile(n_frames: int, seq_len: int, gap: np.ndarray | None = None) -> np.ndarray:
     """Windows covering every consecutive frame pair of a sequence exactly once.
 
     Windows of ``seq_len`` frames overlap by one frame (starts 0, seq_len-1, 2 (seq_len-1), ...); the last
-    one is shorter where needed (at least 2 frames).
+    one is shorter where needed (at least 2 frames). With ``gap``, no window spans a gap: each stretch
+    between gaps is tiled on its own and a pair across a gap is a window of its own (2 frames).
 
     Args:
         n_frames: frames in the sequence (>= 2); seq_len: frames per window (>= 2).
+        gap: (n_frames - 1,) bool, the pairs that span a gap (:func:`gaps`); None: none does.
     Returns:
         (M, 2) int64 ``[start, stop)`` frame ranges, in order.
     """
@@ -28,8 +30,19 @@ def tile(n_frames: int, seq_len: int) -> np.ndarray:
         raise ValueError(f"a sequence needs at least 2 frames for one relative pose, got {n_frames}")
     if seq_len < 2:
         raise ValueError(f"seq_len must be >= 2 frames, got {seq_len}")
-    starts = np.arange(0, n_frames - 1, seq_len - 1, dtype=np.int64)
-    return np.stack((starts, np.minimum(starts + seq_len, n_frames)), axis=1)
+    cuts = np.flatnonzero(gap) if gap is not None else np.zeros(0, dtype=np.int64)
+    pieces, first = [], 0
+    for k in cuts.tolist():  # a few gaps a sequence: the stretches between them, then the gap's own pair
+        pieces += [_stretch(first, k + 1, seq_len), np.array([[k, k + 2]], dtype=np.int64)]
+        first = k + 1
+    pieces.append(_stretch(first, n_frames, seq_len))
+    return np.concatenate(pieces)
+
+
+def _stretch(first: int, stop: int, seq_len: int) -> np.ndarray:
+    """(M, 2) windows tiling frames [first, stop) (none when fewer than 2 frames)."""
+    starts = np.arange(first, stop - 1, seq_len - 1, dtype=np.int64)
+    return np.stack((starts, np.minimum(starts + seq_len, stop)), axis=1).reshape(-1, 2)
 
 
 GAP_FACTOR = 1.5

@@ -39,11 +39,13 @@ def predict_sequence(
     batch_windows: int = 16,
     carry_state: bool = False,
     mirror_average: bool = False,
+    gap: np.ndarray | None = None,
 ) -> np.ndarray:
     """Relative poses of a whole sequence, every consecutive pair predicted exactly once.
 
-    The sequence is cut into windows as in validation: ``seq_len`` frames overlapping by one
-    (:func:`lossvo.data.windows.tile`), each with its pairs' flow and the sequence's K. By default the LSTM
+    The sequence is cut into windows as in validation: ``seq_len`` frames overlapping by one, none across
+    a gap (:func:`lossvo.data.windows.tile` with ``gap``, (N - 1,) bool), each with its pairs' flow and the
+    sequence's K. By default the LSTM
     starts from zeros in every window, which is what the network saw in training (one window per sample);
     ``batch_windows`` windows go through the network in one forward pass. With ``carry_state=True`` the
     LSTM state is carried from one window to the next (``model.forward_with_state``, DeepVO's; the windows
@@ -68,10 +70,11 @@ def predict_sequence(
     Returns:
         (N-1, 4, 4) float64 relative poses ``T_k`` (frame k+1 seen from frame k).
     """
-    plain = _predict(module, inputs, prepare, seq_len, batch_windows, carry_state)
+    windows = [(int(a), int(b)) for a, b in tile(len(inputs["frames"]), seq_len, gap)]
+    plain = _predict(module, inputs, prepare, windows, batch_windows, carry_state)
     if not mirror_average:
         return plain
-    mirrored = _predict(module, inputs, lambda x: prepare(mirror_inputs(x)), seq_len, batch_windows,
+    mirrored = _predict(module, inputs, lambda x: prepare(mirror_inputs(x)), windows, batch_windows,
                         carry_state)  # fmt: skip
     return average_with_mirror(torch.from_numpy(plain), torch.from_numpy(mirrored)).numpy()
 
@@ -101,17 +104,17 @@ def _predict(
     module: nn.Module,
     inputs: Inputs,
     prepare: Callable[[dict[str, Tensor]], dict[str, Tensor]],
-    seq_len: int,
+    windows: list[tuple[int, int]],
     batch_windows: int,
     carry_state: bool,
 ) -> np.ndarray:
-    """:func:`predict_sequence` without mirror averaging."""
+    """:func:`predict_sequence` without mirror averaging, over the given ``[start, stop)`` windows."""
     n = len(inputs["frames"])
-    windows = [(int(a), int(b)) for a, b in tile(n, seq_len)]
+    seq_len = max(stop - start for start, stop in windows)
     device = _device_of(module)
     was_training = module.training
     module.eval()
-    outputs: list[Tensor] = []
+    outputs: dict[int, Tensor] = {}
     try:
         with torch.no_grad():
             # Duck-typed (a VOModule's): nn.Module's __getattr__ would type these Tensor | Module.
@@ -119,29 +122,41 @@ def _predict(
             if carry_state:
                 model = cast("DeepVO", module.model)
                 state: LSTMState | None = None
-                for start, stop in windows:
+                for i, (start, stop) in enumerate(windows):
                     x = prepare(_load(inputs, start, stop, device))["frames"][None]
                     pred, state = model.forward_with_state(x, state)
-                    outputs.append(decode(pred)[0].double().cpu())
+                    outputs[i] = decode(pred)[0].double().cpu()
             else:
-                full = [w for w in windows if w[1] - w[0] == seq_len]
-                short = [w for w in windows if w[1] - w[0] != seq_len]  # at most the last one
-                for i in range(0, len(full), batch_windows):
-                    group = full[i : i + batch_windows]
-                    first, last = group[0][0], group[-1][1]  # consecutive windows: one contiguous read
+                full = [i for i, (start, stop) in enumerate(windows) if stop - start == seq_len]
+                for group in _contiguous_groups(full, windows, batch_windows):
+                    first, last = windows[group[0]][0], windows[group[-1]][1]  # one contiguous read
                     chunk = prepare(_load(inputs, first, last, device))
-                    batch = _windows(chunk, [s - first for s, _ in group], seq_len)
-                    pred = module(batch)  # (B, seq_len - 1, dim)
-                    outputs.append(decode(pred).reshape(-1, 4, 4).double().cpu())
-                for start, stop in short:
+                    batch = _windows(chunk, [windows[i][0] - first for i in group], seq_len)
+                    pred = decode(module(batch)).double().cpu()  # (B, seq_len - 1, 4, 4)
+                    outputs.update(zip(group, pred, strict=True))
+                for i in sorted(set(range(len(windows))) - set(full)):  # the shorter ones (ends, gaps)
+                    start, stop = windows[i]
                     batch = _windows(prepare(_load(inputs, start, stop, device)), [0], stop - start)
-                    outputs.append(decode(module(batch))[0].double().cpu())
+                    outputs[i] = decode(module(batch))[0].double().cpu()
     finally:
         module.train(was_training)
-    relative = torch.cat(outputs)
+    relative = torch.cat([outputs[i] for i in range(len(windows))])
     if len(relative) != n - 1:  # a bug here would silently shift the whole trajectory
         raise RuntimeError(f"predicted {len(relative)} relative poses for {n} frames (expected {n - 1})")
     return relative.numpy()
+
+
+def _contiguous_groups(chosen: list[int], windows: list[tuple[int, int]], size: int) -> list[list[int]]:
+    """The ``chosen`` window indices in groups of at most ``size`` consecutive windows that overlap by one
+    frame (so that a group's frames are one contiguous read)."""
+    groups: list[list[int]] = []
+    for i in chosen:
+        group = groups[-1] if groups else None
+        if group and len(group) < size and windows[group[-1]][1] - 1 == windows[i][0]:
+            group.append(i)
+        else:
+            groups.append([i])
+    return groups
 
 
 def _tensor(array: np.ndarray | Tensor) -> Tensor:

@@ -38,6 +38,7 @@ from lossvo import geometry
 from lossvo.atomic import write_text_atomic
 from lossvo.checks import is_integer, is_number
 from lossvo.data.kitti import KittiFormatError, pose_path, sequence_names, write_poses
+from lossvo.data.windows import gaps
 from lossvo.evaluation import metrics
 from lossvo.evaluation.inference import predict_sequence
 from lossvo.evaluation.plots import plot_birdseye
@@ -563,7 +564,8 @@ def predict_and_score(
     """One sequence through the network, chained and scored: the path that validation during training
     (:class:`lossvo.training.callbacks.TrajectoryValidation`) and :func:`evaluate_run` share.
 
-    The sequence's inputs go through :func:`lossvo.evaluation.inference.predict_sequence`; for a network
+    The sequence's inputs go through :func:`lossvo.evaluation.inference.predict_sequence` (windows cut at
+    the gaps in its timestamps, :func:`lossvo.data.windows.gaps`); for a network
     trained on the translation's direction only (its loss's ``translation == "direction"``) each step is
     scaled to the ground-truth step length (:func:`lossvo.evaluation.trajectories.scale_steps`); the
     relative poses are chained from the first ground-truth pose and scored against ``gt`` into ``pooled``
@@ -583,8 +585,8 @@ def predict_and_score(
         dict (None without ground truth).
     """
     relative = predict_sequence(module, datamodule.sequence_inputs(name), datamodule.prepare,
-                                datamodule.seq_len, carry_state=carry_state,
-                                mirror_average=mirror_average)  # fmt: skip
+                                datamodule.seq_len, carry_state=carry_state, mirror_average=mirror_average,
+                                gap=gaps(datamodule.sequence_times(name)))  # fmt: skip
     if gt is None:
         return integrate(torch.from_numpy(relative)), None
     gt_t, relative_t = (torch.as_tensor(a, dtype=torch.float64, device=device) for a in (gt, relative))
