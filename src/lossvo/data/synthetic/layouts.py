@@ -29,13 +29,11 @@ from scipy.spatial.transform import Rotation
 
 from lossvo.data import tartanair, tum
 from lossvo.data.camera import resized_intrinsics
+from lossvo.data.layouts import LAYOUTS, check_layout
 from lossvo.data.synthetic import platforms, routes
 from lossvo.data.synthetic.png import write_png
 from lossvo.data.synthetic.render import Renderer
 from lossvo.data.synthetic.world import scene, sequence_route
-
-LAYOUTS = ("kitti", "tum", "euroc", "tartanair", "mimir")
-"""Every layout the synthetic dataset can be written in (kitti: :mod:`~lossvo.data.synthetic.writer`)."""
 
 
 @dataclass(frozen=True)
@@ -134,13 +132,6 @@ def sequence_name(layout: str, sequence: str) -> str:
         "mimir": lambda s: f"{MIMIR_ENVIRONMENT}/auv0/track{int(s)}",
     }
     return names[check_layout(layout)](sequence)
-
-
-def check_layout(layout: str) -> str:
-    """layout, or ValueError naming the layouts."""
-    if layout not in LAYOUTS:
-        raise ValueError(f"layout: expected one of {', '.join(LAYOUTS)}, got {layout!r}")
-    return layout
 
 
 def scaled_size(size: tuple[int, int], scale: float) -> tuple[int, int]:
