@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv test test-all lint format bench sweep sweep-paper report clean
+.PHONY: venv test test-all lint format bench sweep sweep-paper report clean cluster cluster-down
 
 venv: $(STAMP)
 
@@ -79,3 +79,11 @@ report: venv
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .hypothesis src/*.egg-info
+
+# A single-node SLURM cluster on this machine (root: Debian's slurm-wlm, slurmdbd, munge, MariaDB), which the
+# cluster tests start themselves; `make cluster-down` stops its daemons.
+cluster:
+	bash cluster/cluster.sh up
+
+cluster-down:
+	bash cluster/cluster.sh down

@@ -18,6 +18,7 @@ import torch
 from hydra.utils import instantiate
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint, ProgressBar
 from lightning.pytorch.loggers import Logger, WandbLogger
+from lightning.pytorch.plugins.environments import SLURMEnvironment
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 from omegaconf import DictConfig, OmegaConf, open_dict
 
@@ -88,13 +89,19 @@ def build(cfg: DictConfig) -> tuple[VODataModule, VOModule, L.Trainer]:
     loggers: list[Logger] = _instantiate_group(cfg.get("logger"), "logger")
     trainer = instantiate(
         cfg.trainer,
-        plugins=[checkpoints.AtomicCheckpointIO()],
+        plugins=[checkpoints.AtomicCheckpointIO(), *_cluster_environment()],
         callbacks=callbacks,
         logger=loggers or False,
         enable_progress_bar=any(isinstance(c, ProgressBar) for c in callbacks),
     )
     datamodule.setup("fit")  # reads the data and builds the cache: data errors now, before the run starts
     return datamodule, module, trainer
+
+
+def _cluster_environment() -> list[SLURMEnvironment]:
+    """Under SLURM, Lightning's SLURM environment without its own requeue (``auto_requeue=False``): the
+    submitit launcher owns the requeue, and a requeued job resumes from lossvo's ``last.ckpt``."""
+    return [SLURMEnvironment(auto_requeue=False)] if SLURMEnvironment.detect() else []
 
 
 def _sync_batchnorm_where_supported(cfg: DictConfig) -> None:
