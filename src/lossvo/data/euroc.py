@@ -45,12 +45,14 @@ from scipy.spatial.transform import Rotation
 from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
+    check_resolution,
     check_rigid,
     dataset_root,
     finite_numbers,
     load_mapping,
-    png_size,
     pose_matrices,
+    positive_resolution,
+    unit_quaternions,
     where,
 )
 
@@ -120,7 +122,7 @@ def _parse_ns(path: Path, line: int, text: str) -> int:
     return int(text)
 
 
-def _stamps(path: Path, rows: list[tuple[int, list[str]]]) -> np.ndarray:
+def parse_stamps(path: Path, rows: list[tuple[int, list[str]]]) -> np.ndarray:
     """(N,) int64 nanoseconds of the rows' first field, checked strictly increasing, and far enough apart
     to stay distinct as float64 seconds."""
     ns = np.array([_parse_ns(path, i, fields[0]) for i, fields in rows], dtype=np.int64)
@@ -148,7 +150,7 @@ def read_camera_stamps(path: str | os.PathLike) -> tuple[np.ndarray, list[str]]:
     for i, (_, name) in rows:
         if not name:
             raise DatasetFormatError(f"{where(path, i)}: empty file name (expected '<timestamp>.png')")
-    return _stamps(path, rows), [fields[1] for _, fields in rows]
+    return parse_stamps(path, rows), [fields[1] for _, fields in rows]
 
 
 def read_camera_list(path: str | os.PathLike) -> tuple[np.ndarray, list[str]]:
@@ -170,20 +172,13 @@ def read_groundtruth_stamps(path: str | os.PathLike) -> tuple[np.ndarray, np.nda
     rows = _csv_rows(path, "ground truth", GROUND_TRUTH_COLUMNS)
     if len(rows) < 2:
         raise DatasetFormatError(f"{path}: one ground-truth row (expected at least 2 to interpolate between)")
-    ns = _stamps(path, rows)
+    ns = parse_stamps(path, rows)
     values = np.array(
         [finite_numbers(path, i, fields[1:8], "a number", "a finite number") for i, fields in rows],
         dtype=np.float64,
     )
-    norm = np.linalg.norm(values[:, 3:7], axis=1)
-    bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_TOLERANCE)
-    if bad.size:
-        k = bad[0]
-        raise DatasetFormatError(
-            f"{where(path, rows[k][0])}: quaternion q_RS of norm {norm[k]:.6g} "
-            "(expected a unit quaternion w x y z)"
-        )
-    return ns, pose_matrices(values[:, :3], values[:, [4, 5, 6, 3]])  # q_RS is w x y z
+    q_wxyz = unit_quaternions(path, [i for i, _ in rows], values[:, 3:7], "q_RS", QUATERNION_TOLERANCE)
+    return ns, pose_matrices(values[:, :3], q_wxyz[:, [1, 2, 3, 0]])  # q_RS is w x y z
 
 
 def read_groundtruth(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
@@ -263,13 +258,9 @@ def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.nda
         raise DatasetFormatError(f"{path}: key 'intrinsics': expected positive focal lengths, got {fu}, {fv}")
     distortion = _numbers(path, data, "distortion_coefficients", 4, "[k1, k2, p1, p2]")
     width, height = _numbers(path, data, "resolution", 2, "[width, height] in pixels")
-    if width != int(width) or height != int(height) or width <= 0 or height <= 0:
-        raise DatasetFormatError(
-            f"{path}: key 'resolution': expected two positive integers [width, height], "
-            f"got {data['resolution']!r}"
-        )
+    size = positive_resolution(path, width, height, data["resolution"])
     K = np.array([[fu, 0.0, cu], [0.0, fv, cv], [0.0, 0.0, 1.0]])
-    return K, distortion, _read_T_BS(path, data), (int(height), int(width))
+    return K, distortion, _read_T_BS(path, data), size
 
 
 # --------------------------------------------------------------------------------------------------
@@ -337,6 +328,22 @@ def camera_poses(
     return T_w_b_t @ np.asarray(T_BS, dtype=np.float64), keep
 
 
+def kept_camera_poses(
+    gt_path: Path, csv_path: Path, gt_ns: np.ndarray, T_w_b: np.ndarray, T_BS: np.ndarray, ns: np.ndarray,
+    max_gap: float,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """:func:`camera_poses`, with DatasetFormatError naming both files when no frame of ``csv_path`` is kept
+    (none within the ground truth's span of ``gt_path`` without gaps over ``max_gap`` s)."""
+    poses, keep = camera_poses(gt_ns, T_w_b, T_BS, ns, max_gap)
+    if not keep.any():
+        raise DatasetFormatError(
+            f"{gt_path}: no frame of {csv_path} within the ground truth's span "
+            f"[{gt_ns[0]}, {gt_ns[-1]}] ns without gaps over {max_gap} s "
+            f"(frames span [{ns[0]}, {ns[-1]}] ns)"
+        )
+    return poses, keep
+
+
 # --------------------------------------------------------------------------------------------------
 # Sequences
 # --------------------------------------------------------------------------------------------------
@@ -400,12 +407,7 @@ def load_sequence(
     times = ns_to_seconds(ns)
     images = frame_paths(csv_path, camera / "data", names)
     K, distortion, T_BS, size = read_sensor(camera / "sensor.yaml")
-    found = png_size(images[0])
-    if found != size:
-        raise DatasetFormatError(
-            f"{images[0]}: frame of {found[1]}x{found[0]} pixels, but {camera / 'sensor.yaml'} key "
-            f"'resolution' says {size[1]}x{size[0]}"
-        )
+    check_resolution(images[0], size, camera / "sensor.yaml")
     distortion5 = np.concatenate([distortion, [0.0]])
     gt_path = mav0 / GROUND_TRUTH / "data.csv"
     if not gt_path.is_file():
@@ -415,12 +417,6 @@ def load_sequence(
             )
         return Sequence(name, images, times, None, K, distortion5, size)
     gt_ns, T_w_b = read_groundtruth_stamps(gt_path)
-    poses, keep = camera_poses(gt_ns, T_w_b, T_BS, ns, max_gap)
-    if not keep.any():
-        raise DatasetFormatError(
-            f"{gt_path}: no frame of {csv_path} within the ground truth's span "
-            f"[{gt_ns[0]}, {gt_ns[-1]}] ns without gaps over {max_gap} s "
-            f"(frames span [{ns[0]}, {ns[-1]}] ns)"
-        )
+    poses, keep = kept_camera_poses(gt_path, csv_path, gt_ns, T_w_b, T_BS, ns, max_gap)
     kept = [path for path, k in zip(images, keep, strict=True) if k]
     return Sequence(name, kept, times[keep], poses, K, distortion5, size, dropped=int((~keep).sum()))

@@ -45,7 +45,6 @@ Every bad input raises one :class:`~lossvo.data.sequence.DatasetFormatError` lin
 from __future__ import annotations
 
 import os
-import re
 from pathlib import Path
 from typing import Any
 
@@ -55,12 +54,14 @@ from lossvo.data import euroc
 from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
+    check_resolution,
     check_rigid,
     dataset_root,
     finite_numbers,
     load_mapping,
-    png_size,
     pose_matrices,
+    positive_resolution,
+    unit_quaternions,
     where,
 )
 from lossvo.data.tartanair import ned_to_camera
@@ -76,8 +77,6 @@ rate of 30 Hz or more (MIMIR documents no ground-truth rate)."""
 
 QUATERNION_TOLERANCE = 1e-3
 """Largest | ||q|| - 1 | accepted in the ground truth."""
-
-_DIGITS = re.compile(r"[0-9]+")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -119,16 +118,6 @@ def _groundtruth_rows(path: Path) -> list[tuple[int, list[str]]]:
     return rows
 
 
-def _parse_row(path: Path, line: int, fields: list[str]) -> tuple[int, list[float]]:
-    """The integer-nanosecond timestamp and the 7 finite numbers (tx ty tz qw qx qy qz) of a row."""
-    if not _DIGITS.fullmatch(fields[0]):
-        raise DatasetFormatError(
-            f"{where(path, line)}: expected a timestamp in integer nanoseconds, got {fields[0]!r}"
-        )
-    values = finite_numbers(path, line, fields[1:GROUND_TRUTH_COLUMNS], "a number", "a finite number")
-    return int(fields[0]), values
-
-
 def read_groundtruth(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Read ``pose_groundtruth/data.csv``: lines ``timestamp [ns], tx, ty, tz, qw, qx, qy, qz[, ...]``.
 
@@ -142,26 +131,18 @@ def read_groundtruth(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """
     path = Path(path)
     rows = _groundtruth_rows(path)
-    parsed = [_parse_row(path, i, fields) for i, fields in rows]
-    ns = np.array([stamp for stamp, _ in parsed], dtype=np.int64)
-    back = np.flatnonzero(np.diff(ns) <= 0)
-    if back.size:
-        k = back[0] + 1
-        raise DatasetFormatError(
-            f"{where(path, rows[k][0])}: timestamp {ns[k]} ns does not follow {ns[k - 1]} ns on line "
-            f"{rows[k - 1][0]} (expected strictly increasing timestamps)"
-        )
-    values = np.array([v for _, v in parsed], dtype=np.float64)
-    norm = np.linalg.norm(values[:, 3:7], axis=1)
-    bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_TOLERANCE)
-    if bad.size:
-        k = bad[0]
-        raise DatasetFormatError(
-            f"{where(path, rows[k][0])}: quaternion (qw qx qy qz) of norm {norm[k]:.6g} "
-            f"(expected a unit quaternion, within {QUATERNION_TOLERANCE})"
-        )
-    q_xyzw = values[:, [4, 5, 6, 3]] / norm[:, None]
-    return ns, pose_matrices(values[:, :3], q_xyzw)
+    ns = euroc.parse_stamps(path, rows)
+    values = np.array(
+        [
+            finite_numbers(path, i, fields[1:GROUND_TRUTH_COLUMNS], "a number", "a finite number")
+            for i, fields in rows
+        ],
+        dtype=np.float64,
+    )
+    q_wxyz = unit_quaternions(
+        path, [i for i, _ in rows], values[:, 3:7], "(qw qx qy qz)", QUATERNION_TOLERANCE
+    )
+    return ns, pose_matrices(values[:, :3], q_wxyz[:, [1, 2, 3, 0]])
 
 
 # --------------------------------------------------------------------------------------------------
@@ -225,14 +206,10 @@ def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.nda
     else:
         distortion = _matrix(path, data, "distortion_coefficients", (5,), "[k1, k2, p1, p2, k3]")
     width, height = _matrix(path, data, "resolution", (2,), "[width, height] in pixels")
-    if width != int(width) or height != int(height) or width <= 0 or height <= 0:
-        raise DatasetFormatError(
-            f"{path}: key 'resolution': expected two positive integers [width, height], "
-            f"got {data['resolution']!r}"
-        )
+    size = positive_resolution(path, width, height, data["resolution"])
     T_BS = _matrix(path, data, "T_BS", (4, 4), "a 4x4 list, the camera's pose in the body frame")
     check_rigid(path, T_BS, "T_BS")
-    return K, distortion, T_BS, (int(height), int(width))
+    return K, distortion, T_BS, size
 
 
 # --------------------------------------------------------------------------------------------------
@@ -293,12 +270,7 @@ def load_sequence(
     images = euroc.frame_paths(csv_path, camera_dir / "data", names)
     yaml_path = camera_dir / "sensor.yaml"
     K, distortion, T_BS, size = read_sensor(yaml_path)
-    found = png_size(images[0])
-    if found != size:
-        raise DatasetFormatError(
-            f"{images[0]}: frame of {found[1]}x{found[0]} pixels, but {yaml_path} key 'resolution' says "
-            f"{size[1]}x{size[0]}"
-        )
+    check_resolution(images[0], size, yaml_path)
     gt_path = folder / GROUND_TRUTH / "data.csv"
     if not gt_path.is_file():
         if require_poses:
@@ -307,13 +279,7 @@ def load_sequence(
             )
         return Sequence(name, images, times, None, K, distortion, size)
     gt_ns, T_w_b = read_groundtruth(gt_path)
-    T_w_s, keep = euroc.camera_poses(gt_ns, T_w_b, T_BS, ns, max_gap)
-    if not keep.any():
-        raise DatasetFormatError(
-            f"{gt_path}: no frame of {csv_path} within the ground truth's span "
-            f"[{gt_ns[0]}, {gt_ns[-1]}] ns without gaps over {max_gap} s "
-            f"(frames span [{ns[0]}, {ns[-1]}] ns)"
-        )
+    T_w_s, keep = euroc.kept_camera_poses(gt_path, csv_path, gt_ns, T_w_b, T_BS, ns, max_gap)
     kept = [path for path, k in zip(images, keep, strict=True) if k]
     return Sequence(
         name, kept, times[keep], ned_to_camera(T_w_s), K, distortion, size, dropped=int((~keep).sum())

@@ -139,6 +139,48 @@ class Sequence:
         return np.linalg.inv(self.poses[:-1]) @ self.poses[1:]
 
 
+def unit_quaternions(path: Path, lines: list[int], q: np.ndarray, label: str, tolerance: float) -> np.ndarray:
+    """(M, 4) quaternions divided by their norms.
+
+    Args:
+        path, lines: the file and the 1-based line of each quaternion; q: (M, 4) as read; label: how the
+            file names them (``"(qx qy qz qw)"``, ``"q_RS"``); tolerance: the largest accepted |norm - 1|.
+    Raises:
+        DatasetFormatError: ``<path>:<line>: quaternion <label> of norm <n> (expected a unit quaternion,
+            within <tolerance>)`` at the first one further from unit norm.
+    """
+    norm = np.linalg.norm(q, axis=1)
+    bad = np.flatnonzero(np.abs(norm - 1.0) > tolerance)
+    if bad.size:
+        k = bad[0]
+        raise DatasetFormatError(
+            f"{where(path, lines[k])}: quaternion {label} of norm {norm[k]:.6g} "
+            f"(expected a unit quaternion, within {tolerance})"
+        )
+    return q / norm[:, None]
+
+
+def check_resolution(image: Path, size: tuple[int, int], calibration: Path) -> None:
+    """DatasetFormatError unless the PNG ``image`` is ``size`` (H, W), the ``resolution`` its camera's
+    ``calibration`` file states."""
+    found = png_size(image)
+    if found != size:
+        raise DatasetFormatError(
+            f"{image}: frame of {found[1]}x{found[0]} pixels, but {calibration} key 'resolution' says "
+            f"{size[1]}x{size[0]}"
+        )
+
+
+def positive_resolution(path: Path, width: float, height: float, given: Any) -> tuple[int, int]:
+    """(H, W) of a calibration file's ``resolution`` [width, height]; DatasetFormatError naming ``path``
+    unless both are positive integers."""
+    if width != int(width) or height != int(height) or width <= 0 or height <= 0:
+        raise DatasetFormatError(
+            f"{path}: key 'resolution': expected two positive integers [width, height], got {given!r}"
+        )
+    return int(height), int(width)
+
+
 RIGID_TOLERANCE = 1e-4
 """Largest |RᵀR − I| entry and |det R − 1| accepted in a calibration's rigid transform (12 significant digits
 in EuRoC's files)."""

@@ -44,6 +44,7 @@ from lossvo.data.sequence import (
     finite_numbers,
     png_size,
     pose_matrices,
+    unit_quaternions,
     where,
 )
 
@@ -125,15 +126,9 @@ def read_poses(path: str | os.PathLike) -> np.ndarray:
             f"{path}: empty pose file (expected one line 'tx ty tz qx qy qz qw' a frame)"
         )
     values = np.array([_parse_line(path, i, line) for i, line in rows], dtype=np.float64)
-    norm = np.linalg.norm(values[:, 3:], axis=1)
-    bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_TOLERANCE)
-    if bad.size:
-        k = bad[0]
-        raise DatasetFormatError(
-            f"{where(path, rows[k][0])}: quaternion (qx qy qz qw) of norm {norm[k]:.6g} "
-            f"(expected a unit quaternion, within {QUATERNION_TOLERANCE})"
-        )
-    return ned_to_camera(pose_matrices(values[:, :3], values[:, 3:] / norm[:, None]))
+    numbers = [i for i, _ in rows]
+    q = unit_quaternions(path, numbers, values[:, 3:], "(qx qy qz qw)", QUATERNION_TOLERANCE)
+    return ned_to_camera(pose_matrices(values[:, :3], q))
 
 
 # --------------------------------------------------------------------------------------------------

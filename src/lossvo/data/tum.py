@@ -31,6 +31,7 @@ from lossvo.data.sequence import (
     finite_numbers,
     png_size,
     pose_matrices,
+    unit_quaternions,
     where,
 )
 
@@ -149,22 +150,10 @@ def read_groundtruth(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     table = np.array(values, dtype=np.float64)
     line_numbers = [i for i, _ in rows]
     _check_increasing(path, table[:, 0], line_numbers)
-    quaternions = _unit_quaternions(path, table[:, 4:8], line_numbers)
+    quaternions = unit_quaternions(
+        path, line_numbers, table[:, 4:8], "(qx qy qz qw)", QUATERNION_NORM_TOLERANCE
+    )
     return table[:, 0], pose_matrices(table[:, 1:4], quaternions)
-
-
-def _unit_quaternions(path: Path, q: np.ndarray, line_numbers: list[int]) -> np.ndarray:
-    """(M, 4) quaternions divided by their norms; ``DatasetFormatError`` at the first one whose norm is more
-    than ``QUATERNION_NORM_TOLERANCE`` from 1."""
-    norm = np.linalg.norm(q, axis=1)
-    bad = np.flatnonzero(np.abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE)
-    if bad.size:
-        k = bad[0]
-        raise DatasetFormatError(
-            f"{where(path, line_numbers[k])}: quaternion (qx qy qz qw) has norm {norm[k]:.4g} "
-            f"(expected a unit quaternion, within {QUATERNION_NORM_TOLERANCE})"
-        )
-    return q / norm[:, None]
 
 
 # --------------------------------------------------------------------------------------------------
