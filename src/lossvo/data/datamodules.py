@@ -563,6 +563,7 @@ class VODataModule(L.LightningDataModule):
         self.mean: np.ndarray | None = None  # per-channel statistics, set by setup
         self.std: np.ndarray | None = None
         self.datasets: dict[str, WindowDataset] = {}
+        self._cameras: dict[str, np.ndarray] = {}  # K of each sequence's cached frames (intrinsics)
 
     # -- preparation: check everything, build the cache, compute statistics --------------------------
 
@@ -587,7 +588,7 @@ class VODataModule(L.LightningDataModule):
         poses (KITTI 11-21). ``sequences`` is keyed by the names of :attr:`splits`; each Sequence keeps the
         name its dataset gives it."""
         labelled = set(self.splits["train"]) | set(self.splits["val"]) | set(self.splits["unseen"])
-        self.sequences = {}
+        self.sequences, self._cameras = {}, {}
         for name in self.all_names:
             source, local = self.source_of(name)
             root = layouts.dataset_root(source.layout, source.root)
@@ -732,14 +733,17 @@ class VODataModule(L.LightningDataModule):
         """(3, 3) float64 K of a sequence's cached frames: its camera's K (of the undistorted frames where
         they are undistorted: :func:`lossvo.data.frame_cache.source_intrinsics`), resized from the source
         images' size to (height, width) (:func:`lossvo.data.camera.resized_intrinsics`); after
-        :meth:`setup`."""
+        :meth:`setup`; read once a sequence."""
+        if name in self._cameras:
+            return self._cameras[name].copy()
         manifest = json.loads(self._frame_files(name)[1].read_text())
         source = tuple(manifest["source_size_hw"])
         K = frame_cache.source_intrinsics(self.sequences[name])
         if self.crop:
             box = frame_cache.centre_crop(source, (self.height, self.width))
             K, source = frame_cache.cropped_intrinsics(K, box), box[2:]
-        return camera.resized_intrinsics(K, source, (self.height, self.width))
+        self._cameras[name] = camera.resized_intrinsics(K, source, (self.height, self.width))
+        return self._cameras[name].copy()
 
     # -- loaders --------------------------------------------------------------------------------------
 

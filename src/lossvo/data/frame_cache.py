@@ -73,16 +73,19 @@ def undistortion(seq: Sequence) -> Undistortion | None:
     if not np.any(seq.distortion):
         return None
     height, width = seq.size
-    K, _ = cv2.getOptimalNewCameraMatrix(seq.K, seq.distortion, (width, height), 0.0, (width, height))
+    K = source_intrinsics(seq)
     map_x, map_y = cv2.initUndistortRectifyMap(seq.K, seq.distortion, None, K, (width, height), cv2.CV_32FC1)
-    return Undistortion(np.asarray(K, dtype=np.float64), (height, width), map_x, map_y)
+    return Undistortion(K, (height, width), map_x, map_y)
 
 
 def source_intrinsics(seq: Sequence) -> np.ndarray:
     """(3, 3) float64 K of a sequence's frames as cached before resizing: its camera's K, or that of the
     undistorted frames (:func:`undistortion`)."""
-    undistort = undistortion(seq)
-    return seq.K if undistort is None else undistort.K
+    if not np.any(seq.distortion):
+        return seq.K
+    height, width = seq.size
+    K, _ = cv2.getOptimalNewCameraMatrix(seq.K, seq.distortion, (width, height), 0.0, (width, height))
+    return np.asarray(K, dtype=np.float64)
 
 
 def _fingerprint(seq: Sequence) -> dict:
