@@ -58,6 +58,7 @@ AccountingStorageEnforce=associations
 MinJobAge=300
 KillWait=10
 InactiveLimit=0
+DefMemPerCPU=1024
 NodeName=$NODE CPUs=$CPUS RealMemory=$MEMORY State=UNKNOWN
 PartitionName=debug Nodes=$NODE Default=YES MaxTime=INFINITE State=UP
 CONF
@@ -117,7 +118,8 @@ start_slurm() {
   sacctmgr -i show cluster -n format=cluster | grep -qw $CLUSTER || sacctmgr -i add cluster $CLUSTER >/dev/null
   sacctmgr -i show account -n format=account | grep -qw lossvo || sacctmgr -i add account lossvo Cluster=$CLUSTER >/dev/null
   sacctmgr -i show user -n format=user | grep -qw root || sacctmgr -i add user root Account=lossvo >/dev/null
-  pgrep -x slurmctld >/dev/null || /usr/sbin/slurmctld -f "$SLURM_CONF"
+  if pgrep -x slurmctld >/dev/null; then scontrol reconfigure >/dev/null  # a running cluster reads the config again
+  else /usr/sbin/slurmctld -f "$SLURM_CONF"; fi
   wait_for slurmctld scontrol ping
   pgrep -x slurmd >/dev/null || /usr/sbin/slurmd -f "$SLURM_CONF"
   wait_for "the node" bash -c "sinfo -h -o %t | grep -qE '^(idle|mix|alloc)'"
@@ -130,6 +132,7 @@ case "${1:-}" in
     log "up: $(sinfo -h -o '%P %D %c %m %t') (SLURM_CONF=$SLURM_CONF)";;
   down)
     for d in slurmd slurmctld slurmdbd; do pkill -x $d || true; done
+    for _ in $(seq 60); do pgrep -x 'slurmd|slurmctld|slurmdbd' >/dev/null || break; sleep 0.5; done
     mariadb-admin -uroot shutdown 2>/dev/null || pkill -x mariadbd || true
     pkill -x munged || true
     log "down";;

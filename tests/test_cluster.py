@@ -1,6 +1,10 @@
 """Sweeps through a real single-node SLURM cluster (``cluster/cluster.sh up``: slurmctld, slurmd, slurmdbd
 with MariaDB, munge), started by the fixture. Skipped, with the reason, only where SLURM cannot be installed
-(not root, no apt-get); installed but failing to start is a failure."""
+(not root, no apt-get); installed but failing to start is a failure.
+
+SLURM holds a requeued batch job for two minutes before it is eligible again (its ``BeginTime``); the
+tests release it at once (``scontrol update StartTime=now``), as an administrator may.
+"""
 
 from __future__ import annotations
 
@@ -9,9 +13,15 @@ import os
 import shutil
 import subprocess
 import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
+
+from helpers import metrics_rows, status_of
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -35,19 +45,86 @@ def sacct_states(job: str) -> dict[str, str]:
     return dict(line.split("|") for line in out.split())
 
 
+def sweep_command(tiny_kitti: Path, tmp_path: Path, sweep: Path, *overrides: str) -> list[str]:
+    """A sweep of tiny jobs on ``tiny_kitti`` through the local cluster's launcher, one thread a job."""
+    return [
+        sys.executable, "-m", "lossvo.train", "-m", "hydra/launcher=submitit_slurm_local",
+        "data=kitti", f"data.root={tiny_kitti}", f"data.cache_dir={tmp_path / 'cache'}", "data.train=[00,01]",
+        "data.val=[02]", "data.test=[02]", "data.height=64", "data.width=96", "data.seq_len=3",
+        "data.num_workers=0", "model.width_mult=0.0625", "model.hidden_size=16", "threads=1",
+        f"hydra.sweep.dir={sweep}", *overrides,
+    ]  # fmt: skip
+
+
+def submitted(sweep: Path, timeout: float = 120) -> str:
+    """The SLURM job id of a one-job sweep (submitit submits one job alone, not as an array), once
+    submitit has submitted it."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        jobs = sorted((sweep / ".submitit").glob("[0-9]*")) if (sweep / ".submitit").is_dir() else []
+        if jobs:
+            return jobs[0].name
+        time.sleep(0.2)
+    raise AssertionError(f"nothing submitted under {sweep}")
+
+
+def job_folder(sweep: Path) -> Path:
+    """The folder of a one-job sweep's job."""
+    (job,) = (p for p in sweep.iterdir() if p.is_dir() and p.name[0].isdigit())
+    return job
+
+
+@contextmanager
+def releasing(job: str) -> Iterator[list[int]]:
+    """While inside, a requeued ``job`` waiting for its BeginTime is made eligible at once; yields the
+    list of the times it was released (one entry per requeue)."""
+    released: list[int] = []
+    done = threading.Event()
+
+    def watch() -> None:
+        while not done.wait(0.5):
+            reason = subprocess.run(["squeue", "-h", "-j", job, "-o", "%r"], capture_output=True, text=True)
+            if reason.stdout.strip() == "BeginTime":
+                subprocess.run(["scontrol", "update", f"JobId={job}", "StartTime=now"], capture_output=True)
+                released.append(len(released))
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    try:
+        yield released
+    finally:
+        done.set()
+        watcher.join()
+
+
+def wait_for(condition, proc: subprocess.Popen, what: str, timeout: float = 300) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert proc.poll() is None, f"the sweep ended before {what}: {proc.communicate()[1][-3000:]}"
+        assert time.monotonic() < deadline, f"no {what} within {timeout} s"
+        time.sleep(0.2)
+
+
+def epochs_logged(job: Path) -> list[int]:
+    """The epochs (from 0) of a job's validation rows in metrics.csv, in file order."""
+    if not (job / "metrics.csv").is_file():
+        return []
+    return [int(float(r["epoch"])) for r in metrics_rows(job) if r.get("val/score")]
+
+
+def events(job: Path) -> list[tuple[str, ...]]:
+    """(event, signal or epoch...) of a job's status.json history, without times and job ids."""
+    return [
+        (e["event"], *(str(e[k]) for k in ("signal", "epoch") if k in e)) for e in status_of(job)["history"]
+    ]
+
+
 @pytest.mark.slow
 def test_a_two_job_sweep_runs_through_slurm(cluster: None, tiny_kitti: Path, tmp_path: Path) -> None:
     """``hydra/launcher=submitit_slurm_local``: both jobs submitted with sbatch, run under srun, COMPLETED in
     sacct, their folders as a local sweep's; Lightning sees SLURM but leaves the requeue to submitit."""
     sweep = tmp_path / "sweep"
-    command = [
-        sys.executable, "-m", "lossvo.train", "-m", "hydra/launcher=submitit_slurm_local",
-        "loss=euler,chordal",
-        "data=kitti", f"data.root={tiny_kitti}", f"data.cache_dir={tmp_path / 'cache'}", "data.train=[00,01]",
-        "data.val=[02]", "data.test=[02]", "data.height=64", "data.width=96", "data.seq_len=3",
-        "data.num_workers=0", "model.width_mult=0.0625", "model.hidden_size=16", "trainer.max_epochs=1",
-        f"hydra.sweep.dir={sweep}",
-    ]  # fmt: skip
+    command = sweep_command(tiny_kitti, tmp_path, sweep, "loss=euler,chordal", "trainer.max_epochs=1")
     run = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path, timeout=600)
     assert run.returncode == 0, run.stderr[-2000:]
     jobs = sorted(p for p in sweep.iterdir() if p.is_dir() and p.name[0].isdigit())
@@ -59,3 +136,120 @@ def test_a_two_job_sweep_runs_through_slurm(cluster: None, tiny_kitti: Path, tmp
         assert (job / "results.json").is_file() and (job / "checkpoints" / "last.ckpt").is_file()
         log = (job / "train.log").read_text()
         assert "SLURM auto-requeueing enabled" not in log
+        assert [e["slurm_job"].split("_")[0] for e in status_of(job)["history"]] == [array, array]
+
+
+RESUMABLE = ("loss=chordal", "trainer.deterministic=true", "data.reverse=0.5", "data.augment=true")
+
+
+@pytest.mark.slow
+def test_a_requeued_job_resumes_and_equals_the_uninterrupted_run(
+    cluster: None, tiny_kitti: Path, tmp_path: Path
+) -> None:
+    """``scontrol requeue`` (what preemption with requeue does) while the job trains: SLURM sends SIGTERM,
+    the job records the stop and exits; SLURM runs it again in the same folder, where it resumes from
+    last.ckpt and ends with the metrics and weights of a run that was never stopped."""
+    epochs = ("trainer.max_epochs=40",)
+    sweep = tmp_path / "sweep"
+    proc = subprocess.Popen(sweep_command(tiny_kitti, tmp_path, sweep, *RESUMABLE, *epochs), cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    task = submitted(sweep)
+    wait_for(lambda: any(p.name[0].isdigit() for p in sweep.iterdir()), proc, "a job folder")
+    job = job_folder(sweep)
+    with releasing(task) as released:
+        wait_for(lambda: len(epochs_logged(job)) >= 2, proc, "second epoch")
+        subprocess.run(["scontrol", "requeue", task], check=True, capture_output=True)
+        _, err = proc.communicate(timeout=600)
+    assert proc.returncode == 0, err[-3000:]
+    assert released, "the job was not requeued"
+    history = events(job)
+    assert history[0] == ("started",) and history[-1] == ("completed",)
+    stops = [i for i, e in enumerate(history) if e[0] == "stopped"]
+    assert [history[i][1] for i in stops] == ["SIGTERM"], history
+    stopped_in, resumed_at = int(history[stops[0]][2]), int(history[stops[0] + 1][1])
+    assert history[stops[0] + 1][0] == "resumed" and 2 <= resumed_at <= stopped_in + 1, history
+    assert [e["slurm_restarts"] for e in status_of(job)["history"]][-1] == 1
+    assert epochs_logged(job) == list(range(40))  # every epoch once, across the requeue
+
+    reference = tmp_path / "reference"
+    command = sweep_command(tiny_kitti, tmp_path, reference, *RESUMABLE, *epochs, "hydra/launcher=basic")
+    run = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path, timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    whole = job_folder(reference)
+    for key in ("train/loss", "val/score", "val/rpe_trans_rmse", "lr-Adam"):
+        ours = [(r["epoch"], r["step"], r[key]) for r in metrics_rows(job) if r.get(key)]
+        assert ours == [(r["epoch"], r["step"], r[key]) for r in metrics_rows(whole) if r.get(key)], key
+    assert json.loads((job / "results.json").read_text())["sequences"] == json.loads(
+        (whole / "results.json").read_text())["sequences"]  # fmt: skip
+
+
+@pytest.mark.slow
+def test_a_time_limited_job_is_requeued_and_finishes(cluster: None, tiny_kitti: Path, tmp_path: Path) -> None:
+    """A one-minute limit with submitit's signal 5 s before it: SLURM checks limits every 30 s and sends
+    the signal at the first check within lead + 30 s of the limit, 25-55 s into the job (a 30 s lead
+    would send it at the start), and kills at the first check past the limit. Submitit requeues the job on
+    SIGUSR2 and exits, the job records the stop, and the requeued job resumes from last.ckpt until it
+    finishes (one requeue or more: each run gets a minute)."""
+    sweep = tmp_path / "sweep"
+    limited = ("hydra.launcher.timeout_min=1", "hydra.launcher.signal_delay_s=5",
+               "hydra.launcher.max_num_timeout=20", "trainer.max_epochs=800")  # fmt: skip
+    proc = subprocess.Popen(sweep_command(tiny_kitti, tmp_path, sweep, *RESUMABLE, *limited), cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    task = submitted(sweep)
+    with releasing(task) as released:
+        _, err = proc.communicate(timeout=900)
+    assert proc.returncode == 0, err[-3000:]
+    job = job_folder(sweep)
+    history = events(job)
+    stops = [e for e in history if e[0] == "stopped"]
+    assert stops and {e[1] for e in stops} == {"SIGUSR2"}, history
+    assert released and len(stops) == len([e for e in history if e[0] == "resumed"])
+    assert history[-1] == ("completed",)
+    assert epochs_logged(job) == list(range(800))
+    assert status_of(job)["status"] == "completed" and (job / "results.json").is_file()
+
+
+def refused(tmp_path: Path, *overrides: str, env: dict[str, str] | None = None) -> str:
+    """stderr of a SLURM sweep refused before it submits: exit status 2, one line, no sweep folder."""
+    sweep = tmp_path / "sweep"
+    command = [sys.executable, "-m", "lossvo.train", "-m", "hydra/launcher=submitit_slurm_local",
+               f"hydra.sweep.dir={sweep}", *overrides]  # fmt: skip
+    run = subprocess.run(
+        command, capture_output=True, text=True, cwd=tmp_path, env={**os.environ, **(env or {})}
+    )
+    assert run.returncode == 2, run.stderr[-2000:]
+    assert len(run.stderr.strip().splitlines()) == 1 and "Traceback" not in run.stderr, run.stderr
+    assert not sweep.exists()
+    return run.stderr.strip()
+
+
+@pytest.mark.slow
+def test_no_sbatch_is_one_line_before_anything_is_submitted(tmp_path: Path) -> None:
+    line = refused(tmp_path, env={"PATH": str(tmp_path)})
+    assert line == ("error: hydra/launcher: no SLURM cluster here (sbatch is not on the PATH): submit from a "
+                    "cluster's login node, or use hydra/launcher=joblib")  # fmt: skip
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("scontrol") is None, reason="SLURM's scontrol is not installed")
+def test_a_controller_that_does_not_answer_is_one_line(tmp_path: Path) -> None:
+    """A slurm.conf whose controller listens nowhere (the running cluster is left alone)."""
+    conf = tmp_path / "slurm.conf"
+    lines = ["ClusterName=gone", "SlurmctldHost=localhost", "SlurmctldPort=6999", "MessageTimeout=2",
+             "NodeName=localhost CPUs=1 State=UNKNOWN", "PartitionName=debug Nodes=localhost"]  # fmt: skip
+    conf.write_text("\n".join(lines) + "\n")
+    line = refused(tmp_path, env={"SLURM_CONF": str(conf)})
+    assert line.startswith("error: hydra/launcher: the SLURM controller does not answer (scontrol ping: "), (
+        line
+    )
+    assert "DOWN" in line
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("key", "known"), [("partition", "debug"), ("account", "lossvo, root")])
+def test_a_partition_or_account_the_cluster_lacks_is_named(cluster: None, tmp_path: Path, key: str,
+                                                           known: str) -> None:  # fmt: skip
+    line = refused(tmp_path, f"hydra.launcher.{key}=nowhere")
+    assert (
+        line == f"error: hydra.launcher.{key}=nowhere: the cluster has no {key} 'nowhere' (it has: {known})"
+    )

@@ -25,6 +25,7 @@ from lightning.pytorch.utilities.exceptions import SIGTERMException
 from lossvo.checks import is_integer
 from lossvo.evaluation import metrics
 from lossvo.evaluation.results import PooledScores, predict_and_score
+from lossvo.training.lifecycle import InterruptedRun
 
 log = logging.getLogger("lossvo")
 
@@ -148,7 +149,8 @@ class TrajectoryValidation(Callback):
 
 
 class InterruptCheckpoint(Callback):
-    """On SIGINT (KeyboardInterrupt) or SIGTERM (Lightning's ``SIGTERMException``), save the weights and
+    """On SIGINT (KeyboardInterrupt), SIGTERM (Lightning's ``SIGTERMException``) or submitit's requeue
+    signal (:class:`~lossvo.training.lifecycle.InterruptedRun`), save the weights and
     loop state at that moment to ``dirpath/interrupted.ckpt``, single-process runs only (a collective
     save from one rank would hang the others). Resuming continues from ``last.ckpt``, the end of the last
     complete epoch, which repeats no step and skips none.
@@ -163,7 +165,8 @@ class InterruptCheckpoint(Callback):
     def on_exception(
         self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException
     ) -> None:
-        if not isinstance(exception, (KeyboardInterrupt, SIGTERMException)) or trainer.world_size > 1:
+        stops = (KeyboardInterrupt, SIGTERMException, InterruptedRun)
+        if not isinstance(exception, stops) or trainer.world_size > 1:
             return
         try:
             trainer.save_checkpoint(self.path)

@@ -18,7 +18,6 @@ import torch
 from hydra.utils import instantiate
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint, ProgressBar
 from lightning.pytorch.loggers import Logger, WandbLogger
-from lightning.pytorch.plugins.environments import SLURMEnvironment
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 from omegaconf import DictConfig, OmegaConf, open_dict
 
@@ -26,7 +25,7 @@ from lossvo.console import one_line
 from lossvo.evaluation.checkpoints import load_network
 from lossvo.evaluation.results import evaluate_run
 from lossvo.models import load_flownet
-from lossvo.training import checkpoints, metrics_log
+from lossvo.training import checkpoints, metrics_log, slurm
 from lossvo.training.lifecycle import InterruptedRun, Run
 from lossvo.training.module import VOModule
 from lossvo.training.selection import SCORE_KEY
@@ -89,19 +88,13 @@ def build(cfg: DictConfig) -> tuple[VODataModule, VOModule, L.Trainer]:
     loggers: list[Logger] = _instantiate_group(cfg.get("logger"), "logger")
     trainer = instantiate(
         cfg.trainer,
-        plugins=[checkpoints.AtomicCheckpointIO(), *_cluster_environment()],
+        plugins=[checkpoints.AtomicCheckpointIO(), *slurm.lightning_environment()],
         callbacks=callbacks,
         logger=loggers or False,
         enable_progress_bar=any(isinstance(c, ProgressBar) for c in callbacks),
     )
     datamodule.setup("fit")  # reads the data and builds the cache: data errors now, before the run starts
     return datamodule, module, trainer
-
-
-def _cluster_environment() -> list[SLURMEnvironment]:
-    """Under SLURM, Lightning's SLURM environment without its own requeue (``auto_requeue=False``): the
-    submitit launcher owns the requeue, and a requeued job resumes from lossvo's ``last.ckpt``."""
-    return [SLURMEnvironment(auto_requeue=False)] if SLURMEnvironment.detect() else []
 
 
 def _sync_batchnorm_where_supported(cfg: DictConfig) -> None:
@@ -130,7 +123,8 @@ def train(cfg: DictConfig, run: Run) -> dict[str, float]:
         except checkpoints.CheckpointError as e:
             key = "ckpt_path" if cfg.get("ckpt_path") else "resume"
             raise checkpoints.CheckpointError(f"{key}: {e}") from None
-    run.start(threads=torch.get_num_threads())
+    resumed = {"epoch": epoch + 2, "from": str(ckpt_path)} if ckpt_path else None  # the next epoch, from 1
+    run.start(resumed, threads=torch.get_num_threads())
     log.info("%s: %s%s", run.label, run.out_dir, f" (resuming from {ckpt_path})" if ckpt_path else "")
     source = Path(ckpt_path).parent.parent / metrics_log.NAME if ckpt_path else run.metrics_csv
     metrics_log.continue_history(run.metrics_csv, source, epoch, step)
@@ -142,7 +136,7 @@ def train(cfg: DictConfig, run: Run) -> dict[str, float]:
                 # a resumed run's folder holds its earlier checkpoints, by design
                 warnings.filterwarnings("ignore", message="Checkpoint directory .* is not empty")
                 trainer.fit(module, datamodule=datamodule, ckpt_path=ckpt_path)
-        except (KeyboardInterrupt, SystemExit) as e:
+        except (KeyboardInterrupt, SystemExit, InterruptedRun) as e:
             raise _interrupted(e, trainer.current_epoch + 1) from None
         # Lightning sets Trainer.fast_dev_run in its setup without declaring it.
         fast_dev_run = trainer.fast_dev_run  # type: ignore[attr-defined]
@@ -159,7 +153,10 @@ def train(cfg: DictConfig, run: Run) -> dict[str, float]:
 
 def _interrupted(error: BaseException, epoch: int) -> BaseException:
     """Lightning ends a fit on SIGINT with ``sys.exit(1)`` (after a KeyboardInterrupt) and on SIGTERM
-    with its ``SIGTERMException``: an :class:`InterruptedRun` (``epoch`` from 1); any other exit as it was."""
+    with its ``SIGTERMException``; submitit's requeue signal raises an :class:`InterruptedRun`: each
+    becomes an :class:`InterruptedRun` with its ``epoch`` (from 1); any other exit as it was."""
+    if isinstance(error, InterruptedRun):
+        return InterruptedRun(error.signal_name, epoch)
     if isinstance(error, SIGTERMException):
         return InterruptedRun("SIGTERM", epoch)
     if isinstance(error, KeyboardInterrupt) or isinstance(error.__context__, KeyboardInterrupt):

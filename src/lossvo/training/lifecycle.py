@@ -11,8 +11,10 @@ sweep the job's folder stays, marked failed, so that the report lists it).
 ``status.json`` is always true: ``{"status": "running" | "completed" | "failed" | "interrupted", ...}``
 with the metrics of a completed run (the last row of each column of ``metrics.csv``), the error of a
 failed one, the signal and the stage (``"epoch": N`` counted from 1, or ``"stage": "evaluation"``) of an
-interrupted one. A user error (a config value, a data file, a checkpoint that does not fit, a disk that
-is full, read-only or not ours) ends the run in one line with exit status 2; ``LOSSVO_FULL_ERROR=1``
+interrupted one, and its ``history``: when it started, stopped, resumed, failed or completed (with the
+signal, the epoch and, under SLURM, the job and its restart count), across every process that ran in the
+folder. A user error (a config value, a data file, a checkpoint that does not fit, a disk that is full,
+read-only or not ours) ends the run in one line with exit status 2; ``LOSSVO_FULL_ERROR=1``
 shows its traceback instead. Any other failure keeps its traceback.
 """
 
@@ -20,11 +22,13 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import shutil
 import signal
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -56,10 +60,11 @@ NOT_DEFINING = ("data.root", "data.cache_dir", "data.num_workers")
 
 
 class InterruptedRun(Exception):  # noqa: N818 (a run, not an error)
-    """A run stopped by SIGINT or SIGTERM.
+    """A run stopped by a signal.
 
     Args:
-        signal_name: ``"SIGINT"`` or ``"SIGTERM"``.
+        signal_name: ``"SIGINT"``, ``"SIGTERM"`` or ``"SIGUSR2"`` (submitit's signal: the time limit is
+            near, or the job is preempted; submitit has requeued it).
         epoch: the epoch that was running, counted from 1; None when the stop came outside training.
     """
 
@@ -95,6 +100,24 @@ def read_status(out_dir: Path) -> dict[str, Any]:
     except (OSError, ValueError):
         return {}
     return status if isinstance(status, dict) else {}
+
+
+def slurm_job() -> dict[str, Any]:
+    """The SLURM job this process runs in: ``{"slurm_job": "12_0", "slurm_restarts": 1}`` (an array
+    task as sacct names it; restarts: how often SLURM requeued it), or {} outside SLURM."""
+    env = os.environ
+    if "SLURM_JOB_ID" not in env:
+        return {}
+    array = env.get("SLURM_ARRAY_JOB_ID"), env.get("SLURM_ARRAY_TASK_ID")
+    job = f"{array[0]}_{array[1]}" if all(array) else env["SLURM_JOB_ID"]
+    return {"slurm_job": job, "slurm_restarts": int(env.get("SLURM_RESTART_COUNT", "0"))}
+
+
+def event(name: str, **details: Any) -> dict[str, Any]:
+    """One entry of ``status.json``'s ``history``: what happened (started, stopped, resumed, failed), when
+    (UTC, ISO 8601), ``details`` (signal, epoch counted from 1) and the SLURM job, if any."""
+    now = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    return {"event": name, "time": now, **details, **slurm_job()}
 
 
 def _flat(node: Any, prefix: str) -> dict[str, Any]:
@@ -171,6 +194,7 @@ class Run:
         resume_from: the ``last.ckpt`` to continue from, else None (a fresh start, or ``ckpt_path``).
         started: whether :meth:`start` claimed the folder.
         details: entries of every ``status.json`` the run writes (its thread count).
+        history: the folder's events so far (see :func:`event`), this process's appended.
     """
 
     cfg: DictConfig
@@ -181,18 +205,25 @@ class Run:
     resume_from: Path | None = None
     started: bool = False
     details: dict[str, Any] = field(default_factory=dict)
+    history: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def metrics_csv(self) -> Path:
         return self.out_dir / metrics_log.NAME
 
-    def start(self, **details: Any) -> None:
-        """Claim the folder: ``.hydra/`` and ``status.json`` "running" (with ``details``)."""
+    def start(self, resumed: Mapping[str, Any] | None = None, **details: Any) -> None:
+        """Claim the folder: ``.hydra/`` and ``status.json`` "running" (with ``details``); ``resumed``:
+        where a resumed run continues (``{"epoch": N, "from": checkpoint}``), recorded in its history."""
         self.details = details
+        self.history.append(event("resumed", **resumed) if resumed is not None else event("started"))
         if getattr(rank_zero_only, "rank", 0) == 0:
             save_config(self.out_dir, self.cfg)
-        write_status(self.out_dir, "running", **details)
+        self.write("running")
         self.started = True
+
+    def write(self, status: str, **extra: Any) -> None:
+        """``status.json``: the status, the run's details, ``extra`` and the history."""
+        write_status(self.out_dir, status, **self.details, **extra, history=self.history)
 
     def optimized_metric(self, metrics: Mapping[str, Any]) -> float | None:
         value = metrics.get(self.cfg.get("optimized_metric"))
@@ -221,9 +252,11 @@ def _accept(run: Run) -> None:
         if drift:
             raise ValueError(f"{out_dir}: holds a run of another configuration ({', '.join(drift)} differ "
                              f"from {recorded}): use a new folder")  # fmt: skip
-    status = read_status(out_dir).get("status")
+    recorded_status = read_status(out_dir)
+    status, history = recorded_status.get("status"), recorded_status.get("history")
+    run.history = list(history) if isinstance(history, list) else []
     if status == "completed" and not cfg.get("ckpt_path"):
-        run.completed = read_status(out_dir)
+        run.completed = recorded_status
     elif not cfg.get("ckpt_path"):
         run.resume_from = _resume_point(out_dir, status)
 
@@ -250,23 +283,52 @@ def _user_message(error: BaseException, out_dir: Path) -> str | None:
     return None
 
 
+_stopping: list[str] = []
+"""The signal this process is stopping on, once one stops it: a later SIGTERM (SLURM's, after a requeue)
+does not interrupt the stop."""
+
+
 def _sigterm(signum: int, frame: Any) -> None:
     """SIGTERM outside a fit (Lightning handles it during one, calling this handler too)."""
-    if signal.getsignal(signal.SIGTERM) is _sigterm:
+    if signal.getsignal(signal.SIGTERM) is _sigterm and not _stopping:
+        _stopping.append("SIGTERM")
         raise InterruptedRun("SIGTERM")
 
 
+def _recorded(requeue: Callable[[int, Any], Any]) -> Callable[[int, Any], None]:
+    """Submitit's handler of its signal (SIGUSR2 before the time limit, or on preemption), which
+    requeues the job and exits, wrapped so that its exit is an :class:`InterruptedRun` that the run
+    records. Submitit alone requeues; a process it does not exit (a DDP rank above 0) goes on."""
+
+    def handler(signum: int, frame: Any) -> None:
+        _stopping.append(signal.Signals(signum).name)
+        try:
+            requeue(signum, frame)
+        except SystemExit:
+            raise InterruptedRun(signal.Signals(signum).name) from None
+        _stopping.clear()
+
+    return handler
+
+
 @contextmanager
-def _sigterm_raises() -> Iterator[None]:
+def _signals_stop_the_run() -> Iterator[None]:
+    """SIGTERM raises :class:`InterruptedRun`; under submitit, so does its requeue's exit."""
     try:
-        previous = signal.signal(signal.SIGTERM, _sigterm)
+        handlers: dict[signal.Signals, Callable[[int, Any], None]] = {signal.SIGTERM: _sigterm}
+        usr2 = signal.getsignal(signal.SIGUSR2)
+        if callable(usr2) and "submitit" in getattr(usr2, "__module__", ""):
+            handlers[signal.SIGUSR2] = _recorded(usr2)
+        previous = {signum: signal.signal(signum, handler) for signum, handler in handlers.items()}
     except ValueError:  # not the main thread (a launcher's worker thread): nothing to install
         yield
         return
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        _stopping.clear()
 
 
 def _leave(run: Run) -> None:
@@ -299,8 +361,10 @@ def _failed(run: Run, error: BaseException) -> None:
         _leave(run)
     if not run.started:
         return
+    message = f"{type(error).__name__}: {one_line(error)}"
+    run.history.append(event("failed", error=message))
     try:
-        write_status(run.out_dir, "failed", **run.details, error=f"{type(error).__name__}: {one_line(error)}")
+        run.write("failed", error=message)
     except OSError as e:
         log.error("could not write %s: %s", run.out_dir / STATUS, e.strerror or e)
 
@@ -310,8 +374,10 @@ def _interrupted(run: Run, stop: InterruptedRun) -> None:
     if run.started:
         last = run.out_dir / LAST_CHECKPOINT
         where = {"epoch": stop.epoch} if stop.epoch is not None else {"stage": "evaluation"}
-        write_status(run.out_dir, "interrupted", **run.details, signal=stop.signal_name, **where,
-                     resume_from=str(last) if last.is_file() else None)  # fmt: skip
+        run.history.append(event("stopped", signal=stop.signal_name, **where))
+        run.write(
+            "interrupted", signal=stop.signal_name, **where, resume_from=str(last) if last.is_file() else None
+        )
     log.error("%s: interrupted by %s during %s; run the same command to resume", run.label,
               stop.signal_name, stop.stage)  # fmt: skip
 
@@ -341,10 +407,10 @@ def job(cfg: DictConfig) -> Iterator[Run]:
         yield run
         return
     try:
-        with _sigterm_raises():
+        with _signals_stop_the_run():
             yield run
-            write_status(out_dir, "completed", **run.details,
-                         metrics=metrics_log.final_metrics(run.metrics_csv))  # fmt: skip
+            run.history.append(event("completed"))
+            run.write("completed", metrics=metrics_log.final_metrics(run.metrics_csv))
     except (InterruptedRun, KeyboardInterrupt) as e:
         stop = e if isinstance(e, InterruptedRun) else InterruptedRun("SIGINT")
         _interrupted(run, stop)

@@ -1,0 +1,95 @@
+"""SLURM: the checks before a sweep submits to it, and the environment Lightning trains in there.
+
+:class:`ClusterCheck` is a Hydra callback (``hydra.callbacks.slurm`` in the train config). When the sweep's
+launcher is Hydra's submitit SLURM launcher it checks, before anything is submitted, that a cluster answers
+(``sbatch`` on the PATH, ``scontrol ping``) and that the partition and account the launcher asks for exist;
+each refusal is one line with exit status 2. Hydra turns a callback's exceptions into warnings, so the
+callback ends the command itself.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from typing import Any
+
+from hydra.experimental.callback import Callback
+from lightning.pytorch.plugins.environments import SLURMEnvironment
+from omegaconf import DictConfig
+
+from lossvo.console import first_line
+
+SLURM_LAUNCHER = "hydra_plugins.hydra_submitit_launcher.submitit_launcher.SlurmLauncher"
+
+
+class ClusterError(ValueError):
+    """No SLURM cluster answers, or it lacks what the launcher asks for (one line)."""
+
+
+def _query(*command: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(command, capture_output=True, text=True, timeout=60)
+
+
+def check_reachable() -> None:
+    """``sbatch`` on the PATH and the controller answering ``scontrol ping``."""
+    if shutil.which("sbatch") is None:
+        raise ClusterError("hydra/launcher: no SLURM cluster here (sbatch is not on the PATH): submit "
+                           "from a cluster's login node, or use hydra/launcher=joblib")  # fmt: skip
+    ping = _query("scontrol", "ping")
+    if ping.returncode != 0 or "UP" not in ping.stdout:
+        said = first_line(ping.stdout + ping.stderr) or f"exit status {ping.returncode}"
+        raise ClusterError(f"hydra/launcher: the SLURM controller does not answer (scontrol ping: {said})")
+
+
+def check_partition(partition: str | None) -> None:
+    """Every partition of ``hydra.launcher.partition`` (a comma list) is one of the cluster's."""
+    if not partition:
+        return
+    known = set(_query("sinfo", "-h", "-o", "%R").stdout.split())
+    missing = [name for name in partition.split(",") if name not in known]
+    if missing:
+        has = ", ".join(sorted(known)) or "none"
+        raise ClusterError(f"hydra.launcher.partition={partition}: the cluster has no partition "
+                           f"{missing[0]!r} (it has: {has})")  # fmt: skip
+
+
+def check_account(account: str | None) -> None:
+    """``hydra.launcher.account`` is one of the accounting database's accounts (unchecked where the
+    cluster keeps no accounting: ``sacctmgr`` fails)."""
+    if not account:
+        return
+    listed = _query("sacctmgr", "-n", "-P", "show", "account", "format=account")
+    known = set(listed.stdout.split())
+    if listed.returncode == 0 and account not in known:
+        has = ", ".join(sorted(known)) or "none"
+        raise ClusterError(f"hydra.launcher.account={account}: the cluster has no account {account!r} "
+                           f"(it has: {has})")  # fmt: skip
+
+
+def check_cluster(launcher: DictConfig) -> None:
+    """The checks for a SLURM launcher's config, in order; raises :class:`ClusterError`."""
+    check_reachable()
+    check_partition(launcher.get("partition"))
+    check_account(launcher.get("account"))
+
+
+class ClusterCheck(Callback):
+    """Before a sweep with the SLURM launcher submits: :func:`check_cluster`, ending the command in one
+    line (``error: ...``) with exit status 2 when it fails."""
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        launcher = config.hydra.launcher
+        if launcher.get("_target_") != SLURM_LAUNCHER:
+            return
+        try:
+            check_cluster(launcher)
+        except (ClusterError, OSError, subprocess.TimeoutExpired) as e:
+            print(f"error: {e}", file=sys.stderr)
+            raise SystemExit(2) from None
+
+
+def lightning_environment() -> list[SLURMEnvironment]:
+    """Under SLURM, Lightning's SLURM environment without its own requeue (``auto_requeue=False``): the
+    submitit launcher owns the requeue, and a requeued job resumes from lossvo's ``last.ckpt``."""
+    return [SLURMEnvironment(auto_requeue=False)] if SLURMEnvironment.detect() else []
