@@ -253,3 +253,29 @@ def test_a_partition_or_account_the_cluster_lacks_is_named(cluster: None, tmp_pa
     assert (
         line == f"error: hydra.launcher.{key}=nowhere: the cluster has no {key} 'nowhere' (it has: {known})"
     )
+
+
+@pytest.mark.slow
+def test_ddp_with_two_processes_a_job_writes_one_folder_a_job(cluster: None, tiny_kitti: Path,
+                                                               tmp_path: Path) -> None:  # fmt: skip
+    """``hydra.launcher.tasks_per_node=2`` and ``trainer=ddp trainer.devices=2``: srun starts both ranks
+    of each job, Lightning takes them from SLURM (no spawning), and each job has one folder, whose
+    status.json and evaluation are rank 0's."""
+    sweep = tmp_path / "sweep"
+    ddp = ("loss=euler,chordal", "hydra.launcher.tasks_per_node=2", "trainer=ddp", "trainer.accelerator=cpu",
+           "trainer.devices=2", "trainer.max_epochs=2")  # fmt: skip
+    run = subprocess.run(sweep_command(tiny_kitti, tmp_path, sweep, *ddp), capture_output=True, text=True,
+                         cwd=tmp_path, timeout=600)  # fmt: skip
+    assert run.returncode == 0, run.stderr[-3000:]
+    jobs = sorted(p for p in sweep.iterdir() if p.name[0].isdigit())
+    assert len(jobs) == 2 and {p.name for p in sweep.iterdir()} - {j.name for j in jobs} == {
+        ".submitit", "multirun.yaml"}  # fmt: skip
+    array = sorted((sweep / ".submitit").glob("*_0"))[0].name.split("_")[0]
+    for task, job in enumerate(jobs):
+        steps = subprocess.run(["sacct", "-j", f"{array}_{task}", "-n", "-P", "-o", "JobName,NTasks,State"],
+                               capture_output=True, text=True, check=True).stdout.split()  # fmt: skip
+        assert any(step.endswith("|2|COMPLETED") for step in steps), steps  # the srun step: two tasks
+        assert "Starting with 2 processes" in (job / "train.log").read_text()
+        assert [e["event"] for e in status_of(job)["history"]] == ["started", "completed"]
+        assert status_of(job)["status"] == "completed" and (job / "results.json").is_file()
+        assert epochs_logged(job) == [0, 1]
