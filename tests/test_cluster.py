@@ -279,3 +279,12 @@ def test_ddp_with_two_processes_a_job_writes_one_folder_a_job(cluster: None, tin
         assert [e["event"] for e in status_of(job)["history"]] == ["started", "completed"]
         assert status_of(job)["status"] == "completed" and (job / "results.json").is_file()
         assert epochs_logged(job) == [0, 1]
+
+
+@pytest.mark.slow
+def test_ddp_devices_without_as_many_tasks_is_one_line(tmp_path: Path) -> None:
+    """Found from the config alone, before the cluster is asked."""
+    line = refused(tmp_path, "trainer=ddp", "trainer.accelerator=cpu", "trainer.devices=2")
+    assert line == ("error: hydra.launcher.tasks_per_node=1 but trainer.devices=2: under SLURM each device "
+                    "is a task that srun starts (Lightning does not spawn them there); set "
+                    "hydra.launcher.tasks_per_node=2")  # fmt: skip

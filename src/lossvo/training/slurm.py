@@ -1,10 +1,10 @@
 """SLURM: the checks before a sweep submits to it, and the environment Lightning trains in there.
 
 :class:`ClusterCheck` is a Hydra callback (``hydra.callbacks.slurm`` in the train config). When the sweep's
-launcher is Hydra's submitit SLURM launcher it checks, before anything is submitted, that a cluster answers
-(``sbatch`` on the PATH, ``scontrol ping``) and that the partition and account the launcher asks for exist;
-each refusal is one line with exit status 2. Hydra turns a callback's exceptions into warnings, so the
-callback ends the command itself.
+launcher is Hydra's submitit SLURM launcher it checks, before anything is submitted, that a job has a task
+per device, that a cluster answers (``sbatch`` on the PATH, ``scontrol ping``) and that the partition and
+account the launcher asks for exist; each refusal is one line with exit status 2. Hydra turns a
+callback's exceptions into warnings, so the callback ends the command itself.
 """
 
 from __future__ import annotations
@@ -67,8 +67,22 @@ def check_account(account: str | None) -> None:
                            f"(it has: {has})")  # fmt: skip
 
 
-def check_cluster(launcher: DictConfig) -> None:
+def check_tasks(launcher: DictConfig, trainer: DictConfig) -> None:
+    """Under SLURM, ``srun`` starts one process per device and Lightning takes them instead of spawning
+    its own: ``hydra.launcher.tasks_per_node`` must equal the trainer's devices a node (``-1``: the job's
+    ``gpus_per_node``)."""
+    devices, tasks = trainer.get("devices", 1), launcher.get("tasks_per_node", 1)
+    if devices in (-1, "-1", "auto"):
+        devices = launcher.get("gpus_per_node") or 1
+    if isinstance(devices, int) and devices != tasks:
+        raise ClusterError(f"hydra.launcher.tasks_per_node={tasks} but trainer.devices={devices}: under "
+                           f"SLURM each device is a task that srun starts (Lightning does not spawn them "
+                           f"there); set hydra.launcher.tasks_per_node={devices}")  # fmt: skip
+
+
+def check_cluster(launcher: DictConfig, trainer: DictConfig) -> None:
     """The checks for a SLURM launcher's config, in order; raises :class:`ClusterError`."""
+    check_tasks(launcher, trainer)
     check_reachable()
     check_partition(launcher.get("partition"))
     check_account(launcher.get("account"))
@@ -83,7 +97,7 @@ class ClusterCheck(Callback):
         if launcher.get("_target_") != SLURM_LAUNCHER:
             return
         try:
-            check_cluster(launcher)
+            check_cluster(launcher, config.trainer)
         except (ClusterError, OSError, subprocess.TimeoutExpired) as e:
             print(f"error: {e}", file=sys.stderr)
             raise SystemExit(2) from None
