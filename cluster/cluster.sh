@@ -6,6 +6,8 @@
 # Run as root (apt-get, daemons). Everything lives under $LOSSVO_CLUSTER (default /var/tmp/lossvo-cluster):
 # configs, spool, state, logs, the database files. One node, this machine's cores and memory, one partition
 # ("debug"), accounting through slurmdbd into MariaDB so that sacct (which submitit polls) knows every job.
+# The same MariaDB holds a database for Optuna studies shared by several workers:
+#   hydra.sweeper.storage.url=mysql+pymysql://lossvo:lossvo@localhost/lossvo_optuna
 set -euo pipefail
 
 HERE=${LOSSVO_CLUSTER:-/var/tmp/lossvo-cluster}
@@ -103,7 +105,10 @@ start_database() {
     mariadb -uroot -e "select 1" >/dev/null 2>&1 || fail "MariaDB did not start (see $HERE/log/mariadb.log)"
   fi
   mariadb -uroot -e "CREATE USER IF NOT EXISTS 'slurm'@'localhost' IDENTIFIED BY 'lossvo';
-    GRANT ALL ON slurm_acct_db.* TO 'slurm'@'localhost'; FLUSH PRIVILEGES;"
+    GRANT ALL ON slurm_acct_db.* TO 'slurm'@'localhost';
+    CREATE USER IF NOT EXISTS 'lossvo'@'localhost' IDENTIFIED BY 'lossvo';
+    CREATE DATABASE IF NOT EXISTS lossvo_optuna; GRANT ALL ON lossvo_optuna.* TO 'lossvo'@'localhost';
+    FLUSH PRIVILEGES;"  # the accounting database; an Optuna storage (mysql+pymysql://lossvo:lossvo@localhost/lossvo_optuna)
 }
 
 wait_for() {  # wait_for WHAT COMMAND...: up to 30 s
@@ -128,6 +133,7 @@ start_slurm() {
 case "${1:-}" in
   up)
     [ "$(id -u)" = 0 ] || fail "run as root (it installs packages and starts daemons)"
+    mkdir -p "$(dirname "$HERE")"; exec 9>"$HERE.lock"; flock 9  # one `up` at a time (parallel test workers)
     install_packages; write_configs; start_munge; start_database; start_slurm
     log "up: $(sinfo -h -o '%P %D %c %m %t') (SLURM_CONF=$SLURM_CONF)";;
   down)

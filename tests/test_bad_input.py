@@ -23,6 +23,7 @@ from lossvo import eval as lossvo_eval
 from lossvo import metrics as metrics_cli
 from lossvo.data.synthetic import cli as synthetic_cli
 from lossvo.report import cli as report_cli
+from lossvo.training import shared_study
 from test_train import compose_train, tiny_overrides
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "bad-input.md"
@@ -90,8 +91,16 @@ def euler_checkpoint(tiny_kitti: Path, tmp_path_factory: pytest.TempPathFactory)
     return base / "run" / "checkpoints" / "best.ckpt"
 
 
+@pytest.fixture(scope="module")
+def other_study(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """The URL of an SQLite storage holding the study ``k_search`` created for another search (maximising)."""
+    url = f"sqlite:///{tmp_path_factory.mktemp('other_study') / 'optuna.db'}"
+    shared_study.check_study(url, "k_search", {"directions": ["maximize"], "space": {}, "fixed": {}})
+    return url
+
+
 @pytest.fixture
-def places(tiny_kitti: Path, euler_checkpoint: Path, tmp_path: Path) -> dict[str, str]:
+def places(tiny_kitti: Path, euler_checkpoint: Path, other_study: str, tmp_path: Path) -> dict[str, str]:
     """The table's placeholders -> paths (files made afresh for each row)."""
     poses = (tiny_kitti / "poses" / "00.txt").read_text().splitlines()
     assert len(poses) == 10
@@ -108,7 +117,8 @@ def places(tiny_kitti: Path, euler_checkpoint: Path, tmp_path: Path) -> dict[str
     names = ["<poses>", "<shorter poses>", "<malformed poses>", "<text file>", "<empty folder>",
              "<job without config>", "<missing file>", "<missing folder>", "<new folder>"]  # fmt: skip
     paths = {name: str(tmp_path / name.strip("<>").replace(" ", "_")) for name in names}
-    return {**paths, "<tiny KITTI>": str(tiny_kitti), "<euler checkpoint>": str(euler_checkpoint)}
+    return {**paths, "<tiny KITTI>": str(tiny_kitti), "<euler checkpoint>": str(euler_checkpoint),
+            "<study of another search>": other_study}  # fmt: skip
 
 
 def fill(text: str, places: dict[str, str]) -> str:

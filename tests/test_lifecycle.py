@@ -73,7 +73,10 @@ def test_a_stop_during_the_final_evaluation_resumes_the_evaluation(
     monkeypatch.setattr(fitting, "evaluate_run", evaluate_run)
     assert train_main(_args(tiny_kitti, run), monkeypatch) == 0  # the same command
     assert metrics_rows(run) == written == metrics_rows(uninterrupted)  # nothing deleted, nothing repeated
-    assert status_of(run) == status_of(uninterrupted) and status_of(run)["metrics"]["val/score"] > 0
+    ours, theirs = status_of(run), status_of(uninterrupted)
+    assert [e["event"] for e in ours.pop("history")] == ["started", "stopped", "resumed", "completed"]
+    assert [e["event"] for e in theirs.pop("history")] == ["started", "completed"]
+    assert ours == theirs and ours["metrics"]["val/score"] > 0
     assert scores_of(run) == scores_of(uninterrupted)
 
 

@@ -64,7 +64,10 @@ def test_a_sweep_job_equals_its_config_run_alone_on_its_thread_count(
         assert train_main(args, monkeypatch) == 0
     finally:
         torch.set_num_threads(found)
-    assert metrics_rows(alone) == metrics_rows(job) and status_of(alone) == status_of(job)
+    ours, theirs = status_of(alone), status_of(job)
+    history = [ours.pop("history"), theirs.pop("history")]
+    assert metrics_rows(alone) == metrics_rows(job) and ours == theirs
+    assert [[e["event"] for e in h] for h in history] == [["started", "completed"]] * 2
     assert scores_of(alone) == scores_of(job) and scores_of(alone)["threads"] == threads
     assert torch.load(alone / "checkpoints" / "best.ckpt", weights_only=True)["threads"] == threads
 
