@@ -137,6 +137,10 @@ def test_a_two_job_sweep_runs_through_slurm(cluster: None, tiny_kitti: Path, tmp
         log = (job / "train.log").read_text()
         assert "SLURM auto-requeueing enabled" not in log
         assert [e["slurm_job"].split("_")[0] for e in status_of(job)["history"]] == [array, array]
+    report = subprocess.run([sys.executable, "-m", "lossvo.report", str(sweep)], capture_output=True,
+                            text=True, cwd=tmp_path, timeout=600)  # fmt: skip
+    assert report.returncode == 0, report.stderr[-2000:]
+    assert "2 job(s): 2 included, 0 skipped" in (sweep / "report" / "report.md").read_text()
 
 
 RESUMABLE = ("loss=chordal", "trainer.deterministic=true", "data.reverse=0.5", "data.augment=true")
