@@ -25,13 +25,14 @@ for _name, _examples in (("lossvo", 100), ("thorough", 1000)):
 settings.load_profile("lossvo")
 
 LONG_FILES = (
-    "test_sweep.py", "test_resume.py", "test_synthetic.py", "test_launchers.py", "test_lifecycle.py",
-    "test_bad_input.py", "test_distributed.py", "test_report.py", "test_model.py", "test_train.py",
-    "test_axioms.py", "test_metrics.py", "test_packaging.py", "test_checkpoints.py",
+    "test_cluster.py", "test_sweep.py", "test_resume.py", "test_synthetic.py", "test_launchers.py",
+    "test_lifecycle.py", "test_bad_input.py", "test_distributed.py", "test_report.py", "test_model.py",
+    "test_train.py", "test_axioms.py", "test_metrics.py", "test_packaging.py", "test_checkpoints.py",
     "test_fair_comparison.py",
 )  # fmt: skip
-"""The test files that take longest in the full suite, longest first (measured on 2 cores): the shared sweep's
-file first, so that the sweep is ready when test_report.py and test_checkpoints.py ask for it."""
+"""The test files that take longest in the full suite, longest first (measured on 2 cores): the SLURM
+cluster's (mostly waiting on its jobs and its 30 s time-limit checks), then the shared sweep's, so that the
+sweep is ready when test_report.py and test_checkpoints.py ask for it."""
 
 
 SLOW_FIXTURES = ("study_sweep",)
