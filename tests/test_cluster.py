@@ -13,10 +13,9 @@ import os
 import shutil
 import subprocess
 import sys
-import threading
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
@@ -38,11 +37,31 @@ def cluster() -> None:
         pytest.fail(f"the SLURM cluster did not start: {up.stderr.strip()}")
 
 
+def sacct(job: str, *fields: str, steps: bool = False) -> list[list[str]]:
+    """The accounting database's rows of a job (its array tasks; with ``steps``, their steps too) once none
+    is PENDING or RUNNING: slurmdbd records a job's end a moment after the job has ended."""
+    command = [
+        "sacct",
+        "-j",
+        job,
+        "-n",
+        "-P",
+        "-o",
+        ",".join((*fields, "State")),
+        *(() if steps else ("-X",)),
+    ]
+    deadline = time.monotonic() + 60
+    while True:
+        rows = [line.split("|") for line in subprocess.run(command, capture_output=True, text=True,
+                                                            check=True).stdout.split()]  # fmt: skip
+        if not any(row[-1] in ("PENDING", "RUNNING") for row in rows) or time.monotonic() > deadline:
+            return rows
+        time.sleep(1)
+
+
 def sacct_states(job: str) -> dict[str, str]:
     """{job id: state} of a job array's tasks, from the accounting database (what submitit polls)."""
-    out = subprocess.run(["sacct", "-j", job, "-X", "-n", "-P", "-o", "JobID,State"], capture_output=True,
-                         text=True, check=True).stdout  # fmt: skip
-    return dict(line.split("|") for line in out.split())
+    return {job_id: state for job_id, state in sacct(job, "JobID")}
 
 
 def sweep_command(tiny_kitti: Path, tmp_path: Path, sweep: Path, *overrides: str) -> list[str]:
@@ -56,53 +75,61 @@ def sweep_command(tiny_kitti: Path, tmp_path: Path, sweep: Path, *overrides: str
     ]  # fmt: skip
 
 
-def submitted(sweep: Path, timeout: float = 120) -> str:
-    """The SLURM job id of a one-job sweep (submitit submits one job alone, not as an array), once
-    submitit has submitted it."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        jobs = sorted((sweep / ".submitit").glob("[0-9]*")) if (sweep / ".submitit").is_dir() else []
-        if jobs:
-            return jobs[0].name
-        time.sleep(0.2)
-    raise AssertionError(f"nothing submitted under {sweep}")
-
-
 def job_folder(sweep: Path) -> Path:
     """The folder of a one-job sweep's job."""
     (job,) = (p for p in sweep.iterdir() if p.is_dir() and p.name[0].isdigit())
     return job
 
 
-@contextmanager
-def releasing(job: str) -> Iterator[list[int]]:
-    """While inside, a requeued ``job`` waiting for its BeginTime is made eligible at once; yields the
-    list of the times it was released (one entry per requeue)."""
-    released: list[int] = []
-    done = threading.Event()
+@dataclass
+class Watch:
+    """What :func:`releasing` saw of a job: the times it released it (one a requeue), the states it saw."""
 
-    def watch() -> None:
-        while not done.wait(0.5):
-            reason = subprocess.run(["squeue", "-h", "-j", job, "-o", "%r"], capture_output=True, text=True)
-            if reason.stdout.strip() == "BeginTime":
-                subprocess.run(["scontrol", "update", f"JobId={job}", "StartTime=now"], capture_output=True)
-                released.append(len(released))
+    released: list[float] = field(default_factory=list)
+    seen: list[str] = field(default_factory=list)
 
-    watcher = threading.Thread(target=watch, daemon=True)
-    watcher.start()
-    try:
-        yield released
-    finally:
-        done.set()
-        watcher.join()
+    def look(self, job: str) -> None:
+        squeue = ["squeue", "-h", "-j", job, "-o", "%T %r"]
+        state = subprocess.run(squeue, capture_output=True, text=True, timeout=30).stdout.strip()
+        if not self.seen or self.seen[-1] != state:
+            self.seen.append(state)
+        if state == "PENDING BeginTime":
+            release = ["scontrol", "update", f"JobId={job}", "StartTime=now"]
+            subprocess.run(release, capture_output=True, timeout=30)
+            self.released.append(time.monotonic())
 
 
-def wait_for(condition, proc: subprocess.Popen, what: str, timeout: float = 300) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert proc.poll() is None, f"the sweep ended before {what}: {proc.communicate()[1][-3000:]}"
-        assert time.monotonic() < deadline, f"no {what} within {timeout} s"
-        time.sleep(0.2)
+class Sweep:
+    """A one-job sweep through the cluster, run in the background with its output in files. Waiting on it
+    (:meth:`until`, :meth:`finish`) also releases its requeued job at once (:class:`Watch`), in this
+    thread: the test's only thread."""
+
+    def __init__(self, command: list[str], folder: Path, cwd: Path) -> None:
+        self.folder, self.watch, self.job = folder, Watch(), ""
+        self.log = cwd / "sweep.log"
+        with self.log.open("w") as log:
+            self.proc = subprocess.Popen(command, cwd=cwd, stdout=log, stderr=subprocess.STDOUT)
+
+    def _poll(self) -> None:
+        submitit = self.folder / ".submitit"
+        if not self.job and submitit.is_dir():  # submitit submits a one-job sweep alone, not as an array
+            self.job = next((p.name for p in sorted(submitit.glob("[0-9]*"))), "")
+        if self.job:
+            self.watch.look(self.job)
+
+    def until(self, condition: Callable[[], bool], what: str, timeout: float = 300) -> None:
+        deadline = time.monotonic() + timeout
+        while not condition():
+            assert self.proc.poll() is None, f"the sweep ended before {what}: {self.log.read_text()[-3000:]}"
+            assert time.monotonic() < deadline, f"no {what} within {timeout} s"
+            self._poll()
+            time.sleep(0.5)
+
+    def finish(self, timeout: float = 900) -> str:
+        """Wait for the sweep to end with exit status 0; its output."""
+        self.until(lambda: self.proc.poll() is not None, "its end", timeout)
+        assert self.proc.returncode == 0, self.log.read_text()[-3000:]
+        return self.log.read_text()
 
 
 def epochs_logged(job: Path) -> list[int]:
@@ -155,17 +182,13 @@ def test_a_requeued_job_resumes_and_equals_the_uninterrupted_run(
     last.ckpt and ends with the metrics and weights of a run that was never stopped."""
     epochs = ("trainer.max_epochs=40",)
     sweep = tmp_path / "sweep"
-    proc = subprocess.Popen(sweep_command(tiny_kitti, tmp_path, sweep, *RESUMABLE, *epochs), cwd=tmp_path,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
-    task = submitted(sweep)
-    wait_for(lambda: any(p.name[0].isdigit() for p in sweep.iterdir()), proc, "a job folder")
+    run = Sweep(sweep_command(tiny_kitti, tmp_path, sweep, *RESUMABLE, *epochs), sweep, tmp_path)
+    run.until(lambda: sweep.is_dir() and any(p.name[0].isdigit() for p in sweep.iterdir()), "a job folder")
     job = job_folder(sweep)
-    with releasing(task) as released:
-        wait_for(lambda: len(epochs_logged(job)) >= 2, proc, "second epoch")
-        subprocess.run(["scontrol", "requeue", task], check=True, capture_output=True)
-        _, err = proc.communicate(timeout=600)
-    assert proc.returncode == 0, err[-3000:]
-    assert released, "the job was not requeued"
+    run.until(lambda: len(epochs_logged(job)) >= 2 and bool(run.job), "the second epoch")
+    subprocess.run(["scontrol", "requeue", run.job], check=True, capture_output=True)
+    run.finish(timeout=600)
+    assert run.watch.released, f"the job was not requeued (states seen: {run.watch.seen})"
     history = events(job)
     assert history[0] == ("started",) and history[-1] == ("completed",)
     stops = [i for i, e in enumerate(history) if e[0] == "stopped"]
@@ -177,8 +200,8 @@ def test_a_requeued_job_resumes_and_equals_the_uninterrupted_run(
 
     reference = tmp_path / "reference"
     command = sweep_command(tiny_kitti, tmp_path, reference, *RESUMABLE, *epochs, "hydra/launcher=basic")
-    run = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path, timeout=600)
-    assert run.returncode == 0, run.stderr[-2000:]
+    alone = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path, timeout=600)
+    assert alone.returncode == 0, alone.stderr[-2000:]
     whole = job_folder(reference)
     for key in ("train/loss", "val/score", "val/rpe_trans_rmse", "lr-Adam"):
         ours = [(r["epoch"], r["step"], r[key]) for r in metrics_rows(job) if r.get(key)]
@@ -197,17 +220,14 @@ def test_a_time_limited_job_is_requeued_and_finishes(cluster: None, tiny_kitti: 
     sweep = tmp_path / "sweep"
     limited = ("hydra.launcher.timeout_min=1", "hydra.launcher.signal_delay_s=5",
                "hydra.launcher.max_num_timeout=20", "trainer.max_epochs=800")  # fmt: skip
-    proc = subprocess.Popen(sweep_command(tiny_kitti, tmp_path, sweep, *RESUMABLE, *limited), cwd=tmp_path,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
-    task = submitted(sweep)
-    with releasing(task) as released:
-        _, err = proc.communicate(timeout=900)
-    assert proc.returncode == 0, err[-3000:]
+    run = Sweep(sweep_command(tiny_kitti, tmp_path, sweep, *RESUMABLE, *limited), sweep, tmp_path)
+    run.finish(timeout=900)
     job = job_folder(sweep)
     history = events(job)
     stops = [e for e in history if e[0] == "stopped"]
     assert stops and {e[1] for e in stops} == {"SIGUSR2"}, history
-    assert released and len(stops) == len([e for e in history if e[0] == "resumed"])
+    assert run.watch.released, f"no requeued job was released (states seen: {run.watch.seen})"
+    assert len(stops) == len([e for e in history if e[0] == "resumed"])
     assert history[-1] == ("completed",)
     assert epochs_logged(job) == list(range(800))
     assert status_of(job)["status"] == "completed" and (job / "results.json").is_file()
@@ -276,9 +296,8 @@ def test_ddp_with_two_processes_a_job_writes_one_folder_a_job(cluster: None, tin
         ".submitit", "multirun.yaml"}  # fmt: skip
     array = sorted((sweep / ".submitit").glob("*_0"))[0].name.split("_")[0]
     for task, job in enumerate(jobs):
-        steps = subprocess.run(["sacct", "-j", f"{array}_{task}", "-n", "-P", "-o", "JobName,NTasks,State"],
-                               capture_output=True, text=True, check=True).stdout.split()  # fmt: skip
-        assert any(step.endswith("|2|COMPLETED") for step in steps), steps  # the srun step: two tasks
+        steps = sacct(f"{array}_{task}", "JobName", "NTasks", steps=True)
+        assert any(step[1:] == ["2", "COMPLETED"] for step in steps), steps  # the srun step: two tasks
         assert "Starting with 2 processes" in (job / "train.log").read_text()
         assert [e["event"] for e in status_of(job)["history"]] == ["started", "completed"]
         assert status_of(job)["status"] == "completed" and (job / "results.json").is_file()

@@ -59,8 +59,9 @@ NOT_DEFINING = ("data.root", "data.cache_dir", "data.num_workers")
 """Keys under :data:`RUN_KEYS` that say where the data lies or how it is loaded, not what is trained."""
 
 
-class InterruptedRun(Exception):  # noqa: N818 (a run, not an error)
-    """A run stopped by a signal.
+class InterruptedRun(BaseException):
+    """A run stopped by a signal. A BaseException, as KeyboardInterrupt is: raised from a signal handler,
+    it can arise inside any code, and a library's ``except Exception`` must not swallow it.
 
     Args:
         signal_name: ``"SIGINT"``, ``"SIGTERM"`` or ``"SIGUSR2"`` (submitit's signal: the time limit is
