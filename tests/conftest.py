@@ -195,3 +195,21 @@ def study_sweep(run_tiny_sweep, tmp_path_factory: pytest.TempPathFactory) -> Pat
         assert result.returncode == 0, result.stderr[-3000:]
 
     return made_once(tmp_path_factory, "study_sweep", make) / "multirun" / "sweep"
+
+
+@pytest.fixture(scope="session")
+def cluster() -> None:
+    """The single-node SLURM cluster of ``cluster/cluster.sh up`` (slurmctld, slurmd, slurmdbd on MariaDB,
+    munge), up (idempotent: daemons already running are kept). Skipped, with the reason, only where SLURM
+    cannot be installed (not root, no apt-get); installed but failing to start is a failure."""
+    if os.geteuid() != 0 and shutil.which("sbatch") is None:
+        pytest.skip("SLURM is not installed and installing it needs root (cluster/cluster.sh up)")
+    if shutil.which("sbatch") is None and shutil.which("apt-get") is None:
+        pytest.skip("SLURM is not installed and there is no apt-get to install it")
+    up = subprocess.run(
+        ["bash", str(Path(__file__).resolve().parents[1] / "cluster" / "cluster.sh"), "up"],
+        capture_output=True,
+        text=True,
+    )
+    if up.returncode != 0:
+        pytest.fail(f"the SLURM cluster did not start: {up.stderr.strip()}")

@@ -1,6 +1,5 @@
 """Sweeps through a real single-node SLURM cluster (``cluster/cluster.sh up``: slurmctld, slurmd, slurmdbd
-with MariaDB, munge), started by the fixture. Skipped, with the reason, only where SLURM cannot be installed
-(not root, no apt-get); installed but failing to start is a failure.
+with MariaDB, munge), started by the ``cluster`` fixture of conftest.py.
 
 SLURM holds a requeued batch job for two minutes before it is eligible again (its ``BeginTime``); the
 tests release it at once (``scontrol update StartTime=now``), as an administrator may.
@@ -21,20 +20,6 @@ from pathlib import Path
 import pytest
 
 from helpers import metrics_rows, status_of
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture(scope="session")
-def cluster() -> None:
-    """The cluster up (idempotent: daemons already running are kept)."""
-    if os.geteuid() != 0 and shutil.which("sbatch") is None:
-        pytest.skip("SLURM is not installed and installing it needs root (cluster/cluster.sh up)")
-    if shutil.which("sbatch") is None and shutil.which("apt-get") is None:
-        pytest.skip("SLURM is not installed and there is no apt-get to install it")
-    up = subprocess.run(["bash", str(ROOT / "cluster" / "cluster.sh"), "up"], capture_output=True, text=True)
-    if up.returncode != 0:
-        pytest.fail(f"the SLURM cluster did not start: {up.stderr.strip()}")
 
 
 def sacct(job: str, *fields: str, steps: bool = False) -> list[list[str]]:

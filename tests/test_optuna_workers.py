@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -27,7 +26,6 @@ from optuna.trial import TrialState
 from lossvo.training import shared_study
 from lossvo.training.shared_study import SharedStorage, TrialSeededTPESampler
 
-ROOT = Path(__file__).resolve().parents[1]
 STUDY = "k_search"
 TRIALS = 3
 """Trials each worker runs in the two-worker sweeps."""
@@ -115,17 +113,9 @@ def test_a_study_refuses_another_search(tmp_path: Path) -> None:
 
 
 @pytest.fixture(scope="session")
-def mariadb_url() -> Iterator[str]:
-    """A new MariaDB database for this session (dropped at its end) on the server of cluster/cluster.sh,
-    started as the cluster tests start it where it is not running; its SQLAlchemy URL."""
-    if subprocess.run(["mariadb", "-uroot", "-e", "select 1"], capture_output=True).returncode != 0:
-        if os.geteuid() != 0 or (shutil.which("mariadbd") is None and shutil.which("apt-get") is None):
-            pytest.skip("MariaDB is not running and starting it needs root and mariadb-server or apt-get")
-        up = subprocess.run(
-            ["bash", str(ROOT / "cluster" / "cluster.sh"), "up"], capture_output=True, text=True
-        )
-        if up.returncode != 0:
-            pytest.fail(f"the cluster's MariaDB did not start: {up.stderr.strip()}")
+def mariadb_url(cluster: None) -> Iterator[str]:
+    """A new MariaDB database for this session (dropped at its end) on the server of the test cluster; its
+    SQLAlchemy URL."""
     database = f"lossvo_optuna_test_{uuid.uuid4().hex[:8]}"
     sql = (f"CREATE DATABASE {database}; CREATE USER IF NOT EXISTS 'lossvo'@'localhost' IDENTIFIED BY "
            f"'lossvo'; GRANT ALL ON {database}.* TO 'lossvo'@'localhost';")  # fmt: skip

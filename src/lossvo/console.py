@@ -14,6 +14,7 @@ import functools
 import os
 import re
 import sys
+import traceback
 from collections.abc import Callable
 from typing import NoReturn, ParamSpec, TypeVar
 
@@ -68,6 +69,17 @@ def raise_if_full_error() -> None:
     re-raise the exception being handled, so that it ends in its full traceback."""
     if full_error() and sys.exc_info()[1] is not None:
         raise  # the exception the caller is handling
+
+
+def exit_in_one_line(error: BaseException) -> NoReturn:
+    """End the command on a user error found where an exception would not end it (a Hydra callback: Hydra
+    turns its exceptions into warnings): ``error: ...`` on stderr, exit status 2; with
+    ``LOSSVO_FULL_ERROR=1`` its traceback, exit status 1."""
+    if full_error():
+        traceback.print_exception(error)
+        raise SystemExit(1) from None
+    print(f"error: {error}", file=sys.stderr)
+    raise SystemExit(2) from None
 
 
 def first_line(text: object) -> str:

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import shutil
 import signal
 from collections.abc import Callable, Iterator, Mapping
@@ -46,6 +45,7 @@ from lossvo.atomic import write_text_atomic
 from lossvo.console import USER_ERRORS, disk_error, full_error, hydra_message, one_line
 from lossvo.training import metrics_log
 from lossvo.training.config_checks import check_train_config
+from lossvo.training.slurm import slurm_job
 
 log = logging.getLogger("lossvo")
 
@@ -101,17 +101,6 @@ def read_status(out_dir: Path) -> dict[str, Any]:
     except (OSError, ValueError):
         return {}
     return status if isinstance(status, dict) else {}
-
-
-def slurm_job() -> dict[str, Any]:
-    """The SLURM job this process runs in: ``{"slurm_job": "12_0", "slurm_restarts": 1}`` (an array
-    task as sacct names it; restarts: how often SLURM requeued it), or {} outside SLURM."""
-    env = os.environ
-    if "SLURM_JOB_ID" not in env:
-        return {}
-    array = env.get("SLURM_ARRAY_JOB_ID"), env.get("SLURM_ARRAY_TASK_ID")
-    job = f"{array[0]}_{array[1]}" if all(array) else env["SLURM_JOB_ID"]
-    return {"slurm_job": job, "slurm_restarts": int(env.get("SLURM_RESTART_COUNT", "0"))}
 
 
 def event(name: str, **details: Any) -> dict[str, Any]:

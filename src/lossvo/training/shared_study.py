@@ -16,10 +16,8 @@ with the same study name and storage), through Hydra's Optuna sweeper.
 from __future__ import annotations
 
 import logging
-import sys
 import threading
 import time
-import traceback
 from collections.abc import Sequence
 from typing import Any
 
@@ -38,7 +36,7 @@ from sqlalchemy import func
 from sqlalchemy.engine import make_url
 from sqlalchemy.exc import ArgumentError, SQLAlchemyError
 
-from lossvo.console import first_line, full_error
+from lossvo.console import exit_in_one_line, first_line
 
 log = logging.getLogger("lossvo")
 
@@ -278,8 +276,4 @@ class StudyCheck(Callback):
         try:
             check_study(url, str(name), search_of(sweeper, [str(item) for item in overrides]))
         except ValueError as e:
-            if full_error():
-                traceback.print_exc()
-                raise SystemExit(1) from None
-            print(f"error: {e}", file=sys.stderr)
-            raise SystemExit(2) from None
+            exit_in_one_line(e)

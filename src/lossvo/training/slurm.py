@@ -9,16 +9,16 @@ callback's exceptions into warnings, so the callback ends the command itself.
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
-import sys
 from typing import Any
 
 from hydra.experimental.callback import Callback
 from lightning.pytorch.plugins.environments import SLURMEnvironment
 from omegaconf import DictConfig
 
-from lossvo.console import first_line
+from lossvo.console import exit_in_one_line, first_line
 
 SLURM_LAUNCHER = "hydra_plugins.hydra_submitit_launcher.submitit_launcher.SlurmLauncher"
 
@@ -90,7 +90,7 @@ def check_cluster(launcher: DictConfig, trainer: DictConfig) -> None:
 
 class ClusterCheck(Callback):
     """Before a sweep with the SLURM launcher submits: :func:`check_cluster`, ending the command in one
-    line (``error: ...``) with exit status 2 when it fails."""
+    line (``error: ...``) with exit status 2 when it fails (:func:`~lossvo.console.exit_in_one_line`)."""
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         launcher = config.hydra.launcher
@@ -99,8 +99,18 @@ class ClusterCheck(Callback):
         try:
             check_cluster(launcher, config.trainer)
         except (ClusterError, OSError, subprocess.TimeoutExpired) as e:
-            print(f"error: {e}", file=sys.stderr)
-            raise SystemExit(2) from None
+            exit_in_one_line(e)
+
+
+def slurm_job() -> dict[str, Any]:
+    """The SLURM job this process runs in: ``{"slurm_job": "12_0", "slurm_restarts": 1}`` (an array
+    task as sacct names it; restarts: how often SLURM requeued it), or {} outside SLURM."""
+    env = os.environ
+    if "SLURM_JOB_ID" not in env:
+        return {}
+    array = env.get("SLURM_ARRAY_JOB_ID"), env.get("SLURM_ARRAY_TASK_ID")
+    job = f"{array[0]}_{array[1]}" if all(array) else env["SLURM_JOB_ID"]
+    return {"slurm_job": job, "slurm_restarts": int(env.get("SLURM_RESTART_COUNT", "0"))}
 
 
 def lightning_environment() -> list[SLURMEnvironment]:
