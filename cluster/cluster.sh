@@ -25,9 +25,16 @@ install_packages() {
     && command -v mariadbd >/dev/null && return
   command -v apt-get >/dev/null || fail "no apt-get: install slurm-wlm, slurmdbd, munge and mariadb-server yourself"
   log "installing slurm-wlm slurmdbd munge mariadb-server (Debian)"
-  DEBIAN_FRONTEND=noninteractive apt-get install -y -q slurm-wlm slurmdbd munge mariadb-server >/dev/null \
-    || { apt-get update -q >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -q slurm-wlm slurmdbd munge mariadb-server >/dev/null; } \
-    || fail "apt-get could not install slurm-wlm slurmdbd munge mariadb-server"
+  mkdir -p "$HERE/log"
+  local packages=(slurm-wlm slurmdbd munge mariadb-server) policy=/usr/sbin/policy-rc.d made="" installed=""
+  if [ ! -e $policy ]; then  # the packages' own services stay stopped: this script starts its daemons
+    printf '#!/bin/sh\nexit 101\n' > $policy && chmod +x $policy && made=$policy
+  fi
+  { DEBIAN_FRONTEND=noninteractive apt-get install -y -q "${packages[@]}" \
+      || { apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q "${packages[@]}"; }
+  } >"$HERE/log/apt-get.log" 2>&1 || installed=no
+  rm -f $made
+  [ -z "${installed:-}" ] || fail "apt-get could not install ${packages[*]} (see $HERE/log/apt-get.log)"
 }
 
 write_configs() {
@@ -99,8 +106,8 @@ start_database() {
         || fail "mariadb-install-db failed (see $HERE/log/mariadb-install.log)"
     fi
     mkdir -p /run/mysqld && chown mysql:mysql /run/mysqld
-    (mariadbd --user=mysql --datadir="$HERE/db" --socket=/run/mysqld/mysqld.sock --port=3306 \
-      --bind-address=127.0.0.1 >"$HERE/log/mariadb.log" 2>&1 &)
+    (setsid mariadbd --user=mysql --datadir="$HERE/db" --socket=/run/mysqld/mysqld.sock --port=3306 \
+      --bind-address=127.0.0.1 </dev/null >"$HERE/log/mariadb.log" 2>&1 &)
     for _ in $(seq 60); do mariadb -uroot -e "select 1" >/dev/null 2>&1 && break; sleep 0.5; done
     mariadb -uroot -e "select 1" >/dev/null 2>&1 || fail "MariaDB did not start (see $HERE/log/mariadb.log)"
   fi
@@ -109,6 +116,20 @@ start_database() {
     CREATE USER IF NOT EXISTS 'lossvo'@'localhost' IDENTIFIED BY 'lossvo';
     CREATE DATABASE IF NOT EXISTS lossvo_optuna; GRANT ALL ON lossvo_optuna.* TO 'lossvo'@'localhost';
     FLUSH PRIVILEGES;"  # the accounting database; an Optuna storage (mysql+pymysql://lossvo:lossvo@localhost/lossvo_optuna)
+}
+
+keep_nothing_inherited() {  # stdin and every descriptor past stderr closed, so the daemons hold no pipe
+  local fd script                # or lock of whoever called `up` (a caller waiting for EOF would wait forever)
+  script=$(readlink -f "$0")
+  for fd in /proc/$$/fd/*; do
+    fd=${fd##*/}
+    [ "$fd" -gt 2 ] && [ "$(readlink -f "/proc/$$/fd/$fd" 2>/dev/null)" != "$script" ] && eval "exec $fd>&-"
+  done
+  exec </dev/null
+}
+
+running() {  # running NAME...: whether a process of any of these names runs
+  local name; for name; do pgrep -x "$name" >/dev/null && return 0; done; return 1
 }
 
 wait_for() {  # wait_for WHAT COMMAND...: up to 30 s
@@ -131,16 +152,20 @@ start_slurm() {
 }
 
 case "${1:-}" in
-  up)
+  up)  # one `up` at a time (parallel test workers call it); the lock is flock's own, not the daemons'
     [ "$(id -u)" = 0 ] || fail "run as root (it installs packages and starts daemons)"
-    mkdir -p "$(dirname "$HERE")"; exec 9>"$HERE.lock"; flock 9  # one `up` at a time (parallel test workers)
+    mkdir -p "$(dirname "$HERE")"
+    exec flock --close "$HERE.lock" bash "$0" locked-up;;
+  locked-up)
+    keep_nothing_inherited
     install_packages; write_configs; start_munge; start_database; start_slurm
     log "up: $(sinfo -h -o '%P %D %c %m %t') (SLURM_CONF=$SLURM_CONF)";;
   down)
     for d in slurmd slurmctld slurmdbd; do pkill -x $d || true; done
-    for _ in $(seq 60); do pgrep -x 'slurmd|slurmctld|slurmdbd' >/dev/null || break; sleep 0.5; done
+    for _ in $(seq 60); do running slurmd slurmctld slurmdbd || break; sleep 0.5; done
     mariadb-admin -uroot shutdown 2>/dev/null || pkill -x mariadbd || true
     pkill -x munged || true
+    for _ in $(seq 60); do running mariadbd munged || break; sleep 0.5; done
     log "down";;
   status)
     sinfo; for d in munged mariadbd slurmdbd slurmctld slurmd; do echo "$d: $(pgrep -x $d || echo not running)"; done;;

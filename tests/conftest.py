@@ -206,10 +206,10 @@ def cluster() -> None:
         pytest.skip("SLURM is not installed and installing it needs root (cluster/cluster.sh up)")
     if shutil.which("sbatch") is None and shutil.which("apt-get") is None:
         pytest.skip("SLURM is not installed and there is no apt-get to install it")
-    up = subprocess.run(
-        ["bash", str(Path(__file__).resolve().parents[1] / "cluster" / "cluster.sh"), "up"],
-        capture_output=True,
-        text=True,
-    )
+    script = Path(__file__).resolve().parents[1] / "cluster" / "cluster.sh"
+    try:
+        up = subprocess.run(["bash", str(script), "up"], capture_output=True, text=True, timeout=900)
+    except subprocess.TimeoutExpired as hung:
+        pytest.fail(f"cluster/cluster.sh up did not end within {hung.timeout} s: {hung.stderr!r}")
     if up.returncode != 0:
         pytest.fail(f"the SLURM cluster did not start: {up.stderr.strip()}")

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 import time
@@ -218,6 +217,39 @@ def test_a_time_limited_job_is_requeued_and_finishes(cluster: None, tiny_kitti: 
     assert status_of(job)["status"] == "completed" and (job / "results.json").is_file()
 
 
+DAEMONS = ("munged", "mariadbd", "slurmdbd", "slurmctld", "slurmd")
+
+
+def held_by_daemons() -> set[str]:
+    """Every file or pipe the cluster's daemons hold open (their /proc/PID/fd targets)."""
+    pids = [
+        pid
+        for name in DAEMONS  # pgrep matches names of at most 15 characters: one name a call
+        for pid in subprocess.run(["pgrep", "-x", name], capture_output=True, text=True).stdout.split()
+    ]
+    assert len(pids) >= len(DAEMONS), f"not every daemon runs: {pids}"
+    return {os.readlink(fd) for pid in pids for fd in Path(f"/proc/{pid}/fd").iterdir()}
+
+
+@pytest.mark.slow
+def test_up_again_returns_and_the_daemons_hold_nothing_of_their_caller(cluster: None) -> None:
+    """A second ``cluster.sh up`` (each test worker calls it) returns within its time: the daemons the
+    first one started do not hold its lock, and no daemon holds a pipe the caller passed past stderr.
+    (The cluster stays up: the other worker's tests may be using it.)"""
+    script = str(Path(__file__).resolve().parents[1] / "cluster" / "cluster.sh")
+    read, write = os.pipe()
+    try:
+        run = subprocess.run(["bash", script, "up"], capture_output=True, text=True, timeout=120,
+                             pass_fds=(write,))  # fmt: skip
+        held = held_by_daemons()
+    finally:
+        os.close(write)
+    pipe = os.readlink(f"/proc/self/fd/{read}")
+    os.close(read)
+    assert run.returncode == 0, run.stderr
+    assert pipe not in held and not any(target.endswith("lossvo-cluster.lock") for target in held), held
+
+
 def refused(tmp_path: Path, *overrides: str, env: dict[str, str] | None = None) -> str:
     """stderr of a SLURM sweep refused before it submits: exit status 2, one line, no sweep folder."""
     sweep = tmp_path / "sweep"
@@ -240,9 +272,9 @@ def test_no_sbatch_is_one_line_before_anything_is_submitted(tmp_path: Path) -> N
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(shutil.which("scontrol") is None, reason="SLURM's scontrol is not installed")
-def test_a_controller_that_does_not_answer_is_one_line(tmp_path: Path) -> None:
-    """A slurm.conf whose controller listens nowhere (the running cluster is left alone)."""
+def test_a_controller_that_does_not_answer_is_one_line(cluster: None, tmp_path: Path) -> None:
+    """A slurm.conf whose controller listens nowhere (the running cluster, which installs SLURM's
+    commands, is left alone)."""
     conf = tmp_path / "slurm.conf"
     lines = ["ClusterName=gone", "SlurmctldHost=localhost", "SlurmctldPort=6999", "MessageTimeout=2",
              "NodeName=localhost CPUs=1 State=UNKNOWN", "PartitionName=debug Nodes=localhost"]  # fmt: skip
