@@ -81,6 +81,7 @@ def test_a_stop_during_the_final_evaluation_resumes_the_evaluation(
 
 
 @pytest.mark.slow
+@pytest.mark.filterwarnings("ignore:The dirpath has changed")  # a copied folder: Lightning notes the old one
 def test_a_changed_config_in_a_completed_folder_is_refused(
     uninterrupted: Path, tmp_path: Path, tiny_kitti: Path, monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
