@@ -111,7 +111,7 @@ LAYERS = (
     ("evaluation",),
     ("data", "losses", "weighting", "models"),
     ("geometry",),
-    ("console", "atomic", "processes", "checks"),
+    ("console", "atomic", "processes", "checks", "folder_lock"),
 )
 """The library's layers, top to bottom, by the first name under ``lossvo``; each imports only its own
 layer and the ones below it."""

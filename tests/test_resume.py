@@ -17,6 +17,7 @@ import pytest
 import torch
 
 from helpers import fit, metrics_rows, train_main
+from lossvo.report.jobs import load_job
 from lossvo.training import checkpoints
 from lossvo.training.lifecycle import InterruptedRun
 from test_train import compose_train, tiny_overrides
@@ -158,3 +159,41 @@ def test_signals_leave_an_interrupted_job_that_resumes_by_itself(
     assert json.loads((tmp_path / "run" / "status.json").read_text())["status"] == "completed"
     epochs = [int(float(r["epoch"])) for r in metrics_rows(tmp_path / "run") if r.get("val/score")]
     assert epochs == list(range(done + 2))  # every epoch once
+
+
+@pytest.mark.slow
+def test_a_second_process_is_refused_and_a_killed_run_is_told_and_resumes(
+    tiny_kitti: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """While a run trains, the same command in its folder ends in one line (exit status 2) and leaves the
+    folder as it was. SIGKILL leaves status.json saying "running": the report tells it killed (nothing
+    holds run.lock), and the same command resumes it, its history saying so."""
+    run = tmp_path / "run"
+    proc = _start(tiny_kitti, tmp_path, "trainer.max_epochs=200")
+    last = run / "checkpoints" / "last.ckpt"
+    deadline = time.monotonic() + 240
+    while not last.is_file() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert proc.poll() is None, proc.communicate()[0][-3000:]
+    second = _start(tiny_kitti, tmp_path, "trainer.max_epochs=200")
+    output = second.communicate(timeout=240)[0]
+    assert second.returncode == 2, output[-3000:]
+    (line,) = [line for line in output.splitlines() if "[ERROR]" in line]
+    assert f"{run}: another process is running in this folder (pid {proc.pid} on " in line, line
+    assert "Traceback" not in output
+    assert proc.poll() is None  # the first run trains on
+    proc.kill()
+    proc.communicate(timeout=60)
+    status = json.loads((run / "status.json").read_text())
+    assert status["status"] == "running" and [e["event"] for e in status["history"]] == ["started"]
+    job = load_job(run)
+    assert job.skip is not None and job.skip.startswith(
+        f"killed: status.json says running but no process holds run.lock (last held by pid {proc.pid} on "
+    ), job.skip
+    done = checkpoints.read(last)["epoch"]
+    capsys.readouterr()
+    assert train_main(_args(tiny_kitti, tmp_path, f"trainer.max_epochs={done + 2}"), monkeypatch) == 0
+    assert f"(resuming from {last})" in capsys.readouterr().out
+    history = json.loads((run / "status.json").read_text())["history"]
+    assert [e["event"] for e in history] == ["started", "killed", "resumed", "completed"]
+    assert history[0]["time"] <= history[1]["time"] <= history[2]["time"]

@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from lossvo import folder_lock
 from lossvo.checks import is_number
 from lossvo.console import first_line
 from lossvo.data.kitti import KittiFormatError, read_poses, sequence_names
@@ -317,12 +318,24 @@ def _read_curves(job: Job) -> None:
     job.notes.extend(notes)
 
 
+def _running(path: Path) -> str:
+    """Why a job whose status.json says "running" is skipped: it runs, or its process was killed."""
+    alive = folder_lock.in_use(path)
+    if alive is None:
+        return "still running (status.json says running)"
+    if alive:
+        return f"still running ({folder_lock.holder(path)})"
+    return (f"killed: status.json says running but no process holds {folder_lock.LOCK} (last held by "
+            f"{folder_lock.holder(path)}; SIGKILL, out of memory or a lost node): run the sweep's command "
+            "again to resume")  # fmt: skip
+
+
 def _skip_reason(job: Job) -> str | None:
     """Why a job's results cannot be used yet, from its status and files (None: read results.json)."""
     if job.status == "failed":
         return f"failed: {job.error or 'no error recorded'}"
     if job.status == "running":
-        return "still running (status.json says running)"
+        return _running(job.path)
     if job.status == "interrupted":
         return f"interrupted ({job.error or 'no signal recorded'}): run the sweep's command again to resume"
     if not (job.path / "results.json").is_file():

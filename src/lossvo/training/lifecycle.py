@@ -25,7 +25,7 @@ import logging
 import shutil
 import signal
 from collections.abc import Callable, Iterator, Mapping
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -40,7 +40,7 @@ from lightning.pytorch.utilities import rank_zero_only
 from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from lossvo import weighting
+from lossvo import folder_lock, weighting
 from lossvo.atomic import write_text_atomic
 from lossvo.console import USER_ERRORS, disk_error, full_error, hydra_message, one_line
 from lossvo.training import metrics_log
@@ -127,6 +127,16 @@ def _defining(cfg: DictConfig | ListConfig) -> dict[str, Any]:
     return {k: v for k, v in flat.items() if not k.startswith(NOT_DEFINING)}
 
 
+def killed(out_dir: Path) -> dict[str, Any]:
+    """The history entry of a process that ended without a word (SIGKILL, the out-of-memory killer, a
+    lost node): its ``status.json`` still said "running" and nothing held the folder's lock. Its time
+    is the last sign of life: the latest change to ``status.json``, ``metrics.csv`` or ``last.ckpt``."""
+    files = (out_dir / STATUS, out_dir / metrics_log.NAME, out_dir / LAST_CHECKPOINT)
+    last = max((f.stat().st_mtime for f in files if f.is_file()), default=None)
+    when = None if last is None else datetime.fromtimestamp(last, timezone.utc).isoformat(timespec="seconds")
+    return {"event": "killed", "time": when}
+
+
 def config_drift(recorded: DictConfig | ListConfig, requested: DictConfig) -> list[str]:
     """The run-defining keys (:data:`RUN_KEYS`) whose values differ between two configs."""
     theirs, ours = _defining(recorded), _defining(requested)
@@ -183,6 +193,7 @@ class Run:
         completed: the status of a completed run (the job is skipped), else None.
         resume_from: the ``last.ckpt`` to continue from, else None (a fresh start, or ``ckpt_path``).
         started: whether :meth:`start` claimed the folder.
+        guarded: whether this process holds the folder's lock (:mod:`lossvo.folder_lock`).
         details: entries of every ``status.json`` the run writes (its thread count).
         history: the folder's events so far (see :func:`event`), this process's appended.
     """
@@ -194,6 +205,7 @@ class Run:
     completed: dict[str, Any] | None = None
     resume_from: Path | None = None
     started: bool = False
+    guarded: bool = False
     details: dict[str, Any] = field(default_factory=dict)
     history: list[dict[str, Any]] = field(default_factory=list)
 
@@ -245,6 +257,8 @@ def _accept(run: Run) -> None:
     recorded_status = read_status(out_dir)
     status, history = recorded_status.get("status"), recorded_status.get("history")
     run.history = list(history) if isinstance(history, list) else []
+    if status == "running" and run.guarded:  # the lock was free: the process that said so is gone
+        run.history.append(killed(out_dir))
     if status == "completed" and not cfg.get("ckpt_path"):
         run.completed = recorded_status
     elif not cfg.get("ckpt_path"):
@@ -328,7 +342,7 @@ def _leave(run: Run) -> None:
         if run.fresh:
             run.start()
         return
-    ours = {f"{HydraConfig.get().job.name}.log"}
+    ours = {f"{HydraConfig.get().job.name}.log", folder_lock.LOCK}
     if run.fresh and run.out_dir.is_dir() and {p.name for p in run.out_dir.iterdir()} <= ours:
         _close_logs_in(run.out_dir)
         shutil.rmtree(run.out_dir, ignore_errors=True)
@@ -373,16 +387,45 @@ def _interrupted(run: Run, stop: InterruptedRun) -> None:
 
 
 @contextmanager
+def _held(run: Run) -> Iterator[None]:
+    """The folder's lock (:mod:`lossvo.folder_lock`), held by the run's first process for as long as it
+    runs in the folder; another live process there ends this one in one line, the folder untouched."""
+    if getattr(rank_zero_only, "rank", 0) != 0:
+        yield
+        return
+    job = slurm_job()
+    details = f", SLURM job {job['slurm_job']}" if job else ""
+    with ExitStack() as stack:
+        try:
+            held = stack.enter_context(folder_lock.held(run.out_dir, details))
+        except folder_lock.FolderInUseError as e:
+            if full_error():
+                raise
+            log.error("%s", e)
+            raise _user_error(str(e)) from None
+        run.guarded = held.guarded
+        yield
+
+
+@contextmanager
 def job(cfg: DictConfig) -> Iterator[Run]:
     """The run in this Hydra job's output folder, from its checks to its final ``status.json``.
 
     The body builds and trains when ``run.completed`` is None, calling :meth:`Run.start` once all is
     built, and raises :class:`InterruptedRun` on a signal; on leaving, ``status.json`` says "completed"
-    with the final metrics of ``metrics.csv``, or what stopped the run.
+    with the final metrics of ``metrics.csv``, or what stopped the run. The folder's lock is held
+    throughout (:func:`_held`).
     """
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     fresh = not (out_dir / ".hydra").exists() and not (out_dir / STATUS).exists()
     run = Run(cfg, out_dir, job_label(), fresh)
+    with _held(run):
+        yield from _run_in(run)
+
+
+def _run_in(run: Run) -> Iterator[Run]:
+    """:func:`job`'s body, in the held folder."""
+    out_dir = run.out_dir
     try:
         _accept(run)
     except ValueError as e:
