@@ -10,7 +10,7 @@ Check it on a CPU (tiny sizes, one round, under a minute):
 ``.venv/bin/python benchmarks/gpu_path.py --quick --device cpu --out /tmp/gpu.json``.
 
 The settings are the shipped configs' (read from ``src/lossvo/conf``): full DeepVO (``model/deepvo.yaml``)
-on windows of ``experiment/paper.yaml``'s length and batch size, and FlowVO (``model/flowvo.yaml``: frame
+on windows of ``data/kitti.yaml``'s length and batch size, and FlowVO (``model/flowvo.yaml``: frame
 pairs, flow and K in, its own batch size), each at the study's image size (``experiment/paper.yaml``) and
 at KITTI's full resolution (370x1226, the smallest frame of the odometry sequences). For each network and
 size:
@@ -144,8 +144,8 @@ def study_settings() -> dict[str, Any]:
         "networks": {
             "deepvo": {
                 "model": plain(config("model/deepvo.yaml")),
-                "seq_len": paper.data.seq_len,
-                "batch_size": paper.data.batch_size,
+                "seq_len": kitti.seq_len,
+                "batch_size": kitti.batch_size,
             },
             "flowvo": {
                 "model": plain(flowvo.model),

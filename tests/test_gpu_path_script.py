@@ -46,7 +46,9 @@ def test_settings_are_what_the_study_runs() -> None:
         paper.trainer.benchmark,
     )
     assert (settings["train"], settings["val"]) == (list(paper.data.train), list(paper.data.val))
-    flowvo = composed("model=flowvo", "loss=chordal")
+    flowvo = composed("experiment=paper", "model=flowvo", "loss=chordal")  # with FlowVO's own windows
+    assert (flowvo.data.seq_len, flowvo.data.batch_size) == (2, 20)
+    assert (paper.data.seq_len, paper.data.batch_size) == (7, 8)
     for name, cfg in (("deepvo", paper), ("flowvo", flowvo)):
         net = gpu_path.network(name, settings, quick=False)
         assert f"{net.cls.__module__.rsplit('.', 1)[0]}.{net.cls.__name__}" == cfg.model._target_
