@@ -34,7 +34,7 @@ install_packages() {
       || { apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q "${packages[@]}"; }
   } >"$HERE/log/apt-get.log" 2>&1 || installed=no
   rm -f $made
-  [ -z "${installed:-}" ] || fail "apt-get could not install ${packages[*]} (see $HERE/log/apt-get.log)"
+  [ -z "$installed" ] || fail "apt-get could not install ${packages[*]} (see $HERE/log/apt-get.log)"
 }
 
 write_configs() {

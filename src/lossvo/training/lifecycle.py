@@ -87,9 +87,15 @@ class JobError(Exception):
     """A user error in one job of a sweep: the job fails (Hydra reports it) and the others go on."""
 
 
+def _first_process() -> bool:
+    """Whether this is a run's first process (rank 0; Lightning sets the rank from the launcher's
+    environment): in a multi-process (DDP) run, only it writes and holds the folder."""
+    return getattr(rank_zero_only, "rank", 0) == 0
+
+
 def write_status(out_dir: Path, status: str, **details: Any) -> None:
     """Write ``status.json`` atomically; in a multi-process (DDP) run, only the first process does."""
-    if getattr(rank_zero_only, "rank", 0) != 0:  # set by Lightning from the launcher's environment
+    if not _first_process():
         return
     write_text_atomic(out_dir / STATUS, json.dumps({"status": status, **details}, indent=2) + "\n")
 
@@ -218,7 +224,7 @@ class Run:
         where a resumed run continues (``{"epoch": N, "from": checkpoint}``), recorded in its history."""
         self.details = details
         self.history.append(event("resumed", **resumed) if resumed is not None else event("started"))
-        if getattr(rank_zero_only, "rank", 0) == 0:
+        if _first_process():
             save_config(self.out_dir, self.cfg)
         self.write("running")
         self.started = True
@@ -390,7 +396,7 @@ def _interrupted(run: Run, stop: InterruptedRun) -> None:
 def _held(run: Run) -> Iterator[None]:
     """The folder's lock (:mod:`lossvo.folder_lock`), held by the run's first process for as long as it
     runs in the folder; another live process there ends this one in one line, the folder untouched."""
-    if getattr(rank_zero_only, "rank", 0) != 0:
+    if not _first_process():
         yield
         return
     job = slurm_job()
