@@ -15,9 +15,10 @@ from types import SimpleNamespace
 import pytest
 import torch
 import yaml
+from lightning.pytorch.utilities.exceptions import SIGTERMException
 
 from helpers import metrics_rows, scores_of, status_of, train_main
-from lossvo.training import fitting
+from lossvo.training import fitting, lifecycle
 from lossvo.training.callbacks import EpochProgressBar
 from lossvo.training.resolvers import MAX_NAME, path_safe
 from test_train import tiny_overrides
@@ -263,3 +264,19 @@ def test_epochs_are_counted_from_one_where_a_person_reads_them(uninterrupted: Pa
     bar._trainer = trainer  # type: ignore[attr-defined]
     assert bar._get_train_description(1) == "Epoch 2/2"  # the second of two
     assert [r["epoch"] for r in metrics_rows(uninterrupted) if r.get("val/score")] == ["0", "1"]  # Lightning
+
+
+def test_a_stop_is_named_after_the_signal_that_started_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    """SLURM's SIGTERM follows submitit's requeue on SIGUSR2, and may end the fit first (Lightning's
+    SIGTERMException): the stop is still SIGUSR2's (exit status 140). Without an earlier signal a
+    SIGTERMException is SIGTERM's; other exceptions are left as they are."""
+    monkeypatch.setattr(lifecycle, "_stopping", ["SIGUSR2"])
+    stop = fitting._interrupted(SIGTERMException(), 289)
+    assert isinstance(stop, lifecycle.InterruptedRun)
+    assert (stop.signal_name, stop.epoch, stop.exit_code) == ("SIGUSR2", 289, 140)
+    monkeypatch.setattr(lifecycle, "_stopping", [])
+    stop = fitting._interrupted(SIGTERMException(), 3)
+    assert isinstance(stop, lifecycle.InterruptedRun)
+    assert (stop.signal_name, stop.exit_code) == ("SIGTERM", 143)
+    error = ValueError("not a stop")
+    assert fitting._interrupted(error, 3) is error

@@ -26,7 +26,7 @@ from lossvo.evaluation.checkpoints import load_network
 from lossvo.evaluation.results import evaluate_run
 from lossvo.models import load_flownet
 from lossvo.training import checkpoints, metrics_log, slurm
-from lossvo.training.lifecycle import InterruptedRun, Run
+from lossvo.training.lifecycle import InterruptedRun, Run, stopping_on
 from lossvo.training.module import VOModule
 from lossvo.training.selection import SCORE_KEY
 
@@ -154,14 +154,18 @@ def train(cfg: DictConfig, run: Run) -> dict[str, float]:
 def _interrupted(error: BaseException, epoch: int) -> BaseException:
     """Lightning ends a fit on SIGINT with ``sys.exit(1)`` (after a KeyboardInterrupt) and on SIGTERM
     with its ``SIGTERMException``; submitit's requeue signal raises an :class:`InterruptedRun`: each
-    becomes an :class:`InterruptedRun` with its ``epoch`` (from 1); any other exit as it was."""
+    becomes an :class:`InterruptedRun` with its ``epoch`` (from 1), named after the signal that started
+    the stop (:func:`~lossvo.training.lifecycle.stopping_on`; a SIGTERM may overtake the requeue's
+    exit); any other exit as it was."""
     if isinstance(error, InterruptedRun):
-        return InterruptedRun(error.signal_name, epoch)
-    if isinstance(error, SIGTERMException):
-        return InterruptedRun("SIGTERM", epoch)
-    if isinstance(error, KeyboardInterrupt) or isinstance(error.__context__, KeyboardInterrupt):
-        return InterruptedRun("SIGINT", epoch)
-    return error
+        name = error.signal_name
+    elif isinstance(error, SIGTERMException):
+        name = "SIGTERM"
+    elif isinstance(error, KeyboardInterrupt) or isinstance(error.__context__, KeyboardInterrupt):
+        name = "SIGINT"
+    else:
+        return error
+    return InterruptedRun(stopping_on() or name, epoch)
 
 
 def evaluate_after_fit(

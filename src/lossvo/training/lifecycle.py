@@ -298,6 +298,12 @@ _stopping: list[str] = []
 does not interrupt the stop."""
 
 
+def stopping_on() -> str | None:
+    """The signal that started this process's stop, if one did: the stop's cause, whatever signal or
+    exception ends the fit after it (SLURM's SIGTERM follows submitit's requeue on SIGUSR2)."""
+    return _stopping[0] if _stopping else None
+
+
 def _sigterm(signum: int, frame: Any) -> None:
     """SIGTERM outside a fit (Lightning handles it during one, calling this handler too)."""
     if signal.getsignal(signal.SIGTERM) is _sigterm and not _stopping:
