@@ -117,6 +117,11 @@ class PoseLoss(nn.Module):
         weight = "learned" if self.k is None else f"{self.k:g}"
         return f"dim={self.dim}, k={weight}, translation={self.translation}"
 
+    def output_keys(self) -> tuple[str, ...]:
+        """The keys :meth:`forward` returns, in order."""
+        learned = tuple(self.weighting.values()) if self.weighting is not None else ()
+        return ("loss", "trans_loss", "rot_loss", "trans_err_m", "rot_err_rad", *learned)
+
     def identity_output(self) -> Tensor:
         """The output (dim,) float32 that decodes to the identity pose (the head's initial bias)."""
         return self.encode(torch.eye(4, dtype=torch.float64)).float()

@@ -26,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import logging
 import os
 from collections.abc import Iterator, Mapping
 from collections.abc import Sequence as Seq
@@ -38,16 +39,18 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from filelock import FileLock
-from torch.utils.data import DataLoader, Dataset, Sampler, SequentialSampler
+from torch.utils.data import BatchSampler, DataLoader, Dataset, Sampler, SequentialSampler
 
 from lossvo import geometry
 from lossvo.atomic import write_text_atomic
 from lossvo.checks import is_integer, is_number
-from lossvo.data import camera, frame_cache, layouts, synthetic, windows
+from lossvo.data import camera, frame_cache, layouts, resident, synthetic, windows
 from lossvo.data import flow as optical_flow
 from lossvo.data.kitti import relative_targets, split_names
 from lossvo.data.sequence import Sequence
 from lossvo.data.synthetic import routes
+
+log = logging.getLogger("lossvo")
 
 PAPER_TRAIN = ("00", "02", "03", "04", "05", "06", "08")
 PAPER_VAL = ("07", "09")
@@ -200,7 +203,7 @@ def reverse_windows(
     Returns:
         frames, targets of the same shapes.
     """
-    which = which.to(frames.device)
+    which = which.to(frames.device, non_blocking=True)
     backwards_targets = geometry.pose_inverse(targets).flip(1)
     return (
         torch.where(which.view(-1, 1, 1, 1, 1), frames.flip(1), frames),
@@ -223,8 +226,8 @@ def mirror_windows(
     Returns:
         frames, targets of the same shapes.
     """
-    which = which.to(frames.device)
-    sign = torch.tensor([-1.0, 1.0, 1.0, 1.0], dtype=targets.dtype, device=targets.device)
+    which = which.to(frames.device, non_blocking=True)
+    sign = torch.tensor([-1.0, 1.0, 1.0, 1.0], dtype=targets.dtype).to(targets.device, non_blocking=True)
     return (
         torch.where(which.view(-1, 1, 1, 1, 1), frames.flip(-1), frames),
         torch.where(which.view(-1, 1, 1, 1), targets * (sign[:, None] * sign), targets),
@@ -266,7 +269,7 @@ def zoomed_windows(
     """
     frames, K = inputs["frames"], inputs["K"]
     B, H, W = frames.shape[0], frames.shape[-2], frames.shape[-1]
-    draw = torch.rand(4, B, generator=generator).to(K.device, torch.float32)
+    draw = torch.rand(4, B, generator=generator).to(K.device, torch.float32, non_blocking=True)
     sx, sy = 1.0 + (zoom - 1.0) * draw[0], 1.0 + (zoom - 1.0) * draw[1]
     x0, y0 = draw[2] * W * (1.0 - 1.0 / sx), draw[3] * H * (1.0 - 1.0 / sy)  # window's corner, pixels
     theta = torch.zeros(B, 2, 3, device=K.device)
@@ -313,9 +316,10 @@ def standing_windows(
     Returns:
         frames, targets of the same shapes and dtypes.
     """
-    chosen = which.to(frames.device).nonzero().flatten()
+    chosen = which.cpu().nonzero().flatten()  # drawn on the host: counted there, no wait for the device
     if not len(chosen):
         return frames, targets
+    chosen = chosen.to(frames.device, non_blocking=True)
     frames, targets = frames.clone(), targets.clone()
     still = frames[chosen, :1].float().expand(-1, frames.shape[1], -1, -1, -1)
     noisy = still + STANDSTILL_NOISE * torch.randn(still.shape, device=frames.device)
@@ -332,7 +336,8 @@ def jitter(frames: torch.Tensor, generator: torch.Generator | None = None) -> to
     Returns:
         (B, L, 3, H, W) float in [0, 255].
     """
-    gain, bias = (torch.rand(2, frames.shape[0], 1, 1, 1, 1, generator=generator) - 0.5).to(frames.device)
+    draw = torch.rand(2, frames.shape[0], 1, 1, 1, 1, generator=generator) - 0.5
+    gain, bias = draw.to(frames.device, non_blocking=True)
     return ((frames - 127.5) * (1.0 + 0.4 * gain) + 127.5 + 50.0 * bias).clamp(0.0, 255.0)
 
 
@@ -382,6 +387,8 @@ ARGUMENT_CHECKS: tuple[tuple[str, Any, str], ...] = (
     ("mirror", _probability, "a probability in [0, 1]"),
     ("zoom", lambda v: is_number(v) and 1.0 <= v <= 4.0, "a number in [1, 4] (1: no zoom)"),
     ("crop", lambda v: isinstance(v, bool), "true or false"),
+    ("on_device", lambda v: v == "auto" or isinstance(v, bool), "auto, true or false"),
+    ("device_budget_gb", lambda v: is_number(v) and v >= 0, "a number of GiB >= 0"),
 )
 """(argument, test, what is expected) of the datamodule's scalar arguments."""
 
@@ -485,6 +492,12 @@ class VODataModule(L.LightningDataModule):
         keep_every: keep every n-th frame of each sequence (the others are never read): matches frame rates
             across datasets (3 turns TUM's 30 Hz into KITTI's 10 Hz). Unlike ``frame_steps`` it applies to
             every split, evaluation included.
+        on_device: where training and validation batches are assembled (:mod:`lossvo.data.resident`):
+            ``auto``, on an accelerator (a GPU) when the splits' cached arrays fit ``device_budget_gb``
+            there, else by the host loader; ``true``, on the training device whenever they fit, a CPU
+            included; ``false``, always by the host loader. Both give the same batches; the run's log says
+            which one assembles them. Several processes (DDP) always use the host loader.
+        device_budget_gb: the most GiB of frames and flow kept on the device.
 
     Frames with distortion are undistorted once, when the frame cache is built
     (:func:`lossvo.data.frame_cache.undistortion`); :meth:`intrinsics` is K of the cached frames.
@@ -523,13 +536,16 @@ class VODataModule(L.LightningDataModule):
         crop: bool = False,
         zoom: float = 1.0,
         camera: Mapping[str, Any] | None = None,
+        on_device: bool | str = "auto",
+        device_budget_gb: float = 8.0,
     ) -> None:
         super().__init__()
         self.save_hyperparameters(logger=False)
         _check_arguments({
             "height": height, "width": width, "seq_len": seq_len, "stride": stride, "keep_every": keep_every,
             "normalization": normalization, "windows_per_epoch": windows_per_epoch, "reverse": reverse,
-            "standstill": standstill, "mirror": mirror, "zoom": zoom, "crop": crop,
+            "standstill": standstill, "mirror": mirror, "zoom": zoom, "crop": crop, "on_device": on_device,
+            "device_budget_gb": device_budget_gb,
         })  # fmt: skip
         self.root = Path(root).expanduser()
         self.layout = layouts.check_layout(layout)
@@ -559,6 +575,8 @@ class VODataModule(L.LightningDataModule):
         self.normalization, self.augment, self.reverse = normalization, augment, float(reverse)
         self.standstill, self.mirror = float(standstill), float(mirror)
         self.crop, self.zoom = crop, float(zoom)
+        self.on_device, self.device_budget_gb = on_device, float(device_budget_gb)
+        self.resident: dict[str, resident.ResidentWindows] | None = None  # by split, once decided
         self.sequences: dict[str, Sequence] = {}
         self.mean: np.ndarray | None = None  # per-channel statistics, set by setup
         self.std: np.ndarray | None = None
@@ -745,6 +763,54 @@ class VODataModule(L.LightningDataModule):
         self._cameras[name] = camera.resized_intrinsics(K, source, (self.height, self.width))
         return self._cameras[name].copy()
 
+    # -- where batches are assembled -----------------------------------------------------------------
+
+    def resident_windows(self, split: str) -> resident.ResidentWindows | None:
+        """The split's windows kept on the training device, or None where the host loader assembles its
+        batches (:attr:`on_device`). Decided once, for the training and validation splits together, and
+        said in the log."""
+        if self.resident is None:
+            self.resident = self._make_resident(self._training_device())
+        if self.resident and split not in self.resident:  # the test split, asked for later
+            self.resident[split] = self._resident_split(split, next(iter(self.resident.values())).device)
+        return self.resident.get(split)
+
+    def _training_device(self) -> torch.device:
+        trainer = self.trainer
+        return trainer.strategy.root_device if trainer is not None else torch.device("cpu")
+
+    def _make_resident(self, device: torch.device) -> dict[str, resident.ResidentWindows]:
+        """The training and validation splits' windows on ``device`` where :attr:`on_device` and the budget
+        allow, else nothing (the host loader); one log line either way."""
+        splits = [s for s in ("train", "val") if s in self.datasets]
+        size = sum(resident.resident_bytes(*self._arrays(s)) for s in splits) / resident.GIB
+        setting = f"data.on_device={str(self.on_device).lower()}"
+        reason = None
+        if self.on_device is False:
+            reason = setting
+        elif self.on_device == "auto" and device.type == "cpu":
+            reason = f"{setting} on a CPU"
+        elif self.trainer is not None and self.trainer.world_size > 1:
+            reason = f"{self.trainer.world_size} processes"
+        elif size > self.device_budget_gb:
+            reason = f"the arrays exceed data.device_budget_gb={self.device_budget_gb:g}"
+        if reason is not None:
+            log.info("data: batches from the host loader (%s; %.2f GiB of frames and flow)", reason, size)
+            return {}
+        log.info("data: batches gathered on %s from %.2f GiB of frames and flow kept there (%s)",
+                 device, size, setting)  # fmt: skip
+        return {s: self._resident_split(s, device) for s in splits}
+
+    def _arrays(self, split: str) -> tuple[list[np.ndarray], dict[int, list[np.ndarray]] | None]:
+        """The split's frames and flow arrays (memory maps), per sequence."""
+        dataset = self.datasets[split]
+        return dataset.frames, (dataset.flow if dataset.flow_files is not None else None)
+
+    def _resident_split(self, split: str, device: torch.device) -> resident.ResidentWindows:
+        data = self.datasets[split]
+        frames, flow = self._arrays(split)
+        return resident.ResidentWindows(data.index, frames, data.targets, data.intrinsics, flow, device)
+
     # -- loaders --------------------------------------------------------------------------------------
 
     def _loader(self, split: str, sampler: Sampler | None = None) -> DataLoader:
@@ -753,15 +819,24 @@ class VODataModule(L.LightningDataModule):
             pin_memory=self.pin_memory, persistent_workers=self.num_workers > 0, generator=_own_stream(),
         )  # fmt: skip
 
+    def _batches(self, split: str, batches: BatchSampler) -> DataLoader:
+        """The split's windows in the given batches: items of the host loader, or index batches that
+        :meth:`on_after_batch_transfer` gathers on the device (:mod:`lossvo.data.resident`)."""
+        windows = self.resident_windows(split)
+        if windows is None:
+            return DataLoader(self.datasets[split], batch_sampler=batches, num_workers=self.num_workers,
+                              pin_memory=self.pin_memory, persistent_workers=self.num_workers > 0,
+                              generator=_own_stream())  # fmt: skip
+        return DataLoader(resident.IndexBatches(windows, split), batch_sampler=batches,
+                          collate_fn=resident.as_is, generator=_own_stream())  # fmt: skip
+
     def _tiled_loader(self, split: str) -> DataLoader:
         """Validation or test windows in order, batched by length (a sequence's last may be shorter)."""
         dataset = self.datasets[split]
         batches = windows.SameLengthBatches(
             SequentialSampler(dataset), self.batch_size, lengths=dataset.lengths.tolist()
         )
-        return DataLoader(dataset, batch_sampler=batches, num_workers=self.num_workers,
-                          pin_memory=self.pin_memory, persistent_workers=self.num_workers > 0,
-                          generator=_own_stream())  # fmt: skip
+        return self._batches(split, batches)
 
     def train_dataloader(self) -> DataLoader:
         """Shuffled training windows; with ``windows_per_epoch``, a fresh random subset every epoch.
@@ -769,10 +844,13 @@ class VODataModule(L.LightningDataModule):
         Each epoch's order comes from a generator of its own, seeded with torch's initial seed (the run's
         ``seed``) and the epoch (:class:`EpochShuffle`), so it depends on the seed, the epoch and the data
         alone: not on the network, its head or the loss, which draw from other streams, and a resumed run
-        sees the order an uninterrupted one would."""
+        sees the order an uninterrupted one would. Host loader and device gathering give the same batches."""
         dataset = self.datasets["train"]
         count = min(self.windows_per_epoch or len(dataset), len(dataset))
-        return self._loader("train", EpochShuffle(len(dataset), count, torch.initial_seed()))
+        order = EpochShuffle(len(dataset), count, torch.initial_seed())
+        if self.resident_windows("train") is None:
+            return self._loader("train", order)
+        return self._batches("train", BatchSampler(order, self.batch_size, drop_last=False))
 
     def val_dataloader(self) -> DataLoader:
         return self._tiled_loader("val")
@@ -802,6 +880,10 @@ class VODataModule(L.LightningDataModule):
         """On the training device: :meth:`prepare`; when training, windows first stopped
         (``standstill``: no flow), zoomed (``zoom``: the flow and K too), mirrored (``mirror``: the flow and
         K too), played backwards (``reverse``) and jittered (``augment``)."""
+        if "frame_index" in batch:  # an index batch of windows kept on the device
+            windows = self.resident_windows(str(batch["split"]))
+            assert windows is not None
+            batch = windows.gather(batch)
         batch = dict(batch)
         frames, targets = batch["frames"], batch["targets"]
         training = self.trainer is not None and self.trainer.training
@@ -809,14 +891,15 @@ class VODataModule(L.LightningDataModule):
             which = torch.rand(frames.shape[0]) < self.standstill
             frames, targets = standing_windows(frames, targets, which)
             if "flow" in batch:
-                batch["flow"] = batch["flow"] * ~which.to(frames.device).view(-1, 1, 1, 1, 1)
+                moving = ~which.to(frames.device, non_blocking=True)
+                batch["flow"] = batch["flow"] * moving.view(-1, 1, 1, 1, 1)
         if training and self.zoom > 1:
             batch = zoomed_windows({**batch, "frames": frames}, self.zoom)
             frames = batch["frames"]
         if training and self.mirror > 0:
             which = torch.rand(frames.shape[0]) < self.mirror
             frames, targets = mirror_windows(frames, targets, which)
-            where = which.to(frames.device)
+            where = which.to(frames.device, non_blocking=True)
             if "flow" in batch:
                 mirrored = optical_flow.mirror_flow(batch["flow"])
                 batch["flow"] = torch.where(where.view(-1, 1, 1, 1, 1), mirrored, batch["flow"])

@@ -213,5 +213,5 @@ def mirror_flow(flow: torch.Tensor) -> torch.Tensor:
     Returns:
         (..., 2, H, W).
     """
-    sign = torch.tensor([-1.0, 1.0], dtype=flow.dtype, device=flow.device).view(2, 1, 1)
+    sign = torch.tensor([-1.0, 1.0], dtype=flow.dtype).to(flow.device, non_blocking=True).view(2, 1, 1)
     return flow.flip(-1) * sign

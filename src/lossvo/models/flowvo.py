@@ -96,6 +96,7 @@ class FlowVO(nn.Module):
     """The batch entries :meth:`forward` takes (:mod:`lossvo.data.datamodules`)."""
 
     _head_bias: Tensor
+    _flow_scale: Tensor
 
     def __init__(self, out_dim: int, height: int, width: int, channels: Sequence[int] = (32, 64, 96, 128),
                  hidden: int = 128, flow_gain: float = 20.0, head_dropout: float = 0.0,
@@ -126,6 +127,8 @@ class FlowVO(nn.Module):
             )
         self.memory_format = memory_format(channels_last)
         self.register_buffer("_head_bias", head_bias_of(head_bias, self.out_dim), persistent=False)
+        size = torch.tensor([self.width, self.height], dtype=torch.float32)  # the flow's divisor, per channel
+        self.register_buffer("_flow_scale", (self.flow_gain / size).view(2, 1, 1), persistent=False)
         self.reset_parameters(seeded_build(lambda: self._build(p)))
         for part in (self.stem, self.stages):  # nn.Module.to takes memory_format; torch's overloads omit it
             part.to(memory_format=self.memory_format)  # type: ignore[call-overload]
@@ -187,9 +190,8 @@ class FlowVO(nn.Module):
         if K.shape != (flow.shape[0], 3, 3):
             raise ValueError(f"FlowVO expects K of shape ({flow.shape[0]}, 3, 3), got {tuple(K.shape)}")
         B, P = flow.shape[:2]
-        size = torch.tensor([self.width, self.height], dtype=torch.float32, device=flow.device)
         scaled = self._pooled(flow.float().reshape(B * P, 2, self.height, self.width))
-        scaled = scaled * (self.flow_gain / size).view(2, 1, 1)
+        scaled = scaled * self._flow_scale
         if not self.intrinsics_layer:
             return scaled.contiguous(memory_format=self.memory_format)
         layer = self._pooled(intrinsics_channels(K.float(), self.height, self.width))  # once a window

@@ -80,6 +80,7 @@ def build(cfg: DictConfig) -> tuple[VODataModule, VOModule, L.Trainer]:
         optimizer=_container(cfg.optimizer),
         scheduler=_container(cfg.scheduler) if cfg.get("scheduler") else None,
         monitor=cfg.selection.monitor if cfg.get("selection") else SCORE_KEY,
+        compile=cfg.get("compile", False),
     )
     if flownet:
         _load_flownet(module, flownet)

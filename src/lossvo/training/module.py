@@ -13,10 +13,12 @@ the training data (:mod:`lossvo.evaluation.checkpoints`).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
 import lightning as L
+import numpy as np
 import torch
 from hydra.utils import instantiate
 from torch import Tensor
@@ -27,10 +29,20 @@ from lossvo.losses import PoseLoss
 from lossvo.training import random_streams
 from lossvo.training.schedules import extend_cosine
 from lossvo.training.selection import SCORE_KEY, SelectionScore
+from lossvo.training.step import (
+    StepRecord,
+    check_compile,
+    compile_mode,
+    compiled,
+    epoch_means,
+    first_non_finite,
+    optimizer_options,
+    step_row,
+)
 
 
 class NonFiniteLossError(FloatingPointError):
-    """The loss went NaN or infinite; the message names the step, the batch and the term."""
+    """The loss went NaN or infinite; the message names the first such step, its batch and term."""
 
 
 class VOModule(L.LightningModule):
@@ -45,6 +57,15 @@ class VOModule(L.LightningModule):
         scheduler: optional config of a partial LR scheduler, called with the optimiser; stepped per
             epoch and given the ``monitor`` metric when it needs one (ReduceLROnPlateau).
         monitor: the selection metric (``selection.monitor``): ``val/score`` or ``val/loss``.
+        compile: how the training step's forward pass and loss run
+            (:func:`lossvo.training.step.compile_mode`): false (eagerly), ``auto`` (compiled with CUDA
+            graphs on a CUDA device, eagerly elsewhere), true or a ``torch.compile`` mode. An execution
+            setting, not a hyperparameter: checkpoints omit it.
+
+    A training step synchronises nothing with the host: its loss terms are recorded on the device
+    (:class:`lossvo.training.step.StepRecord`) and read at the end of the epoch, where their means are logged
+    as ``train/<key>`` and a non-finite loss stops the run, naming the first step, batch and term it
+    happened at.
     """
 
     def __init__(
@@ -54,14 +75,20 @@ class VOModule(L.LightningModule):
         optimizer: dict[str, Any],
         scheduler: dict[str, Any] | None = None,
         monitor: str = SCORE_KEY,
+        compile: bool | str | None = False,
     ) -> None:
         super().__init__()
-        self.save_hyperparameters()
+        self.save_hyperparameters(ignore=["compile"])
+        check_compile(compile)
+        self.compile = compile
         self.loss: PoseLoss = instantiate(loss)
         self.model = instantiate(model)
         self.val_score = SelectionScore()
         self.data: dict[str, Any] | None = None  # the training data's description, from a checkpoint
         self._resumed_rng: dict[str, Any] | None = None  # random streams of a checkpoint to resume
+        self._train_losses = self.losses  # compiled in on_fit_start where ``compile`` says so
+        self._record: StepRecord | None = None  # the current epoch's step rows
+        self._epoch_start = 0  # the global step of the epoch's first step
 
     def forward(self, batch: Mapping[str, Tensor]) -> Tensor:
         """Network output (B, L-1, dim) for a batch of windows (:mod:`lossvo.data.datamodules`), of which
@@ -92,6 +119,10 @@ class VOModule(L.LightningModule):
         self.data = checkpoint.get("data")
         self._resumed_rng = checkpoint.get("rng")
 
+    def on_fit_start(self) -> None:
+        """The training losses compiled for the training device where ``compile`` says so."""
+        self._train_losses = compiled(self.losses, compile_mode(self.compile, self.device))
+
     def on_train_start(self) -> None:
         """On resuming a fit: the random streams as they were when the checkpoint was written, and a
         schedule whose length grew (``trainer.max_epochs`` raised) continued at its current epoch."""
@@ -103,18 +134,98 @@ class VOModule(L.LightningModule):
 
     # -- steps ----------------------------------------------------------------------------------------
 
-    def _step(self, batch: Mapping[str, Tensor], batch_idx: int, stage: str) -> Tensor:
+    def losses(self, inputs: Mapping[str, Tensor], targets: Tensor) -> tuple[Tensor, Tensor]:
+        """The training loss (scalar) of a batch and its record row (:func:`lossvo.training.step.step_row`).
+
+        Args:
+            inputs: the batch's entries the network reads; targets: (B, L-1, 4, 4) relative poses.
+        """
+        pred = self(inputs)
+        out = self.loss(pred, targets)
+        return out["loss"], step_row(out, pred, targets.shape[0] * targets.shape[1])
+
+    def training_step(self, batch: Mapping[str, Tensor], batch_idx: int) -> Tensor:
+        if self._record is None:  # the first step after an epoch closed early (max_steps)
+            self.on_train_epoch_start()
+        assert self._record is not None
+        if self._train_losses is not self.losses:
+            torch.compiler.cudagraph_mark_step_begin()  # the previous step's graph outputs are done with
+        inputs = {name: batch[name] for name in models.inputs_of(self.model)}
+        loss, row = self._train_losses(inputs, batch["targets"])
+        self._record.write(row)
+        if self.trainer.progress_bar_callback is not None:  # a terminal's bar reads it (a host copy)
+            self.log("loss", loss.detach().clone(), on_step=True, on_epoch=False, prog_bar=True, logger=False)
+        if self._last_step(batch_idx):
+            self._close_epoch()
+        return loss
+
+    def on_train_epoch_start(self) -> None:
+        """A fresh record for the epoch's steps."""
+        batches = self.trainer.num_training_batches  # inf for a loader without a length
+        capacity = int(batches) if math.isfinite(batches) else 1024
+        self._record = StepRecord(capacity, self.loss.output_keys(), self.device)
+        self._epoch_start = self.global_step
+
+    def on_train_epoch_end(self) -> None:
+        if self._record is not None and self._record.steps:  # an epoch cut short of its last batch
+            self._close_epoch()
+
+    def _last_step(self, batch_idx: int) -> bool:
+        """Whether this is the epoch's last training step (its record is read after it)."""
+        trainer = self.trainer
+        max_steps = trainer.max_steps if trainer.max_steps is not None else -1
+        return (
+            trainer.is_last_batch
+            or batch_idx + 1 >= trainer.num_training_batches
+            or (max_steps > 0 and self.global_step + 1 >= max_steps)
+        )
+
+    def _close_epoch(self) -> None:
+        """Read the epoch's record (one copy to the host): stop at a non-finite loss, else log the means."""
+        assert self._record is not None
+        record, self._record = self._record, None
+        rows = record.rows()
+        bad = first_non_finite(rows)
+        if bad is not None:
+            raise self._non_finite(dict(zip(record.keys, rows[bad].tolist(), strict=False)),
+                                   bool(rows[bad, -2]), bad)  # fmt: skip
+        means = epoch_means(rows, len(record.keys))
+        if self.trainer.world_size > 1:  # every process's steps: totals summed across them
+            means = self._across_processes(means, int(rows[:, -1].sum()))
+        values = {f"train/{key}": float(value) for key, value in zip(record.keys, means, strict=True)}
+        self.log_dict(values, on_step=False, on_epoch=True, batch_size=1)
+
+    def _across_processes(self, means: np.ndarray, pairs: int) -> np.ndarray:
+        """Means over every process's frame pairs from this process's ``means`` over its ``pairs``."""
+        local = torch.tensor(
+            [*(means.astype(np.float64) * pairs), pairs], dtype=torch.float64, device=self.device
+        )
+        total = self.trainer.strategy.reduce(local, reduce_op="sum").cpu().numpy()
+        return (total[:-1] / max(total[-1], 1.0)).astype(np.float32)
+
+    def _non_finite(self, terms: dict[str, float], pred_finite: bool, step: int) -> NonFiniteLossError:
+        """The error for the epoch's ``step``-th step (0-based), whose loss terms are ``terms``."""
+        bad = [k for k in ("trans_loss", "rot_loss") if not np.isfinite(terms[k])] or ["loss"]
+        cause = (
+            "the network output is finite, so the loss computation overflowed"
+            if pred_finite
+            else "the network output is non-finite"
+        )
+        return NonFiniteLossError(
+            f"non-finite loss at epoch {self.current_epoch}, global step {self._epoch_start + step}, "
+            f"batch {step}: {', '.join(bad)} = {', '.join(f'{terms[k]}' for k in bad)} "
+            f"({cause}; try a lower learning rate, gradient clipping or loss.k)"
+        )
+
+    def _step(self, batch: Mapping[str, Tensor], stage: str) -> Tensor:
+        """A validation or test step: the loss's terms logged per epoch, the selection score updated."""
         targets = batch["targets"]  # epoch means weight each batch by its frame pairs
         pred = self(batch)
         out = self.loss(pred, targets)
-        if stage == "train":
-            self._check_finite(out, pred, batch_idx)
         self.log_dict(
             {f"{stage}/{key}": value for key, value in out.items()},
             on_step=False, on_epoch=True, batch_size=targets.shape[0] * targets.shape[1], sync_dist=True,
         )  # fmt: skip
-        if stage == "train":
-            self.log("loss", out["loss"], on_step=True, on_epoch=False, prog_bar=True, logger=False)
         if stage == "val":
             decoded = self.decode(pred.detach().float())
             if self.loss.translation == "direction":  # no metric scale: the target's, as evaluation
@@ -123,36 +234,18 @@ class VOModule(L.LightningModule):
             self.log(SCORE_KEY, self.val_score, on_step=False, on_epoch=True)
         return out["loss"]
 
-    def training_step(self, batch: Mapping[str, Tensor], batch_idx: int) -> Tensor:
-        return self._step(batch, batch_idx, "train")
-
     def validation_step(self, batch: Mapping[str, Tensor], batch_idx: int) -> Tensor:
-        return self._step(batch, batch_idx, "val")
+        return self._step(batch, "val")
 
     def test_step(self, batch: Mapping[str, Tensor], batch_idx: int) -> Tensor:
-        return self._step(batch, batch_idx, "test")
-
-    def _check_finite(self, out: dict[str, Tensor], pred: Tensor, batch_idx: int) -> None:
-        """Stop the run at the first non-finite loss, naming the step, batch, term and its cause."""
-        if torch.isfinite(out["loss"]):
-            return
-        terms = [k for k in ("trans_loss", "rot_loss") if not torch.isfinite(out[k])]
-        cause = (
-            "the network output is non-finite"
-            if not torch.isfinite(pred).all()
-            else "the network output is finite, so the loss computation overflowed"
-        )
-        raise NonFiniteLossError(
-            f"non-finite loss at epoch {self.current_epoch}, global step {self.global_step}, "
-            f"batch {batch_idx}: "
-            f"{', '.join(terms) or 'loss'} = {', '.join(f'{out[k].item()}' for k in terms or ['loss'])} "
-            f"({cause}; try a lower learning rate, gradient clipping or loss.k)"
-        )
+        return self._step(batch, "test")
 
     # -- optimisation ---------------------------------------------------------------------------------
 
     def configure_optimizers(self) -> Any:
-        optimizer = instantiate(self.hparams["optimizer"])(params=self.parameters())
+        config = self.hparams["optimizer"]
+        factory = instantiate(config)
+        optimizer = factory(params=self.parameters(), **optimizer_options(factory, self.device, config))
         if not self.hparams["scheduler"]:
             return optimizer
         scheduler = instantiate(self.hparams["scheduler"])(optimizer=optimizer)

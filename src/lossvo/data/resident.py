@@ -1,0 +1,149 @@
+"""Windows gathered on the training device from arrays kept there.
+
+When a split's cached arrays fit a memory budget, they are copied once to the training device (a GPU, or
+the host's memory), concatenated over the split's sequences: frames (N, 3, H, W) uint8, each frame step's
+relative-pose targets and flow, and each sequence's K. A batch then travels as a few small index arrays,
+built on the host from the same window rows and in the same order as the host loader's items
+(:class:`lossvo.data.datamodules.WindowDataset`), and is gathered on the device with one indexing
+operation per entry: the same values as the host loader's batch, without a copy of frames or flow per step.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence, Sized
+
+import numpy as np
+import torch
+from torch import Tensor
+from torch.utils.data import Dataset
+
+INDEX_KEYS = ("frame_index", "target_index", "flow_index", "camera")
+"""The entries of an index batch (:meth:`ResidentWindows.index_batch`)."""
+GIB = 1024**3
+
+
+def _offsets(lengths: Sequence[int]) -> np.ndarray:
+    """(n,) start of each of ``n`` consecutive blocks of the given lengths."""
+    return np.concatenate(([0], np.cumsum(lengths)[:-1])).astype(np.int64)
+
+
+class ResidentWindows:
+    """A window dataset's arrays on one device, and the gather of any batch of its windows.
+
+    Args:
+        index: (M, 4) int64 window rows ``(sequence, start, stop, step)`` (a ``WindowDataset``'s ``index``).
+        frames: (N_i, 3, H, W) uint8 per sequence (memory maps are read once, a sequence at a time).
+        targets: frame step -> (N_i - step, 4, 4) float32 relative poses per sequence.
+        intrinsics: (3, 3) float32 K per sequence.
+        flow: frame step -> (N_i - step, 2, H, W) float16 flow per sequence; None without flow.
+        device: where the arrays are kept and batches gathered.
+    """
+
+    def __init__(self, index: np.ndarray, frames: Sequence[np.ndarray], targets: dict[int, list[Tensor]],
+                 intrinsics: Sequence[Tensor], flow: dict[int, list[np.ndarray]] | None,
+                 device: torch.device) -> None:  # fmt: skip
+        self.index = index
+        self.device = device
+        self.frame_start = _offsets([len(f) for f in frames])
+        self.frames = _stacked(frames, device)
+        steps = sorted(targets)
+        self.step_row = {step: row for row, step in enumerate(steps)}  # rows of the (step, sequence) tables
+        self.target_start = _table_offsets([targets[s] for s in steps])
+        self.targets = torch.cat([t for s in steps for t in targets[s]]).to(device)
+        self.K = torch.stack(list(intrinsics)).to(device)
+        self.flow: Tensor | None = None
+        if flow is not None:  # the same steps as the targets': each step's pairs have their flow
+            self.flow = _stacked([f for s in steps for f in flow[s]], device)
+            self.flow_start = _table_offsets([flow[s] for s in steps])
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def index_batch(self, windows: Sequence[int]) -> dict[str, Tensor]:
+        """The index arrays of a batch of windows (on the host), all of one length L.
+
+        Returns:
+            ``frame_index`` (B, L), ``target_index`` (B, L-1) and ``flow_index`` (B, L-1) int64 rows of the
+            concatenated arrays (no flow index without flow), ``camera`` (B,) int64 sequence numbers.
+        """
+        seq, start, stop, step = self.index[np.asarray(windows, dtype=np.int64)].T
+        lengths = (stop - start - 1) // step + 1
+        if np.any(lengths != lengths[0]):
+            raise ValueError(f"a batch of windows of several lengths: {sorted(set(lengths.tolist()))}")
+        offsets = np.arange(lengths[0], dtype=np.int64) * step[:, None]  # (B, L) frames from the start
+        row = np.array([self.step_row[int(s)] for s in step], dtype=np.int64)
+        pairs = offsets[:, :-1]
+        batch = {
+            "frame_index": torch.from_numpy((self.frame_start[seq] + start)[:, None] + offsets),
+            "target_index": torch.from_numpy((self.target_start[row, seq] + start)[:, None] + pairs),
+            "camera": torch.from_numpy(seq.astype(np.int64)),
+        }
+        if self.flow is not None:
+            batch["flow_index"] = torch.from_numpy((self.flow_start[row, seq] + start)[:, None] + pairs)
+        return batch
+
+    def gather(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        """The batch of windows an index batch names, as the host loader gives it: ``frames`` (B, L, 3, H, W)
+        uint8, ``targets`` (B, L-1, 4, 4) float32, ``K`` (B, 3, 3) float32 and, with flow, ``flow``
+        (B, L-1, 2, H, W) float16, on the device (the index arrays may be on the host or the device)."""
+        out = {
+            "frames": _take(self.frames, batch["frame_index"]),
+            "targets": _take(self.targets, batch["target_index"]),
+            "K": self.K.index_select(0, batch["camera"].to(self.device, non_blocking=True)),
+        }
+        if self.flow is not None:
+            out["flow"] = _take(self.flow, batch["flow_index"])
+        return out
+
+
+def _take(array: Tensor, index: Tensor) -> Tensor:
+    """Rows ``index`` (B, L) of ``array`` (N, ...) as (B, L, ...)."""
+    index = index.to(array.device, non_blocking=True)
+    return array.index_select(0, index.flatten()).unflatten(0, tuple(index.shape))
+
+
+def _table_offsets(blocks: Sequence[Sequence[Sized]]) -> np.ndarray:
+    """(steps, sequences) start of each array in the concatenation of ``blocks`` (per step, per sequence)."""
+    return _offsets([len(a) for arrays in blocks for a in arrays]).reshape(len(blocks), -1)
+
+
+def _stacked(arrays: Sequence[np.ndarray], device: torch.device) -> Tensor:
+    """The arrays (N_i, ...) concatenated along their first axis into one tensor on ``device``, filled one
+    array at a time (the host never holds more than one array's copy)."""
+    total = sum(len(a) for a in arrays)
+    out = torch.empty((total, *arrays[0].shape[1:]), dtype=_torch_dtype(arrays[0].dtype), device=device)
+    for start, array in zip(_offsets([len(a) for a in arrays]), arrays, strict=True):
+        out[start : start + len(array)].copy_(torch.from_numpy(np.array(array)))
+    return out
+
+
+def _torch_dtype(dtype: np.dtype) -> torch.dtype:
+    return torch.from_numpy(np.zeros(0, dtype=dtype)).dtype
+
+
+def resident_bytes(frames: Sequence[np.ndarray], flow: dict[int, list[np.ndarray]] | None) -> int:
+    """Bytes the frames and flow arrays take once resident (targets and K are comparatively nothing)."""
+    arrays = [*frames, *(f for fields in (flow or {}).values() for f in fields)]
+    return int(sum(np.prod(a.shape, dtype=np.int64) * a.dtype.itemsize for a in arrays))
+
+
+class IndexBatches(Dataset):
+    """The loader's side of resident windows: a batch of window indices (from a batch sampler) becomes its
+    index batch (:meth:`ResidentWindows.index_batch`), tagged with the split it belongs to."""
+
+    def __init__(self, windows: ResidentWindows, split: str) -> None:
+        self.windows, self.split = windows, split
+
+    def __len__(self) -> int:
+        return len(self.windows)
+
+    def __getitem__(self, i: int) -> dict[str, Tensor | str]:
+        return self.__getitems__([i])
+
+    def __getitems__(self, indices: list[int]) -> dict[str, Tensor | str]:
+        return {"split": self.split, **self.windows.index_batch(indices)}
+
+
+def as_is(batch: dict[str, Tensor | str]) -> dict[str, Tensor | str]:
+    """The DataLoader's collate function for :class:`IndexBatches`: the batch is built already."""
+    return batch

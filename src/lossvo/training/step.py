@@ -1,0 +1,146 @@
+"""The training step's tensors: its losses as one (optionally compiled) function, the epoch's record kept on
+the training device, and the optimiser's kernel choice.
+
+A small network on a GPU is bound by kernel launches and host synchronisations, not by arithmetic. So a
+training step here reads nothing back to the host: each step's loss terms go into a per-epoch record on
+the device (:class:`StepRecord`), which is read once, at the end of the epoch, to log the epoch means and
+to stop a run whose loss went non-finite; the forward pass and the loss can be compiled
+(:func:`compile_mode`), and the optimiser uses its fused or multi-tensor kernels (:func:`optimizer_options`).
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
+"""``torch.compile`` modes (``compile=<mode>``); ``reduce-overhead`` also captures CUDA graphs."""
+AUTO_CUDA_MODE = "reduce-overhead"
+"""What ``compile=auto`` compiles with on a CUDA device (on other devices it runs eagerly)."""
+
+
+def compile_mode(setting: bool | str | None, device: torch.device) -> str | None:
+    """The ``torch.compile`` mode of the training losses on ``device``, or None for eager execution.
+
+    Args:
+        setting: the ``compile`` config value: false/null (eager), true (``"default"``), ``"auto"``
+            (:data:`AUTO_CUDA_MODE` on CUDA, eager elsewhere: on a CPU the first compilation costs more
+            than it saves in a sweep's jobs), or one of :data:`COMPILE_MODES`.
+        device: the training device.
+    """
+    check_compile(setting)
+    if setting is None or setting is False:
+        return None
+    if setting is True:
+        return "default"
+    if setting == "auto":
+        return AUTO_CUDA_MODE if device.type == "cuda" else None
+    return str(setting)
+
+
+def check_compile(setting: Any) -> None:
+    """ValueError naming ``compile`` unless the setting is one :func:`compile_mode` takes."""
+    if setting is None or isinstance(setting, bool) or setting == "auto" or setting in COMPILE_MODES:
+        return
+    expected = ", ".join(("true", "false", "auto", *COMPILE_MODES))
+    raise ValueError(f"compile: expected one of {expected}, got {setting!r}")
+
+
+def compiled(function: Callable[..., Any], mode: str | None) -> Callable[..., Any]:
+    """``function`` compiled by ``torch.compile`` in ``mode`` (static shapes), or itself for None."""
+    if mode is None:
+        return function
+    return torch.compile(function, mode=mode, dynamic=False)
+
+
+def optimizer_options(factory: Callable[..., Any], device: torch.device, config: Mapping[str, Any]) -> dict:
+    """Keyword arguments that pick an optimiser's fastest kernels where the config chooses none: ``fused``
+    on CUDA (one kernel for every parameter), ``foreach`` elsewhere (one call for all parameters; on a CPU
+    it gives the same numbers as the per-parameter loop, which ``fused`` does not). Empty when the config
+    sets ``fused`` or ``foreach`` itself, or the optimiser has neither.
+
+    Args:
+        factory: the optimiser class or a partial of it; device: where its parameters live;
+        config: the optimiser's config (its keys are the ones the user set).
+    """
+    if "fused" in config or "foreach" in config:
+        return {}
+    target = getattr(factory, "func", factory)  # a functools.partial's class
+    try:
+        accepted = inspect.signature(target).parameters
+    except (TypeError, ValueError):
+        return {}
+    if device.type == "cuda" and "fused" in accepted:
+        return {"fused": True}
+    if "foreach" in accepted:
+        return {"foreach": True}
+    return {}
+
+
+class StepRecord:
+    """Each training step's loss terms, written on the training device and read once an epoch.
+
+    A step writes its row with two kernels and no host synchronisation; :meth:`rows` copies the epoch's
+    rows to the host. Row layout: the loss's scalars in :attr:`keys` order, then whether the network's
+    output was finite (1.0 or 0.0), then the number of frame pairs of the step.
+
+    Args:
+        capacity: the most steps an epoch can have (its number of training batches).
+        width: the number of loss scalars; device: the training device.
+    """
+
+    def __init__(self, capacity: int, keys: tuple[str, ...], device: torch.device) -> None:
+        self.keys = keys
+        self.table = torch.zeros(max(capacity, 1), len(keys) + 2, dtype=torch.float32, device=device)
+        self.count = torch.zeros((), dtype=torch.int64, device=device)
+        self.steps = 0  # host-side count of the rows written
+
+    def write(self, row: Tensor) -> None:
+        """Append a row (len(keys) + 2,) float32 on the device; grows the table when it is full."""
+        if self.steps == len(self.table):  # more batches than announced: double (one allocation)
+            self.table = torch.cat((self.table, torch.zeros_like(self.table)))
+        self.table.index_copy_(0, self.count.view(1), row.view(1, -1))
+        self.count.add_(1)
+        self.steps += 1
+
+    def rows(self) -> np.ndarray:
+        """(steps, len(keys) + 2) float32: every row written (one copy to the host)."""
+        return self.table[: self.steps].cpu().numpy()
+
+
+def step_row(out: Mapping[str, Tensor], pred: Tensor, pairs: int) -> Tensor:
+    """A step's record row: the loss's scalars in ``out``'s order, whether ``pred`` is finite, and the
+    number of frame pairs, as one (len(out) + 2,) float32 tensor without gradient."""
+    with torch.no_grad():
+        finite = torch.isfinite(pred).all().to(torch.float32)
+        values = [value.detach().to(torch.float32) for value in out.values()]
+        return torch.stack([*values, finite, torch.full_like(finite, float(pairs))])
+
+
+def epoch_means(rows: np.ndarray, width: int) -> np.ndarray:
+    """(width,) float32 means over an epoch's steps, each step weighted by its frame pairs.
+
+    Accumulates as Lightning's epoch reduction does (``total = total + value * pairs`` in float32 step by
+    step, then ``total / sum(pairs)``), so the logged numbers are the ones per-step logging gives.
+
+    Args:
+        rows: (steps, width + 2) float32 record rows (:class:`StepRecord`).
+    """
+    total = np.zeros(width, dtype=np.float32)
+    pairs = 0
+    for row in rows:  # in step order: float32 sums depend on it (a few hundred rows, once an epoch)
+        weight = int(row[-1])
+        total = total + row[:width] * np.float32(weight)
+        pairs += weight
+    return total / np.float32(max(pairs, 1))
+
+
+def first_non_finite(rows: np.ndarray) -> int | None:
+    """The index of the first row whose loss (column 0) is not finite, or None."""
+    bad = np.flatnonzero(~np.isfinite(rows[:, 0]))
+    return int(bad[0]) if len(bad) else None
