@@ -1,6 +1,8 @@
 """The report's claims without training: convergence epochs on hand-made curves, the verdict rule on
 numbers built for each verdict, rotation weights and selection warnings from hand-made job configs, and
-the claims of hand-made configurations (identified by their loss class, held-out sequences only).
+the claims of hand-made configurations (identified by their loss class, held-out sequences only, seeds
+as the unit): known effects that 10 seeds decide and 3 cannot, cells that cannot outvote seeds, Holm's
+correction over the other configurations.
 """
 
 from __future__ import annotations
@@ -13,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from omegaconf import OmegaConf
+from scipy.stats import t as scipy_t
+from scipy.stats import wilcoxon
 
 from lossvo.evaluation.results import (
     DataRecord,
@@ -238,64 +242,165 @@ def configuration(label: str, loss: str, errors: list[dict[str, float]], scores:
 
 HELD_OUT = ("02", "03", "04", "05")
 SEQUENCES = ["00", *HELD_OUT]
+CANNOT_DECIDE_3 = (
+    "3 seeds cannot decide: the smallest p an exact test can give with 3 paired seeds is 0.250 (6 seeds are "
+    "needed for p < 0.05)."
+)
+FAST = [[5.0, 1.05, 1.0], [5.0, 2.0, 1.0], [4.0, 1.08, 1.0]]  # within 10 % at epochs 2, 3, 2 (1-based)
+SLOW = [5.0, 3.0, 1.0]  # epoch 3
 
 
-def sweep_columns(offset: float, alternate: bool = False, train_penalty: float = 5.0) -> list[Column]:
-    """Three seeds, held-out sequences 02-05 (00 is in ``data.train``). The ChordalLoss configuration
+def sweep_columns(
+    offset: float, alternate: bool = False, train_penalty: float = 5.0, seeds: int = 3
+) -> list[Column]:
+    """``seeds`` seeds, held-out sequences 02-05 (00 is in ``data.train``). The ChordalLoss configuration
     (labelled ``loss=se3``) is :func:`chordal_step` off the EulerLoss one on each held-out sequence and
     ``train_penalty`` worse on 00; the EulerLoss configuration is (misleadingly) labelled
-    ``loss=chordal``."""
+    ``loss=chordal``. Convergence: the ChordalLoss curves cycle through :data:`FAST` (epochs 2, 3, 2), the
+    EulerLoss ones are :data:`SLOW` (epoch 3)."""
     base = [
         {s: 1.0 + 0.1 * i + 0.37 * seed + 0.011 * i * seed for i, s in enumerate(SEQUENCES)}
-        for seed in range(3)
+        for seed in range(seeds)
     ]
     ours = [
         {s: v + (train_penalty if s == "00" else chordal_step(offset, SEQUENCES.index(s), seed, alternate))
          for s, v in b.items()}
         for seed, b in enumerate(base)
     ]  # fmt: skip
-    fast = [[5.0, 1.05, 1.0], [5.0, 2.0, 1.0], [4.0, 1.08, 1.0]]  # within 10 % at epochs 2, 3, 2 (1-based)
-    slow = [[5.0, 3.0, 1.0], [5.0, 3.0, 1.0], [5.0, 3.0, 1.0]]  # epoch 3
+    fast = [FAST[seed % len(FAST)] for seed in range(seeds)]
     return [
-        configuration("loss=chordal", "EulerLoss", base, slow),
+        configuration("loss=chordal", "EulerLoss", base, [SLOW] * seeds),
         configuration("loss=se3", "ChordalLoss", ours, fast),
     ]
 
 
 def chordal_step(offset: float, j: int, seed: int, alternate: bool) -> float:
     """The ChordalLoss configuration's error minus the EulerLoss one's on held-out sequence j (1-4); all
-    distinct (no ties), alternating in sign with ``alternate``."""
-    return offset * (1 + 0.1 * j + 0.03 * seed) * (-1.0 if alternate and j % 2 else 1.0)
+    distinct (no ties), and with ``alternate`` of alternating sign from seed to seed."""
+    return offset * (1 + 0.1 * j + 0.03 * seed) * (-1.0 if alternate and seed % 2 else 1.0)
 
 
 @pytest.mark.parametrize(
-    ("offset", "alternate", "expected"),
-    [(-0.05, False, statistics.SUPPORTED), (0.05, False, statistics.CONTRADICTED),
-     (-0.05, True, statistics.NOT_DISTINGUISHABLE)],
+    ("offset", "alternate", "seeds", "expected"),
+    [(-0.05, False, 10, statistics.SUPPORTED), (0.05, False, 10, statistics.CONTRADICTED),
+     (-0.05, True, 10, statistics.NOT_DISTINGUISHABLE), (-0.05, False, 3, statistics.NOT_DISTINGUISHABLE)],
 )  # fmt: skip
-def test_error_claim_on_held_out_sequences_of_the_chordal_loss_class(
-    offset: float, alternate: bool, expected: str
+def test_error_claim_pairs_seed_means_over_held_out_sequences_of_the_chordal_loss_class(
+    offset: float, alternate: bool, seeds: int, expected: str
 ) -> None:
-    columns = sweep_columns(offset, alternate)
+    columns = sweep_columns(offset, alternate, seeds=seeds)
     a, _ = study_claims(columns, convergence(columns), SEQUENCES)
     assert a.configuration == "loss=se3"  # by loss._target_, not by label
     assert a.verdict == expected
-    diffs = np.array([chordal_step(offset, j, seed, alternate) for seed in range(3) for j in range(1, 5)])
+    # each seed's mean difference over the held-out sequences (00 is trained on: left out)
+    d = np.array(
+        [np.mean([chordal_step(offset, j, s, alternate) for j in range(1, 5)]) for s in range(seeds)]
+    )
     for q in a.quantities:
         (t,) = q.tests
-        assert t.versus == "loss=chordal" and t.n == 3 * len(HELD_OUT)  # 00 is trained on: left out
-        assert t.mean - t.versus_mean == pytest.approx(diffs.mean())
+        assert t.versus == "loss=chordal" and t.n == seeds
+        assert t.mean_diff == pytest.approx(d.mean()) and t.sd_diff == pytest.approx(d.std(ddof=1))
+        assert t.p_value == pytest.approx(wilcoxon(d, method="exact").pvalue, rel=1e-12)
+        assert t.holm_p == t.p_value  # a family of one
         assert q.verdict == expected
+        (cells,) = q.secondary
+        assert cells.n == seeds * len(HELD_OUT)
     if not alternate:
-        assert a.quantities[0].tests[0].p_value == pytest.approx(2 / 2**12)  # exact: 12 of one sign
+        assert a.quantities[0].tests[0].p_value == pytest.approx(2 / 2**seeds)  # exact: all of one sign
+    text = claims_markdown([a])
+    if seeds == 3:
+        assert a.undecidable == [CANNOT_DECIDE_3]
+        assert f"**Verdict: {expected}.** 3 seeds cannot decide: " in text
+    else:
+        assert a.undecidable == [] and "cannot decide" not in text.split("**Verdict")[1]
     theirs = columns[1].results  # mean over held-out sequences per seed, then mean ± std over seeds
     per_seed = np.array([np.mean([r[s].rpe.trans.rmse for s in HELD_OUT]) for r in theirs])
     cell = a.measured["loss=se3"]["RPE trans RMSE [m]"]
     assert (cell.n, cell.mean, cell.std) == (
-        3,
+        seeds,
         pytest.approx(per_seed.mean()),
         pytest.approx(per_seed.std(ddof=1)),
     )
+
+
+def noisy_columns(
+    effects: dict[str, float], seeds: int, sequences: int = 4, noise: float = 0.05
+) -> list[Column]:
+    """ChordalLoss (``loss=chordal``) and one configuration per entry of ``effects`` (``loss=<name>``, an
+    EulerLoss): on ``sequences`` held-out sequences 02, 03, ... (00 is trained on), configuration c's error
+    on (seed, sequence) is base + effects[c] + a seed-level noise of SD ``noise`` (the same on every
+    sequence of the seed); the chordal one has effect 0. Fixed numpy seed."""
+    rng = np.random.default_rng(7)
+    names = ["00", *(f"{i:02d}" for i in range(2, 2 + sequences))]
+    base = 1.0 + 0.1 * np.arange(len(names))
+    out = []
+    for label, effect in {"chordal": 0.0, **effects}.items():
+        shift = effect + noise * rng.standard_normal(seeds)
+        errors = [{s: base[i] + shift[seed] for i, s in enumerate(names)} for seed in range(seeds)]
+        loss = "ChordalLoss" if label == "chordal" else "EulerLoss"
+        out.append(configuration(f"loss={label}", loss, errors, [SLOW] * seeds))
+    return out
+
+
+def held_out_means(column: Column, sequences: list[str]) -> np.ndarray:
+    """(seeds,) each seed's mean RPE translation RMSE over ``sequences``."""
+    return np.array([np.mean([r[s].rpe.trans.rmse for s in sequences]) for r in column.results])
+
+
+@pytest.mark.parametrize("seeds", [10, 3])
+def test_a_known_effect_is_supported_with_ten_seeds_and_cannot_be_decided_with_three(seeds: int) -> None:
+    columns = noisy_columns({"euler": 0.1}, seeds)  # chordal = euler - 0.1 + noise (SD 0.05 each)
+    sequences = sorted({s for r in columns[0].results for s in r})
+    a, _ = study_claims(columns, convergence(columns), sequences)
+    d = held_out_means(columns[0], sequences[1:]) - held_out_means(columns[1], sequences[1:])
+    t = a.quantities[0].tests[0]
+    assert t.n == seeds and t.mean_diff == pytest.approx(d.mean())
+    low, high = scipy_t.interval(0.95, seeds - 1, loc=d.mean(), scale=d.std(ddof=1) / math.sqrt(seeds))
+    assert (t.ci_low, t.ci_high) == (pytest.approx(low, rel=1e-12), pytest.approx(high, rel=1e-12))
+    assert t.relative == pytest.approx(d.mean() / held_out_means(columns[1], sequences[1:]).mean())
+    text = claims_markdown([a])
+    if seeds == 10:
+        assert a.verdict == statistics.SUPPORTED and t.p_value < 0.05 and low < high < 0
+        assert "**Verdict: supported.**" in text
+    else:
+        assert a.verdict == statistics.NOT_DISTINGUISHABLE
+        verdict = "**Verdict: not distinguishable at this n.**"
+        assert f"{verdict} {CANNOT_DECIDE_3}" in text
+
+
+def test_cells_that_would_decide_do_not_when_the_seed_means_cannot() -> None:
+    columns = noisy_columns({"euler": 0.1}, seeds=3, sequences=13)  # 3 seeds x 13 sequences = 39 cells
+    sequences = sorted({s for r in columns[0].results for s in r})
+    a, _ = study_claims(columns, convergence(columns), sequences)
+    for q in a.quantities:
+        (cells,) = q.secondary
+        assert cells.n == 39 and cells.p_value < 1e-6  # every cell lower: the cells alone would "decide"
+        (t,) = q.tests
+        assert t.n == 3 and t.p_value >= statistics.smallest_p(3) == 0.25
+    assert a.verdict == statistics.NOT_DISTINGUISHABLE
+    assert a.undecidable == [CANNOT_DECIDE_3]
+    text = claims_markdown([a])
+    assert "Secondary: (seed, sequence) cells share a network; indicative only (never decides" in text
+
+
+def test_another_configuration_clearly_lower_contradicts_with_holm_over_the_others() -> None:
+    columns = noisy_columns({"euler": 0.1, "quat": -0.1}, seeds=10)  # quat clearly lower than chordal
+    sequences = sorted({s for r in columns[0].results for s in r})
+    a, _ = study_claims(columns, convergence(columns), sequences)
+    assert a.verdict == statistics.CONTRADICTED
+    q = a.quantities[0]
+    assert [t.versus for t in q.tests] == ["loss=euler", "loss=quat"]
+    ours = held_out_means(columns[0], sequences[1:])
+    p = []
+    for t, other in zip(q.tests, columns[1:], strict=True):
+        d = ours - held_out_means(other, sequences[1:])
+        p.append(wilcoxon(d, method="exact").pvalue)
+        assert t.p_value == pytest.approx(p[-1], rel=1e-12)
+    first, second = sorted(p)  # Holm over the family of two: 2 p_(1), max(2 p_(1), p_(2))
+    expected = {first: min(1.0, 2 * first), second: min(1.0, max(2 * first, second))}
+    assert [t.holm_p for t in q.tests] == [pytest.approx(expected[x], rel=1e-12) for x in p]
+    assert q.tests[1].mean_diff > 0 and q.tests[1].holm_p < 0.05
+    assert all(t.seeds_needed >= statistics.min_seeds(2) == 7 for t in q.tests)
 
 
 def test_convergence_claim_pairs_epochs_by_seed_and_cannot_reach_p_below_alpha_with_three() -> None:
@@ -307,11 +412,20 @@ def test_convergence_claim_pairs_epochs_by_seed_and_cannot_reach_p_below_alpha_w
     _, b = study_claims(columns, items, SEQUENCES)
     (t,) = b.quantities[0].tests
     assert (t.n, t.mean, t.versus_mean) == (3, pytest.approx(7 / 3), 3.0)
-    assert t.p_value >= statistics.smallest_p(3) == 0.25
+    # d = (-1, 0, -1): a zero, so the sign-flip test: |sum| >= 2 in 4 of the 8 sign patterns
+    assert t.method == statistics.SIGN_FLIP and t.p_value == 0.5 >= statistics.smallest_p(3) == 0.25
     assert b.verdict == statistics.NOT_DISTINGUISHABLE
     text = claims_markdown(study_claims(columns, items, SEQUENCES))
-    assert "smallest two-sided p an exact Wilcoxon test can give is 0.250" in text
-    assert "**Verdict: supported.**" in text and "**Verdict: not distinguishable at this n.**" in text
+    assert text.count(f"**Verdict: not distinguishable at this n.** {CANNOT_DECIDE_3}") == 2  # (a) and (b)
+
+
+def test_convergence_claim_with_ten_seeds_is_an_exact_sign_flip_test_with_ties() -> None:
+    columns = sweep_columns(-0.05, seeds=10)
+    _, b = study_claims(columns, convergence(columns), SEQUENCES)
+    (t,) = b.quantities[0].tests  # d = (-1, 0, -1) repeated: 7 of -1 and 3 zeros
+    assert t.n == 10 and t.method == statistics.SIGN_FLIP
+    assert t.p_value == pytest.approx(2 * 2**3 / 2**10)  # the two patterns of the seven, times the zeros'
+    assert b.verdict == statistics.SUPPORTED
 
 
 def test_claims_cannot_be_tested_without_a_chordal_configuration() -> None:
@@ -328,11 +442,20 @@ def test_claims_csv_has_a_row_per_test_and_one_per_claim() -> None:
     found = study_claims(columns, convergence(columns), SEQUENCES)
     rows = list(csv.DictReader(io.StringIO(claims_csv(found))))
     assert len(rows) == 3 + 1 + 1 + 1  # three error metrics + overall, the epochs + overall
-    overall = {r["claim"]: r["verdict"] for r in rows if r["versus"] == "all"}
-    assert overall == {"the chordal loss gives the lowest errors": "supported",
-                       "it converges fastest": "not distinguishable at this n"}  # fmt: skip
+    overall = {r["claim"]: r for r in rows if r["versus"] == "all"}
+    assert {c: r["verdict"] for c, r in overall.items()} == {
+        "the chordal loss gives the lowest errors": "not distinguishable at this n",
+        "it converges fastest": "not distinguishable at this n"}  # fmt: skip
+    assert all(r["note"].startswith("3 seeds cannot decide") for r in overall.values())
     epochs = next(r for r in rows if r["quantity"] == "convergence epoch")
-    assert float(epochs["smallest_p"]) == 0.25 and int(epochs["n"]) == 3
+    assert float(epochs["smallest_p"]) == 0.25 and int(epochs["n_seeds"]) == 3
+    assert float(epochs["mean_difference"]) == pytest.approx(-2 / 3) and epochs["secondary_cells"] == ""
+    assert float(epochs["p_value"]) == float(epochs["holm_p"]) == 0.5
+    errors = next(r for r in rows if r["quantity"] == "RPE trans RMSE [m]")
+    d = np.array([np.mean([chordal_step(-0.05, j, s, False) for j in range(1, 5)]) for s in range(3)])
+    assert float(errors["mean_difference"]) == pytest.approx(d.mean())
+    assert int(errors["seeds_needed"]) == statistics.seeds_needed(d.mean(), d.std(ddof=1))
+    assert int(errors["secondary_cells"]) == 12 and float(errors["secondary_p"]) == pytest.approx(2 / 2**12)
 
 
 def record(train: list[str], root: str = "/data/kitti") -> Results:
@@ -358,4 +481,8 @@ def test_held_out_sequences_come_from_the_training_split_that_results_json_recor
     columns = [recorded(c, ["00", "02"]) for c in sweep_columns(-0.05)]
     a, _ = study_claims(columns, convergence(columns), SEQUENCES)
     assert a.scope == "On the sequences outside the training split: 03, 04, 05."
-    assert all(t.n == 3 * 3 for q in a.quantities for t in q.tests)
+    d = np.array([np.mean([chordal_step(-0.05, j, s, False) for j in range(2, 5)]) for s in range(3)])
+    for q in a.quantities:
+        (t,), (cells,) = q.tests, q.secondary
+        assert t.n == 3 and t.mean_diff == pytest.approx(d.mean())  # each seed's mean over 03-05
+        assert cells.n == 3 * 3

@@ -163,19 +163,24 @@ def test_bold_marks_the_row_minimum_over_all_columns(report: Path) -> None:
     assert all(rule in latex for rule in (r"\toprule", r"\midrule", r"\bottomrule"))
 
 
-def test_pairwise_comparison_is_a_wilcoxon_test_over_seed_sequence_pairs(sweep: Path, report: Path) -> None:
+def test_pairwise_comparison_pairs_seed_means_and_says_when_the_seeds_cannot_decide(
+    sweep: Path, report: Path
+) -> None:
     results = job_results(sweep)
     with (report / "tables" / "pairwise.csv").open() as f:
         rows = {row["metric"]: row for row in csv.DictReader(f)}
     a, b = (f"loss={loss}" for loss in LOSSES)
     row = rows["APE trans RMSE [m]"]
     assert (row["a"], row["b"]) == (a, b)
-    diff = np.array([rmse(results[(LOSSES[0], s)], q, ("ape", "trans")) - rmse(results[(LOSSES[1], s)], q,
-                     ("ape", "trans")) for s in SEEDS for q in SEQUENCES])  # fmt: skip
-    assert int(row["pairs"]) == len(SEEDS) * len(SEQUENCES)
-    assert float(row["median_diff"]) == pytest.approx(np.median(diff), rel=1e-12)
-    assert float(row["p_value"]) == pytest.approx(wilcoxon(diff).pvalue, rel=1e-9)
-    assert row["verdict"] == ("yes" if wilcoxon(diff).pvalue < 0.05 else "no")
+    # each seed's mean over the evaluated sequences, A - B, paired by seed
+    ape = ("ape", "trans")
+    diff = np.array([np.mean([rmse(results[(LOSSES[0], s)], q, ape) - rmse(results[(LOSSES[1], s)], q, ape)
+                              for q in SEQUENCES]) for s in SEEDS])  # fmt: skip
+    assert int(row["seeds"]) == len(SEEDS) and row["sequences"] == ";".join(sorted(SEQUENCES))
+    assert float(row["mean_diff"]) == pytest.approx(diff.mean(), rel=1e-9)
+    assert float(row["p_value"]) == pytest.approx(wilcoxon(diff, method="exact").pvalue, rel=1e-12)
+    assert float(row["holm_p"]) == float(row["p_value"])  # one pair: a family of one
+    assert row["verdict"] == f"cannot decide with {len(SEEDS)} seeds"  # 2 seeds: p >= 0.5
 
 
 # --------------------------------------------------------------------------------------------------
@@ -491,16 +496,24 @@ def test_claims_test_the_chordal_loss_class_on_held_out_sequences(sweep: Path, t
         rows = {(r["claim"], r["quantity"]): r for r in csv.DictReader(f)}
     row = rows[("the chordal loss gives the lowest errors", "RPE trans RMSE [m]")]
     assert (row["configuration"], row["versus"]) == ("loss=quat", "loss=euler")
-    x = np.array([rmse(results[("quat", s)], q, ("rpe", "trans")) for s in SEEDS for q in held_out])
-    y = np.array([rmse(results[("euler", s)], q, ("rpe", "trans")) for s in SEEDS for q in held_out])
-    assert int(row["n"]) == x.size == len(SEEDS) * len(held_out)
+    # each seed's mean over the held-out sequences, paired by seed
+    rpe = ("rpe", "trans")
+    x, y = (np.array([np.mean([rmse(results[(loss, s)], q, rpe) for q in held_out]) for s in SEEDS])
+            for loss in ("quat", "euler"))  # fmt: skip
+    assert int(row["n_seeds"]) == x.size == len(SEEDS)
     assert float(row["mean"]) == pytest.approx(x.mean()) and float(row["versus_mean"]) == pytest.approx(
         y.mean()
     )
-    assert float(row["p_value"]) == pytest.approx(wilcoxon(x - y).pvalue)
-    assert row["verdict"] == "not distinguishable at this n"  # 2 pairs: p >= 0.5 whatever the numbers
+    assert float(row["p_value"]) == pytest.approx(wilcoxon(x - y, method="exact").pvalue, rel=1e-12)
+    cells = [np.array([rmse(results[(loss, s)], q, rpe) for s in SEEDS for q in held_out])
+             for loss in ("quat", "euler")]  # fmt: skip
+    assert int(row["secondary_cells"]) == len(SEEDS) * len(held_out)
+    assert float(row["secondary_p"]) == pytest.approx(wilcoxon(cells[0] - cells[1]).pvalue)
+    assert row["verdict"] == "not distinguishable at this n"  # 2 seeds: p >= 0.5 whatever the numbers
     text = path.read_text()
-    assert text.count("**Verdict: not distinguishable at this n.**") == 2
+    assert (
+        text.count("**Verdict: not distinguishable at this n.** 2 seeds cannot decide: the smallest p") == 2
+    )
 
 
 def test_each_job_is_compared_with_the_mean_motion_on_the_validation_sequences(

@@ -248,7 +248,16 @@ def test_pairs_and_claims_stay_within_an_architecture() -> None:
     for claim in error_claims:
         versus = {t.versus for q in claim.quantities for t in q.tests}
         assert versus == {f"model={claim.architecture},loss={loss}" for loss in ("quat", "euler")}
-    assert [c.verdict for c in error_claims] == [statistics.SUPPORTED, statistics.CONTRADICTED]
+    # deepvo_small's chordal configuration is lower than both others on every seed, flowvo's higher; with
+    # 3 seeds and 2 comparisons no seed-level test can decide (Holm's smallest p: 2 x 0.25)
+    for claim, sign in zip(error_claims, (-1, 1), strict=True):
+        assert all(t.n == 3 and t.lower == (3 if sign < 0 else 0) for q in claim.quantities for t in q.tests)
+        assert all(np.sign(t.mean_diff) == sign for q in claim.quantities for t in q.tests)
+        assert claim.verdict == statistics.NOT_DISTINGUISHABLE
+        assert claim.undecidable == [
+            "3 seeds cannot decide: the smallest p an exact test can give with 3 paired seeds is 0.250, "
+            "0.500 after Holm's correction over 2 comparisons (7 seeds are needed for a corrected p < 0.05)."
+        ]
     text = claims_markdown(claims, by_architecture=True)
     assert text.index("### Architecture `deepvo_small`") < text.index("### Architecture `flowvo`")
     assert text.count('#### (a) "the chordal loss gives the lowest errors"') == 2

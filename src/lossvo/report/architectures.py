@@ -13,7 +13,6 @@ of those configurations has, the architecture x loss interaction is tested by
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from itertools import combinations
@@ -25,7 +24,7 @@ from lossvo.report.claims import CLAIM_ERRORS, training_sequences
 from lossvo.report.configurations import architecture_groups, treatments
 from lossvo.report.render import Rows
 from lossvo.report.statistics import InteractionTest
-from lossvo.report.tables import Cell, Column, fmt, mean_std_text, samples
+from lossvo.report.tables import Cell, Column, fmt, mean_std_text, seed_scores
 
 UNTESTED = "cannot be tested"
 
@@ -69,14 +68,6 @@ class Agreement:
     rankings: list[Ranking] = field(default_factory=list)
     interactions: list[Interaction] = field(default_factory=list)
     untested: str | None = None
-
-
-def seed_scores(column: Column, path: Sequence[str], sequences: Sequence[str]) -> dict[str, float]:
-    """``{replicate: mean over sequences}`` of one metric (m or rad) of a configuration; a seed missing a
-    sequence is left out (as :func:`lossvo.report.claims.seed_means`)."""
-    values = samples(column, path, sequences)  # (seeds, sequences)
-    means = values.mean(axis=1) if values.shape[1] else np.full(len(values), np.nan)
-    return {r: float(m) for r, m in zip(column.replicates, means, strict=True) if math.isfinite(m)}
 
 
 def rank(quantity: str, architecture: str, scores: dict[str, dict[str, float]]) -> Ranking:

@@ -1,13 +1,15 @@
 """The study's claims, tested on the numbers: (a) "the chordal loss gives the lowest errors" (on the
 sequences outside the training split) and (b) "it converges fastest", each for every chordal
-configuration against every other, with paired tests and a verdict by the rule of
-:mod:`lossvo.report.statistics` (the last section of report.md and the rows of ``tables/claims.csv``);
-where a sweep varies the architecture, within each architecture (:func:`claims_by_architecture`)."""
+configuration against every other, seeds as the unit (a seed's mean error over those sequences, a seed's
+convergence epoch; paired by seed), with the paired test, Holm's correction, the effect with its interval,
+the seeds needed and the verdict of :mod:`lossvo.report.statistics` (the last section of report.md and the
+rows of ``tables/claims.csv``); where a sweep varies the architecture, within each architecture
+(:func:`claims_by_architecture`)."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -19,7 +21,7 @@ from lossvo.report.convergence import Convergence, epoch_text
 from lossvo.report.jobs import APE_TRANS, RPE_ROT, RPE_TRANS, trained_sequences
 from lossvo.report.render import Rows, prepend_column
 from lossvo.report.statistics import PairedTest
-from lossvo.report.tables import NETWORK, Cell, Column, fmt, mean_std_text, samples
+from lossvo.report.tables import NETWORK, Cell, Column, fmt, mean_std_text, seed_scores
 
 CLAIMED_LOSS = "ChordalLoss"
 CLAIM_ERRORS = (
@@ -30,23 +32,28 @@ CLAIM_ERRORS = (
 CLAIM_A = "the chordal loss gives the lowest errors"
 CLAIM_B = "it converges fastest"
 EPOCHS = "convergence epoch"
+SECONDARY = "secondary: (seed, sequence) cells share a network; indicative only"
 
 
 @dataclass
 class QuantityTests:
     """The claimed configuration against each other on one quantity (an error metric or the
-    convergence epoch): the paired tests and their verdict."""
+    convergence epoch): the paired tests over seeds (Holm-corrected as one family,
+    :func:`lossvo.report.statistics.corrected`), their verdict, and the :data:`SECONDARY` tests over
+    (seed, sequence) cells (none for the epochs), which never decide."""
 
     quantity: str
     tests: list[PairedTest]
     verdict: str
+    secondary: list[PairedTest] = field(default_factory=list)
 
 
 @dataclass
 class Claim:
     """One claim about one claimed configuration: what was paired (``scope``), per configuration the
     measured numbers ``{label: {quantity: Cell over seeds}}``, the tests per quantity, the overall
-    verdict and notes. ``untested`` says why there are no tests (then ``verdict`` is empty).
+    verdict, the sentences saying why its n cannot decide (``undecidable``; empty where it can) and
+    notes. ``untested`` says why there are no tests (then ``verdict`` is empty).
     ``architecture``: the architecture it was tested within (:func:`claims_by_architecture`), else None."""
 
     statement: str
@@ -58,6 +65,7 @@ class Claim:
     notes: list[str] = field(default_factory=list)
     untested: str | None = None
     architecture: str | None = None
+    undecidable: list[str] = field(default_factory=list)
 
 
 def is_claimed(column: Column) -> bool:
@@ -85,30 +93,71 @@ def restrict(column: Column, sequences: Sequence[str]) -> Column:
 def seed_means(column: Column, path: Sequence[str], sequences: Sequence[str]) -> Cell:
     """Mean ± std over seeds of each seed's mean of one metric over ``sequences`` (a seed missing one
     sequence is left out)."""
-    values = samples(column, path, sequences)  # (seeds, sequences)
-    return Cell.of(values.mean(axis=1) if values.shape[1] else np.array([]))
+    return Cell.of(np.array(list(seed_scores(column, path, sequences).values()), dtype=np.float64))
+
+
+def seed_test(claimed: Column, other: Column, path: Sequence[str], sequences: Sequence[str]) -> PairedTest:
+    """The claimed configuration against ``other`` on one metric, paired by seed: each seed's mean over
+    ``sequences`` (:func:`lossvo.report.tables.seed_scores`), on the seeds both have."""
+    a, b = seed_scores(claimed, path, sequences), seed_scores(other, path, sequences)
+    seeds = [r for r in claimed.replicates if r in a and r in b]
+    x, y = (np.array([v[r] for r in seeds], dtype=np.float64) for v in (a, b))
+    return statistics.paired_test(other.label, x, y)
+
+
+def cells_test(claimed: Column, other: Column, path: Sequence[str], sequences: Sequence[str]) -> PairedTest:
+    """The :data:`SECONDARY` test: paired over the (seed, sequence) cells of ``sequences`` both have."""
+    x, y, _ = paired_values(restrict(claimed, sequences), restrict(other, sequences), path)
+    return statistics.cells_test(other.label, x, y)
+
+
+def quantity_tests(
+    quantity: str, tests: Sequence[PairedTest], secondary: Sequence[PairedTest] = ()
+) -> QuantityTests:
+    """One quantity's tests as one family: Holm-corrected, with their verdict."""
+    return QuantityTests(quantity, statistics.corrected(tests), statistics.verdict(tests), list(secondary))
+
+
+def undecidable(n: int, comparisons: int) -> str | None:
+    """Why n paired seeds cannot decide a family of ``comparisons`` tests (None where they can, or
+    without seeds)."""
+    if n == 0 or statistics.can_decide(n, comparisons):
+        return None
+    alpha, needed = statistics.ALPHA, statistics.min_seeds(comparisons)
+    seeds = "seed" if n == 1 else "seeds"
+    text = (
+        f"{n} {seeds} cannot decide: the smallest p an exact test can give with {n} paired {seeds} is "
+        f"{fmt(statistics.smallest_p(n), 3)}"
+    )
+    if comparisons == 1:
+        return f"{text} ({needed} seeds are needed for p < {alpha})."
+    corrected = fmt(statistics.smallest_holm_p(n, comparisons), 3)
+    return (
+        f"{text}, {corrected} after Holm's correction over {comparisons} comparisons ({needed} seeds are "
+        f"needed for a corrected p < {alpha})."
+    )
+
+
+def undecidable_sentences(quantities: Sequence[QuantityTests]) -> list[str]:
+    """:func:`undecidable` for every n among the tests, each sentence once."""
+    found = (undecidable(t.n, len(q.tests)) for q in quantities for t in q.tests)
+    return list(dict.fromkeys(x for x in found if x))
 
 
 def error_claim(claimed: Column, others: Sequence[Column], heldout: Sequence[str]) -> Claim:
-    """Claim (a): the claimed configuration's errors against every other's, paired over (seed, held-out
-    sequence), one verdict per metric of :data:`CLAIM_ERRORS`, combined by
-    :func:`lossvo.report.statistics.combine`."""
+    """Claim (a): the claimed configuration's errors against every other's, paired by seed (each seed's
+    mean over the held-out sequences), one verdict per metric of :data:`CLAIM_ERRORS` (Holm over the
+    other configurations), combined by :func:`lossvo.report.statistics.combine`."""
     scope = f"On the sequences outside the training split: {', '.join(heldout)}."
     claim = Claim(CLAIM_A, claimed.label, scope)
     for column in (claimed, *others):
         claim.measured[column.label] = {q: seed_means(column, p, heldout) for q, p in CLAIM_ERRORS}
-    a = restrict(claimed, heldout)
     for quantity, path in CLAIM_ERRORS:
-        tests = []
-        for other in others:
-            x, y, _ = paired_values(a, restrict(other, heldout), path)
-            tests.append(statistics.paired_test(other.label, x, y))
-        claim.quantities.append(QuantityTests(quantity, tests, statistics.verdict(tests)))
+        tests = [seed_test(claimed, other, path, heldout) for other in others]
+        cells = [cells_test(claimed, other, path, heldout) for other in others]
+        claim.quantities.append(quantity_tests(quantity, tests, cells))
     claim.verdict = statistics.combine([q.verdict for q in claim.quantities])
-    claim.notes.append(
-        "The sequences of one seed share one trained network, so the (seed, sequence) pairs are not fully "
-        "independent: read p as indicative."
-    )
+    claim.undecidable = undecidable_sentences(claim.quantities)
     return claim
 
 
@@ -126,15 +175,9 @@ def convergence_claim(claimed: Convergence, others: Sequence[Convergence]) -> Cl
     claim = Claim(CLAIM_B, claimed.label, "Paired by seed, on the epochs of *Convergence*.")
     for c in (claimed, *others):
         claim.measured[c.label] = {EPOCHS: c.cell()}
-    tests = [epoch_test(claimed, other) for other in others]
-    claim.quantities.append(QuantityTests(EPOCHS, tests, statistics.verdict(tests)))
+    claim.quantities.append(quantity_tests(EPOCHS, [epoch_test(claimed, other) for other in others]))
     claim.verdict = claim.quantities[0].verdict
-    smallest = sorted({(t.n, statistics.smallest_p(t.n)) for t in tests})
-    claim.notes += [
-        f"With n = {n} paired seeds the smallest two-sided p an exact Wilcoxon test can give is {fmt(p, 3)}"
-        + (f", so p < {statistics.ALPHA} cannot be reached." if p >= statistics.ALPHA else ".")
-        for n, p in smallest
-    ]
+    claim.undecidable = undecidable_sentences(claim.quantities)
     metrics = {m for c in (claimed, *others) for m in c.metrics}
     if metrics != {SCORE}:
         claim.notes.append(
@@ -191,15 +234,28 @@ def claims_by_architecture(
 # --------------------------------------------------------------------------------------------------
 
 CLAIMS_RULE = (
-    f"Verdict rule (`lossvo.report.statistics.verdict`): the chordal configuration (`loss._target_` class "
-    f"`{CLAIMED_LOSS}`) is paired with every other configuration and each pair is tested with a two-sided "
-    f"Wilcoxon signed-rank test (`scipy.stats.wilcoxon`). **{statistics.SUPPORTED}**: the chordal mean is "
-    f"lower than every other configuration's and every p < {statistics.ALPHA}; "
-    f"**{statistics.CONTRADICTED}**: some other configuration's mean is lower with p < {statistics.ALPHA}; "
-    f"otherwise **{statistics.NOT_DISTINGUISHABLE}**. Claim (a) is tested per error metric, paired over "
-    f"(seed, sequence) on the sequences outside the training split (`data.train`), and the metrics "
-    f"combine as: {statistics.CONTRADICTED} if any metric is, {statistics.SUPPORTED} if all are, otherwise "
-    f"{statistics.NOT_DISTINGUISHABLE}. Claim (b) pairs the convergence epochs (*Convergence*) by seed."
+    "Rule (`lossvo.report.statistics`): seeds are the unit, since the sequences of one seed share one "
+    "trained network. A seed's value is its mean over the evaluated sequences outside the training split "
+    "(`data.train`) for claim (a), its convergence epoch (*Convergence*) for claim (b); the chordal "
+    f"configuration (`loss._target_` class `{CLAIMED_LOSS}`) is paired by seed with every other "
+    "configuration. Each pair is tested on its n per-seed differences (chordal − other) with the two-sided "
+    'exact Wilcoxon signed-rank test (`scipy.stats.wilcoxon`, `method="exact"`); where the differences '
+    "have ties or zeros, with the exact sign-flip permutation test of the mean difference (all 2^n sign "
+    "patterns). The p-values of one claim on one quantity (the chordal configuration against each of the m "
+    "others) are one family, corrected by Holm's step-down (*Holm p*). "
+    f"**{statistics.SUPPORTED}**: the chordal mean is lower than every other configuration's and every "
+    f"Holm p < {statistics.ALPHA}; **{statistics.CONTRADICTED}**: some other configuration's mean is lower "
+    f"with Holm p < {statistics.ALPHA}; otherwise **{statistics.NOT_DISTINGUISHABLE}**. No exact test on n "
+    "seeds gives p below 2/2^n (0.25 with 3 seeds, 0.031 with 6) and Holm multiplies the smallest p by m, "
+    f"so a claim can be decided only where m · 2/2^n < {statistics.ALPHA}: 6 seeds against one other "
+    "configuration, 7 against two or three. The effect is the mean difference (chordal − other), relative "
+    "to the other's mean, with the exact 95 % t-interval over seeds (mean ± t · sd / √n); *seeds needed* "
+    "is ⌈((z_{1−α/(2m)} + z_{0.8}) · sd / |mean|)²⌉, the seeds at which a paired test at α/m would detect "
+    "the observed mean difference with 80 % power at the observed SD of the differences (normal "
+    "approximation), never fewer than the seeds that can decide. Claim (a) is tested per error metric, "
+    f"and the metrics combine as: {statistics.CONTRADICTED} if any metric is, {statistics.SUPPORTED} if all "
+    f"are, otherwise {statistics.NOT_DISTINGUISHABLE}. Its Wilcoxon test over (seed, sequence) cells is "
+    f"secondary and never decides: {SECONDARY.removeprefix('secondary: ')}."
 )
 
 
@@ -216,21 +272,50 @@ def _epochs_number(x: float) -> str:
     return f"{x:.2f}" if math.isfinite(x) else "n/a"
 
 
+def _number(quantity: str) -> Callable[[float], str]:
+    return _epochs_number if quantity == EPOCHS else fmt
+
+
+def _relative_text(x: float) -> str:
+    return f"{100 * x:+.1f} %" if math.isfinite(x) else "n/a"
+
+
+def seeds_needed_text(n: float) -> str:
+    """:func:`lossvo.report.statistics.seeds_needed` as text: the count, ``no effect observed`` (inf) or
+    ``n/a`` (fewer than two seeds)."""
+    if math.isinf(n):
+        return "no effect observed"
+    return str(int(n)) if math.isfinite(n) else "n/a"
+
+
 def _tests_rows(claim: Claim) -> Rows:
-    header = ["quantity", f"{claim.configuration} vs", "pairs n", f"mean {claim.configuration}", "mean other",
-              "p (Wilcoxon)", "smallest p at this n", "verdict on the quantity"]  # fmt: skip
+    header = ["quantity", "versus", "n seeds", f"mean difference ({claim.configuration} − other)", "relative",
+              "95 % CI", "p", "Holm p", "seeds needed", "verdict on the quantity"]  # fmt: skip
     rows: list[list[object]] = []
     for q in claim.quantities:
-        number = _epochs_number if q.quantity == EPOCHS else fmt
+        number = _number(q.quantity)
         for t in q.tests:
-            rows.append([q.quantity, t.versus, t.n, number(t.mean), number(t.versus_mean), fmt(t.p_value, 3),
-                         fmt(statistics.smallest_p(t.n), 3), q.verdict])  # fmt: skip
+            ci = f"[{number(t.ci_low)}, {number(t.ci_high)}]" if t.n > 1 else "n/a"
+            rows.append([q.quantity, t.versus, t.n, number(t.mean_diff), _relative_text(t.relative), ci,
+                         fmt(t.p_value, 3), fmt(t.holm_p, 3), seeds_needed_text(t.seeds_needed),
+                         q.verdict])  # fmt: skip
+    return Rows(header, rows)
+
+
+def _secondary_rows(claim: Claim) -> Rows:
+    header = ["quantity", "versus", "cells", "mean difference", "p (Wilcoxon over cells)"]
+    rows: list[list[object]] = [
+        [q.quantity, t.versus, t.n, fmt(t.mean_diff), fmt(t.p_value, 3)]
+        for q in claim.quantities
+        for t in q.secondary
+    ]
     return Rows(header, rows)
 
 
 def claim_markdown(claim: Claim, letter: str, level: str = "###") -> str:
     """One claim under a heading of ``level``: measured numbers (mean ± std over seeds), the paired tests
-    and the verdict."""
+    over seeds, the secondary tests over cells, the verdict and why its n cannot decide where it
+    cannot."""
     head = f'{level} ({letter}) "{claim.statement}"'
     head += f" ({claim.configuration})" if claim.configuration else ""
     if claim.untested:
@@ -240,12 +325,16 @@ def claim_markdown(claim: Claim, letter: str, level: str = "###") -> str:
     lines += [
         render.markdown(_measured_rows(claim)),
         "",
-        "Paired tests:",
+        "Paired by seed:",
         "",
         render.markdown(_tests_rows(claim)),
     ]
+    secondary = _secondary_rows(claim)
+    if secondary.rows:
+        lines += ["", f"{SECONDARY[0].upper()}{SECONDARY[1:]} (never decides the verdict):", ""]
+        lines += [render.markdown(secondary)]
     lines += [f"\n*Note:* {n}" for n in claim.notes]
-    lines += ["", f"**Verdict: {claim.verdict}.**"]
+    lines += ["", " ".join([f"**Verdict: {claim.verdict}.**", *claim.undecidable])]
     return "\n".join(lines)
 
 
@@ -276,38 +365,62 @@ CLAIMS_HEADER = [
     "configuration",
     "versus",
     "quantity",
-    "n",
+    "n_seeds",
     "mean",
     "versus_mean",
+    "mean_difference",
+    "relative",
+    "ci_low",
+    "ci_high",
+    "relative_ci_low",
+    "relative_ci_high",
     "p_value",
+    "p_method",
+    "holm_p",
     "smallest_p",
+    "seeds_needed",
+    "secondary_cells",
+    "secondary_p",
     "verdict",
     "note",
 ]
+"""``tables/claims.csv``: a test's numbers over seeds in the claim's unit (``relative``: over |versus_mean|;
+``ci_*``: the 95 % t-interval of the mean difference), p, its method and Holm's, ``smallest_p`` at n,
+``seeds_needed`` (``inf``: no effect observed), and the :data:`SECONDARY` test over cells."""
 
 
-def _test_numbers(t: PairedTest) -> list[object]:
-    """A paired test's ``n, mean, versus_mean, p_value, smallest_p`` cells, full precision."""
-    return [t.n, repr(t.mean), repr(t.versus_mean), repr(t.p_value), repr(statistics.smallest_p(t.n))]
+def _seeds_needed_cell(n: float) -> str:
+    return "inf" if math.isinf(n) else str(int(n)) if math.isfinite(n) else ""
+
+
+def _test_numbers(t: PairedTest, cells: PairedTest | None) -> list[object]:
+    """A paired test's cells from ``n_seeds`` to ``secondary_p``, full precision."""
+    return [t.n, repr(t.mean), repr(t.versus_mean), repr(t.mean_diff), repr(t.relative), repr(t.ci_low),
+            repr(t.ci_high), *map(repr, t.relative_ci), repr(t.p_value), t.method, repr(t.holm_p),
+            repr(statistics.smallest_p(t.n)), _seeds_needed_cell(t.seeds_needed),
+            cells.n if cells else "", repr(cells.p_value) if cells else ""]  # fmt: skip
 
 
 def claims_csv_rows(items: Sequence[Claim], by_architecture: bool = False) -> Rows:
-    """``tables/claims.csv``: one row per paired test (``verdict``: that quantity's), then one ``all`` row
-    per claim with its verdict; an untested claim is one row with verdict ``cannot be tested`` and the
-    reason in ``note``; with ``by_architecture`` the claim's architecture first."""
+    """``tables/claims.csv`` (:data:`CLAIMS_HEADER`): one row per paired test (``verdict``: that
+    quantity's), then one ``all`` row per claim with its verdict and, in ``note``, why its n cannot decide
+    and its notes; an untested claim is one row with verdict ``cannot be tested`` and the reason in
+    ``note``; with ``by_architecture`` the claim's architecture first."""
     rows: list[list[object]] = []
     architectures: list[str] = []
+    blank = [""] * (len(CLAIMS_HEADER) - 4)
     for c in items:
         start = len(rows)
         if c.untested:
-            rows.append([c.statement, c.configuration, *[""] * 7, "cannot be tested", c.untested])
+            rows.append([c.statement, c.configuration, *blank, "cannot be tested", c.untested])
         else:
             for q in c.quantities:
+                secondary = {s.versus: s for s in q.secondary}
                 for t in q.tests:
-                    rows.append(
-                        [c.statement, c.configuration, t.versus, q.quantity, *_test_numbers(t), q.verdict, ""]
-                    )
-            rows.append([c.statement, c.configuration, "all", "all", *[""] * 5, c.verdict, " ".join(c.notes)])
+                    numbers = _test_numbers(t, secondary.get(t.versus))
+                    rows.append([c.statement, c.configuration, t.versus, q.quantity, *numbers, q.verdict, ""])
+            note = " ".join([*c.undecidable, *c.notes])
+            rows.append([c.statement, c.configuration, "all", "all", *blank[2:], c.verdict, note])
         architectures += [c.architecture or UNKNOWN_ARCHITECTURE] * (len(rows) - start)
     table = Rows(CLAIMS_HEADER, rows)
     return prepend_column(table, "architecture", architectures) if by_architecture else table

@@ -1,12 +1,13 @@
 """The pairwise comparison of configurations: every pair (of one architecture, where the sweep varies it)
-on the APE / RPE RMSEs, paired over (seed, sequence), with the report's paired test
-(:func:`lossvo.report.statistics.paired_test`; rows of ``tables/pairwise.csv`` and of its section of
+on the APE / RPE RMSEs, seeds as the unit (each seed's mean over the evaluated sequences both have on every
+paired seed, paired by seed), with the report's paired test (:func:`lossvo.report.statistics.paired_test`)
+and Holm's correction over the pairs of one metric (rows of ``tables/pairwise.csv`` and of its section of
 report.md)."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from itertools import combinations
 
 import numpy as np
@@ -14,8 +15,8 @@ import numpy as np
 from lossvo.report.configurations import UNKNOWN_ARCHITECTURE, architecture_groups
 from lossvo.report.jobs import APE_TRANS, RPE_ROT, RPE_TRANS, metric_value
 from lossvo.report.render import Rows, prepend_column
-from lossvo.report.statistics import ALPHA, PairedTest, paired_test
-from lossvo.report.tables import NETWORK, Column, fmt
+from lossvo.report.statistics import ALPHA, PairedTest, can_decide, corrected, paired_test
+from lossvo.report.tables import NETWORK, Column, fmt, samples
 
 COMPARED = (
     ("APE trans RMSE [m]", APE_TRANS),
@@ -26,28 +27,33 @@ COMPARED = (
 
 @dataclass
 class Comparison:
-    """A vs B on one metric over paired (seed, sequence) values (``test.median_diff``: A - B in the
-    metric's unit; ``test.lower``: pairs where A is lower), on ``seeds`` common seeds; ``architecture``:
-    A's (and B's)."""
+    """A vs B on one metric, paired by seed (``test.n`` seeds; ``test.mean_diff``: A - B in the metric's
+    unit; ``test.lower``: seeds where A is lower; ``test.holm_p``: corrected over the pairs of this
+    metric, ``comparisons`` of them), each seed's value its mean over the same ``sequences``;
+    ``architecture``: A's (and B's)."""
 
     a: str
     b: str
     metric: str
     test: PairedTest
-    seeds: int
+    sequences: list[str]
+    comparisons: int = 1
     architecture: str | None = None
 
     @property
     def verdict(self) -> str:
-        if self.test.n == 0:
-            return "n/a (no common seed and sequence)"
-        if self.seeds < 2:
+        n = self.test.n
+        if n == 0:
+            return "n/a (no common seed with a common sequence)"
+        if n < 2:
             return "n/a (one seed: no seed-noise estimate)"
-        return "yes" if self.test.p_value < ALPHA else "no"
+        if not can_decide(n, self.comparisons):
+            return f"cannot decide with {n} seeds"
+        return "yes" if self.test.holm_p < ALPHA else "no"
 
 
 def paired_values(a: Column, b: Column, path: Sequence[str]) -> tuple[np.ndarray, np.ndarray, int]:
-    """Values of A and B on the (seed, sequence) pairs both have: (P,), (P,) and the number of seeds."""
+    """Values of A and B on the (seed, sequence) cells both have: (P,), (P,) and the number of seeds."""
     seeds = [s for s in a.replicates if s in b.replicates]
     xs, ys = [], []
     for seed in seeds:
@@ -60,18 +66,43 @@ def paired_values(a: Column, b: Column, path: Sequence[str]) -> tuple[np.ndarray
     return np.array(xs), np.array(ys), len(seeds)
 
 
+def seed_pairs(
+    a: Column, b: Column, path: Sequence[str], sequences: Sequence[str]
+) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Per-seed values of A and B on the S seeds both have, paired by seed: (S,), (S,), each seed's mean
+    over those of ``sequences`` that both configurations have on every one of the S seeds (so every seed
+    averages the same sequences), and those sequences."""
+    seeds = [s for s in a.replicates if s in b.replicates]
+    x = samples(a, path, sequences)[[a.replicates.index(s) for s in seeds]]  # (S, sequences)
+    y = samples(b, path, sequences)[[b.replicates.index(s) for s in seeds]]
+    common = np.isfinite(x).all(axis=0) & np.isfinite(y).all(axis=0)
+    if not seeds or not common.any():
+        return np.array([]), np.array([]), []
+    used = [s for s, kept in zip(sequences, common, strict=True) if kept]
+    return x[:, common].mean(axis=1), y[:, common].mean(axis=1), used
+
+
 def compare(columns: Sequence[Column], by_architecture: bool = False) -> list[Comparison]:
-    """Every pair of network columns on each metric of :data:`COMPARED`; with ``by_architecture`` every
-    pair of one architecture, architecture by architecture."""
+    """Every pair of network columns on each metric of :data:`COMPARED`, over every sequence some job
+    evaluated; Holm's correction over the pairs of one metric (of one architecture with
+    ``by_architecture``, architecture by architecture)."""
     networks = [c for c in columns if c.kind == NETWORK]
+    sequences = sorted({s for c in networks for r in c.results for s in r})
     groups = architecture_groups(networks).values() if by_architecture else [networks]
     out = []
     for group in groups:
+        found = []
         for a, b in combinations(group, 2):
             for metric, path in COMPARED:
-                x, y, seeds = paired_values(a, b, path)
-                test = paired_test(b.label, x, y)
-                out.append(Comparison(a.label, b.label, metric, test, seeds, a.architecture))
+                x, y, used = seed_pairs(a, b, path, sequences)
+                found.append(Comparison(a.label, b.label, metric, paired_test(b.label, x, y), used,
+                                        architecture=a.architecture))  # fmt: skip
+        for metric, _ in COMPARED:
+            family = [i for i, c in enumerate(found) if c.metric == metric]
+            tests = corrected([found[i].test for i in family])
+            for i, test in zip(family, tests, strict=True):
+                found[i] = replace(found[i], test=test, comparisons=len(family))
+        out += found
     return out
 
 
@@ -85,29 +116,24 @@ def _with_architecture(table: Rows, comparisons: Sequence[Comparison], by_archit
 
 def comparison_rows(comparisons: Sequence[Comparison], by_architecture: bool = False) -> Rows:
     """The section's table (with ``by_architecture`` an ``architecture`` column first)."""
-    header = [
-        "A",
-        "B",
-        "metric",
-        "pairs",
-        "median A − B",
-        "A lower",
-        "p (Wilcoxon)",
-        f"distinguishable at {ALPHA}",
-    ]
+    header = ["A", "B", "metric", "seeds", "mean A − B", "A lower", "p", "Holm p",
+              f"distinguishable at {ALPHA}"]  # fmt: skip
     rows: list[list[object]] = [
-        [c.a, c.b, c.metric, c.test.n, fmt(c.test.median_diff), f"{c.test.lower}/{c.test.n}",
-         fmt(c.test.p_value, 3), c.verdict]
+        [c.a, c.b, c.metric, c.test.n, fmt(c.test.mean_diff), f"{c.test.lower}/{c.test.n}",
+         fmt(c.test.p_value, 3), fmt(c.test.holm_p, 3), c.verdict]
         for c in comparisons
     ]  # fmt: skip
     return _with_architecture(Rows(header, rows), comparisons, by_architecture)
 
 
 def comparison_csv_rows(comparisons: Sequence[Comparison], by_architecture: bool = False) -> Rows:
-    """``tables/pairwise.csv``: full precision (with ``by_architecture`` an ``architecture`` column first)."""
-    header = ["a", "b", "metric", "pairs", "seeds", "median_diff", "a_lower", "p_value", "verdict"]
+    """``tables/pairwise.csv``: full precision (with ``by_architecture`` an ``architecture`` column first);
+    ``sequences``: those each seed's value averages, ``;``-separated."""
+    header = ["a", "b", "metric", "seeds", "sequences", "mean_diff", "ci_low", "ci_high", "a_lower",
+              "p_value", "method", "holm_p", "verdict"]  # fmt: skip
     rows: list[list[object]] = [
-        [c.a, c.b, c.metric, c.test.n, c.seeds, repr(c.test.median_diff), c.test.lower, repr(c.test.p_value),
+        [c.a, c.b, c.metric, c.test.n, ";".join(c.sequences), repr(c.test.mean_diff), repr(c.test.ci_low),
+         repr(c.test.ci_high), c.test.lower, repr(c.test.p_value), c.test.method, repr(c.test.holm_p),
          c.verdict]
         for c in comparisons
     ]  # fmt: skip

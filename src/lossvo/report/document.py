@@ -284,10 +284,14 @@ PER_ARCHITECTURE_TEXT = (
     "over that table's columns."
 )
 PAIRWISE_TEXT = (
-    "Paired over (seed, sequence): the per-sequence RMSE of A and of B from the same seed on the "
-    "same sequence. Two-sided Wilcoxon signed-rank test (`scipy.stats.wilcoxon`) on the differences "
-    f"A − B; *distinguishable* means p < {ALPHA}. Sequences within a seed share one trained network, so "
-    "the pairs are not fully independent: read p as indicative."
+    "Seeds are the unit: a seed's value is its mean over the evaluated sequences that both configurations "
+    "have on every paired seed, and A and B are paired by seed (the sequences of one seed share one "
+    "trained network, so (seed, sequence) cells are not independent). Two-sided exact Wilcoxon "
+    "signed-rank test (`scipy.stats.wilcoxon`) on the per-seed differences A − B, or, with ties or zeros "
+    "among them, the exact sign-flip permutation test of their mean; Holm's correction over the pairs of "
+    f"one metric; *distinguishable* means Holm p < {ALPHA}. With n seeds no exact test gives p below 2/2^n, "
+    "and Holm multiplies the smallest p by the number of pairs m: where m · 2/2^n ≥ "
+    f"{ALPHA} the row says the seeds cannot decide (one pair needs 6 seeds)."
 )
 
 

@@ -1,14 +1,38 @@
-"""The statistics behind a sweep report's comparisons and claims: convergence epochs, Wilcoxon
-signed-rank p-values, paired tests and the verdict rule, and the architecture x loss interaction test.
+"""The statistics behind a sweep report's comparisons and claims: convergence epochs, the seed-level paired
+test with its effect, interval and seeds needed, Holm's correction, the verdict rule, and the architecture
+x loss interaction test.
+
+Seeds are the unit. A configuration's value on one seed is one number (e.g. that seed's mean RPE over the
+evaluated sequences outside the training split, or its convergence epoch); two configurations are paired
+by seed, since the (seed, sequence) cells of one seed share one trained network and are not independent.
+On the n paired differences d = claimed - other (:func:`paired_test`):
+
+- p: the two-sided exact Wilcoxon signed-rank test (``scipy.stats.wilcoxon(d, method="exact")``).
+  Ties or zeros among the differences: the exact sign-flip permutation test of the mean difference instead.
+  (:func:`sign_flip_p`: all 2^n sign patterns, p = the share with |sum| >= the observed |sum|; exact with
+  ties and zeros; above :data:`MAX_ENUMERATED` patterns, :data:`DRAWS` random ones with a fixed seed.)
+  No exact test on n pairs can give p below :func:`smallest_p` = 2 / 2^n: 0.25 at 3 seeds, 0.031 at 6.
+- the effect: the mean difference, its relative size (divided by |the other's mean|) and the exact
+  two-sided 95 % t-interval over seeds, mean ± t_{0.975, n-1} · sd / sqrt(n) (:func:`t_interval`; the
+  relative interval divides it by the same |mean|, taken as fixed);
+- the seeds needed (:func:`seeds_needed`): with m comparisons in the family (see below),
+  n = ceil(((z_{1-alpha/(2m)} + z_{0.8}) · sd / |mean|)^2), the normal-approximation n at which a paired
+  test at the Bonferroni level alpha / m (Holm's level for its smallest p) has 80 % power for the observed
+  mean and SD of the differences, but never below :func:`min_seeds`, the smallest n with
+  m · 2 / 2^n < alpha (6 for m = 1, 7 for m = 2 or 3); infinite where the mean difference is 0.
 
 A claim says that one configuration (the *claimed* one, e.g. the chordal loss) is lower than every other
-on some quantity (an error in m or rad, a convergence epoch). Each other configuration is paired with it
-(over (seed, sequence) or over seeds) and tested with a two-sided Wilcoxon signed-rank test. The verdict
-(:func:`verdict`) is one of :data:`VERDICTS`:
+on some quantity (an error in m or rad, a convergence epoch). Its family is its m comparisons (claimed vs
+each other configuration) on one quantity; their p-values are corrected by Holm's step-down (:func:`holm`)
+and the verdict (:func:`verdict`) on the corrected p-values is one of :data:`VERDICTS`:
 
-- **supported**: the claimed configuration's mean is lower than every other's and every p < alpha;
-- **contradicted**: some other configuration's mean is lower with p < alpha;
-- **not distinguishable at this n**: anything else (too few pairs, p >= alpha, ties, a missing pair).
+- **supported**: the claimed configuration's mean is lower than every other's and every Holm p < alpha;
+- **contradicted**: some other configuration's mean is lower with Holm p < alpha;
+- **not distinguishable at this n**: anything else (too few seeds, p >= alpha, a missing pair).
+  With m · 2 / 2^n >= alpha (:func:`can_decide`) no outcome of n seeds can give another verdict.
+
+:func:`cells_test` is the secondary Wilcoxon test over (seed, sequence) cells (scipy's default method):
+indicative only, it never decides a verdict.
 
 Where a sweep varies the architecture, :func:`interaction_test` asks whether the losses' effects depend on
 the architecture (an exact randomisation test on the between-architecture differences, seeds as blocks) and
@@ -23,10 +47,11 @@ import itertools
 import math
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.stats import wilcoxon
+from scipy.stats import norm, wilcoxon
+from scipy.stats import t as student_t
 
 SUPPORTED = "supported"
 CONTRADICTED = "contradicted"
@@ -34,7 +59,19 @@ NOT_DISTINGUISHABLE = "not distinguishable at this n"
 VERDICTS = (SUPPORTED, CONTRADICTED, NOT_DISTINGUISHABLE)
 ALPHA = 0.05
 """The significance level of every test in the report."""
+CONFIDENCE = 0.95
+"""The level of every confidence interval in the report."""
+POWER = 0.8
+"""The power :func:`seeds_needed` asks for."""
 CONVERGENCE_TOLERANCE = 0.1
+MAX_ENUMERATED = 1_000_000
+"""Sign patterns (:func:`sign_flip_p`) or relabellings (:func:`interaction_test`) enumerated at most; above,
+:data:`DRAWS` random ones are drawn (fixed seed)."""
+DRAWS = 100_000
+WILCOXON = "exact Wilcoxon"
+SIGN_FLIP = "exact sign-flip"
+SIGN_FLIP_DRAWN = "sign-flip, random"
+"""The methods of :func:`seed_p`: no ties or zeros, ties or zeros, ties or zeros with too many patterns."""
 
 
 def convergence_epoch(
@@ -68,8 +105,14 @@ def convergence_epoch(
     return int(epochs[np.argmax(close)])
 
 
+# --------------------------------------------------------------------------------------------------
+# p-values
+# --------------------------------------------------------------------------------------------------
+
+
 def wilcoxon_p(differences: np.ndarray) -> float:
-    """Two-sided Wilcoxon signed-rank p-value of paired differences (P,) (1.0 if all are zero)."""
+    """Two-sided Wilcoxon signed-rank p-value of paired differences (P,) by scipy's default method
+    (exact for small P without ties, else a normal approximation); 1.0 if all are zero."""
     if not np.any(differences != 0):
         return 1.0
     with warnings.catch_warnings():
@@ -77,17 +120,142 @@ def wilcoxon_p(differences: np.ndarray) -> float:
         return float(wilcoxon(differences).pvalue)
 
 
+def has_ties(differences: np.ndarray) -> bool:
+    """Whether paired differences (n,) hold a zero or two equal absolute values (Wilcoxon ties)."""
+    magnitudes = np.abs(np.asarray(differences, dtype=np.float64))
+    return bool(np.any(magnitudes == 0) or np.unique(magnitudes).size < magnitudes.size)
+
+
+def sign_flip_p(differences: np.ndarray, max_enumerated: int = MAX_ENUMERATED) -> tuple[float, bool]:
+    """Two-sided sign-flip permutation p-value of the mean of paired differences (n,) and whether it is
+    exact.
+
+    Under the null the differences are symmetric about 0, so each of the 2^n sign patterns is equally
+    likely; p is the share of patterns whose |sum| is at least the observed |sum| (the observed pattern
+    included), exact with ties and zeros. Above ``max_enumerated`` patterns p is estimated from
+    :data:`DRAWS` random patterns (fixed seed) as (1 + hits) / (1 + DRAWS). 1.0 for n = 0 or all zeros.
+    """
+    d = np.asarray(differences, dtype=np.float64)
+    observed = abs(float(d.sum()))
+    if not np.any(d != 0):
+        return 1.0, True
+    tolerance = 1e-9 * float(np.abs(d).sum())
+    if 2.0**d.size <= max_enumerated:
+        sums = np.zeros(1)
+        for x in d:  # (2^k,) the sums of the first k differences under every sign pattern
+            sums = np.concatenate([sums + x, sums - x])
+        return float(np.mean(np.abs(sums) >= observed - tolerance)), True
+    signs = np.random.default_rng(0).choice([-1.0, 1.0], size=(DRAWS, d.size))
+    hits = int(np.sum(np.abs(signs @ d) >= observed - tolerance))
+    return (1 + hits) / (1 + DRAWS), False
+
+
+def seed_p(differences: np.ndarray) -> tuple[float, str]:
+    """The report's two-sided p-value of paired per-seed differences (n,) and its method: the exact
+    Wilcoxon signed-rank test (:data:`WILCOXON`) without ties or zeros, else the sign-flip permutation
+    test of the mean (:data:`SIGN_FLIP`, or :data:`SIGN_FLIP_DRAWN` above :data:`MAX_ENUMERATED`
+    patterns). NaN for n = 0; 1.0 if all differences are zero."""
+    d = np.asarray(differences, dtype=np.float64)
+    if d.size == 0:
+        return math.nan, SIGN_FLIP
+    if has_ties(d):
+        p, exact = sign_flip_p(d)
+        return p, SIGN_FLIP if exact else SIGN_FLIP_DRAWN
+    return float(wilcoxon(d, alternative="two-sided", method="exact").pvalue), WILCOXON
+
+
 def smallest_p(n: int) -> float:
-    """The smallest two-sided p-value an exact (or exhaustive permutation) Wilcoxon signed-rank test can
-    give with ``n`` pairs: ``2 / 2**n`` (all differences of one sign), 1.0 for n = 0 (0.25 for n = 3)."""
+    """The smallest two-sided p-value an exact (or exhaustive permutation) test of n paired differences
+    can give: ``2 / 2**n`` (all differences of one sign), 1.0 for n = 0 (0.25 for n = 3)."""
     return min(1.0, 2.0 / 2.0**n) if n > 0 else 1.0
+
+
+def smallest_holm_p(n: int, comparisons: int = 1) -> float:
+    """The smallest Holm-corrected p of a family of ``comparisons`` tests on n paired seeds each:
+    ``min(1, comparisons * 2 / 2**n)``."""
+    return min(1.0, max(1, comparisons) * smallest_p(n))
+
+
+def can_decide(n: int, comparisons: int = 1, alpha: float = ALPHA) -> bool:
+    """Whether some outcome of n paired seeds gives a Holm-corrected p < ``alpha`` in a family of
+    ``comparisons`` tests."""
+    return smallest_holm_p(n, comparisons) < alpha
+
+
+def min_seeds(comparisons: int = 1, alpha: float = ALPHA) -> int:
+    """The fewest paired seeds that :func:`can_decide` in a family of ``comparisons`` tests (6 for one
+    comparison at 0.05, 7 for two or three, 8 for four)."""
+    n = 1
+    while not can_decide(n, comparisons, alpha):
+        n += 1
+    return n
+
+
+def holm(p_values: Sequence[float]) -> np.ndarray:
+    """Holm's step-down adjusted p-values (m,) of a family of m p-values (in the given order).
+
+    With the p-values sorted ascending, p_(1) <= ... <= p_(m), the adjusted
+    q_(i) = min(1, max_{j <= i} (m - j + 1) p_(j)); a claim rejects where q < alpha. A NaN p (a
+    comparison without pairs) counts in m as 1.0 and stays NaN.
+    """
+    p = np.asarray(p_values, dtype=np.float64)
+    m = p.size
+    filled = np.where(np.isnan(p), 1.0, p)
+    order = np.argsort(filled, kind="stable")
+    adjusted = np.empty(m)
+    adjusted[order] = np.minimum(1.0, np.maximum.accumulate((m - np.arange(m)) * filled[order]))
+    return np.where(np.isnan(p), math.nan, adjusted)
+
+
+# --------------------------------------------------------------------------------------------------
+# The effect and the seeds needed
+# --------------------------------------------------------------------------------------------------
+
+
+def t_interval(differences: np.ndarray, confidence: float = CONFIDENCE) -> tuple[float, float]:
+    """The two-sided t-interval of the mean of paired differences (n,), in their unit:
+    mean ± t_{(1+confidence)/2, n-1} · sd / sqrt(n) (sd with ddof = 1); (NaN, NaN) for n < 2."""
+    d = np.asarray(differences, dtype=np.float64)
+    if d.size < 2:
+        return math.nan, math.nan
+    half = float(student_t.ppf((1 + confidence) / 2, d.size - 1)) * float(d.std(ddof=1)) / math.sqrt(d.size)
+    mean = float(d.mean())
+    return mean - half, mean + half
+
+
+def seeds_needed(
+    mean: float, sd: float, comparisons: int = 1, alpha: float = ALPHA, power: float = POWER
+) -> float:
+    """The paired seeds that would detect a mean difference ``mean`` at the spread ``sd`` (the SD of the
+    per-seed differences, same unit) in a family of ``comparisons`` tests.
+
+    n = ceil(((z_{1-alpha/(2m)} + z_{power}) · sd / |mean|)^2) (m = ``comparisons``; the normal
+    approximation of a paired two-sided test at the Bonferroni level alpha / m), at least
+    :func:`min_seeds` (m, alpha). inf where ``mean`` is 0 (no effect observed); NaN where ``mean`` or
+    ``sd`` is not finite (fewer than two seeds).
+    """
+    if not (math.isfinite(mean) and math.isfinite(sd)):
+        return math.nan
+    if mean == 0:
+        return math.inf
+    m = max(1, comparisons)
+    z = float(norm.ppf(1 - alpha / (2 * m))) + float(norm.ppf(power))
+    return float(max(math.ceil((z * sd / abs(mean)) ** 2), min_seeds(m, alpha)))
+
+
+# --------------------------------------------------------------------------------------------------
+# The paired test and the verdict
+# --------------------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
 class PairedTest:
-    """One configuration against another (``versus``) on paired values: ``n`` pairs, the means over those
-    pairs (in the quantity's unit), the median of the differences (this - versus), the number of pairs
-    where this one is lower and the two-sided Wilcoxon p-value (NaN for n = 0)."""
+    """One configuration against another (``versus``) on n paired values (seeds, or (seed, sequence)
+    cells for :func:`cells_test`), in the quantity's unit: the means over those pairs, the two-sided
+    p-value (NaN for n = 0) and its ``method``, the median and sample SD (ddof = 1; NaN for n < 2) of
+    the differences (this - versus), the pairs where this one is lower, the 95 % interval of the mean
+    difference (``ci_low``, ``ci_high``), the Holm-corrected p and the :func:`seeds_needed` of its family
+    (:func:`corrected`; a family of one as built)."""
 
     versus: str
     n: int
@@ -96,35 +264,90 @@ class PairedTest:
     p_value: float
     median_diff: float = math.nan
     lower: int = 0
+    method: str = WILCOXON
+    sd_diff: float = math.nan
+    ci_low: float = math.nan
+    ci_high: float = math.nan
+    holm_p: float = math.nan
+    seeds_needed: float = math.nan
 
     @property
     def claimed_lower(self) -> bool:
         return self.n > 0 and self.mean < self.versus_mean
 
+    @property
+    def mean_diff(self) -> float:
+        """The mean paired difference this - versus (the difference of the means)."""
+        return self.mean - self.versus_mean
 
-def paired_test(versus: str, claimed: np.ndarray, other: np.ndarray) -> PairedTest:
-    """The one paired test of the report: values (P,) of one configuration against (P,) of ``versus``,
-    two-sided Wilcoxon signed-rank test on the differences."""
+    @property
+    def relative(self) -> float:
+        """:attr:`mean_diff` over |versus mean| (NaN where that is 0 or undefined)."""
+        return self.mean_diff / abs(self.versus_mean) if self.versus_mean else math.nan
+
+    @property
+    def relative_ci(self) -> tuple[float, float]:
+        """The interval divided by |versus mean| (taken as fixed)."""
+        scale = abs(self.versus_mean) if self.versus_mean else math.nan
+        return self.ci_low / scale, self.ci_high / scale
+
+
+def _checked(claimed: np.ndarray, other: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     claimed, other = np.asarray(claimed, dtype=np.float64), np.asarray(other, dtype=np.float64)
     if claimed.shape != other.shape or claimed.ndim != 1:
         raise ValueError(f"paired values must be two (P,) arrays, got {claimed.shape} and {other.shape}")
+    return claimed, other
+
+
+def paired_test(versus: str, claimed: np.ndarray, other: np.ndarray) -> PairedTest:
+    """The report's paired test: per-seed values (n,) of one configuration against (n,) of ``versus``
+    (paired by position), p by :func:`seed_p`, the effect, its interval and the seeds needed as a family
+    of one."""
+    claimed, other = _checked(claimed, other)
     if claimed.size == 0:
         return PairedTest(versus, 0, math.nan, math.nan, math.nan)
     d = claimed - other
-    return PairedTest(versus, int(claimed.size), float(claimed.mean()), float(other.mean()), wilcoxon_p(d),
-                      float(np.median(d)), int((d < 0).sum()))  # fmt: skip
+    p, method = seed_p(d)
+    sd = float(d.std(ddof=1)) if d.size > 1 else math.nan
+    low, high = t_interval(d)
+    means = float(claimed.mean()), float(other.mean())
+    return PairedTest(versus, int(d.size), *means, p, float(np.median(d)), int((d < 0).sum()), method, sd,
+                      low, high, p, seeds_needed(means[0] - means[1], sd))  # fmt: skip
+
+
+def cells_test(versus: str, claimed: np.ndarray, other: np.ndarray) -> PairedTest:
+    """The secondary test over (seed, sequence) cells (P,): scipy's default two-sided Wilcoxon
+    (:func:`wilcoxon_p`). The cells of one seed share one network, so it is indicative only."""
+    claimed, other = _checked(claimed, other)
+    if claimed.size == 0:
+        return PairedTest(versus, 0, math.nan, math.nan, math.nan, method="Wilcoxon over cells")
+    d = claimed - other
+    return PairedTest(versus, int(d.size), float(claimed.mean()), float(other.mean()), wilcoxon_p(d),
+                      float(np.median(d)), int((d < 0).sum()), "Wilcoxon over cells")  # fmt: skip
+
+
+def corrected(tests: Sequence[PairedTest], alpha: float = ALPHA) -> list[PairedTest]:
+    """A family of tests (one claim's comparisons on one quantity) with its Holm-corrected p-values
+    (:func:`holm`) and the seeds needed for m = ``len(tests)`` comparisons."""
+    adjusted = holm([x.p_value for x in tests])
+    return [
+        replace(x, holm_p=float(q), seeds_needed=seeds_needed(x.mean_diff, x.sd_diff, len(tests), alpha))
+        for x, q in zip(tests, adjusted, strict=True)
+    ]
 
 
 def verdict(tests: Sequence[PairedTest], alpha: float = ALPHA) -> str:
-    """The verdict on "the claimed configuration is lower than every other" from its paired tests.
+    """The verdict on "the claimed configuration is lower than every other" from its paired tests, on
+    their Holm-corrected p-values (:func:`holm` over ``tests``, the family).
 
-    Contradicted if some other configuration has a lower mean with p < ``alpha``; supported if there is
-    at least one test and in every test the claimed mean is lower with p < ``alpha``; otherwise not
-    distinguishable at this n.
+    Contradicted if some other configuration has a lower mean with corrected p < ``alpha``; supported if
+    there is at least one test and in every test the claimed mean is lower with corrected p < ``alpha``;
+    otherwise not distinguishable at this n.
     """
-    if any(t.n > 0 and t.versus_mean < t.mean and t.p_value < alpha for t in tests):
+    adjusted = holm([x.p_value for x in tests])
+    if any(x.n > 0 and x.versus_mean < x.mean and q < alpha for x, q in zip(tests, adjusted, strict=True)):
         return CONTRADICTED
-    if tests and all(t.claimed_lower and t.p_value < alpha for t in tests):
+    if tests and all(x.claimed_lower and q < alpha for x, q in zip(tests, adjusted, strict=True)):
         return SUPPORTED
     return NOT_DISTINGUISHABLE
 
@@ -147,9 +370,6 @@ INTERACTION = "the losses' effects differ between the architectures (interaction
 NO_INTERACTION = "no interaction detected at this n"
 CANNOT_DECIDE = "cannot decide at this n"
 INTERACTION_VERDICTS = (INTERACTION, NO_INTERACTION, CANNOT_DECIDE)
-MAX_ENUMERATED = 1_000_000
-"""Relabellings an exact :func:`interaction_test` enumerates at most; above, it draws :data:`DRAWS`."""
-DRAWS = 100_000
 
 
 @dataclass(frozen=True)

@@ -87,6 +87,14 @@ def samples(column: Column, path: Sequence[str], sequences: Sequence[str]) -> np
     return out
 
 
+def seed_scores(column: Column, path: Sequence[str], sequences: Sequence[str]) -> dict[str, float]:
+    """``{replicate: mean over sequences}`` of one metric (its unit) of a configuration: each seed's value
+    as one number; a seed missing a sequence is left out."""
+    values = samples(column, path, sequences)  # (seeds, sequences)
+    means = values.mean(axis=1) if values.shape[1] else np.full(len(values), np.nan)
+    return {r: float(m) for r, m in zip(column.replicates, means, strict=True) if math.isfinite(m)}
+
+
 @dataclass
 class Cell:
     """A table cell: mean over replicates, sample std (ddof = 1; NaN for n < 2), n, bold flag."""
