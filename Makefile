@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv test test-all lint format bench sweep sweep-paper report clean cluster cluster-down
+.PHONY: venv test test-all lint format bench sweep sweep-paper study report clean cluster cluster-down
 
 venv: $(STAMP)
 
@@ -72,6 +72,16 @@ sweep: venv
 
 sweep-paper: venv
 	$(SWEEP) weighting=paper selection=loss; $(REPORT)
+
+# The study that can decide its claims: seeds 0-9 x MODELS x euler, quat and chordal (60 jobs), then its report
+# (python -m lossvo.study). It first prints its plan and how long it will take, measured here (a few training
+# steps of each network); on a GPU (torch.cuda.is_available()) the jobs train with trainer=gpu, as many at
+# once as the GPU's free memory and the cores allow; elsewhere two at once on the CPU, as `make sweep`. With
+# too few seeds to decide a claim (7 for three losses; `make study SEEDS=0,1,2`) it says so, and runs.
+# `python -m lossvo.study --dry-run` prints the plan alone.
+study: SEEDS = 0,1,2,3,4,5,6,7,8,9
+study: venv
+	$(PY) -m lossvo.study --seeds $(SEEDS) --models $(MODELS)
 
 # The report of the newest sweep under outputs/multirun (python -m lossvo.report SWEEP_DIR for another).
 report: venv

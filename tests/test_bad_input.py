@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+import torch
 
 from helpers import exit_status, fit, run_hydra_main, train_main
 from lossvo import eval as lossvo_eval
@@ -242,6 +243,42 @@ def test_the_real_command_line(real_runs: dict[str, tuple], command: str) -> Non
     check_output(row, message, status, out, err)
     if command == "train":  # found before anything: the only line printed at all
         assert len((out + err).strip().splitlines()) == 1, out + err
+
+
+# -- a GPU trainer where there is no GPU ------------------------------------------------------------
+
+NO_GPU = Row("train", "trainer=gpu", "before anything is built", "trainer=gpu: no CUDA GPU here "
+             "(torch.cuda.is_available() is false): use trainer=default to train on the CPU", 2)  # fmt: skip
+"""``trainer=gpu`` on a machine without a CUDA GPU (where there is one, the command trains)."""
+
+needs_no_gpu = pytest.mark.skipif(torch.cuda.is_available(), reason="a CUDA GPU is here: trainer=gpu trains")
+
+
+@needs_no_gpu
+def test_trainer_gpu_without_a_gpu_names_trainer_default(
+    tiny_kitti: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """In process: the config check's line (logged as the run's error), exit status 2, no run folder."""
+    monkeypatch.setenv("LOSSVO_CACHE", str(tmp_path / "cache"))
+    monkeypatch.delenv("LOSSVO_FULL_ERROR", raising=False)
+    status = run_row(NO_GPU, ["trainer=gpu"], tiny_kitti, tmp_path, monkeypatch)
+    captured = capsys.readouterr()
+    check_output(NO_GPU, NO_GPU.message, status, captured.out, captured.err)
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.slow
+@needs_no_gpu
+def test_trainer_gpu_without_a_gpu_on_the_real_command_line(tiny_kitti: Path, tmp_path: Path) -> None:
+    """``python -m lossvo.train trainer=gpu`` (the tiny data's command line): one line in all, exit status 2,
+    before Lightning is asked for the GPU (its own line says "No supported gpu backend found")."""
+    env = {**os.environ, "LOSSVO_CACHE": str(tmp_path / "cache")}
+    env.pop("LOSSVO_FULL_ERROR", None)
+    argv = [sys.executable, "-m", "lossvo.train", *train_argv(["trainer=gpu"], tiny_kitti, tmp_path)]
+    done = subprocess.run(argv, capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
+    check_output(NO_GPU, NO_GPU.message, done.returncode, done.stdout, done.stderr)
+    assert len((done.stdout + done.stderr).strip().splitlines()) == 1, done.stdout + done.stderr
+    assert not (tmp_path / "run").exists()
 
 
 # -- LOSSVO_FULL_ERROR -----------------------------------------------------------------------------

@@ -14,6 +14,8 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, cast
 
+import torch
+from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
@@ -55,6 +57,13 @@ SCALARS: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
 """(key, test, what is expected) of the scalar settings checked; a key the config lacks is skipped."""
 
 
+CUDA_ACCELERATORS = ("gpu", "cuda")
+"""``trainer.accelerator`` values that train on a CUDA GPU."""
+
+GPU_TRAINER = "gpu"
+"""The trainer config (``conf/trainer/gpu.yaml``) that trains on one CUDA GPU."""
+
+
 def _select(config: Mapping[str, Any], key: str) -> Any:
     node: Any = config
     for part in key.split("."):
@@ -67,8 +76,8 @@ def _select(config: Mapping[str, Any], key: str) -> Any:
 def check_train_config(cfg: DictConfig) -> None:
     """Raise ``ValueError`` (one line: key, value, what was expected) for a training config that would
     fail only once the run is under way: a value left missing (``???``), an interpolation that does not
-    resolve, a bad scalar setting (:data:`SCALARS`), a cosine schedule without a length, a ``ckpt_path``
-    that is no file."""
+    resolve, a bad scalar setting (:data:`SCALARS`), a cosine schedule without a length, a trainer asking
+    for a CUDA GPU where there is none (:func:`check_accelerator`), a ``ckpt_path`` that is no file."""
     try:
         missing = sorted(OmegaConf.missing_keys(cfg))
         resolved = cast("dict[str, Any]", OmegaConf.to_container(cfg, resolve=True))
@@ -87,6 +96,9 @@ def check_train_config(cfg: DictConfig) -> None:
             raise ValueError(f"scheduler.T_max: expected an integer >= 1 (the cosine schedule's length in "
                              f"epochs, trainer.max_epochs by default), got {t_max!r}")  # fmt: skip
     _check_flow(resolved)
+    accelerator = _select(resolved, "trainer.accelerator")
+    if accelerator in CUDA_ACCELERATORS:
+        check_accelerator(accelerator, torch.cuda.is_available(), _trainer_choice())
     ckpt_path = resolved.get("ckpt_path")
     if ckpt_path is not None and not Path(str(ckpt_path)).expanduser().is_file():
         raise ValueError(f"ckpt_path: checkpoint not found: {ckpt_path}")
@@ -98,3 +110,23 @@ def _check_flow(resolved: Mapping[str, Any]) -> None:
     if needs is not _ABSENT and needs is not None and has in ("none", None):
         raise ValueError(f"model.flow: the network reads optical flow ({needs}) but data.flow={has} caches "
                          f"none: expected data.flow=dis or farneback")  # fmt: skip
+
+
+def check_accelerator(accelerator: Any, cuda_available: bool, trainer_choice: str | None = None) -> None:
+    """A trainer asking for a CUDA GPU (``trainer.accelerator`` in :data:`CUDA_ACCELERATORS`) where
+    ``cuda_available`` (``torch.cuda.is_available()``) is false: ``ValueError`` naming ``trainer=gpu``
+    (``trainer_choice``, the trainer config chosen) or the accelerator, and ``trainer=default``."""
+    if str(accelerator) not in CUDA_ACCELERATORS or cuda_available:
+        return
+    chosen = trainer_choice == GPU_TRAINER
+    named = f"trainer={GPU_TRAINER}" if chosen else f"trainer.accelerator={accelerator}"
+    raise ValueError(f"{named}: no CUDA GPU here (torch.cuda.is_available() is false): use trainer=default "
+                     f"to train on the CPU")  # fmt: skip
+
+
+def _trainer_choice() -> str | None:
+    """The trainer config of the Hydra job this process runs (``gpu`` for ``trainer=gpu``); None outside
+    one."""
+    if not HydraConfig.initialized():
+        return None
+    return HydraConfig.get().runtime.choices.get("trainer")

@@ -1,0 +1,480 @@
+"""``python -m lossvo.study``: the study's sweep (seeds x architectures x losses), then its report.
+
+Examples::
+
+    python -m lossvo.study              # seeds 0-9 x deepvo_small, flowvo x euler, quat, chordal
+    python -m lossvo.study --dry-run    # the plan and its time estimate; nothing trains
+    python -m lossvo.study --seeds 0,1,2 --models flowvo weighting=paper selection=loss
+
+It plans the sweep, checks it, estimates its time, then runs ``python -m lossvo.train -m ...`` with Hydra's
+joblib launcher into one sweep folder and ``python -m lossvo.report`` on that folder, and exits with the
+sweep's status (the report's where the report fails). Where ``torch.cuda.is_available()``, the jobs train
+with ``trainer=gpu``, as many at once on the one GPU as fit its free memory and the CPU cores
+(:mod:`lossvo.training.gpu_jobs`); elsewhere on the CPU, two at once as ``make sweep``. On the CPU the
+estimate comes from a measurement on this machine: a few real training steps and an inference pass of each
+architecture at the study's config, times the steps and frame pairs of a job. Fewer than
+the seeds a claim needs (:func:`seed_warning`) is a warning: no claim can then be decided.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import shlex
+import subprocess
+import sys
+import time
+import warnings
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+from statistics import median
+from typing import Any, cast
+
+import joblib
+import lightning as L
+import torch
+from hydra import compose, initialize_config_dir
+from hydra.core.hydra_config import HydraConfig
+from hydra.errors import HydraException
+from hydra.utils import instantiate
+from lightning.pytorch.callbacks import Callback
+from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf.errors import OmegaConfBaseException
+from torch.utils.data import DataLoader, Dataset
+
+from lossvo import weighting
+from lossvo.console import USER_ERRORS, OneLineParser, emit, hydra_message, one_line, raise_if_full_error
+from lossvo.data import windows
+from lossvo.evaluation.inference import predict_sequence
+from lossvo.report import statistics
+from lossvo.report.statistics import ALPHA
+from lossvo.train import CONFIG_DIR
+from lossvo.training import gpu_jobs
+from lossvo.training.config_checks import check_train_config
+from lossvo.training.module import VOModule
+
+SEEDS = tuple(range(10))
+MODELS = ("deepvo_small", "flowvo")
+LOSSES = ("euler", "quat", "chordal")
+"""The study's default seeds, architectures (``model=``) and losses (``loss=``)."""
+
+CPU_JOBS = 2
+"""Jobs at once on a CPU, as ``make sweep`` runs them (on 2 cores, two single-threaded jobs train ~1.5x
+faster than one job on both)."""
+
+JOB_OVERHEAD_S = 15.0
+"""Seconds a job spends outside its training steps and inference passes, stated: the process's start
+(Python, torch and Lightning imports and composing the config: ~6 s on 2 CPU cores, measured as a
+refused ``python -m lossvo.train``), opening the data cache, writing checkpoints, and the evaluation's
+metrics, trajectories and plots."""
+
+CALIBRATION_STEPS = 8
+"""Training steps timed for each architecture; the first two warm up and are not counted."""
+
+
+# -- the plan --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A study's sweep: ``seeds`` x ``models`` x ``losses`` with ``overrides`` for every job, ``at_once``
+    jobs at a time on the GPU (``gpu``) or the CPU, written into ``sweep_dir``."""
+
+    seeds: tuple[int, ...]
+    models: tuple[str, ...]
+    losses: tuple[str, ...]
+    overrides: tuple[str, ...]
+    sweep_dir: Path
+    gpu: bool
+    at_once: int
+
+    @property
+    def jobs(self) -> int:
+        return len(self.seeds) * len(self.models) * len(self.losses)
+
+    def sweep_command(self) -> list[str]:
+        """``python -m lossvo.train -m ...``: the sweep, each job in a joblib (loky) process."""
+        return [
+            sys.executable, "-m", "lossvo.train", "-m", f"model={','.join(self.models)}",
+            f"loss={','.join(self.losses)}", f"seed={','.join(map(str, self.seeds))}",
+            "hydra/launcher=joblib", f"hydra.launcher.n_jobs={self.at_once}",
+            f"hydra.sweep.dir={self.sweep_dir}",
+            *(["trainer=gpu"] if self.gpu else []), *self.overrides,
+        ]  # fmt: skip
+
+    def report_command(self) -> list[str]:
+        return [sys.executable, "-m", "lossvo.report", str(self.sweep_dir)]
+
+
+def claim_comparisons(losses: Sequence[str]) -> int:
+    """The comparisons in a claim's family: the claimed loss against each other loss (at least one)."""
+    return max(len(losses) - 1, 1)
+
+
+def seed_warning(seeds: Sequence[int], losses: Sequence[str] = LOSSES, alpha: float = ALPHA) -> str | None:
+    """The warning for too few seeds to decide a claim about ``losses``, else None. A claim's p-values come
+    from exact tests over seeds, whose smallest two-sided p with n seeds is ``2 / 2**n``, Holm-corrected
+    over the claim's comparisons (:func:`claim_comparisons`; :mod:`lossvo.report.statistics`): 6 seeds
+    decide one comparison at 0.05, 7 the two of a claim about three losses."""
+    n, m = len(seeds), claim_comparisons(losses)
+    if statistics.can_decide(n, m, alpha):
+        return None
+    needed = statistics.min_seeds(m, alpha)
+    seeds_ = f"{n} seed{'s' * (n != 1)}"
+    smallest = f"2/2^n = {statistics.smallest_p(n):.3g} here"
+    if m > 1:
+        smallest += (f", {statistics.smallest_holm_p(n, m):.3g} after Holm's correction over a claim's {m} "
+                     f"comparisons")  # fmt: skip
+    return (f"warning: {seeds_}: no claim can be decided: the smallest two-sided p of an exact Wilcoxon test "
+            f"over n seeds is {smallest}, not below {alpha:g}; {needed} seeds are needed")  # fmt: skip
+
+
+def gpu_jobs_at_once(jobs: int, job_gib: float, requested: int | None) -> int:
+    """Jobs at once on this machine's GPU: ``requested`` (checked against its free memory), or as many as
+    fit (:func:`lossvo.training.gpu_jobs.jobs_that_fit`), no more than ``jobs``. Raises ``ValueError`` when
+    they do not fit (not one, or fewer than requested)."""
+    free, job_bytes = gpu_jobs.free_memory(), int(job_gib * gpu_jobs.GIB)
+    at_once = requested or min(jobs, gpu_jobs.jobs_that_fit(free, job_bytes, joblib.cpu_count()))
+    gpu_jobs.check_jobs_fit(at_once, max(at_once, 1), free, job_bytes)
+    return at_once
+
+
+# -- what a job does, from its composed config -------------------------------------------------------
+
+
+def compose_job(model: str, loss: str, overrides: Sequence[str]) -> DictConfig:
+    """The training config of one job of the study (Hydra's config included, unresolved)."""
+    with initialize_config_dir(config_dir=CONFIG_DIR, version_base="1.3"):
+        return compose("train", overrides=[f"model={model}", f"loss={loss}", *overrides],
+                       return_hydra_config=True)  # fmt: skip
+
+
+def check_job(cfg: DictConfig, out_dir: Path) -> None:
+    """The checks a job runs on its config before it builds anything
+    (:func:`lossvo.weighting.check_config`, :func:`~lossvo.training.config_checks.check_train_config`),
+    its ``${hydra:...}`` values resolved as in a job writing to ``out_dir``: ``ValueError`` (one line)."""
+    with open_dict(cfg):
+        cfg.hydra.runtime.output_dir = str(out_dir)
+    job = cfg.copy()
+    with open_dict(job):
+        del job.hydra
+    hydra, previous = HydraConfig.instance(), HydraConfig.instance().cfg
+    hydra.set_config(cfg)
+    try:
+        if job.get("weighting") is not None:
+            weighting.check_config(job.weighting, job.loss)
+        check_train_config(job)
+    finally:
+        hydra.cfg = previous
+
+
+@dataclass(frozen=True)
+class JobSize:
+    """The work of one job: ``steps`` training steps, ``val_pairs`` frame pairs validated each of its
+    ``epochs`` epochs, ``evaluated_pairs`` pairs evaluated at its end, ``passes`` inference passes over a
+    pair for a trajectory (2 with mirror averaging, else 1)."""
+
+    epochs: int
+    steps: int
+    val_pairs: int
+    evaluated_pairs: int
+    passes: int
+
+    @property
+    def inferred_pairs(self) -> int:
+        """Pair inferences of the job: validation's losses (one pass) and trajectories each epoch, then the
+        evaluation."""
+        return self.epochs * self.val_pairs * (1 + self.passes) + self.evaluated_pairs * self.passes
+
+
+def job_size(cfg: DictConfig) -> JobSize:
+    """A job's :class:`JobSize`, from its composed config and the data's metadata (poses and timestamps;
+    the embedded dataset is rendered first where it is missing). Training windows follow
+    :func:`lossvo.data.windows.training_starts`, ``windows_per_epoch`` of them an epoch where set."""
+    datamodule = instantiate(cfg.data, _convert_="all")
+    datamodule.load_metadata()
+    sequences = datamodule.sequences
+    train = sum(
+        len(windows.training_starts(len(seq.times), datamodule.seq_len, datamodule.stride, step,
+                                    windows.gaps(seq.times)))
+        for seq in (sequences[name] for name in datamodule.splits["train"]) for step in datamodule.frame_steps
+    )  # fmt: skip
+    per_epoch = min(datamodule.windows_per_epoch or train, train)
+    epochs = int(cfg.trainer.max_epochs)
+    steps = epochs * math.ceil(per_epoch / datamodule.batch_size)
+    max_steps = int(cfg.trainer.get("max_steps") or -1)
+    pairs = {name: len(seq.times) - 1 for name, seq in sequences.items()}
+    return JobSize(
+        epochs=epochs, steps=min(steps, max_steps) if max_steps > 0 else steps,
+        val_pairs=sum(pairs[name] for name in datamodule.splits["val"]),
+        evaluated_pairs=sum(pairs[name] for name in datamodule.evaluated) if cfg.get("evaluate", True) else 0,
+        passes=2 if cfg.get("mirror_average", True) else 1,
+    )  # fmt: skip
+
+
+# -- measuring on this machine ---------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """One architecture's rates measured here: ``step_s`` seconds a training step (forward, loss,
+    backward, optimiser, through Lightning), ``pair_s`` seconds a frame pair's inference pass."""
+
+    step_s: float
+    pair_s: float
+
+
+class _StepTimes(Callback):
+    """Wall time of each training batch (its forward, loss, backward and optimiser step), seconds."""
+
+    def __init__(self) -> None:
+        self.seconds: list[float] = []
+        self._start = 0.0
+
+    def on_train_batch_start(self, *args: Any) -> None:
+        self._start = time.perf_counter()
+
+    def on_train_batch_end(self, *args: Any) -> None:
+        self.seconds.append(time.perf_counter() - self._start)
+
+
+def _container(node: Any) -> dict[str, Any]:
+    return cast("dict[str, Any]", OmegaConf.to_container(node, resolve=True))
+
+
+def _module(cfg: DictConfig) -> VOModule:
+    """The job's LightningModule, from its config (without FlowNet weights and without a schedule)."""
+    model = _container(cfg.model)
+    model.pop("flownet", None)
+    return VOModule(model=model, loss=_container(cfg.loss), optimizer=_container(cfg.optimizer))
+
+
+def _batch(cfg: DictConfig, windows_: int, seq_len: int) -> dict[str, torch.Tensor]:
+    """A batch as the data module hands it to the network: ``windows_`` windows of ``seq_len`` frames of
+    random normalised frames (B, L, 3, H, W), flow (B, L-1, 2, H, W) in pixels, K (B, 3, 3) and targets
+    (B, L-1, 4, 4) of no motion."""
+    h, w = int(cfg.data.height), int(cfg.data.width)
+    K = torch.tensor([[w, 0.0, w / 2], [0.0, w, h / 2], [0.0, 0.0, 1.0]])
+    return {
+        "frames": torch.randn(windows_, seq_len, 3, h, w),
+        "flow": torch.randn(windows_, seq_len - 1, 2, h, w),
+        "K": K.expand(windows_, 3, 3).clone(),
+        "targets": torch.eye(4).expand(windows_, seq_len - 1, 4, 4).clone(),
+    }
+
+
+_LIGHTNING_LOGGERS = ("lightning.pytorch", "lightning.pytorch.utilities.rank_zero")
+"""Loggers of Lightning's banners (devices, tips), each with a level of its own."""
+
+
+@contextmanager
+def _quiet() -> Iterator[None]:
+    """Lightning's banners and warnings silenced (a calibration is not a run)."""
+    loggers = [logging.getLogger(name) for name in _LIGHTNING_LOGGERS]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:
+        logger.setLevel(logging.ERROR)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            yield
+    finally:
+        for logger, level in zip(loggers, levels, strict=True):
+            logger.setLevel(level)
+
+
+def time_training_step(cfg: DictConfig) -> float:
+    """Median seconds of a training step of the job's network, loss and optimiser on the CPU, through
+    Lightning, on batches of the config's shape (:data:`CALIBRATION_STEPS`, the first two not counted)."""
+    batches = [_batch(cfg, int(cfg.data.batch_size), int(cfg.data.seq_len)) for _ in range(CALIBRATION_STEPS)]
+    timer = _StepTimes()
+    with _quiet():
+        trainer = L.Trainer(accelerator="cpu", devices=1, max_steps=CALIBRATION_STEPS, limit_val_batches=0,
+                            num_sanity_val_steps=0, logger=False, enable_checkpointing=False,
+                            enable_progress_bar=False, enable_model_summary=False,
+                            callbacks=[timer])  # fmt: skip
+        trainer.fit(_module(cfg), train_dataloaders=DataLoader(cast("Dataset", batches), batch_size=None))
+    return median(timer.seconds[2:])
+
+
+def time_inference_pair(cfg: DictConfig, windows_per_pass: int = 32) -> float:
+    """Seconds a frame pair takes in one inference pass over a sequence (eval mode, no gradient), as
+    validation's trajectories and the evaluation run it
+    (:func:`lossvo.evaluation.inference.predict_sequence`), on ``windows_per_pass`` windows of random
+    inputs after one warm-up pass."""
+    seq_len = int(cfg.data.seq_len)
+    frames = windows_per_pass * (seq_len - 1) + 1
+    batch = _batch(cfg, 1, frames)
+    inputs = {name: batch[name][0].numpy() for name in ("frames", "flow", "K")}
+    module = _module(cfg)
+    seconds = []
+    for _ in range(2):
+        start = time.perf_counter()
+        predict_sequence(module, inputs, lambda loaded: loaded, seq_len)
+        seconds.append(time.perf_counter() - start)
+    return seconds[-1] / (frames - 1)
+
+
+def calibrate(cfg: DictConfig, threads: int) -> Calibration:
+    """:class:`Calibration` of the job's architecture on ``threads`` CPU threads, seeded (its networks'
+    initial weights do not matter, only their time)."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    L.seed_everything(0, verbose=False)
+    try:
+        return Calibration(time_training_step(cfg), time_inference_pair(cfg))
+    finally:
+        torch.set_num_threads(previous)
+
+
+# -- the estimate ----------------------------------------------------------------------------------
+
+
+def job_seconds(size: JobSize, rate: Calibration, overhead_s: float = JOB_OVERHEAD_S) -> float:
+    """Seconds one job takes: its steps and pair inferences at the measured rates, plus ``overhead_s``."""
+    return size.steps * rate.step_s + size.inferred_pairs * rate.pair_s + overhead_s
+
+
+def study_seconds(job_s: Sequence[float], at_once: int) -> float:
+    """Seconds the jobs take ``at_once`` at a time: their sum shared out, at least the longest job."""
+    return max(sum(job_s) / at_once, max(job_s, default=0.0))
+
+
+def _hours(seconds: float) -> str:
+    return f"{seconds / 3600:.1f} h" if seconds >= 3600 else f"{seconds / 60:.0f} min"
+
+
+def cpu_estimate(plan: Plan) -> str:
+    """The study's one line on a CPU: its jobs, how many at once and about how long, with what was measured
+    here for each architecture (on the threads joblib gives each job)."""
+    threads = max(joblib.cpu_count() // plan.at_once, 1)
+    job_s, measured = [], []
+    for model in plan.models:
+        cfg = compose_job(model, plan.losses[0], plan.overrides)
+        size, rate = job_size(cfg), calibrate(cfg, threads)
+        job_s += [job_seconds(size, rate)] * (len(plan.seeds) * len(plan.losses))
+        measured.append(f"{model} {rate.step_s * 1e3:.0f} ms a step x {size.steps:,} steps + "
+                        f"{rate.pair_s * 1e3:.2f} ms a pair x {size.inferred_pairs:,} pairs")  # fmt: skip
+    total = _hours(study_seconds(job_s, plan.at_once))
+    threads_a_job = f"{threads} thread{'s' * (threads > 1)} a job"
+    return (f"study: {plan.jobs} jobs on the CPU ({plan.at_once} at once), about {total} here (measured on "
+            f"{threads_a_job}: {'; '.join(measured)}; plus {JOB_OVERHEAD_S:g} s a job to start and finish; "
+            f"not counted: building a missing data cache, the report)")  # fmt: skip
+
+
+def gpu_line(plan: Plan, job_gib: float) -> str:
+    """The study's one line on a GPU: its jobs and how many at once (a GPU shared by its jobs is not
+    estimated from one job's rate)."""
+    return (f"study: {plan.jobs} jobs on the GPU ({plan.at_once} at once: min(CPU cores, free GPU memory / "
+            f"{job_gib:g} GiB a job, {gpu_jobs.JOB_MEMORY_KEY})); no time estimate: jobs at once share the "
+            f"GPU (benchmarks/gpu_path.py measures its rates)")  # fmt: skip
+
+
+# -- the command line ------------------------------------------------------------------------------
+
+
+def _names(text: str) -> tuple[str, ...]:
+    names = tuple(name.strip() for name in text.split(",") if name.strip())
+    if not names:
+        raise argparse.ArgumentTypeError(f"expected a comma-separated list, got {text!r}")
+    return names
+
+
+def _seeds(text: str) -> tuple[int, ...]:
+    try:
+        seeds = tuple(int(seed) for seed in _names(text))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected integers >= 0 like 0,1,2, got {text!r}") from None
+    if any(seed < 0 for seed in seeds) or len(set(seeds)) != len(seeds):
+        raise argparse.ArgumentTypeError(f"expected distinct integers >= 0 like 0,1,2, got {text!r}")
+    return seeds
+
+
+def _positive(text: str) -> int:
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return int(text)
+
+
+def parser() -> argparse.ArgumentParser:
+    p = OneLineParser(prog="python -m lossvo.study", description=__doc__.split("\n")[0])
+    p.add_argument("--seeds", type=_seeds, default=SEEDS, help="comma list (default: 0-9)")
+    p.add_argument("--models", type=_names, default=MODELS, help="default: deepvo_small,flowvo")
+    p.add_argument("--losses", type=_names, default=LOSSES, help="default: euler,quat,chordal")
+    p.add_argument("--jobs", type=_positive, default=None,
+                   help=f"jobs at once (default: {CPU_JOBS} on a CPU, as many as fit on a GPU)")  # fmt: skip
+    p.add_argument("--sweep-dir", type=Path, default=None, help="default: outputs/multirun/<date>_<time>")
+    p.add_argument("--dry-run", action="store_true", help="print the plan and its estimate; train nothing")
+    p.add_argument("overrides", nargs="*", help="Hydra overrides for every job, e.g. weighting=paper")
+    return p
+
+
+def checked_jobs(args: argparse.Namespace, sweep_dir: Path) -> float:
+    """Compose and check (:func:`check_job`) one job of each architecture and loss of the command line;
+    the GPU memory one job needs, GiB (``hydra.callbacks.gpu_jobs.job_memory_gib``, overridable)."""
+    for model in args.models:
+        for loss in args.losses:
+            cfg = compose_job(model, loss, args.overrides)
+            check_job(cfg, sweep_dir / "check")
+    return float(cfg.hydra.callbacks.gpu_jobs.job_memory_gib)
+
+
+def sweep_dir_of(args: argparse.Namespace) -> Path:
+    """``--sweep-dir``, or ``outputs/multirun/<date>_<time>`` as Hydra names a sweep's folder."""
+    return args.sweep_dir or Path("outputs/multirun") / datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+
+
+def plan_study(args: argparse.Namespace, cuda: bool, job_gib: float, sweep_dir: Path) -> Plan:
+    """The :class:`Plan` of the parsed command line: on the GPU where ``cuda``, as many jobs at once as fit
+    at ``job_gib`` GiB a job (:func:`gpu_jobs_at_once`); else on the CPU, ``--jobs`` or :data:`CPU_JOBS`."""
+    jobs = len(args.seeds) * len(args.models) * len(args.losses)
+    at_once = gpu_jobs_at_once(jobs, job_gib, args.jobs) if cuda else args.jobs or CPU_JOBS
+    return Plan(tuple(args.seeds), tuple(args.models), tuple(args.losses), tuple(args.overrides), sweep_dir,
+                gpu=cuda, at_once=at_once)  # fmt: skip
+
+
+def run(plan: Plan) -> int:
+    """The sweep, then its report (also after a failed job): the sweep's exit status, or the report's
+    where the report fails."""
+    status = subprocess.run(plan.sweep_command()).returncode
+    report = subprocess.run(plan.report_command()).returncode
+    return report if report != 0 else status
+
+
+def estimate(plan: Plan, job_gib: float) -> str:
+    """The plan's one line: :func:`gpu_line` on a GPU, :func:`cpu_estimate` on the CPU."""
+    return gpu_line(plan, job_gib) if plan.gpu else cpu_estimate(plan)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Warn about too few seeds, plan, print the estimate and the sweep's command; unless ``--dry-run``,
+    run the sweep and the report. Exit status 2 for an override or a plan that cannot run (one line)."""
+    args = parser().parse_args(argv)
+    warning = seed_warning(args.seeds, args.losses)
+    if warning:
+        print(warning, file=sys.stderr)
+    try:
+        sweep_dir = sweep_dir_of(args)
+        job_gib = checked_jobs(args, sweep_dir)
+        plan = plan_study(args, torch.cuda.is_available(), job_gib, sweep_dir)
+        emit(estimate(plan, job_gib))
+    except HydraException as e:
+        raise_if_full_error()
+        print(f"error: {hydra_message(e)}", file=sys.stderr)
+        return 2
+    except (*USER_ERRORS, OSError, OmegaConfBaseException) as e:
+        raise_if_full_error()
+        print(f"error: {one_line(e)}", file=sys.stderr)
+        return 2
+    emit(shlex.join(["python", *plan.sweep_command()[1:]]))
+    if args.dry_run:
+        return 0
+    return run(plan)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,156 @@
+"""Several training jobs at once on one GPU: how many fit, and the check before a sweep starts.
+
+A sweep on a GPU runs its jobs side by side, each in a process of its own (Hydra's joblib launcher, loky
+processes), all on the one GPU. How many run at once is bounded by the GPU's free memory divided by the
+memory one job needs, and by the CPU cores: each job's Python loop (kernel launches, batch assembly) needs a
+core of its own. :func:`jobs_that_fit` is that number, ``min(cpus, free // job)``.
+
+The memory one job needs is a config value, ``hydra.callbacks.gpu_jobs.job_memory_gib`` in
+``conf/train.yaml`` (4 GiB by default: the CUDA context, about 0.5 GiB; the default dataset resident on the
+GPU, frames 240 MB and optical flow 540 MB; the network, its gradients and Adam's state; the activations of
+a step; torch.compile's graph pools). The figure is an estimate made without a GPU: re-measure it on one
+(``benchmarks/gpu_path.py`` prints each setting's peak memory) and set it from that.
+
+:class:`GpuJobsCheck` is a Hydra callback (``hydra.callbacks.gpu_jobs``). Before a sweep trains on a local
+CUDA GPU it refuses, in one line with exit status 2, a trainer that asks for a GPU where there is none, and
+jobs at once (``hydra.launcher.n_jobs`` of the joblib launcher) that do not fit the GPU's free memory.
+Hydra turns a callback's exceptions into warnings, so the callback ends the command itself.
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import joblib
+import torch
+from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.errors import HydraException
+from hydra.experimental.callback import Callback
+from omegaconf import DictConfig
+
+from lossvo.console import exit_in_one_line, first_line
+from lossvo.training.config_checks import CUDA_ACCELERATORS, check_accelerator
+from lossvo.training.slurm import SLURM_LAUNCHER
+
+GIB = 2**30
+"""Bytes in a GiB."""
+
+JOBLIB_LAUNCHER = "hydra_plugins.hydra_joblib_launcher.joblib_launcher.JoblibLauncher"
+BASIC_SWEEPER = "hydra._internal.core_plugins.basic_sweeper.BasicSweeper"
+JOB_MEMORY_KEY = "hydra.callbacks.gpu_jobs.job_memory_gib"
+"""The config key of the GPU memory one job needs (GiB)."""
+
+_FREE_MEMORY = "import torch; print(torch.cuda.mem_get_info()[0])"
+
+
+class GpuMemoryError(ValueError):
+    """More jobs at once than the GPU's free memory holds (one line)."""
+
+
+def jobs_that_fit(free_bytes: int, job_bytes: int, cpus: int) -> int:
+    """How many jobs run at once on one GPU: ``min(cpus, free_bytes // job_bytes)`` (0 when not one fits).
+
+    Args:
+        free_bytes: the GPU's free memory, bytes; job_bytes: the memory one job needs, bytes (> 0);
+        cpus: the CPU cores the jobs may use (one a job).
+    """
+    return max(0, min(cpus, free_bytes // job_bytes))
+
+
+def jobs_at_once(n_jobs: int, sweep_jobs: int | None) -> int:
+    """Jobs the joblib launcher runs at once: ``n_jobs`` as joblib reads it (``-1``: every core), no more
+    than the sweep's jobs (``sweep_jobs``; None: unknown)."""
+    at_once = int(joblib.effective_n_jobs(n_jobs))
+    return at_once if sweep_jobs is None else min(at_once, sweep_jobs)
+
+
+def check_jobs_fit(n_jobs: int, at_once: int, free_bytes: int, job_bytes: int) -> None:
+    """Raise :class:`GpuMemoryError` when ``at_once`` jobs of ``job_bytes`` each need more than the GPU's
+    ``free_bytes``, naming ``hydra.launcher.n_jobs`` (as given: ``n_jobs``), the jobs, the memory a job
+    needs, the free memory and how many fit."""
+    if at_once * job_bytes <= free_bytes:
+        return
+    fit, need = free_bytes // job_bytes, at_once * job_bytes
+    jobs = f"{at_once} job{'s' * (at_once != 1)}"
+    set_to = f"set hydra.launcher.n_jobs={fit} or lower" if fit else "free GPU memory first"
+    raise GpuMemoryError(
+        f"hydra.launcher.n_jobs={n_jobs}: {jobs} at once on the GPU need {need / GIB:.1f} GiB at "
+        f"{job_bytes / GIB:g} GiB a job ({JOB_MEMORY_KEY}), but it has {free_bytes / GIB:.1f} GiB free: "
+        f"{fit} fit; {set_to}"
+    )
+
+
+def free_memory() -> int:
+    """The free memory of this process's CUDA device (``torch.cuda.mem_get_info``), bytes. Measured in a
+    child process: a CUDA context created here would stay for the whole sweep, taking memory its jobs need.
+    Raises ``OSError`` when the child fails."""
+    done = subprocess.run([sys.executable, "-c", _FREE_MEMORY], capture_output=True, text=True, timeout=300)
+    if done.returncode != 0:
+        raise OSError(f"cannot read the GPU's free memory: {first_line(done.stderr) or done.returncode}")
+    return int(done.stdout.split()[-1])
+
+
+def sweep_jobs(overrides: Sequence[str], params: Mapping[str, Any] | None = None) -> int | None:
+    """How many jobs Hydra's basic sweeper makes of the command line's ``overrides`` and its
+    ``hydra.sweeper.params``; None where it cannot tell (a sweep the basic sweeper does not expand)."""
+    given = [f"{key}={value}" for key, value in (params or {}).items()] + list(overrides)
+    try:
+        parsed = OverridesParser.create().parse_overrides(given)
+        return sum(len(batch) for batch in BasicSweeper.split_arguments(parsed, None))
+    except HydraException:
+        return None
+
+
+def trains_on_cuda(accelerator: str, cuda_available: bool) -> bool:
+    """Whether a trainer with ``accelerator`` trains on a CUDA GPU here (``auto`` takes one when there is)."""
+    return accelerator in CUDA_ACCELERATORS or (accelerator == "auto" and cuda_available)
+
+
+def at_once_of(config: DictConfig) -> int:
+    """The jobs a sweep's joblib launcher runs at once (:func:`jobs_at_once`), counting the sweep's jobs
+    where the sweeper is Hydra's basic one."""
+    hydra = config.hydra
+    size = None
+    if hydra.sweeper.get("_target_") == BASIC_SWEEPER:
+        size = sweep_jobs([str(o) for o in hydra.overrides.task], hydra.sweeper.get("params"))
+    return jobs_at_once(int(hydra.launcher.n_jobs), size)
+
+
+class GpuJobsCheck(Callback):
+    """Before a sweep on this machine trains: a trainer asking for a CUDA GPU where there is none
+    (:func:`~lossvo.training.config_checks.check_accelerator`), and, on a GPU with the joblib launcher,
+    the jobs at once fitting its free memory (:func:`check_jobs_fit`). Either refusal ends the command in
+    one line (``error: ...``) with exit status 2 (:func:`~lossvo.console.exit_in_one_line`). Nothing is
+    checked under SLURM, whose nodes are not this machine.
+
+    Args:
+        job_memory_gib: the GPU memory one job needs, GiB (> 0).
+    """
+
+    def __init__(self, job_memory_gib: float) -> None:
+        self.job_memory_gib = job_memory_gib
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        launcher = config.hydra.launcher.get("_target_")
+        accelerator = str(config.trainer.get("accelerator", "auto"))
+        if launcher == SLURM_LAUNCHER:
+            return
+        cuda = torch.cuda.is_available()
+        try:
+            check_accelerator(accelerator, cuda, config.hydra.runtime.choices.get("trainer"))
+            if launcher == JOBLIB_LAUNCHER and trains_on_cuda(accelerator, cuda):
+                self._check_memory(config)
+        except (ValueError, OSError, subprocess.TimeoutExpired) as e:
+            exit_in_one_line(e)
+
+    def _check_memory(self, config: DictConfig) -> None:
+        gib = self.job_memory_gib
+        if not (isinstance(gib, (int, float)) and math.isfinite(gib) and gib > 0):
+            raise ValueError(f"{JOB_MEMORY_KEY}: expected a finite number > 0 (GiB), got {gib!r}")
+        n_jobs = int(config.hydra.launcher.n_jobs)
+        check_jobs_fit(n_jobs, at_once_of(config), free_memory(), int(gib * GIB))
