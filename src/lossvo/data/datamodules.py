@@ -776,8 +776,9 @@ class VODataModule(L.LightningDataModule):
         return self.resident.get(split)
 
     def _training_device(self) -> torch.device:
-        trainer = self.trainer
-        return trainer.strategy.root_device if trainer is not None else torch.device("cpu")
+        """The device the attached trainer trains on; the CPU without one."""
+        strategy = getattr(self.trainer, "strategy", None)
+        return getattr(strategy, "root_device", torch.device("cpu"))
 
     def _make_resident(self, device: torch.device) -> dict[str, resident.ResidentWindows]:
         """The training and validation splits' windows on ``device`` where :attr:`on_device` and the budget
@@ -790,8 +791,8 @@ class VODataModule(L.LightningDataModule):
             reason = setting
         elif self.on_device == "auto" and device.type == "cpu":
             reason = f"{setting} on a CPU"
-        elif self.trainer is not None and self.trainer.world_size > 1:
-            reason = f"{self.trainer.world_size} processes"
+        elif getattr(self.trainer, "world_size", 1) > 1:
+            reason = f"{getattr(self.trainer, 'world_size', 1)} processes"
         elif size > self.device_budget_gb:
             reason = f"the arrays exceed data.device_budget_gb={self.device_budget_gb:g}"
         if reason is not None:

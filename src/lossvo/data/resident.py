@@ -11,6 +11,7 @@ operation per entry: the same values as the host loader's batch, without a copy 
 from __future__ import annotations
 
 from collections.abc import Sequence, Sized
+from typing import Any
 
 import numpy as np
 import torch
@@ -144,6 +145,6 @@ class IndexBatches(Dataset):
         return {"split": self.split, **self.windows.index_batch(indices)}
 
 
-def as_is(batch: dict[str, Tensor | str]) -> dict[str, Tensor | str]:
+def as_is(batch: Any) -> Any:
     """The DataLoader's collate function for :class:`IndexBatches`: the batch is built already."""
     return batch

@@ -80,7 +80,7 @@ class VOModule(L.LightningModule):
         super().__init__()
         self.save_hyperparameters(ignore=["compile"])
         check_compile(compile)
-        self.compile = compile
+        self.compile_setting = compile
         self.loss: PoseLoss = instantiate(loss)
         self.model = instantiate(model)
         self.val_score = SelectionScore()
@@ -121,7 +121,7 @@ class VOModule(L.LightningModule):
 
     def on_fit_start(self) -> None:
         """The training losses compiled for the training device where ``compile`` says so."""
-        self._train_losses = compiled(self.losses, compile_mode(self.compile, self.device))
+        self._train_losses = compiled(self.losses, compile_mode(self.compile_setting, self.device))
 
     def on_train_start(self) -> None:
         """On resuming a fit: the random streams as they were when the checkpoint was written, and a
