@@ -327,8 +327,7 @@ class ChordalLoss(_ChordalTerm):
     dim = 6
 
     def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
-        T = g.se3_exp(pred)
-        return T[..., :3, :3], T[..., :3, 3]
+        return g.se3_exp_rt(pred)
 
     def encode(self, pose: Tensor) -> Tensor:
         return g.se3_log(pose)

@@ -129,33 +129,52 @@ def _polyval(coefficients: tuple[float, ...], s: Tensor) -> Tensor:
     return out
 
 
-def _v_coefficients(theta2: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Coefficients of ``V = I + b W + c W^2`` and ``V^-1 = I - W/2 + d W^2`` for ``W = hat(omega)``.
+def _v_coefficients(theta2: Tensor) -> tuple[Tensor, Tensor]:
+    """Coefficients of ``V = I + b W + c W^2`` for ``W = hat(omega)``.
 
-    ``b = (1 - cos t) / t^2``, ``c = (t - sin t) / t^3``, ``d = (1 - (t/2) cot(t/2)) / t^2`` with
-    ``t = |omega|``: a Taylor series in ``t^2`` near zero (also keeps gradients finite at zero, where
-    ``t = sqrt(t^2)`` is not differentiable), the closed form elsewhere. The closed-form branch is fed
-    a dummy ``t = 1`` where the series is used, so it never divides by zero.
+    ``b = (1 - cos t) / t^2`` and ``c = (t - sin t) / t^3`` with ``t = |omega|``: a Taylor series in ``t^2``
+    near zero (also keeps gradients finite at zero, where ``t = sqrt(t^2)`` is not differentiable), the
+    closed form elsewhere. The closed-form branch is fed a dummy ``t = 1`` where the series is used, so it
+    never divides by zero.
 
     Args:
         theta2: (...) squared rotation angles ``|omega|^2``.
     Returns:
-        b, c, d: (...) tensors.
+        b, c: (...) tensors.
     """
-    dtype = theta2.dtype
-    theta2 = theta2.double()
-    small = theta2 < _SERIES_BELOW**2
-    t2 = torch.where(small, torch.ones_like(theta2), theta2)
+    dtype, small, theta2, t2 = _series_split(theta2)
     t = torch.sqrt(t2)
     half = 0.5 * t
     b_closed = 0.5 * (torch.sin(half) / half) ** 2  # = (1 - cos t) / t^2 without cancellation
     c_closed = (t - torch.sin(t)) / (t2 * t)
-    d_closed = (1.0 - half * torch.cos(half) / torch.sin(half)) / t2
     return (
         torch.where(small, _polyval(_B_SERIES, theta2), b_closed).to(dtype),
         torch.where(small, _polyval(_C_SERIES, theta2), c_closed).to(dtype),
-        torch.where(small, _polyval(_D_SERIES, theta2), d_closed).to(dtype),
     )
+
+
+def _v_inverse_coefficient(theta2: Tensor) -> Tensor:
+    """Coefficient of ``V^-1 = I - W/2 + d W^2``, ``d = (1 - (t/2) cot(t/2)) / t^2`` with ``t = |omega|``,
+    by the rule of :func:`_v_coefficients` (series near zero, closed form elsewhere).
+
+    Args:
+        theta2: (...) squared rotation angles ``|omega|^2``.
+    Returns:
+        d: (...) tensor.
+    """
+    dtype, small, theta2, t2 = _series_split(theta2)
+    half = 0.5 * torch.sqrt(t2)
+    d_closed = (1.0 - half * torch.cos(half) / torch.sin(half)) / t2
+    return torch.where(small, _polyval(_D_SERIES, theta2), d_closed).to(dtype)
+
+
+def _series_split(theta2: Tensor) -> tuple[torch.dtype, Tensor, Tensor, Tensor]:
+    """The input's dtype, where the series is used, ``theta2`` in float64, and ``theta2`` with a dummy 1
+    where the series is used (what the closed forms are fed)."""
+    dtype = theta2.dtype
+    theta2 = theta2.double()
+    small = theta2 < _SERIES_BELOW**2
+    return dtype, small, theta2, torch.where(small, torch.ones_like(theta2), theta2)
 
 
 def so3_left_jacobian(omega: Tensor) -> Tensor:
@@ -167,7 +186,7 @@ def so3_left_jacobian(omega: Tensor) -> Tensor:
         (..., 3, 3) matrices.
     """
     check_shape(omega, (3,), "omega")
-    b, c, _ = _v_coefficients((omega * omega).sum(-1))
+    b, c = _v_coefficients((omega * omega).sum(-1))
     W = hat(omega)
     eye = torch.eye(3, dtype=omega.dtype, device=omega.device)
     return eye + b[..., None, None] * W + c[..., None, None] * (W @ W)
@@ -182,7 +201,7 @@ def so3_left_jacobian_inv(omega: Tensor) -> Tensor:
         (..., 3, 3) matrices.
     """
     check_shape(omega, (3,), "omega")
-    _, _, d = _v_coefficients((omega * omega).sum(-1))
+    d = _v_inverse_coefficient((omega * omega).sum(-1))
     W = hat(omega)
     eye = torch.eye(3, dtype=omega.dtype, device=omega.device)
     return eye - 0.5 * W + d[..., None, None] * (W @ W)
@@ -198,10 +217,21 @@ def se3_exp(xi: Tensor) -> Tensor:
     Returns:
         (..., 4, 4) poses.
     """
+    return make_pose(*se3_exp_rt(xi))
+
+
+def se3_exp_rt(xi: Tensor) -> tuple[Tensor, Tensor]:
+    """The rotation and translation of :func:`se3_exp`, without assembling the 4x4 pose.
+
+    Args:
+        xi: (..., 6) twists ``(rho, omega)``; rho in metres, omega in radians.
+    Returns:
+        R (..., 3, 3) and t (..., 3) metres.
+    """
     check_shape(xi, (6,), "xi")
     rho, omega = xi[..., :3], xi[..., 3:]
     t = (so3_left_jacobian(omega) @ rho[..., None])[..., 0]
-    return make_pose(so3_exp(omega), t)
+    return so3_exp(omega), t
 
 
 def se3_log(T: Tensor) -> Tensor:
