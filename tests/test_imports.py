@@ -99,9 +99,9 @@ def test_imports_inside_functions_and_type_checking_count() -> None:
 
 
 ENTRIES = {
-    "lossvo.train", "lossvo.study", "lossvo.eval", "lossvo.metrics", "lossvo.report.cli", "lossvo.report.__main__",
-    "lossvo.data.synthetic.cli", "lossvo.data.synthetic.__main__", "lossvo.data.motion",
-    "lossvo.geometry.axioms", "lossvo.geometry.__main__",
+    "lossvo.train", "lossvo.study", "lossvo.eval", "lossvo.metrics", "lossvo.report.cli",
+    "lossvo.report.__main__", "lossvo.data.synthetic.cli", "lossvo.data.synthetic.__main__",
+    "lossvo.data.motion", "lossvo.geometry.axioms", "lossvo.geometry.__main__",
 }  # fmt: skip
 """Modules that parse a command line: the entry points, including the CLIs inside data/ and geometry/."""
 
