@@ -712,7 +712,7 @@ def print_case(case: dict[str, Any]) -> None:
         total = "not every loss measured" if hours is None else f"{hours:.1f} GPU-hours"
         print(f"  losses at {case['losses']['setting']} (windows/s): {rates}; the study: {total}")
     cache = case.get("frame_cache")
-    if cache and "error" not in cache:
+    if cache and "loader_windows_per_s" in cache:
         print(
             f"  frame cache ({cache['num_workers']} workers, {cache['cache_mib']:.0f} MiB memory-mapped): "
             f"loader {cache['loader_windows_per_s']:.1f} windows/s = {cache['loader_over_training']:.2f}x "

@@ -91,3 +91,16 @@ def test_quick_run_writes_every_number(tmp_path: Path) -> None:
         sum(entry["run"]["gpu_hours"] for entry in losses["per_loss"].values())
     )
     assert "every number in" in proc.stdout
+
+
+def test_a_case_whose_frame_cache_check_the_deadline_skipped_prints(capsys: pytest.CaptureFixture) -> None:
+    """A deadline that skips the frame-cache check leaves a case without loader figures: its table prints."""
+    setting = {"steps_per_s": {"median": 2.0, "min": 1.0, "max": 3.0}, "windows_per_s": {"median": 16.0},
+               "eval_windows_per_s": {"median": 40.0}, "peak_bytes": None,
+               "study": {"gpu_hours": 1.5}}  # fmt: skip
+    name = "fp32 contiguous"
+    case = {"network": "flowvo", "size": [64, 208], "parameters": 9e5, "batch_size": 20, "seq_len": 2,
+            "windows_per_epoch": {"train": 100, "val": 10}, "settings": {name: setting}, "best": name,
+            "shipped": name, "frame_cache": {"skipped": "deadline"}}  # fmt: skip
+    script().print_case(case)
+    assert "frame cache: skipped (deadline)" in capsys.readouterr().out
