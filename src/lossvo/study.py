@@ -371,7 +371,7 @@ def gpu_line(plan: Plan, job_gib: float) -> str:
     estimated from one job's rate)."""
     return (f"study: {plan.jobs} jobs on the GPU ({plan.at_once} at once: min(CPU cores, free GPU memory / "
             f"{job_gib:g} GiB a job, {gpu_jobs.JOB_MEMORY_KEY})); no time estimate: jobs at once share the "
-            f"GPU (benchmarks/gpu_path.py measures its rates)")  # fmt: skip
+            f"GPU (benchmarks/gpu_study.py measures them)")  # fmt: skip
 
 
 # -- the command line ------------------------------------------------------------------------------

@@ -6,10 +6,10 @@ memory one job needs, and by the CPU cores: each job's Python loop (kernel launc
 core of its own. :func:`jobs_that_fit` is that number, ``min(cpus, free // job)``.
 
 The memory one job needs is a config value, ``hydra.callbacks.gpu_jobs.job_memory_gib`` in
-``conf/train.yaml`` (4 GiB by default: the CUDA context, about 0.5 GiB; the default dataset resident on the
-GPU, frames 240 MB and optical flow 540 MB; the network, its gradients and Adam's state; the activations of
-a step; torch.compile's graph pools). The figure is an estimate made without a GPU: re-measure it on one
-(``benchmarks/gpu_path.py`` prints each setting's peak memory) and set it from that.
+``conf/train.yaml`` (4 GiB by default: the CUDA context, about 0.5 GiB; the default dataset's training and
+validation frames and flow resident on the GPU, 0.6 GiB; the network, its gradients and Adam's state; the
+activations of a step; torch.compile's graph pools). The figure is an estimate made without a GPU: re-measure
+it on one (``benchmarks/gpu_study.py`` records each job process's peak GPU memory) and set it from that.
 
 :class:`GpuJobsCheck` is a Hydra callback (``hydra.callbacks.gpu_jobs``). Before a sweep trains on a local
 CUDA GPU it refuses, in one line with exit status 2, a trainer that asks for a GPU where there is none, and
