@@ -152,6 +152,8 @@ class VOModule(L.LightningModule):
             torch.compiler.cudagraph_mark_step_begin()  # the previous step's graph outputs are done with
         inputs = {name: batch[name] for name in models.inputs_of(self.model)}
         loss, row = self._train_losses(inputs, batch["targets"])
+        if self._train_losses is not self.losses:
+            loss = loss.clone()  # Lightning holds it past the step; a CUDA graph's output is overwritten
         self._record.write(row)
         if self.trainer.progress_bar_callback is not None:  # a terminal's bar reads it (a host copy)
             self.log("loss", loss.detach().clone(), on_step=True, on_epoch=False, prog_bar=True, logger=False)
