@@ -13,7 +13,8 @@ Check it on a CPU (tiny sizes, eager steps, one seed of the study; ``tests/test_
         --job-overrides data=kitti data.root=<a tiny KITTI-layout folder> ...
 
 Stages, each skipped (and recorded as such) when the time left is below its estimate, every number written
-to ``<out>/gpu_study.json`` after each stage:
+to ``<out>/gpu_study.json`` after each stage (beside it the commands' logs and the study's report; the runs'
+folders go to ``--work``, so that ``<out>`` stays a handful of files):
 
 1. **The chip's matrix rate**: bf16 and TF32 matrix products of 8192x8192, TFLOP/s.
 2. **The embedded data and a warm-up job**, in the background from the start: ``python -m lossvo.train
@@ -31,10 +32,10 @@ to ``<out>/gpu_study.json`` after each stage:
    channels-last; FLOPs of a step (``torch.utils.flop_counter``), the fraction of the measured bf16 rate,
    the top kernels of a profiled bf16 step (``torch.profiler``), and the study (3 losses x 200 epochs of
    KITTI's training windows) in GPU-hours.
-6. **FlowVO's step at 184x608**: eager and ``reduce-overhead``, bf16.
-7. **The study's jobs sharing the GPU**: ``python -m lossvo.study`` with the seeds that fit the time left
+6. **The study's jobs sharing the GPU**: ``python -m lossvo.study`` with the seeds that fit the time left
    (all 10: the 60 jobs of ``make study``), wall seconds, jobs at once, each job's peak GPU memory
    (``nvidia-smi``) and the report's path.
+7. **FlowVO's step at 184x608**: eager and ``reduce-overhead``, bf16.
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ import datetime
 import json
 import os
 import shlex
+import shutil
 import subprocess
 import sys
 import threading
@@ -451,6 +453,9 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=1000, help="frames of the random resident sequence")
     parser.add_argument("--deepvo-size", type=int, nargs=2, default=None, help="H W (default: the study's)")
     parser.add_argument("--cache", type=Path, default=Path("/tmp/lossvo-gpu-study-cache"))
+    parser.add_argument(
+        "--work", type=Path, default=Path("/tmp/lossvo-gpu-study-runs"), help="the runs' folders"
+    )
     parser.add_argument("--job-overrides", nargs="*", default=[], help="for every lossvo.train/study command")
     parser.add_argument("--study-models", default="deepvo_small,flowvo", help="the study stage's --models")
     parser.add_argument("--quick", action="store_true", help="tiny sizes, eager steps, one seed: a CPU check")
@@ -468,12 +473,13 @@ def main() -> None:
     left = lambda: args.deadline - (time.monotonic() - start)  # noqa: E731
     env = command_env(args.cache)
     args.out.mkdir(parents=True, exist_ok=True)
+    shutil.rmtree(args.work, ignore_errors=True)  # the runs start afresh (the data cache is kept)
     report: dict[str, Any] = {"machine": gpu_path.machine(device), "arguments": vars(args), "stages": {}}
     report["machine"]["date"] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
     stages = report["stages"]
     log(f"{report['machine']['device']}, torch {torch.__version__}, deadline {args.deadline:g} s")
 
-    warm = Command(train_command(args.out / "warmup-job", trainer,
+    warm = Command(train_command(args.work / "warmup-job", trainer,
                                  ["trainer.max_epochs=1", "+evaluate=false", *args.job_overrides]),
                    args.out / "warmup-job.log", env, timeout=max(left() - 60, 30))  # fmt: skip
     waited: dict[str, Any] = {}
@@ -493,8 +499,8 @@ def main() -> None:
             60,
             lambda: deepvo_precision(args, device, stages.get("matrix_rate", {}).get("bf16_tflops")),
         ),
-        ("flowvo_step_large", 60, lambda: flowvo_steps(large, modes[:2], args, device, ready)),
         ("study", 120, lambda: study(args, env, left, device)),
+        ("flowvo_step_large", 60, lambda: flowvo_steps(large, modes[:2], args, device, ready)),
     ]
     for name, needs, stage in plan:
         if left() < needs:
@@ -521,7 +527,7 @@ def job(args: argparse.Namespace, trainer: str, env: dict[str, str], left: Calla
         ready: Callable[[], None]) -> dict[str, Any]:  # fmt: skip
     """The default FlowVO job on the cached data, after the warm-up job."""
     ready()
-    run_dir = args.out / "job"
+    run_dir = args.work / "job"
     result = Command(train_command(run_dir, trainer, list(args.job_overrides)), args.out / "job.log", env,
                      timeout=max(left() - 30, 30)).wait()  # fmt: skip
     result["epoch_s"] = epoch_seconds(run_dir)
@@ -531,8 +537,8 @@ def job(args: argparse.Namespace, trainer: str, env: dict[str, str], left: Calla
 def study(args: argparse.Namespace, env: dict[str, str], left: Callable[[], float],
           device: torch.device) -> dict[str, Any]:  # fmt: skip
     """``python -m lossvo.study`` with as many seeds as the time left allows (10: ``make study``)."""
-    seeds = 1 if args.quick else 10 if left() > 400 else 3 if left() > 150 else 1
-    sweep = args.out / "study"
+    seeds = 1 if args.quick else 10 if left() > 600 else 3 if left() > 200 else 1
+    sweep = args.work / "study"
     command = [sys.executable, "-m", "lossvo.study", "--seeds", ",".join(map(str, range(seeds))),
                "--models", args.study_models, "--sweep-dir", str(sweep), *args.job_overrides]  # fmt: skip
     result = Command(command, args.out / "study.log", env, timeout=max(left() - 15, 30)).wait()
@@ -540,6 +546,8 @@ def study(args: argparse.Namespace, env: dict[str, str], left: Callable[[], floa
     result |= {"seeds": seeds, "jobs": len(statuses),
                "completed": sum(s.get("status") == "completed" for s in statuses),
                "report": next((str(p) for p in sweep.glob("report/report.md")), None)}  # fmt: skip
+    if result["report"]:
+        shutil.copy(result["report"], args.out / "study-report.md")
     return result
 
 

@@ -22,8 +22,8 @@ def test_quick_run_goes_through_every_stage(tiny_kitti: Path, tmp_path: Path) ->
         "model.channels=[8,8,16,16]", "model.hidden=16", "trainer.max_epochs=1",
     ]  # fmt: skip
     out = tmp_path / "out"
-    command = [sys.executable, str(SCRIPT), "--quick", "--device", "cpu", "--out", str(out),
-               "--study-models", "flowvo", "--job-overrides", *data]  # fmt: skip
+    command = [sys.executable, str(SCRIPT), "--quick", "--device", "cpu", "--out", str(out), "--work",
+               str(tmp_path / "runs"), "--study-models", "flowvo", "--job-overrides", *data]  # fmt: skip
     proc = subprocess.run(command, capture_output=True, text=True, cwd=ROOT, timeout=900)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     stages = json.loads((out / "gpu_study.json").read_text())["stages"]
@@ -47,3 +47,10 @@ def test_quick_run_goes_through_every_stage(tiny_kitti: Path, tmp_path: Path) ->
         assert variant["achieved_tflops"] > 0 and variant["study"]["gpu_hours"] > 0
     study = stages["study"]
     assert study["exit"] == 0 and study["jobs"] == study["completed"] == 3 and study["report"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        "gpu_study.json",
+        "job.log",
+        "study-report.md",
+        "study.log",
+        "warmup-job.log",
+    ]  # a handful of files: what a device returns
