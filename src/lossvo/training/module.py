@@ -86,6 +86,7 @@ class VOModule(L.LightningModule):
         self.val_score = SelectionScore()
         self.data: dict[str, Any] | None = None  # the training data's description, from a checkpoint
         self._resumed_rng: dict[str, Any] | None = None  # random streams of a checkpoint to resume
+        self._mode: str | None = None  # the torch.compile mode of the training losses (None: eager)
         self._train_losses = self.losses  # compiled in on_fit_start where ``compile`` says so
         self._record: StepRecord | None = None  # the current epoch's step rows
         self._epoch_start = 0  # the global step of the epoch's first step
@@ -121,7 +122,8 @@ class VOModule(L.LightningModule):
 
     def on_fit_start(self) -> None:
         """The training losses compiled for the training device where ``compile`` says so."""
-        self._train_losses = compiled(self.losses, compile_mode(self.compile_setting, self.device))
+        self._mode = compile_mode(self.compile_setting, self.device)
+        self._train_losses = compiled(self.losses, self._mode)
 
     def on_train_start(self) -> None:
         """On resuming a fit: the random streams as they were when the checkpoint was written, and a
@@ -148,11 +150,11 @@ class VOModule(L.LightningModule):
         if self._record is None:  # the first step after an epoch closed early (max_steps)
             self.on_train_epoch_start()
         assert self._record is not None
-        if self._train_losses is not self.losses:
+        if self._mode is not None:
             torch.compiler.cudagraph_mark_step_begin()  # the previous step's graph outputs are done with
         inputs = {name: batch[name] for name in models.inputs_of(self.model)}
         loss, row = self._train_losses(inputs, batch["targets"])
-        if self._train_losses is not self.losses:
+        if self._mode is not None:
             loss = loss.clone()  # Lightning holds it past the step; a CUDA graph's output is overwritten
         self._record.write(row)
         if self.trainer.progress_bar_callback is not None:  # a terminal's bar reads it (a host copy)
