@@ -1,16 +1,18 @@
-"""An Optuna study that several workers share (``hparams_search=k_search`` run by two or more processes
-with the same study name and storage), through Hydra's Optuna sweeper.
+"""An Optuna study that several workers share: ``hparams_search=k_search`` run by two or more processes
+with the same study name and storage, on Optuna's public API (ask and tell).
 
-- :class:`SharedStorage`: the study's RDB storage (SQLite on one machine, MariaDB, MySQL or PostgreSQL
-  across machines). Each worker records a heartbeat of the trials it asked for and has not yet told;
-  before it asks for a trial, it marks FAIL the study's running trials whose heartbeat is older than the
-  grace period (their worker was killed), so that the study goes on without them.
+- :func:`open_storage`: the study's storage: an RDB (SQLite on one machine, MariaDB, MySQL or PostgreSQL
+  across machines) from an SQLAlchemy URL, or a journal file (Optuna's ``JournalFileBackend``) from a path.
+- :class:`Heartbeats` and :func:`fail_stale_trials`: each worker records, every ``heartbeat_interval``
+  seconds, the time (Unix seconds) in a user attribute of the trials it runs; before it asks for a trial
+  it marks FAIL the study's running trials whose heartbeat is more than ``grace_period`` seconds old
+  (their worker was killed), so that the study goes on without them. The same on every storage; the
+  workers' clocks must agree to well within the grace period.
 - :class:`TrialSeededTPESampler`: TPE whose draws for trial number k come from a sampler seeded with
   ``SeedSequence([seed, k])``: the storage hands every trial of a study its own number, so no two trials
   draw from the same random stream, whichever worker asks for them and however often a worker restarts.
-- :class:`StudyCheck`: a Hydra callback that, before the sweep starts, records the search (directions,
-  search space, fixed overrides) in a new study and refuses, in one line with exit status 2, a search that
-  differs from the one recorded under the study's name, or a storage that cannot be opened.
+- :func:`check_study`: records the search (directions, search space, fixed overrides) in a new study and
+  refuses, in one line, a search that differs from the one recorded under the study's name.
 """
 
 from __future__ import annotations
@@ -19,110 +21,130 @@ import logging
 import threading
 import time
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
-from hydra.experimental.callback import Callback
-from hydra_plugins.hydra_optuna_sweeper._impl import create_params_from_overrides
-from omegaconf import DictConfig, ListConfig, OmegaConf
+import optuna
 from optuna.distributions import BaseDistribution, distribution_to_json, json_to_distribution
-from optuna.exceptions import DuplicatedStudyError, StorageInternalError
+from optuna.exceptions import StorageInternalError, UpdateFinishedTrialError
 from optuna.samplers import BaseSampler, TPESampler
-from optuna.storages import RDBStorage
-from optuna.storages._rdb import models
+from optuna.storages import BaseStorage, RDBStorage
+from optuna.storages.journal import JournalFileBackend, JournalStorage
 from optuna.study import Study, StudyDirection
 from optuna.trial import FrozenTrial, TrialState
-from sqlalchemy import func
 from sqlalchemy.engine import make_url
 from sqlalchemy.exc import ArgumentError, SQLAlchemyError
 
-from lossvo.console import exit_in_one_line, first_line
+from lossvo.console import first_line
 
 log = logging.getLogger("lossvo")
 
 SEARCH_ATTR = "lossvo_search"
-"""The study's user attribute holding the search it was created for (:func:`search_of`)."""
+"""The study's user attribute holding the search it was created for (:func:`check_study`)."""
+
+HEARTBEAT_ATTR = "lossvo_heartbeat"
+"""The trial's user attribute holding its worker's last heartbeat, in Unix seconds (:class:`Heartbeats`)."""
 
 
-class SharedStorage(RDBStorage):
-    """Optuna's RDB storage at ``url`` with heartbeats for a study several workers share.
+# -- the storage -----------------------------------------------------------------------------------
 
-    A trial this process creates gets a heartbeat at once and then every ``heartbeat_interval`` seconds
-    (a daemon thread) until it is finished. Before creating a trial, the study's running trials whose last
-    heartbeat is more than ``grace_period`` seconds old are marked FAIL: their worker is gone. A worker
-    stalled for longer than ``grace_period`` (suspended, cut off from the database) loses its trial the
-    same way, so ``grace_period`` is minutes, not seconds.
-    """
 
-    def __init__(self, url: str, heartbeat_interval: int = 60, grace_period: int = 600,
-                 engine_kwargs: dict[str, Any] | None = None) -> None:  # fmt: skip
+def shown_url(url: str) -> str:
+    """A storage URL with its password hidden (a URL that does not parse, or a path, as it is)."""
+    try:
+        return make_url(url).render_as_string(hide_password=True)
+    except ArgumentError:
+        return url
+
+
+def open_storage(url: str) -> BaseStorage:
+    """The storage at ``url``: an SQLAlchemy URL (``sqlite:///...``, ``mysql+pymysql://...``) opens an
+    RDB, its tables created where new; anything else is the path of a journal file, created where new.
+    Raises ValueError (one line naming ``hydra.sweeper.storage.url``) where it cannot be opened."""
+    try:
+        if "://" not in url:
+            return JournalStorage(JournalFileBackend(str(Path(url).expanduser())))
         for attempt in range(3):  # workers started together on a new database race to create its tables
             try:
-                super().__init__(url, engine_kwargs, heartbeat_interval=heartbeat_interval,
-                                 grace_period=grace_period)  # fmt: skip
-                break
+                return RDBStorage(url)
             except (SQLAlchemyError, StorageInternalError):
                 if attempt == 2:
                     raise
                 time.sleep(1.0)
-        self._mine: set[int] = set()
+        raise AssertionError("unreachable")
+    except (SQLAlchemyError, StorageInternalError, ImportError, OSError) as e:
+        raise ValueError(f"hydra.sweeper.storage.url: cannot open {shown_url(url)}: {first_line(e)}") from e
+
+
+def close_storage(storage: BaseStorage) -> None:
+    """Close an RDB storage's connections (a journal holds none open)."""
+    if isinstance(storage, RDBStorage):
+        storage.engine.dispose()
+
+
+# -- heartbeats and stale trials -------------------------------------------------------------------
+
+
+class Heartbeats:
+    """The heartbeats of a worker's running trials: the time (Unix seconds) written into each trial's
+    :data:`HEARTBEAT_ATTR` when it is added and then every ``interval`` seconds (a daemon thread), until
+    it is discarded. A failed write is logged and tried again at the next beat."""
+
+    def __init__(self, interval: float) -> None:
+        self.interval = interval
+        self._trials: dict[int, optuna.Trial] = {}
         self._lock = threading.Lock()
-        self._beating: threading.Thread | None = None
+        self._thread: threading.Thread | None = None
 
-    def __repr__(self) -> str:
-        return f"{type(self).__name__}({shown_url(self.url)})"
-
-    def _create_new_trial(self, study_id: int, template_trial: FrozenTrial | None = None) -> FrozenTrial:
-        # Optuna's create_new_trial and its caching wrapper both create trials through this method.
-        for trial_id in self.fail_stale_trials(study_id):
-            number = self.get_trial(trial_id).number
-            log.warning(f"trial {number} failed: its worker sent no heartbeat for {self.grace_period} s")
-        trial = super()._create_new_trial(study_id, template_trial)
-        self.record_heartbeat(trial._trial_id)
+    def add(self, trial: optuna.Trial) -> None:
+        """Beat for ``trial`` now and every ``interval`` seconds until :meth:`discard`."""
         with self._lock:
-            self._mine.add(trial._trial_id)
-            if self._beating is None:
-                self._beating = threading.Thread(target=self._beat, name="optuna-heartbeat", daemon=True)
-                self._beating.start()
-        return trial
+            self._trials[trial.number] = trial
+            self._beat(trial)
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._run, name="optuna-heartbeat", daemon=True)
+                self._thread.start()
 
-    def _get_stale_trial_ids(self, study_id: int) -> list[int]:
-        # Optuna 2.10 compares ``timedelta.seconds`` with the grace period: a heartbeat written by another
-        # worker just after this one read the database's clock is then a day old. Here: total seconds.
-        assert self.grace_period is not None
-        session = self.scoped_session()
+    def discard(self, trial: optuna.Trial) -> None:
+        """Stop beating for ``trial``: no beat for it is written after this returns."""
+        with self._lock:
+            self._trials.pop(trial.number, None)
+
+    def _beat(self, trial: optuna.Trial) -> None:
         try:
-            now = session.execute(func.now()).scalar().replace(tzinfo=None)
-            beats = (
-                session.query(models.TrialModel.trial_id, models.TrialHeartbeatModel.heartbeat)
-                .join(
-                    models.TrialHeartbeatModel,
-                    models.TrialHeartbeatModel.trial_id == models.TrialModel.trial_id,
-                )
-                .filter(models.TrialModel.study_id == study_id, models.TrialModel.state == TrialState.RUNNING)
-                .all()
-            )
-            session.commit()
-        finally:
-            session.close()
-        return [trial_id for trial_id, beat in beats if (now - beat).total_seconds() > self.grace_period]
+            trial.set_user_attr(HEARTBEAT_ATTR, time.time())
+        except (SQLAlchemyError, StorageInternalError, OSError) as e:
+            log.warning(f"optuna heartbeat of trial {trial.number}: {first_line(e)}")
 
-    def _beat(self) -> None:
-        """Record a heartbeat of this process's unfinished trials every ``heartbeat_interval`` seconds."""
-        assert self.heartbeat_interval is not None
+    def _run(self) -> None:
         while True:
-            time.sleep(self.heartbeat_interval)
+            time.sleep(self.interval)
             with self._lock:
-                mine = sorted(self._mine)
-            for trial_id in mine:
-                try:
-                    if self.get_trial(trial_id).state.is_finished():
-                        with self._lock:
-                            self._mine.discard(trial_id)
-                    else:
-                        self.record_heartbeat(trial_id)
-                except (SQLAlchemyError, StorageInternalError) as e:  # the next beat tries again
-                    log.warning(f"optuna heartbeat of trial id {trial_id}: {e}")
+                for trial in self._trials.values():
+                    self._beat(trial)
+
+
+def fail_stale_trials(study: Study, grace_period: float) -> list[int]:
+    """Mark FAIL the running trials of ``study`` whose last heartbeat is more than ``grace_period``
+    seconds old (their worker is gone; a trial without a heartbeat is left alone); the numbers of the
+    trials this call failed, each logged."""
+    now = time.time()
+    failed = []
+    for trial in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,)):
+        beat = trial.user_attrs.get(HEARTBEAT_ATTR)
+        if beat is None or now - float(beat) <= grace_period:
+            continue
+        try:
+            study.tell(trial.number, state=TrialState.FAIL, skip_if_finished=True)
+        except UpdateFinishedTrialError:  # another worker failed it first
+            continue
+        log.warning(f"trial {trial.number} failed: its worker sent no heartbeat for {grace_period:g} s")
+        failed.append(trial.number)
+    return failed
+
+
+# -- the sampler -----------------------------------------------------------------------------------
 
 
 def _seed_of(seed: int | None, number: int) -> int | None:
@@ -164,6 +186,9 @@ class TrialSeededTPESampler(BaseSampler):
                            param_distribution: BaseDistribution) -> Any:  # fmt: skip
         return self._of(trial).sample_independent(study, trial, param_name, param_distribution)
 
+    def before_trial(self, study: Study, trial: FrozenTrial) -> None:
+        self._of(trial).before_trial(study, trial)
+
     def after_trial(self, study: Study, trial: FrozenTrial, state: TrialState,
                     values: Sequence[float] | None) -> None:  # fmt: skip
         self._of(trial).after_trial(study, trial, state, values)
@@ -173,39 +198,14 @@ class TrialSeededTPESampler(BaseSampler):
 # -- the search a study was created for ------------------------------------------------------------
 
 
-def shown_url(url: str) -> str:
-    """A storage URL with its password hidden (a URL that does not parse as it is)."""
-    try:
-        return make_url(url).render_as_string(hide_password=True)
-    except ArgumentError:
-        return url
-
-
-def storage_url(sweeper: DictConfig) -> str | None:
-    """The URL of the sweeper's storage (a URL, or a storage config with ``url``); None: in memory."""
-    storage = sweeper.get("storage")
-    if storage is None:
-        return None
-    return str(storage.url if isinstance(storage, DictConfig) else storage)
-
-
-def directions_of(sweeper: DictConfig) -> list[str]:
-    """The sweeper's directions as names (``minimize``, ``maximize``), as the sweeper reads them."""
-    given = sweeper.direction
-    items = list(given) if isinstance(given, ListConfig) else [given]
-    return [str(getattr(item, "name", item)) for item in items]
-
-
-def search_of(sweeper: DictConfig, task_overrides: Sequence[str]) -> dict[str, Any]:
-    """The search a sweep runs, as the sweeper reads it from ``hydra.sweeper.params`` and the command
-    line's overrides: its directions, its search space (JSON of each distribution) and its fixed
-    overrides."""
-    params = [f"{name}={value}" for name, value in (sweeper.get("params") or {}).items()]
-    space, fixed = create_params_from_overrides([*params, *task_overrides])
+def search_of(directions: Sequence[str], space: dict[str, BaseDistribution], fixed: dict[str, str]
+              ) -> dict[str, Any]:  # fmt: skip
+    """The search a sweep runs, as a study records it: its directions (``minimize``, ``maximize``), its
+    search space (the JSON of each distribution) and its fixed overrides, keys sorted."""
     return {
-        "directions": directions_of(sweeper),
-        "space": {name: distribution_to_json(d) for name, d in sorted(space.items()) if name not in fixed},
-        "fixed": {name: str(value) for name, value in sorted(fixed.items())},
+        "directions": [d.lower() for d in directions],
+        "space": {name: distribution_to_json(space[name]) for name in sorted(space)},
+        "fixed": {name: fixed[name] for name in sorted(fixed)},
     }
 
 
@@ -231,49 +231,24 @@ def difference(recorded: dict[str, Any], wanted: dict[str, Any]) -> str | None:
     return None
 
 
-def check_study(url: str, name: str, wanted: dict[str, Any]) -> None:
-    """Record the search ``wanted`` in the study ``name`` at ``url`` (created if new), or raise
-    ValueError (one line) where the study was created for another search or the storage cannot be
-    opened."""
+def check_study(url: str, name: str, wanted: dict[str, Any], storage: BaseStorage | None = None) -> None:
+    """Record the search ``wanted`` (:func:`search_of`) in the study ``name`` at ``url`` (through
+    ``storage``, else a storage opened here; the study created if new), or raise ValueError (one line)
+    where the study was created for another search or the storage cannot be opened."""
+    opened = open_storage(url) if storage is None else storage
     try:
-        storage = SharedStorage(url)
-    except (SQLAlchemyError, StorageInternalError, ImportError) as e:
-        raise ValueError(f"hydra.sweeper.storage.url: cannot open {shown_url(url)}: {first_line(e)}") from e
-    try:
-        try:
-            study_id = storage.create_new_study(name)
-        except DuplicatedStudyError:
-            study_id = storage.get_study_id_from_name(name)
-        if all(d == StudyDirection.NOT_SET for d in storage.get_study_directions(study_id)):
-            storage.set_study_directions(study_id, [StudyDirection[d.upper()] for d in wanted["directions"]])
-        recorded = storage.get_study_user_attrs(study_id).get(SEARCH_ATTR)
+        directions = [StudyDirection[d.upper()] for d in wanted["directions"]]
+        study = optuna.create_study(storage=opened, study_name=name, directions=directions,
+                                    load_if_exists=True)  # fmt: skip
+        recorded = study.user_attrs.get(SEARCH_ATTR)
         if recorded is None:  # a new study, or one made without this check: its directions are known
-            directions = [d.name.lower() for d in storage.get_study_directions(study_id)]
-            recorded = {**wanted, "directions": directions}
+            recorded = {**wanted, "directions": [d.name.lower() for d in study.directions]}
         why = difference(recorded, wanted)
         if why is None:
-            storage.set_study_user_attr(study_id, SEARCH_ATTR, wanted)
+            study.set_user_attr(SEARCH_ATTR, wanted)
     finally:
-        storage.engine.dispose()
+        if storage is None:
+            close_storage(opened)
     if why is not None:
         raise ValueError(f"hydra.sweeper.study_name: the study {name!r} in {shown_url(url)} was created for "
                          f"another search: {why} (choose another study_name or storage)")  # fmt: skip
-
-
-class StudyCheck(Callback):
-    """Hydra callback: before a sweep with a study name and storage starts, :func:`check_study`. A study
-    created for another search ends the command in one line with exit status 2 (``LOSSVO_FULL_ERROR=1``:
-    its traceback, exit status 1); Hydra turns exceptions of callbacks into warnings, so the exit is
-    this callback's."""
-
-    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
-        sweeper = config.hydra.sweeper
-        url, name = storage_url(sweeper), sweeper.get("study_name")
-        if url is None or name is None:
-            return
-        overrides = OmegaConf.to_container(config.hydra.overrides.task)
-        assert isinstance(overrides, list)
-        try:
-            check_study(url, str(name), search_of(sweeper, [str(item) for item in overrides]))
-        except ValueError as e:
-            exit_in_one_line(e)

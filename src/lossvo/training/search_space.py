@@ -1,0 +1,104 @@
+"""A hyperparameter search space written in Hydra's sweep syntax, as Optuna distributions.
+
+``hydra.sweeper.params`` and the command line's overrides of ``hparams_search`` hold one override per
+key. Sweeps become distributions, plain values fixed overrides:
+
+- ``choice(a, b, ...)``: :class:`~optuna.distributions.CategoricalDistribution`;
+- ``interval(low, high)``: :class:`~optuna.distributions.FloatDistribution` (Hydra reads an interval's
+  ends as floats); ``tag(log, interval(...))`` draws on a log scale;
+- ``range(start, stop, step)``: :class:`~optuna.distributions.IntDistribution` (a
+  :class:`~optuna.distributions.FloatDistribution` with a step where any bound is a float) from ``start``
+  to ``stop`` inclusive in steps of ``step``; ``shuffle(range(...))``: the same values, sorted, as
+  categories;
+- anything else (``loss=euler``): fixed, passed to every trial as it is written.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.core.override_parser.types import ChoiceSweep, IntervalSweep, Override, RangeSweep, Transformer
+from hydra.errors import HydraException
+from optuna.distributions import (
+    BaseDistribution,
+    CategoricalDistribution,
+    FloatDistribution,
+    IntDistribution,
+)
+
+from lossvo.console import first_line
+
+CHOICE_TYPES = (str, int, float, bool, type(None))
+"""The types a ``choice`` may hold (Optuna's categorical choices)."""
+
+
+def distribution_of(override: Override) -> BaseDistribution | str:
+    """The distribution of a sweep override, or the value of a plain override as written. Raises
+    ValueError naming the override's key where the sweep is not one a search space can hold."""
+    key = override.get_key_element()
+    if not override.is_sweep_override():
+        return str(override.get_value_element_as_str())
+    value = override.value()
+    try:
+        if isinstance(value, ChoiceSweep):
+            return CategoricalDistribution(_choices(override))
+        if isinstance(value, RangeSweep) and value.shuffle:  # Hydra shuffles: sorted, one search space
+            return CategoricalDistribution(sorted(_choices(override)))
+        if isinstance(value, RangeSweep):
+            return _range(value)
+        if isinstance(value, IntervalSweep):
+            return _interval(value)
+    except ValueError as e:
+        raise ValueError(f"{key}: {first_line(e)} (in {override.input_line})") from e
+    expected = "choice(...), interval(low, high), tag(log, interval(low, high)) or range(start, stop, step)"
+    raise ValueError(f"{key}: {override.input_line} is not a search space (expected {expected})")
+
+
+def _choices(override: Override) -> list[Any]:
+    """A choice sweep's values as Optuna categories (Hydra's encoding of each element)."""
+    choices = list(override.sweep_iterator(transformer=Transformer.encode))
+    wrong = [c for c in choices if not isinstance(c, CHOICE_TYPES)]
+    if wrong:
+        raise ValueError(f"a choice holds str, int, float, bool or null, not {wrong[0]!r}")
+    return choices
+
+
+def _range(value: RangeSweep) -> BaseDistribution:
+    """``range(start, stop, step)``: ``start`` to ``stop`` inclusive in steps of ``step``."""
+    if value.start is None or value.stop is None:
+        raise ValueError("a range needs a start and a stop")
+    if any(isinstance(v, float) for v in (value.start, value.stop, value.step)):
+        return FloatDistribution(float(value.start), float(value.stop), step=float(value.step))
+    return IntDistribution(int(value.start), int(value.stop), step=int(value.step))
+
+
+def _interval(value: IntervalSweep) -> BaseDistribution:
+    """``interval(low, high)``, on a log scale where tagged ``log``."""
+    if value.start is None or value.end is None:
+        raise ValueError("an interval needs a low and a high end")
+    return FloatDistribution(float(value.start), float(value.end), log="log" in value.tags)
+
+
+def parse(overrides: Sequence[str]) -> tuple[dict[str, BaseDistribution], dict[str, str]]:
+    """The search space (key -> distribution, in the order given) and the fixed overrides (key -> value
+    as written) of ``KEY=VALUE`` overrides; a key given twice keeps its last value. Raises ValueError in
+    one line naming the key of a sweep that is no search space or an override that does not parse."""
+    parser = OverridesParser.create()
+    space: dict[str, BaseDistribution] = {}
+    fixed: dict[str, str] = {}
+    for line in overrides:
+        try:
+            (override,) = parser.parse_overrides([line])
+        except HydraException as e:
+            raise ValueError(f"{line.split('=', 1)[0]}: {first_line(e)}") from e
+        key = override.get_key_element()
+        space.pop(key, None)
+        fixed.pop(key, None)
+        found = distribution_of(override)
+        if isinstance(found, BaseDistribution):
+            space[key] = found
+        else:
+            fixed[key] = found
+    return space, fixed
