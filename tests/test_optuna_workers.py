@@ -1,9 +1,10 @@
-"""Several Optuna workers on one study (lossvo.training.shared_study, hparams_search=k_search).
+"""Several Optuna workers on one study (lossvo.training.shared_study, hparams_search=k_search through
+lossvo's sweeper, hydra_plugins.lossvo_optuna_sweeper).
 
 The slow tests start real ``python -m lossvo.train -m hparams_search=k_search`` processes on the tiny dataset
-with one study name and storage: SQLite in the sweep folder, and MariaDB (the database server of
-``cluster/cluster.sh``; skipped where it cannot run). The quick ones drive the storage, the sampler and the
-study check through Optuna's API."""
+with one study name and storage: SQLite in the sweep folder, a journal file, and MariaDB (the database
+server of ``cluster/cluster.sh``; skipped where it cannot run). The quick ones drive the storage, the
+heartbeats, the sampler and the study check through Optuna's API."""
 
 from __future__ import annotations
 
@@ -20,11 +21,11 @@ from pathlib import Path
 
 import optuna
 import pytest
-from optuna.storages import RDBStorage
+from optuna.distributions import FloatDistribution, distribution_to_json
 from optuna.trial import TrialState
 
 from lossvo.training import shared_study
-from lossvo.training.shared_study import SharedStorage, TrialSeededTPESampler
+from lossvo.training.shared_study import HEARTBEAT_ATTR, Heartbeats, TrialSeededTPESampler, open_storage
 
 STUDY = "k_search"
 TRIALS = 3
@@ -35,7 +36,12 @@ def tell_all(study: optuna.Study, trial: optuna.Trial) -> None:
     study.tell(trial, trial.suggest_float("k", 5.0, 2000.0, log=True))
 
 
-# -- quick: the sampler, the storage, the check ----------------------------------------------------
+def storage_url(kind: str, folder: Path) -> str:
+    """An SQLite URL or a journal file's path in ``folder``."""
+    return f"sqlite:///{folder / 'study.db'}" if kind == "sqlite" else str(folder / "study.log")
+
+
+# -- quick: the sampler, the storage, the heartbeats, the check ------------------------------------
 
 
 def test_trial_seeded_sampler_draws_reproducibly_and_never_alike_across_workers(tmp_path: Path) -> None:
@@ -45,7 +51,7 @@ def test_trial_seeded_sampler_draws_reproducibly_and_never_alike_across_workers(
 
     def draws(sampler: Callable[[], optuna.samplers.BaseSampler], name: str) -> list[float]:
         url = f"sqlite:///{tmp_path / 'study.db'}"
-        workers = [optuna.create_study(study_name=name, storage=SharedStorage(url), sampler=sampler(),
+        workers = [optuna.create_study(study_name=name, storage=open_storage(url), sampler=sampler(),
                                        load_if_exists=True) for _ in range(2)]  # fmt: skip
         for _ in range(3):
             for study in workers:
@@ -60,43 +66,57 @@ def test_trial_seeded_sampler_draws_reproducibly_and_never_alike_across_workers(
     assert len(set(alike)) == 3  # what a seed per worker, not per trial, gives
 
 
-def test_a_trial_whose_worker_stopped_beating_is_failed_before_the_next_trial(tmp_path: Path) -> None:
-    """A trial created without a live worker (one heartbeat, then nothing) is marked FAIL by the next
-    worker's ask once the grace period has passed, not before; a heartbeat newer than the database's clock
-    (another worker's, written just after it was read) is not stale."""
-    url = f"sqlite:///{tmp_path / 'study.db'}"
-    dead = optuna.create_study(study_name=STUDY, storage=RDBStorage(url, heartbeat_interval=1))
+@pytest.mark.parametrize("kind", ["sqlite", "journal"])
+def test_a_trial_whose_worker_stopped_beating_is_failed_after_the_grace_period(kind: str, tmp_path: Path
+                                                                              ) -> None:  # fmt: skip
+    """A trial whose worker beat once and died is failed by another worker's check once its heartbeat
+    is older than the grace period, not before; the live worker's trial, beating every 0.2 s, is not; a
+    heartbeat ahead of this clock is not stale; a trial failed once is not failed again."""
+    url = storage_url(kind, tmp_path)
+    dead = optuna.create_study(study_name=STUDY, storage=open_storage(url))
     orphan = dead.ask()
-    dead._storage.record_heartbeat(orphan._trial_id)
-    storage = SharedStorage(url, heartbeat_interval=1, grace_period=2)
-    live = optuna.create_study(study_name=STUDY, storage=storage, load_if_exists=True)
-    tell_all(live, live.ask())
-    assert live.trials[0].state == TrialState.RUNNING  # within the grace period
-    with storage.engine.begin() as connection:  # the orphan's heartbeat a minute in the future
-        connection.exec_driver_sql("UPDATE trial_heartbeats SET heartbeat = datetime('now', '+60 seconds')")
-    assert storage._get_stale_trial_ids(live._study_id) == []
-    with storage.engine.begin() as connection:
-        connection.exec_driver_sql("UPDATE trial_heartbeats SET heartbeat = datetime('now', '-3 seconds')")
-    tell_all(live, live.ask())
-    states = [t.state for t in live.trials]
-    assert states == [TrialState.FAIL, TrialState.COMPLETE, TrialState.COMPLETE]
-    # the live worker's own trials kept beating and were not failed
-    assert storage._get_stale_trial_ids(live._study_id) == []
+    Heartbeats(3600.0).add(orphan)  # one beat, the next an hour later: as good as dead
+    live = optuna.load_study(study_name=STUDY, storage=open_storage(url))
+    mine = live.ask()
+    beats = Heartbeats(0.2)
+    beats.add(mine)
+    assert shared_study.fail_stale_trials(live, grace_period=1.0) == []  # within the grace period
+    time.sleep(1.5)
+    assert shared_study.fail_stale_trials(live, grace_period=1.0) == [orphan.number]
+    assert shared_study.fail_stale_trials(live, grace_period=1.0) == []
+    beats.discard(mine)
+    ahead = live.ask()
+    ahead.set_user_attr(HEARTBEAT_ATTR, time.time() + 60.0)
+    time.sleep(1.5)
+    assert shared_study.fail_stale_trials(live, grace_period=1.0) == [mine.number]
+    trials = optuna.load_study(study_name=STUDY, storage=open_storage(url)).trials
+    states = {t.number: t.state for t in trials}
+    assert states == {orphan.number: TrialState.FAIL, mine.number: TrialState.FAIL,
+                      ahead.number: TrialState.RUNNING}  # fmt: skip
+
+
+def test_a_storage_that_cannot_be_opened_is_one_line(tmp_path: Path) -> None:
+    for url in (f"sqlite:///{tmp_path / 'missing' / 'optuna.db'}", str(tmp_path / "missing" / "optuna.log")):
+        with pytest.raises(ValueError) as error:
+            open_storage(url)
+        assert str(error.value).startswith(f"hydra.sweeper.storage.url: cannot open {url}: ")
+        assert "\n" not in str(error.value)
 
 
 def test_a_study_refuses_another_search(tmp_path: Path) -> None:
     """The first check records the search; the same search passes; another direction, search space or
     fixed override is refused in one line that names what differs."""
     url = f"sqlite:///{tmp_path / 'study.db'}"
-    search = {"directions": ["minimize"], "space": {"k": optuna.distributions.distribution_to_json(
-        optuna.distributions.LogUniformDistribution(5.0, 2000.0))}, "fixed": {"loss": "euler"}}  # fmt: skip
+    search = shared_study.search_of(["minimize"], {"k": FloatDistribution(5.0, 2000.0, log=True)},
+                                    {"loss": "euler"})  # fmt: skip
     shared_study.check_study(url, STUDY, search)
     shared_study.check_study(url, STUDY, search)
-    k = optuna.distributions.distribution_to_json(optuna.distributions.LogUniformDistribution(1.0, 2000.0))
-    searched = "it searches k in LogUniformDistribution(high=2000.0, low=5.0)"
+    k = distribution_to_json(FloatDistribution(1.0, 2000.0, log=True))
+    searched = "it searches k in FloatDistribution(high=2000.0, log=True, low=5.0, step=None)"
     others = {
         "its direction is minimize, not maximize": {**search, "directions": ["maximize"]},
-        f"{searched}, not k in LogUniformDistribution(high=2000.0, low=1.0)": {**search, "space": {"k": k}},
+        f"{searched}, not k in FloatDistribution(high=2000.0, log=True, low=1.0, step=None)":
+            {**search, "space": {"k": k}},
         f"{searched}, not nothing": {**search, "space": {}},
         "it runs with loss=euler, not loss=quat": {**search, "fixed": {"loss": "quat"}},
     }  # fmt: skip
@@ -140,7 +160,7 @@ def finished(proc: subprocess.Popen, base: Path, log: str) -> str:
 
 
 def trials_of(url: str) -> list[optuna.trial.FrozenTrial]:
-    return optuna.load_study(study_name=STUDY, storage=url).trials
+    return optuna.load_study(study_name=STUDY, storage=open_storage(url)).trials
 
 
 def check_no_duplicates(trials: list[optuna.trial.FrozenTrial]) -> None:
@@ -161,12 +181,15 @@ def search_args(tiny_sweep_args, base: Path, storage: str | None, grace: int = 1
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("rdb", [False, True], ids=["sqlite", "mariadb"])
-def test_two_workers_share_one_study_without_duplicates(rdb: bool, request: pytest.FixtureRequest,
+@pytest.mark.parametrize("kind", ["sqlite", "journal", "mariadb"])
+def test_two_workers_share_one_study_without_duplicates(kind: str, request: pytest.FixtureRequest,
                                                         tiny_sweep_args, tmp_path: Path) -> None:  # fmt: skip
-    """Two workers started together with one study name and storage: 2 x TRIALS trials, all complete,
-    numbered 0.. without a gap, no parameter set twice, one job folder each, completed."""
-    url = request.getfixturevalue("mariadb_url") if rdb else None
+    """Two workers started together with one study name and storage (SQLite in the sweep folder, a
+    journal file, MariaDB): 2 x TRIALS trials, all complete, numbered 0.. without a gap, no parameter set
+    twice, one job folder each, completed."""
+    url = {"sqlite": None, "journal": str(tmp_path / "optuna.log")}.get(kind) or request.getfixturevalue(
+        "mariadb_url"
+    )
     args = search_args(tiny_sweep_args, tmp_path, url)
     workers = [start_worker(args, tmp_path, f"worker{k}.log") for k in range(2)]
     for k, worker in enumerate(workers):
@@ -221,5 +244,21 @@ def test_a_search_under_a_study_name_used_for_another_is_refused_in_one_line(
     assert len(lines) == 1 and lines[0].startswith("error: hydra.sweeper.study_name: the study 'k_search'"), (
         lines
     )
-    assert "it searches nothing, not loss.k in LogUniformDistribution(high=2000.0, low=5.0)" in lines[0]
+    space = "loss.k in FloatDistribution(high=2000.0, log=True, low=5.0, step=None)"
+    assert f"it searches nothing, not {space}" in lines[0]
     assert trials_of(url) == [] and not (tmp_path / "sweep").exists()
+
+
+@pytest.mark.slow
+def test_a_bad_search_space_is_refused_in_one_line_naming_the_key(tiny_sweep_args, tmp_path: Path) -> None:
+    """A command-line search space that Optuna cannot draw from ends the sweep before any trial: one
+    line naming the key, exit status 2, no study and no job folder."""
+    args = search_args(tiny_sweep_args, tmp_path, None)
+    result = subprocess.run([sys.executable, "-m", "lossvo.train", *args, "loss.k=interval(10, 1)"],
+                            cwd=tmp_path, capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert result.returncode == 2, result.stderr[-3000:]
+    lines = [line for line in (result.stdout + result.stderr).splitlines() if line.strip()]
+    assert lines == ["error: loss.k: `low <= high` must hold, but got (low=10.0, high=1.0). "
+                     "(in loss.k=interval(10, 1))"]  # fmt: skip
+    assert not (tmp_path / "sweep" / "optuna.db").exists()
+    assert not [p for p in (tmp_path / "sweep").glob("*") if p.is_dir()]

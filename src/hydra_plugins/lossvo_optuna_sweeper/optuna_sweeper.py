@@ -159,7 +159,12 @@ class LossvoOptunaSweeper(Sweeper):
 
     def _write_results(self, study: Any) -> None:
         """``optimization_results.yaml`` in the sweep folder: the best trial, or the Pareto front."""
+        from optuna.trial import TrialState
+
         results: dict[str, Any] = {"name": "optuna"}
+        if not study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)):
+            log.warning("no trial of the study has completed: no optimization_results.yaml")
+            return
         if len(self.directions) == 1:
             best = study.best_trial
             results.update(best_params=best.params, best_value=best.value)

@@ -81,6 +81,13 @@ def _interval(value: IntervalSweep) -> BaseDistribution:
     return FloatDistribution(float(value.start), float(value.end), log="log" in value.tags)
 
 
+def _parse_error(error: HydraException) -> str:
+    """The line of Hydra's parse error that says what is wrong (not its heading or link)."""
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    said = [line for line in lines if not line.startswith(("Error parsing override", "See https://"))]
+    return (said or lines or [type(error).__name__])[0]
+
+
 def parse(overrides: Sequence[str]) -> tuple[dict[str, BaseDistribution], dict[str, str]]:
     """The search space (key -> distribution, in the order given) and the fixed overrides (key -> value
     as written) of ``KEY=VALUE`` overrides; a key given twice keeps its last value. Raises ValueError in
@@ -92,7 +99,7 @@ def parse(overrides: Sequence[str]) -> tuple[dict[str, BaseDistribution], dict[s
         try:
             (override,) = parser.parse_overrides([line])
         except HydraException as e:
-            raise ValueError(f"{line.split('=', 1)[0]}: {first_line(e)}") from e
+            raise ValueError(f"{line.split('=', 1)[0]}: {_parse_error(e)} (in {line})") from e
         key = override.get_key_element()
         space.pop(key, None)
         fixed.pop(key, None)
