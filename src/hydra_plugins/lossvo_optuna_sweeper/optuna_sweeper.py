@@ -113,6 +113,7 @@ class LossvoOptunaSweeper(Sweeper):
             for trial in trials:
                 heartbeats.add(trial)
             overrides = [tuple(f"{k}={v}" for k, v in {**trial.params, **fixed}.items()) for trial in trials]
+            assert self.launcher is not None
             returns = self.launcher.launch(overrides, initial_job_idx=self.job_idx)
             self.job_idx += len(returns)
             told = [self._tell(study, t, ret, heartbeats) for t, ret in zip(trials, returns, strict=True)]
@@ -139,9 +140,11 @@ class LossvoOptunaSweeper(Sweeper):
         storage = None if url is None else shared_study.open_storage(url)
         if url is not None and storage is not None and self.study_name is not None:
             wanted = shared_study.search_of(self.directions, space, fixed)
-            shared_study.check_study(url, self.study_name, wanted, storage)
+            shared_study.check_study(url, self.study_name, wanted, storage)  # creates the study if new
+            return optuna.load_study(study_name=self.study_name, storage=storage, sampler=self.sampler)
+        directions: Any = self.directions
         return optuna.create_study(study_name=self.study_name, storage=storage, sampler=self.sampler,
-                                   directions=self.directions, load_if_exists=True)  # fmt: skip
+                                   directions=directions, load_if_exists=True)  # fmt: skip
 
     def _tell(self, study: Any, trial: Any, ret: Any, heartbeats: Any) -> Exception | None:
         """Tell the study a launched trial's result; the error of a failed one (told FAIL), else None."""
@@ -173,6 +176,7 @@ class LossvoOptunaSweeper(Sweeper):
         else:
             results["solutions"] = [{"params": t.params, "values": t.values} for t in study.best_trials]
             log.info(f"Number of Pareto solutions: {len(results['solutions'])}")
+        assert self.config is not None
         folder = Path(str(self.config.hydra.sweep.dir))
         folder.mkdir(parents=True, exist_ok=True)
         OmegaConf.save(OmegaConf.create(results), folder / "optimization_results.yaml")

@@ -237,9 +237,12 @@ def check_study(url: str, name: str, wanted: dict[str, Any], storage: BaseStorag
     where the study was created for another search or the storage cannot be opened."""
     opened = open_storage(url) if storage is None else storage
     try:
-        directions = [StudyDirection[d.upper()] for d in wanted["directions"]]
-        study = optuna.create_study(storage=opened, study_name=name, directions=directions,
-                                    load_if_exists=True)  # fmt: skip
+        try:
+            study = optuna.load_study(study_name=name, storage=opened)
+        except KeyError:  # a new study (load_if_exists: another worker may create it first)
+            directions = [StudyDirection[d.upper()] for d in wanted["directions"]]
+            study = optuna.create_study(storage=opened, study_name=name, directions=directions,
+                                        load_if_exists=True)  # fmt: skip
         recorded = study.user_attrs.get(SEARCH_ATTR)
         if recorded is None:  # a new study, or one made without this check: its directions are known
             recorded = {**wanted, "directions": [d.name.lower() for d in study.directions]}
