@@ -65,11 +65,14 @@ def directions_of(direction: Any) -> list[str]:
 
 
 def values_of(returned: Any, n: int) -> list[float]:
-    """A job's return value as ``n`` numbers, or ValueError."""
+    """A job's return value as ``n`` numbers (anything ``float`` takes, not a bool), or ValueError."""
     items = list(returned) if isinstance(returned, (list, tuple, ListConfig)) else [returned]
-    if len(items) != n or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in items):
-        raise ValueError(f"the job returned {returned!r}, not {n} number(s)")
-    return [float(v) for v in items]
+    try:
+        if len(items) != n or any(isinstance(v, bool) for v in items):
+            raise TypeError
+        return [float(v) for v in items]
+    except (TypeError, ValueError):
+        raise ValueError(f"the job returned {returned!r}, not {n} number(s)") from None
 
 
 class LossvoOptunaSweeper(Sweeper):
