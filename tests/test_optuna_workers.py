@@ -187,9 +187,9 @@ def test_two_workers_share_one_study_without_duplicates(kind: str, request: pyte
     """Two workers started together with one study name and storage (SQLite in the sweep folder, a
     journal file, MariaDB): 2 x TRIALS trials, all complete, numbered 0.. without a gap, no parameter set
     twice, one job folder each, completed."""
-    url = {"sqlite": None, "journal": str(tmp_path / "optuna.log")}.get(kind) or request.getfixturevalue(
-        "mariadb_url"
-    )
+    urls = {"sqlite": lambda: None, "journal": lambda: str(tmp_path / "optuna.log"),
+            "mariadb": lambda: request.getfixturevalue("mariadb_url")}  # fmt: skip
+    url = urls[kind]()
     args = search_args(tiny_sweep_args, tmp_path, url)
     workers = [start_worker(args, tmp_path, f"worker{k}.log") for k in range(2)]
     for k, worker in enumerate(workers):

@@ -157,10 +157,10 @@ class LossvoOptunaSweeper(Sweeper):
         try:
             values = values_of(ret.return_value, len(self.directions))  # a failed job raises its error here
         except Exception as e:
-            study.tell(trial, state=TrialState.FAIL)
+            study.tell(trial, state=TrialState.FAIL, skip_if_finished=True)
             log.warning(f"trial {trial.number} failed: {e}")
             return e
-        study.tell(trial, values)
+        study.tell(trial, values, skip_if_finished=True)  # failed meanwhile as stale: stays failed
         return None
 
     def _write_results(self, study: Any) -> None:

@@ -114,7 +114,7 @@ class Heartbeats:
     def _beat(self, trial: optuna.Trial) -> None:
         try:
             trial.set_user_attr(HEARTBEAT_ATTR, time.time())
-        except (SQLAlchemyError, StorageInternalError, OSError) as e:
+        except Exception as e:  # storage unreachable, trial failed by another worker: the thread goes on
             log.warning(f"optuna heartbeat of trial {trial.number}: {first_line(e)}")
 
     def _run(self) -> None:
