@@ -308,9 +308,10 @@ def append_metrics(folder: Path, header: Sequence[str], rows: Sequence[Mapping[s
     held; a missing file is created with its header."""
     path = folder / METRICS
     if path.is_file():
-        held = read_metrics(folder)
-        if list(held.header) != list(header):
-            write_metrics(folder, MetricsTable(tuple(header), held.rows))
+        with path.open(newline="") as f:
+            held = next(csv.reader(f), [])
+        if held != list(header):
+            write_metrics(folder, MetricsTable(tuple(header), read_metrics(folder).rows))
     else:
         write_metrics(folder, MetricsTable(tuple(header)))
     with path.open("a", newline="") as f:
