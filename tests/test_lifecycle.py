@@ -165,6 +165,22 @@ def test_an_unwritable_run_folder_is_one_line(
     assert captured.err.strip() == f"error: {run}: Read-only file system" and not run.exists()
 
 
+def test_a_malformed_status_json_is_one_line_naming_it(
+    tmp_path: Path, tiny_kitti: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "status.json").write_text('{"status": "completed", "metrics": []}')
+    before = (run / "status.json").read_bytes()
+    assert train_main(_args(tiny_kitti, run), monkeypatch) == 2
+    captured = capsys.readouterr()
+    (line,) = _error_lines(captured.out)
+    assert line.endswith(f"{run}/status.json: metrics: unexpected value []")
+    assert "Traceback" not in captured.out
+    assert sorted(p.name for p in run.iterdir()) == ["run.lock", "status.json", "train.log"]  # nothing else
+    assert (run / "status.json").read_bytes() == before
+
+
 def _mount(args: list[str]) -> None:
     result = subprocess.run(["mount", *args], capture_output=True, text=True)
     if result.returncode:
