@@ -159,8 +159,10 @@ def test_signals_leave_an_interrupted_job_that_resumes_by_itself(
     (last.parent / "interrupted.ckpt").write_bytes(last.read_bytes())
     assert train_main(_args(tiny_kitti, tmp_path, f"trainer.max_epochs={done + 2}"), monkeypatch) == 0
     assert f"(resuming from {last})" in capsys.readouterr().out
-    assert json.loads((tmp_path / "run" / "status.json").read_text())["status"] == "completed"
-    assert sorted(p.name for p in last.parent.iterdir()) == saved
+    status = json.loads((tmp_path / "run" / "status.json").read_text())
+    assert status["status"] == "completed" and sorted(p.name for p in last.parent.iterdir()) == saved
+    resumed = status["history"][-2]
+    assert (resumed["event"], resumed["epoch"], resumed["from"]) == ("resumed", done + 2, str(last))
     epochs = [int(float(r["epoch"])) for r in metrics_rows(tmp_path / "run") if r.get("val/score")]
     assert epochs == list(range(done + 2))  # every epoch once
 

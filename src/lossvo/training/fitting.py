@@ -22,6 +22,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 
 from lossvo.console import one_line
 from lossvo.evaluation.checkpoints import load_network
+from lossvo.evaluation.job_folder import RESULTS
 from lossvo.evaluation.results import evaluate_run
 from lossvo.models import load_flownet
 from lossvo.training import checkpoints, metrics_log, slurm
@@ -183,5 +184,5 @@ def evaluate_after_fit(
     result = evaluate_run(network, datamodule, out_dir, datamodule.evaluated, checkpoint=best,
                           threads=torch.get_num_threads(), mirror_average=mirror_average)  # fmt: skip
     log.info("evaluation of %s on %s: %s", best or "the last weights", ", ".join(datamodule.evaluated),
-             out_dir / "results.json")  # fmt: skip
+             out_dir / RESULTS)  # fmt: skip
     return result
