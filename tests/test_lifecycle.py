@@ -175,7 +175,7 @@ def test_a_malformed_status_json_is_one_line_naming_it(
     assert train_main(_args(tiny_kitti, run), monkeypatch) == 2
     captured = capsys.readouterr()
     (line,) = _error_lines(captured.out)
-    assert line.endswith(f"{run}/status.json: metrics: unexpected value []")
+    assert line.endswith(f"{run}/status.json: metrics: expected an object of numbers, got []")
     assert "Traceback" not in captured.out
     assert sorted(p.name for p in run.iterdir()) == ["run.lock", "status.json", "train.log"]  # nothing else
     assert (run / "status.json").read_bytes() == before

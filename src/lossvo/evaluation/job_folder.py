@@ -60,34 +60,30 @@ _JSON_NAMES = {"state": "status", "source": "from"}
 """Fields whose JSON key is another word (``from`` is a Python keyword)."""
 
 
-def _typed(name: str, value: Any) -> Any:
-    """``value`` of field ``name`` checked against its type; ValueError naming the key."""
-    key = _JSON_NAMES.get(name, name)
-    if name in ("epoch", "slurm_restarts", "threads"):
-        fits = is_integer(value)
+_INTEGERS = ("epoch", "slurm_restarts", "threads")
+
+
+def _typed(name: str, value: Any, where: str) -> Any:
+    """``value`` of field ``name``, checked against the field's type; ValueError naming the key."""
+    if name in _INTEGERS:
+        kind, fits = "an integer", is_integer(value)
     elif name == "metrics":
+        kind = "an object of numbers"
         fits = isinstance(value, dict) and all(is_number(v) for v in value.values())
     else:
-        fits = isinstance(value, str)
+        kind, fits = "a string", isinstance(value, str)
     if not fits:
-        raise ValueError(f"{key}: unexpected value {value!r}")
+        raise ValueError(f"{where}{_JSON_NAMES.get(name, name)}: expected {kind}, got {value!r}")
     return value
 
 
 def _from_json(cls: type, obj: Any, where: str) -> dict[str, Any]:
-    """The dataclass fields of ``cls`` found in the JSON object ``obj``, type-checked (other keys are
-    ignored)."""
+    """The fields of dataclass ``cls`` (``history`` aside) found in the JSON object ``obj``, checked
+    (other keys are ignored); ``where``: the object's place in the file, prefixed to a message."""
     if not isinstance(obj, dict):
         raise ValueError(f"{where}expected an object, got {type(obj).__name__}")
-    found = {}
-    for f in fields(cls):
-        key = _JSON_NAMES.get(f.name, f.name)
-        if f.name != "history" and obj.get(key) is not None:
-            try:
-                found[f.name] = _typed(f.name, obj[key])
-            except ValueError as e:
-                raise ValueError(f"{where}{e}") from None
-    return found
+    keys = {f.name: _JSON_NAMES.get(f.name, f.name) for f in fields(cls) if f.name != "history"}
+    return {name: _typed(name, obj[key], where) for name, key in keys.items() if obj.get(key) is not None}
 
 
 @dataclass(frozen=True)
