@@ -235,14 +235,14 @@ class MetricsTable:
         """The last value of every metric column (``epoch`` and ``step`` aside), in header order."""
         last: dict[str, float] = {}
         for row in self.rows:
-            last.update({key: float(value) for key, value in row.items() if value})
+            last.update({key: float(value) for key, value in row.items() if value.strip()})
         return {key: last[key] for key in self.header if key in last and key not in ("epoch", "step")}
 
     def curves(self) -> Curves:
         """Per column, the last finite value logged in each epoch (empty without an ``epoch`` column)."""
         if "epoch" not in self.header:
             return Curves()
-        table = np.array([[float(row[k]) if row[k] else math.nan for k in self.header] for row in self.rows],
+        table = np.array([[float(row[k]) if row[k].strip() else math.nan for k in self.header] for row in self.rows],
                          dtype=np.float64).reshape(-1, len(self.header))  # fmt: skip
         epoch = table[:, self.header.index("epoch")]
         curves = Curves()
