@@ -242,8 +242,8 @@ class MetricsTable:
         """Per column, the last finite value logged in each epoch (empty without an ``epoch`` column)."""
         if "epoch" not in self.header:
             return Curves()
-        table = np.array([[float(row[k]) if row[k].strip() else math.nan for k in self.header] for row in self.rows],
-                         dtype=np.float64).reshape(-1, len(self.header))  # fmt: skip
+        values = [[float(row[k]) if row[k].strip() else math.nan for k in self.header] for row in self.rows]
+        table = np.array(values, dtype=np.float64).reshape(-1, len(self.header))
         epoch = table[:, self.header.index("epoch")]
         curves = Curves()
         for j, name in enumerate(self.header):
