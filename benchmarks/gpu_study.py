@@ -65,6 +65,7 @@ from lossvo import models
 from lossvo.data import camera, resident
 from lossvo.data import flow as optical_flow
 from lossvo.data.datamodules import mirror_windows
+from lossvo.evaluation import job_folder
 from lossvo.training.module import VOModule
 from lossvo.training.step import StepRecord, compiled
 
@@ -542,9 +543,9 @@ def study(args: argparse.Namespace, env: dict[str, str], left: Callable[[], floa
     command = [sys.executable, "-m", "lossvo.study", "--seeds", ",".join(map(str, range(seeds))),
                "--models", args.study_models, "--sweep-dir", str(sweep), *args.job_overrides]  # fmt: skip
     result = Command(command, args.out / "study.log", env, timeout=max(left() - 15, 30)).wait()
-    statuses = [json.loads(p.read_text()) for p in sweep.glob("*/status.json")]
+    statuses = [job_folder.read_status(p.parent) for p in sweep.glob(f"*/{job_folder.STATUS}")]
     result |= {"seeds": seeds, "jobs": len(statuses),
-               "completed": sum(s.get("status") == "completed" for s in statuses),
+               "completed": sum(s is not None and s.state == "completed" for s in statuses),
                "report": next((str(p) for p in sweep.glob("report/report.md")), None)}  # fmt: skip
     if result["report"]:
         shutil.copy(result["report"], args.out / "study-report.md")

@@ -1,5 +1,6 @@
-"""A run's life in its job folder: a stop during the final evaluation, a folder of another config, full and
-read-only disks, short job folder names, the thread count, what a person reads (epochs from 1)."""
+"""A run's life in its job folder: a stop during the final evaluation (and its history), a folder of another
+config, full and read-only disks, short job folder names, the thread count, what a person reads (epochs
+from 1)."""
 
 from __future__ import annotations
 
@@ -15,10 +16,9 @@ from types import SimpleNamespace
 import pytest
 import torch
 import yaml
-from lightning.pytorch.utilities.exceptions import SIGTERMException
 
 from helpers import metrics_rows, scores_of, status_of, train_main
-from lossvo.training import fitting, lifecycle
+from lossvo.training import fitting
 from lossvo.training.callbacks import EpochProgressBar
 from lossvo.training.resolvers import MAX_NAME, path_safe
 from test_train import tiny_overrides
@@ -75,7 +75,11 @@ def test_a_stop_during_the_final_evaluation_resumes_the_evaluation(
     assert train_main(_args(tiny_kitti, run), monkeypatch) == 0  # the same command
     assert metrics_rows(run) == written == metrics_rows(uninterrupted)  # nothing deleted, nothing repeated
     ours, theirs = status_of(run), status_of(uninterrupted)
-    assert [e["event"] for e in ours.pop("history")] == ["started", "stopped", "resumed", "completed"]
+    history = ours.pop("history")
+    assert [e["event"] for e in history] == ["started", "stopped", "resumed", "completed"]
+    stopped, resumed = history[1], history[2]  # training had completed: the evaluation resumed
+    assert (stopped["stage"], resumed["stage"]) == ("evaluation", "evaluation") and "epoch" not in resumed
+    assert resumed["from"] == status["resume_from"]
     assert [e["event"] for e in theirs.pop("history")] == ["started", "completed"]
     assert ours == theirs and ours["metrics"]["val/score"] > 0
     assert scores_of(run) == scores_of(uninterrupted)
@@ -159,6 +163,22 @@ def test_an_unwritable_run_folder_is_one_line(
     assert train_main(_args(tiny_kitti, run), monkeypatch) == 2
     captured = capsys.readouterr()
     assert captured.err.strip() == f"error: {run}: Read-only file system" and not run.exists()
+
+
+def test_a_malformed_status_json_is_one_line_naming_it(
+    tmp_path: Path, tiny_kitti: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "status.json").write_text('{"status": "completed", "metrics": []}')
+    before = (run / "status.json").read_bytes()
+    assert train_main(_args(tiny_kitti, run), monkeypatch) == 2
+    captured = capsys.readouterr()
+    (line,) = _error_lines(captured.out)
+    assert line.endswith(f"{run}/status.json: metrics: expected an object of numbers, got []")
+    assert "Traceback" not in captured.out
+    assert sorted(p.name for p in run.iterdir()) == ["run.lock", "status.json", "train.log"]  # nothing else
+    assert (run / "status.json").read_bytes() == before
 
 
 def _mount(args: list[str]) -> None:
@@ -264,19 +284,3 @@ def test_epochs_are_counted_from_one_where_a_person_reads_them(uninterrupted: Pa
     bar._trainer = trainer  # type: ignore[attr-defined]
     assert bar._get_train_description(1) == "Epoch 2/2"  # the second of two
     assert [r["epoch"] for r in metrics_rows(uninterrupted) if r.get("val/score")] == ["0", "1"]  # Lightning
-
-
-def test_a_stop_is_named_after_the_signal_that_started_it(monkeypatch: pytest.MonkeyPatch) -> None:
-    """SLURM's SIGTERM follows submitit's requeue on SIGUSR2, and may end the fit first (Lightning's
-    SIGTERMException): the stop is still SIGUSR2's (exit status 140). Without an earlier signal a
-    SIGTERMException is SIGTERM's; other exceptions are left as they are."""
-    monkeypatch.setattr(lifecycle, "_stopping", ["SIGUSR2"])
-    stop = fitting._interrupted(SIGTERMException(), 289)
-    assert isinstance(stop, lifecycle.InterruptedRun)
-    assert (stop.signal_name, stop.epoch, stop.exit_code) == ("SIGUSR2", 289, 140)
-    monkeypatch.setattr(lifecycle, "_stopping", [])
-    stop = fitting._interrupted(SIGTERMException(), 3)
-    assert isinstance(stop, lifecycle.InterruptedRun)
-    assert (stop.signal_name, stop.exit_code) == ("SIGTERM", 143)
-    error = ValueError("not a stop")
-    assert fitting._interrupted(error, 3) is error

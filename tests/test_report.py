@@ -46,7 +46,7 @@ from lossvo.report.against_baselines import BaselineRun
 from lossvo.report.cli import main
 from lossvo.report.configurations import label_jobs, varying_keys
 from lossvo.report.document import make_report
-from lossvo.report.jobs import Job, ground_truth, parse_override, read_metrics_csv
+from lossvo.report.jobs import Job, ground_truth, parse_override, read_curves
 from lossvo.report.tables import BASELINE, Column
 
 LOSSES = STUDY_LOSSES
@@ -340,7 +340,7 @@ def test_truncated_metrics_csv_keeps_the_complete_rows(tmp_path: Path) -> None:
         "epoch,step,train/loss,val/loss\n,0,,\n0,5,,2.0\n0,5,3.0,\n1,11,,1.5\n1,11,2.5,\n2,17,,1.2"
         "\n2,17,2.2\n"  # the last row lost its last field
     )
-    curves, notes = read_metrics_csv(path)
+    curves, notes = read_curves(tmp_path)
     epochs, values = curves.series["val/loss"]
     assert epochs.tolist() == [0, 1, 2] and values.tolist() == [2.0, 1.5, 1.2]
     assert curves.series["train/loss"][1].tolist() == [3.0, 2.5]

@@ -19,7 +19,7 @@ import torch
 from helpers import fit, metrics_rows, train_main
 from lossvo.report.jobs import load_job
 from lossvo.training import checkpoints
-from lossvo.training.lifecycle import InterruptedRun
+from lossvo.training.stopping import InterruptedRun
 from test_train import compose_train, tiny_overrides
 
 REPO = Path(__file__).resolve().parents[1]
@@ -69,7 +69,7 @@ def test_resume_equals_uninterrupted(tiny_kitti: Path, tmp_path: Path, restore_s
     with pytest.raises(InterruptedRun, match="SIGINT during epoch 2"):  # counted from 1
         fit(compose_train(_overrides(tiny_kitti, cache, "trainer.max_epochs=3", *stop), parts))
     assert checkpoints.read(parts / "checkpoints" / "last.ckpt")["epoch"] == 0
-    assert (parts / "checkpoints" / "interrupted.ckpt").is_file()
+    assert sorted(p.name for p in (parts / "checkpoints").iterdir()) == ["best.ckpt", "last.ckpt"]
     resumed = _overrides(
         tiny_kitti, cache, "trainer.max_epochs=3", f"ckpt_path={parts}/checkpoints/last.ckpt"
     )
@@ -149,14 +149,20 @@ def test_signals_leave_an_interrupted_job_that_resumes_by_itself(
     assert status["resume_from"] == str(last)
     done = checkpoints.read(last)["epoch"]  # loadable
     assert status["epoch"] >= done + 1  # counted from 1; the signal may come between two epochs
-    assert checkpoints.read(tmp_path / "run" / "checkpoints" / "interrupted.ckpt")["epoch"] >= done
+    saved = sorted(p.name for p in last.parent.iterdir())
+    assert saved == ["best.ckpt", "last.ckpt"]  # a resume continues from last.ckpt: nothing else is saved
     assert "Traceback" not in output and f"interrupted by {name}" in output
     if signum != signal.SIGTERM:
         return
-    # The same command, in process: the same job folder resumes by itself.
+    # The same command, in process: the same job folder resumes by itself; a checkpoint of a stop that an
+    # earlier lossvo saved there (never read) goes.
+    (last.parent / "interrupted.ckpt").write_bytes(last.read_bytes())
     assert train_main(_args(tiny_kitti, tmp_path, f"trainer.max_epochs={done + 2}"), monkeypatch) == 0
     assert f"(resuming from {last})" in capsys.readouterr().out
-    assert json.loads((tmp_path / "run" / "status.json").read_text())["status"] == "completed"
+    status = json.loads((tmp_path / "run" / "status.json").read_text())
+    assert status["status"] == "completed" and sorted(p.name for p in last.parent.iterdir()) == saved
+    resumed = status["history"][-2]
+    assert (resumed["event"], resumed["epoch"], resumed["from"]) == ("resumed", done + 2, str(last))
     epochs = [int(float(r["epoch"])) for r in metrics_rows(tmp_path / "run") if r.get("val/score")]
     assert epochs == list(range(done + 2))  # every epoch once
 

@@ -42,10 +42,9 @@ def main(cfg: DictConfig) -> float | None:
     """
     restore_start_method()  # a joblib-launched job: let its loader workers and renderer start
     with lifecycle.job(cfg) as run:
-        if run.completed is not None:
-            return run.optimized_metric(run.completed.get("metrics", {}))
-        fitting.train(cfg, run)
-    return run.optimized_metric(lifecycle.read_status(run.out_dir).get("metrics", {}))
+        if run.completed is None:
+            fitting.train(cfg, run)
+    return run.optimized_metric()
 
 
 if __name__ == "__main__":

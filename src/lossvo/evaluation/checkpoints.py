@@ -1,23 +1,21 @@
-"""Reading lossvo checkpoints: the trained network and a description of how it was trained.
+"""lossvo checkpoints: the trained network, and the description of how it was trained, read and
+written here only.
 
 A lossvo checkpoint is a Lightning checkpoint of :class:`lossvo.training.module.VOModule` that holds only
-primitives (it loads with torch's default ``weights_only``):
+primitives (it loads with torch's default ``weights_only``): the weights (``state_dict``: ``model.*`` and
+``loss.*``), Lightning's loop state, and the :class:`Description` (:func:`describe` records it as the
+module saves, :meth:`Description.of` reads it).
 
-- ``hyper_parameters``: the network, loss, optimiser and scheduler configs the module was built from;
-- ``state_dict``: the weights (``model.*`` and ``loss.*``);
-- ``data``: :meth:`lossvo.data.datamodules.VODataModule.description` of the training data: the
-  datamodule's ``_target_`` and arguments (frame size, ``seq_len``, splits, normalisation mode ...),
-  ``dataset_root`` and the normalisation ``statistics`` the network was trained with;
-- ``threads``: the CPU thread count (``torch.get_num_threads()``) the network was trained with.
-
-:func:`load_network` rebuilds the network and its loss from the configs alone (no LightningModule),
-which is all evaluation needs; :func:`evaluation_data` builds the data config that evaluates it.
+:func:`load_network` rebuilds the network and its loss from the description alone (no
+LightningModule), which is all evaluation needs; :func:`evaluation_data` builds the data config that
+evaluates it.
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +24,7 @@ from hydra.utils import instantiate
 from torch import Tensor, nn
 
 from lossvo import models
+from lossvo.checks import is_integer
 from lossvo.console import first_line
 from lossvo.losses import PoseLoss
 
@@ -39,6 +38,43 @@ RECORD_ONLY = ("statistics", "dataset_root", "intrinsics")
 class CheckpointError(ValueError):
     """A file that is not a usable lossvo checkpoint, or a run that contradicts one; the message is one
     line naming the file or the key."""
+
+
+@dataclass(frozen=True)
+class Description:
+    """How a checkpoint's network was trained.
+
+    Attributes:
+        model, loss: the configs the network and its loss were built from (``hyper_parameters``).
+        data: :meth:`lossvo.data.datamodules.VODataModule.description` of the training data: the
+            datamodule's ``_target_`` and arguments (frame size, ``seq_len``, splits, normalisation mode
+            ...), ``dataset_root`` and the normalisation ``statistics``; None where none was recorded.
+        threads: the CPU thread count (``torch.get_num_threads()``) it was trained with, or None.
+        epoch: the epoch the checkpoint was saved in, counted from 0. global_step: its global step.
+    """
+
+    model: dict[str, Any]
+    loss: dict[str, Any]
+    data: dict[str, Any] | None = None
+    threads: int | None = None
+    epoch: int = 0
+    global_step: int = 0
+
+    @classmethod
+    def of(cls, content: Mapping[str, Any]) -> Description:
+        """The description in a checkpoint's content (:func:`read`: it holds ``model`` and ``loss``)."""
+        hparams, data, threads = content["hyper_parameters"], content.get("data"), content.get("threads")
+        return cls(hparams["model"], hparams["loss"], data if isinstance(data, dict) else None,
+                   threads if is_integer(threads) else None, int(content.get("epoch", 0)),
+                   int(content.get("global_step", 0)))  # fmt: skip
+
+
+def describe(checkpoint: dict[str, Any], data: dict[str, Any] | None) -> None:
+    """Record a :class:`Description`'s training data (``data``, where known) and this process's thread
+    count in a checkpoint being saved (Lightning records the configs, the epoch and the step)."""
+    if data is not None:
+        checkpoint["data"] = data
+    checkpoint["threads"] = torch.get_num_threads()
 
 
 class TrainedNetwork(nn.Module):
@@ -91,10 +127,10 @@ def read(path: str | os.PathLike) -> dict[str, Any]:
 def load_network(path: str | os.PathLike, device: str | torch.device = "cpu") -> TrainedNetwork:
     """The network of a checkpoint, with its loss and its training record, on ``device``."""
     content = read(path)
-    hparams = content["hyper_parameters"]
+    described = Description.of(content)
     try:
-        network = TrainedNetwork(instantiate(hparams["model"]), instantiate(hparams["loss"]),
-                                 content.get("data"), content.get("threads"))  # fmt: skip
+        network = TrainedNetwork(instantiate(described.model), instantiate(described.loss),
+                                 described.data, described.threads)  # fmt: skip
         network.load_state_dict(content["state_dict"])
     except Exception as e:  # e.g. a loss or network class that no longer exists
         raise CheckpointError(f"{path}: cannot rebuild its network ({type(e).__name__}: "

@@ -41,6 +41,7 @@ from lossvo.data.kitti import KittiFormatError, pose_path, sequence_names, write
 from lossvo.data.windows import gaps
 from lossvo.evaluation import metrics
 from lossvo.evaluation.inference import predict_sequence
+from lossvo.evaluation.job_folder import RESULTS
 from lossvo.evaluation.plots import plot_birdseye
 from lossvo.evaluation.trajectories import integrate, scale_steps, write_tum
 
@@ -674,7 +675,7 @@ def evaluate_run(
         sequences=per_sequence,
         overall=overall,
     )
-    result.write(out_dir / "results.json")
+    result.write(out_dir / RESULTS)
     return result
 
 

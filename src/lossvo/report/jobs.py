@@ -6,7 +6,8 @@ A Hydra multirun leaves one job folder per run, ``SWEEP_DIR/<num>_<overrides>/``
 used is recorded in ``Job.skip`` (naming the file and why) or ``Job.notes``. A job's architecture is its
 ``model`` config group choice (:func:`read_architecture`).
 
-``results.json`` is read only through its contract, :class:`lossvo.evaluation.results.Results`. The data
+``status.json`` and ``metrics.csv`` are read only through their contract, :mod:`lossvo.evaluation.job_folder`,
+``results.json`` only through its own, :class:`lossvo.evaluation.results.Results`. The data
 a job was evaluated on comes from its ``data`` record (the evaluated dataset's root and splits, the
 training data's root and split) and ``sequences[s].ground_truth`` (the pose file the metrics were
 computed against): :func:`trained_sequences`, :func:`unseen_sequences`, :func:`ground_truth`. Besides
@@ -17,9 +18,6 @@ a datamodule.
 
 from __future__ import annotations
 
-import csv
-import io
-import json
 import math
 import os
 import sys
@@ -34,6 +32,7 @@ from lossvo import folder_lock
 from lossvo.checks import is_number
 from lossvo.console import first_line
 from lossvo.data.kitti import KittiFormatError, read_poses, sequence_names
+from lossvo.evaluation.job_folder import METRICS, RESULTS, Curves, JobFolderError, read_metrics, read_status
 from lossvo.evaluation.results import TRANSLATION_METRIC, DataRecord, Results, ResultsError, Scores
 from lossvo.evaluation.trajectories import read_tum
 
@@ -126,13 +125,6 @@ def _started(path: Path) -> tuple[float, str]:
 
 
 @dataclass
-class Curves:
-    """Per-epoch values of metrics.csv: ``{column: (epochs (E,) int, values (E,) float)}``."""
-
-    series: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
-
-
-@dataclass
 class Job:
     """One job folder as read: what it is (overrides, seed, architecture), what happened (status), what it
     produced."""
@@ -181,67 +173,18 @@ def read_overrides(path: Path) -> dict[str, str]:
     return dict(parse_override(item) for item in items)
 
 
-def read_metrics_csv(path: Path) -> tuple[Curves, list[str]]:
-    """Per-epoch curves from a Lightning CSVLogger file, and notes on any damage.
-
-    Train and validation values sit on different rows; each column's value of an epoch is the last
-    non-empty one logged in that epoch. Rows with a wrong number of fields (a file cut mid-write) or a
-    non-number end the reading there (noted); rows without an epoch (e.g. the first learning-rate row) are
-    ignored.
-    """
+def read_curves(folder: Path) -> tuple[Curves, list[str]]:
+    """Per-epoch curves of a job folder's ``metrics.csv`` (:meth:`MetricsTable.curves
+    <lossvo.evaluation.job_folder.MetricsTable.curves>`), and notes on a missing or damaged file."""
+    if not (folder / METRICS).is_file():
+        return Curves(), [f"no {METRICS}: no curves"]
     try:
-        rows = list(csv.reader(io.StringIO(path.read_text())))
-    except (OSError, UnicodeDecodeError, csv.Error) as e:
-        return Curves(), [f"metrics.csv unreadable ({e}): no curves"]
-    if not rows or "epoch" not in rows[0]:
-        return Curves(), ["metrics.csv has no header with an 'epoch' column: no curves"]
-    header, notes = rows[0], []
-    table = []
-    for line, row in enumerate(rows[1:], start=2):
-        try:
-            if len(row) != len(header):
-                raise ValueError(f"{len(row)} fields, header has {len(header)}")
-            table.append([float(v) if v.strip() else math.nan for v in row])
-        except ValueError as e:
-            notes.append(f"metrics.csv line {line} is truncated or corrupt ({e}): later rows ignored")
-            break
-    return _per_epoch(header, np.array(table, dtype=np.float64).reshape(-1, len(header))), notes
-
-
-def _per_epoch(header: list[str], table: np.ndarray) -> Curves:
-    """(rows, columns) floats -> per column, the last finite value logged in each epoch."""
-    epoch = table[:, header.index("epoch")]
-    curves = Curves()
-    for j, name in enumerate(header):
-        if name in ("epoch", "step"):
-            continue
-        keep = np.flatnonzero(np.isfinite(epoch) & np.isfinite(table[:, j]))[::-1]  # newest row first
-        if keep.size:
-            epochs, first = np.unique(epoch[keep].astype(int), return_index=True)
-            curves.series[name] = (epochs, table[keep[first], j])
-    return curves
-
-
-def read_status(path: Path) -> tuple[str, str | None]:
-    """(status, error) from status.json; ("unknown", None) without the file. The error of an
-    interrupted job is its signal and epoch.
-
-    Raises:
-        ValueError: ``status.json: <reason>`` for an unreadable file or one without a status.
-    """
-    if not path.is_file():
-        return "unknown", None
-    try:
-        status = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError) as e:
-        raise ValueError(f"status.json: unreadable ({first_line(e)})") from None
-    except json.JSONDecodeError as e:
-        raise ValueError(f"status.json: invalid JSON ({e.msg} at line {e.lineno})") from None
-    if not isinstance(status, dict) or "status" not in status:
-        raise ValueError("status.json: expected an object with 'status'")
-    if status["status"] == "interrupted":
-        return "interrupted", f"{status.get('signal', 'a signal')} during epoch {status.get('epoch', '?')}"
-    return str(status["status"]), status.get("error")
+        table = read_metrics(folder)
+    except JobFolderError as e:
+        return Curves(), [f"{METRICS} {e.reason}: no curves"]
+    if "epoch" not in table.header:
+        return Curves(), [f"{METRICS} has no header with an 'epoch' column: no curves"]
+    return table.curves(), [f"{METRICS} {table.damage}"] if table.damage else []
 
 
 def load_job(path: Path) -> Job:
@@ -253,14 +196,17 @@ def load_job(path: Path) -> Job:
         job.skip = f"unreadable Hydra config ({type(e).__name__}: {first_line(e)})"
         return job
     try:
-        job.status, job.error = read_status(path / "status.json")
-    except ValueError as e:
-        job.skip = str(e)
+        status = read_status(path)
+    except JobFolderError as e:
+        job.skip = f"{e.path.name}: {e.reason}"
         return job
+    if status is not None:
+        job.status = status.state
+        job.error = status.stop if status.state == "interrupted" else status.error
     job.skip = _skip_reason(job)
     if job.skip is None:
         try:
-            job.results = Results.read(path / "results.json")
+            job.results = Results.read(path / RESULTS)
         except ResultsError as e:
             job.skip = f"results.json: {e.reason}"
     if job.results is not None and job.results.translation != TRANSLATION_METRIC:
@@ -269,7 +215,8 @@ def load_job(path: Path) -> Job:
         job.notes.append("evaluated with mirror averaging (each pose averaged with the mirrored inputs')")
     if job.status == "unknown" and job.skip is None:
         job.notes.append("no status.json")
-    _read_curves(job)
+    job.curves, notes = read_curves(path)
+    job.notes.extend(notes)
     return job
 
 
@@ -309,15 +256,6 @@ def read_architecture(hydra_yaml: Path, overrides: dict[str, str], config: Any) 
     return str(choice) if choice is not None else None
 
 
-def _read_curves(job: Job) -> None:
-    """``curves`` of a job from metrics.csv, with notes on a missing or damaged file."""
-    if not (job.path / "metrics.csv").is_file():
-        job.notes.append("no metrics.csv: no curves")
-        return
-    job.curves, notes = read_metrics_csv(job.path / "metrics.csv")
-    job.notes.extend(notes)
-
-
 def _running(path: Path) -> str:
     """Why a job whose status.json says "running" is skipped: it runs, or its process was killed."""
     alive = folder_lock.in_use(path)
@@ -338,7 +276,7 @@ def _skip_reason(job: Job) -> str | None:
         return _running(job.path)
     if job.status == "interrupted":
         return f"interrupted ({job.error or 'no signal recorded'}): run the sweep's command again to resume"
-    if not (job.path / "results.json").is_file():
+    if not (job.path / RESULTS).is_file():
         if job.status == "completed":
             return "completed but no results.json (trained with +evaluate=false?)"
         return "no results.json yet (still running, or stopped before the evaluation)"

@@ -5,27 +5,22 @@
   validation metrics beside the training loss) and none when output goes to a file or a cluster log.
 - :class:`TrajectoryValidation` integrates the whole validation sequences during fit and logs trajectory
   errors (APE / RPE / KITTI), the numbers the study compares, next to the per-window losses.
-- :class:`InterruptCheckpoint` saves the weights when SIGINT or SIGTERM stops a fit.
 """
 
 from __future__ import annotations
 
 import logging
-import os
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 import lightning as L
 import torch
 from lightning.pytorch.callbacks import Callback, RichProgressBar
-from lightning.pytorch.utilities.exceptions import SIGTERMException
 
 from lossvo.checks import is_integer
 from lossvo.evaluation import metrics
 from lossvo.evaluation.results import PooledScores, predict_and_score
-from lossvo.training.lifecycle import InterruptedRun
 
 log = logging.getLogger("lossvo")
 
@@ -146,29 +141,3 @@ class TrajectoryValidation(Callback):
             values["val/kitti_r_err"] = r_err
         for key, value in values.items():
             pl_module.log(key, torch.tensor(value, dtype=torch.float32), on_step=False, on_epoch=True)
-
-
-class InterruptCheckpoint(Callback):
-    """On SIGINT (KeyboardInterrupt), SIGTERM (Lightning's ``SIGTERMException``) or submitit's requeue
-    signal (:class:`~lossvo.training.lifecycle.InterruptedRun`), save the weights and
-    loop state at that moment to ``dirpath/interrupted.ckpt``, single-process runs only (a collective
-    save from one rank would hang the others). Resuming continues from ``last.ckpt``, the end of the last
-    complete epoch, which repeats no step and skips none.
-
-    Args:
-        dirpath: the job's checkpoint folder.
-    """
-
-    def __init__(self, dirpath: str | os.PathLike) -> None:
-        self.path = Path(dirpath) / "interrupted.ckpt"
-
-    def on_exception(
-        self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException
-    ) -> None:
-        stops = (KeyboardInterrupt, SIGTERMException, InterruptedRun)
-        if not isinstance(exception, stops) or trainer.world_size > 1:
-            return
-        try:
-            trainer.save_checkpoint(self.path)
-        except Exception as e:  # a full disk must not hide the interrupt
-            log.warning("could not save %s: %s", self.path, e)

@@ -16,7 +16,7 @@ from lightning.pytorch.plugins.io import TorchCheckpointIO
 
 from lossvo.atomic import atomic_path
 from lossvo.console import first_line
-from lossvo.evaluation.checkpoints import TRAINED_WITH, CheckpointError, read
+from lossvo.evaluation.checkpoints import TRAINED_WITH, CheckpointError, Description, read
 from lossvo.training.module import VOModule
 
 
@@ -40,21 +40,21 @@ def check_resume(path: str | os.PathLike, module: VOModule, data: Mapping[str, A
         path: the checkpoint. module: the run's freshly built module. data: the run's data description.
     """
     content = read(path)
-    hparams = content["hyper_parameters"]
-    theirs, ours = hparams["loss"].get("_target_"), module.hparams["loss"].get("_target_")
+    described = Description.of(content)
+    theirs, ours = described.loss.get("_target_"), module.hparams["loss"].get("_target_")
     if theirs != ours:
         raise CheckpointError(f"{path}: trained with loss {theirs}, this run has loss {ours}: resume with "
                               f"the same loss, or start a new run")  # fmt: skip
-    theirs, ours = hparams["model"].get("_target_"), module.hparams["model"].get("_target_")
+    theirs, ours = described.model.get("_target_"), module.hparams["model"].get("_target_")
     if theirs != ours:
         raise CheckpointError(f"{path}: its network is {theirs}, this run's is {ours}")
     _check_shapes(path, content["state_dict"], module.state_dict())
-    recorded = content.get("data") or {}
+    recorded = described.data or {}
     for key in TRAINED_WITH:
         if key in recorded and recorded[key] != data.get(key):
             raise CheckpointError(f"{path}: trained with data.{key}={recorded[key]!r}, this run has "
                                   f"data.{key}={data.get(key)!r}")  # fmt: skip
-    return int(content.get("epoch", 0)), int(content.get("global_step", 0))
+    return described.epoch, described.global_step
 
 
 def _check_shapes(path: str | os.PathLike, saved: Mapping[str, Any], current: Mapping[str, Any]) -> None:

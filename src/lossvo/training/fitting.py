@@ -18,17 +18,18 @@ import torch
 from hydra.utils import instantiate
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint, ProgressBar
 from lightning.pytorch.loggers import Logger, WandbLogger
-from lightning.pytorch.utilities.exceptions import SIGTERMException
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from lossvo.console import one_line
 from lossvo.evaluation.checkpoints import load_network
+from lossvo.evaluation.job_folder import RESULTS
 from lossvo.evaluation.results import evaluate_run
 from lossvo.models import load_flownet
 from lossvo.training import checkpoints, metrics_log, slurm
-from lossvo.training.lifecycle import InterruptedRun, Run, stopping_on
+from lossvo.training.lifecycle import Run
 from lossvo.training.module import VOModule
 from lossvo.training.selection import SCORE_KEY
+from lossvo.training.stopping import SIGNALS, InterruptedRun
 
 if TYPE_CHECKING:
     from lossvo.data.datamodules import VODataModule
@@ -124,11 +125,11 @@ def train(cfg: DictConfig, run: Run) -> dict[str, float]:
         except checkpoints.CheckpointError as e:
             key = "ckpt_path" if cfg.get("ckpt_path") else "resume"
             raise checkpoints.CheckpointError(f"{key}: {e}") from None
-    resumed = {"epoch": epoch + 2, "from": str(ckpt_path)} if ckpt_path else None  # the next epoch, from 1
+    resumed = _resume_point(trainer, str(ckpt_path), epoch, step) if ckpt_path else None
     run.start(resumed, threads=torch.get_num_threads())
     log.info("%s: %s%s", run.label, run.out_dir, f" (resuming from {ckpt_path})" if ckpt_path else "")
-    source = Path(ckpt_path).parent.parent / metrics_log.NAME if ckpt_path else run.metrics_csv
-    metrics_log.continue_history(run.metrics_csv, source, epoch, step)
+    metrics_log.continue_history(run.out_dir, Path(ckpt_path).parent.parent if ckpt_path else run.out_dir,
+                                 epoch, step)  # fmt: skip
     for logger in trainer.loggers:
         logger.log_hyperparams(_container(cfg))
     try:
@@ -138,12 +139,15 @@ def train(cfg: DictConfig, run: Run) -> dict[str, float]:
                 warnings.filterwarnings("ignore", message="Checkpoint directory .* is not empty")
                 trainer.fit(module, datamodule=datamodule, ckpt_path=ckpt_path)
         except (KeyboardInterrupt, SystemExit, InterruptedRun) as e:
-            raise _interrupted(e, trainer.current_epoch + 1) from None
+            raise SIGNALS.stop(e, trainer.current_epoch + 1) from None
         # Lightning sets Trainer.fast_dev_run in its setup without declaring it.
         fast_dev_run = trainer.fast_dev_run  # type: ignore[attr-defined]
         if cfg.get("evaluate", True) and not fast_dev_run and trainer.is_global_zero:
             mirror = bool(cfg.get("mirror_average", True))
-            evaluate_after_fit(trainer, module, datamodule, run.out_dir, mirror)
+            try:
+                evaluate_after_fit(trainer, module, datamodule, run.out_dir, mirror)
+            except (KeyboardInterrupt, InterruptedRun) as e:
+                raise SIGNALS.stop(e) from None
         return {key: float(value) for key, value in trainer.callback_metrics.items()}
     finally:
         if any(isinstance(logger, WandbLogger) for logger in trainer.loggers):
@@ -152,21 +156,13 @@ def train(cfg: DictConfig, run: Run) -> dict[str, float]:
             wandb.finish()
 
 
-def _interrupted(error: BaseException, epoch: int) -> BaseException:
-    """Lightning ends a fit on SIGINT with ``sys.exit(1)`` (after a KeyboardInterrupt) and on SIGTERM
-    with its ``SIGTERMException``; submitit's requeue signal raises an :class:`InterruptedRun`: each
-    becomes an :class:`InterruptedRun` with its ``epoch`` (from 1), named after the signal that started
-    the stop (:func:`~lossvo.training.lifecycle.stopping_on`; a SIGTERM may overtake the requeue's
-    exit); any other exit as it was."""
-    if isinstance(error, InterruptedRun):
-        name = error.signal_name
-    elif isinstance(error, SIGTERMException):
-        name = "SIGTERM"
-    elif isinstance(error, KeyboardInterrupt) or isinstance(error.__context__, KeyboardInterrupt):
-        name = "SIGINT"
-    else:
-        return error
-    return InterruptedRun(stopping_on() or name, epoch)
+def _resume_point(trainer: L.Trainer, source: str, epoch: int, step: int) -> dict[str, Any]:
+    """Where a run continues a checkpoint of ``epoch`` (0-based) at global ``step``: the next epoch
+    (``{"epoch": N}``, from 1), or the evaluation (``{"stage": "evaluation"}``) when the checkpoint ends
+    the training (``trainer.max_epochs`` or ``trainer.max_steps`` reached); ``source``: the checkpoint."""
+    max_epochs, max_steps = trainer.max_epochs, trainer.max_steps
+    trained = (max_epochs is not None and 0 <= max_epochs <= epoch + 1) or 0 <= max_steps <= step
+    return {"stage": "evaluation", "source": source} if trained else {"epoch": epoch + 2, "source": source}
 
 
 def evaluate_after_fit(
@@ -188,5 +184,5 @@ def evaluate_after_fit(
     result = evaluate_run(network, datamodule, out_dir, datamodule.evaluated, checkpoint=best,
                           threads=torch.get_num_threads(), mirror_average=mirror_average)  # fmt: skip
     log.info("evaluation of %s on %s: %s", best or "the last weights", ", ".join(datamodule.evaluated),
-             out_dir / "results.json")  # fmt: skip
+             out_dir / RESULTS)  # fmt: skip
     return result

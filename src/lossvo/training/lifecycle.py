@@ -8,24 +8,19 @@ resumed from it. The folder is claimed (``.hydra/`` written, ``status.json`` "ru
 :meth:`Run.start`, once everything is built; an error before that leaves no run folder behind (in a
 sweep the job's folder stays, marked failed, so that the report lists it).
 
-``status.json`` is always true: ``{"status": "running" | "completed" | "failed" | "interrupted", ...}``
-with the metrics of a completed run (the last row of each column of ``metrics.csv``), the error of a
-failed one, the signal and the stage (``"epoch": N`` counted from 1, or ``"stage": "evaluation"``) of an
-interrupted one, and its ``history``: when it started, stopped, resumed, failed or completed (with the
-signal, the epoch and, under SLURM, the job and its restart count), across every process that ran in the
-folder. A user error (a config value, a data file, a checkpoint that does not fit, a disk that is full,
-read-only or not ours) ends the run in one line with exit status 2; ``LOSSVO_FULL_ERROR=1``
+``status.json`` (:class:`~lossvo.evaluation.job_folder.Status`) is always true: running, completed,
+failed or interrupted (by the signals of :mod:`lossvo.training.stopping`), with the folder's history
+(:func:`event`). A user error (a config value, a data file, a checkpoint that does not fit, a disk that
+is full, read-only or not ours) ends the run in one line with exit status 2; ``LOSSVO_FULL_ERROR=1``
 shows its traceback instead. Any other failure keeps its traceback.
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import shutil
-import signal
-from collections.abc import Callable, Iterator, Mapping
-from contextlib import ExitStack, contextmanager
+from collections.abc import Iterator, Mapping
+from contextlib import AbstractContextManager, ExitStack, contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -43,44 +38,24 @@ from omegaconf.errors import OmegaConfBaseException
 from lossvo import folder_lock, weighting
 from lossvo.atomic import write_text_atomic
 from lossvo.console import USER_ERRORS, disk_error, full_error, hydra_message, one_line
+from lossvo.evaluation import job_folder
+from lossvo.evaluation.job_folder import LAST_CHECKPOINT, METRICS, STATUS, Event, Status
 from lossvo.training import metrics_log
 from lossvo.training.config_checks import check_train_config
 from lossvo.training.slurm import slurm_job
+from lossvo.training.stopping import SIGNALS, InterruptedRun
 
 log = logging.getLogger("lossvo")
 
-LAST_CHECKPOINT = Path("checkpoints") / "last.ckpt"
-STATUS = "status.json"
+UNREAD_CHECKPOINT = Path("checkpoints") / "interrupted.ckpt"
+"""A checkpoint of the weights at a stop, which no run reads (a resume continues from ``last.ckpt``);
+one found in a folder is removed when its run resumes."""
 
 RUN_KEYS = ("data", "model", "loss", "weighting", "selection", "seed", "optimizer", "threads")
 """Config keys that define a run: a folder whose recorded config differs in one is refused."""
 
 NOT_DEFINING = ("data.root", "data.cache_dir", "data.num_workers")
 """Keys under :data:`RUN_KEYS` that say where the data lies or how it is loaded, not what is trained."""
-
-
-class InterruptedRun(BaseException):
-    """A run stopped by a signal. A BaseException, as KeyboardInterrupt is: raised from a signal handler,
-    it can arise inside any code, and a library's ``except Exception`` must not swallow it.
-
-    Args:
-        signal_name: ``"SIGINT"``, ``"SIGTERM"`` or ``"SIGUSR2"`` (submitit's signal: the time limit is
-            near, or the job is preempted; submitit has requeued it).
-        epoch: the epoch that was running, counted from 1; None when the stop came outside training.
-    """
-
-    def __init__(self, signal_name: str, epoch: int | None = None) -> None:
-        self.signal_name, self.epoch = signal_name, epoch
-        super().__init__(f"{signal_name} during {self.stage}")
-
-    @property
-    def stage(self) -> str:
-        return f"epoch {self.epoch}" if self.epoch is not None else "the evaluation"
-
-    @property
-    def exit_code(self) -> int:
-        """128 + the signal number, as a shell reports a process ended by that signal."""
-        return 128 + int(getattr(signal, self.signal_name))
 
 
 class JobError(Exception):
@@ -93,27 +68,12 @@ def _first_process() -> bool:
     return getattr(rank_zero_only, "rank", 0) == 0
 
 
-def write_status(out_dir: Path, status: str, **details: Any) -> None:
-    """Write ``status.json`` atomically; in a multi-process (DDP) run, only the first process does."""
-    if not _first_process():
-        return
-    write_text_atomic(out_dir / STATUS, json.dumps({"status": status, **details}, indent=2) + "\n")
-
-
-def read_status(out_dir: Path) -> dict[str, Any]:
-    """The job folder's ``status.json``, or ``{}`` if there is none (or it is unreadable)."""
-    try:
-        status = json.loads((out_dir / STATUS).read_text())
-    except (OSError, ValueError):
-        return {}
-    return status if isinstance(status, dict) else {}
-
-
-def event(name: str, **details: Any) -> dict[str, Any]:
-    """One entry of ``status.json``'s ``history``: what happened (started, stopped, resumed, failed), when
-    (UTC, ISO 8601), ``details`` (signal, epoch counted from 1) and the SLURM job, if any."""
+def event(name: str, **details: Any) -> Event:
+    """One event of the run's history, now: what happened (started, stopped, resumed, failed,
+    completed), ``details`` (the fields of :class:`~lossvo.evaluation.job_folder.Event`) and the SLURM
+    job, if any."""
     now = datetime.now(timezone.utc).isoformat(timespec="seconds")
-    return {"event": name, "time": now, **details, **slurm_job()}
+    return Event(name, now, **details, **slurm_job())
 
 
 def _flat(node: Any, prefix: str) -> dict[str, Any]:
@@ -133,14 +93,14 @@ def _defining(cfg: DictConfig | ListConfig) -> dict[str, Any]:
     return {k: v for k, v in flat.items() if not k.startswith(NOT_DEFINING)}
 
 
-def killed(out_dir: Path) -> dict[str, Any]:
+def killed(out_dir: Path) -> Event:
     """The history entry of a process that ended without a word (SIGKILL, the out-of-memory killer, a
     lost node): its ``status.json`` still said "running" and nothing held the folder's lock. Its time
     is the last sign of life: the latest change to ``status.json``, ``metrics.csv`` or ``last.ckpt``."""
-    files = (out_dir / STATUS, out_dir / metrics_log.NAME, out_dir / LAST_CHECKPOINT)
+    files = (out_dir / STATUS, out_dir / METRICS, out_dir / LAST_CHECKPOINT)
     last = max((f.stat().st_mtime for f in files if f.is_file()), default=None)
     when = None if last is None else datetime.fromtimestamp(last, timezone.utc).isoformat(timespec="seconds")
-    return {"event": "killed", "time": when}
+    return Event("killed", when)
 
 
 def config_drift(recorded: DictConfig | ListConfig, requested: DictConfig) -> list[str]:
@@ -200,7 +160,7 @@ class Run:
         resume_from: the ``last.ckpt`` to continue from, else None (a fresh start, or ``ckpt_path``).
         started: whether :meth:`start` claimed the folder.
         guarded: whether this process holds the folder's lock (:mod:`lossvo.folder_lock`).
-        details: entries of every ``status.json`` the run writes (its thread count).
+        threads: the CPU thread count the run trains with, in every ``status.json`` it writes.
         history: the folder's events so far (see :func:`event`), this process's appended.
     """
 
@@ -208,33 +168,41 @@ class Run:
     out_dir: Path
     label: str
     fresh: bool
-    completed: dict[str, Any] | None = None
+    completed: Status | None = None
     resume_from: Path | None = None
     started: bool = False
     guarded: bool = False
-    details: dict[str, Any] = field(default_factory=dict)
-    history: list[dict[str, Any]] = field(default_factory=list)
+    threads: int | None = None
+    history: list[Event] = field(default_factory=list)
 
     @property
     def metrics_csv(self) -> Path:
-        return self.out_dir / metrics_log.NAME
+        return self.out_dir / METRICS
 
-    def start(self, resumed: Mapping[str, Any] | None = None, **details: Any) -> None:
-        """Claim the folder: ``.hydra/`` and ``status.json`` "running" (with ``details``); ``resumed``:
-        where a resumed run continues (``{"epoch": N, "from": checkpoint}``), recorded in its history."""
-        self.details = details
+    def start(self, resumed: Mapping[str, Any] | None = None, threads: int | None = None) -> None:
+        """Claim the folder: ``.hydra/`` and ``status.json`` "running"; ``resumed``: where a resumed run
+        continues (``{"epoch": N, "source": checkpoint}`` or ``{"stage": "evaluation", ...}``), recorded
+        in its history. A checkpoint of an earlier stop (:data:`UNREAD_CHECKPOINT`) goes."""
+        self.threads = threads
         self.history.append(event("resumed", **resumed) if resumed is not None else event("started"))
         if _first_process():
             save_config(self.out_dir, self.cfg)
+            if resumed is not None:
+                (self.out_dir / UNREAD_CHECKPOINT).unlink(missing_ok=True)
         self.write("running")
         self.started = True
 
     def write(self, status: str, **extra: Any) -> None:
-        """``status.json``: the status, the run's details, ``extra`` and the history."""
-        write_status(self.out_dir, status, **self.details, **extra, history=self.history)
+        """``status.json`` (in a multi-process run, the first process's): the status, the thread count,
+        ``extra`` (fields of :class:`~lossvo.evaluation.job_folder.Status`) and the history."""
+        if _first_process():
+            job_folder.write_status(self.out_dir, Status(status, tuple(self.history), self.threads, **extra))
 
-    def optimized_metric(self, metrics: Mapping[str, Any]) -> float | None:
-        value = metrics.get(self.cfg.get("optimized_metric"))
+    def optimized_metric(self) -> float | None:
+        """The value of ``cfg.optimized_metric`` in the metrics of the folder's ``status.json`` (a
+        completed run's); None where it has none."""
+        status = job_folder.read_status(self.out_dir)
+        value = (status.metrics or {}).get(self.cfg.get("optimized_metric")) if status else None
         return None if value is None else float(value)
 
 
@@ -260,9 +228,9 @@ def _accept(run: Run) -> None:
         if drift:
             raise ValueError(f"{out_dir}: holds a run of another configuration ({', '.join(drift)} differ "
                              f"from {recorded}): use a new folder")  # fmt: skip
-    recorded_status = read_status(out_dir)
-    status, history = recorded_status.get("status"), recorded_status.get("history")
-    run.history = list(history) if isinstance(history, list) else []
+    recorded_status = job_folder.read_status(out_dir)
+    status = recorded_status.state if recorded_status else None
+    run.history = list(recorded_status.history) if recorded_status else []
     if status == "running" and run.guarded:  # the lock was free: the process that said so is gone
         run.history.append(killed(out_dir))
     if status == "completed" and not cfg.get("ckpt_path"):
@@ -293,58 +261,10 @@ def _user_message(error: BaseException, out_dir: Path) -> str | None:
     return None
 
 
-_stopping: list[str] = []
-"""The signal this process is stopping on, once one stops it: a later SIGTERM (SLURM's, after a requeue)
-does not interrupt the stop."""
-
-
-def stopping_on() -> str | None:
-    """The signal that started this process's stop, if one did: the stop's cause, whatever signal or
-    exception ends the fit after it (SLURM's SIGTERM follows submitit's requeue on SIGUSR2)."""
-    return _stopping[0] if _stopping else None
-
-
-def _sigterm(signum: int, frame: Any) -> None:
-    """SIGTERM outside a fit (Lightning handles it during one, calling this handler too)."""
-    if signal.getsignal(signal.SIGTERM) is _sigterm and not _stopping:
-        _stopping.append("SIGTERM")
-        raise InterruptedRun("SIGTERM")
-
-
-def _recorded(requeue: Callable[[int, Any], Any]) -> Callable[[int, Any], None]:
-    """Submitit's handler of its signal (SIGUSR2 before the time limit, or on preemption), which
-    requeues the job and exits, wrapped so that its exit is an :class:`InterruptedRun` that the run
-    records. Submitit alone requeues; a process it does not exit (a DDP rank above 0) goes on."""
-
-    def handler(signum: int, frame: Any) -> None:
-        _stopping.append(signal.Signals(signum).name)
-        try:
-            requeue(signum, frame)
-        except SystemExit:
-            raise InterruptedRun(signal.Signals(signum).name) from None
-        _stopping.clear()
-
-    return handler
-
-
-@contextmanager
-def _signals_stop_the_run() -> Iterator[None]:
-    """SIGTERM raises :class:`InterruptedRun`; under submitit, so does its requeue's exit."""
-    try:
-        handlers: dict[signal.Signals, Callable[[int, Any], None]] = {signal.SIGTERM: _sigterm}
-        usr2 = signal.getsignal(signal.SIGUSR2)
-        if callable(usr2) and "submitit" in getattr(usr2, "__module__", ""):
-            handlers[signal.SIGUSR2] = _recorded(usr2)
-        previous = {signum: signal.signal(signum, handler) for signum, handler in handlers.items()}
-    except ValueError:  # not the main thread (a launcher's worker thread): nothing to install
-        yield
-        return
-    try:
-        yield
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
-        _stopping.clear()
+def _signals_stop_the_run() -> AbstractContextManager[None]:
+    """SIGINT, SIGTERM and submitit's requeue signal stop the run while it runs
+    (:data:`lossvo.training.stopping.SIGNALS`)."""
+    return SIGNALS.installed()
 
 
 def _leave(run: Run) -> None:
@@ -389,11 +309,10 @@ def _interrupted(run: Run, stop: InterruptedRun) -> None:
     """Record a stop in ``status.json`` and say how to resume."""
     if run.started:
         last = run.out_dir / LAST_CHECKPOINT
-        where = {"epoch": stop.epoch} if stop.epoch is not None else {"stage": "evaluation"}
-        run.history.append(event("stopped", signal=stop.signal_name, **where))
-        run.write(
-            "interrupted", signal=stop.signal_name, **where, resume_from=str(last) if last.is_file() else None
-        )
+        stage = "evaluation" if stop.epoch is None else None
+        run.history.append(event("stopped", signal=stop.signal_name, epoch=stop.epoch, stage=stage))
+        run.write("interrupted", signal=stop.signal_name, epoch=stop.epoch, stage=stage,
+                  resume_from=str(last) if last.is_file() else None)  # fmt: skip
     log.error("%s: interrupted by %s during %s; run the same command to resume", run.label,
               stop.signal_name, stop.stage)  # fmt: skip
 

@@ -1,13 +1,14 @@
-"""``metrics.csv``: the run's per-epoch record, only ever appended to.
+"""``metrics.csv`` as a run writes it: Lightning's CSV logger, only ever appending, and the file's rows
+when a run continues a checkpoint.
 
 Lightning's CSV logger deletes a ``metrics.csv`` it finds in its folder; :class:`CSVLogger` keeps it and
-appends, so a resumed run (or one stopped after its last epoch and run again) keeps every row already
-written. The ``epoch`` column is Lightning's, counted from 0; ``step`` is the global step.
+appends (:func:`lossvo.evaluation.job_folder.append_metrics`), so a resumed run (or one stopped after its
+last epoch and run again) keeps every row already written. The file's contract:
+:class:`lossvo.evaluation.job_folder.MetricsTable`.
 """
 
 from __future__ import annotations
 
-import csv
 import os
 from pathlib import Path
 
@@ -15,27 +16,8 @@ from lightning.pytorch.loggers import CSVLogger as LightningCSVLogger
 from lightning.pytorch.loggers.csv_logs import ExperimentWriter
 from lightning.pytorch.loggers.logger import rank_zero_experiment
 
-from lossvo.atomic import atomic_path
-
-NAME = "metrics.csv"
-
-
-def read_rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
-    """The header and the rows of a ``metrics.csv`` (empty for a missing file)."""
-    if not path.is_file():
-        return [], []
-    with path.open(newline="") as f:
-        reader = csv.DictReader(f)
-        rows = list(reader)
-        return list(reader.fieldnames or []), rows
-
-
-def write_rows(path: Path, header: list[str], rows: list[dict[str, str]]) -> None:
-    """Write a ``metrics.csv`` whole, atomically."""
-    with atomic_path(path, suffix=".csv") as tmp, tmp.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=header)
-        writer.writeheader()
-        writer.writerows(rows)
+from lossvo.evaluation import job_folder
+from lossvo.evaluation.job_folder import MetricsTable
 
 
 class AppendingWriter(ExperimentWriter):
@@ -43,11 +25,13 @@ class AppendingWriter(ExperimentWriter):
     new column rewrites the file atomically with every row it held."""
 
     def _check_log_dir_exists(self) -> None:  # Lightning's deletes metrics.csv here
-        self.metrics_keys, _ = read_rows(Path(self.metrics_file_path))
+        self.metrics_keys = list(job_folder.read_metrics(Path(self.log_dir)).header)
 
-    def _rewrite_with_new_header(self, fieldnames: list[str]) -> None:
-        _, rows = read_rows(Path(self.metrics_file_path))
-        write_rows(Path(self.metrics_file_path), fieldnames, rows)
+    def save(self) -> None:
+        if self.metrics:
+            self._record_new_keys()
+            job_folder.append_metrics(Path(self.log_dir), self.metrics_keys, self.metrics)
+            self.metrics = []
 
 
 class CSVLogger(LightningCSVLogger):
@@ -70,25 +54,25 @@ def _before(row: dict[str, str], last_epoch: int, global_step: int) -> bool:
     return bool(row.get("step")) and int(float(row["step"])) < global_step
 
 
-def continue_history(path: Path, source: Path, last_epoch: int, global_step: int) -> None:
-    """Prepare ``path`` for a run that continues a checkpoint of ``last_epoch`` (-1: none) at ``global_step``.
+def continue_history(folder: Path, source: Path, last_epoch: int, global_step: int) -> None:
+    """Prepare ``folder``'s ``metrics.csv`` for a run that continues a checkpoint of ``last_epoch``
+    (-1: none) at ``global_step``.
 
-    ``source`` is the ``metrics.csv`` of the checkpoint's job folder. In the same folder, rows of an epoch
-    that never reached a checkpoint (a stop between the logger's write and the checkpoint's) are
-    replaced, as that epoch runs again; every other row stays. In a new folder, the source's rows up to
+    ``source`` is the checkpoint's job folder. In the same folder, rows of an epoch that never reached a
+    checkpoint (a stop between the logger's write and the checkpoint's) are replaced, as that epoch runs
+    again, and so is a row cut short; every other row stays. In a new folder, the source's rows up to
     the checkpoint are written first, so that the file holds every epoch once.
     """
-    header, rows = read_rows(source)
-    kept = [row for row in rows if _before(row, last_epoch, global_step)]
-    same = path.exists() and source.exists() and os.path.samefile(path, source)
-    if header and (len(kept) < len(rows) if same else not path.exists()):
-        write_rows(path, header, kept)
+    table = job_folder.read_metrics(source)
+    kept = tuple(row for row in table.rows if _before(row, last_epoch, global_step))
+    path = folder / job_folder.METRICS
+    same = path.exists() and (source / job_folder.METRICS).exists() and os.path.samefile(folder, source)
+    changed = len(kept) < len(table.rows) or table.damage is not None
+    if table.header and (changed if same else not path.exists()):
+        job_folder.write_metrics(folder, MetricsTable(table.header, kept))
 
 
 def final_metrics(path: Path) -> dict[str, float]:
-    """The last value of every metric column of a ``metrics.csv`` (``epoch`` and ``step`` aside)."""
-    header, rows = read_rows(path)
-    last: dict[str, float] = {}
-    for row in rows:
-        last.update({key: float(value) for key, value in row.items() if value not in ("", None)})
-    return {key: last[key] for key in header if key in last and key not in ("epoch", "step")}
+    """The last value of every metric column of a job folder's ``metrics.csv`` at ``path``
+    (:meth:`~lossvo.evaluation.job_folder.MetricsTable.final`)."""
+    return job_folder.read_metrics(path.parent).final()

@@ -24,6 +24,7 @@ from hydra.utils import instantiate
 from torch import Tensor
 
 from lossvo import models
+from lossvo.evaluation.checkpoints import Description, describe
 from lossvo.evaluation.trajectories import scale_steps
 from lossvo.losses import PoseLoss
 from lossvo.training import random_streams
@@ -103,21 +104,16 @@ class VOModule(L.LightningModule):
     # -- checkpoints ----------------------------------------------------------------------------------
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
-        """Record the training data's description (``checkpoint["data"]``, see
-        :mod:`lossvo.evaluation.checkpoints`) when the datamodule gives one, the CPU thread count
-        (``checkpoint["threads"]``), and the random streams (``checkpoint["rng"]``), which a resumed fit
-        restores (Lightning restores the rest)."""
+        """Record how the network is trained (:func:`lossvo.evaluation.checkpoints.describe`: the
+        datamodule's description of the data, or the one this module was loaded with) and the random
+        streams (``checkpoint["rng"]``), which a resumed fit restores (Lightning restores the rest)."""
         datamodule = getattr(self.trainer, "datamodule", None)
-        describe = getattr(datamodule, "description", None)
-        if callable(describe):
-            checkpoint["data"] = describe()
-        elif self.data is not None:
-            checkpoint["data"] = self.data
-        checkpoint["threads"] = torch.get_num_threads()
+        description = getattr(datamodule, "description", None)
+        describe(checkpoint, description() if callable(description) else self.data)
         checkpoint["rng"] = random_streams.collect()
 
     def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
-        self.data = checkpoint.get("data")
+        self.data = Description.of(checkpoint).data
         self._resumed_rng = checkpoint.get("rng")
 
     def on_fit_start(self) -> None:
