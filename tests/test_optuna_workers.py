@@ -161,7 +161,9 @@ def search_args(tiny_sweep_args, base: Path, storage: str | None, grace: int = 1
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("rdb", [False, True], ids=["sqlite", "mariadb"])
+@pytest.mark.parametrize(
+    "rdb", [False, pytest.param(True, marks=pytest.mark.cluster)], ids=["sqlite", "mariadb"]
+)
 def test_two_workers_share_one_study_without_duplicates(rdb: bool, request: pytest.FixtureRequest,
                                                         tiny_sweep_args, tmp_path: Path) -> None:  # fmt: skip
     """Two workers started together with one study name and storage: 2 x TRIALS trials, all complete,
