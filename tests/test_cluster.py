@@ -209,13 +209,14 @@ def test_a_requeued_job_resumes_and_equals_the_uninterrupted_run(
 
 @pytest.mark.slow
 def test_a_time_limited_job_is_requeued_and_finishes(cluster: None, tiny_kitti: Path, tmp_path: Path) -> None:
-    """A one-minute limit with submitit's signal 5 s before it: SLURM checks limits every 30 s and sends
-    the signal at the first check within lead + 30 s of the limit, 25-55 s into the job (a 30 s lead
-    would send it at the start), and kills at the first check past the limit. Submitit requeues the job on
-    SIGUSR2 and exits, the job records the stop, and the requeued job resumes from last.ckpt until it
-    finishes (one requeue or more: each run gets a minute)."""
+    """A two-minute limit with submitit's signal 60 s before it: SLURM checks limits every 30 s and sends
+    the signal at the first check within lead + 30 s of the limit, 30-60 s into the job, and kills at the
+    first check past the limit, 60 s or more after the signal (a one-minute limit leaves 30 s, which a
+    loaded machine can spend before submitit's ``scontrol requeue`` has returned). Submitit requeues the
+    job on SIGUSR2 and exits, the job records the stop, and the requeued job resumes from last.ckpt until
+    it finishes (one requeue or more)."""
     sweep = tmp_path / "sweep"
-    limited = ("hydra.launcher.timeout_min=1", "hydra.launcher.signal_delay_s=5",
+    limited = ("hydra.launcher.timeout_min=2", "hydra.launcher.signal_delay_s=60",
                "hydra.launcher.max_num_timeout=200", "trainer.max_epochs=800")  # fmt: skip
     run = Sweep(sweep_command(tiny_kitti, tmp_path, sweep, *RESUMABLE, *limited), sweep, tmp_path)
     run.finish()
