@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv test test-all lint format bench sweep sweep-paper study report clean cluster cluster-down
+.PHONY: venv test test-all test-cluster lint format bench sweep sweep-paper study report clean cluster cluster-down
 
 venv: $(STAMP)
 
@@ -34,14 +34,21 @@ BESIDE_MYPY = $(RUFF) || exit 1; $(MYPY) > $(VENV)/mypy.log 2>&1 & mypy=$$!; \
 	$(PY) -m pytest $(1); tests=$$?; wait $$mypy; typed=$$?; \
 	cat $(VENV)/mypy.log; [ $$tests -eq 0 ] && [ $$typed -eq 0 ]
 
-# `make test` (CI: .ci/run) runs every test, the `slow` ones included (the shared sweep, launchers, DDP, the
-# wheel, signals, subprocesses, training runs: ~700 tests, ~6 CPU-minutes). The quick loop while editing
-# leaves those out (~460 tests, ~1 CPU-minute, much of it the workers' start). Each pytest-xdist worker gives
-# torch and OpenCV its share of the cores (tests/conftest.py): all of them in every worker oversubscribes.
+# `make test` (CI: .ci/run) runs every test but the cluster's, the `slow` ones included (the shared sweep,
+# launchers, DDP, the wheel, signals, subprocesses, training runs). The quick loop while editing leaves those
+# out. Each pytest-xdist worker gives torch and OpenCV its share of the cores (tests/conftest.py): all of
+# them in every worker oversubscribes.
 #   .venv/bin/python -m pytest -m "not slow"
+# `make test-cluster` (CI: after `make test`): the tests marked `cluster` (sweeps, requeues, time limits and
+# DDP through a real single-node SLURM; an Optuna study on its MariaDB), which start the cluster first
+# (LOSSVO_TEST_CLUSTER=1: as root, `cluster/cluster.sh up` installs SLURM, munge and MariaDB with apt-get).
+# A plain `pytest` runs them only where the cluster is already up (`make cluster`) and skips them elsewhere.
 # `make test-all`: every test with the thorough hypothesis profile (1,000 examples a property, not 100).
 test: venv
-	$(call BESIDE_MYPY,)
+	$(call BESIDE_MYPY,-m "not cluster")
+
+test-cluster: venv
+	LOSSVO_TEST_CLUSTER=1 $(PY) -m pytest -m cluster
 
 test-all: venv
 	$(call BESIDE_MYPY,--hypothesis-profile=thorough)
@@ -91,7 +98,7 @@ clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .hypothesis src/*.egg-info
 
 # A single-node SLURM cluster on this machine (root: Debian's slurm-wlm, slurmdbd, munge, MariaDB), which the
-# cluster tests start themselves; `make cluster-down` stops its daemons.
+# cluster tests use (`make test-cluster` starts it itself); `make cluster-down` stops its daemons.
 cluster:
 	bash cluster/cluster.sh up
 

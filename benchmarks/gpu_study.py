@@ -77,6 +77,8 @@ FLOWVO_MODES = (("eager", None, "fp32"), ("reduce-overhead", "reduce-overhead", 
 trains with (``compile=auto``, ``bf16-mixed``)."""
 QUICK_MODES = (("eager", None, "fp32"), ("eager", None, "bf16"))
 """--quick: no compilation (tests/test_step.py checks the compiled step on a CPU)."""
+QUICK_BATCH = 4
+"""--quick: FlowVO's step on this many windows, not its config's batch (a CPU check of the plumbing)."""
 
 
 def log(message: str) -> None:
@@ -290,7 +292,7 @@ def flowvo_steps(size: tuple[int, int], modes: tuple, args: argparse.Namespace, 
                  ready: Callable[[], None]) -> dict[str, Any]:  # fmt: skip
     """FlowVO's step in each mode: compiled and warmed first, then timed in interleaved rounds once
     ``ready()`` returns (the background preparation done)."""
-    batch_size = int(gpu_path.config("model/flowvo.yaml").data.batch_size)
+    batch_size = QUICK_BATCH if args.quick else int(gpu_path.config("model/flowvo.yaml").data.batch_size)
     windows = random_windows(size, args.frames, device)
     gathered = Gathered(windows, batch_size, size[1])
     fixed = gathered()

@@ -3,6 +3,7 @@
 #   bash cluster/cluster.sh up      install (Debian's slurm-wlm, slurmdbd, munge, mariadb-server) and start
 #   bash cluster/cluster.sh down    stop the daemons
 #   bash cluster/cluster.sh status  sinfo and the daemons' pids
+#   bash cluster/cluster.sh is-up   exit 0 when every daemon runs and the node answers (installs nothing)
 # Run as root (apt-get, daemons). Everything lives under $LOSSVO_CLUSTER (default /var/tmp/lossvo-cluster):
 # configs, spool, state, logs, the database files. One node, this machine's cores and memory, one partition
 # ("debug"), accounting through slurmdbd into MariaDB so that sacct (which submitit polls) knows every job.
@@ -167,7 +168,11 @@ case "${1:-}" in
     pkill -x munged || true
     for _ in $(seq 60); do running mariadbd munged || break; sleep 0.5; done
     log "down";;
+  is-up)
+    running_all() { local name; for name; do pgrep -x "$name" >/dev/null || return 1; done; }
+    running_all munged mariadbd slurmdbd slurmctld slurmd && [ -f "$SLURM_CONF" ] \
+      && sinfo -h -o %t 2>/dev/null | grep -qE '^(idle|mix|alloc)';;
   status)
     sinfo; for d in munged mariadbd slurmdbd slurmctld slurmd; do echo "$d: $(pgrep -x $d || echo not running)"; done;;
-  *) echo "usage: bash cluster/cluster.sh up|down|status" >&2; exit 2;;
+  *) echo "usage: bash cluster/cluster.sh up|down|status|is-up" >&2; exit 2;;
 esac

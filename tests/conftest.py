@@ -25,29 +25,40 @@ for _name, _examples in (("lossvo", 100), ("thorough", 1000)):
 settings.load_profile("lossvo")
 
 LONG_FILES = (
-    "test_cluster.py", "test_sweep.py", "test_resume.py", "test_synthetic.py", "test_launchers.py",
-    "test_lifecycle.py", "test_bad_input.py", "test_distributed.py", "test_report.py", "test_model.py",
-    "test_train.py", "test_axioms.py", "test_metrics.py", "test_packaging.py", "test_checkpoints.py",
-    "test_fair_comparison.py",
+    "test_cluster.py", "test_gpu_study_script.py", "test_report_architectures.py", "test_optuna_workers.py",
+    "test_sweep.py", "test_resume.py", "test_synthetic.py", "test_bad_input.py", "test_synthetic_layouts.py",
+    "test_step.py", "test_gpu_path_script.py", "test_launchers.py", "test_study.py", "test_checkpoints.py",
+    "test_fair_comparison.py", "test_distributed.py", "test_cross_dataset.py", "test_routes.py",
+    "test_translation_direction.py", "test_lifecycle.py", "test_report.py", "test_packaging.py",
+    "test_tum.py", "test_resident.py", "test_axioms.py",
 )  # fmt: skip
-"""The test files that take longest in the full suite, longest first (measured on 2 cores): the SLURM
-cluster's (mostly waiting on its jobs and its 30 s time-limit checks), then the shared sweep's, so that the
-sweep is ready when test_report.py and test_checkpoints.py ask for it."""
+"""The test files that take longest in the full suite, longest first (their summed test durations with
+``-n 2 --durations=0`` on 2 cores): pytest-xdist then hands the longest out first and the workers finish
+together on the short ones. The SLURM cluster's lead (its own run, ``make test-cluster``); the shared
+sweep's (test_sweep.py) comes well before test_checkpoints.py and test_report.py, which wait for it."""
 
 
-SLOW_FIXTURES = ("study_sweep",)
+SLOW_FIXTURES = ("study_sweep", "cluster")
 """Fixtures that make every test using them (directly or through another fixture) ``slow``: the shared sweep
-trains four jobs (~1.5 min on 2 cores)."""
+trains four jobs (~1.5 min on 2 cores); the cluster's tests wait on SLURM."""
+
+CLUSTER_FLAG = "LOSSVO_TEST_CLUSTER"
+"""With ``LOSSVO_TEST_CLUSTER=1`` the ``cluster`` fixture starts the test cluster itself (as root,
+``cluster/cluster.sh up`` installs SLURM, munge and MariaDB with apt-get); without it the cluster's tests
+run only where the cluster is already up (``make cluster``) and are skipped elsewhere."""
 
 
 @pytest.hookimpl(tryfirst=True)  # before ``-m`` deselects by marker
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Tests using a SLOW_FIXTURES fixture marked ``slow``; then LONG_FILES first, in their order:
-    pytest-xdist hands each worker whole files in collection order, so the workers then finish together on
-    the short files."""
+    """Tests using a SLOW_FIXTURES fixture marked ``slow``, those using ``cluster`` also ``cluster``; then
+    LONG_FILES first, in their order: pytest-xdist hands each worker whole files in collection order, so
+    the workers then finish together on the short files."""
     for item in items:
-        if any(name in getattr(item, "fixturenames", ()) for name in SLOW_FIXTURES):
+        fixtures = getattr(item, "fixturenames", ())
+        if any(name in fixtures for name in SLOW_FIXTURES):
             item.add_marker(pytest.mark.slow)
+        if "cluster" in fixtures:
+            item.add_marker(pytest.mark.cluster)
     rank = {name: k for k, name in enumerate(LONG_FILES)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: each file keeps its order
 
@@ -199,14 +210,21 @@ def study_sweep(run_tiny_sweep, tmp_path_factory: pytest.TempPathFactory) -> Pat
 
 @pytest.fixture(scope="session")
 def cluster() -> None:
-    """The single-node SLURM cluster of ``cluster/cluster.sh up`` (slurmctld, slurmd, slurmdbd on MariaDB,
-    munge), up (idempotent: daemons already running are kept). Skipped, with the reason, only where SLURM
-    cannot be installed (not root, no apt-get); installed but failing to start is a failure."""
-    if os.geteuid() != 0 and shutil.which("sbatch") is None:
-        pytest.skip("SLURM is not installed and installing it needs root (cluster/cluster.sh up)")
-    if shutil.which("sbatch") is None and shutil.which("apt-get") is None:
-        pytest.skip("SLURM is not installed and there is no apt-get to install it")
+    """The single-node SLURM cluster of ``cluster/cluster.sh`` (slurmctld, slurmd, slurmdbd on MariaDB,
+    munge), up. Without ``LOSSVO_TEST_CLUSTER=1`` it is only used where it already runs (``make cluster``;
+    skipped elsewhere, with the reason): a plain ``pytest`` installs nothing. With it, ``cluster.sh up``
+    installs and starts it (idempotent: daemons already running are kept), and a cluster that cannot be
+    installed or started fails the tests: they were asked for."""
     script = Path(__file__).resolve().parents[1] / "cluster" / "cluster.sh"
+    if os.environ.get(CLUSTER_FLAG) != "1":
+        if subprocess.run(["bash", str(script), "is-up"], capture_output=True, timeout=60).returncode != 0:
+            pytest.skip(f"the test cluster is not up: `make cluster` starts it (root), or {CLUSTER_FLAG}=1 "
+                        "has the tests start it (`make test-cluster`)")  # fmt: skip
+        return
+    if os.geteuid() != 0 and shutil.which("sbatch") is None:
+        pytest.fail(f"{CLUSTER_FLAG}=1: SLURM is not installed and installing it needs root")
+    if shutil.which("sbatch") is None and shutil.which("apt-get") is None:
+        pytest.fail(f"{CLUSTER_FLAG}=1: SLURM is not installed and there is no apt-get to install it")
     try:
         up = subprocess.run(["bash", str(script), "up"], capture_output=True, text=True, timeout=900)
     except subprocess.TimeoutExpired as hung:

@@ -181,7 +181,7 @@ def search_args(tiny_sweep_args, base: Path, storage: str | None, grace: int = 1
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("kind", ["sqlite", "journal", "mariadb"])
+@pytest.mark.parametrize("kind", ["sqlite", "journal", pytest.param("mariadb", marks=pytest.mark.cluster)])
 def test_two_workers_share_one_study_without_duplicates(kind: str, request: pytest.FixtureRequest,
                                                         tiny_sweep_args, tmp_path: Path) -> None:  # fmt: skip
     """Two workers started together with one study name and storage (SQLite in the sweep folder, a
