@@ -27,6 +27,7 @@ from torch import Tensor, nn
 
 from lossvo import models
 from lossvo.console import first_line
+from lossvo.data.transforms import upgrade_description
 from lossvo.losses import PoseLoss
 
 TRAINED_WITH = ("height", "width", "seq_len", "normalization", "flow", "flow_preset", "flow_scale")
@@ -93,8 +94,9 @@ def load_network(path: str | os.PathLike, device: str | torch.device = "cpu") ->
     content = read(path)
     hparams = content["hyper_parameters"]
     try:
-        network = TrainedNetwork(instantiate(hparams["model"]), instantiate(hparams["loss"]),
-                                 content.get("data"), content.get("threads"))  # fmt: skip
+        data = upgrade_description(content.get("data"))  # a checkpoint of an earlier version too
+        network = TrainedNetwork(instantiate(hparams["model"]), instantiate(hparams["loss"]), data,
+                                 content.get("threads"))  # fmt: skip
         network.load_state_dict(content["state_dict"])
     except Exception as e:  # e.g. a loss or network class that no longer exists
         raise CheckpointError(f"{path}: cannot rebuild its network ({type(e).__name__}: "
