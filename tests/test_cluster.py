@@ -154,7 +154,12 @@ def test_a_two_job_sweep_runs_through_slurm(cluster: None, tiny_kitti: Path, tmp
     assert "2 job(s): 2 included, 0 skipped" in (sweep / "report" / "report.md").read_text()
 
 
-RESUMABLE = ("loss=chordal", "trainer.deterministic=true", "data.reverse=0.5", "data.augment=true")
+RESUMABLE = (
+    "loss=chordal",
+    "trainer.deterministic=true",
+    "data.transforms=[{_target_:lossvo.data.transforms.Reverse,p:0.5},"
+    "{_target_:lossvo.data.transforms.Jitter}]",
+)
 
 
 @pytest.mark.slow
