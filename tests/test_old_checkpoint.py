@@ -50,8 +50,9 @@ def test_eval_names_an_unknown_synthetic_sequence_before_any_work(
     content = torch.load(FIXTURE, weights_only=True)
     synthetic = "lossvo.data.datamodules.SyntheticDataModule"
     frames = {"00": 10, "01": 10, "02": 10}
-    content["data"] |= {"_target_": synthetic, "root": str(tmp_path / "s"), "frames": frames, "render_height": 64,
-                        "render_width": 208, "seed": 0, "route_families": None, "route_mixes": None}  # fmt: skip
+    content["data"] |= {"_target_": synthetic, "root": str(tmp_path / "s"), "frames": frames, "seed": 0,
+                        "render_height": 64, "render_width": 208, "route_families": None,
+                        "route_mixes": None}  # fmt: skip
     ckpt = tmp_path / "synthetic.ckpt"
     torch.save(content, ckpt)
     args = [f"ckpt_path={ckpt}", "data.test=[99]", f"hydra.run.dir={tmp_path / 'run'}"]
