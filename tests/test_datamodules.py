@@ -10,10 +10,11 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from hydra.utils import instantiate
 
 from lossvo.data import frame_cache, kitti
 from lossvo.data.datamodules import KittiDataModule, SyntheticDataModule
-from lossvo.data.transforms import Jitter, Mirror, Reverse, Standstill
+from lossvo.data.transforms import Jitter, Mirror, Reverse, Standstill, spec
 
 
 def make_dm(root: Path, cache: Path, **kwargs) -> KittiDataModule:
@@ -133,6 +134,19 @@ def test_augmentation_only_when_asked_and_only_in_training(tiny_kitti: Path, tmp
         dm.trainer = SimpleNamespace(training=training)
         frames = dm.on_after_batch_transfer(batch, 0)["frames"]
         assert torch.equal(frames, plain) != (augment and training)
+
+
+def test_the_description_records_the_transforms_and_rebuilds_the_datamodule(
+    tiny_kitti: Path, tmp_path: Path
+) -> None:
+    dm = make_dm(tiny_kitti, tmp_path, transforms=[Standstill(0.1), Mirror(0.5), Jitter()])
+    described = dm.description()
+    assert described["transforms"] == [spec(Standstill(0.1)), spec(Mirror(0.5)), spec(Jitter())]
+    torch.save(described, tmp_path / "described.pt")
+    torch.load(tmp_path / "described.pt", weights_only=True)  # primitives only, as a checkpoint holds them
+    arguments = {k: v for k, v in described.items() if k not in ("dataset_root", "intrinsics")}
+    rebuilt = instantiate(arguments, _convert_="all")
+    assert rebuilt.transforms == dm.transforms
 
 
 def test_windows_per_epoch_draws_a_fresh_subset(tiny_kitti: Path, tmp_path: Path) -> None:

@@ -28,7 +28,7 @@ import hashlib
 import json
 import logging
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from collections.abc import Sequence as Seq
 from dataclasses import dataclass
 from pathlib import Path
@@ -246,7 +246,7 @@ class VODataModule(L.LightningDataModule):
         num_workers: int = 2,
         cache_dir: str | None = None,
         normalization: str = "dataset",
-        transforms: Seq[Callable] = (),
+        transforms: Seq[batch_transforms.Transform] = (),
         pin_memory: bool = False,
         windows_per_epoch: int | None = None,
         frame_steps: Seq[int] = (1,),
@@ -447,10 +447,12 @@ class VODataModule(L.LightningDataModule):
 
     def description(self) -> dict[str, Any]:
         """What a network trained on this data depends on, as primitives (a checkpoint's ``data``):
-        ``_target_`` (this class) and the constructor's arguments, ``root`` absolute, and, after
+        ``_target_`` (this class) and the constructor's arguments (``transforms`` as their configs,
+        :func:`lossvo.data.transforms.spec`), ``root`` absolute, and, after
         :meth:`setup` (None before), ``statistics`` ``{"mean": [3], "std": [3]}`` and ``intrinsics``, the
         (3, 3) K of each training sequence's cached frames (pixels)."""
         config = {key: _primitive(value) for key, value in self.hparams.items()}
+        config["transforms"] = [batch_transforms.spec(t) for t in self.transforms]
         if config.get("root") is not None:
             config["root"] = str(Path(config["root"]).expanduser().resolve())
         stats = None if self.mean is None or self.std is None else {
