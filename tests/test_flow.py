@@ -66,7 +66,7 @@ def test_a_rendered_yaw_flows_sideways_as_the_rotation_implies(angle: float) -> 
 
 
 def test_mirrored_flow_is_the_flow_of_the_mirrored_frames() -> None:
-    """data.mirror's flow: the fields of a driving pair, flipped with u negated, match DIS on the flipped
+    """The Mirror transform's flow: the fields of a driving pair, flipped with u negated, match DIS on the flipped
     frames to DIS's own precision."""
     route, _, _ = synthetic.scene("00", 40, seed=0)
     step = np.linalg.inv(route[20]) @ route[22]
