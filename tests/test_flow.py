@@ -66,8 +66,8 @@ def test_a_rendered_yaw_flows_sideways_as_the_rotation_implies(angle: float) -> 
 
 
 def test_mirrored_flow_is_the_flow_of_the_mirrored_frames() -> None:
-    """The Mirror transform's flow: the fields of a driving pair, flipped with u negated, match DIS on the flipped
-    frames to DIS's own precision."""
+    """The Mirror transform's flow: the fields of a driving pair, flipped with u negated, match DIS on the
+    flipped frames to DIS's own precision."""
     route, _, _ = synthetic.scene("00", 40, seed=0)
     step = np.linalg.inv(route[20]) @ route[22]
     frames, _ = _frames(np.stack((np.eye(4), step @ _yaw(0.02))))
