@@ -138,7 +138,7 @@ class Network:
 def study_settings() -> dict[str, Any]:
     """What the study runs (``experiment=paper``, ``trainer=gpu``, ``data=kitti``), read from the configs."""
     paper, kitti, gpu = config("experiment/paper.yaml"), config("data/kitti.yaml"), config("trainer/gpu.yaml")
-    base, flowvo = config("data/shared/base.yaml"), config("model/flowvo.yaml")  # kitti.yaml sets what base's lacks
+    base, flowvo = config("data/shared/base.yaml"), config("model/flowvo.yaml")
     return {
         "size": [kitti.height, kitti.width],
         "networks": {
