@@ -138,22 +138,22 @@ class Network:
 def study_settings() -> dict[str, Any]:
     """What the study runs (``experiment=paper``, ``trainer=gpu``, ``data=kitti``), read from the configs."""
     paper, kitti, gpu = config("experiment/paper.yaml"), config("data/kitti.yaml"), config("trainer/gpu.yaml")
-    flowvo = config("model/flowvo.yaml")
+    base, flowvo = config("data/shared/base.yaml"), config("model/flowvo.yaml")
     return {
-        "size": [paper.data.height, paper.data.width],
+        "size": [kitti.height, kitti.width],
         "networks": {
             "deepvo": {
                 "model": plain(config("model/deepvo.yaml")),
                 "seq_len": kitti.seq_len,
-                "batch_size": kitti.batch_size,
+                "batch_size": base.batch_size,
             },
             "flowvo": {
                 "model": plain(flowvo.model),
-                "seq_len": flowvo.data.seq_len,
-                "batch_size": flowvo.data.batch_size,
+                "seq_len": flowvo.reads.seq_len,
+                "batch_size": flowvo.reads.batch_size,
             },
         },
-        "stride": paper.data.stride,
+        "stride": base.stride,
         "num_workers": paper.data.num_workers,
         "pin_memory": paper.data.pin_memory,
         "lr": paper.optimizer.lr,

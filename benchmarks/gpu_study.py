@@ -62,9 +62,8 @@ from torch import Tensor, nn
 import gpu_path
 import lossvo
 from lossvo import models
-from lossvo.data import camera, resident
-from lossvo.data import flow as optical_flow
-from lossvo.data.datamodules import mirror_windows
+from lossvo.data import resident
+from lossvo.data.transforms import Mirror
 from lossvo.evaluation import job_folder
 from lossvo.training.module import VOModule
 from lossvo.training.step import StepRecord, compiled
@@ -237,13 +236,10 @@ class Gathered:
         chosen = self.order[self.position : self.position + self.batch_size]
         self.position += self.batch_size
         batch = self.windows.gather(self.windows.index_batch(chosen.tolist()))
-        which = torch.rand(self.batch_size) < 0.5
-        frames, targets = mirror_windows(batch["frames"], batch["targets"], which)
-        where = which.to(frames.device, non_blocking=True)
-        flow = torch.where(where.view(-1, 1, 1, 1, 1), optical_flow.mirror_flow(batch["flow"]), batch["flow"])
-        K = torch.where(where.view(-1, 1, 1), camera.mirrored_intrinsics(batch["K"], self.width), batch["K"])
-        return {"frames": frames.float().mul_(self.scale).sub_(self.shift), "flow": flow.float(), "K": K,
-                "targets": targets}  # fmt: skip
+        inputs = {k: batch[k] for k in ("frames", "flow", "K")}
+        inputs, targets = Mirror(0.5)(inputs, batch["targets"])
+        return {"frames": inputs["frames"].float().mul_(self.scale).sub_(self.shift),
+                "flow": inputs["flow"].float(), "K": inputs["K"], "targets": targets}  # fmt: skip
 
 
 def step_runner(module: VOModule, mode: str | None, bf16: bool, device: torch.device,

@@ -164,7 +164,12 @@ def test_a_two_job_sweep_runs_through_slurm(cluster: None, tiny_kitti: Path, tmp
     assert "2 job(s): 2 included, 0 skipped" in (sweep / "report" / "report.md").read_text()
 
 
-RESUMABLE = ("loss=chordal", "trainer.deterministic=true", "data.reverse=0.5", "data.augment=true")
+RESUMABLE = (
+    "loss=chordal",
+    "trainer.deterministic=true",
+    "data.transforms=[{_target_:lossvo.data.transforms.Reverse,p:0.5},"
+    "{_target_:lossvo.data.transforms.Jitter}]",
+)
 REQUEUED_EPOCHS = 100
 """The requeued job's epochs: the test requeues it after its second, so the other 98 (seconds of training
 however loaded the machine, as the poll that sees the second slows with it) keep it running until then."""

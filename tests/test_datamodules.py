@@ -10,17 +10,11 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from hydra.utils import instantiate
 
-from lossvo import geometry
-from lossvo.data import datamodules, frame_cache, kitti
-from lossvo.data.datamodules import (
-    STANDSTILL_NOISE,
-    KittiDataModule,
-    SyntheticDataModule,
-    jitter,
-    reverse_windows,
-    standing_windows,
-)
+from lossvo.data import frame_cache, kitti
+from lossvo.data.datamodules import KittiDataModule, SyntheticDataModule
+from lossvo.data.transforms import Jitter, Mirror, Reverse, Standstill, spec
 
 
 def make_dm(root: Path, cache: Path, **kwargs) -> KittiDataModule:
@@ -136,10 +130,23 @@ def test_augmentation_only_when_asked_and_only_in_training(tiny_kitti: Path, tmp
     batch = next(iter(make_dm(tiny_kitti, tmp_path).val_dataloader()))
     plain = make_dm(tiny_kitti, tmp_path).normalize(batch["frames"])
     for augment, training in ((True, True), (True, False), (False, True)):
-        dm = make_dm(tiny_kitti, tmp_path, augment=augment)
+        dm = make_dm(tiny_kitti, tmp_path, transforms=[Jitter()] if augment else [])
         dm.trainer = SimpleNamespace(training=training)
         frames = dm.on_after_batch_transfer(batch, 0)["frames"]
         assert torch.equal(frames, plain) != (augment and training)
+
+
+def test_the_description_records_the_transforms_and_rebuilds_the_datamodule(
+    tiny_kitti: Path, tmp_path: Path
+) -> None:
+    dm = make_dm(tiny_kitti, tmp_path, transforms=[Standstill(0.1), Mirror(0.5), Jitter()])
+    described = dm.description()
+    assert described["transforms"] == [spec(Standstill(0.1)), spec(Mirror(0.5)), spec(Jitter())]
+    torch.save(described, tmp_path / "described.pt")
+    torch.load(tmp_path / "described.pt", weights_only=True)  # primitives only, as a checkpoint holds them
+    arguments = {k: v for k, v in described.items() if k not in ("dataset_root", "intrinsics")}
+    rebuilt = instantiate(arguments, _convert_="all")
+    assert rebuilt.transforms == dm.transforms
 
 
 def test_windows_per_epoch_draws_a_fresh_subset(tiny_kitti: Path, tmp_path: Path) -> None:
@@ -155,41 +162,9 @@ def test_windows_per_epoch_draws_a_fresh_subset(tiny_kitti: Path, tmp_path: Path
     assert len(make_dm(tiny_kitti, tmp_path, windows_per_epoch=1000).train_dataloader().sampler) == 14
 
 
-def test_reversed_windows_are_exact(tiny_kitti: Path) -> None:
-    poses = torch.from_numpy(kitti.read_poses(tiny_kitti / "poses" / "00.txt"))
-    frames = torch.arange(2 * 4).view(2, 4, 1, 1, 1).expand(2, 4, 3, 2, 2)  # frame index as pixel value
-    targets = torch.stack(
-        (geometry.consecutive_relative_poses(poses[0:4]), geometry.consecutive_relative_poses(poses[4:8]))
-    )
-    out_frames, out_targets = reverse_windows(frames, targets, torch.tensor([True, False]))
-    assert out_frames[0, :, 0, 0, 0].tolist() == [3, 2, 1, 0] and torch.equal(out_frames[1], frames[1])
-    # backwards, pair k goes from frame 3-k to frame 2-k: inv(T_w_{3-k}) @ T_w_{2-k}
-    expected = geometry.consecutive_relative_poses(poses[0:4].flip(0))
-    # (pose_inverse transposes R; the file's rotations are orthonormal to its 9 digits)
-    torch.testing.assert_close(out_targets[0], expected, atol=1e-9, rtol=0)
-    assert torch.equal(out_targets[1], targets[1])
-
-
-def test_mirrored_windows_are_the_mirrored_trajectorys(tiny_kitti: Path) -> None:
-    poses = torch.from_numpy(kitti.read_poses(tiny_kitti / "poses" / "00.txt"))[:5]
-    S = torch.diag(torch.tensor([-1.0, 1.0, 1.0, 1.0], dtype=torch.float64))
-    frames = torch.arange(2 * 5 * 3 * 2 * 4).view(2, 5, 3, 2, 4)
-    targets = geometry.consecutive_relative_poses(poses).expand(2, 4, 4, 4)
-    out_frames, out_targets = datamodules.mirror_windows(frames, targets, torch.tensor([True, False]))
-    assert torch.equal(out_frames[0], frames[0].flip(-1)) and torch.equal(out_frames[1], frames[1])
-    expected = geometry.consecutive_relative_poses(S @ poses @ S)  # the world seen in a mirror
-    torch.testing.assert_close(out_targets[0], expected, atol=1e-12, rtol=0)
-    assert torch.equal(out_targets[1], targets[1])
-    # yaw and roll change sign, pitch does not (R = Ry(yaw) Rx(pitch) Rz(roll))
-    euler, mirrored = (geometry.matrix_to_euler(t[:, :3, :3]) for t in (targets[0], out_targets[0]))
-    torch.testing.assert_close(mirrored, euler * torch.tensor([-1.0, 1.0, -1.0], dtype=euler.dtype))
-    twice = datamodules.mirror_windows(out_frames, out_targets, torch.tensor([True, False]))
-    assert torch.equal(twice[0], frames) and torch.equal(twice[1], targets)
-
-
 def test_mirror_only_in_training(tiny_kitti: Path, tmp_path: Path) -> None:
     batch = next(iter(make_dm(tiny_kitti, tmp_path).val_dataloader()))
-    dm = make_dm(tiny_kitti, tmp_path, mirror=1.0)
+    dm = make_dm(tiny_kitti, tmp_path, transforms=[Mirror(1.0)])
     dm.trainer = SimpleNamespace(training=True)
     frames = dm.on_after_batch_transfer(batch, 0)["frames"]
     torch.testing.assert_close(frames, dm.normalize(batch["frames"].flip(-1)))
@@ -199,7 +174,7 @@ def test_mirror_only_in_training(tiny_kitti: Path, tmp_path: Path) -> None:
 
 def test_reverse_only_in_training(tiny_kitti: Path, tmp_path: Path) -> None:
     batch = next(iter(make_dm(tiny_kitti, tmp_path).val_dataloader()))
-    dm = make_dm(tiny_kitti, tmp_path, reverse=1.0)
+    dm = make_dm(tiny_kitti, tmp_path, transforms=[Reverse(1.0)])
     dm.trainer = SimpleNamespace(training=True)
     frames = dm.on_after_batch_transfer(batch, 0)["frames"]
     torch.testing.assert_close(frames, dm.normalize(batch["frames"].flip(1)))
@@ -207,37 +182,14 @@ def test_reverse_only_in_training(tiny_kitti: Path, tmp_path: Path) -> None:
     assert torch.equal(dm.on_after_batch_transfer(batch, 0)["targets"], batch["targets"])
 
 
-def test_standing_windows_show_no_motion_with_fresh_noise() -> None:
-    torch.manual_seed(0)
-    frames = torch.randint(20, 236, (3, 5, 3, 16, 16), dtype=torch.uint8)
-    targets = torch.randn(3, 4, 4, 4, dtype=torch.float64)
-    out_frames, out_targets = standing_windows(frames, targets, torch.tensor([True, False, True]))
-    assert out_frames.dtype == torch.uint8 and out_targets.dtype == torch.float64
-    assert torch.equal(out_frames[1], frames[1]) and torch.equal(out_targets[1], targets[1])
-    assert torch.equal(out_targets[[0, 2]], torch.eye(4, dtype=torch.float64).expand(2, 4, 4, 4))
-    noise = out_frames[[0, 2]].float() - frames[[0, 2], :1].float()
-    assert abs(noise.mean().item()) < 0.05 and abs(noise.std().item() - STANDSTILL_NOISE) < 0.1
-    assert not torch.equal(out_frames[0, 1], out_frames[0, 2])  # each frame its own noise
-    unchanged, _ = standing_windows(frames, targets, torch.zeros(3, dtype=torch.bool))
-    assert unchanged is frames
-
-
 def test_standstill_only_in_training(tiny_kitti: Path, tmp_path: Path) -> None:
     batch = next(iter(make_dm(tiny_kitti, tmp_path).val_dataloader()))
-    dm = make_dm(tiny_kitti, tmp_path, standstill=1.0)
+    dm = make_dm(tiny_kitti, tmp_path, transforms=[Standstill(1.0)])
     dm.trainer = SimpleNamespace(training=True)
     targets = dm.on_after_batch_transfer(batch, 0)["targets"]
     assert torch.equal(targets, torch.eye(4, dtype=targets.dtype).expand_as(targets))
     dm.trainer = SimpleNamespace(training=False)
     assert torch.equal(dm.on_after_batch_transfer(batch, 0)["targets"], batch["targets"])
-
-
-def test_jitter_is_one_draw_per_window() -> None:
-    frames = torch.full((4, 3, 3, 8, 8), 100.0)
-    out = jitter(frames, torch.Generator().manual_seed(0))
-    per_window = out.flatten(1)
-    assert (per_window == per_window[:, :1]).all()  # constant input stays constant within a window
-    assert len(per_window[:, 0].unique()) == 4  # but differs between windows
 
 
 # -- bad input --------------------------------------------------------------------------------------
@@ -288,9 +240,7 @@ def test_missing_sequence_is_named(tiny_kitti: Path, tmp_path: Path) -> None:
         ({"stride": 0}, r"data\.stride: expected an integer >= 1"),
         ({"normalization": "imagenet"}, r"data\.normalization: expected one of"),
         ({"train": []}, r"data\.train: expected at least one"),
-        ({"reverse": 1.5}, r"data\.reverse: expected a probability in \[0, 1\]"),
-        ({"standstill": -0.1}, r"data\.standstill: expected a probability in \[0, 1\]"),
-        ({"mirror": 2}, r"data\.mirror: expected a probability in \[0, 1\]"),
+        ({"transforms": [{"p": 0.5}]}, r"data\.transforms: expected a list of batch transforms"),
         ({"windows_per_epoch": 0}, r"data\.windows_per_epoch: expected null or an integer >= 1"),
     ],
 )
@@ -319,6 +269,16 @@ def test_synthetic_datamodule_renders_on_first_use(tmp_path: Path) -> None:
     assert (tmp_path / "synth" / "poses" / "00.txt").is_file()
     batch = next(iter(dm.train_dataloader()))
     assert batch["frames"].shape[1:] == (3, 3, 32, 96) and batch["targets"].shape[1:] == (2, 4, 4)
+
+
+@pytest.mark.parametrize("split", ["train", "val", "test", "unseen"])
+def test_unknown_synthetic_sequence_is_named_before_rendering(tmp_path: Path, split: str) -> None:
+    frames = {"00": 6, "01": 6}
+    splits = {"train": ["00"], "val": ["01"], "test": ["01"], "unseen": []} | {split: ["99"]}
+    message = rf"^data\.{split}: sequence '99' not found \(available: 00, 01\)$"
+    with pytest.raises(ValueError, match=message):
+        SyntheticDataModule(root=str(tmp_path / "synth"), frames=frames, cache_dir=str(tmp_path), **splits)
+    assert not (tmp_path / "synth").exists()
 
 
 def test_frame_steps_add_windows_of_every_other_frame_with_recomputed_targets(

@@ -13,6 +13,7 @@ import torch
 
 from lossvo.data import camera, flow, synthetic
 from lossvo.data.flow import FlowSetting
+from lossvo.data.transforms import Mirror, Reverse
 
 H, W = 64, 208
 """The network's input size on the synthetic dataset (rendered at RENDER_HW, resized as the cache does)."""
@@ -65,8 +66,8 @@ def test_a_rendered_yaw_flows_sideways_as_the_rotation_implies(angle: float) -> 
 
 
 def test_mirrored_flow_is_the_flow_of_the_mirrored_frames() -> None:
-    """data.mirror's flow: the fields of a driving pair, flipped with u negated, match DIS on the flipped
-    frames to DIS's own precision."""
+    """The Mirror transform's flow: the fields of a driving pair, flipped with u negated, match DIS on the
+    flipped frames to DIS's own precision."""
     route, _, _ = synthetic.scene("00", 40, seed=0)
     step = np.linalg.inv(route[20]) @ route[22]
     frames, _ = _frames(np.stack((np.eye(4), step @ _yaw(0.02))))
@@ -214,7 +215,14 @@ def test_windows_carry_their_pairs_flow_and_k_and_mirror_them_together(tiny_kitt
 
     from test_datamodules import make_dm
 
-    dm = make_dm(tiny_kitti, tmp_path, flow="dis", flow_preset="ultrafast", frame_steps=[1, 2], mirror=1.0)
+    dm = make_dm(
+        tiny_kitti,
+        tmp_path,
+        flow="dis",
+        flow_preset="ultrafast",
+        frame_steps=[1, 2],
+        transforms=[Mirror(1.0)],
+    )
     train = dm.datasets["train"]
     i = int(np.flatnonzero(train.index[:, 3] == 2)[1])  # the second step-2 window: frames 1, 3, 5, 7
     seq, start, _, step = (int(v) for v in train.index[i])
@@ -235,5 +243,5 @@ def test_windows_carry_their_pairs_flow_and_k_and_mirror_them_together(tiny_kitt
 def test_reversed_windows_need_no_flow(tiny_kitti, tmp_path) -> None:
     from test_datamodules import make_dm
 
-    with pytest.raises(ValueError, match=r"^data\.reverse: expected 0 with data\.flow=dis .*got 0\.5$"):
-        make_dm(tiny_kitti, tmp_path, flow="dis", reverse=0.5)
+    with pytest.raises(ValueError, match=r"^data\.transforms: Reverse is not possible with data\.flow=dis "):
+        make_dm(tiny_kitti, tmp_path, flow="dis", transforms=[Reverse(0.5)])

@@ -8,7 +8,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-import torch
 
 from lossvo.data import camera, frame_cache, windows
 from lossvo.data import datamodules as datamodules
@@ -232,46 +231,6 @@ def test_crop_cuts_the_centred_window_and_K_follows(tum_root: Path, tmp_path: Pa
     )  # pixels keep their shape
     whole = datamodule(tum_root, tmp_path / "cache", height=16, width=32)
     assert whole.cache_path() != dm.cache_path()
-
-
-# --------------------------------------------------------------------------------------------------
-# Zoom augmentation
-# --------------------------------------------------------------------------------------------------
-
-
-def rotation_flow(K: torch.Tensor, R: torch.Tensor, height: int, width: int) -> torch.Tensor:
-    """(2, H, W) flow of a pure camera rotation: pixel x goes to K R K^-1 x (dehomogenised)."""
-    v, u = torch.meshgrid(torch.arange(height, dtype=torch.float64), torch.arange(width, dtype=torch.float64),
-                          indexing="ij")  # fmt: skip
-    x = torch.stack((u, v, torch.ones_like(u)))
-    p = torch.einsum("ij,jhw->ihw", K @ R @ torch.linalg.inv(K), x)
-    return p[:2] / p[2:] - x[:2]
-
-
-def test_zoomed_flow_is_the_flow_the_zoomed_camera_sees() -> None:
-    """The flow of a camera rotation, zoomed with K, equals the flow of that rotation computed with the
-    zoomed K (bilinear resampling of a smooth field: within 0.02 px)."""
-    H, W = 64, 208
-    K = torch.tensor([[120.0, 0.0, 103.2], [0.0, 122.0, 31.4], [0.0, 0.0, 1.0]], dtype=torch.float64)
-    R = torch.from_numpy(cv2.Rodrigues(np.array([0.01, 0.03, 0.005]))[0])
-    flow = rotation_flow(K, R, H, W)
-    inputs = {"frames": torch.zeros(3, 2, 3, H, W, dtype=torch.uint8), "K": K.expand(3, 3, 3).clone(),
-              "flow": flow.expand(3, 1, 2, H, W).clone()}  # fmt: skip
-    out = datamodules.zoomed_windows(inputs, 1.8, torch.Generator().manual_seed(0))
-    assert out["frames"].dtype == torch.uint8 and out["flow"].shape == (3, 1, 2, H, W)
-    for b in range(3):
-        zoom = out["K"][b, 0, 0] / K[0, 0]
-        assert 1.0 <= zoom <= 1.8
-        expected = rotation_flow(out["K"][b], R, H, W)
-        torch.testing.assert_close(
-            out["flow"][b, 0, :, 1:-1, 1:-1], expected[:, 1:-1, 1:-1], atol=0.02, rtol=0
-        )
-    assert not torch.allclose(out["K"][0], out["K"][1])  # one draw a window
-
-
-def test_bad_zoom_names_the_key(tum_root: Path, tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match=r"data\.zoom: expected a number in \[1, 4\]"):
-        datamodule(tum_root, tmp_path / "cache", zoom=0.5)
 
 
 def test_a_camera_override_replaces_the_readers(tum_root: Path, tmp_path: Path) -> None:

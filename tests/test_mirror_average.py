@@ -15,7 +15,7 @@ from torch import Tensor, nn
 
 from lossvo import geometry
 from lossvo.data import camera
-from lossvo.data.datamodules import mirror_inputs
+from lossvo.data.transforms import mirror_inputs
 from lossvo.evaluation.inference import average_with_mirror, predict_sequence
 from lossvo.train import CONFIG_DIR
 

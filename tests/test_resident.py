@@ -10,8 +10,9 @@ import pytest
 import torch
 
 from lossvo.data.datamodules import KittiDataModule
+from lossvo.data.transforms import Jitter, Mirror, Reverse, Standstill, Zoom
 
-AUGMENTED = {"mirror": 0.5, "standstill": 0.3, "zoom": 1.5, "augment": True}
+AUGMENTED = [Standstill(0.3), Zoom(1.5), Mirror(0.5)]
 
 
 def make_dm(root: Path, cache: Path, **kwargs) -> KittiDataModule:
@@ -39,8 +40,8 @@ def epoch_batches(dm: KittiDataModule, split: str, epoch: int, seed: int) -> lis
 @pytest.mark.parametrize(
     "settings",
     [
-        {"frame_steps": [1, 2], "reverse": 0.3, **AUGMENTED},
-        {"flow": "dis", "seq_len": 2, "frame_steps": [1, 2], **AUGMENTED},
+        {"frame_steps": [1, 2], "transforms": [*AUGMENTED, Reverse(0.3), Jitter()]},
+        {"flow": "dis", "seq_len": 2, "frame_steps": [1, 2], "transforms": [*AUGMENTED, Jitter()]},
     ],
     ids=["frames", "flow"],
 )
@@ -119,7 +120,8 @@ def test_a_fit_on_the_device_equals_one_on_the_host_loader(
     runs = {}
     for on_device in ("false", "true"):
         runs[on_device] = tmp_path / on_device
-        settings = ["trainer.max_epochs=2", "data.mirror=0.5", f"data.on_device={on_device}"]
+        mirror = "data.transforms=[{_target_:lossvo.data.transforms.Mirror,p:0.5}]"
+        settings = ["trainer.max_epochs=2", mirror, f"data.on_device={on_device}"]
         cfg = compose_train([*overrides, *settings], runs[on_device])
         fit(cfg)
     host, device = ((runs[k] / "metrics.csv").read_text() for k in ("false", "true"))

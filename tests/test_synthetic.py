@@ -256,8 +256,8 @@ def test_orb_essential_matrix_recovers_every_route_familys_poses(family: str) ->
 
 @pytest.mark.slow
 def test_mirrored_frames_move_as_the_mirrored_poses() -> None:
-    """What data.mirror trains on: frames flipped left to right, seen through the mirrored principal point
-    (cx -> W - 1 - cx), move as S @ T_w_c @ S with S = diag(-1, 1, 1, 1); the unmirrored poses, which
+    """What the Mirror transform trains on: frames flipped left to right, seen through the mirrored principal
+    point (cx -> W - 1 - cx), move as S @ T_w_c @ S with S = diag(-1, 1, 1, 1); the unmirrored poses, which
     turn the other way, do not fit them."""
     images, poses, K = busiest_frames("town")
     mirrored = [cv2.flip(image, 1) for image in images]

@@ -89,6 +89,7 @@ def data_overrides(overrides: Sequence[str]) -> tuple[bool, list[str]]:
 def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
     """The body of ``python -m lossvo.eval``: load the checkpoint, build the data it describes (with the
     command line's ``overrides`` of data settings), evaluate the test and unseen-motion sequences."""
+    from hydra.errors import InstantiationException
     from hydra.utils import instantiate
     from omegaconf import OmegaConf
 
@@ -99,7 +100,12 @@ def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
     recorded = checkpoints.recorded_data(cfg.ckpt_path, network)
     explicit = {k: given[k] for k in keys if k in given}
     data_cfg = checkpoints.evaluation_data(recorded, given if chosen else None, explicit)
-    datamodule = instantiate(data_cfg, _convert_="all")
+    try:
+        datamodule = instantiate(data_cfg, _convert_="all")
+    except InstantiationException as e:  # a bad data setting: the constructor's own one-line ValueError
+        if isinstance(e.__cause__, ValueError):
+            raise e.__cause__ from None
+        raise
     datamodule.prepare_data()
     datamodule.setup("test")
     sequences = sequence_names(cfg.sequences if cfg.get("sequences") else datamodule.evaluated)

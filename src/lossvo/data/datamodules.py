@@ -28,7 +28,7 @@ import hashlib
 import json
 import logging
 import os
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from collections.abc import Sequence as Seq
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,18 +37,18 @@ from typing import Any
 import lightning as L
 import numpy as np
 import torch
-import torch.nn.functional as F
 from filelock import FileLock
-from torch.utils.data import BatchSampler, DataLoader, Dataset, Sampler, SequentialSampler
+from torch.utils.data import BatchSampler, DataLoader, Sampler, SequentialSampler
 
-from lossvo import geometry
 from lossvo.atomic import write_text_atomic
 from lossvo.checks import is_integer, is_number
 from lossvo.data import camera, frame_cache, layouts, resident, synthetic, windows
 from lossvo.data import flow as optical_flow
-from lossvo.data.kitti import relative_targets, split_names
+from lossvo.data import transforms as batch_transforms
+from lossvo.data.kitti import split_names
 from lossvo.data.sequence import Sequence
 from lossvo.data.synthetic import routes
+from lossvo.data.windows import EpochShuffle, WindowDataset
 
 log = logging.getLogger("lossvo")
 
@@ -82,7 +82,10 @@ def _statistics(value: Mapping[str, Seq[float]] | None) -> tuple[np.ndarray, np.
 
 
 def _primitive(value: Any) -> Any:
-    """A config value as plain Python (lists, dicts, scalars): what a checkpoint may hold."""
+    """A config value as plain Python (lists, dicts, scalars; a transform as its config): what a checkpoint
+    may hold."""
+    if isinstance(value, batch_transforms.TRANSFORMS):
+        return batch_transforms.spec(value)
     if isinstance(value, Mapping):
         return {str(k): _primitive(v) for k, v in value.items()}
     if isinstance(value, Seq) and not isinstance(value, str):
@@ -90,288 +93,10 @@ def _primitive(value: Any) -> Any:
     return value
 
 
-class WindowDataset(Dataset):
-    """Windows of cached frames with their relative-pose targets.
-
-    Items are dicts: ``frames`` (L, 3, H, W) uint8, ``targets`` (L - 1, 4, 4) float32, ``K`` (3, 3)
-    float32 and, with flow, ``flow`` (L - 1, 2, H, W) float16: a window costs one memory copy. Training
-    windows (:func:`lossvo.data.windows.training_starts`) have ``seq_len`` frames, start every ``stride``
-    frames and exist at each frame step s of ``steps``: every s-th frame, with targets ``inv(T_w_k) @
-    T_w_{k+s}`` computed from the poses in float64 (s = 2 doubles the speeds and rotations the network
-    sees). Tiled windows (``tiled=True``, validation and test) follow :func:`lossvo.data.windows.tile`:
-    every consecutive pair exactly once, the last window of a sequence possibly shorter. Conversion to
-    float, normalisation and augmentation happen per batch on the training
-    device (:meth:`KittiDataModule.on_after_batch_transfer`), which also moves 4x fewer bytes to the GPU.
-    The memory maps are opened lazily in each process (a pickled memmap would be copied whole into every
-    DataLoader worker).
-
-    Args:
-        cache_files: one cached frame array per sequence; poses: (N_i, 4, 4) T_w_c per sequence.
-        seq_len: frames per window; stride: frames between training window starts; steps: frame steps of
-            the training windows (1: consecutive); tiled: tile the sequences instead (stride, steps unused).
-        intrinsics: (3, 3) K of each sequence's cached frames (None: the identity).
-        flow_files: step -> one cached flow array per sequence (:mod:`lossvo.data.flow`), for every step
-            used; None: no flow.
-        times: (N_i,) timestamps (s) per sequence: training windows never span a gap in them
-            (:func:`lossvo.data.windows.gaps`); None: no gaps.
-    """
-
-    def __init__(
-        self, cache_files: list[Path], poses: list[np.ndarray], seq_len: int, stride: int = 1,
-        steps: Seq[int] = (1,), tiled: bool = False, intrinsics: list[np.ndarray] | None = None,
-        flow_files: dict[int, list[Path]] | None = None, times: list[np.ndarray] | None = None,
-    ) -> None:  # fmt: skip
-        self.cache_files = cache_files
-        self.flow_files = flow_files
-        self.seq_len = seq_len
-        Ks = intrinsics if intrinsics is not None else [np.eye(3)] * len(poses)
-        self.intrinsics = [torch.from_numpy(np.asarray(K, dtype=np.float32)) for K in Ks]
-        steps = (1,) if tiled else tuple(steps)
-        self.targets = {
-            s: [torch.from_numpy(relative_targets(p, s).astype(np.float32)) for p in poses] for s in steps
-        }
-        lengths = [len(p) for p in poses]
-        gap = [windows.gaps(t) for t in times] if times is not None else [None] * len(poses)
-        rows = [
-            self._tiles(i, n, seq_len, gap[i]) if tiled else self._training(i, n, seq_len, stride, s, gap[i])
-            for s in steps for i, n in enumerate(lengths) if n >= 2
-        ]  # fmt: skip
-        self.index = np.concatenate(rows) if rows else np.zeros((0, 4), dtype=np.int64)
-        self._frames: list[np.ndarray] | None = None
-        self._flow: dict[int, list[np.ndarray]] | None = None
-
-    @staticmethod
-    def _training(
-        seq: int, n: int, seq_len: int, stride: int, step: int, gap: np.ndarray | None
-    ) -> np.ndarray:
-        """(M, 4) rows (sequence, start, stop, step) of a sequence's training windows at one step."""
-        starts = windows.training_starts(n, seq_len, stride, step, gap)
-        stops = starts + step * (seq_len - 1) + 1
-        return np.stack((np.full_like(starts, seq), starts, stops, np.full_like(starts, step)), axis=1)
-
-    @staticmethod
-    def _tiles(seq: int, n: int, seq_len: int, gap: np.ndarray | None) -> np.ndarray:
-        """(M, 4) rows (sequence, start, stop, 1) of the windows tiling a sequence."""
-        ranges = windows.tile(n, seq_len, gap)
-        ones = np.ones(len(ranges), dtype=np.int64)
-        return np.stack((seq * ones, ranges[:, 0], ranges[:, 1], ones), axis=1)
-
-    @property
-    def lengths(self) -> np.ndarray:
-        """(M,) frames of each window."""
-        return (self.index[:, 2] - self.index[:, 1] - 1) // self.index[:, 3] + 1
-
-    def __getstate__(self) -> dict:
-        return {**self.__dict__, "_frames": None, "_flow": None}
-
-    @property
-    def frames(self) -> list[np.ndarray]:
-        if self._frames is None:
-            self._frames = [np.load(f, mmap_mode="r") for f in self.cache_files]
-        return self._frames
-
-    def __len__(self) -> int:
-        return len(self.index)
-
-    @property
-    def flow(self) -> dict[int, list[np.ndarray]]:
-        if self._flow is None:
-            files = self.flow_files or {}
-            self._flow = {step: [np.load(f, mmap_mode="r") for f in paths] for step, paths in files.items()}
-        return self._flow
-
-    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
-        seq, start, stop, step = (int(v) for v in self.index[i])
-        item = {
-            "frames": torch.from_numpy(np.array(self.frames[seq][start:stop:step])),  # one copy
-            "targets": self.targets[step][seq][start : stop - 1 : step],
-            "K": self.intrinsics[seq],
-        }
-        if self.flow_files is not None:  # pair (k, k + step) is field k of the step's flow
-            item["flow"] = torch.from_numpy(np.array(self.flow[step][seq][start : stop - 1 : step]))
-        return item
-
-
-def reverse_windows(
-    frames: torch.Tensor, targets: torch.Tensor, which: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Play the selected windows backwards: frames in reverse order, and as targets the inverse
-    relative poses in reverse order (frame k seen from frame k+1), which is exact.
-
-    Args:
-        frames: (B, L, 3, H, W); targets: (B, L-1, 4, 4); which: (B,) bool, the windows to reverse.
-    Returns:
-        frames, targets of the same shapes.
-    """
-    which = which.to(frames.device, non_blocking=True)
-    backwards_targets = geometry.pose_inverse(targets).flip(1)
-    return (
-        torch.where(which.view(-1, 1, 1, 1, 1), frames.flip(1), frames),
-        torch.where(which.view(-1, 1, 1, 1), backwards_targets, targets),
-    )
-
-
-def mirror_windows(
-    frames: torch.Tensor, targets: torch.Tensor, which: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Mirror the selected windows left to right: every frame flipped horizontally and every target
-    conjugated by the reflection S = diag(-1, 1, 1, 1) of the camera's x axis, S @ T @ S (sideways
-    translation, yaw and roll change sign). The mirrored frames are what the mirrored world looks like
-    through a camera whose principal point is mirrored too (cx -> W - 1 - cx): exact for a centred
-    principal point, and a shift of W - 1 - 2 cx pixels otherwise (about 4 px of 208 on the synthetic
-    data, 26 px of 1241 on KITTI).
-
-    Args:
-        frames: (B, L, 3, H, W); targets: (B, L-1, 4, 4); which: (B,) bool, the windows to mirror.
-    Returns:
-        frames, targets of the same shapes.
-    """
-    which = which.to(frames.device, non_blocking=True)
-    sign = torch.tensor([-1.0, 1.0, 1.0, 1.0], dtype=targets.dtype).to(targets.device, non_blocking=True)
-    return (
-        torch.where(which.view(-1, 1, 1, 1, 1), frames.flip(-1), frames),
-        torch.where(which.view(-1, 1, 1, 1), targets * (sign[:, None] * sign), targets),
-    )
-
-
-def mirror_inputs(inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-    """A sequence's inputs as a mirrored world looks through the mirrored camera: frames flipped left to
-    right, the flow mirrored (:func:`lossvo.data.flow.mirror_flow`) and K's principal point mirrored
-    (:func:`lossvo.data.camera.mirrored_intrinsics`), as :func:`mirror_windows` does in training.
-
-    Args:
-        inputs: ``frames`` (..., 3, H, W), optionally ``flow`` (..., 2, H, W) and ``K`` (..., 3, 3).
-    Returns:
-        the same entries, mirrored (other entries as they are).
-    """
-    mirrored = {**inputs, "frames": inputs["frames"].flip(-1)}
-    if "flow" in inputs:
-        mirrored["flow"] = optical_flow.mirror_flow(inputs["flow"])
-    if "K" in inputs:
-        mirrored["K"] = camera.mirrored_intrinsics(inputs["K"], inputs["frames"].shape[-1])
-    return mirrored
-
-
-def zoomed_windows(
-    inputs: dict[str, torch.Tensor], zoom: float, generator: torch.Generator | None = None
-) -> dict[str, torch.Tensor]:
-    """Each window seen through a zoomed-in camera, as TartanVO's intrinsics augmentation does: a random
-    window of 1/sx by 1/sy of the frame (sx, sy drawn apart from U[1, zoom], one draw a window) resized to the
-    whole frame; the frames and flow resampled (bilinear), the flow scaled by (sx, sy) and K turned into the
-    window's K (fx sx, fy sy, principal point moved): a training set of one camera then shows the network
-    many, so that the intrinsics layer carries information.
-
-    Args:
-        inputs: ``frames`` (B, L, C, H, W) uint8 or float, ``K`` (B, 3, 3), optionally ``flow``
-            (B, P, 2, H, W) in pixels; zoom: the largest factor (>= 1).
-    Returns:
-        the same entries, zoomed (other entries as they are).
-    """
-    frames, K = inputs["frames"], inputs["K"]
-    B, H, W = frames.shape[0], frames.shape[-2], frames.shape[-1]
-    draw = torch.rand(4, B, generator=generator).to(K.device, torch.float32, non_blocking=True)
-    sx, sy = 1.0 + (zoom - 1.0) * draw[0], 1.0 + (zoom - 1.0) * draw[1]
-    x0, y0 = draw[2] * W * (1.0 - 1.0 / sx), draw[3] * H * (1.0 - 1.0 / sy)  # window's corner, pixels
-    theta = torch.zeros(B, 2, 3, device=K.device)
-    theta[:, 0, 0], theta[:, 0, 2] = 1.0 / sx, 1.0 / sx + 2.0 * x0 / W - 1.0
-    theta[:, 1, 1], theta[:, 1, 2] = 1.0 / sy, 1.0 / sy + 2.0 * y0 / H - 1.0
-
-    def resample(x: torch.Tensor) -> torch.Tensor:  # (B, T, C, H, W) -> the same, each window its theta
-        T, C = x.shape[1], x.shape[2]
-        grid = F.affine_grid(theta.repeat_interleave(T, 0), [B * T, C, H, W], align_corners=False)
-        out = F.grid_sample(
-            x.reshape(B * T, C, H, W).float(), grid, align_corners=False, padding_mode="border"
-        )
-        return out.reshape(x.shape)
-
-    out = dict(inputs)
-    zoomed = resample(frames)
-    out["frames"] = (
-        zoomed.round().clamp(0, 255).to(frames.dtype) if not frames.is_floating_point() else zoomed
-    )
-    if "flow" in inputs:
-        scale = torch.stack((sx, sy), 1).view(B, 1, 2, 1, 1)
-        out["flow"] = (resample(inputs["flow"]) * scale).to(inputs["flow"].dtype)
-    K_out = K.clone()
-    K_out[:, 0, 0], K_out[:, 1, 1] = K[:, 0, 0] * sx, K[:, 1, 1] * sy
-    K_out[:, 0, 2] = (K[:, 0, 2] - x0 + 0.5) * sx - 0.5
-    K_out[:, 1, 2] = (K[:, 1, 2] - y0 + 0.5) * sy - 0.5
-    out["K"] = K_out
-    return out
-
-
-STANDSTILL_NOISE = 1.5
-"""Standard deviation (grey levels) of the sensor noise added to each frame of a standing window."""
-
-
-def standing_windows(
-    frames: torch.Tensor, targets: torch.Tensor, which: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Turn the selected windows into a car standing still where the window starts: every frame the
-    window's first with fresh sensor noise (Gaussian, STANDSTILL_NOISE grey levels), every target the
-    identity. Any scene may then show no motion, so a network cannot read speed off the scene.
-
-    Args:
-        frames: (B, L, 3, H, W) uint8; targets: (B, L-1, 4, 4); which: (B,) bool, the windows to stop.
-    Returns:
-        frames, targets of the same shapes and dtypes.
-    """
-    chosen = which.cpu().nonzero().flatten()  # drawn on the host: counted there, no wait for the device
-    if not len(chosen):
-        return frames, targets
-    chosen = chosen.to(frames.device, non_blocking=True)
-    frames, targets = frames.clone(), targets.clone()
-    still = frames[chosen, :1].float().expand(-1, frames.shape[1], -1, -1, -1)
-    noisy = still + STANDSTILL_NOISE * torch.randn(still.shape, device=frames.device)
-    frames[chosen] = noisy.round().clamp(0, 255).to(frames.dtype)
-    targets[chosen] = torch.eye(4, dtype=targets.dtype, device=targets.device)
-    return frames, targets
-
-
-def jitter(frames: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
-    """Brightness and contrast jitter, one draw per window (keeps the window's pairs consistent).
-
-    Args:
-        frames: (B, L, 3, H, W) float in [0, 255].
-    Returns:
-        (B, L, 3, H, W) float in [0, 255].
-    """
-    draw = torch.rand(2, frames.shape[0], 1, 1, 1, 1, generator=generator) - 0.5
-    gain, bias = draw.to(frames.device, non_blocking=True)
-    return ((frames - 127.5) * (1.0 + 0.4 * gain) + 127.5 + 50.0 * bias).clamp(0.0, 255.0)
-
-
 def _own_stream() -> torch.Generator:
     """A generator for a DataLoader's worker seeds, seeded with the run's seed: without one, every
     epoch's loader iterator draws from the global stream, which the network's dropout uses."""
     return torch.Generator().manual_seed(torch.initial_seed())
-
-
-class EpochShuffle(Sampler[int]):
-    """``count`` of ``n`` indices without replacement in a random order that depends on ``seed`` and the
-    epoch only (Lightning calls :meth:`set_epoch` before every training epoch).
-
-    Args:
-        n: dataset size; count: indices per epoch (<= n); seed: the run's seed.
-    """
-
-    def __init__(self, n: int, count: int, seed: int) -> None:
-        self.n, self.count, self.seed, self.epoch = n, count, seed, 0
-
-    def set_epoch(self, epoch: int) -> None:
-        self.epoch = epoch
-
-    def __iter__(self) -> Iterator[int]:
-        state = np.random.SeedSequence([self.seed % 2**63, self.epoch]).generate_state(2, dtype=np.uint32)
-        generator = torch.Generator().manual_seed(int(state[0]) << 32 | int(state[1]))
-        return iter(torch.randperm(self.n, generator=generator)[: self.count].tolist())
-
-    def __len__(self) -> int:
-        return self.count
-
-
-def _probability(value: Any) -> bool:
-    return is_number(value) and 0.0 <= value <= 1.0
 
 
 ARGUMENT_CHECKS: tuple[tuple[str, Any, str], ...] = (
@@ -382,10 +107,6 @@ ARGUMENT_CHECKS: tuple[tuple[str, Any, str], ...] = (
     ("keep_every", lambda v: is_integer(v, 1), "an integer >= 1 (frames)"),
     ("normalization", lambda v: v in NORMALIZATIONS, f"one of {NORMALIZATIONS}"),
     ("windows_per_epoch", lambda v: v is None or is_integer(v, 1), "null or an integer >= 1"),
-    ("reverse", _probability, "a probability in [0, 1]"),
-    ("standstill", _probability, "a probability in [0, 1]"),
-    ("mirror", _probability, "a probability in [0, 1]"),
-    ("zoom", lambda v: is_number(v) and 1.0 <= v <= 4.0, "a number in [1, 4] (1: no zoom)"),
     ("crop", lambda v: isinstance(v, bool), "true or false"),
     ("on_device", lambda v: v == "auto" or isinstance(v, bool), "auto, true or false"),
     ("device_budget_gb", lambda v: is_number(v) and v >= 0, "a number of GiB >= 0"),
@@ -407,6 +128,17 @@ def _frame_steps(value: Any) -> tuple[int, ...]:
     if not steps or any(not is_integer(v, 1) for v in steps):
         raise ValueError(f"data.frame_steps: expected a list of integers >= 1 like [1, 2], got {value!r}")
     return tuple(dict.fromkeys(steps))
+
+
+def _transforms(value: Any) -> tuple[batch_transforms.Transform, ...]:
+    """``data.transforms`` as a tuple of batch transforms (:mod:`lossvo.data.transforms`); ValueError naming
+    the key otherwise."""
+    items = list(value) if isinstance(value, Seq) and not isinstance(value, str) else None
+    if items is None or not all(isinstance(t, batch_transforms.TRANSFORMS) for t in items):
+        names = ", ".join(t.__name__ for t in batch_transforms.TRANSFORMS)
+        raise ValueError(f"data.transforms: expected a list of batch transforms ({names} of "
+                         f"lossvo.data.transforms, each with its _target_), got {value!r}")  # fmt: skip
+    return tuple(items)
 
 
 @dataclass(frozen=True)
@@ -463,16 +195,12 @@ class VODataModule(L.LightningDataModule):
         batch_size, num_workers: DataLoader settings.
         cache_dir: where frames are cached; default ``$LOSSVO_CACHE`` or ``~/.cache/lossvo``.
         normalization: ``"dataset"`` (per-channel mean/std of the training sequences) or ``"flownet"``.
-        augment: photometric jitter on training windows.
-        reverse: probability of playing a training window backwards (frames in reverse order, targets
-            the inverse relative poses in reverse order): exact geometry, twice the motions.
-        standstill: probability of replacing a training window by the car standing still at its first
-            frame (:func:`standing_windows`): no motion in any scene.
+        transforms: the batch transforms (augmentations) of training batches, applied in this order on
+            the training device (:mod:`lossvo.data.transforms`: ``Standstill``, ``Zoom``, ``Mirror``,
+            ``Reverse``, ``Jitter``); empty: none.
         frame_steps: frame steps of the training windows, e.g. ``[1, 2]``: every window start at each
             step (every s-th frame, targets recomputed from the poses), so larger steps add faster motion.
             Validation and evaluation always use consecutive frames.
-        mirror: probability of mirroring a training window left to right (:func:`mirror_windows`):
-            left and right turns in equal numbers, and scenes the network has not seen.
         statistics: ``{"mean": [3], "std": [3]}`` per channel of ``x / 255``: the normalisation of a
             trained network (its checkpoint's), used instead of computing it from the training split,
             which may then be empty (evaluation on data that holds only test sequences).
@@ -484,8 +212,6 @@ class VODataModule(L.LightningDataModule):
         crop: cut each frame's centred window of the (height, width) aspect ratio before resizing it (K
             follows), so that pixels keep their shape; false: the whole frame, resized (anisotropically when
             the aspect ratios differ).
-        zoom: the largest factor of the zoom augmentation of training windows (:func:`zoomed_windows`:
-            random windows of the frame resized to it, K following); 1: none.
         camera: ``{K: 3x3, distortion: [k1, k2, p1, p2, k3]}`` replacing the camera the reader gives every
             sequence (pixels of the frames on disk; e.g. a TUM sequence recorded with another camera); null:
             the reader's.
@@ -520,13 +246,10 @@ class VODataModule(L.LightningDataModule):
         num_workers: int = 2,
         cache_dir: str | None = None,
         normalization: str = "dataset",
-        augment: bool = False,
-        reverse: float = 0.0,
-        standstill: float = 0.0,
+        transforms: Seq[batch_transforms.Transform] = (),
         pin_memory: bool = False,
         windows_per_epoch: int | None = None,
         frame_steps: Seq[int] = (1,),
-        mirror: float = 0.0,
         statistics: Mapping[str, Seq[float]] | None = None,
         flow: str = "none",
         flow_preset: str = "medium",
@@ -534,18 +257,16 @@ class VODataModule(L.LightningDataModule):
         layout: str = "kitti",
         keep_every: int = 1,
         crop: bool = False,
-        zoom: float = 1.0,
         camera: Mapping[str, Any] | None = None,
         on_device: bool | str = "auto",
         device_budget_gb: float = 8.0,
     ) -> None:
         super().__init__()
-        self.save_hyperparameters(logger=False)
+        self.save_hyperparameters(logger=False, ignore=["transforms"])  # primitives only (a checkpoint's)
         _check_arguments({
             "height": height, "width": width, "seq_len": seq_len, "stride": stride, "keep_every": keep_every,
-            "normalization": normalization, "windows_per_epoch": windows_per_epoch, "reverse": reverse,
-            "standstill": standstill, "mirror": mirror, "zoom": zoom, "crop": crop, "on_device": on_device,
-            "device_budget_gb": device_budget_gb,
+            "normalization": normalization, "windows_per_epoch": windows_per_epoch, "crop": crop,
+            "on_device": on_device, "device_budget_gb": device_budget_gb,
         })  # fmt: skip
         self.root = Path(root).expanduser()
         self.layout = layouts.check_layout(layout)
@@ -563,18 +284,15 @@ class VODataModule(L.LightningDataModule):
         if not self.splits["train"] and self.statistics is None:
             raise ValueError("data.train: expected at least one training sequence")
         self.frame_steps = _frame_steps(frame_steps)
-        if self.flow.enabled and reverse > 0:
-            raise ValueError(
-                f"data.reverse: expected 0 with data.flow={flow} (the cache holds each pair's forward "
-                f"flow only), got {reverse!r}"
-            )
+        self.transforms = _transforms(transforms)
+        if self.flow.enabled and any(isinstance(t, batch_transforms.Reverse) for t in self.transforms):
+            raise ValueError(f"data.transforms: Reverse is not possible with data.flow={flow} (the cache "
+                             f"holds each pair's forward flow only)")  # fmt: skip
         self.height, self.width, self.seq_len, self.stride = height, width, seq_len, stride
         self.batch_size, self.num_workers, self.pin_memory = batch_size, num_workers, pin_memory
         self.windows_per_epoch = windows_per_epoch
         self.cache_dir = Path(cache_dir).expanduser() if cache_dir else frame_cache.default_cache_dir()
-        self.normalization, self.augment, self.reverse = normalization, augment, float(reverse)
-        self.standstill, self.mirror = float(standstill), float(mirror)
-        self.crop, self.zoom = crop, float(zoom)
+        self.normalization, self.crop = normalization, crop
         self.on_device, self.device_budget_gb = on_device, float(device_budget_gb)
         self.resident: dict[str, resident.ResidentWindows] | None = None  # by split, once decided
         self.sequences: dict[str, Sequence] = {}
@@ -649,10 +367,15 @@ class VODataModule(L.LightningDataModule):
         }
 
     def prepare_data(self) -> None:
-        """Check the dataset and build the frame cache and the normalisation statistics (once)."""
+        """Check the dataset and build the frame cache, the normalisation statistics and the flow (once)."""
+        self._prepare()
+
+    def _prepare(self) -> None:
+        """Read the metadata, then build what is missing or stale: frames, statistics (:attr:`mean`,
+        :attr:`std`), flow."""
         self._load_metadata()
         frames = self._ensure_frames()
-        self._stats(frames)
+        self.mean, self.std = self._stats(frames)
         self._ensure_flow(frames)
 
     def _stats_path(self) -> Path:
@@ -704,10 +427,7 @@ class VODataModule(L.LightningDataModule):
         """Open the cache (rebuilding anything missing or stale) and build the split datasets."""
         if self.datasets:
             return
-        self._load_metadata()
-        frames = self._ensure_frames()
-        self.mean, self.std = self._stats(frames)
-        self._ensure_flow(frames)
+        self._prepare()
         for split, names in self.splits.items():
             labelled = [(n, p) for n in names if (p := self.sequences[n].poses) is not None]  # labelled ones
             steps = (1,) if split != "train" else self.frame_steps
@@ -727,10 +447,12 @@ class VODataModule(L.LightningDataModule):
 
     def description(self) -> dict[str, Any]:
         """What a network trained on this data depends on, as primitives (a checkpoint's ``data``):
-        ``_target_`` (this class) and the constructor's arguments, ``root`` absolute, and, after
+        ``_target_`` (this class) and the constructor's arguments (``transforms`` as their configs,
+        :func:`lossvo.data.transforms.spec`), ``root`` absolute, and, after
         :meth:`setup` (None before), ``statistics`` ``{"mean": [3], "std": [3]}`` and ``intrinsics``, the
         (3, 3) K of each training sequence's cached frames (pixels)."""
         config = {key: _primitive(value) for key, value in self.hparams.items()}
+        config["transforms"] = [batch_transforms.spec(t) for t in self.transforms]
         if config.get("root") is not None:
             config["root"] = str(Path(config["root"]).expanduser().resolve())
         stats = None if self.mean is None or self.std is None else {
@@ -878,39 +600,18 @@ class VODataModule(L.LightningDataModule):
     def on_after_batch_transfer(
         self, batch: dict[str, torch.Tensor], dataloader_idx: int
     ) -> dict[str, torch.Tensor]:
-        """On the training device: :meth:`prepare`; when training, windows first stopped
-        (``standstill``: no flow), zoomed (``zoom``: the flow and K too), mirrored (``mirror``: the flow and
-        K too), played backwards (``reverse``) and jittered (``augment``)."""
+        """On the training device: an index batch gathered (:mod:`lossvo.data.resident`), when training
+        the :attr:`transforms` applied in order, then :meth:`prepare`."""
         if "frame_index" in batch:  # an index batch of windows kept on the device
             windows = self.resident_windows(str(batch["split"]))
             assert windows is not None
             batch = windows.gather(batch)
-        batch = dict(batch)
-        frames, targets = batch["frames"], batch["targets"]
-        training = self.trainer is not None and self.trainer.training
-        if training and self.standstill > 0:
-            which = torch.rand(frames.shape[0]) < self.standstill
-            frames, targets = standing_windows(frames, targets, which)
-            if "flow" in batch:
-                moving = ~which.to(frames.device, non_blocking=True)
-                batch["flow"] = batch["flow"] * moving.view(-1, 1, 1, 1, 1)
-        if training and self.zoom > 1:
-            batch = zoomed_windows({**batch, "frames": frames}, self.zoom)
-            frames = batch["frames"]
-        if training and self.mirror > 0:
-            which = torch.rand(frames.shape[0]) < self.mirror
-            frames, targets = mirror_windows(frames, targets, which)
-            where = which.to(frames.device, non_blocking=True)
-            if "flow" in batch:
-                mirrored = optical_flow.mirror_flow(batch["flow"])
-                batch["flow"] = torch.where(where.view(-1, 1, 1, 1, 1), mirrored, batch["flow"])
-            mirrored_K = camera.mirrored_intrinsics(batch["K"], self.width)
-            batch["K"] = torch.where(where.view(-1, 1, 1), mirrored_K, batch["K"])
-        if training and self.reverse > 0:
-            frames, targets = reverse_windows(frames, targets, torch.rand(frames.shape[0]) < self.reverse)
-        if training and self.augment:
-            frames = jitter(frames.float()).round()
-        return self.prepare({**batch, "frames": frames, "targets": targets})
+        inputs = {k: v for k, v in batch.items() if k != "targets"}
+        targets = batch["targets"]
+        if self.trainer is not None and self.trainer.training:
+            for transform in self.transforms:
+                inputs, targets = transform(inputs, targets, None)
+        return self.prepare({**batch, **inputs, "targets": targets})
 
     def sequence_inputs(self, name: str) -> dict[str, np.ndarray]:
         """A whole sequence's inputs: ``frames`` (N, 3, H, W) uint8 (memory map), ``K`` (3, 3) float32 and,
@@ -941,9 +642,8 @@ class KittiDataModule(VODataModule):
 
 
 DATASET_KEYS = ("layout", "root", "train", "val", "test", "unseen", "keep_every", "camera")
-"""What an entry of :class:`MultiDataModule`'s ``datasets`` may set."""
-DERIVED = ("root", "layout", "train", "val", "test", "unseen", "keep_every", "camera")
-""":class:`VODataModule` arguments that :class:`MultiDataModule` derives from its ``datasets``."""
+"""What an entry of :class:`MultiDataModule`'s ``datasets`` may set: the :class:`VODataModule` arguments
+it derives from them."""
 
 
 def _dataset_entries(datasets: Any) -> dict[str, dict[str, Any]]:
@@ -987,7 +687,7 @@ class MultiDataModule(VODataModule):
 
     def __init__(self, datasets: Mapping[str, Mapping[str, Any]], **kwargs: Any) -> None:
         entries = _dataset_entries(datasets)
-        shared = {k: v for k, v in kwargs.items() if k not in DERIVED}
+        shared = {k: v for k, v in kwargs.items() if k not in DATASET_KEYS}
         train, val, test, unseen = (
             [f"{key}/{name}" for key, e in entries.items()
              for name in _names(e.get(split) or [], f"datasets.{key}.{split}")]
@@ -1010,7 +710,7 @@ class MultiDataModule(VODataModule):
         """:meth:`VODataModule.description` with ``layout`` ``multi``, the run's ``train`` names and the
         ``datasets``, without the arguments derived from them."""
         described = super().description()
-        dropped = set(DERIVED) - {"train", "layout"}
+        dropped = set(DATASET_KEYS) - {"train", "layout"}
         return {k: v for k, v in described.items() if k not in dropped} | {"layout": "multi"}
 
 
@@ -1042,22 +742,23 @@ class SyntheticDataModule(VODataModule):
             "height": render_height or synthetic.DEFAULT_HEIGHT,
             "width": render_width or synthetic.DEFAULT_WIDTH, "seed": seed, "spec": spec,
         }  # fmt: skip
+        self._check_names()
 
-    def _ensure_rendered(self) -> None:
-        """Render the dataset unless it is there; the lock lets parallel sweep jobs share it."""
+    def _check_names(self) -> None:
+        """ValueError ``data.<split>: sequence 'NN' not found (available: ...)`` for a sequence that
+        ``frames`` gives no frame count (the dataset cannot hold it)."""
+        counts = self.generator_args["frames"]
+        if not isinstance(counts, Mapping):
+            return
+        for split, names in self.splits.items():
+            for name in names:
+                if name not in counts:
+                    raise ValueError(f"data.{split}: sequence {name!r} not found (available: "
+                                     f"{', '.join(sorted(counts))})")  # fmt: skip
+
+    def _load_metadata(self) -> None:
+        """Render the dataset unless it is there (a lock lets parallel sweep jobs share it); read it."""
         self.root.mkdir(parents=True, exist_ok=True)
         with FileLock(self.root.parent / f".{self.root.name}.lock"):
             synthetic.ensure_dataset(self.root, sequences=self.all_names, **self.generator_args)
-
-    def load_metadata(self) -> None:
-        self._ensure_rendered()
-        super().load_metadata()
-
-    def prepare_data(self) -> None:
-        self._ensure_rendered()
-        super().prepare_data()
-
-    def setup(self, stage: str | None = None) -> None:
-        if not self.datasets:
-            self._ensure_rendered()
-        super().setup(stage)
+        super()._load_metadata()

@@ -1,5 +1,6 @@
 """How sequences are cut into windows of frames: the one rule for validation, testing and whole-sequence
-inference (:func:`tile`), the training windows (:func:`training_starts`), and batches of windows of one
+inference (:func:`tile`), the training windows (:func:`training_starts`), the dataset of windows of cached
+frames (:class:`WindowDataset`), each epoch's order (:class:`EpochShuffle`) and batches of windows of one
 length (:class:`SameLengthBatches`).
 
 A window of ``L`` frames holds ``L - 1`` consecutive frame pairs.
@@ -8,9 +9,13 @@ A window of ``L`` frames holds ``L - 1`` consecutive frame pairs.
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
+from pathlib import Path
 
 import numpy as np
-from torch.utils.data import BatchSampler, Sampler
+import torch
+from torch.utils.data import BatchSampler, Dataset, Sampler
+
+from lossvo.data.kitti import relative_targets
 
 
 def tile(n_frames: int, seq_len: int, gap: np.ndarray | None = None) -> np.ndarray:
@@ -115,3 +120,128 @@ class SameLengthBatches(BatchSampler):
         counts = np.bincount([self.lengths[i] for i in self.sampler]) if self.lengths else np.zeros(0)
         full, rest = np.divmod(counts, self.batch_size)
         return int(full.sum() + (0 if self.drop_last else np.count_nonzero(rest)))
+
+
+class WindowDataset(Dataset):
+    """Windows of cached frames with their relative-pose targets.
+
+    Items are dicts: ``frames`` (L, 3, H, W) uint8, ``targets`` (L - 1, 4, 4) float32, ``K`` (3, 3)
+    float32 and, with flow, ``flow`` (L - 1, 2, H, W) float16: a window costs one memory copy. Training
+    windows (:func:`lossvo.data.training_starts`) have ``seq_len`` frames, start every ``stride``
+    frames and exist at each frame step s of ``steps``: every s-th frame, with targets ``inv(T_w_k) @
+    T_w_{k+s}`` computed from the poses in float64 (s = 2 doubles the speeds and rotations the network
+    sees). Tiled windows (``tiled=True``, validation and test) follow :func:`tile`:
+    every consecutive pair exactly once, the last window of a sequence possibly shorter. Conversion to
+    float, normalisation and augmentation happen per batch on the training device
+    (:meth:`lossvo.data.datamodules.VODataModule.on_after_batch_transfer`), which moves 4x fewer bytes.
+    The memory maps are opened lazily in each process (a pickled memmap would be copied whole into every
+    DataLoader worker).
+
+    Args:
+        cache_files: one cached frame array per sequence; poses: (N_i, 4, 4) T_w_c per sequence.
+        seq_len: frames per window; stride: frames between training window starts; steps: frame steps of
+            the training windows (1: consecutive); tiled: tile the sequences instead (stride, steps unused).
+        intrinsics: (3, 3) K of each sequence's cached frames (None: the identity).
+        flow_files: step -> one cached flow array per sequence (:mod:`lossvo.data.flow`), for every step
+            used; None: no flow.
+        times: (N_i,) timestamps (s) per sequence: training windows never span a gap in them
+            (:func:`gaps`); None: no gaps.
+    """
+
+    def __init__(
+        self, cache_files: list[Path], poses: list[np.ndarray], seq_len: int, stride: int = 1,
+        steps: Sequence[int] = (1,), tiled: bool = False, intrinsics: list[np.ndarray] | None = None,
+        flow_files: dict[int, list[Path]] | None = None, times: list[np.ndarray] | None = None,
+    ) -> None:  # fmt: skip
+        self.cache_files = cache_files
+        self.flow_files = flow_files
+        self.seq_len = seq_len
+        Ks = intrinsics if intrinsics is not None else [np.eye(3)] * len(poses)
+        self.intrinsics = [torch.from_numpy(np.asarray(K, dtype=np.float32)) for K in Ks]
+        steps = (1,) if tiled else tuple(steps)
+        self.targets = {
+            s: [torch.from_numpy(relative_targets(p, s).astype(np.float32)) for p in poses] for s in steps
+        }
+        lengths = [len(p) for p in poses]
+        gap = [gaps(t) for t in times] if times is not None else [None] * len(poses)
+        rows = [
+            self._tiles(i, n, seq_len, gap[i]) if tiled else self._training(i, n, seq_len, stride, s, gap[i])
+            for s in steps for i, n in enumerate(lengths) if n >= 2
+        ]  # fmt: skip
+        self.index = np.concatenate(rows) if rows else np.zeros((0, 4), dtype=np.int64)
+        self._frames: list[np.ndarray] | None = None
+        self._flow: dict[int, list[np.ndarray]] | None = None
+
+    @staticmethod
+    def _training(
+        seq: int, n: int, seq_len: int, stride: int, step: int, gap: np.ndarray | None
+    ) -> np.ndarray:
+        """(M, 4) rows (sequence, start, stop, step) of a sequence's training windows at one step."""
+        starts = training_starts(n, seq_len, stride, step, gap)
+        stops = starts + step * (seq_len - 1) + 1
+        return np.stack((np.full_like(starts, seq), starts, stops, np.full_like(starts, step)), axis=1)
+
+    @staticmethod
+    def _tiles(seq: int, n: int, seq_len: int, gap: np.ndarray | None) -> np.ndarray:
+        """(M, 4) rows (sequence, start, stop, 1) of the windows tiling a sequence."""
+        ranges = tile(n, seq_len, gap)
+        ones = np.ones(len(ranges), dtype=np.int64)
+        return np.stack((seq * ones, ranges[:, 0], ranges[:, 1], ones), axis=1)
+
+    @property
+    def lengths(self) -> np.ndarray:
+        """(M,) frames of each window."""
+        return (self.index[:, 2] - self.index[:, 1] - 1) // self.index[:, 3] + 1
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_frames": None, "_flow": None}
+
+    @property
+    def frames(self) -> list[np.ndarray]:
+        if self._frames is None:
+            self._frames = [np.load(f, mmap_mode="r") for f in self.cache_files]
+        return self._frames
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    @property
+    def flow(self) -> dict[int, list[np.ndarray]]:
+        if self._flow is None:
+            files = self.flow_files or {}
+            self._flow = {step: [np.load(f, mmap_mode="r") for f in paths] for step, paths in files.items()}
+        return self._flow
+
+    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+        seq, start, stop, step = (int(v) for v in self.index[i])
+        item = {
+            "frames": torch.from_numpy(np.array(self.frames[seq][start:stop:step])),  # one copy
+            "targets": self.targets[step][seq][start : stop - 1 : step],
+            "K": self.intrinsics[seq],
+        }
+        if self.flow_files is not None:  # pair (k, k + step) is field k of the step's flow
+            item["flow"] = torch.from_numpy(np.array(self.flow[step][seq][start : stop - 1 : step]))
+        return item
+
+
+class EpochShuffle(Sampler[int]):
+    """``count`` of ``n`` indices without replacement in a random order that depends on ``seed`` and the
+    epoch only (Lightning calls :meth:`set_epoch` before every training epoch).
+
+    Args:
+        n: dataset size; count: indices per epoch (<= n); seed: the run's seed.
+    """
+
+    def __init__(self, n: int, count: int, seed: int) -> None:
+        self.n, self.count, self.seed, self.epoch = n, count, seed, 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __iter__(self) -> Iterator[int]:
+        state = np.random.SeedSequence([self.seed % 2**63, self.epoch]).generate_state(2, dtype=np.uint32)
+        generator = torch.Generator().manual_seed(int(state[0]) << 32 | int(state[1]))
+        return iter(torch.randperm(self.n, generator=generator)[: self.count].tolist())
+
+    def __len__(self) -> int:
+        return self.count

@@ -26,6 +26,7 @@ from torch import Tensor, nn
 from lossvo import models
 from lossvo.checks import is_integer
 from lossvo.console import first_line
+from lossvo.data.transforms import upgrade_description
 from lossvo.losses import PoseLoss
 
 TRAINED_WITH = ("height", "width", "seq_len", "normalization", "flow", "flow_preset", "flow_scale")
@@ -63,7 +64,8 @@ class Description:
     @classmethod
     def of(cls, content: Mapping[str, Any]) -> Description:
         """The description in a checkpoint's content (:func:`read`: it holds ``model`` and ``loss``)."""
-        hparams, data, threads = content["hyper_parameters"], content.get("data"), content.get("threads")
+        hparams, threads = content["hyper_parameters"], content.get("threads")
+        data = upgrade_description(content.get("data"))  # a checkpoint of an earlier version too
         return cls(hparams["model"], hparams["loss"], data if isinstance(data, dict) else None,
                    threads if is_integer(threads) else None, int(content.get("epoch", 0)),
                    int(content.get("global_step", 0)))  # fmt: skip

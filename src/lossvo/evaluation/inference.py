@@ -11,7 +11,7 @@ import roma
 import torch
 from torch import Tensor, nn
 
-from lossvo.data.datamodules import mirror_inputs
+from lossvo.data.transforms import mirror_inputs, mirror_poses
 from lossvo.data.windows import tile
 
 if TYPE_CHECKING:
@@ -64,7 +64,7 @@ def predict_sequence(
         seq_len: frames per window.
         batch_windows: windows per forward pass.
         carry_state: carry the LSTM state across windows.
-        mirror_average: also predict the mirrored sequence (:func:`lossvo.data.datamodules.mirror_inputs`,
+        mirror_average: also predict the mirrored sequence (:func:`lossvo.data.transforms.mirror_inputs`,
             the mirroring training uses), mirror those poses back and return each pair's average of the
             two (:func:`average_with_mirror`): twice the inference, a prediction symmetric under mirroring.
     Returns:
@@ -90,8 +90,7 @@ def average_with_mirror(plain: Tensor, mirrored: Tensor) -> Tensor:
     Returns:
         (..., 4, 4) float64.
     """
-    sign = torch.tensor([-1.0, 1.0, 1.0, 1.0], dtype=mirrored.dtype, device=mirrored.device)
-    back = mirrored * (sign[:, None] * sign)
+    back = mirror_poses(mirrored)
     Ra, Rb = plain[..., :3, :3], back[..., :3, :3]
     half = roma.rotvec_to_rotmat(roma.rotmat_to_rotvec(Ra.transpose(-1, -2) @ Rb) / 2)
     average = plain.clone()

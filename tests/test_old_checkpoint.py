@@ -1,0 +1,63 @@
+"""A checkpoint written by an earlier version (tests/data/checkpoint_35d7877.ckpt) loads and evaluates.
+
+The fixture was trained by commit 35d7877, before batch transforms, on the tiny KITTI-layout dataset of
+``conftest.tiny_kitti`` (data=kitti, 64x96, seq_len 3, frame steps [1, 2], ``data.mirror=0.5
+data.augment=true data.zoom=1.2``, DeepVO at width_mult 1/32 with 8 LSTM units, one epoch of two
+batches, seed 0); that version's own evaluation of sequence 02 gave the APE below.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+
+from helpers import eval_main
+from lossvo.data import transforms as T
+from lossvo.evaluation import checkpoints
+
+FIXTURE = Path(__file__).resolve().parent / "data" / "checkpoint_35d7877.ckpt"
+APE_02 = 3.797535718714747
+"""The APE translation RMSE (m) of sequence 02, as the version that wrote the checkpoint evaluated it."""
+
+
+def test_its_augmentation_arguments_read_as_transforms() -> None:
+    data = checkpoints.load_network(FIXTURE).data
+    assert data is not None and not {"mirror", "augment", "zoom", "reverse", "standstill"} & set(data)
+    assert data["transforms"] == [T.spec(T.Zoom(1.2)), T.spec(T.Mirror(0.5)), T.spec(T.Jitter())]
+    assert (data["height"], data["width"], data["seq_len"]) == (64, 96, 3)
+
+
+def test_it_evaluates_as_the_version_that_wrote_it(
+    tiny_kitti: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    args = [f"ckpt_path={FIXTURE}", f"data.root={tiny_kitti}", f"data.cache_dir={tmp_path / 'cache'}",
+            f"hydra.run.dir={tmp_path / 'run'}"]  # fmt: skip
+    status, err = eval_main(args, monkeypatch, capsys)
+    assert status == 0, err[-3000:]
+    result = json.loads((tmp_path / "run" / "results.json").read_text())
+    assert list(result["sequences"]) == ["02"]
+    assert result["sequences"]["02"]["ape"]["trans"]["rmse"] == pytest.approx(APE_02, rel=1e-6)
+
+
+def test_eval_names_an_unknown_synthetic_sequence_before_any_work(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A network trained on the synthetic data, evaluated with ``data.test=[99]``: one line, exit 2, and
+    nothing rendered."""
+    content = torch.load(FIXTURE, weights_only=True)
+    synthetic = "lossvo.data.datamodules.SyntheticDataModule"
+    frames = {"00": 10, "01": 10, "02": 10}
+    content["data"] |= {"_target_": synthetic, "root": str(tmp_path / "s"), "frames": frames, "seed": 0,
+                        "render_height": 64, "render_width": 208, "route_families": None,
+                        "route_mixes": None}  # fmt: skip
+    ckpt = tmp_path / "synthetic.ckpt"
+    torch.save(content, ckpt)
+    args = [f"ckpt_path={ckpt}", "data.test=[99]", f"hydra.run.dir={tmp_path / 'run'}"]
+    status, err = eval_main(args, monkeypatch, capsys)
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert status == 2 and len(lines) == 1, err
+    assert "data.test: sequence '99' not found (available: 00, 01, 02)" in lines[0]
+    assert not (tmp_path / "s").exists()
