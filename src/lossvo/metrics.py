@@ -12,7 +12,7 @@ from typing import Any
 
 import torch
 
-from lossvo.console import OneLineParser, emit, raise_if_full_error
+from lossvo.console import OneLineParser, UserError, emit, one_line_main
 from lossvo.data.kitti import read_poses
 from lossvo.evaluation.metrics import ALIGN_MODES, PAIRS_FROM, STATISTICS, evaluate, is_rpe_delta
 
@@ -37,6 +37,7 @@ def format_table(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+@one_line_main
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m lossvo.metrics GT_FILE EST_FILE``; one-line errors with exit status 2."""
     parser = OneLineParser(prog="python -m lossvo.metrics", description=DESCRIPTION)
@@ -58,17 +59,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not is_rpe_delta(delta, args.delta_unit):
         unit = "an integer number of frames >= 1" if frames else "a distance in metres > 0"
         parser.error(f"--delta: expected {unit}, got {args.delta:g}")
-    try:
-        gt = torch.from_numpy(read_poses(args.gt))
-        est = torch.from_numpy(read_poses(args.est))
-        if len(gt) != len(est):
-            raise ValueError(f"{args.est} has {len(est)} poses, {args.gt} has {len(gt)}: expected one pose "
-                             f"per frame of the same sequence in both")  # fmt: skip
-        result = evaluate(gt, est, args.align, delta, args.delta_unit, args.pairs_from)
-    except ValueError as e:  # KittiFormatError is a ValueError
-        raise_if_full_error()
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+    gt = torch.from_numpy(read_poses(args.gt))
+    est = torch.from_numpy(read_poses(args.est))
+    if len(gt) != len(est):
+        raise UserError(f"{args.est} has {len(est)} poses, {args.gt} has {len(gt)}: expected one pose "
+                        f"per frame of the same sequence in both")  # fmt: skip
+    result = evaluate(gt, est, args.align, delta, args.delta_unit, args.pairs_from)
     emit(json.dumps(result, indent=2) if args.json else format_table(result))
     return 0
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
-from lossvo.console import one_line_errors
+from lossvo.console import one_line_errors, quiet_lightning
 from lossvo.processes import restore_start_method
 from lossvo.training import fitting, lifecycle, resolvers
 
@@ -40,6 +40,7 @@ def main(cfg: DictConfig) -> float | None:
     ends the job in one line with exit status 2, before anything is written where the config alone
     tells; ``LOSSVO_FULL_ERROR=1`` shows its traceback instead. In a sweep the other jobs go on.
     """
+    quiet_lightning()
     restore_start_method()  # a joblib-launched job: let its loader workers and renderer start
     with lifecycle.job(cfg) as run:
         if run.completed is not None:

@@ -26,7 +26,7 @@ from hydra.utils import instantiate
 from torch import Tensor, nn
 
 from lossvo import models
-from lossvo.console import first_line
+from lossvo.console import UserError, first_line
 from lossvo.losses import PoseLoss
 
 TRAINED_WITH = ("height", "width", "seq_len", "normalization", "flow", "flow_preset", "flow_scale")
@@ -36,7 +36,7 @@ RECORD_ONLY = ("statistics", "dataset_root", "intrinsics")
 """Entries of a checkpoint's ``data`` that describe the training data but are not datamodule arguments."""
 
 
-class CheckpointError(ValueError):
+class CheckpointError(UserError):
     """A file that is not a usable lossvo checkpoint, or a run that contradicts one; the message is one
     line naming the file or the key."""
 

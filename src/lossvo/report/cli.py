@@ -19,9 +19,9 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from lossvo.console import OneLineParser, emit, raise_if_full_error
+from lossvo.console import OneLineParser, emit, one_line_main
 from lossvo.report.document import make_report
-from lossvo.report.jobs import SweepError, latest_sweep
+from lossvo.report.jobs import latest_sweep
 
 log = logging.getLogger("lossvo")
 
@@ -47,6 +47,7 @@ def parser() -> argparse.ArgumentParser:
     return out
 
 
+@one_line_main
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m lossvo.report SWEEP_DIR [--out DIR] [--latest] [--no-baselines] [--jobs N]``; returns
     the exit status (2: not a sweep)."""
@@ -58,13 +59,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         command.error(f"--out: {args.out} is a file, expected a folder")
     logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)
     start = time.perf_counter()
-    try:
-        sweep = latest_sweep(args.sweep_dir) if args.latest else args.sweep_dir
-        path = make_report(sweep, args.out, not args.no_baselines, not args.no_figures, args.jobs)
-    except SweepError as e:
-        raise_if_full_error()
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+    sweep = latest_sweep(args.sweep_dir) if args.latest else args.sweep_dir
+    path = make_report(sweep, args.out, not args.no_baselines, not args.no_figures, args.jobs)
     log.info("report written in %.1f s", time.perf_counter() - start)
     emit(str(path))
     return 0

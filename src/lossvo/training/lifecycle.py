@@ -33,16 +33,14 @@ from typing import Any
 
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
-from hydra.errors import InstantiationException
 from hydra.types import RunMode
-from lightning.fabric.utilities.exceptions import MisconfigurationException
 from lightning.pytorch.utilities import rank_zero_only
 from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from lossvo import folder_lock, weighting
 from lossvo.atomic import write_text_atomic
-from lossvo.console import USER_ERRORS, disk_error, full_error, hydra_message, one_line
+from lossvo.console import full_error, one_line, user_message
 from lossvo.training import metrics_log
 from lossvo.training.config_checks import check_train_config
 from lossvo.training.slurm import slurm_job
@@ -279,20 +277,6 @@ def _user_error(message: str) -> BaseException:
     return SystemExit(2)
 
 
-def _user_message(error: BaseException, out_dir: Path) -> str | None:
-    """The one line of a user error, or None for an error that keeps its traceback."""
-    if isinstance(error, OSError):
-        return disk_error(error, out_dir)
-    if isinstance(error, InstantiationException):
-        cause = error.__cause__
-        if isinstance(cause, OSError):
-            return _user_message(cause, out_dir)
-        return hydra_message(error) if isinstance(cause, (*USER_ERRORS, MisconfigurationException)) else None
-    if isinstance(error, ValueError):  # config values, data files, checkpoints (CheckpointError)
-        return one_line(error)
-    return None
-
-
 _stopping: list[str] = []
 """The signal this process is stopping on, once one stops it: a later SIGTERM (SLURM's, after a requeue)
 does not interrupt the stop."""
@@ -461,7 +445,7 @@ def _run_in(run: Run) -> Iterator[Run]:
         _interrupted(run, stop)
         raise SystemExit(stop.exit_code) from None
     except Exception as e:
-        message = _user_message(e, out_dir)
+        message = user_message(e, out_dir)
         if message is None:
             log.error("%s failed: %s: %s", run.label, type(e).__name__, e)
         elif not full_error():

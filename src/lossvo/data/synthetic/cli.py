@@ -14,7 +14,7 @@ import time
 from collections.abc import Iterable
 from pathlib import Path
 
-from lossvo.console import OneLineParser, raise_if_full_error
+from lossvo.console import OneLineParser, one_line_main, raise_if_full_error
 from lossvo.data import kitti
 from lossvo.data.synthetic import layouts, routes
 from lossvo.data.synthetic.parameters import (
@@ -79,6 +79,7 @@ def parse_mix(text: str) -> tuple[str, dict[str, float]]:
     return parse_sequences(sequence, "--mix")[0], mix
 
 
+@one_line_main
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point; returns the exit status (2 and a one-line message for bad values)."""
     parser = _parser()

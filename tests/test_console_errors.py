@@ -1,0 +1,111 @@
+"""The one error path: which errors are the user's (one line, exit status 2) and which keep their
+traceback, for argparse and Hydra entry points alike; a refused evaluation leaves no folder."""
+
+from __future__ import annotations
+
+import errno
+from pathlib import Path
+
+import pytest
+from hydra.errors import InstantiationException, MissingConfigException
+from lightning.fabric.utilities.exceptions import MisconfigurationException
+
+from helpers import eval_main
+from lossvo.console import UserError, one_line_main, user_message
+from lossvo.evaluation.checkpoints import CheckpointError
+from lossvo.report.jobs import SweepError
+
+
+def _instantiation(cause: BaseException, text: str = "Error in call to target 'x.Y':") -> BaseException:
+    try:
+        raise InstantiationException(f"{text}\nfull_key: model") from cause
+    except InstantiationException as e:
+        return e
+
+
+BUGS = [TypeError("f() got an unexpected keyword"), ImportError("no module x"), AttributeError("no attr"),
+        KeyError("99"), RuntimeError("bug")]  # fmt: skip
+
+
+@pytest.mark.parametrize("error", BUGS)
+def test_programming_errors_keep_their_traceback(error: BaseException) -> None:
+    assert user_message(error) is None
+    assert user_message(_instantiation(error)) is None  # raised inside a constructor
+
+
+def test_user_errors_are_one_line() -> None:
+    assert (
+        user_message(UserError("data.root: a file\nexpected a folder"))
+        == "data.root: a file; expected a folder"
+    )
+    assert issubclass(CheckpointError, UserError) and issubclass(SweepError, UserError)
+    assert user_message(MisconfigurationException("no GPU")) == "no GPU"
+    assert user_message(_instantiation(UserError("bad k"))) == "model: bad k"
+    located = _instantiation(ImportError("no module named nope"), "Error locating target 'nope.Net':")
+    assert user_message(located) == "model._target_: cannot import 'nope.Net' (no module named nope)"
+    full = OSError(errno.ENOSPC, "No space left on device", "/data/x")
+    assert user_message(full) == "/data/x: No space left on device"
+    assert user_message(MissingConfigException("Could not find 'loss/x'", "loss/x", ["a", "b"])) is not None
+
+
+def test_an_argparse_entry_point_ends_a_user_error_in_one_line(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.delenv("LOSSVO_FULL_ERROR", raising=False)
+
+    @one_line_main
+    def refuses(argv: list[str]) -> int:
+        raise UserError(f"{argv[0]}: expected a folder")
+
+    @one_line_main
+    def has_a_bug(argv: list[str]) -> int:
+        raise TypeError("a bug")
+
+    assert refuses(["--out"]) == 2
+    assert capsys.readouterr().err == "error: --out: expected a folder\n"
+    with pytest.raises(TypeError):
+        has_a_bug([])
+    monkeypatch.setenv("LOSSVO_FULL_ERROR", "1")
+    with pytest.raises(UserError):
+        refuses(["--out"])
+
+
+def test_eval_of_a_folder_names_the_checkpoints_in_it_and_leaves_no_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.delenv("LOSSVO_FULL_ERROR", raising=False)
+    job = tmp_path / "job"
+    (job / "checkpoints").mkdir(parents=True)
+    (job / "checkpoints" / "best.ckpt").write_bytes(b"")
+    out = tmp_path / "eval"
+    status, err = eval_main([f"ckpt_path={job}", f"hydra.run.dir={out}"], monkeypatch, capsys)
+    assert status == 2
+    assert (
+        err.strip()
+        == f"error: ckpt_path: {job} is a folder, expected a .ckpt file (in it: checkpoints/best.ckpt)"
+    )
+    assert not out.exists()  # neither .hydra/ nor an empty eval.log
+
+
+def test_a_refused_eval_keeps_a_folder_that_held_something(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "eval"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine\n")
+    status, err = eval_main(
+        [f"ckpt_path={tmp_path / 'missing.ckpt'}", f"hydra.run.dir={out}"], monkeypatch, capsys
+    )
+    assert status == 2 and err.startswith("error: ") and len(err.strip().splitlines()) == 1
+    assert (out / "notes.txt").is_file()
+
+
+def test_a_config_key_the_target_lacks_is_the_users_a_type_error_inside_it_is_not() -> None:
+    unknown = TypeError("Trainer.__init__() got an unexpected keyword argument 'foo'")
+    text = "Error in call to target 'lightning.pytorch.trainer.trainer.Trainer':"
+    assert (
+        user_message(_instantiation(unknown, text))
+        == "model: Trainer.__init__() got an unexpected keyword argument 'foo'"
+    )
+    inside = TypeError("helper() got an unexpected keyword argument 'foo'")  # a call inside the constructor
+    assert user_message(_instantiation(inside, text)) is None
