@@ -17,6 +17,7 @@ does). What a run does in a folder that already ran (skip, resume, refuse) and h
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import hydra
@@ -25,6 +26,8 @@ from omegaconf import DictConfig
 from lossvo.console import one_line_errors, quiet_lightning
 from lossvo.processes import restore_start_method
 from lossvo.training import fitting, lifecycle, resolvers
+
+log = logging.getLogger("lossvo")
 
 resolvers.register()  # at import: a launcher's worker process unpickles main and composes configs there
 
@@ -45,6 +48,7 @@ def main(cfg: DictConfig) -> float | None:
     with lifecycle.job(cfg) as run:
         if run.completed is not None:
             return run.optimized_metric(run.completed.get("metrics", {}))
+        log.info("%s: run folder %s (preparing the data and the network)", run.label, run.out_dir)
         fitting.train(cfg, run)
     return run.optimized_metric(lifecycle.read_status(run.out_dir).get("metrics", {}))
 
