@@ -4,6 +4,7 @@ traceback, for argparse and Hydra entry points alike; a refused evaluation leave
 from __future__ import annotations
 
 import errno
+import os
 from pathlib import Path
 
 import pytest
@@ -13,6 +14,7 @@ from lightning.fabric.utilities.exceptions import MisconfigurationException
 from helpers import eval_main
 from lossvo.console import UserError, one_line_main, user_message
 from lossvo.evaluation.checkpoints import CheckpointError
+from lossvo.report import cli as report_cli
 from lossvo.report.jobs import SweepError
 
 
@@ -109,3 +111,22 @@ def test_a_config_key_the_target_lacks_is_the_users_a_type_error_inside_it_is_no
     )
     inside = TypeError("helper() got an unexpected keyword argument 'foo'")  # a call inside the constructor
     assert user_message(_instantiation(inside, text)) is None
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root may write into a read-only folder")
+def test_the_report_of_a_read_only_sweep_suggests_out(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    sweep = tmp_path / "sweep"
+    (sweep / "0_loss-euler" / ".hydra").mkdir(parents=True)
+    (sweep / "0_loss-euler" / ".hydra" / "config.yaml").write_text("seed: 0\n")
+    sweep.chmod(0o555)
+    try:
+        status = report_cli.main([str(sweep)])
+    finally:
+        sweep.chmod(0o755)
+    assert status == 2
+    expected = (
+        f"{sweep / 'report'}: cannot write the report there (Permission denied): write the report elsewhere"
+    )
+    assert capsys.readouterr().err == f"error: {expected} with --out DIR\n"

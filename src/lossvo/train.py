@@ -35,6 +35,7 @@ CONFIG_DIR = str(Path(__file__).resolve().parent / "conf")
 
 
 @one_line_errors
+@resolvers.names_swept_jobs
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")
 def main(cfg: DictConfig) -> float | None:
     """Train in this Hydra job's folder; returns ``cfg.optimized_metric`` for hyperparameter sweepers.

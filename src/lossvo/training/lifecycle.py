@@ -40,7 +40,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from lossvo import folder_lock, weighting
 from lossvo.atomic import write_text_atomic
-from lossvo.console import full_error, one_line, user_message
+from lossvo.console import UserError, full_error, one_line, user_message
 from lossvo.training import metrics_log
 from lossvo.training.config_checks import check_train_config
 from lossvo.training.slurm import slurm_job
@@ -81,7 +81,7 @@ class InterruptedRun(BaseException):
         return 128 + int(getattr(signal, self.signal_name))
 
 
-class JobError(Exception):
+class JobError(UserError):
     """A user error in one job of a sweep: the job fails (Hydra reports it) and the others go on."""
 
 
