@@ -13,6 +13,7 @@ from lightning.fabric.utilities.exceptions import MisconfigurationException
 
 from helpers import eval_main
 from lossvo.console import UserError, one_line_main, user_message
+from lossvo.evaluation import checkpoints
 from lossvo.evaluation.checkpoints import CheckpointError
 from lossvo.report import cli as report_cli
 from lossvo.report.jobs import SweepError
@@ -130,3 +131,15 @@ def test_the_report_of_a_read_only_sweep_suggests_out(
         f"{sweep / 'report'}: cannot write the report there (Permission denied): write the report elsewhere"
     )
     assert capsys.readouterr().err == f"error: {expected} with --out DIR\n"
+
+
+@pytest.mark.parametrize("text", ["not a checkpoint\n", "epoch 3\n"])
+def test_a_text_file_as_a_checkpoint_is_named_as_such(tmp_path: Path, text: str) -> None:
+    """Whatever the text (pickle reads ``e`` as opcode 101: ``KeyError: 101``), one message."""
+    path = tmp_path / "best.ckpt"
+    path.write_text(text)
+    with pytest.raises(CheckpointError) as error:
+        checkpoints.read(path)
+    assert (
+        str(error.value) == f"{path}: cannot load as a lossvo checkpoint (not a file written by torch.save)"
+    )

@@ -78,8 +78,10 @@ def read(path: str | os.PathLike) -> dict[str, Any]:
     try:
         content = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # a truncated or foreign file: one line naming it, not torch's traceback
-        raise CheckpointError(f"{path}: cannot load as a lossvo checkpoint ({type(e).__name__}: "
-                              f"{first_line(e)})") from None  # fmt: skip
+        with path.open("rb") as f:
+            torch_file = f.read(4).startswith((b"PK\x03\x04", b"\x80"))  # torch.save's zip, or a pickle
+        reason = f"{type(e).__name__}: {first_line(e)}" if torch_file else "not a file written by torch.save"
+        raise CheckpointError(f"{path}: cannot load as a lossvo checkpoint ({reason})") from None
     hparams = content.get("hyper_parameters") if isinstance(content, dict) else None
     complete = isinstance(hparams, dict) and {"model", "loss"} <= hparams.keys() and "state_dict" in content
     if not complete:
