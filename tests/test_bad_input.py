@@ -115,8 +115,11 @@ def places(tiny_kitti: Path, euler_checkpoint: Path, other_study: str, tmp_path:
     (tmp_path / "text_file").write_text("not a checkpoint\n")
     (tmp_path / "empty_folder").mkdir()
     (tmp_path / "job_without_config" / "0_loss-euler").mkdir(parents=True)
+    (tmp_path / "one_job_sweep" / "0_loss-euler" / ".hydra").mkdir(parents=True)
+    (tmp_path / "one_job_sweep" / "0_loss-euler" / ".hydra" / "config.yaml").write_text("seed: 0\n")
     names = ["<poses>", "<shorter poses>", "<malformed poses>", "<text file>", "<empty folder>",
-             "<job without config>", "<missing file>", "<missing folder>", "<new folder>"]  # fmt: skip
+             "<job without config>", "<one job sweep>", "<missing file>", "<missing folder>",
+             "<new folder>"]  # fmt: skip
     paths = {name: str(tmp_path / name.strip("<>").replace(" ", "_")) for name in names}
     return {**paths, "<tiny KITTI>": str(tiny_kitti), "<euler checkpoint>": str(euler_checkpoint),
             "<study of another search>": other_study}  # fmt: skip
@@ -183,10 +186,8 @@ def check_output(row: Row, message: str, status: int, out: str, err: str) -> Non
 def check_nothing_done(row: Row, places: dict[str, str], tmp_path: Path) -> None:
     """What a row's failure leaves: a training job's status, no report, no dataset."""
     run = tmp_path / "run"
-    if row.command == "train" or row.found in ("parsing the arguments", "composing the config"):
-        assert not run.exists()  # a run refused before it starts leaves no folder
-    if row.command == "eval":
-        assert not (run / "results.json").exists()
+    if row.command in ("train", "eval"):
+        assert not run.exists()  # a run or an evaluation refused before it starts leaves no folder
     assert not Path(places["<new folder>"]).exists()
     for folder in ("<empty folder>", "<job without config>"):
         assert not (Path(places[folder]) / "report").exists()

@@ -23,7 +23,7 @@ REPO = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module")
 def sweep_job(study_sweep: Path) -> Path:
     """The shared sweep's euler job of seed 0 (read-only), named as Hydra's sweep names it."""
-    (job,) = study_sweep.glob("*+loss-euler+seed-0")
+    (job,) = study_sweep.glob("*_loss-euler+seed-0+*")
     return job
 
 

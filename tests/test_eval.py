@@ -5,6 +5,8 @@ from __future__ import annotations
 import csv
 import json
 import math
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +17,7 @@ from evo.tools import file_interface
 from torch import Tensor, nn
 
 from helpers import check_ape_against_evo, eval_main, fit
+from lossvo import eval as lossvo_eval
 from lossvo import geometry
 from lossvo.data.kitti import read_poses
 from lossvo.data.windows import tile
@@ -272,3 +275,16 @@ def test_predict_sequence_cuts_windows_at_gaps(carry_state: bool) -> None:
     np.testing.assert_array_equal(out, relative.numpy())
     windows = [tuple(w) for w in tile(n, 5, gap)]
     assert (6, 8) in windows and (13, 15) in windows
+
+
+def test_eval_help_lists_only_the_data_group() -> None:
+    """``lossvo.eval --help`` names the one group eval reads (every option it names exists), none of
+    training's (loss, model, trainer, ...)."""
+    done = subprocess.run([sys.executable, "-m", "lossvo.eval", "--help"], capture_output=True, text=True,
+                          timeout=120)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    groups = done.stdout.split("== Configuration group ==")[1].split("==")[0].strip().splitlines()
+    assert len(groups) == 1 and groups[0].startswith("data: ")
+    conf = Path(lossvo_eval.CONFIG_DIR) / "data"
+    assert all((conf / f"{name}.yaml").is_file() for name in groups[0].removeprefix("data: ").split(", "))
+    assert "trainer:" not in done.stdout and "loss: " not in done.stdout

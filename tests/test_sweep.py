@@ -23,7 +23,7 @@ pytestmark = pytest.mark.slow  # the shared sweep and two sweeps of its own
 def test_sweep_over_losses_and_seeds_with_joblib_and_wandb(study_sweep: Path) -> None:
     jobs = sorted(p for p in study_sweep.iterdir() if p.is_dir())
     assert [j.name for j in jobs] == [
-        f"{n}_experiment-tiny+loss-{loss}+seed-{seed}"
+        f"{n}_loss-{loss}+seed-{seed}+experiment-tiny"  # the swept keys first
         for n, (loss, seed) in enumerate((loss, seed) for loss in STUDY_LOSSES for seed in STUDY_SEEDS)
     ]
     parser = OverridesParser.create()  # a checkpoint path copied from the sweep is a valid override value
@@ -52,7 +52,7 @@ def test_a_sweep_job_equals_its_config_run_alone_on_its_thread_count(
 ) -> None:
     """A job of the shared sweep (a joblib worker, ``threads=null``) records its thread count; the same
     config trained alone in this process with ``threads=`` that count gives every number again."""
-    (job,) = study_sweep.glob("*+loss-euler+seed-0")
+    (job,) = study_sweep.glob("*_loss-euler+seed-0+*")
     threads = status_of(job)["threads"]
     assert isinstance(threads, int) and threads >= 1
     conf = study_sweep.parents[1] / "conf"

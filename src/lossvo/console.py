@@ -1,9 +1,13 @@
-"""Command-line plumbing: one-line errors (argument parsers, Hydra entry points), and printing a result
-also into a pipe that closes early (``| head``).
+"""Command-line plumbing: the one error path of every entry point, and printing a result also into a
+pipe that closes early (``| head``).
 
-A user error (a bad argument, override, config value or input file) ends a command in one line naming
-the key, file or line and what was expected, with exit status 2 and no traceback. ``LOSSVO_FULL_ERROR=1``
-in the environment shows the full traceback instead, as ``HYDRA_FULL_ERROR=1`` does for Hydra.
+A user error (a bad argument, override, config value or input file: :class:`UserError`, a config that
+Hydra cannot compose, a full or read-only disk) ends a command in one line naming the key, file or line
+and what was expected, with exit status 2 and no traceback (:func:`user_message` tells which errors are
+the user's; :func:`one_line_errors` wraps a Hydra entry point, :func:`one_line_main` an argparse one).
+Any other error (``TypeError``, ``ImportError``, ``AttributeError``, ``KeyError`` raised by lossvo's own
+code) keeps its traceback. ``LOSSVO_FULL_ERROR=1`` in the environment shows the full traceback of a user
+error too, as ``HYDRA_FULL_ERROR=1`` does for Hydra.
 """
 
 from __future__ import annotations
@@ -11,11 +15,15 @@ from __future__ import annotations
 import argparse
 import errno
 import functools
+import logging
 import os
 import re
+import shutil
 import sys
 import traceback
-from collections.abc import Callable
+import warnings
+from collections.abc import Callable, Collection
+from pathlib import Path
 from typing import NoReturn, ParamSpec, TypeVar
 
 from hydra._internal.utils import get_args_parser  # the parser @hydra.main reads the command line with
@@ -30,11 +38,20 @@ from hydra.errors import (
 FULL_ERROR = "LOSSVO_FULL_ERROR"
 """The environment variable that, set to 1, turns one-line user errors into full tracebacks."""
 
-USER_ERRORS = (ValueError, TypeError, ImportError)
-"""Errors a constructor raises on a config value it refuses (or a ``_target_`` that does not import)."""
 
-DISK_ERRORS = (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM)
-"""OS errors that are the disk's or the user's (full, read-only, not permitted), not lossvo's."""
+class UserError(ValueError):
+    """Bad input: a command-line argument, a config value or an input file that lossvo refuses. Its
+    message is one line naming the key, file or line and what was expected."""
+
+
+USER_ERRORS = (UserError, ValueError)
+"""Errors that are the user's: :class:`UserError`, and a ``ValueError`` (a value refused by a library's
+constructor or parser). ``TypeError`` and ``ImportError`` are not: they keep their traceback."""
+
+DISK_ERRORS = (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOENT,
+               errno.ENOTDIR, errno.EISDIR)  # fmt: skip
+"""OS errors that are the disk's or the user's (full, read-only, not permitted, a path that is missing
+or of the other kind), not lossvo's."""
 
 _HYDRA_FULL_ERROR = "HYDRA_FULL_ERROR"
 _P = ParamSpec("_P")
@@ -128,12 +145,83 @@ def hydra_message(error: HydraException) -> str:
     return "; ".join([head, *lines[1:]])
 
 
-def _user_error(error: Exception) -> bool:
-    """Whether a Hydra error is the user's: a config that does not compose, an override that does not
-    parse, an object whose config its class refuses."""
+def _lightning_misconfiguration(error: BaseException) -> bool:
+    """Whether an error is Lightning's ``MisconfigurationException`` (a trainer setting it refuses)."""
+    module = sys.modules.get("lightning.fabric.utilities.exceptions")
+    return module is not None and isinstance(error, module.MisconfigurationException)
+
+
+def _config_mismatch(error: InstantiationException, cause: TypeError) -> bool:
+    """Whether Hydra's ``_target_`` was called with keys its signature lacks or without ones it needs
+    (``Trainer.__init__() got an unexpected keyword argument 'foo'``): the config's error, not a bug
+    inside the constructor."""
+    target = re.search(r"target '([^']*)'", str(error))
+    if target is None:
+        return False
+    name = re.escape(target.group(1).rsplit(".", 1)[-1])
+    mismatch = (
+        r"(got an unexpected keyword argument|missing \d+ required (keyword-only |positional )?argument)"
+    )
+    return re.match(rf"{name}(\.__init__)?\(\) {mismatch}", str(cause)) is not None
+
+
+def user_message(error: BaseException, folder: object = None) -> str | None:
+    """The one line of a user error, or None for an error that keeps its traceback.
+
+    User errors: :data:`USER_ERRORS`, Lightning's ``MisconfigurationException``, a disk error
+    (:func:`disk_error`, naming ``folder`` where the error names no file), a config that Hydra cannot
+    compose or an override that does not parse, and an object Hydra cannot instantiate because its
+    ``_target_`` does not import or its constructor refuses a value with one of these errors.
+    """
     if isinstance(error, InstantiationException):
-        return isinstance(error.__cause__, USER_ERRORS)
-    return isinstance(error, CompactHydraException)
+        cause = error.__cause__
+        if isinstance(cause, ImportError) and "Error locating target" in str(error):
+            return hydra_message(error)  # a _target_ that does not import, not an import inside it
+        if isinstance(cause, OSError):
+            return user_message(cause, folder)
+        if isinstance(cause, TypeError) and _config_mismatch(error, cause):
+            return hydra_message(error)
+        return hydra_message(error) if cause is not None and user_message(cause, folder) else None
+    if isinstance(error, CompactHydraException):  # before OSError: MissingConfigException is an IOError
+        return hydra_message(error)
+    if isinstance(error, OSError):
+        return disk_error(error, folder)
+    if isinstance(error, USER_ERRORS) or _lightning_misconfiguration(error):
+        return one_line(error)
+    return None
+
+
+def printed_one_line(error: BaseException, folder: object = None) -> bool:
+    """Called in an ``except`` block of an entry point: for a user error (:func:`user_message`), print
+    ``error: ...`` on stderr and return True (the command then exits with status 2); otherwise, or with
+    ``LOSSVO_FULL_ERROR=1``, print nothing and return False (the caller re-raises)."""
+    message = user_message(error, folder)
+    if message is None or full_error():
+        return False
+    print(f"error: {message}", file=sys.stderr)
+    return True
+
+
+def end_in_one_line(error: BaseException, folder: object = None) -> None:
+    """:func:`printed_one_line`, then exit status 2 for a user error; nothing for any other error."""
+    if printed_one_line(error, folder):
+        raise SystemExit(2) from None
+
+
+def one_line_main(main: Callable[_P, int]) -> Callable[_P, int]:
+    """An argparse entry point (``main(argv) -> exit status``) whose user errors end in one line with
+    exit status 2 returned (:func:`printed_one_line`); other errors keep their traceback."""
+
+    @functools.wraps(main)
+    def wrapped(*args: _P.args, **kwargs: _P.kwargs) -> int:
+        try:
+            return main(*args, **kwargs)
+        except Exception as e:
+            if printed_one_line(e):
+                return 2
+            raise
+
+    return wrapped
 
 
 def _check_flags(argv: list[str]) -> None:
@@ -148,11 +236,11 @@ def _check_flags(argv: list[str]) -> None:
 
 
 def one_line_errors(hydra_main: Callable[_P, _R]) -> Callable[_P, _R]:
-    """A ``@hydra.main`` entry point whose config errors (an unknown config group option, an override
-    of a key the config lacks, a malformed override) and disk errors (:func:`disk_error`) end in one
-    line on stderr with exit status 2, instead of Hydra's multi-line report with exit status 1. Errors
-    that are not the user's keep their traceback; ``LOSSVO_FULL_ERROR=1`` (or ``HYDRA_FULL_ERROR=1``)
-    keeps it for every error."""
+    """A ``@hydra.main`` entry point whose user errors (:func:`user_message`: an unknown config group
+    option, an override of a key the config lacks, a malformed override, a config value refused, a
+    disk error) end in one line on stderr with exit status 2, instead of Hydra's multi-line report
+    with exit status 1. Errors that are not the user's keep their traceback; ``LOSSVO_FULL_ERROR=1``
+    (or ``HYDRA_FULL_ERROR=1``) keeps it for every error."""
 
     @functools.wraps(hydra_main)
     def main(*args: _P.args, **kwargs: _P.kwargs) -> _R:
@@ -161,16 +249,10 @@ def one_line_errors(hydra_main: Callable[_P, _R]) -> Callable[_P, _R]:
         os.environ[_HYDRA_FULL_ERROR] = "1"  # Hydra raises its errors instead of printing them
         try:
             return hydra_main(*args, **kwargs)
-        except HydraException as e:
-            if full_error() or given == "1" or not _user_error(e):
-                raise
-            print(f"error: {hydra_message(e)}", file=sys.stderr)
-            raise SystemExit(2) from None
-        except OSError as e:  # e.g. Hydra creating an output folder where it may not
-            if full_error() or given == "1" or disk_error(e) is None:
-                raise
-            print(f"error: {disk_error(e)}", file=sys.stderr)
-            raise SystemExit(2) from None
+        except Exception as e:
+            if given != "1":
+                end_in_one_line(e)
+            raise
         finally:
             if given is None:
                 os.environ.pop(_HYDRA_FULL_ERROR, None)
@@ -178,3 +260,52 @@ def one_line_errors(hydra_main: Callable[_P, _R]) -> Callable[_P, _R]:
                 os.environ[_HYDRA_FULL_ERROR] = given
 
     return main
+
+
+def close_logs_in(folder: Path) -> None:
+    """Close and detach the log files (Hydra's ``<job>.log``) kept in a folder about to be removed."""
+    loggers = [logging.getLogger(), *logging.Logger.manager.loggerDict.values()]
+    for logger in (item for item in loggers if isinstance(item, logging.Logger)):
+        for handler in list(logger.handlers):
+            if isinstance(handler, logging.FileHandler) and Path(handler.baseFilename).parent == folder:
+                handler.close()
+                logger.removeHandler(handler)
+
+
+def remove_refused(folder: Path, made: Collection[str]) -> None:
+    """Remove the output folder of a command refused on bad input when it holds only what the command
+    made before the refusal (``made``: names such as ``.hydra`` and ``eval.log``), so that a refused
+    command leaves nothing behind; a folder holding anything else is left as it is."""
+    if folder.is_dir() and {p.name for p in folder.iterdir()} <= set(made):
+        close_logs_in(folder)
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+LIGHTNING_HINTS = (r"The `srun` command is available on your system but is not used",)
+"""Lightning's warnings that do not fit lossvo: ``srun`` on the PATH of a login node is no sign that a
+run should be started with it (:mod:`lossvo.training.slurm` starts cluster jobs)."""
+
+LIGHTNING_TIPS = ("Tip: For seamless cloud uploads",)
+"""Lightning's advertising lines (its ``litmodels`` tip), dropped from its log."""
+
+_RANK_ZERO_LOGGERS = ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.rank_zero")
+"""The loggers of Lightning's ``rank_zero_info``."""
+
+
+class _NoTips(logging.Filter):
+    """Drops log records that are one of :data:`LIGHTNING_TIPS`."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = str(record.msg)
+        return not any(tip in message for tip in LIGHTNING_TIPS)
+
+
+def quiet_lightning() -> None:
+    """Silence Lightning's hints that do not fit lossvo (:data:`LIGHTNING_HINTS`, :data:`LIGHTNING_TIPS`),
+    so that a command's output (and a one-line error) is lossvo's own; called by each entry point's job."""
+    for hint in LIGHTNING_HINTS:
+        warnings.filterwarnings("ignore", message=hint)
+    for name in _RANK_ZERO_LOGGERS:
+        logger = logging.getLogger(name)
+        if not any(isinstance(f, _NoTips) for f in logger.filters):
+            logger.addFilter(_NoTips())

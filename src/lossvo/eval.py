@@ -15,7 +15,6 @@ the checkpoint is an error, as is any other bad input (one line naming it, exit 
 from __future__ import annotations
 
 import logging
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, cast
@@ -25,7 +24,14 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
-from lossvo.console import one_line, one_line_errors, raise_if_full_error
+from lossvo.console import (
+    UserError,
+    end_in_one_line,
+    one_line_errors,
+    quiet_lightning,
+    remove_refused,
+    user_message,
+)
 from lossvo.data.kitti import sequence_names
 from lossvo.evaluation import checkpoints
 from lossvo.evaluation.metrics import ALIGN_MODES, is_rpe_delta
@@ -44,31 +50,45 @@ def _resolve_device(name: str) -> torch.device:
 
 
 def check_config(cfg: Any) -> None:
-    """Raise ``ValueError`` (one line naming the key, the value and what was expected) for a config of
-    ``python -m lossvo.eval`` that would fail only after the checkpoint is loaded."""
+    """Raise :class:`~lossvo.console.UserError` (one line naming the key, the value and what was
+    expected) for a config of ``python -m lossvo.eval`` that would fail only after the checkpoint is
+    loaded."""
     from omegaconf import OmegaConf
 
     if OmegaConf.is_missing(cfg, "ckpt_path"):
-        raise ValueError("ckpt_path is required: python -m lossvo.eval ckpt_path=PATH")
+        raise UserError("ckpt_path is required: python -m lossvo.eval ckpt_path=PATH")
+    check_checkpoint_path(Path(str(cfg.ckpt_path)))
+    root = (cfg.get("data") or {}).get("root")
+    if root is not None and Path(str(root)).expanduser().is_file():
+        raise UserError(f"data.root: {root} is a file, expected the dataset's folder")
     missing = sorted(OmegaConf.missing_keys(cfg))
     if missing:
-        raise ValueError(f"{missing[0]}: a value is required: add {missing[0]}=... to the command line")
+        raise UserError(f"{missing[0]}: a value is required: add {missing[0]}=... to the command line")
     device = cfg.get("device", "auto")
     if device != "auto":
         try:
             kind = torch.device(str(device)).type
         except RuntimeError:
-            raise ValueError(f"device: expected auto, cpu, cuda or cuda:N, got {device!r}") from None
+            raise UserError(f"device: expected auto, cpu, cuda or cuda:N, got {device!r}") from None
         if kind == "cuda" and not torch.cuda.is_available():
-            raise ValueError(f"device: {device!r}, but CUDA is not available here (expected auto or cpu)")
+            raise UserError(f"device: {device!r}, but CUDA is not available here (expected auto or cpu)")
     if cfg.get("align", "none") not in ALIGN_MODES:
-        raise ValueError(f"align: expected one of {', '.join(ALIGN_MODES)}, got {cfg.get('align')!r}")
+        raise UserError(f"align: expected one of {', '.join(ALIGN_MODES)}, got {cfg.get('align')!r}")
     delta = cfg.get("delta", 1)
     if not is_rpe_delta(delta):
-        raise ValueError(f"delta: expected an integer >= 1 (frames), got {delta!r}")
+        raise UserError(f"delta: expected an integer >= 1 (frames), got {delta!r}")
     for key in ("carry_state", "mirror_average"):
         if not isinstance(cfg.get(key, False), bool):
-            raise ValueError(f"{key}: expected true or false, got {cfg.get(key)!r}")
+            raise UserError(f"{key}: expected true or false, got {cfg.get(key)!r}")
+
+
+def check_checkpoint_path(path: Path) -> None:
+    """Refuse a ``ckpt_path`` that is a folder, naming the checkpoint files in it."""
+    if not path.is_dir():
+        return
+    found = sorted(str(p.relative_to(path)) for p in path.rglob("*.ckpt"))
+    inside = f"in it: {', '.join(found[:4])}{', ...' if len(found) > 4 else ''}" if found else "it holds none"
+    raise UserError(f"ckpt_path: {path} is a folder, expected a .ckpt file ({inside})")
 
 
 def data_overrides(overrides: Sequence[str]) -> tuple[bool, list[str]]:
@@ -112,7 +132,7 @@ def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
     available = list(getattr(datamodule, "sequences", None) or sequences)
     unknown = [s for s in sequences if s not in available]
     if unknown:
-        raise ValueError(f"sequences: {unknown[0]!r} is not a sequence of the evaluated data (expected one "
+        raise UserError(f"sequences: {unknown[0]!r} is not a sequence of the evaluated data (expected one "
                          f"of {', '.join(available)}; data.test=[...] chooses them)")  # fmt: skip
     return evaluate_run(network, datamodule, out_dir, sequences, checkpoint=Path(cfg.ckpt_path).resolve(),
                         align=cfg.get("align", "none"), delta=int(cfg.get("delta", 1)),
@@ -123,16 +143,19 @@ def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
 @one_line_errors
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="eval")
 def main(cfg: DictConfig) -> None:
-    """Evaluate ``cfg.ckpt_path`` into this Hydra job's folder; bad input is one line, exit status 2."""
+    """Evaluate ``cfg.ckpt_path`` into this Hydra job's folder; bad input is one line, exit status 2,
+    and leaves no output folder behind."""
+    quiet_lightning()
     restore_start_method()  # a joblib-launched job: let its loader workers start
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     try:
         check_config(cfg)
         result = run(cfg, out_dir, HydraConfig.get().overrides.task)
-    except (FileNotFoundError, ValueError) as e:  # KittiFormatError, CheckpointError are ValueErrors
-        raise_if_full_error()
-        print(f"error: {one_line(e)}", file=sys.stderr)
-        sys.exit(2)
+    except Exception as e:  # in the job: Hydra would print a line of its own before a raised error's
+        if user_message(e) is not None:
+            remove_refused(out_dir, {".hydra", f"{HydraConfig.get().job.name}.log"})
+        end_in_one_line(e)
+        raise
     overall = result.overall
     if overall.scores is not None:
         names = ", ".join(overall.sequences)

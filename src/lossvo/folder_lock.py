@@ -22,12 +22,14 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
+from lossvo.console import UserError
+
 log = logging.getLogger("lossvo")
 
 LOCK = "run.lock"
 
 
-class FolderInUseError(ValueError):
+class FolderInUseError(UserError):
     """Another live process holds the folder's lock."""
 
 

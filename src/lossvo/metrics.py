@@ -1,6 +1,7 @@
 """``python -m lossvo.metrics GT_FILE EST_FILE [--align ...] [--delta N] [--json]``: APE, RPE and the KITTI
-odometry error of an estimated KITTI pose file against a ground-truth one
-(:mod:`lossvo.evaluation.metrics`), as a table or JSON.
+odometry error of an estimated trajectory against a ground-truth one (:mod:`lossvo.evaluation.metrics`),
+as a table or JSON. Files ending in ``.tum`` are read as TUM trajectories (``timestamp tx ty tz qx qy qz
+qw``, as lossvo writes ``<seq>.tum`` and ``<seq>_gt.tum``), any other as KITTI pose files.
 """
 
 from __future__ import annotations
@@ -8,13 +9,15 @@ from __future__ import annotations
 import json
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import torch
 
-from lossvo.console import OneLineParser, emit, raise_if_full_error
+from lossvo.console import OneLineParser, UserError, emit, one_line_main
 from lossvo.data.kitti import read_poses
 from lossvo.evaluation.metrics import ALIGN_MODES, PAIRS_FROM, STATISTICS, evaluate, is_rpe_delta
+from lossvo.evaluation.trajectories import read_tum
 
 DESCRIPTION = "APE, RPE and the KITTI odometry error of an estimated KITTI pose file against a reference"
 
@@ -37,11 +40,18 @@ def format_table(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def read_trajectory(path: str) -> torch.Tensor:
+    """(N, 4, 4) camera-to-world poses of a TUM file (``.tum``) or a KITTI pose file (any other name)."""
+    poses = read_tum(path)[1] if Path(path).suffix == ".tum" else read_poses(path)
+    return torch.from_numpy(poses)
+
+
+@one_line_main
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m lossvo.metrics GT_FILE EST_FILE``; one-line errors with exit status 2."""
     parser = OneLineParser(prog="python -m lossvo.metrics", description=DESCRIPTION)
-    parser.add_argument("gt", help="ground-truth KITTI pose file")
-    parser.add_argument("est", help="estimated KITTI pose file")
+    parser.add_argument("gt", help="ground-truth poses: a KITTI pose file, or a TUM file (.tum)")
+    parser.add_argument("est", help="estimated poses: a KITTI pose file, or a TUM file (.tum)")
     parser.add_argument("--align", choices=ALIGN_MODES, default="none", help="APE alignment (evo's)")
     parser.add_argument(
         "--delta", type=float, default=1, help="RPE delta, in frames or metres (--delta-unit)"
@@ -58,17 +68,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not is_rpe_delta(delta, args.delta_unit):
         unit = "an integer number of frames >= 1" if frames else "a distance in metres > 0"
         parser.error(f"--delta: expected {unit}, got {args.delta:g}")
-    try:
-        gt = torch.from_numpy(read_poses(args.gt))
-        est = torch.from_numpy(read_poses(args.est))
-        if len(gt) != len(est):
-            raise ValueError(f"{args.est} has {len(est)} poses, {args.gt} has {len(gt)}: expected one pose "
-                             f"per frame of the same sequence in both")  # fmt: skip
-        result = evaluate(gt, est, args.align, delta, args.delta_unit, args.pairs_from)
-    except ValueError as e:  # KittiFormatError is a ValueError
-        raise_if_full_error()
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+    gt, est = read_trajectory(args.gt), read_trajectory(args.est)
+    if len(gt) != len(est):
+        raise UserError(f"{args.est} has {len(est)} poses, {args.gt} has {len(gt)}: expected one pose "
+                        f"per frame of the same sequence in both")  # fmt: skip
+    result = evaluate(gt, est, args.align, delta, args.delta_unit, args.pairs_from)
     emit(json.dumps(result, indent=2) if args.json else format_table(result))
     return 0
 

@@ -39,7 +39,6 @@ import lightning as L
 import torch
 from hydra import compose, initialize_config_dir
 from hydra.core.hydra_config import HydraConfig
-from hydra.errors import HydraException
 from hydra.utils import instantiate
 from lightning.pytorch.callbacks import Callback
 from omegaconf import DictConfig, OmegaConf, open_dict
@@ -47,7 +46,7 @@ from omegaconf.errors import OmegaConfBaseException
 from torch.utils.data import DataLoader, Dataset
 
 from lossvo import weighting
-from lossvo.console import USER_ERRORS, OneLineParser, emit, hydra_message, one_line, raise_if_full_error
+from lossvo.console import OneLineParser, UserError, emit, one_line, one_line_main
 from lossvo.data import windows
 from lossvo.evaluation.inference import predict_sequence
 from lossvo.report import statistics
@@ -450,6 +449,7 @@ def estimate(plan: Plan, job_gib: float) -> str:
     return gpu_line(plan, job_gib) if plan.gpu else cpu_estimate(plan)
 
 
+@one_line_main
 def main(argv: list[str] | None = None) -> int:
     """Warn about too few seeds, plan, print the estimate and the sweep's command; unless ``--dry-run``,
     run the sweep and the report. Exit status 2 for an override or a plan that cannot run (one line)."""
@@ -461,15 +461,9 @@ def main(argv: list[str] | None = None) -> int:
         sweep_dir = sweep_dir_of(args)
         job_gib = checked_jobs(args, sweep_dir)
         plan = plan_study(args, torch.cuda.is_available(), job_gib, sweep_dir)
-        emit(estimate(plan, job_gib))
-    except HydraException as e:
-        raise_if_full_error()
-        print(f"error: {hydra_message(e)}", file=sys.stderr)
-        return 2
-    except (*USER_ERRORS, OSError, OmegaConfBaseException) as e:
-        raise_if_full_error()
-        print(f"error: {one_line(e)}", file=sys.stderr)
-        return 2
+    except OmegaConfBaseException as e:  # a study's override that does not resolve
+        raise UserError(one_line(e)) from None
+    emit(estimate(plan, job_gib))
     emit(shlex.join(["python", *plan.sweep_command()[1:]]))
     if args.dry_run:
         return 0

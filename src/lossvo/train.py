@@ -17,14 +17,17 @@ does). What a run does in a folder that already ran (skip, resume, refuse) and h
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig
 
-from lossvo.console import one_line_errors
+from lossvo.console import one_line_errors, quiet_lightning
 from lossvo.processes import restore_start_method
 from lossvo.training import fitting, lifecycle, resolvers
+
+log = logging.getLogger("lossvo")
 
 resolvers.register()  # at import: a launcher's worker process unpickles main and composes configs there
 
@@ -32,6 +35,7 @@ CONFIG_DIR = str(Path(__file__).resolve().parent / "conf")
 
 
 @one_line_errors
+@resolvers.names_swept_jobs
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")
 def main(cfg: DictConfig) -> float | None:
     """Train in this Hydra job's folder; returns ``cfg.optimized_metric`` for hyperparameter sweepers.
@@ -40,9 +44,11 @@ def main(cfg: DictConfig) -> float | None:
     ends the job in one line with exit status 2, before anything is written where the config alone
     tells; ``LOSSVO_FULL_ERROR=1`` shows its traceback instead. In a sweep the other jobs go on.
     """
+    quiet_lightning()
     restore_start_method()  # a joblib-launched job: let its loader workers and renderer start
     with lifecycle.job(cfg) as run:
         if run.completed is None:
+            log.info("%s: run folder %s (preparing the data and the network)", run.label, run.out_dir)
             fitting.train(cfg, run)
     return run.optimized_metric()
 

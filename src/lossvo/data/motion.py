@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from lossvo import geometry
-from lossvo.console import OneLineParser, emit
+from lossvo.console import OneLineParser, emit, one_line_main
 from lossvo.data import frame_cache, kitti, layouts
 from lossvo.data.datamodules import PAPER_TEST, PAPER_TRAIN, PAPER_VAL
 from lossvo.data.synthetic import routes
@@ -131,6 +131,7 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+@one_line_main
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point: prints the table; exit status 2 and one line for a bad root or split."""
     parser = _parser()

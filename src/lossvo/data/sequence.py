@@ -18,8 +18,10 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
+from lossvo.console import UserError
 
-class DatasetFormatError(ValueError):
+
+class DatasetFormatError(UserError):
     """A file or folder that does not follow a dataset's layout: the message names the file (and line or key)
     and what was expected."""
 

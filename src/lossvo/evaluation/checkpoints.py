@@ -25,7 +25,7 @@ from torch import Tensor, nn
 
 from lossvo import models
 from lossvo.checks import is_integer
-from lossvo.console import first_line
+from lossvo.console import UserError, first_line
 from lossvo.data.transforms import upgrade_description
 from lossvo.losses import PoseLoss
 
@@ -36,7 +36,7 @@ RECORD_ONLY = ("statistics", "dataset_root", "intrinsics")
 """Entries of a checkpoint's ``data`` that describe the training data but are not datamodule arguments."""
 
 
-class CheckpointError(ValueError):
+class CheckpointError(UserError):
     """A file that is not a usable lossvo checkpoint, or a run that contradicts one; the message is one
     line naming the file or the key."""
 
@@ -116,8 +116,10 @@ def read(path: str | os.PathLike) -> dict[str, Any]:
     try:
         content = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # a truncated or foreign file: one line naming it, not torch's traceback
-        raise CheckpointError(f"{path}: cannot load as a lossvo checkpoint ({type(e).__name__}: "
-                              f"{first_line(e)})") from None  # fmt: skip
+        with path.open("rb") as f:
+            torch_file = f.read(4).startswith((b"PK\x03\x04", b"\x80"))  # torch.save's zip, or a pickle
+        reason = f"{type(e).__name__}: {first_line(e)}" if torch_file else "not a file written by torch.save"
+        raise CheckpointError(f"{path}: cannot load as a lossvo checkpoint ({reason})") from None
     hparams = content.get("hyper_parameters") if isinstance(content, dict) else None
     complete = isinstance(hparams, dict) and {"model", "loss"} <= hparams.keys() and "state_dict" in content
     if not complete:

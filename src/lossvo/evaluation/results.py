@@ -37,6 +37,7 @@ from torch import Tensor, nn
 from lossvo import geometry
 from lossvo.atomic import write_text_atomic
 from lossvo.checks import is_integer, is_number
+from lossvo.console import UserError
 from lossvo.data.kitti import KittiFormatError, pose_path, sequence_names, write_poses
 from lossvo.data.windows import gaps
 from lossvo.evaluation import metrics
@@ -63,7 +64,7 @@ NO_GT_NOTE = "no ground truth (no pose file): trajectory starts at identity, no 
 NO_METRICS_NOTE = "no sequence with ground truth: no metrics"
 
 
-class ResultsError(ValueError):
+class ResultsError(UserError):
     """A results.json that cannot be read as :class:`Results`; the message is one line,
     ``"<path>: <reason>"``."""
 

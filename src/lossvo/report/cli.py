@@ -15,13 +15,14 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from lossvo.console import OneLineParser, emit, raise_if_full_error
+from lossvo.console import OneLineParser, UserError, emit, one_line_main
 from lossvo.report.document import make_report
-from lossvo.report.jobs import SweepError, latest_sweep
+from lossvo.report.jobs import job_dirs, latest_sweep
 
 log = logging.getLogger("lossvo")
 
@@ -47,6 +48,22 @@ def parser() -> argparse.ArgumentParser:
     return out
 
 
+def check_writable(out: Path, given: bool) -> None:
+    """Refuse, before any work, a report folder that cannot be written (a read-only sweep folder):
+    :class:`~lossvo.console.UserError` naming it, and ``--out`` where the folder was the default."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):
+            pass
+    except OSError as e:
+        cause = e.strerror or type(e).__name__
+        hint = "give a writable folder" if given else "write the report elsewhere with --out DIR"
+        raise UserError(
+            f"{'--out: ' if given else ''}{out}: cannot write the report there ({cause}): {hint}"
+        ) from None
+
+
+@one_line_main
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m lossvo.report SWEEP_DIR [--out DIR] [--latest] [--no-baselines] [--jobs N]``; returns
     the exit status (2: not a sweep)."""
@@ -58,13 +75,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         command.error(f"--out: {args.out} is a file, expected a folder")
     logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)
     start = time.perf_counter()
-    try:
-        sweep = latest_sweep(args.sweep_dir) if args.latest else args.sweep_dir
-        path = make_report(sweep, args.out, not args.no_baselines, not args.no_figures, args.jobs)
-    except SweepError as e:
-        raise_if_full_error()
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+    sweep = latest_sweep(args.sweep_dir) if args.latest else args.sweep_dir
+    job_dirs(sweep)  # a folder that is no sweep is refused first
+    check_writable(args.out if args.out is not None else sweep / "report", args.out is not None)
+    path = make_report(sweep, args.out, not args.no_baselines, not args.no_figures, args.jobs)
     log.info("report written in %.1f s", time.perf_counter() - start)
     emit(str(path))
     return 0

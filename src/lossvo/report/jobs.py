@@ -30,7 +30,7 @@ import numpy as np
 
 from lossvo import folder_lock
 from lossvo.checks import is_number
-from lossvo.console import first_line
+from lossvo.console import UserError, first_line
 from lossvo.data.kitti import KittiFormatError, read_poses, sequence_names
 from lossvo.evaluation.job_folder import METRICS, RESULTS, Curves, JobFolderError, read_metrics, read_status
 from lossvo.evaluation.results import TRANSLATION_METRIC, DataRecord, Results, ResultsError, Scores
@@ -51,7 +51,7 @@ KITTI_R = ("kitti", "r_err_deg_per_100m")
 RMSEs in m and rad, the KITTI errors in % and deg/100 m (None where no 100 m segment exists)."""
 
 
-class SweepError(ValueError):
+class SweepError(UserError):
     """The folder given is not a Hydra sweep folder (or holds no sweep)."""
 
 

@@ -1,10 +1,10 @@
 """Checks of a composed training config before anything is built.
 
 The settings that Lightning, torch or the data loader would otherwise refuse deep inside a run (or
-misread without a word) are checked first, each failure a ``ValueError`` naming the key, the value and
-what was expected, e.g. ``data.batch_size: expected an integer >= 1, got 'abc'``. The constructors check
-their own arguments (:class:`lossvo.data.datamodules.VODataModule`), :func:`lossvo.weighting.check_config`
-the loss weights.
+misread without a word) are checked first, each failure a :class:`~lossvo.console.UserError` naming the
+key, the value and what was expected, e.g. ``data.batch_size: expected an integer >= 1, got 'abc'``.
+The constructors check their own arguments (:class:`lossvo.data.datamodules.VODataModule`),
+:func:`lossvo.weighting.check_config` the loss weights.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from lossvo.checks import is_integer, is_number
-from lossvo.console import first_line
+from lossvo.console import UserError, first_line
 
 _ABSENT = object()
 
@@ -74,53 +74,69 @@ def _select(config: Mapping[str, Any], key: str) -> Any:
 
 
 def check_train_config(cfg: DictConfig) -> None:
-    """Raise ``ValueError`` (one line: key, value, what was expected) for a training config that would
-    fail only once the run is under way: a value left missing (``???``), an interpolation that does not
-    resolve, a bad scalar setting (:data:`SCALARS`), a cosine schedule without a length, a trainer asking
-    for a CUDA GPU where there is none (:func:`check_accelerator`), a ``ckpt_path`` that is no file."""
+    """Raise :class:`~lossvo.console.UserError` (one line: key, value, what was expected) for a training
+    config that would fail only once the run is under way: a value left missing (``???``), an
+    interpolation that does not resolve, a bad scalar setting (:data:`SCALARS`), a cosine schedule without
+    a length, a trainer asking for a CUDA GPU where there is none (:func:`check_accelerator`) or for
+    several devices without a distributed strategy (:func:`check_devices`), a ``data.root`` that is a
+    file, a ``ckpt_path`` that is no file."""
     try:
         missing = sorted(OmegaConf.missing_keys(cfg))
         resolved = cast("dict[str, Any]", OmegaConf.to_container(cfg, resolve=True))
     except OmegaConfBaseException as e:  # an interpolation that does not resolve
-        raise ValueError(f"{e.full_key}: {first_line(e.msg) or type(e).__name__}") from None
+        raise UserError(f"{e.full_key}: {first_line(e.msg) or type(e).__name__}") from None
     if missing:
-        raise ValueError(f"{missing[0]}: a value is required: add {missing[0]}=... to the command line")
+        raise UserError(f"{missing[0]}: a value is required: add {missing[0]}=... to the command line")
     for key, test, expected in SCALARS:
         value = _select(resolved, key)
         if value is not _ABSENT and not test(value):
-            raise ValueError(f"{key}: expected {expected}, got {value!r}")
+            raise UserError(f"{key}: expected {expected}, got {value!r}")
     scheduler = resolved.get("scheduler") or {}
     if str(scheduler.get("_target_", "")).endswith("CosineAnnealingLR"):
         t_max = scheduler.get("T_max")
         if not is_integer(t_max, 1):
-            raise ValueError(f"scheduler.T_max: expected an integer >= 1 (the cosine schedule's length in "
+            raise UserError(f"scheduler.T_max: expected an integer >= 1 (the cosine schedule's length in "
                              f"epochs, trainer.max_epochs by default), got {t_max!r}")  # fmt: skip
     _check_flow(resolved)
+    root = _select(resolved, "data.root")
+    if isinstance(root, str) and Path(root).expanduser().is_file():
+        raise UserError(f"data.root: {root} is a file, expected the dataset's folder")
+    check_devices(_select(resolved, "trainer.devices"), _select(resolved, "trainer.strategy"))
     accelerator = _select(resolved, "trainer.accelerator")
     if accelerator in CUDA_ACCELERATORS:
         check_accelerator(accelerator, torch.cuda.is_available(), _trainer_choice())
     ckpt_path = resolved.get("ckpt_path")
     if ckpt_path is not None and not Path(str(ckpt_path)).expanduser().is_file():
-        raise ValueError(f"ckpt_path: checkpoint not found: {ckpt_path}")
+        raise UserError(f"ckpt_path: checkpoint not found: {ckpt_path}")
 
 
 def _check_flow(resolved: Mapping[str, Any]) -> None:
     """A network that reads optical flow (its config names one: ``model.flow``) needs data with flow."""
     needs, has = _select(resolved, "model.flow"), _select(resolved, "data.flow")
     if needs is not _ABSENT and needs is not None and has in ("none", None):
-        raise ValueError(f"model.flow: the network reads optical flow ({needs}) but data.flow={has} caches "
+        raise UserError(f"model.flow: the network reads optical flow ({needs}) but data.flow={has} caches "
                          f"none: expected data.flow=dis or farneback")  # fmt: skip
+
+
+def check_devices(devices: Any, strategy: Any) -> None:
+    """Several devices (``trainer.devices`` above 1, or a list of more than one) need a distributed
+    strategy: without one (``trainer.strategy`` absent or ``auto``), Lightning starts one process per
+    device, each running the whole command. ``UserError`` naming ``trainer=ddp``."""
+    several = (is_integer(devices, 2)) or (isinstance(devices, list) and len(devices) > 1)
+    if several and strategy in (_ABSENT, None, "auto"):
+        raise UserError(f"trainer.devices={devices}: several devices need a distributed strategy: add "
+                        f"trainer=ddp (or trainer.devices=1)")  # fmt: skip
 
 
 def check_accelerator(accelerator: Any, cuda_available: bool, trainer_choice: str | None = None) -> None:
     """A trainer asking for a CUDA GPU (``trainer.accelerator`` in :data:`CUDA_ACCELERATORS`) where
-    ``cuda_available`` (``torch.cuda.is_available()``) is false: ``ValueError`` naming ``trainer=gpu``
+    ``cuda_available`` (``torch.cuda.is_available()``) is false: ``UserError`` naming ``trainer=gpu``
     (``trainer_choice``, the trainer config chosen) or the accelerator, and ``trainer=default``."""
     if str(accelerator) not in CUDA_ACCELERATORS or cuda_available:
         return
     chosen = trainer_choice == GPU_TRAINER
     named = f"trainer={GPU_TRAINER}" if chosen else f"trainer.accelerator={accelerator}"
-    raise ValueError(f"{named}: no CUDA GPU here (torch.cuda.is_available() is false): use trainer=default "
+    raise UserError(f"{named}: no CUDA GPU here (torch.cuda.is_available() is false): use trainer=default "
                      f"to train on the CPU")  # fmt: skip
 
 

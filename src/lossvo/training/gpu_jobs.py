@@ -33,7 +33,7 @@ from hydra.errors import HydraException
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
-from lossvo.console import exit_in_one_line, first_line
+from lossvo.console import UserError, exit_in_one_line, first_line
 from lossvo.training.config_checks import CUDA_ACCELERATORS, check_accelerator
 from lossvo.training.slurm import SLURM_LAUNCHER
 
@@ -48,7 +48,7 @@ JOB_MEMORY_KEY = "hydra.callbacks.gpu_jobs.job_memory_gib"
 _FREE_MEMORY = "import torch; print(torch.cuda.mem_get_info()[0])"
 
 
-class GpuMemoryError(ValueError):
+class GpuMemoryError(UserError):
     """More jobs at once than the GPU's free memory holds (one line)."""
 
 

@@ -28,16 +28,14 @@ from typing import Any
 
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
-from hydra.errors import InstantiationException
 from hydra.types import RunMode
-from lightning.fabric.utilities.exceptions import MisconfigurationException
 from lightning.pytorch.utilities import rank_zero_only
 from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from lossvo import folder_lock, weighting
 from lossvo.atomic import write_text_atomic
-from lossvo.console import USER_ERRORS, disk_error, full_error, hydra_message, one_line
+from lossvo.console import UserError, full_error, one_line, user_message
 from lossvo.evaluation import job_folder
 from lossvo.evaluation.job_folder import LAST_CHECKPOINT, METRICS, STATUS, Event, Status
 from lossvo.training import metrics_log
@@ -58,7 +56,7 @@ NOT_DEFINING = ("data.root", "data.cache_dir", "data.num_workers")
 """Keys under :data:`RUN_KEYS` that say where the data lies or how it is loaded, not what is trained."""
 
 
-class JobError(Exception):
+class JobError(UserError):
     """A user error in one job of a sweep: the job fails (Hydra reports it) and the others go on."""
 
 
@@ -247,20 +245,6 @@ def _user_error(message: str) -> BaseException:
     return SystemExit(2)
 
 
-def _user_message(error: BaseException, out_dir: Path) -> str | None:
-    """The one line of a user error, or None for an error that keeps its traceback."""
-    if isinstance(error, OSError):
-        return disk_error(error, out_dir)
-    if isinstance(error, InstantiationException):
-        cause = error.__cause__
-        if isinstance(cause, OSError):
-            return _user_message(cause, out_dir)
-        return hydra_message(error) if isinstance(cause, (*USER_ERRORS, MisconfigurationException)) else None
-    if isinstance(error, ValueError):  # config values, data files, checkpoints (CheckpointError)
-        return one_line(error)
-    return None
-
-
 def _signals_stop_the_run() -> AbstractContextManager[None]:
     """SIGINT, SIGTERM and submitit's requeue signal stop the run while it runs
     (:data:`lossvo.training.stopping.SIGNALS`)."""
@@ -380,7 +364,7 @@ def _run_in(run: Run) -> Iterator[Run]:
         _interrupted(run, stop)
         raise SystemExit(stop.exit_code) from None
     except Exception as e:
-        message = _user_message(e, out_dir)
+        message = user_message(e, out_dir)
         if message is None:
             log.error("%s failed: %s: %s", run.label, type(e).__name__, e)
         elif not full_error():

@@ -4,17 +4,23 @@
   and ``head_bias`` interpolate them);
 - ``matched_k``, ``paper_k``: ``weighting=matched`` and ``weighting=paper``'s k
   (:func:`lossvo.weighting.preset_k`);
-- ``path_safe``: a sweep job's folder name from its overrides, short and pasteable into an override;
+- ``path_safe``: a folder name from overrides, short and pasteable into an override; ``job_name``: a
+  sweep job's folder name, the swept keys first (:func:`job_name`);
 - ``sqlite_storage``: an SQLite URL for an Optuna study, its folder created first.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
-from collections.abc import Callable
+import os
+import sys
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, cast
 
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.errors import HydraException
 from hydra.utils import get_class
 from omegaconf import ListConfig, OmegaConf
 
@@ -67,6 +73,54 @@ def path_safe(text: str) -> str:
     return f"{name[: MAX_NAME - 12]}-h{digest}"
 
 
+SWEPT_KEYS = "LOSSVO_SWEPT_KEYS"
+"""The environment variable holding the keys a multirun's command line sweeps (``loss`` in
+``-m loss=euler,chordal``), comma-separated, for :func:`job_name` in the launched jobs."""
+
+
+def swept_keys(argv: Sequence[str]) -> list[str]:
+    """The keys of a command line's sweep overrides (``loss=euler,chordal``, ``seed=range(3)``), sorted;
+    arguments that are no override, or do not parse, are skipped (Hydra reports them)."""
+    parser = OverridesParser.create()
+    keys = set()
+    for arg in argv:
+        if arg.startswith("-"):
+            continue
+        try:
+            override = parser.parse_override(arg)
+        except HydraException:
+            continue
+        if override.is_sweep_override():
+            keys.add(override.key_or_group)
+    return sorted(keys)
+
+
+def names_swept_jobs(main: Callable[[], Any]) -> Callable[[], Any]:
+    """A Hydra entry point that records the keys its command line sweeps (:func:`swept_keys`) in
+    :data:`SWEPT_KEYS` for the jobs it launches (child processes inherit it) to name their folders."""
+
+    @functools.wraps(main)
+    def wrapped() -> Any:
+        os.environ[SWEPT_KEYS] = ",".join(swept_keys(sys.argv[1:]))
+        return main()
+
+    return wrapped
+
+
+def job_name(overrides: Sequence[str], swept: str = "", exclude: Sequence[str] = ()) -> str:
+    """A sweep job's folder name from its overrides (``hydra.overrides.task``): the swept keys first
+    (``swept``, comma-separated: the ones that differ between the sweep's jobs), then the others, each
+    group sorted, without the ``exclude`` keys, made short and pasteable by :func:`path_safe`, e.g.
+    ``loss-euler+data.test-07+data.unseen-11+trainer.max_epochs-1``."""
+    first = set(swept.split(",")) - {""}
+    lines = [o.input_line or "" for o in OverridesParser.create().parse_overrides(list(overrides))
+             if o.key_or_group not in exclude]  # fmt: skip
+    keys = {line: line.lstrip("+~").split("=", 1)[0].split("@", 1)[0] for line in lines}
+    ordered = sorted(line for line in lines if keys[line] in first)
+    ordered += sorted(line for line in lines if keys[line] not in first)
+    return path_safe(",".join(ordered))
+
+
 def sqlite_storage(path: str) -> str:
     """An SQLite URL for an Optuna study stored at ``path``, whose folder is created first (the sweep
     folder does not exist yet when the sweeper opens its study)."""
@@ -77,7 +131,7 @@ def sqlite_storage(path: str) -> str:
 
 RESOLVERS: dict[str, Callable[..., Any]] = {
     "dim_of": dim_of, "identity_of": identity_of, "matched_k": matched_k, "paper_k": paper_k,
-    "path_safe": path_safe, "sqlite_storage": sqlite_storage,
+    "path_safe": path_safe, "job_name": job_name, "sqlite_storage": sqlite_storage,
 }  # fmt: skip
 
 

@@ -18,12 +18,12 @@ from hydra.experimental.callback import Callback
 from lightning.pytorch.plugins.environments import SLURMEnvironment
 from omegaconf import DictConfig
 
-from lossvo.console import exit_in_one_line, first_line
+from lossvo.console import UserError, exit_in_one_line, first_line
 
 SLURM_LAUNCHER = "hydra_plugins.hydra_submitit_launcher.submitit_launcher.SlurmLauncher"
 
 
-class ClusterError(ValueError):
+class ClusterError(UserError):
     """No SLURM cluster answers, or it lacks what the launcher asks for (one line)."""
 
 

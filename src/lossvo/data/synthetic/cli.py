@@ -14,7 +14,7 @@ import time
 from collections.abc import Iterable
 from pathlib import Path
 
-from lossvo.console import OneLineParser, raise_if_full_error
+from lossvo.console import OneLineParser, UserError, one_line_main, raise_if_full_error
 from lossvo.data import kitti
 from lossvo.data.synthetic import layouts, routes
 from lossvo.data.synthetic.parameters import (
@@ -64,21 +64,22 @@ def parse_mix(text: str) -> tuple[str, dict[str, float]]:
     """'11=stop_and_go:2+expressway' -> ('11', {'stop_and_go': 2.0, 'expressway': 1.0}); ValueError."""
     sequence, sep, body = text.partition("=")
     if not sep or not body:
-        raise ValueError(f"--mix: expected NN=FAMILY[:WEIGHT][+FAMILY[:WEIGHT]], got {text!r}")
+        raise UserError(f"--mix: expected NN=FAMILY[:WEIGHT][+FAMILY[:WEIGHT]], got {text!r}")
     mix = {}
     for item in body.split("+"):
         name, _, weight = item.partition(":")
         try:
             mix[name.strip()] = float(weight) if weight else 1.0
         except ValueError:
-            raise ValueError(f"--mix {text}: the weight of {name!r} is not a number: {weight!r}") from None
+            raise UserError(f"--mix {text}: the weight of {name!r} is not a number: {weight!r}") from None
     try:
         routes.check_mix(mix)
     except ValueError as err:
-        raise ValueError(f"--mix {text}: {err}") from None
+        raise UserError(f"--mix {text}: {err}") from None
     return parse_sequences(sequence, "--mix")[0], mix
 
 
+@one_line_main
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point; returns the exit status (2 and a one-line message for bad values)."""
     parser = _parser()
@@ -87,10 +88,10 @@ def main(argv: list[str] | None = None) -> int:
         counts = resolve_frames(args.sequences, args.frames, prefix="--")
         height, width = frame_size(args.layout, args.height, args.width, args.scale, prefix="--")
         if args.workers is not None and args.workers < 1:
-            raise ValueError(f"--workers: must be >= 1, got {args.workers}")
+            raise UserError(f"--workers: must be >= 1, got {args.workers}")
         spec = routes.route_spec(mixes=dict(parse_mix(m) for m in args.mix))
         if args.out.exists() and not args.out.is_dir():
-            raise ValueError(f"--out: {args.out} is a file, expected a folder")
+            raise UserError(f"--out: {args.out} is a file, expected a folder")
     except ValueError as err:
         raise_if_full_error()
         parser.error(str(err))
