@@ -62,9 +62,10 @@ from torch import Tensor, nn
 import gpu_path
 import lossvo
 from lossvo import models
-from lossvo.data import camera, resident
 from lossvo.data import flow as optical_flow
+from lossvo.data import resident
 from lossvo.data.datamodules import mirror_windows
+from lossvo.geometry import camera
 from lossvo.training.module import VOModule
 from lossvo.training.step import StepRecord, compiled
 

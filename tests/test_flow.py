@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 import torch
 
-from lossvo.data import camera, flow, synthetic
+from lossvo.data import flow, synthetic
 from lossvo.data.flow import FlowSetting
+from lossvo.geometry import camera
 
 H, W = 64, 208
 """The network's input size on the synthetic dataset (rendered at RENDER_HW, resized as the cache does)."""

@@ -153,3 +153,13 @@ def test_upward_imports_are_found() -> None:
     assert upward_imports(edges) == [
         "lossvo.evaluation.results -> lossvo.training.module", "lossvo.training.fitting -> lossvo.train"
     ]  # fmt: skip
+
+
+def test_camera_maths_sits_below_data_and_models() -> None:
+    """The camera's maths (K after resizing or mirroring, the intrinsics layer) is imported by both the data
+    readers and the networks, so it lives in geometry/, below both."""
+    edges = graph()
+    assert "lossvo.geometry.camera" in edges["lossvo.models.flowvo"]
+    assert "lossvo.geometry.camera" in edges["lossvo.data.tum"]
+    assert layer("lossvo.geometry.camera") > max(layer("lossvo.data.tum"), layer("lossvo.models.flowvo"))
+    assert not any(m.startswith("lossvo.data") for m in edges["lossvo.models.flowvo"])

@@ -23,7 +23,6 @@ from pathlib import Path
 
 import numpy as np
 
-from lossvo.data.camera import resized_intrinsics
 from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
@@ -34,6 +33,7 @@ from lossvo.data.sequence import (
     unit_quaternions,
     where,
 )
+from lossvo.geometry.camera import resized_intrinsics
 
 MAX_DIFFERENCE_S = 0.02
 """TUM's ``associate.py`` default: a frame and a ground-truth stamp pair only if less than 0.02 s apart."""
@@ -249,7 +249,7 @@ def camera(
 ) -> tuple[np.ndarray, np.ndarray]:
     """K and distortion of a sequence's colour camera: the Freiburg set-up its name names (:data:`CAMERAS`),
     its K scaled to frames of ``size`` (H, W) when they are not 640x480 (a resized copy;
-    :func:`lossvo.data.camera.resized_intrinsics`), each replaced by the caller's where given. For a name
+    :func:`lossvo.geometry.camera.resized_intrinsics`), each replaced by the caller's where given. For a name
     that names no set-up, ``K`` is required and the distortion defaults to zeros (undistorted frames).
 
     Args:

@@ -64,13 +64,14 @@ import torch
 
 from lossvo import geometry
 from lossvo.atomic import atomic_path
-from lossvo.data import camera, layouts
+from lossvo.data import layouts
 from lossvo.data.flow import FlowSetting, pair_flow
 from lossvo.data.frame_cache import Undistortion, read_frame, undistortion
 from lossvo.data.kitti import KittiFormatError, check_png
 from lossvo.data.sequence import Sequence as DatasetSequence
 from lossvo.evaluation import metrics
 from lossvo.evaluation.results import DataRecord, Scores
+from lossvo.geometry import camera
 
 log = logging.getLogger("lossvo")
 T = TypeVar("T")

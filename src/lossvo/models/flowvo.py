@@ -32,7 +32,7 @@ import torch
 from torch import Tensor, nn
 
 from lossvo.checks import is_integer
-from lossvo.data.camera import intrinsics_channels
+from lossvo.geometry.camera import intrinsics_channels
 from lossvo.models.arguments import check_float, check_int, dropout, memory_format, seeded_build
 from lossvo.models.arguments import head_bias as head_bias_of
 

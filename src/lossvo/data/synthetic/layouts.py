@@ -28,12 +28,12 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from lossvo.data import tartanair, tum
-from lossvo.data.camera import resized_intrinsics
 from lossvo.data.layouts import LAYOUTS, check_layout
 from lossvo.data.synthetic import platforms, routes
 from lossvo.data.synthetic.png import write_png
 from lossvo.data.synthetic.render import Renderer
 from lossvo.data.synthetic.world import scene, sequence_route
+from lossvo.geometry.camera import resized_intrinsics
 
 
 @dataclass(frozen=True)
