@@ -26,7 +26,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 from lossvo.console import one_line, one_line_errors, raise_if_full_error
-from lossvo.data.kitti import sequence_names
+from lossvo.data.sequence import sequence_names
 from lossvo.evaluation import checkpoints
 from lossvo.evaluation.metrics import ALIGN_MODES, is_rpe_delta
 from lossvo.evaluation.results import Results, evaluate_run

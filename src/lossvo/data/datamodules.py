@@ -46,8 +46,8 @@ from lossvo.atomic import write_text_atomic
 from lossvo.checks import is_integer, is_number
 from lossvo.data import flow as optical_flow
 from lossvo.data import frame_cache, layouts, resident, synthetic, windows
-from lossvo.data.kitti import relative_targets, split_names
-from lossvo.data.sequence import Sequence
+from lossvo.data.kitti import relative_targets
+from lossvo.data.sequence import Sequence, split_names
 from lossvo.data.synthetic import routes
 from lossvo.geometry import camera
 

@@ -47,7 +47,7 @@ from lossvo.data.sequence import (
     Sequence,
     check_resolution,
     check_rigid,
-    dataset_root,
+    existing_root,
     finite_numbers,
     load_mapping,
     pose_matrices,
@@ -351,7 +351,7 @@ def kept_camera_poses(
 
 def list_sequences(root: str | os.PathLike) -> list[str]:
     """Names of the sequences under ``root`` (folders holding ``mav0``), sorted."""
-    folder = dataset_root(root, "ROOT/<sequence>/mav0")
+    folder = existing_root(root, "ROOT/<sequence>/mav0")
     return sorted(p.name for p in folder.iterdir() if (p / "mav0").is_dir())
 
 

@@ -25,7 +25,7 @@ import torch
 
 from lossvo import geometry
 from lossvo.console import OneLineParser, emit
-from lossvo.data import frame_cache, kitti, layouts
+from lossvo.data import frame_cache, kitti, layouts, sequence
 from lossvo.data.datamodules import PAPER_TEST, PAPER_TRAIN, PAPER_VAL
 from lossvo.data.synthetic import routes
 
@@ -139,7 +139,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.root is None:
             parser.error(f"--layout {args.layout}: give the dataset root (python -m lossvo.data.motion ROOT)")
         try:
-            motion = read_layout_motion(args.layout, args.root, kitti.sequence_names(args.sequences))
+            motion = read_layout_motion(args.layout, args.root, sequence.sequence_names(args.sequences))
         except ValueError as err:  # DatasetFormatError
             parser.error(str(err))
         if not motion:
@@ -149,7 +149,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     root = args.root or frame_cache.default_cache_dir() / "synthetic"
     try:
         root = kitti.find_root(root)
-        splits = {s: kitti.sequence_names(getattr(args, s)) for s in PAPER_SPLITS}
+        splits = {s: sequence.sequence_names(getattr(args, s)) for s in PAPER_SPLITS}
         motion = read_motion(root, sorted({n for names in splits.values() for n in names}))
     except ValueError as err:  # KittiFormatError too
         parser.error(str(err))

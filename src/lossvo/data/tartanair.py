@@ -39,7 +39,7 @@ import numpy as np
 from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
-    dataset_root,
+    existing_root,
     finite_numbers,
     png_size,
     pose_matrices,
@@ -143,13 +143,13 @@ def list_sequences(root: str | os.PathLike) -> list[str]:
     Raises:
         DatasetFormatError: if ``root`` is not a folder.
     """
-    base = dataset_root(root, f"ROOT/<env>/<Easy|Hard>/<Pnnn>/{IMAGES}")
+    base = existing_root(root, f"ROOT/<env>/<Easy|Hard>/<Pnnn>/{IMAGES}")
     return sorted(p.parent.relative_to(base).as_posix() for p in base.glob(f"*/*/*/{IMAGES}") if p.is_dir())
 
 
 def sequence_dir(root: str | os.PathLike, name: str) -> Path:
     """``root/name``; DatasetFormatError naming the missing folder and the sequences found."""
-    path = dataset_root(root, f"ROOT/<env>/<Easy|Hard>/<Pnnn>/{IMAGES}") / name
+    path = existing_root(root, f"ROOT/<env>/<Easy|Hard>/<Pnnn>/{IMAGES}") / name
     if not (path / IMAGES).is_dir():
         found = ", ".join(list_sequences(root)) or "none"
         raise DatasetFormatError(

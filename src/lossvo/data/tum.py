@@ -26,7 +26,7 @@ import numpy as np
 from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
-    dataset_root,
+    existing_root,
     finite_numbers,
     png_size,
     pose_matrices,
@@ -291,14 +291,14 @@ def list_sequences(root: str | os.PathLike) -> list[str]:
     """
     return sorted(
         p.name
-        for p in dataset_root(root, f"ROOT/<sequence>/{RGB_LIST}").iterdir()
+        for p in existing_root(root, f"ROOT/<sequence>/{RGB_LIST}").iterdir()
         if (p / RGB_LIST).is_file()
     )
 
 
 def sequence_dir(root: str | os.PathLike, name: str) -> Path:
     """``root/name``; ``DatasetFormatError`` naming the missing folder and the sequences found."""
-    path = dataset_root(root, f"ROOT/<sequence>/{RGB_LIST}") / name
+    path = existing_root(root, f"ROOT/<sequence>/{RGB_LIST}") / name
     if not path.is_dir():
         found = ", ".join(list_sequences(root)) or "none"
         raise DatasetFormatError(f"{path}: sequence {name!r} not found (found: {found})")

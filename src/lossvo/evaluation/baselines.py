@@ -51,7 +51,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import struct
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -69,6 +68,7 @@ from lossvo.data.flow import FlowSetting, pair_flow
 from lossvo.data.frame_cache import Undistortion, read_frame, undistortion
 from lossvo.data.kitti import KittiFormatError, check_png
 from lossvo.data.sequence import Sequence as DatasetSequence
+from lossvo.data.sequence import png_size
 from lossvo.evaluation import metrics
 from lossvo.evaluation.results import DataRecord, Scores
 from lossvo.geometry import camera
@@ -397,14 +397,6 @@ def flow_size(source_hw: tuple[int, int]) -> tuple[int, int]:
     return max(1, round(height * FLOW_MAX_WIDTH / width)), FLOW_MAX_WIDTH
 
 
-def png_size(path: Path) -> tuple[int, int]:
-    """(H, W) of a PNG file, from its header (IHDR: width, height, big-endian, at bytes 16-24)."""
-    check_png(path)
-    with path.open("rb") as f:
-        width, height = struct.unpack(">II", f.read(24)[16:24])
-    return height, width
-
-
 def flow_features(
     images: Sequence[Path], K: np.ndarray, undistort: Undistortion | None = None
 ) -> FlowFeatures:
@@ -424,6 +416,7 @@ def flow_features(
     """
     if len(images) < 2:
         return FlowFeatures(np.zeros(0), np.zeros(0))
+    check_png(images[0])
     source = png_size(images[0])
     size = flow_size(source)
     K_flow = camera.resized_intrinsics(K if undistort is None else undistort.K, source, size)

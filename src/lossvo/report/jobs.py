@@ -33,7 +33,8 @@ import numpy as np
 from lossvo import folder_lock
 from lossvo.checks import is_number
 from lossvo.console import first_line
-from lossvo.data.kitti import KittiFormatError, read_poses, sequence_names
+from lossvo.data.kitti import KittiFormatError, read_poses
+from lossvo.data.sequence import sequence_names
 from lossvo.evaluation.results import TRANSLATION_METRIC, DataRecord, Results, ResultsError, Scores
 from lossvo.evaluation.trajectories import read_tum
 

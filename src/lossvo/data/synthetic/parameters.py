@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 
-from lossvo.data.kitti import sequence_name
+from lossvo.data.sequence import sequence_name
 from lossvo.data.synthetic import routes
 
 DEFAULT_HEIGHT = 160

@@ -27,7 +27,7 @@ import torch
 
 from lossvo import geometry
 from lossvo.checks import is_number
-from lossvo.data.kitti import sequence_name
+from lossvo.data.sequence import sequence_name
 
 STRETCH = 60
 """Frames (at least) driven in one family before the next family is drawn from the sequence's mix."""

@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 
 from lossvo.atomic import write_text_atomic
-from lossvo.data import kitti
+from lossvo.data import kitti, pose_files
 from lossvo.data.synthetic import layouts, manifest, routes
 from lossvo.data.synthetic.camera import calib_text, intrinsics
 from lossvo.data.synthetic.parameters import (
@@ -54,7 +54,7 @@ def render_sequence(
     renderer = Renderer(world, K, height, width)
     for k, T in enumerate(poses):
         write_png(folder / sequence / "image_2" / f"{k:06d}.png", renderer.render(T, noise))
-    kitti.write_poses(folder / f"{sequence}.txt", poses)
+    pose_files.write_poses(folder / f"{sequence}.txt", poses)
 
 
 def write_sequence(
