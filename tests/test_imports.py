@@ -111,7 +111,7 @@ LAYERS = (
     ("evaluation",),
     ("data", "losses", "weighting", "models"),
     ("geometry",),
-    ("console", "atomic", "processes", "checks", "folder_lock"),
+    ("console", "atomic", "processes", "checks", "folder_lock", "table_render"),
 )
 """The library's layers, top to bottom, by the first name under ``lossvo``; each imports only its own
 layer and the ones below it."""
@@ -163,3 +163,11 @@ def test_camera_maths_sits_below_data_and_models() -> None:
     assert "lossvo.geometry.camera" in edges["lossvo.data.tum"]
     assert layer("lossvo.geometry.camera") > max(layer("lossvo.data.tum"), layer("lossvo.models.flowvo"))
     assert not any(m.startswith("lossvo.data") for m in edges["lossvo.models.flowvo"])
+
+
+def test_the_table_renderer_sits_below_every_table() -> None:
+    """The report, the data tables and the axioms table render through one module in the lowest layer."""
+    edges = graph()
+    for module in ("lossvo.report.tables", "lossvo.data.motion", "lossvo.geometry.axioms"):
+        assert "lossvo.table_render" in edges[module], module
+    assert layer("lossvo.table_render") > layer("lossvo.geometry.maps")

@@ -23,11 +23,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lossvo import geometry
+from lossvo import geometry, table_render
 from lossvo.console import OneLineParser, emit
 from lossvo.data import frame_cache, kitti, layouts, sequence
 from lossvo.data.datamodules import PAPER_TEST, PAPER_TRAIN, PAPER_VAL
 from lossvo.data.synthetic import routes
+from lossvo.table_render import Rows
 
 STANDING = 0.01
 """Metres per frame below which a pair counts as standing still."""
@@ -91,10 +92,8 @@ def markdown(rows: Mapping[str, Mapping[str, float]]) -> str:
         return f"{value:.3f}" if column.startswith("speed") else f"{value:.4f}"
 
     head = ["split / sequence", *COLUMNS]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for label, row in rows.items():
-        lines.append("| " + " | ".join([label, *(cell(c, row[c]) for c in COLUMNS)]) + " |")
-    return "\n".join(lines)
+    cells = [[label, *(cell(c, row[c]) for c in COLUMNS)] for label, row in rows.items()]
+    return table_render.markdown(Rows(head, cells))
 
 
 def read_motion(root: Path, names: Sequence[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:

@@ -29,6 +29,7 @@ import torch
 from torch import Tensor
 
 from lossvo import geometry as g
+from lossvo.table_render import Rows, markdown
 
 TOLERANCE = 1e-9
 """Float64 slack: an axiom fails only if it is violated by more than this."""
@@ -288,19 +289,18 @@ def _classify(verdicts: dict[str, Verdict]) -> str:
 def markdown_table(results: dict[str, dict[str, Verdict]] | None = None) -> str:
     """The axioms table in Markdown: ✓/✗ per axiom, then what the distance is, then the failures."""
     results = check_all() if results is None else results
-    header = "| distance | formula | " + " | ".join(AXIOMS) + " | on SO(3) | note |"
-    lines = [header, "|" + "---|" * (len(AXIOMS) + 4)]
-    failures = []
+    rows, failures = [], []
     for d in DISTANCES:
         verdicts = results[d.name]
-        marks = " | ".join("✓" if verdicts[a].holds else "✗" for a in AXIOMS)
-        lines.append(f"| {d.name} | {d.formula} | {marks} | {_classify(verdicts)} | {d.note} |")
+        marks = ["✓" if verdicts[a].holds else "✗" for a in AXIOMS]
+        rows.append([d.name, d.formula, *marks, _classify(verdicts), d.note])
         failures += [f"- {d.name}, {a}: {verdicts[a].evidence}" for a in AXIOMS if not verdicts[a].holds]
+    table = markdown(Rows(["distance", "formula", *AXIOMS, "on SO(3)", "note"], rows))
     legend = (
         f"✓: holds on every sample (float64, slack {TOLERANCE:g}); ✗: violated, worst case found below. "
         "θ is the angle of the relative rotation."
     )
-    return "\n".join([*lines, "", legend, "", "Counterexamples found:", "", *failures]) + "\n"
+    return "\n".join([table, "", legend, "", "Counterexamples found:", "", *failures]) + "\n"
 
 
 def main() -> None:

@@ -21,7 +21,7 @@ Modules, by concern:
 - :mod:`~lossvo.report.jobs`: the sweep folder and its job folders (Job, status, metrics.csv curves,
   results.json, trajectories and ground truth);
 - :mod:`~lossvo.report.configurations`: jobs grouped into configurations, rotation weights, selection;
-- :mod:`~lossvo.report.render`: the one table renderer (markdown, CSV, LaTeX) of every section's rows;
+- :mod:`~lossvo.table_render`: the one table renderer (markdown, CSV, LaTeX) of every section's rows;
 - :mod:`~lossvo.report.tables`: the per-sequence tables (cells, mean row, bold minima) and their rows;
 - :mod:`~lossvo.report.statistics`: the paired test, the significance level, the verdict rule,
   convergence epochs, the architecture x loss interaction test;

@@ -21,7 +21,7 @@ import numpy as np
 
 from lossvo.evaluation.results import DataRecord, Results, ResultsError
 from lossvo.report.jobs import Job
-from lossvo.report.render import Rows
+from lossvo.table_render import Rows
 
 EVALUATIONS = "evaluations"
 """The folder of a sweep that holds evaluations of its checkpoints on other data."""

@@ -19,12 +19,13 @@ from itertools import combinations
 
 import numpy as np
 
-from lossvo.report import render, statistics
+from lossvo import table_render
+from lossvo.report import statistics
 from lossvo.report.claims import CLAIM_ERRORS, training_sequences
 from lossvo.report.configurations import architecture_groups, treatments
-from lossvo.report.render import Rows
 from lossvo.report.statistics import InteractionTest
 from lossvo.report.tables import Cell, Column, fmt, mean_std_text, seed_scores
+from lossvo.table_render import Rows
 
 UNTESTED = "cannot be tested"
 
@@ -204,9 +205,9 @@ def agreement_markdown(agreement: Agreement) -> str:
     lines = [
         AGREEMENT_TEXT.format(sequences=", ".join(agreement.sequences)),
         "",
-        render.markdown(ranking_rows(agreement)),
+        table_render.markdown(ranking_rows(agreement)),
         "",
-        render.markdown(interaction_rows(agreement)),
+        table_render.markdown(interaction_rows(agreement)),
     ]
     for i in agreement.interactions:
         lines += ["", verdict_line(i)]

@@ -14,14 +14,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lossvo.report import render, statistics
+from lossvo import table_render
+from lossvo.report import statistics
 from lossvo.report.comparison import paired_values
 from lossvo.report.configurations import SCORE, UNKNOWN_ARCHITECTURE, architecture_groups, loss_class_name
 from lossvo.report.convergence import Convergence, epoch_text
 from lossvo.report.jobs import APE_TRANS, RPE_ROT, RPE_TRANS, trained_sequences
-from lossvo.report.render import Rows, prepend_column
 from lossvo.report.statistics import PairedTest
 from lossvo.report.tables import NETWORK, Cell, Column, fmt, mean_std_text, seed_scores
+from lossvo.table_render import Rows, prepend_column
 
 CLAIMED_LOSS = "ChordalLoss"
 CLAIM_ERRORS = (
@@ -323,16 +324,16 @@ def claim_markdown(claim: Claim, letter: str, level: str = "###") -> str:
     what = "each seed's mean over those sequences" if claim.statement == CLAIM_A else "epochs"
     lines = [head, "", claim.scope, "", f"Measured ({what}; mean ± sample std over seeds):", ""]
     lines += [
-        render.markdown(_measured_rows(claim)),
+        table_render.markdown(_measured_rows(claim)),
         "",
         "Paired by seed:",
         "",
-        render.markdown(_tests_rows(claim)),
+        table_render.markdown(_tests_rows(claim)),
     ]
     secondary = _secondary_rows(claim)
     if secondary.rows:
         lines += ["", f"{SECONDARY[0].upper()}{SECONDARY[1:]} (never decides the verdict):", ""]
-        lines += [render.markdown(secondary)]
+        lines += [table_render.markdown(secondary)]
     lines += [f"\n*Note:* {n}" for n in claim.notes]
     lines += ["", " ".join([f"**Verdict: {claim.verdict}.**", *claim.undecidable])]
     return "\n".join(lines)
@@ -428,4 +429,4 @@ def claims_csv_rows(items: Sequence[Claim], by_architecture: bool = False) -> Ro
 
 def claims_csv(items: Sequence[Claim], by_architecture: bool = False) -> str:
     """:func:`claims_csv_rows` as CSV text."""
-    return render.csv_text(claims_csv_rows(items, by_architecture))
+    return table_render.csv_text(claims_csv_rows(items, by_architecture))

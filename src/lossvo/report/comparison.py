@@ -14,9 +14,9 @@ import numpy as np
 
 from lossvo.report.configurations import UNKNOWN_ARCHITECTURE, architecture_groups
 from lossvo.report.jobs import APE_TRANS, RPE_ROT, RPE_TRANS, metric_value
-from lossvo.report.render import Rows, prepend_column
 from lossvo.report.statistics import ALPHA, PairedTest, can_decide, corrected, paired_test
 from lossvo.report.tables import NETWORK, Column, fmt, samples
+from lossvo.table_render import Rows, prepend_column
 
 COMPARED = (
     ("APE trans RMSE [m]", APE_TRANS),

@@ -28,6 +28,7 @@ import torch
 from lossvo import geometry
 from lossvo.checks import is_number
 from lossvo.data.sequence import sequence_name
+from lossvo.table_render import Rows, markdown
 
 STRETCH = 60
 """Frames (at least) driven in one family before the next family is drawn from the sequence's mix."""
@@ -403,7 +404,7 @@ def families_markdown() -> str:
 
     head = ["family", "driving", "cruise m/frame", "straights m", "turns", "turn angle °", "turn radius m",
             "lane changes", "stops (frames)", "hills m", "camber rad", "sequences"]  # fmt: skip
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    rows = []
     for f in FAMILIES.values():
         drives = [s for s, mix in MIXES.items() if mix.get(f.name, 0) > 0]
         row = [f"`{f.name}`", f.description, span(f.cruise), span(f.straight, 0), f"{f.turn:.0%}",
@@ -411,5 +412,5 @@ def families_markdown() -> str:
                f"{f.stop:.0%} ({f.stop_frames[0]}-{f.stop_frames[1]})" if f.stop else "-",
                f"{f.hill:.2f}" if f.hill else "-", f"{f.camber:.3f}" if f.camber else "-",
                f"{drives[0]}-{drives[-1]}" if drives else "-"]  # fmt: skip
-        lines.append("| " + " | ".join(row) + " |")
-    return "\n".join(lines)
+        rows.append(row)
+    return markdown(Rows(head, rows))
