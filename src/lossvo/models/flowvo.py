@@ -1,26 +1,5 @@
 """FlowVO: a pose network on optical flow and the camera's intrinsics layer (after TartanVO, Wang et al.
-2020).
-
-Each frame pair is measured on its own, from the geometry in the image rather than its appearance::
-
-    flow (B, P, 2, H, W) px   ->  flow * gain / (W, H)             scaled by the image size
-    K (B, 3, 3)               ->  (x - cx) / fx, (y - cy) / fy      the intrinsics layer, (B, 2, H, W)
-                              ->  average-pooled by ``pool``        (B*P, 4, H/pool, W/pool)
-                              ->  encoder (B*P, C, H/16p, W/16p)    a stem, three residual stages
-                              ->  flattened features (B*P, F)       where in the image a motion is, is kept
-                              ->  translation head (B, P, 3)        separate heads: the translation and
-                                  rotation head (B, P, out_dim - 3)  the rotation part of the loss's output
-
-P = L - 1 frame pairs of a window. The output is ``[t (3), r (D)]`` as in :mod:`lossvo.losses` (for the
-SE(3) loss the first three are rho). The rotation follows from the flow and K alone (a rotation's flow does
-not depend on depth); the translation's direction too, its length only through what the scene implies
-(metric scale).
-
-Initialisation: convolutions Kaiming normal (ReLU, fan-out), BatchNorm weight 1 and bias 0 (the last of each
-residual branch 0, so every stage starts as its shortcut), head layers Kaiming uniform, last layers normal
-with std 1e-3 and the loss's identity output as bias. Random streams as in :class:`lossvo.models.DeepVO`: one
-draw from the caller's stream seeds the backbone (encoder and translation head, which is the same for every
-loss) and, plus one, the rotation head, so that for one seed every loss starts from the same encoder.
+2020), one frame pair at a time, with separate translation and rotation heads.
 """
 
 from __future__ import annotations
@@ -73,7 +52,19 @@ class Head(nn.Module):
 
 
 class FlowVO(nn.Module):
-    """Pose from optical flow and intrinsics, one frame pair at a time, translation and rotation heads apart.
+    """Pose from optical flow and intrinsics, one frame pair at a time, translation and rotation heads apart::
+
+        flow (B, P, 2, H, W) px   ->  flow * gain / (W, H)             scaled by the image size
+        K (B, 3, 3)               ->  (x - cx) / fx, (y - cy) / fy      the intrinsics layer, (B, 2, H, W)
+                                  ->  average-pooled by ``pool``        (B*P, 4, H/pool, W/pool)
+                                  ->  encoder (B*P, C, H/16p, W/16p)    a stem, three residual stages
+                                  ->  flattened features (B*P, F)       keeps where a motion is
+                                  ->  translation head (B, P, 3)
+                                      rotation head (B, P, out_dim - 3)
+
+    P = L - 1 frame pairs of a window; the output is ``[t (3), r (D)]`` (:mod:`lossvo.losses`; for the
+    SE(3) loss the first three are rho). The rotation follows from the flow and K alone (a rotation's flow
+    does not depend on depth), the translation's length only through what the scene implies.
 
     Args:
         out_dim: head size per frame pair (the loss's ``dim``): 3 translation outputs, then the rotation's.
@@ -85,7 +76,7 @@ class FlowVO(nn.Module):
         head_bias: the heads' initial output (out_dim,), the loss's identity output; null: zeros.
         flow: the optical flow the network reads (``data.flow``), recorded with it.
         pool: the encoder's input (flow and intrinsics layer) is average-pooled by this factor: a
-            quarter of the pixels at 2, where the flow field is smooth; a training step costs 0.28-0.37x.
+            quarter of the pixels at 2, where the flow field is smooth.
         channels_last: run the encoder in the channels-last memory layout (NHWC), which the oneDNN CPU
             kernels and GPU tensor cores prefer; the values are the same.
         intrinsics_layer: read the intrinsics layer beside the flow (false: the flow alone, K unused;
@@ -147,8 +138,11 @@ class FlowVO(nn.Module):
 
     @torch.no_grad()
     def reset_parameters(self, seed: int | None = None) -> None:
-        """Initialise every layer as the module docstring says: the encoder and translation head from a
-        generator seeded with ``seed``, the rotation head from one seeded with ``seed + 1``."""
+        """Initialise every layer: the encoder and translation head (the same for every loss) from a
+        generator seeded with ``seed``, the rotation head from one seeded with ``seed + 1`` (None: one draw
+        from the global stream). Convs Kaiming normal (ReLU, fan-out); BatchNorm weight 1, bias 0, the last
+        of each residual branch 0 (every stage starts as its shortcut); head layers Kaiming uniform, the
+        last normal with std 1e-3 and the loss's identity output as bias."""
         if seed is None:
             seed = int(torch.randint(0, 2**62, ()))
         backbone = torch.Generator().manual_seed(seed)
@@ -200,7 +194,7 @@ class FlowVO(nn.Module):
 
     def _pooled(self, x: Tensor) -> Tensor:
         """(N, C, H, W) -> (N, C, H/pool, W/pool), the mean of each pool x pool block: a sum of strided
-        slices, ~5x faster than ``avg_pool2d`` on a CPU for these few channels."""
+        slices (faster than ``avg_pool2d`` on a CPU for these few channels)."""
         p = self.pool
         return sum((x[..., i::p, j::p] for i in range(p) for j in range(p)), torch.zeros(())) / p**2
 
