@@ -60,7 +60,8 @@ class DeepVO(nn.Module):
     the conv6 features flattened in (C, H, W) order. The encoder is FlowNetS's contracting part
     (Dosovitskiy et al. 2015): ``conv -> BatchNorm -> LeakyReLU(0.1) -> Dropout`` blocks named as in
     FlowNetPytorch (``encoder.conv1.0.weight``), so :func:`lossvo.models.flownet.load_flownet` loads
-    ``flownets_bn_*.pth.tar`` (``flownets_*.pth.tar`` with ``batch_norm=False``). FlowNetS was trained on ``img / 255 - 0.5`` input.
+    ``flownets_bn_*.pth.tar`` (``flownets_*.pth.tar`` with ``batch_norm=False``); FlowNetS was trained on
+    ``img / 255 - 0.5`` input.
     Training resets the LSTM state for every window; :meth:`forward_with_state` carries it across chunks.
 
     Args:
