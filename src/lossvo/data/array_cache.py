@@ -35,8 +35,9 @@ def manifest_of(data: Path) -> Path:
     return data.with_suffix(".json")
 
 
-def open_array(data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type
-               ) -> np.ndarray | None:  # fmt: skip
+def open_array(
+    data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type
+) -> np.ndarray | None:
     """The array in ``data`` as a read-only memory map, or None if it is missing, incomplete or stale:
     its manifest must hold every entry of ``expected`` with the same value, and the array ``shape`` and
     ``dtype``."""
@@ -55,8 +56,9 @@ def open_array(data: Path, expected: dict[str, Any], shape: tuple[int, ...], dty
     return array
 
 
-def build_array(data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type,
-                fill: Fill) -> np.ndarray:  # fmt: skip
+def build_array(
+    data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type, fill: Fill
+) -> np.ndarray:
     """Write the array ``fill`` computes into ``data`` (through a temporary file), then its manifest
     (``expected``, the shape and what ``fill`` returned); the memory map. An exception leaves no array
     that looks complete."""
@@ -77,8 +79,9 @@ def build_array(data: Path, expected: dict[str, Any], shape: tuple[int, ...], dt
     return np.load(data, mmap_mode="r")
 
 
-def ensure_array(data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type,
-                 fill: Fill) -> np.ndarray:  # fmt: skip
+def ensure_array(
+    data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type, fill: Fill
+) -> np.ndarray:
     """The array in ``data`` (:func:`open_array`), built first by :func:`build_array` where it is missing,
     incomplete or stale, under a file lock so that concurrent jobs build it once."""
     array = open_array(data, expected, shape, dtype)

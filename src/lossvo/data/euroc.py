@@ -329,9 +329,14 @@ def camera_poses(
 
 
 def kept_camera_poses(
-    gt_path: Path, csv_path: Path, gt_ns: np.ndarray, T_w_b: np.ndarray, T_BS: np.ndarray, ns: np.ndarray,
+    gt_path: Path,
+    csv_path: Path,
+    gt_ns: np.ndarray,
+    T_w_b: np.ndarray,
+    T_BS: np.ndarray,
+    ns: np.ndarray,
     max_gap: float,
-) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+) -> tuple[np.ndarray, np.ndarray]:
     """:func:`camera_poses`, with DatasetFormatError naming both files when no frame of ``csv_path`` is kept
     (none within the ground truth's span of ``gt_path`` without gaps over ``max_gap`` s)."""
     poses, keep = camera_poses(gt_ns, T_w_b, T_BS, ns, max_gap)

@@ -35,9 +35,20 @@ STANDING = 0.01
 PAPER_SPLITS = {"train": PAPER_TRAIN, "val": PAPER_VAL, "test": PAPER_TEST, "unseen": routes.UNSEEN_SEQUENCES}
 """The default splits: the paper's, plus the synthetic dataset's unseen-motion sequences."""
 COLUMNS = (
-    "pairs", "speed mean", "speed RMS", "speed p5", "speed p50", "speed p95", "speed max", "standing",
-    "rot mean", "rot RMS", "rot p50", "rot p95", "rot max",
-)  # fmt: skip
+    "pairs",
+    "speed mean",
+    "speed RMS",
+    "speed p5",
+    "speed p50",
+    "speed p95",
+    "speed max",
+    "standing",
+    "rot mean",
+    "rot RMS",
+    "rot p50",
+    "rot p95",
+    "rot max",
+)
 """Table columns: speeds in m/frame, rotations in rad/frame, standing as a fraction of the pairs."""
 
 
@@ -56,9 +67,21 @@ def statistics(speed: np.ndarray, rotation: np.ndarray) -> dict[str, float]:
     """The :data:`COLUMNS` of pooled pairs: speed (P,) m/frame, rotation (P,) rad/frame."""
     p5, p50, p95 = np.percentile(speed, [5, 50, 95])
     r50, r95 = np.percentile(rotation, [50, 95])
-    values = (len(speed), speed.mean(), np.sqrt((speed**2).mean()), p5, p50, p95, speed.max(),
-              (speed < STANDING).mean(), rotation.mean(), np.sqrt((rotation**2).mean()), r50, r95,
-              rotation.max())  # fmt: skip
+    values = (
+        len(speed),
+        speed.mean(),
+        np.sqrt((speed**2).mean()),
+        p5,
+        p50,
+        p95,
+        speed.max(),
+        (speed < STANDING).mean(),
+        rotation.mean(),
+        np.sqrt((rotation**2).mean()),
+        r50,
+        r95,
+        rotation.max(),
+    )
     return dict(zip(COLUMNS, map(float, values), strict=True))
 
 
@@ -120,8 +143,9 @@ def _parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="python -m lossvo.data.motion", description=__doc__.split("\n\n")[0])
     default_root = "the synthetic dataset in the lossvo cache"
     p.add_argument("root", nargs="?", type=Path, default=None, help=f"dataset root (default: {default_root})")
-    p.add_argument("--layout", default="kitti", choices=layouts.LAYOUTS,
-                   help="the dataset's layout (default: kitti)")  # fmt: skip
+    p.add_argument(
+        "--layout", default="kitti", choices=layouts.LAYOUTS, help="the dataset's layout (default: kitti)"
+    )
     p.add_argument(
         "--sequences", default="", help="with --layout other than kitti: the sequences (default: all)"
     )

@@ -47,12 +47,16 @@ RGB_LIST = "rgb.txt"
 GROUNDTRUTH = "groundtruth.txt"
 
 CAMERAS: dict[str, tuple[tuple[float, float, float, float], tuple[float, float, float, float, float]]] = {
-    "freiburg1": ((517.306408, 516.469215, 318.643040, 255.313989),
-                  (0.262383, -0.953104, -0.005358, 0.002628, 1.163314)),
-    "freiburg2": ((520.908620, 521.007327, 325.141442, 249.701764),
-                  (0.231222, -0.784899, -0.003257, -0.000105, 0.917205)),
+    "freiburg1": (
+        (517.306408, 516.469215, 318.643040, 255.313989),
+        (0.262383, -0.953104, -0.005358, 0.002628, 1.163314),
+    ),
+    "freiburg2": (
+        (520.908620, 521.007327, 325.141442, 249.701764),
+        (0.231222, -0.784899, -0.003257, -0.000105, 0.917205),
+    ),
     "freiburg3": ((535.4, 539.2, 320.1, 247.6), (0.0, 0.0, 0.0, 0.0, 0.0)),
-}  # fmt: skip
+}
 """The colour cameras of the three Freiburg set-ups: ``(fx, fy, cx, cy)`` in pixels of the 640x480 frames and
 the OpenCV distortion ``(k1, k2, p1, p2, k3)``. TUM's calibration table (file_formats page, 4 digits there:
 fr1 517.3 516.5 318.6 255.3, d 0.2624 -0.9531 -0.0054 0.0026 1.1633; fr2 520.9 521.0 325.1 249.7, d 0.2312

@@ -215,9 +215,12 @@ def pair_motion(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, threshold: float)
 
 
 def orb_essential(
-    images: Sequence[Path], K: np.ndarray, step_lengths: np.ndarray, fallback: np.ndarray,
+    images: Sequence[Path],
+    K: np.ndarray,
+    step_lengths: np.ndarray,
+    fallback: np.ndarray,
     distortion: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+) -> tuple[np.ndarray, np.ndarray]:
     """Monocular ORB + essential-matrix VO with ground-truth step lengths.
 
     ORB features matched between consecutive frames (mutual nearest neighbours in Hamming distance with a
@@ -392,8 +395,10 @@ def flow_features(
     for i, path in enumerate(images[1:], start=1):
         frame, shape = read_frame(path, *size, undistort)
         if shape != source:
-            raise KittiFormatError(f"{path}: {shape[0]}x{shape[1]} pixels, expected {source[0]}x{source[1]} "
-                                   "(the size of the sequence's first frame)")  # fmt: skip
+            raise KittiFormatError(
+                f"{path}: {shape[0]}x{shape[1]} pixels, expected {source[0]}x{source[1]} "
+                "(the size of the sequence's first frame)"
+            )
         fields.append(pair_flow(previous, frame, FLOW_SETTING))
         previous = frame
         if len(fields) == FLOW_CHUNK or i == len(images) - 1:

@@ -88,42 +88,69 @@ def _naive_quat_distance(q_a: Tensor, q_b: Tensor) -> Tensor:
 
 DISTANCES: tuple[Distance, ...] = (
     Distance(
-        "Euler", "‖φ − φ̂‖", EULER, g.euler_distance,
+        "Euler",
+        "‖φ − φ̂‖",
+        EULER,
+        g.euler_distance,
         "A metric on angle triples in R³, not on rotations: one rotation has many triples.",
     ),
     Distance(
-        "Euler² (euler loss)", "‖φ − φ̂‖²", EULER, _squared(g.euler_distance),
+        "Euler² (euler loss)",
+        "‖φ − φ̂‖²",
+        EULER,
+        _squared(g.euler_distance),
         "Squared: the triangle inequality fails too (at coordinate midpoints).",
     ),
     Distance(
-        "quaternion, one sign", "‖q − q̂‖", QUATERNION, _naive_quat_distance,
+        "quaternion, one sign",
+        "‖q − q̂‖",
+        QUATERNION,
+        _naive_quat_distance,
         "Not sign-invariant: q and −q, one rotation, are 2 apart.",
     ),
     Distance(
-        "quaternion, min over sign", "min±‖q ∓ q̂‖", QUATERNION, g.quat_distance,
+        "quaternion, min over sign",
+        "min±‖q ∓ q̂‖",
+        QUATERNION,
+        g.quat_distance,
         "= 2 sin(θ/4): a metric on SO(3); on unit quaternions only a pseudo-metric (d(q, −q) = 0).",
     ),
     Distance(
-        "quaternion² (quat loss)", "min±‖q ∓ q̂‖²", QUATERNION, _squared(g.quat_distance),
+        "quaternion² (quat loss)",
+        "min±‖q ∓ q̂‖²",
+        QUATERNION,
+        _squared(g.quat_distance),
         "= 4 sin²(θ/4): squared, so the triangle inequality fails (at geodesic midpoints).",
     ),
     Distance(
-        "chordal", "‖R − R̂‖_F", MATRIX, g.so3_chordal_distance,
+        "chordal",
+        "‖R − R̂‖_F",
+        MATRIX,
+        g.so3_chordal_distance,
         "= 2√2 sin(θ/2): a metric (the Frobenius norm of R⁹ restricted to SO(3)).",
     ),
     Distance(
-        "chordal² (chordal loss)", "‖R − R̂‖_F²", MATRIX, _squared(g.so3_chordal_distance),
+        "chordal² (chordal loss)",
+        "‖R − R̂‖_F²",
+        MATRIX,
+        _squared(g.so3_chordal_distance),
         "= 8 sin²(θ/2): squared, so the triangle inequality fails (at geodesic midpoints).",
     ),
     Distance(
-        "geodesic", "θ = ∠(Rᵀ R̂)", MATRIX, g.so3_geodesic_distance,
+        "geodesic",
+        "θ = ∠(Rᵀ R̂)",
+        MATRIX,
+        g.so3_geodesic_distance,
         "The Riemannian distance of SO(3): a metric.",
     ),
     Distance(
-        "geodesic² (geodesic loss)", "θ²", MATRIX, _squared(g.so3_geodesic_distance),
+        "geodesic² (geodesic loss)",
+        "θ²",
+        MATRIX,
+        _squared(g.so3_geodesic_distance),
         "Squared: the triangle inequality fails (at geodesic midpoints).",
     ),
-)  # fmt: skip
+)
 
 
 # --------------------------------------------------------------------------------------------------

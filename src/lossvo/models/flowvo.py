@@ -26,9 +26,11 @@ class Residual(nn.Module):
     def __init__(self, c_in: int, c_out: int, stride: int) -> None:
         super().__init__()
         self.branch = nn.Sequential(
-            nn.Conv2d(c_in, c_out, 3, stride=stride, padding=1, bias=False), nn.BatchNorm2d(c_out),
-            nn.ReLU(inplace=True), nn.Conv2d(c_out, c_out, 3, padding=1, bias=False),
-        )  # fmt: skip
+            nn.Conv2d(c_in, c_out, 3, stride=stride, padding=1, bias=False),
+            nn.BatchNorm2d(c_out),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(c_out, c_out, 3, padding=1, bias=False),
+        )
         self.branch_norm = nn.BatchNorm2d(c_out)
         self.shortcut = nn.Sequential(
             nn.Conv2d(c_in, c_out, 1, stride=stride, bias=False), nn.BatchNorm2d(c_out)
@@ -89,10 +91,21 @@ class FlowVO(nn.Module):
     _head_bias: Tensor
     _flow_scale: Tensor
 
-    def __init__(self, out_dim: int, height: int, width: int, channels: Sequence[int] = (32, 64, 96, 128),
-                 hidden: int = 128, flow_gain: float = 20.0, head_dropout: float = 0.0,
-                 head_bias: list[float] | None = None, flow: str = "dis", pool: int = 1,
-                 channels_last: bool = False, intrinsics_layer: bool = True) -> None:  # fmt: skip
+    def __init__(
+        self,
+        out_dim: int,
+        height: int,
+        width: int,
+        channels: Sequence[int] = (32, 64, 96, 128),
+        hidden: int = 128,
+        flow_gain: float = 20.0,
+        head_dropout: float = 0.0,
+        head_bias: list[float] | None = None,
+        flow: str = "dis",
+        pool: int = 1,
+        channels_last: bool = False,
+        intrinsics_layer: bool = True,
+    ) -> None:
         super().__init__()
         if not isinstance(intrinsics_layer, bool):
             raise ValueError(f"model.intrinsics_layer: expected true or false, got {intrinsics_layer!r}")
@@ -127,8 +140,11 @@ class FlowVO(nn.Module):
     def _build(self, p: float) -> None:
         c0, c1, c2, c3 = self.channels
         inputs = 4 if self.intrinsics_layer else 2
-        self.stem = nn.Sequential(nn.Conv2d(inputs, c0, 5, stride=2, padding=2, bias=False),
-                                  nn.BatchNorm2d(c0), nn.ReLU(inplace=True))  # fmt: skip
+        self.stem = nn.Sequential(
+            nn.Conv2d(inputs, c0, 5, stride=2, padding=2, bias=False),
+            nn.BatchNorm2d(c0),
+            nn.ReLU(inplace=True),
+        )
         self.stages = nn.Sequential(Residual(c0, c1, 2), Residual(c1, c2, 2), Residual(c2, c3, 2))
         h, w = self.height // self.pool, self.width // self.pool
         self.feature_shape = (c3, -(-h // TOTAL_STRIDE), -(-w // TOTAL_STRIDE))
@@ -159,8 +175,9 @@ class FlowVO(nn.Module):
                 nn.init.zeros_(stage.branch_norm.weight)  # each stage starts as its shortcut
         bias = self._head_bias.split([TRANSLATION_DIM, self.out_dim - TRANSLATION_DIM])
         for head, generator, b in (
-            (self.translation_head, backbone, bias[0]), (self.rotation_head, rotation, bias[1])
-        ):  # fmt: skip
+            (self.translation_head, backbone, bias[0]),
+            (self.rotation_head, rotation, bias[1]),
+        ):
             nn.init.kaiming_uniform_(head.hidden.weight, nonlinearity="relu", generator=generator)
             nn.init.zeros_(head.hidden.bias)
             nn.init.normal_(head.out.weight, std=1e-3, generator=generator)

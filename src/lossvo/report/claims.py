@@ -290,16 +290,37 @@ def seeds_needed_text(n: float) -> str:
 
 
 def _tests_rows(claim: Claim) -> Rows:
-    header = ["quantity", "versus", "n seeds", f"mean difference ({claim.configuration} − other)", "relative",
-              "95 % CI", "p", "Holm p", "seeds needed", "verdict on the quantity"]  # fmt: skip
+    header = [
+        "quantity",
+        "versus",
+        "n seeds",
+        f"mean difference ({claim.configuration} − other)",
+        "relative",
+        "95 % CI",
+        "p",
+        "Holm p",
+        "seeds needed",
+        "verdict on the quantity",
+    ]
     rows: list[list[object]] = []
     for q in claim.quantities:
         number = _number(q.quantity)
         for t in q.tests:
             ci = f"[{number(t.ci_low)}, {number(t.ci_high)}]" if t.n > 1 else "n/a"
-            rows.append([q.quantity, t.versus, t.n, number(t.mean_diff), _relative_text(t.relative), ci,
-                         fmt(t.p_value, 3), fmt(t.holm_p, 3), seeds_needed_text(t.seeds_needed),
-                         q.verdict])  # fmt: skip
+            rows.append(
+                [
+                    q.quantity,
+                    t.versus,
+                    t.n,
+                    number(t.mean_diff),
+                    _relative_text(t.relative),
+                    ci,
+                    fmt(t.p_value, 3),
+                    fmt(t.holm_p, 3),
+                    seeds_needed_text(t.seeds_needed),
+                    q.verdict,
+                ]
+            )
     return Rows(header, rows)
 
 
@@ -396,10 +417,23 @@ def _seeds_needed_cell(n: float) -> str:
 
 def _test_numbers(t: PairedTest, cells: PairedTest | None) -> list[object]:
     """A paired test's cells from ``n_seeds`` to ``secondary_p``, full precision."""
-    return [t.n, repr(t.mean), repr(t.versus_mean), repr(t.mean_diff), repr(t.relative), repr(t.ci_low),
-            repr(t.ci_high), *map(repr, t.relative_ci), repr(t.p_value), t.method, repr(t.holm_p),
-            repr(statistics.smallest_p(t.n)), _seeds_needed_cell(t.seeds_needed),
-            cells.n if cells else "", repr(cells.p_value) if cells else ""]  # fmt: skip
+    return [
+        t.n,
+        repr(t.mean),
+        repr(t.versus_mean),
+        repr(t.mean_diff),
+        repr(t.relative),
+        repr(t.ci_low),
+        repr(t.ci_high),
+        *map(repr, t.relative_ci),
+        repr(t.p_value),
+        t.method,
+        repr(t.holm_p),
+        repr(statistics.smallest_p(t.n)),
+        _seeds_needed_cell(t.seeds_needed),
+        cells.n if cells else "",
+        repr(cells.p_value) if cells else "",
+    ]
 
 
 def claims_csv_rows(items: Sequence[Claim], by_architecture: bool = False) -> Rows:

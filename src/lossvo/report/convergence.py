@@ -121,8 +121,16 @@ def convergence_rows(items: Sequence[Convergence], by_architecture: bool = False
         pairs = zip(c.replicates, c.epochs, strict=True)
         per_seed = ", ".join(f"{r}: {e if e is not None else 'n/a'}" for r, e in pairs)
         cell = c.cell()
-        rows.append([c.label, ", ".join(sorted(set(c.metrics))), cell.n, epoch_text(cell), per_seed,
-                     ", ".join(map(str, sorted(set(c.logged))))])  # fmt: skip
+        rows.append(
+            [
+                c.label,
+                ", ".join(sorted(set(c.metrics))),
+                cell.n,
+                epoch_text(cell),
+                per_seed,
+                ", ".join(map(str, sorted(set(c.logged)))),
+            ]
+        )
     table = Rows(header, rows)
     return prepend_column(table, "architecture", _architectures(items)) if by_architecture else table
 

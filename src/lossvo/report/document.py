@@ -171,10 +171,16 @@ def jobs_rows(jobs: Sequence[Job], by_architecture: bool = False) -> Rows:
     """Every job: its folder, configuration, seed, status, whether it is in the tables (or why not: the
     file it could not use and why) and notes; with ``by_architecture`` its architecture first."""
     rows: list[list[object]] = [
-        [f"`{job.path.name}`", job.label or "?", job.seed, job.status,
-         "yes" if job.skip is None else f"no: {job.skip}", "; ".join(job.notes)]
+        [
+            f"`{job.path.name}`",
+            job.label or "?",
+            job.seed,
+            job.status,
+            "yes" if job.skip is None else f"no: {job.skip}",
+            "; ".join(job.notes),
+        ]
         for job in jobs
-    ]  # fmt: skip
+    ]
     table = Rows(["job", "configuration", "seed", "status", "in tables", "notes"], rows)
     if not by_architecture:
         return table
@@ -504,7 +510,18 @@ def make_report(
     across = across_rows(included, evaluations) if evaluations else None
     if across is not None:
         write_text_atomic(out / "tables" / "across_datasets.csv", table_render.csv_text(across))
-    contents = Contents(jobs, sequences, tables, comparisons, base, with_baselines, figures, study, speed,
-                        across, across_notes)  # fmt: skip
+    contents = Contents(
+        jobs,
+        sequences,
+        tables,
+        comparisons,
+        base,
+        with_baselines,
+        figures,
+        study,
+        speed,
+        across,
+        across_notes,
+    )
     write_text_atomic(out / "report.md", render_report(sweep, out, contents))
     return out / "report.md"

@@ -275,8 +275,20 @@ def paired_test(versus: str, claimed: np.ndarray, other: np.ndarray) -> PairedTe
     sd = float(d.std(ddof=1)) if d.size > 1 else math.nan
     low, high = t_interval(d)
     means = float(claimed.mean()), float(other.mean())
-    return PairedTest(versus, int(d.size), *means, p, float(np.median(d)), int((d < 0).sum()), method, sd,
-                      low, high, p, seeds_needed(means[0] - means[1], sd))  # fmt: skip
+    return PairedTest(
+        versus,
+        int(d.size),
+        *means,
+        p,
+        float(np.median(d)),
+        int((d < 0).sum()),
+        method,
+        sd,
+        low,
+        high,
+        p,
+        seeds_needed(means[0] - means[1], sd),
+    )
 
 
 def cells_test(versus: str, claimed: np.ndarray, other: np.ndarray) -> PairedTest:
@@ -286,8 +298,16 @@ def cells_test(versus: str, claimed: np.ndarray, other: np.ndarray) -> PairedTes
     if claimed.size == 0:
         return PairedTest(versus, 0, math.nan, math.nan, math.nan, method="Wilcoxon over cells")
     d = claimed - other
-    return PairedTest(versus, int(d.size), float(claimed.mean()), float(other.mean()), wilcoxon_p(d),
-                      float(np.median(d)), int((d < 0).sum()), "Wilcoxon over cells")  # fmt: skip
+    return PairedTest(
+        versus,
+        int(d.size),
+        float(claimed.mean()),
+        float(other.mean()),
+        wilcoxon_p(d),
+        float(np.median(d)),
+        int((d < 0).sum()),
+        "Wilcoxon over cells",
+    )
 
 
 def corrected(tests: Sequence[PairedTest], alpha: float = ALPHA) -> list[PairedTest]:

@@ -42,9 +42,14 @@ def times_text(n_frames: int) -> str:
 
 
 def render_sequence(
-    folder: Path, sequence: str, n_frames: int, height: int, width: int, seed: int,
+    folder: Path,
+    sequence: str,
+    n_frames: int,
+    height: int,
+    width: int,
+    seed: int,
     spec: routes.RouteSpec = routes.DEFAULT_SPEC,
-) -> None:  # fmt: skip
+) -> None:
     """Render one sequence into folder: folder/NN/{image_2/*.png, calib.txt, times.txt} and folder/NN.txt."""
     poses, world, noise = scene(sequence, n_frames, seed, spec)
     K = intrinsics(height, width)
@@ -58,9 +63,15 @@ def render_sequence(
 
 
 def write_sequence(
-    out: Path, sequence: str, n_frames: int, height: int, width: int, seed: int,
-    spec: routes.RouteSpec = routes.DEFAULT_SPEC, layout: str = "kitti",
-) -> float:  # fmt: skip
+    out: Path,
+    sequence: str,
+    n_frames: int,
+    height: int,
+    width: int,
+    seed: int,
+    spec: routes.RouteSpec = routes.DEFAULT_SPEC,
+    layout: str = "kitti",
+) -> float:
     """Render one sequence into the dataset root out, atomically; returns the seconds it took.
 
     Layouts other than kitti: :func:`lossvo.data.synthetic.layouts.write_sequence`. Everything is
@@ -100,9 +111,16 @@ def _worker_count(jobs: int, workers: int | None, pixels: int) -> int:
 
 
 def _render_all(
-    out: Path, counts: dict[str, int], height: int, width: int, seed: int, progress: bool,
-    workers: int | None, spec: routes.RouteSpec, layout: str = "kitti",
-) -> None:  # fmt: skip
+    out: Path,
+    counts: dict[str, int],
+    height: int,
+    width: int,
+    seed: int,
+    progress: bool,
+    workers: int | None,
+    spec: routes.RouteSpec,
+    layout: str = "kitti",
+) -> None:
     """Render the sequences, in parallel spawned worker processes when there are several and cores to spare
     (so a calling script needs the usual ``if __name__ == "__main__":`` guard)."""
     jobs = [(out, s, n, height, width, seed, spec, layout) for s, n in counts.items()]
