@@ -8,10 +8,7 @@ window is one contiguous slice), next to a small JSON manifest. Training and eva
 straight from the memory map: no epoch decodes a PNG. The manifest records what the cache was built from
 (frame names, sizes, mtimes) and is written last, so a cache from an interrupted run, a truncated file or a
 changed dataset is detected and rebuilt, never read as garbage.
-
-numpy's memmap and OpenCV do this well; what no library does is the dataset bookkeeping (which frames, which
-size, which camera), which is what this module holds (whether a cached array is complete:
-:mod:`lossvo.data.array_cache`).
+Whether a cached array is complete is :mod:`lossvo.data.array_cache`'s concern.
 """
 
 from __future__ import annotations

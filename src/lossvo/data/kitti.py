@@ -1,4 +1,5 @@
-"""The KITTI odometry format: pose files, calibration, timestamps, image lists, relative targets.
+"""The KITTI odometry format: pose files, calibration, timestamps, image lists, relative targets (sequence
+names: :mod:`lossvo.data.sequence`; writing pose files: :mod:`lossvo.data.pose_files`).
 
 Layout (the same for real KITTI and for lossvo's synthetic dataset)::
 

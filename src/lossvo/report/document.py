@@ -1,20 +1,7 @@
 """The report of a sweep: reading its jobs, building the tables, analyses and figures, and writing
-``report.md``, ``tables/`` and ``figures/`` (:func:`make_report`), every file atomically.
-
-``report.md`` holds, in this order: a bold warning when the configurations were selected by different
-metrics; the configurations (:mod:`~lossvo.report.configurations`); Tables I-III
-(:mod:`~lossvo.report.tables`); the pairwise comparison (:mod:`~lossvo.report.comparison`); convergence
-(:mod:`~lossvo.report.convergence`); the baselines and each job against them
-(:mod:`~lossvo.report.against_baselines`); the jobs, included or skipped and why; the files; the figures
-(:mod:`~lossvo.report.figures`); where the sweep varies the architecture, whether the architectures rank
-the losses alike (:mod:`~lossvo.report.architectures`); and last the study's claims
-(:mod:`~lossvo.report.claims`).
-
-Where the sweep varies the architecture (:func:`~lossvo.report.configurations.varies_architecture`), the
-tables whose rows are configurations (or jobs) get an ``architecture`` column, Tables I-III, the curves and
-the APE bars are given per architecture (``tables/translation_<architecture>.csv``,
-``figures/curves_<architecture>.png``), pairs are compared and claims tested within an architecture; a
-single-architecture sweep's report is unchanged.
+``report.md``, ``tables/`` and ``figures/`` (:func:`make_report`), every file atomically. Where the sweep
+varies the architecture, tables get an ``architecture`` column and Tables I-III, curves, APE bars, pairs and
+claims are given per architecture; a single-architecture sweep's report is unchanged.
 """
 
 from __future__ import annotations
@@ -365,7 +352,11 @@ class Contents:
 
 
 def render_report(sweep: Path, out: Path, contents: Contents) -> str:
-    """The text of report.md (``contents.figures`` None: not drawn)."""
+    """The text of report.md (``contents.figures`` None: not drawn), in this order: a bold warning when
+    the configurations were selected by different metrics; the configurations; Tables I-III; the pairwise
+    comparison; convergence; the baselines and each job against them; the jobs, included or skipped and
+    why; the files; the figures; where the sweep varies the architecture, whether the architectures rank
+    the losses alike; and last the study's claims."""
     c = contents
     included = [j for j in c.jobs if j.included]
     lines = header_lines(sweep, c.jobs, c.study)
