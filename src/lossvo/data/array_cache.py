@@ -4,9 +4,6 @@ The manifest says what the array was built from. An array is read (memory-mapped
 exists, matches what the caller expects and the file has the expected shape and dtype: a cache from an
 interrupted run, a truncated file or changed inputs is rebuilt, never read as garbage. A file lock lets
 the jobs of a parallel sweep that share a cache build each array once.
-
-numpy's memmap does the storage; what no library does is the bookkeeping (is this file complete, and was
-it built from these inputs), which is what this module holds for the frame and flow caches.
 """
 
 from __future__ import annotations

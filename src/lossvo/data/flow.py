@@ -6,9 +6,6 @@ frame step). A sequence of N frames has ``N - s`` fields at step s, stored as fl
 resolves to 1/2048 px at 1 px and 1/64 px at 32 px) in one ``.npy`` beside its frames
 (:mod:`lossvo.data.frame_cache`), with a manifest naming the frames it was computed from
 (:mod:`lossvo.data.array_cache`): a changed frame cache, flow setting or interrupted build is recomputed.
-
-OpenCV computes the flow; what this module holds is which flow (method, preset), for which pairs, and the
-flow's geometry under the augmentations (:func:`mirror_flow`).
 """
 
 from __future__ import annotations
