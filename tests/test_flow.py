@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 import torch
 
-from lossvo.data import camera, flow, synthetic
+from lossvo.data import flow, synthetic
 from lossvo.data.flow import FlowSetting
 from lossvo.data.transforms import Mirror, Reverse
+from lossvo.geometry import camera
 
 H, W = 64, 208
 """The network's input size on the synthetic dataset (rendered at RENDER_HW, resized as the cache does)."""

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from lossvo.data import synthetic
-from lossvo.data.camera import intrinsics_channels
+from lossvo.geometry.camera import intrinsics_channels
 from lossvo.losses import ChordalLoss, QuaternionLoss, SixDLoss, SVDLoss
 from lossvo.models.flowvo import FlowVO
 

@@ -111,7 +111,7 @@ LAYERS = (
     ("evaluation",),
     ("data", "losses", "weighting", "models"),
     ("geometry",),
-    ("console", "atomic", "processes", "checks", "folder_lock"),
+    ("console", "atomic", "processes", "checks", "folder_lock", "table_render"),
 )
 """The library's layers, top to bottom, by the first name under ``lossvo``; each imports only its own
 layer and the ones below it."""
@@ -153,3 +153,21 @@ def test_upward_imports_are_found() -> None:
     assert upward_imports(edges) == [
         "lossvo.evaluation.results -> lossvo.training.module", "lossvo.training.fitting -> lossvo.train"
     ]  # fmt: skip
+
+
+def test_camera_maths_sits_below_data_and_models() -> None:
+    """The camera's maths (K after resizing or mirroring, the intrinsics layer) is imported by both the data
+    readers and the networks, so it lives in geometry/, below both."""
+    edges = graph()
+    assert "lossvo.geometry.camera" in edges["lossvo.models.flowvo"]
+    assert "lossvo.geometry.camera" in edges["lossvo.data.tum"]
+    assert layer("lossvo.geometry.camera") > max(layer("lossvo.data.tum"), layer("lossvo.models.flowvo"))
+    assert not any(m.startswith("lossvo.data") for m in edges["lossvo.models.flowvo"])
+
+
+def test_the_table_renderer_sits_below_every_table() -> None:
+    """The report, the data tables and the axioms table render through one module in the lowest layer."""
+    edges = graph()
+    for module in ("lossvo.report.tables", "lossvo.data.motion", "lossvo.geometry.axioms"):
+        assert "lossvo.table_render" in edges[module], module
+    assert layer("lossvo.table_render") > layer("lossvo.geometry.maps")

@@ -12,7 +12,7 @@ from evo.core.trajectory import PosePath3D
 from evo.tools import file_interface
 
 from lossvo import geometry
-from lossvo.data import kitti
+from lossvo.data import kitti, pose_files
 from lossvo.data.sequence import DatasetFormatError
 
 
@@ -36,7 +36,7 @@ def test_reads_what_evo_writes(tmp_path: Path) -> None:
 def test_evo_reads_what_lossvo_writes(tmp_path: Path) -> None:
     poses = random_trajectory(seed=1)
     path = tmp_path / "sub" / "01.txt"
-    kitti.write_poses(path, poses)
+    pose_files.write_poses(path, poses)
     traj = file_interface.read_kitti_poses_file(str(path))
     np.testing.assert_allclose(np.stack(traj.poses_se3), poses, atol=1e-8, rtol=0)
     np.testing.assert_allclose(kitti.read_poses(path), poses, atol=1e-8, rtol=0)

@@ -9,10 +9,11 @@ import cv2
 import numpy as np
 import pytest
 
-from lossvo.data import camera, frame_cache, windows
 from lossvo.data import datamodules as datamodules
+from lossvo.data import frame_cache, windows
 from lossvo.data.datamodules import VODataModule
 from lossvo.data.sequence import Sequence
+from lossvo.geometry import camera
 
 FR1 = "rgbd_dataset_freiburg1_desk"
 FRAME_HW = (48, 64)

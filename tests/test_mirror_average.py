@@ -14,9 +14,9 @@ from omegaconf import DictConfig
 from torch import Tensor, nn
 
 from lossvo import geometry
-from lossvo.data import camera
 from lossvo.data.transforms import mirror_inputs
 from lossvo.evaluation.inference import average_with_mirror, predict_sequence
+from lossvo.geometry import camera
 from lossvo.train import CONFIG_DIR
 
 S = torch.diag(torch.tensor([-1.0, 1.0, 1.0, 1.0], dtype=torch.float64))

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lossvo.data.kitti import write_poses
+from lossvo.data.pose_files import write_poses
 from lossvo.report import speed
 from lossvo.report.jobs import Job
 from lossvo.report.tables import NETWORK, Column

@@ -12,9 +12,10 @@ import torch
 from hydra.utils import instantiate
 
 from lossvo import geometry
-from lossvo.data import camera, kitti
+from lossvo.data import kitti
 from lossvo.data import transforms as T
 from lossvo.data.flow import mirror_flow
+from lossvo.geometry import camera
 
 S = torch.diag(torch.tensor([-1.0, 1.0, 1.0, 1.0], dtype=torch.float64))
 

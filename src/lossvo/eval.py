@@ -32,7 +32,7 @@ from lossvo.console import (
     remove_refused,
     user_message,
 )
-from lossvo.data.kitti import sequence_names
+from lossvo.data.sequence import sequence_names
 from lossvo.evaluation import checkpoints
 from lossvo.evaluation.metrics import ALIGN_MODES, is_rpe_delta
 from lossvo.evaluation.results import Results, evaluate_run

@@ -1,49 +1,6 @@
-"""Pose losses, one class per parameterisation of the network's relative-pose output.
-
-Each loss owns its parameterisation:
-
-- ``dim``: the size of the network head, one vector per frame pair;
-- ``decode(pred) -> (..., 4, 4)``: relative poses, used at inference to chain trajectories;
-- ``encode(pose) -> (..., dim)``: the output that decodes to a given pose (for tests and baselines);
-- ``forward(pred, target) -> dict``: the loss and its parts.
-
-Per frame pair the loss is ``trans_term + k * rot_term``; the translation term is the same for every
-loss, so that only the rotation term differs between compared runs. The result is the mean over all
-pairs (batch and time). The study sums over time instead; dividing by the number of pairs keeps ``k``
-independent of the window length (multiply by ``T`` to compare).
-
-The translation term (``translation``, config ``loss.translation``), with ``t`` the decoded translation
-(for the SE(3) loss ``t = V(omega) rho``, not rho) and ``t^`` the target's:
-
-- ``metric`` (default): ``|t - t^|^2``, the study's.
-- ``direction``: only the direction, up to scale: ``w * |t / |t| - t^ / |t^||^2`` with
-  ``w = DIRECTION_WEIGHT_M2 = 1 m^2``. Calibration: for an angle alpha between the two directions
-  ``|u - u^|^2 = 2 - 2 cos(alpha) = alpha^2 + O(alpha^4)``, so the term is exactly the metric term of a
-  1 m step predicted with the right length and a direction error alpha (a step of length L weighs
-  L^2 alpha^2 under ``metric``). The norm of ``t`` is floored at :data:`MIN_STEP_M`, so value and
-  gradient are finite at ``t = 0`` (an output that some heads give at initialisation), and the term
-  does not change when ``t`` is scaled by any factor that keeps ``|t| >= MIN_STEP_M``. A ground-truth
-  step shorter than :data:`MIN_STEP_M` (a standing car) has no direction: that pair's translation term
-  is 0, and the mean still divides by the number of all pairs. Metric scale is left to whatever
-  supplies it: evaluation scales each predicted step to the ground-truth step length
-  (:func:`lossvo.evaluation.trajectories.scale_steps`), as the ORB+E baseline does.
-
-Each class states ``small_angle_gain``: its rotation term is ``gain * theta^2 + O(theta^3)`` for a
-rotation error of angle theta (at an identity target; for Euler angles at zero pitch). ``k`` defaults to
-the ``matched`` weighting, ``100 / gain``, so that every loss weighs small rotation errors alike; the
-study's values are ``paper_k`` (see :mod:`lossvo.weighting` for the presets and the learned weighting).
-
-Besides ``loss``, ``forward`` returns the unweighted means ``trans_loss`` and ``rot_loss`` and two
-yardsticks that are the same for every loss, so that runs with different losses can be compared on
-one scale: ``trans_err_m`` (mean ``|t - t^|``, metres) and ``rot_err_rad`` (mean geodesic angle between
-target and decoded rotation, radians). The yardsticks carry no gradient. With ``translation="direction"``
-``trans_err_m`` is the mean ``|t / |t| * |t^| - t^|`` (each predicted step scaled to the ground-truth
-step length, :func:`lossvo.geometry.scale_to_length`, the rule evaluation uses), so that it stays
-comparable with the metric runs' value.
-
-The loss is computed in float32 (float64 if the prediction is float64) with autocast disabled, so
-that bf16 mixed precision does not reach the rotation maths. Non-finite predictions give non-finite
-losses: nothing here clamps a NaN into a number.
+"""Pose losses, one class per parameterisation of the network's relative-pose output: each owns ``dim``
+(the head size), ``decode(pred) -> (..., 4, 4)``, ``encode(pose) -> (..., dim)`` and the loss, per frame
+pair ``trans_term + k * rot_term`` averaged over batch and time. Formulas and weights: docs/losses.md.
 """
 
 from __future__ import annotations
@@ -74,6 +31,15 @@ step of the right length with the same direction error."""
 class PoseLoss(nn.Module):
     """Base class: shape checks, the shared translation term, the weighting, the yardsticks.
 
+    The loss is the mean over all pairs (batch and time) of ``trans_term + k * rot_term``; the study sums
+    over time, dividing by the number of pairs keeps ``k`` independent of the window length. The
+    translation term is the same for every loss (with ``t`` the decoded translation, for se(3)
+    ``V(omega) rho``), so only the rotation term differs between compared runs. ``small_angle_gain``:
+    the rotation term is ``gain * theta^2 + O(theta^3)`` for a rotation error theta (identity target;
+    Euler at zero pitch), so the matched ``k = 100 / gain`` weighs small rotation errors alike for every
+    loss (:mod:`lossvo.weighting`). The loss runs in float32 (float64 for a float64 prediction) with
+    autocast off; a non-finite prediction gives a non-finite loss.
+
     Subclasses set ``dim``, ``small_angle_gain`` and ``paper_k`` and implement :meth:`decode_rt`,
     :meth:`encode` and :meth:`rotation_term`.
 
@@ -81,8 +47,9 @@ class PoseLoss(nn.Module):
         k: rotation weight; None: the matched weighting ``100 / small_angle_gain``.
         learned: initial log-variances ``{"s_t": .., "s_r": ..}`` for the learned (homoscedastic)
             weighting instead of k (then k must be None).
-        translation: ``"metric"`` (``|t - t^|^2``) or ``"direction"`` (the direction only; see the
-            module docstring).
+        translation: ``"metric"`` (``|t - t^|^2``, the study's) or ``"direction"``: the direction only,
+            ``DIRECTION_WEIGHT_M2 * |t / |t| - t^ / |t^||^2`` (:meth:`translation_term`); metric scale
+            then comes from evaluation, which scales each step to the ground-truth length.
     """
 
     dim: int
@@ -168,7 +135,9 @@ class PoseLoss(nn.Module):
             pred: (B, T, dim) network outputs (any leading dims, matching ``target``'s).
             target: (B, T, 4, 4) relative poses ``inv(T_w_k) @ T_w_{k+1}``.
         Returns:
-            Scalar tensors ``loss``, ``trans_loss``, ``rot_loss``, ``trans_err_m``, ``rot_err_rad``.
+            Scalar tensors ``loss``, the unweighted means ``trans_loss`` and ``rot_loss``, and two
+            yardsticks without gradient, the same for every loss: ``trans_err_m`` (mean ``|t - t^|``,
+            metres; :meth:`translation_term`) and ``rot_err_rad`` (mean geodesic angle, radians).
         """
         self._check_pred(pred)
         self._check_target(pred, target)
@@ -195,6 +164,11 @@ class PoseLoss(nn.Module):
 
     def translation_term(self, t: Tensor, t_target: Tensor) -> tuple[Tensor, Tensor]:
         """The translation term per pair and the yardstick ``trans_err_m`` (its mean, no gradient).
+
+        For a direction error alpha, ``|u - u^|^2 = 2 - 2 cos(alpha) = alpha^2 + O(alpha^4)``: the
+        direction term equals the metric term of a 1 m step of the right length. ``|t|`` is floored at
+        :data:`MIN_STEP_M` (finite value and gradient at ``t = 0``); a ground-truth step shorter than it
+        has no direction and no term, and the mean still divides by all pairs.
 
         Args:
             t: (..., 3) decoded translations (metres).

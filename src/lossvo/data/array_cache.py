@@ -4,9 +4,6 @@ The manifest says what the array was built from. An array is read (memory-mapped
 exists, matches what the caller expects and the file has the expected shape and dtype: a cache from an
 interrupted run, a truncated file or changed inputs is rebuilt, never read as garbage. A file lock lets
 the jobs of a parallel sweep that share a cache build each array once.
-
-numpy's memmap does the storage; what no library does is the bookkeeping (is this file complete, and was
-it built from these inputs), which is what this module holds for the frame and flow caches.
 """
 
 from __future__ import annotations
@@ -35,8 +32,9 @@ def manifest_of(data: Path) -> Path:
     return data.with_suffix(".json")
 
 
-def open_array(data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type
-               ) -> np.ndarray | None:  # fmt: skip
+def open_array(
+    data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type
+) -> np.ndarray | None:
     """The array in ``data`` as a read-only memory map, or None if it is missing, incomplete or stale:
     its manifest must hold every entry of ``expected`` with the same value, and the array ``shape`` and
     ``dtype``."""
@@ -55,8 +53,9 @@ def open_array(data: Path, expected: dict[str, Any], shape: tuple[int, ...], dty
     return array
 
 
-def build_array(data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type,
-                fill: Fill) -> np.ndarray:  # fmt: skip
+def build_array(
+    data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type, fill: Fill
+) -> np.ndarray:
     """Write the array ``fill`` computes into ``data`` (through a temporary file), then its manifest
     (``expected``, the shape and what ``fill`` returned); the memory map. An exception leaves no array
     that looks complete."""
@@ -77,8 +76,9 @@ def build_array(data: Path, expected: dict[str, Any], shape: tuple[int, ...], dt
     return np.load(data, mmap_mode="r")
 
 
-def ensure_array(data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type,
-                 fill: Fill) -> np.ndarray:  # fmt: skip
+def ensure_array(
+    data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type, fill: Fill
+) -> np.ndarray:
     """The array in ``data`` (:func:`open_array`), built first by :func:`build_array` where it is missing,
     incomplete or stale, under a file lock so that concurrent jobs build it once."""
     array = open_array(data, expected, shape, dtype)

@@ -42,13 +42,13 @@ from torch.utils.data import BatchSampler, DataLoader, Sampler, SequentialSample
 
 from lossvo.atomic import write_text_atomic
 from lossvo.checks import is_integer, is_number
-from lossvo.data import camera, frame_cache, layouts, resident, synthetic, windows
 from lossvo.data import flow as optical_flow
+from lossvo.data import frame_cache, layouts, resident, synthetic, windows
 from lossvo.data import transforms as batch_transforms
-from lossvo.data.kitti import split_names
-from lossvo.data.sequence import Sequence
+from lossvo.data.sequence import Sequence, split_names
 from lossvo.data.synthetic import routes
 from lossvo.data.windows import EpochShuffle, WindowDataset
+from lossvo.geometry import camera
 
 log = logging.getLogger("lossvo")
 
@@ -472,7 +472,7 @@ class VODataModule(L.LightningDataModule):
     def intrinsics(self, name: str) -> np.ndarray:
         """(3, 3) float64 K of a sequence's cached frames: its camera's K (of the undistorted frames where
         they are undistorted: :func:`lossvo.data.frame_cache.source_intrinsics`), resized from the source
-        images' size to (height, width) (:func:`lossvo.data.camera.resized_intrinsics`); after
+        images' size to (height, width) (:func:`lossvo.geometry.camera.resized_intrinsics`); after
         :meth:`setup`; read once a sequence."""
         if name in self._cameras:
             return self._cameras[name].copy()

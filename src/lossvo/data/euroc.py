@@ -47,7 +47,7 @@ from lossvo.data.sequence import (
     Sequence,
     check_resolution,
     check_rigid,
-    dataset_root,
+    existing_root,
     finite_numbers,
     load_mapping,
     pose_matrices,
@@ -329,9 +329,14 @@ def camera_poses(
 
 
 def kept_camera_poses(
-    gt_path: Path, csv_path: Path, gt_ns: np.ndarray, T_w_b: np.ndarray, T_BS: np.ndarray, ns: np.ndarray,
+    gt_path: Path,
+    csv_path: Path,
+    gt_ns: np.ndarray,
+    T_w_b: np.ndarray,
+    T_BS: np.ndarray,
+    ns: np.ndarray,
     max_gap: float,
-) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+) -> tuple[np.ndarray, np.ndarray]:
     """:func:`camera_poses`, with DatasetFormatError naming both files when no frame of ``csv_path`` is kept
     (none within the ground truth's span of ``gt_path`` without gaps over ``max_gap`` s)."""
     poses, keep = camera_poses(gt_ns, T_w_b, T_BS, ns, max_gap)
@@ -351,7 +356,7 @@ def kept_camera_poses(
 
 def list_sequences(root: str | os.PathLike) -> list[str]:
     """Names of the sequences under ``root`` (folders holding ``mav0``), sorted."""
-    folder = dataset_root(root, "ROOT/<sequence>/mav0")
+    folder = existing_root(root, "ROOT/<sequence>/mav0")
     return sorted(p.name for p in folder.iterdir() if (p / "mav0").is_dir())
 
 

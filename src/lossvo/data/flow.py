@@ -6,9 +6,6 @@ frame step). A sequence of N frames has ``N - s`` fields at step s, stored as fl
 resolves to 1/2048 px at 1 px and 1/64 px at 32 px) in one ``.npy`` beside its frames
 (:mod:`lossvo.data.frame_cache`), with a manifest naming the frames it was computed from
 (:mod:`lossvo.data.array_cache`): a changed frame cache, flow setting or interrupted build is recomputed.
-
-OpenCV computes the flow; what this module holds is which flow (method, preset), for which pairs, and the
-flow's geometry under the augmentations (:func:`mirror_flow`).
 """
 
 from __future__ import annotations
@@ -125,17 +122,30 @@ def resized_flow(field: np.ndarray, height: int, width: int) -> np.ndarray:
     return resized.transpose(2, 0, 1) * np.array([width / w, height / h], dtype=np.float32).reshape(2, 1, 1)
 
 
-def _computer(read: Callable[[int], np.ndarray], step: int, setting: FlowSetting, name: str,
-              size_hw: tuple[int, int], workers: int, progress: bool) -> array_cache.Fill:  # fmt: skip
+def _computer(
+    read: Callable[[int], np.ndarray],
+    step: int,
+    setting: FlowSetting,
+    name: str,
+    size_hw: tuple[int, int],
+    workers: int,
+    progress: bool,
+) -> array_cache.Fill:
     """Fills a sequence's flow array at one step, :data:`CHUNK` pairs at a time on ``workers`` threads
     (OpenCV releases the GIL): ``read(k)`` is frame k, (h, w) uint8 grey, each read once a chunk."""
 
     def fill(out: np.ndarray) -> dict:
         estimate = _Estimator(setting)
-        with ThreadPoolExecutor(workers) as pool, tqdm(
-            total=len(out), desc=f"flow {name} (step {step}, {setting.key})", unit="pair",
-            disable=not progress, leave=False,
-        ) as bar:  # fmt: skip
+        with (
+            ThreadPoolExecutor(workers) as pool,
+            tqdm(
+                total=len(out),
+                desc=f"flow {name} (step {step}, {setting.key})",
+                unit="pair",
+                disable=not progress,
+                leave=False,
+            ) as bar,
+        ):
             for lo in range(0, len(out), CHUNK):
                 hi = min(lo + CHUNK, len(out))
                 grey = list(pool.map(read, range(lo, hi + step)))
@@ -149,9 +159,12 @@ def _computer(read: Callable[[int], np.ndarray], step: int, setting: FlowSetting
 
 
 def _reader(
-    frames: np.ndarray, images: Sequence[Path], setting: FlowSetting,
-    undistort: frame_cache.Undistortion | None = None, crop: bool = False,
-) -> Callable[[int], np.ndarray]:  # fmt: skip
+    frames: np.ndarray,
+    images: Sequence[Path],
+    setting: FlowSetting,
+    undistort: frame_cache.Undistortion | None = None,
+    crop: bool = False,
+) -> Callable[[int], np.ndarray]:
     """Frame k, (h, w) uint8 grey at the size the flow is computed at: the cached frame (``scale`` 1) or
     its source image read again at ``setting.size`` (and undistorted as the cached frames are)."""
     n, _, height, width = frames.shape
@@ -170,10 +183,19 @@ def flow_file(folder: Path, name: str, step: int, setting: FlowSetting) -> Path:
     return folder / f"{name}.flow-{setting.key}-s{step}.npy"
 
 
-def ensure_flow(folder: Path, name: str, frames: np.ndarray, frames_source: dict, step: int,
-                setting: FlowSetting, images: Sequence[Path] = (), workers: int = 2,
-                progress: bool = True, undistort: frame_cache.Undistortion | None = None,
-                crop: bool = False) -> np.ndarray:  # fmt: skip
+def ensure_flow(
+    folder: Path,
+    name: str,
+    frames: np.ndarray,
+    frames_source: dict,
+    step: int,
+    setting: FlowSetting,
+    images: Sequence[Path] = (),
+    workers: int = 2,
+    progress: bool = True,
+    undistort: frame_cache.Undistortion | None = None,
+    crop: bool = False,
+) -> np.ndarray:
     """The cached flow of a sequence's frames at one frame step, computed first where it is missing,
     incomplete or stale (its frames changed: ``frames_source``, the frame cache's record of them).
 
@@ -190,8 +212,13 @@ def ensure_flow(folder: Path, name: str, frames: np.ndarray, frames_source: dict
         raise ValueError("data.flow: none computes no flow")
     n, _, height, width = frames.shape
     shape = (max(n - step, 0), 2, height, width)
-    expected = {"version": FLOW_VERSION, "sequence": name, "step": step, "flow": setting.key,
-                "frames": frames_source}  # fmt: skip
+    expected = {
+        "version": FLOW_VERSION,
+        "sequence": name,
+        "step": step,
+        "flow": setting.key,
+        "frames": frames_source,
+    }
     fill = _computer(
         _reader(frames, images, setting, undistort, crop),
         step,

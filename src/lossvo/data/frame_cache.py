@@ -8,10 +8,7 @@ window is one contiguous slice), next to a small JSON manifest. Training and eva
 straight from the memory map: no epoch decodes a PNG. The manifest records what the cache was built from
 (frame names, sizes, mtimes) and is written last, so a cache from an interrupted run, a truncated file or a
 changed dataset is detected and rebuilt, never read as garbage.
-
-numpy's memmap and OpenCV do this well; what no library does is the dataset bookkeeping (which frames, which
-size, which camera), which is what this module holds (whether a cached array is complete:
-:mod:`lossvo.data.array_cache`).
+Whether a cached array is complete is :mod:`lossvo.data.array_cache`'s concern.
 """
 
 from __future__ import annotations
@@ -184,8 +181,14 @@ def _decoder(
         first_size: tuple[int, int] | None = None
         with ThreadPoolExecutor(workers) as pool:
             jobs = pool.map(lambda p: read_frame(p, height, width, undistort, crop), seq.images)
-            bar = tqdm(jobs, total=len(seq.images), desc=f"caching {seq.name} at {height}x{width}",
-                       unit="frame", disable=not progress, leave=False)  # fmt: skip
+            bar = tqdm(
+                jobs,
+                total=len(seq.images),
+                desc=f"caching {seq.name} at {height}x{width}",
+                unit="frame",
+                disable=not progress,
+                leave=False,
+            )
             for i, (frame, size) in enumerate(bar):
                 first_size = first_size or size
                 if size != first_size:
@@ -201,9 +204,14 @@ def _decoder(
 
 
 def build_frames(
-    folder: Path, seq: Sequence, height: int, width: int, workers: int = 4, progress: bool = True,
+    folder: Path,
+    seq: Sequence,
+    height: int,
+    width: int,
+    workers: int = 4,
+    progress: bool = True,
     crop: bool = False,
-) -> np.ndarray:  # fmt: skip
+) -> np.ndarray:
     """Decode, resize and store every frame of ``seq``; return the memory map.
 
     Raises:
@@ -216,9 +224,14 @@ def build_frames(
 
 
 def ensure_frames(
-    folder: Path, seq: Sequence, height: int, width: int, workers: int = 4, progress: bool = True,
+    folder: Path,
+    seq: Sequence,
+    height: int,
+    width: int,
+    workers: int = 4,
+    progress: bool = True,
     crop: bool = False,
-) -> np.ndarray:  # fmt: skip
+) -> np.ndarray:
     """The cached frames of ``seq``, building them if missing, incomplete or stale.
 
     A file lock makes concurrent jobs (a parallel sweep sharing one cache) build each sequence once.

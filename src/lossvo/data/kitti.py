@@ -1,4 +1,5 @@
-"""The KITTI odometry format: pose files, calibration, timestamps, image lists, relative targets.
+"""The KITTI odometry format: pose files, calibration, timestamps, image lists, relative targets (sequence
+names: :mod:`lossvo.data.sequence`; writing pose files: :mod:`lossvo.data.pose_files`).
 
 Layout (the same for real KITTI and for lossvo's synthetic dataset)::
 
@@ -15,7 +16,6 @@ usable for inference only. Every reader fails with one ``KittiFormatError`` nami
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,8 +23,6 @@ import numpy as np
 import torch
 
 from lossvo import geometry
-from lossvo.atomic import write_text_atomic
-from lossvo.checks import is_integer
 from lossvo.data.sequence import DatasetFormatError, Sequence, png_size
 
 ORTHONORMAL_TOLERANCE = 1e-3
@@ -62,31 +60,6 @@ def find_root(root: str | os.PathLike) -> Path:
         f"{root}: not a KITTI odometry root: expected {root}/sequences/NN/image_2 and {root}/poses/NN.txt "
         f"(or the same under {root}/dataset)"
     )
-
-
-def sequence_name(item: object) -> str:
-    """A sequence name as the KITTI layout writes it: ``7`` -> ``"07"``, ``" 07"`` -> ``"07"`` (a YAML
-    ``07`` arrives as the integer 7)."""
-    return f"{item:02d}" if is_integer(item) else str(item).strip()
-
-
-def split_names(value: str | int | Iterable[object] | None) -> list[str]:
-    """Every name of a list, a comma-separated string or one integer, in order, as :func:`sequence_name`
-    writes it, empties (``""``) and repeats kept: ``"00,,7"`` -> ``["00", "", "07"]``."""
-    items: Iterable[object]
-    if isinstance(value, str):
-        items = value.split(",")
-    elif isinstance(value, int):
-        items = [value]
-    else:
-        items = value or []
-    return [sequence_name(item) for item in items]
-
-
-def sequence_names(value: str | int | Iterable[object] | None) -> list[str]:
-    """Sequence names from a list, a comma-separated string or one integer, in order, without empties or
-    repeats: ``"00, 07"``, ``[0, 7]`` -> ``["00", "07"]``."""
-    return list(dict.fromkeys(name for name in split_names(value) if name))
 
 
 def list_sequences(root: Path) -> list[str]:
@@ -203,21 +176,6 @@ def _check_rotations(path: Path, R: np.ndarray, line_numbers: list[int]) -> None
             f"{_where(path, line_numbers[k])}: rotation block is not a rotation "
             f"(max |RᵀR − I| = {error[k]:.2g}, det = {det[k]:.4g}; expected orthonormal, det +1)"
         )
-
-
-def write_poses(path: str | os.PathLike, poses: np.ndarray | torch.Tensor) -> None:
-    """Write (N, 4, 4) or (N, 3, 4) poses as a KITTI pose file, atomically (temp file + rename)."""
-    poses = np.asarray(poses.detach().cpu() if isinstance(poses, torch.Tensor) else poses, dtype=np.float64)
-    if poses.ndim != 3 or poses.shape[1:] not in ((4, 4), (3, 4)):
-        raise ValueError(f"poses must have shape (N, 4, 4) or (N, 3, 4), got {poses.shape}")
-    write_text_atomic(Path(path), poses_text(poses))
-
-
-def poses_text(poses: np.ndarray) -> str:
-    """A KITTI pose file's text for (N, 4, 4) or (N, 3, 4) float64 poses: the row-major 3x4 [R | t] of
-    each, one a line, with 17 significant digits (a float64 reads back exactly)."""
-    rows = np.asarray(poses, dtype=np.float64)[:, :3, :].reshape(-1, 12)
-    return "".join(" ".join(f"{v:.16e}" for v in row) + "\n" for row in rows)
 
 
 def relative_targets(poses: np.ndarray, step: int = 1) -> np.ndarray:

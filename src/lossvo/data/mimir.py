@@ -56,7 +56,7 @@ from lossvo.data.sequence import (
     Sequence,
     check_resolution,
     check_rigid,
-    dataset_root,
+    existing_root,
     finite_numbers,
     load_mapping,
     pose_matrices,
@@ -224,7 +224,7 @@ def list_sequences(root: str | os.PathLike, camera: str = CAMERA) -> list[str]:
     Raises:
         DatasetFormatError: if ``root`` is not a folder.
     """
-    base = dataset_root(root, "ROOT/<env>/auv0/<track>/rgb")
+    base = existing_root(root, "ROOT/<env>/auv0/<track>/rgb")
     found = [*base.glob(f"*/auv0/*/rgb/{camera}"), *base.glob(f"*/*/auv0/rgb/{camera}")]
     return sorted({p.parent.parent.relative_to(base).as_posix() for p in found if p.is_dir()})
 
@@ -232,7 +232,7 @@ def list_sequences(root: str | os.PathLike, camera: str = CAMERA) -> list[str]:
 def sequence_dir(root: str | os.PathLike, name: str, camera: str = CAMERA) -> Path:
     """``root/name``, checked to hold ``rgb/<camera>``; DatasetFormatError naming the missing folder and the
     sequences found."""
-    path = dataset_root(root, "ROOT/<env>/auv0/<track>/rgb") / name
+    path = existing_root(root, "ROOT/<env>/auv0/<track>/rgb") / name
     if not (path / "rgb" / camera).is_dir():
         found = ", ".join(list_sequences(root, camera)) or "none"
         raise DatasetFormatError(

@@ -23,20 +23,32 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lossvo import geometry
+from lossvo import geometry, table_render
 from lossvo.console import OneLineParser, emit, one_line_main
-from lossvo.data import frame_cache, kitti, layouts
+from lossvo.data import frame_cache, kitti, layouts, sequence
 from lossvo.data.datamodules import PAPER_TEST, PAPER_TRAIN, PAPER_VAL
 from lossvo.data.synthetic import routes
+from lossvo.table_render import Rows
 
 STANDING = 0.01
 """Metres per frame below which a pair counts as standing still."""
 PAPER_SPLITS = {"train": PAPER_TRAIN, "val": PAPER_VAL, "test": PAPER_TEST, "unseen": routes.UNSEEN_SEQUENCES}
 """The default splits: the paper's, plus the synthetic dataset's unseen-motion sequences."""
 COLUMNS = (
-    "pairs", "speed mean", "speed RMS", "speed p5", "speed p50", "speed p95", "speed max", "standing",
-    "rot mean", "rot RMS", "rot p50", "rot p95", "rot max",
-)  # fmt: skip
+    "pairs",
+    "speed mean",
+    "speed RMS",
+    "speed p5",
+    "speed p50",
+    "speed p95",
+    "speed max",
+    "standing",
+    "rot mean",
+    "rot RMS",
+    "rot p50",
+    "rot p95",
+    "rot max",
+)
 """Table columns: speeds in m/frame, rotations in rad/frame, standing as a fraction of the pairs."""
 
 
@@ -55,9 +67,21 @@ def statistics(speed: np.ndarray, rotation: np.ndarray) -> dict[str, float]:
     """The :data:`COLUMNS` of pooled pairs: speed (P,) m/frame, rotation (P,) rad/frame."""
     p5, p50, p95 = np.percentile(speed, [5, 50, 95])
     r50, r95 = np.percentile(rotation, [50, 95])
-    values = (len(speed), speed.mean(), np.sqrt((speed**2).mean()), p5, p50, p95, speed.max(),
-              (speed < STANDING).mean(), rotation.mean(), np.sqrt((rotation**2).mean()), r50, r95,
-              rotation.max())  # fmt: skip
+    values = (
+        len(speed),
+        speed.mean(),
+        np.sqrt((speed**2).mean()),
+        p5,
+        p50,
+        p95,
+        speed.max(),
+        (speed < STANDING).mean(),
+        rotation.mean(),
+        np.sqrt((rotation**2).mean()),
+        r50,
+        r95,
+        rotation.max(),
+    )
     return dict(zip(COLUMNS, map(float, values), strict=True))
 
 
@@ -91,10 +115,8 @@ def markdown(rows: Mapping[str, Mapping[str, float]]) -> str:
         return f"{value:.3f}" if column.startswith("speed") else f"{value:.4f}"
 
     head = ["split / sequence", *COLUMNS]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for label, row in rows.items():
-        lines.append("| " + " | ".join([label, *(cell(c, row[c]) for c in COLUMNS)]) + " |")
-    return "\n".join(lines)
+    cells = [[label, *(cell(c, row[c]) for c in COLUMNS)] for label, row in rows.items()]
+    return table_render.markdown(Rows(head, cells))
 
 
 def read_motion(root: Path, names: Sequence[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -121,8 +143,9 @@ def _parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="python -m lossvo.data.motion", description=__doc__.split("\n\n")[0])
     default_root = "the synthetic dataset in the lossvo cache"
     p.add_argument("root", nargs="?", type=Path, default=None, help=f"dataset root (default: {default_root})")
-    p.add_argument("--layout", default="kitti", choices=layouts.LAYOUTS,
-                   help="the dataset's layout (default: kitti)")  # fmt: skip
+    p.add_argument(
+        "--layout", default="kitti", choices=layouts.LAYOUTS, help="the dataset's layout (default: kitti)"
+    )
     p.add_argument(
         "--sequences", default="", help="with --layout other than kitti: the sequences (default: all)"
     )
@@ -140,7 +163,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.root is None:
             parser.error(f"--layout {args.layout}: give the dataset root (python -m lossvo.data.motion ROOT)")
         try:
-            motion = read_layout_motion(args.layout, args.root, kitti.sequence_names(args.sequences))
+            motion = read_layout_motion(args.layout, args.root, sequence.sequence_names(args.sequences))
         except ValueError as err:  # DatasetFormatError
             parser.error(str(err))
         if not motion:
@@ -150,7 +173,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     root = args.root or frame_cache.default_cache_dir() / "synthetic"
     try:
         root = kitti.find_root(root)
-        splits = {s: kitti.sequence_names(getattr(args, s)) for s in PAPER_SPLITS}
+        splits = {s: sequence.sequence_names(getattr(args, s)) for s in PAPER_SPLITS}
         motion = read_motion(root, sorted({n for names in splits.values() for n in names}))
     except ValueError as err:  # KittiFormatError too
         parser.error(str(err))

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import struct
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,7 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
+from lossvo.checks import is_integer
 from lossvo.console import UserError
 
 
@@ -53,13 +55,38 @@ def finite_numbers(
     return values
 
 
-def dataset_root(root: str | os.PathLike, layout: str) -> Path:
+def existing_root(root: str | os.PathLike, layout: str) -> Path:
     """``root`` as a Path (``~`` expanded); DatasetFormatError naming it and the expected ``layout`` (e.g.
     ``"ROOT/<sequence>/mav0"``) when it is no folder."""
     path = Path(root).expanduser()
     if not path.is_dir():
         raise DatasetFormatError(f"{path}: dataset root does not exist (expected {layout})")
     return path
+
+
+def sequence_name(item: object) -> str:
+    """A sequence name as the KITTI layout writes it: ``7`` -> ``"07"``, ``" 07"`` -> ``"07"`` (a YAML
+    ``07`` arrives as the integer 7)."""
+    return f"{item:02d}" if is_integer(item) else str(item).strip()
+
+
+def split_names(value: str | int | Iterable[object] | None) -> list[str]:
+    """Every name of a list, a comma-separated string or one integer, in order, as :func:`sequence_name`
+    writes it, empties (``""``) and repeats kept: ``"00,,7"`` -> ``["00", "", "07"]``."""
+    items: Iterable[object]
+    if isinstance(value, str):
+        items = value.split(",")
+    elif isinstance(value, int):
+        items = [value]
+    else:
+        items = value or []
+    return [sequence_name(item) for item in items]
+
+
+def sequence_names(value: str | int | Iterable[object] | None) -> list[str]:
+    """Sequence names from a list, a comma-separated string or one integer, in order, without empties or
+    repeats: ``"00, 07"``, ``[0, 7]`` -> ``["00", "07"]``."""
+    return list(dict.fromkeys(name for name in split_names(value) if name))
 
 
 def load_mapping(path: Path, what: str) -> dict[str, Any]:

@@ -16,7 +16,7 @@ Conventions, each from tartanair_tools (read at commit 841584a):
   forward, the y-axis is pointing to the camera's right, the z-axis is pointing to the camera's downward".
 - ``data_type.md`` "Camera intrinsics": fx = fy = 320, cx = 320, cy = 240, 640x480, 90 degree field of view,
   pinhole without distortion. Frames of another size are taken as a resized copy of the 640x480 frames and K
-  is scaled to them (:func:`lossvo.data.camera.resized_intrinsics`).
+  is scaled to them (:func:`lossvo.geometry.camera.resized_intrinsics`).
 - ``evaluation/trajectory_transform.py`` ``ned2cam`` converts a trajectory with ``T @ pose @ inv(T)``,
   T = [[0,1,0],[0,0,1],[1,0,0]]: the permutation of :data:`NED_TO_CAMERA`, applied to the body and the
   world axes alike (:func:`ned_to_camera`).
@@ -36,17 +36,17 @@ from pathlib import Path
 
 import numpy as np
 
-from lossvo.data.camera import resized_intrinsics
 from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
-    dataset_root,
+    existing_root,
     finite_numbers,
     png_size,
     pose_matrices,
     unit_quaternions,
     where,
 )
+from lossvo.geometry.camera import resized_intrinsics
 
 IMAGES = "image_left"
 POSES = "pose_left.txt"
@@ -143,13 +143,13 @@ def list_sequences(root: str | os.PathLike) -> list[str]:
     Raises:
         DatasetFormatError: if ``root`` is not a folder.
     """
-    base = dataset_root(root, f"ROOT/<env>/<Easy|Hard>/<Pnnn>/{IMAGES}")
+    base = existing_root(root, f"ROOT/<env>/<Easy|Hard>/<Pnnn>/{IMAGES}")
     return sorted(p.parent.relative_to(base).as_posix() for p in base.glob(f"*/*/*/{IMAGES}") if p.is_dir())
 
 
 def sequence_dir(root: str | os.PathLike, name: str) -> Path:
     """``root/name``; DatasetFormatError naming the missing folder and the sequences found."""
-    path = dataset_root(root, f"ROOT/<env>/<Easy|Hard>/<Pnnn>/{IMAGES}") / name
+    path = existing_root(root, f"ROOT/<env>/<Easy|Hard>/<Pnnn>/{IMAGES}") / name
     if not (path / IMAGES).is_dir():
         found = ", ".join(list_sequences(root)) or "none"
         raise DatasetFormatError(

@@ -23,8 +23,8 @@ import torch.nn.functional as F
 
 from lossvo import geometry
 from lossvo.checks import is_number
-from lossvo.data import camera
 from lossvo.data import flow as optical_flow
+from lossvo.geometry import camera
 
 Inputs = dict[str, torch.Tensor]
 
@@ -48,7 +48,7 @@ def mirror_poses(poses: torch.Tensor) -> torch.Tensor:
 def mirror_inputs(inputs: Inputs) -> Inputs:
     """Inputs as the mirrored world looks through the mirrored camera: frames flipped left to right, the
     flow mirrored (:func:`lossvo.data.flow.mirror_flow`) and K's principal point mirrored
-    (:func:`lossvo.data.camera.mirrored_intrinsics`, cx -> W - 1 - cx).
+    (:func:`lossvo.geometry.camera.mirrored_intrinsics`, cx -> W - 1 - cx).
 
     Args:
         inputs: ``frames`` (..., 3, H, W), optionally ``flow`` (..., 2, H, W) and ``K`` (..., 3, 3).

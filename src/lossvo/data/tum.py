@@ -23,17 +23,17 @@ from pathlib import Path
 
 import numpy as np
 
-from lossvo.data.camera import resized_intrinsics
 from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
-    dataset_root,
+    existing_root,
     finite_numbers,
     png_size,
     pose_matrices,
     unit_quaternions,
     where,
 )
+from lossvo.geometry.camera import resized_intrinsics
 
 MAX_DIFFERENCE_S = 0.02
 """TUM's ``associate.py`` default: a frame and a ground-truth stamp pair only if less than 0.02 s apart."""
@@ -47,12 +47,16 @@ RGB_LIST = "rgb.txt"
 GROUNDTRUTH = "groundtruth.txt"
 
 CAMERAS: dict[str, tuple[tuple[float, float, float, float], tuple[float, float, float, float, float]]] = {
-    "freiburg1": ((517.306408, 516.469215, 318.643040, 255.313989),
-                  (0.262383, -0.953104, -0.005358, 0.002628, 1.163314)),
-    "freiburg2": ((520.908620, 521.007327, 325.141442, 249.701764),
-                  (0.231222, -0.784899, -0.003257, -0.000105, 0.917205)),
+    "freiburg1": (
+        (517.306408, 516.469215, 318.643040, 255.313989),
+        (0.262383, -0.953104, -0.005358, 0.002628, 1.163314),
+    ),
+    "freiburg2": (
+        (520.908620, 521.007327, 325.141442, 249.701764),
+        (0.231222, -0.784899, -0.003257, -0.000105, 0.917205),
+    ),
     "freiburg3": ((535.4, 539.2, 320.1, 247.6), (0.0, 0.0, 0.0, 0.0, 0.0)),
-}  # fmt: skip
+}
 """The colour cameras of the three Freiburg set-ups: ``(fx, fy, cx, cy)`` in pixels of the 640x480 frames and
 the OpenCV distortion ``(k1, k2, p1, p2, k3)``. TUM's calibration table (file_formats page, 4 digits there:
 fr1 517.3 516.5 318.6 255.3, d 0.2624 -0.9531 -0.0054 0.0026 1.1633; fr2 520.9 521.0 325.1 249.7, d 0.2312
@@ -249,7 +253,7 @@ def camera(
 ) -> tuple[np.ndarray, np.ndarray]:
     """K and distortion of a sequence's colour camera: the Freiburg set-up its name names (:data:`CAMERAS`),
     its K scaled to frames of ``size`` (H, W) when they are not 640x480 (a resized copy;
-    :func:`lossvo.data.camera.resized_intrinsics`), each replaced by the caller's where given. For a name
+    :func:`lossvo.geometry.camera.resized_intrinsics`), each replaced by the caller's where given. For a name
     that names no set-up, ``K`` is required and the distortion defaults to zeros (undistorted frames).
 
     Args:
@@ -291,14 +295,14 @@ def list_sequences(root: str | os.PathLike) -> list[str]:
     """
     return sorted(
         p.name
-        for p in dataset_root(root, f"ROOT/<sequence>/{RGB_LIST}").iterdir()
+        for p in existing_root(root, f"ROOT/<sequence>/{RGB_LIST}").iterdir()
         if (p / RGB_LIST).is_file()
     )
 
 
 def sequence_dir(root: str | os.PathLike, name: str) -> Path:
     """``root/name``; ``DatasetFormatError`` naming the missing folder and the sequences found."""
-    path = dataset_root(root, f"ROOT/<sequence>/{RGB_LIST}") / name
+    path = existing_root(root, f"ROOT/<sequence>/{RGB_LIST}") / name
     if not path.is_dir():
         found = ", ".join(list_sequences(root)) or "none"
         raise DatasetFormatError(f"{path}: sequence {name!r} not found (found: {found})")

@@ -1,49 +1,8 @@
-"""Non-learned baselines, evaluated exactly as the networks are (the sweep report puts them beside every
-network).
-
-Five estimators of the relative poses ``T_k = inv(T_w_k) @ T_w_{k+1}`` (frame k+1 seen from frame k) of a
-sequence, each integrated from the first ground-truth pose and scored by
-:func:`lossvo.evaluation.metrics.evaluate_relative` (the networks' path, with the same APE alignment and
-RPE delta as the runs' ``results.json``), so that their numbers sit in the same table as the networks':
-
-- ``zero motion``: identity relative poses (the camera never moves);
-- ``mean motion (train)``: the training sequences' mean relative pose at every step (mean translation,
-  chordal L2 mean rotation, i.e. the mean rotation matrix projected onto SO(3));
-- ``ORB+E (GT scale)``: classical monocular VO, ORB features matched between consecutive frames (mutual
-  nearest neighbours in Hamming distance, with a ratio test), ``cv2.findEssentialMat`` with RANSAC
-  (OpenCV's USAC variant, ``cv2.USAC_DEFAULT``: the same accuracy as ``cv2.RANSAC`` here at a fraction of
-  its time) and ``cv2.recoverPose``, with K from the sequence's calib.txt. Monocular VO has no metric
-  scale, so each translation is scaled to the ground-truth step length: an optimistic baseline, labelled
-  as such. A pair whose matches barely move (median below :data:`MIN_PARALLAX_PX`) gets no rotation and
-  a step straight ahead (standing still or creeping, the ground-truth step length decides). A pair with
-  too few matches or inliers takes the previous pair's motion (the training mean for the first pair),
-  rescaled the same way; the report counts these failures;
-- ``own mean motion (oracle)``: the sequence's own mean relative pose (as ``mean motion (train)``, over
-  the sequence's ground truth) at every step: an oracle that knows the sequence's average motion, which
-  a network that learned only an average motion cannot beat;
-- ``flow yaw + road speed (one line)``: DIS optical flow (:func:`lossvo.data.flow.pair_flow`, preset
-  medium: the flow networks' default ``data.flow``) between consecutive frames, at the frames' stored
-  size (frames wider than :data:`FLOW_MAX_WIDTH` downscaled; the networks read it at their input size).
-  Each pair's yaw is the median horizontal flow of the upper half of the frame turned into an angle with
-  fx (:func:`flow_yaw`), its speed one constant times the median vertical flow of the road just ahead
-  (:func:`road_speed_feature`), the constant fitted by least squares to the training split's
-  ground-truth step lengths (:func:`fit_speed_scale`); the relative pose is ``Ry(yaw)`` with translation
-  ``(0, 0, speed)``, no pitch or roll. It is the floor for the networks on flow: a learned network
-  reading the same flow must beat a one-line estimator on it.
-
-The sequences are read from the dataset that a run's results.json records
-(:class:`lossvo.evaluation.results.DataRecord`: ``root`` in its ``layout``, read with that layout's
-reader, :func:`lossvo.data.layouts.load_sequence`: the frames, the camera and the ground truth, every
-``keep_every``-th frame as the networks saw them), the training split's mean motion from the ground truth of
-the training data it records (``train_root``, ``train``, ``train_layout``, ``train_keep_every``): no
-datamodule is built and nothing is rendered. Distorted frames are undistorted (the ORB keypoints onto K, the
-frames of the flow baseline as the frame cache undistorts them). Results are cached per sequence in
-``<cache_dir>/<key>.npz`` so that re-running a report costs nothing; the key covers everything the
-numbers depend on (the recorded roots and training split, the training mean motion, the sequence's
-files, alignment, delta, the ORB and flow settings, the training sequences' flow features and
-:data:`VERSION`). The flow features of every sequence they are computed for, the training split's
-included (the speed fit's input), are cached in ``<cache_dir>/flow/<key>.npz``, keyed by the
-sequence's frames, K, distortion and the flow settings: a second report computes no flow.
+"""Non-learned baselines, scored as the networks are (:func:`lossvo.evaluation.metrics.evaluate_relative`):
+zero motion, the training split's mean motion, ORB + essential matrix with ground-truth scale, the
+sequence's own mean motion (an oracle) and flow yaw + road speed (one line on DIS flow). Relative poses
+are ``T_k = inv(T_w_k) @ T_w_{k+1}``; the sequences are read from the dataset a run's results.json
+records, with no datamodule; results and flow features are cached per sequence (docs/report.md).
 """
 
 from __future__ import annotations
@@ -51,7 +10,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import struct
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -64,13 +22,15 @@ import torch
 
 from lossvo import geometry
 from lossvo.atomic import atomic_path
-from lossvo.data import camera, layouts
+from lossvo.data import layouts
 from lossvo.data.flow import FlowSetting, pair_flow
 from lossvo.data.frame_cache import Undistortion, read_frame, undistortion
 from lossvo.data.kitti import KittiFormatError, check_png
 from lossvo.data.sequence import Sequence as DatasetSequence
+from lossvo.data.sequence import png_size
 from lossvo.evaluation import metrics
 from lossvo.evaluation.results import DataRecord, Scores
+from lossvo.geometry import camera
 
 log = logging.getLogger("lossvo")
 T = TypeVar("T")
@@ -255,10 +215,19 @@ def pair_motion(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, threshold: float)
 
 
 def orb_essential(
-    images: Sequence[Path], K: np.ndarray, step_lengths: np.ndarray, fallback: np.ndarray,
+    images: Sequence[Path],
+    K: np.ndarray,
+    step_lengths: np.ndarray,
+    fallback: np.ndarray,
     distortion: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+) -> tuple[np.ndarray, np.ndarray]:
     """Monocular ORB + essential-matrix VO with ground-truth step lengths.
+
+    ORB features matched between consecutive frames (mutual nearest neighbours in Hamming distance with a
+    ratio test), ``cv2.findEssentialMat`` with ``cv2.USAC_DEFAULT`` and ``cv2.recoverPose``; each
+    translation scaled to the ground-truth step length (an optimistic baseline). A pair whose matches
+    move less than :data:`MIN_PARALLAX_PX` (median) gets no rotation and a step straight ahead; a pair
+    with too few matches or inliers takes the previous pair's motion (``fallback`` for the first).
 
     Args:
         images: the sequence's N frame paths, in order.
@@ -396,14 +365,6 @@ def flow_size(source_hw: tuple[int, int]) -> tuple[int, int]:
     return max(1, round(height * FLOW_MAX_WIDTH / width)), FLOW_MAX_WIDTH
 
 
-def png_size(path: Path) -> tuple[int, int]:
-    """(H, W) of a PNG file, from its header (IHDR: width, height, big-endian, at bytes 16-24)."""
-    check_png(path)
-    with path.open("rb") as f:
-        width, height = struct.unpack(">II", f.read(24)[16:24])
-    return height, width
-
-
 def flow_features(
     images: Sequence[Path], K: np.ndarray, undistort: Undistortion | None = None
 ) -> FlowFeatures:
@@ -423,6 +384,7 @@ def flow_features(
     """
     if len(images) < 2:
         return FlowFeatures(np.zeros(0), np.zeros(0))
+    check_png(images[0])
     source = png_size(images[0])
     size = flow_size(source)
     K_flow = camera.resized_intrinsics(K if undistort is None else undistort.K, source, size)
@@ -433,8 +395,10 @@ def flow_features(
     for i, path in enumerate(images[1:], start=1):
         frame, shape = read_frame(path, *size, undistort)
         if shape != source:
-            raise KittiFormatError(f"{path}: {shape[0]}x{shape[1]} pixels, expected {source[0]}x{source[1]} "
-                                   "(the size of the sequence's first frame)")  # fmt: skip
+            raise KittiFormatError(
+                f"{path}: {shape[0]}x{shape[1]} pixels, expected {source[0]}x{source[1]} "
+                "(the size of the sequence's first frame)"
+            )
         fields.append(pair_flow(previous, frame, FLOW_SETTING))
         previous = frame
         if len(fields) == FLOW_CHUNK or i == len(images) - 1:
@@ -652,6 +616,12 @@ def compute_baselines(
     n_jobs: int = 1,
 ) -> dict[str, dict[str, BaselineResult]]:
     """The baselines of the given sequences of the recorded data, from the cache where possible.
+
+    The sequences are read with their layout's reader (every ``keep_every``-th frame, undistorted as
+    the frame cache undistorts them), the mean motion from the recorded training data. Results are
+    cached in ``<cache_dir>/<key>.npz`` (:func:`cache_key`: the roots, the training split and its mean
+    motion, the sequence's files, alignment, delta, the ORB and flow settings, :data:`VERSION`), flow
+    features in ``<cache_dir>/flow/<key>.npz`` (:func:`flow_key`).
 
     Args:
         data: a run's record of its evaluated dataset and training data (its results.json's ``data``).

@@ -74,8 +74,9 @@ def predict_sequence(
     plain = _predict(module, inputs, prepare, windows, batch_windows, carry_state)
     if not mirror_average:
         return plain
-    mirrored = _predict(module, inputs, lambda x: prepare(mirror_inputs(x)), windows, batch_windows,
-                        carry_state)  # fmt: skip
+    mirrored = _predict(
+        module, inputs, lambda x: prepare(mirror_inputs(x)), windows, batch_windows, carry_state
+    )
     return average_with_mirror(torch.from_numpy(plain), torch.from_numpy(mirrored)).numpy()
 
 

@@ -210,9 +210,13 @@ def rpe_pairs_by_path(poses: Tensor, delta_m: float) -> tuple[Tensor, Tensor]:
 
 
 def rpe_errors(
-    est: Tensor, ref: Tensor, delta: float = 1, align: AlignMode = "none", delta_unit: str = "f",
+    est: Tensor,
+    ref: Tensor,
+    delta: float = 1,
+    align: AlignMode = "none",
+    delta_unit: str = "f",
     pairs_from: PairsFrom = "estimate",
-) -> tuple[Tensor, Tensor]:  # fmt: skip
+) -> tuple[Tensor, Tensor]:
     """Relative pose errors, evo's RPE (consecutive pairs, ``all_pairs=False``).
 
     ``E = inv(inv(Q_i) Q_j) @ (inv(P_i) P_j)``, Q the reference and P the estimate (evo's ``rpe_base``),
@@ -473,9 +477,13 @@ class RPE(_PoseErrorMetric):
     """
 
     def __init__(
-        self, delta: float = 1, align: AlignMode = "none", delta_unit: str = "f",
-        pairs_from: PairsFrom = "estimate", **kwargs: Any,
-    ) -> None:  # fmt: skip
+        self,
+        delta: float = 1,
+        align: AlignMode = "none",
+        delta_unit: str = "f",
+        pairs_from: PairsFrom = "estimate",
+        **kwargs: Any,
+    ) -> None:
         check_rpe_settings(delta, delta_unit, pairs_from)
         if align not in ALIGN_MODES:
             raise ValueError(f"unknown alignment {align!r}; expected one of {', '.join(ALIGN_MODES)}")
@@ -529,9 +537,13 @@ class KittiOdometryError(Metric):
 
 
 def evaluate(
-    gt: Tensor, est: Tensor, align: AlignMode = "none", delta: float = 1, delta_unit: str = "f",
+    gt: Tensor,
+    est: Tensor,
+    align: AlignMode = "none",
+    delta: float = 1,
+    delta_unit: str = "f",
     pairs_from: PairsFrom = "estimate",
-) -> dict[str, Any]:  # fmt: skip
+) -> dict[str, Any]:
     """APE and RPE (both with ``align``; RPE pairs by ``delta``, ``delta_unit``, ``pairs_from``, see
     :func:`rpe_errors`) and KITTI error of one estimate, JSON-ready.
 

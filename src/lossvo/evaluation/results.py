@@ -38,7 +38,9 @@ from lossvo import geometry
 from lossvo.atomic import write_text_atomic
 from lossvo.checks import is_integer, is_number
 from lossvo.console import UserError
-from lossvo.data.kitti import KittiFormatError, pose_path, sequence_names, write_poses
+from lossvo.data.kitti import KittiFormatError, pose_path
+from lossvo.data.pose_files import write_poses
+from lossvo.data.sequence import sequence_names
 from lossvo.data.windows import gaps
 from lossvo.evaluation import metrics
 from lossvo.evaluation.inference import predict_sequence

@@ -29,6 +29,7 @@ import torch
 from torch import Tensor
 
 from lossvo import geometry as g
+from lossvo.table_render import Rows, markdown
 
 TOLERANCE = 1e-9
 """Float64 slack: an axiom fails only if it is violated by more than this."""
@@ -87,42 +88,69 @@ def _naive_quat_distance(q_a: Tensor, q_b: Tensor) -> Tensor:
 
 DISTANCES: tuple[Distance, ...] = (
     Distance(
-        "Euler", "‖φ − φ̂‖", EULER, g.euler_distance,
+        "Euler",
+        "‖φ − φ̂‖",
+        EULER,
+        g.euler_distance,
         "A metric on angle triples in R³, not on rotations: one rotation has many triples.",
     ),
     Distance(
-        "Euler² (euler loss)", "‖φ − φ̂‖²", EULER, _squared(g.euler_distance),
+        "Euler² (euler loss)",
+        "‖φ − φ̂‖²",
+        EULER,
+        _squared(g.euler_distance),
         "Squared: the triangle inequality fails too (at coordinate midpoints).",
     ),
     Distance(
-        "quaternion, one sign", "‖q − q̂‖", QUATERNION, _naive_quat_distance,
+        "quaternion, one sign",
+        "‖q − q̂‖",
+        QUATERNION,
+        _naive_quat_distance,
         "Not sign-invariant: q and −q, one rotation, are 2 apart.",
     ),
     Distance(
-        "quaternion, min over sign", "min±‖q ∓ q̂‖", QUATERNION, g.quat_distance,
+        "quaternion, min over sign",
+        "min±‖q ∓ q̂‖",
+        QUATERNION,
+        g.quat_distance,
         "= 2 sin(θ/4): a metric on SO(3); on unit quaternions only a pseudo-metric (d(q, −q) = 0).",
     ),
     Distance(
-        "quaternion² (quat loss)", "min±‖q ∓ q̂‖²", QUATERNION, _squared(g.quat_distance),
+        "quaternion² (quat loss)",
+        "min±‖q ∓ q̂‖²",
+        QUATERNION,
+        _squared(g.quat_distance),
         "= 4 sin²(θ/4): squared, so the triangle inequality fails (at geodesic midpoints).",
     ),
     Distance(
-        "chordal", "‖R − R̂‖_F", MATRIX, g.so3_chordal_distance,
+        "chordal",
+        "‖R − R̂‖_F",
+        MATRIX,
+        g.so3_chordal_distance,
         "= 2√2 sin(θ/2): a metric (the Frobenius norm of R⁹ restricted to SO(3)).",
     ),
     Distance(
-        "chordal² (chordal loss)", "‖R − R̂‖_F²", MATRIX, _squared(g.so3_chordal_distance),
+        "chordal² (chordal loss)",
+        "‖R − R̂‖_F²",
+        MATRIX,
+        _squared(g.so3_chordal_distance),
         "= 8 sin²(θ/2): squared, so the triangle inequality fails (at geodesic midpoints).",
     ),
     Distance(
-        "geodesic", "θ = ∠(Rᵀ R̂)", MATRIX, g.so3_geodesic_distance,
+        "geodesic",
+        "θ = ∠(Rᵀ R̂)",
+        MATRIX,
+        g.so3_geodesic_distance,
         "The Riemannian distance of SO(3): a metric.",
     ),
     Distance(
-        "geodesic² (geodesic loss)", "θ²", MATRIX, _squared(g.so3_geodesic_distance),
+        "geodesic² (geodesic loss)",
+        "θ²",
+        MATRIX,
+        _squared(g.so3_geodesic_distance),
         "Squared: the triangle inequality fails (at geodesic midpoints).",
     ),
-)  # fmt: skip
+)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -288,19 +316,18 @@ def _classify(verdicts: dict[str, Verdict]) -> str:
 def markdown_table(results: dict[str, dict[str, Verdict]] | None = None) -> str:
     """The axioms table in Markdown: ✓/✗ per axiom, then what the distance is, then the failures."""
     results = check_all() if results is None else results
-    header = "| distance | formula | " + " | ".join(AXIOMS) + " | on SO(3) | note |"
-    lines = [header, "|" + "---|" * (len(AXIOMS) + 4)]
-    failures = []
+    rows, failures = [], []
     for d in DISTANCES:
         verdicts = results[d.name]
-        marks = " | ".join("✓" if verdicts[a].holds else "✗" for a in AXIOMS)
-        lines.append(f"| {d.name} | {d.formula} | {marks} | {_classify(verdicts)} | {d.note} |")
+        marks = ["✓" if verdicts[a].holds else "✗" for a in AXIOMS]
+        rows.append([d.name, d.formula, *marks, _classify(verdicts), d.note])
         failures += [f"- {d.name}, {a}: {verdicts[a].evidence}" for a in AXIOMS if not verdicts[a].holds]
+    table = markdown(Rows(["distance", "formula", *AXIOMS, "on SO(3)", "note"], rows))
     legend = (
         f"✓: holds on every sample (float64, slack {TOLERANCE:g}); ✗: violated, worst case found below. "
         "θ is the angle of the relative rotation."
     )
-    return "\n".join([*lines, "", legend, "", "Counterexamples found:", "", *failures]) + "\n"
+    return "\n".join([table, "", legend, "", "Counterexamples found:", "", *failures]) + "\n"
 
 
 def main() -> None:

@@ -1,48 +1,5 @@
-"""DeepVO (Wang et al., ICRA 2017).
-
-The network maps a window of ``L`` consecutive frames to one relative-pose vector per frame pair:
-
-    frames (B, L, 3, H, W)  ->  pairs (B, L-1, 6, H, W)         frames k and k+1 stacked on channels
-                            ->  encoder (B*(L-1), C6, H6, W6)    FlowNetS conv1..conv6, one batched call
-                            ->  LSTM (B, L-1, hidden_size)       over the L-1 pairs of each window
-                            ->  head (B, L-1, out_dim)           [t (3), r (D)] as in lossvo.losses
-
-``H6 = ceil(H / 64)``, ``W6 = ceil(W / 64)`` and ``C6 = round(1024 * width_mult)``, so the LSTM input has
-``C6 * H6 * W6`` features (flattened in (C, H, W) order): 1024 * 3 * 10 = 30720 at the paper's 184x608,
-256 * 1 * 4 = 1024 for ``width_mult=0.25`` at 64x208.
-
-Encoder. FlowNetS's contracting part (Dosovitskiy et al. 2015): nine ``conv -> BatchNorm -> LeakyReLU(0.1) ->
-Dropout`` blocks named like FlowNetPytorch's (``encoder.conv1.0.weight`` is its ``conv1.0.weight``), so
-:func:`lossvo.models.flownet.load_flownet` can initialise it from ``flownets_bn_*.pth.tar``. With
-``batch_norm=False`` the convs get a bias and index 1 is an identity, which matches the non-BN
-``flownets_*.pth.tar`` keys instead. Dropout follows DeepVO-pytorch: ``conv_dropout`` (0.2) after
-conv1..conv5_1, ``conv6_dropout`` (0.5) after conv6.
-
-Input range. FlowNetS was trained on ``img / 255 - 0.5``; with its weights the data module must use
-``normalization: flownet`` (``lossvo.train`` switches it when ``model.flownet`` is set).
-
-Recurrent state. Training resets the LSTM state for every window (``forward``). For a full sequence,
-:meth:`DeepVO.forward_with_state` can carry the state from one chunk to the next (chunks that overlap by
-one frame, so that no pair is lost: frames ``[0, k]`` then ``[k, L-1]``) or start each chunk afresh.
-Either way call ``model.eval()`` first: dropout and batch statistics are training-only.
-
-Initialisation (documented, as in DeepVO-pytorch where it has one):
-
-- convs: Kaiming normal for LeakyReLU(0.1) (fan-in); BatchNorm weight 1, bias 0;
-- LSTM: Xavier-uniform input weights and orthogonal recurrent weights (per gate), biases 0 except the
-  forget gate's, which is 1 (``bias_hh``; PyTorch adds ``bias_ih + bias_hh``);
-- head: weights normal with std 1e-3 (small, but not zero, so that gradients reach the LSTM and the
-  encoder from the first step) and the bias set to ``head_bias``, the loss's
-  :meth:`lossvo.losses.PoseLoss.identity_output` -- the output that decodes to "no motion" -- so the
-  initial prediction is close to the identity pose for each loss. (An all-zero output would decode to the
-  identity for Euler, se(3) and quaternion heads too, but it is a degenerate point for the quaternion's
-  normalisation and the 6-D Gram-Schmidt, where the rotation would get no gradient.)
-
-Random streams. The network takes one number from the caller's random stream (the init seed) and
-nothing else: the backbone (encoder and LSTM) is drawn from a generator seeded with it, the head from a
-second generator seeded with it plus one. So for one seed every head size (every loss) gets identical
-backbone weights, and the caller's stream -- data order, dropout masks -- is where it would be without
-the network, whatever its head.
+"""DeepVO (Wang et al., ICRA 2017): a FlowNetS encoder on stacked frame pairs, an LSTM over the pairs and
+a linear head, one relative-pose vector ``[t (3), r (D)]`` per frame pair (:mod:`lossvo.losses`).
 """
 
 from __future__ import annotations
@@ -92,7 +49,20 @@ def _conv_block(c_in: int, c_out: int, kernel: int, stride: int, batch_norm: boo
 
 
 class DeepVO(nn.Module):
-    """DeepVO: FlowNetS encoder on stacked frame pairs, a stacked LSTM over the pairs, a linear head.
+    """DeepVO: FlowNetS encoder on stacked frame pairs, a stacked LSTM over the pairs, a linear head::
+
+        frames (B, L, 3, H, W)  ->  pairs (B, L-1, 6, H, W)         frames k and k+1 stacked on channels
+                                ->  encoder (B*(L-1), C6, H6, W6)    FlowNetS conv1..conv6, one batched call
+                                ->  LSTM (B, L-1, hidden_size)       over the L-1 pairs of each window
+                                ->  head (B, L-1, out_dim)           [t (3), r (D)]
+
+    with ``H6 = ceil(H / 64)``, ``W6 = ceil(W / 64)``, ``C6 = round(1024 * width_mult)``; the LSTM input is
+    the conv6 features flattened in (C, H, W) order. The encoder is FlowNetS's contracting part
+    (Dosovitskiy et al. 2015): ``conv -> BatchNorm -> LeakyReLU(0.1) -> Dropout`` blocks named as in
+    FlowNetPytorch (``encoder.conv1.0.weight``), so :func:`lossvo.models.flownet.load_flownet` loads
+    ``flownets_bn_*.pth.tar`` (``flownets_*.pth.tar`` with ``batch_norm=False``); FlowNetS was trained on
+    ``img / 255 - 0.5`` input.
+    Training resets the LSTM state for every window; :meth:`forward_with_state` carries it across chunks.
 
     Args:
         out_dim: head size, one vector per frame pair (the loss's ``dim``: 6, 7 or 9).
@@ -194,9 +164,16 @@ class DeepVO(nn.Module):
 
     @torch.no_grad()
     def reset_parameters(self, seed: int | None = None) -> None:
-        """Initialise every layer as described in the module docstring: the backbone from a generator
-        seeded with ``seed``, the head from one seeded with ``seed + 1`` (None: one draw from the
-        global stream)."""
+        """Initialise every layer: the backbone (encoder and LSTM) from a generator seeded with ``seed``,
+        the head from one seeded with ``seed + 1`` (None: one draw from the global stream), so every head
+        size gets the same backbone for one seed and the caller's stream is not touched.
+
+        Convs: Kaiming normal for LeakyReLU(0.1), fan-in; BatchNorm weight 1, bias 0. LSTM: Xavier-uniform
+        input and orthogonal recurrent weights per gate, biases 0 but the forget gate's ``bias_hh`` 1. Head:
+        weights normal with std 1e-3 (gradients reach the backbone from the first step), bias ``head_bias``,
+        the loss's identity output (an all-zero output is degenerate for the quaternion's normalisation and
+        the 6-D Gram-Schmidt).
+        """
         if seed is None:
             seed = int(torch.randint(0, 2**62, ()))
         backbone = torch.Generator().manual_seed(seed)
@@ -263,7 +240,8 @@ class DeepVO(nn.Module):
         return feats.reshape(B, L - 1, self.lstm_input_size)
 
     def forward_with_state(self, frames: Tensor, state: LSTMState | None = None) -> tuple[Tensor, LSTMState]:
-        """Outputs and the final LSTM state, starting from ``state`` (zeros when None).
+        """Outputs and the final LSTM state, starting from ``state`` (zeros when None). A full sequence
+        runs in chunks that overlap by one frame (``[0, k]`` then ``[k, L-1]``), in ``eval()`` mode.
 
         Args:
             frames: (B, L, 3, H, W) normalised images, L >= 2.

@@ -1,26 +1,5 @@
 """FlowVO: a pose network on optical flow and the camera's intrinsics layer (after TartanVO, Wang et al.
-2020).
-
-Each frame pair is measured on its own, from the geometry in the image rather than its appearance::
-
-    flow (B, P, 2, H, W) px   ->  flow * gain / (W, H)             scaled by the image size
-    K (B, 3, 3)               ->  (x - cx) / fx, (y - cy) / fy      the intrinsics layer, (B, 2, H, W)
-                              ->  average-pooled by ``pool``        (B*P, 4, H/pool, W/pool)
-                              ->  encoder (B*P, C, H/16p, W/16p)    a stem, three residual stages
-                              ->  flattened features (B*P, F)       where in the image a motion is, is kept
-                              ->  translation head (B, P, 3)        separate heads: the translation and
-                                  rotation head (B, P, out_dim - 3)  the rotation part of the loss's output
-
-P = L - 1 frame pairs of a window. The output is ``[t (3), r (D)]`` as in :mod:`lossvo.losses` (for the
-SE(3) loss the first three are rho). The rotation follows from the flow and K alone (a rotation's flow does
-not depend on depth); the translation's direction too, its length only through what the scene implies
-(metric scale).
-
-Initialisation: convolutions Kaiming normal (ReLU, fan-out), BatchNorm weight 1 and bias 0 (the last of each
-residual branch 0, so every stage starts as its shortcut), head layers Kaiming uniform, last layers normal
-with std 1e-3 and the loss's identity output as bias. Random streams as in :class:`lossvo.models.DeepVO`: one
-draw from the caller's stream seeds the backbone (encoder and translation head, which is the same for every
-loss) and, plus one, the rotation head, so that for one seed every loss starts from the same encoder.
+2020), one frame pair at a time, with separate translation and rotation heads.
 """
 
 from __future__ import annotations
@@ -32,7 +11,7 @@ import torch
 from torch import Tensor, nn
 
 from lossvo.checks import is_integer
-from lossvo.data.camera import intrinsics_channels
+from lossvo.geometry.camera import intrinsics_channels
 from lossvo.models.arguments import check_float, check_int, dropout, memory_format, seeded_build
 from lossvo.models.arguments import head_bias as head_bias_of
 
@@ -47,9 +26,11 @@ class Residual(nn.Module):
     def __init__(self, c_in: int, c_out: int, stride: int) -> None:
         super().__init__()
         self.branch = nn.Sequential(
-            nn.Conv2d(c_in, c_out, 3, stride=stride, padding=1, bias=False), nn.BatchNorm2d(c_out),
-            nn.ReLU(inplace=True), nn.Conv2d(c_out, c_out, 3, padding=1, bias=False),
-        )  # fmt: skip
+            nn.Conv2d(c_in, c_out, 3, stride=stride, padding=1, bias=False),
+            nn.BatchNorm2d(c_out),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(c_out, c_out, 3, padding=1, bias=False),
+        )
         self.branch_norm = nn.BatchNorm2d(c_out)
         self.shortcut = nn.Sequential(
             nn.Conv2d(c_in, c_out, 1, stride=stride, bias=False), nn.BatchNorm2d(c_out)
@@ -73,7 +54,19 @@ class Head(nn.Module):
 
 
 class FlowVO(nn.Module):
-    """Pose from optical flow and intrinsics, one frame pair at a time, translation and rotation heads apart.
+    """Pose from optical flow and intrinsics, one frame pair at a time, translation and rotation heads apart::
+
+        flow (B, P, 2, H, W) px   ->  flow * gain / (W, H)             scaled by the image size
+        K (B, 3, 3)               ->  (x - cx) / fx, (y - cy) / fy      the intrinsics layer, (B, 2, H, W)
+                                  ->  average-pooled by ``pool``        (B*P, 4, H/pool, W/pool)
+                                  ->  encoder (B*P, C, H/16p, W/16p)    a stem, three residual stages
+                                  ->  flattened features (B*P, F)       keeps where a motion is
+                                  ->  translation head (B, P, 3)
+                                      rotation head (B, P, out_dim - 3)
+
+    P = L - 1 frame pairs of a window; the output is ``[t (3), r (D)]`` (:mod:`lossvo.losses`; for the
+    SE(3) loss the first three are rho). The rotation follows from the flow and K alone (a rotation's flow
+    does not depend on depth), the translation's length only through what the scene implies.
 
     Args:
         out_dim: head size per frame pair (the loss's ``dim``): 3 translation outputs, then the rotation's.
@@ -85,7 +78,7 @@ class FlowVO(nn.Module):
         head_bias: the heads' initial output (out_dim,), the loss's identity output; null: zeros.
         flow: the optical flow the network reads (``data.flow``), recorded with it.
         pool: the encoder's input (flow and intrinsics layer) is average-pooled by this factor: a
-            quarter of the pixels at 2, where the flow field is smooth; a training step costs 0.28-0.37x.
+            quarter of the pixels at 2, where the flow field is smooth.
         channels_last: run the encoder in the channels-last memory layout (NHWC), which the oneDNN CPU
             kernels and GPU tensor cores prefer; the values are the same.
         intrinsics_layer: read the intrinsics layer beside the flow (false: the flow alone, K unused;
@@ -98,10 +91,21 @@ class FlowVO(nn.Module):
     _head_bias: Tensor
     _flow_scale: Tensor
 
-    def __init__(self, out_dim: int, height: int, width: int, channels: Sequence[int] = (32, 64, 96, 128),
-                 hidden: int = 128, flow_gain: float = 20.0, head_dropout: float = 0.0,
-                 head_bias: list[float] | None = None, flow: str = "dis", pool: int = 1,
-                 channels_last: bool = False, intrinsics_layer: bool = True) -> None:  # fmt: skip
+    def __init__(
+        self,
+        out_dim: int,
+        height: int,
+        width: int,
+        channels: Sequence[int] = (32, 64, 96, 128),
+        hidden: int = 128,
+        flow_gain: float = 20.0,
+        head_dropout: float = 0.0,
+        head_bias: list[float] | None = None,
+        flow: str = "dis",
+        pool: int = 1,
+        channels_last: bool = False,
+        intrinsics_layer: bool = True,
+    ) -> None:
         super().__init__()
         if not isinstance(intrinsics_layer, bool):
             raise ValueError(f"model.intrinsics_layer: expected true or false, got {intrinsics_layer!r}")
@@ -136,8 +140,11 @@ class FlowVO(nn.Module):
     def _build(self, p: float) -> None:
         c0, c1, c2, c3 = self.channels
         inputs = 4 if self.intrinsics_layer else 2
-        self.stem = nn.Sequential(nn.Conv2d(inputs, c0, 5, stride=2, padding=2, bias=False),
-                                  nn.BatchNorm2d(c0), nn.ReLU(inplace=True))  # fmt: skip
+        self.stem = nn.Sequential(
+            nn.Conv2d(inputs, c0, 5, stride=2, padding=2, bias=False),
+            nn.BatchNorm2d(c0),
+            nn.ReLU(inplace=True),
+        )
         self.stages = nn.Sequential(Residual(c0, c1, 2), Residual(c1, c2, 2), Residual(c2, c3, 2))
         h, w = self.height // self.pool, self.width // self.pool
         self.feature_shape = (c3, -(-h // TOTAL_STRIDE), -(-w // TOTAL_STRIDE))
@@ -147,8 +154,11 @@ class FlowVO(nn.Module):
 
     @torch.no_grad()
     def reset_parameters(self, seed: int | None = None) -> None:
-        """Initialise every layer as the module docstring says: the encoder and translation head from a
-        generator seeded with ``seed``, the rotation head from one seeded with ``seed + 1``."""
+        """Initialise every layer: the encoder and translation head (the same for every loss) from a
+        generator seeded with ``seed``, the rotation head from one seeded with ``seed + 1`` (None: one draw
+        from the global stream). Convs Kaiming normal (ReLU, fan-out); BatchNorm weight 1, bias 0, the last
+        of each residual branch 0 (every stage starts as its shortcut); head layers Kaiming uniform, the
+        last normal with std 1e-3 and the loss's identity output as bias."""
         if seed is None:
             seed = int(torch.randint(0, 2**62, ()))
         backbone = torch.Generator().manual_seed(seed)
@@ -165,8 +175,9 @@ class FlowVO(nn.Module):
                 nn.init.zeros_(stage.branch_norm.weight)  # each stage starts as its shortcut
         bias = self._head_bias.split([TRANSLATION_DIM, self.out_dim - TRANSLATION_DIM])
         for head, generator, b in (
-            (self.translation_head, backbone, bias[0]), (self.rotation_head, rotation, bias[1])
-        ):  # fmt: skip
+            (self.translation_head, backbone, bias[0]),
+            (self.rotation_head, rotation, bias[1]),
+        ):
             nn.init.kaiming_uniform_(head.hidden.weight, nonlinearity="relu", generator=generator)
             nn.init.zeros_(head.hidden.bias)
             nn.init.normal_(head.out.weight, std=1e-3, generator=generator)
@@ -200,7 +211,7 @@ class FlowVO(nn.Module):
 
     def _pooled(self, x: Tensor) -> Tensor:
         """(N, C, H, W) -> (N, C, H/pool, W/pool), the mean of each pool x pool block: a sum of strided
-        slices, ~5x faster than ``avg_pool2d`` on a CPU for these few channels."""
+        slices (faster than ``avg_pool2d`` on a CPU for these few channels)."""
         p = self.pool
         return sum((x[..., i::p, j::p] for i in range(p) for j in range(p)), torch.zeros(())) / p**2
 

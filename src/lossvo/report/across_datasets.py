@@ -21,7 +21,7 @@ import numpy as np
 
 from lossvo.evaluation.results import DataRecord, Results, ResultsError
 from lossvo.report.jobs import Job
-from lossvo.report.render import Rows
+from lossvo.table_render import Rows
 
 EVALUATIONS = "evaluations"
 """The folder of a sweep that holds evaluations of its checkpoints on other data."""
@@ -31,8 +31,16 @@ ACROSS_TEXT = (
     f"hydra.run.dir=SWEEP/{EVALUATIONS}/...`): mean ± standard deviation over seeds (n) of the APE and RPE "
     "pooled over the evaluated sequences; rows whose two datasets agree are the sweep's own evaluations."
 )
-HEADER = ("network", "trained on", "evaluated on", "sequences", "n", "APE trans RMSE (m)",
-          "RPE trans RMSE (m)", "RPE rot RMSE (rad)")  # fmt: skip
+HEADER = (
+    "network",
+    "trained on",
+    "evaluated on",
+    "sequences",
+    "n",
+    "APE trans RMSE (m)",
+    "RPE trans RMSE (m)",
+    "RPE rot RMSE (rad)",
+)
 
 
 @dataclass(frozen=True)
@@ -95,7 +103,16 @@ def across_rows(jobs: Sequence[Job], evaluations: Sequence[Evaluation]) -> Rows:
     for label, trained, evaluated in order:
         scores = [r.overall.scores for r in groups[label, trained, evaluated] if r.overall.scores is not None]
         sequences = ", ".join(groups[label, trained, evaluated][0].overall.sequences)
-        rows.append([label, trained, evaluated, sequences, len(scores),
-                     _cell([s.ape.trans.rmse for s in scores]), _cell([s.rpe.trans.rmse for s in scores]),
-                     _cell([s.rpe.rot_rad.rmse for s in scores])])  # fmt: skip
+        rows.append(
+            [
+                label,
+                trained,
+                evaluated,
+                sequences,
+                len(scores),
+                _cell([s.ape.trans.rmse for s in scores]),
+                _cell([s.rpe.trans.rmse for s in scores]),
+                _cell([s.rpe.rot_rad.rmse for s in scores]),
+            ]
+        )
     return Rows(HEADER, rows)

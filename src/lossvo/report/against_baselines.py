@@ -19,11 +19,11 @@ from typing import cast
 
 import numpy as np
 
+from lossvo import table_render
 from lossvo.console import first_line
 from lossvo.evaluation import baselines
 from lossvo.evaluation.metrics import AlignMode
 from lossvo.evaluation.results import DataRecord, Scores
-from lossvo.report import render
 from lossvo.report.jobs import (
     RPE_ROT,
     RPE_TRANS,
@@ -33,8 +33,8 @@ from lossvo.report.jobs import (
     finite_number,
     metric_value,
 )
-from lossvo.report.render import Rows, prepend_column
 from lossvo.report.tables import BASELINE, Column, fmt
+from lossvo.table_render import Rows, prepend_column
 
 UNSEEN_KEY = "data.unseen"
 UNSEEN_ROTATION_BAR = 0.30
@@ -209,7 +209,7 @@ def learning_markdown(networks: Sequence[Column], base: BaselineRun, by_architec
     table = Rows(header, rows)
     if by_architecture:
         table = prepend_column(table, "architecture", [_architecture(c) for c in networks for _ in c.jobs])
-    return "\n".join([text, "", render.markdown(table)])
+    return "\n".join([text, "", table_render.markdown(table)])
 
 
 @dataclass(frozen=True)
@@ -296,4 +296,4 @@ def unseen_markdown(
     else:
         met = [m for ms in passed.values() for m in ms]
         summary = f"{sum(met)} of {len(met)} jobs meet both on every unseen sequence."
-    return "\n".join([UNSEEN_TEXT, "", render.markdown(table), "", summary])
+    return "\n".join([UNSEEN_TEXT, "", table_render.markdown(table), "", summary])

@@ -19,12 +19,13 @@ from itertools import combinations
 
 import numpy as np
 
-from lossvo.report import render, statistics
+from lossvo import table_render
+from lossvo.report import statistics
 from lossvo.report.claims import CLAIM_ERRORS, training_sequences
 from lossvo.report.configurations import architecture_groups, treatments
-from lossvo.report.render import Rows
 from lossvo.report.statistics import InteractionTest
 from lossvo.report.tables import Cell, Column, fmt, mean_std_text, seed_scores
+from lossvo.table_render import Rows
 
 UNTESTED = "cannot be tested"
 
@@ -161,13 +162,30 @@ def _test_cells(i: Interaction) -> list[object]:
 def interaction_rows(agreement: Agreement) -> Rows:
     """Per quantity and pair of architectures: the configurations, seeds, whether the rankings agree in
     order, F, p, the relabellings, the smallest p at this n and the verdict."""
-    header = ["quantity", "architectures", "configurations", "seeds", "same order", "F", "p",
-              "relabellings", "smallest p at this n", "verdict"]  # fmt: skip
+    header = [
+        "quantity",
+        "architectures",
+        "configurations",
+        "seeds",
+        "same order",
+        "F",
+        "p",
+        "relabellings",
+        "smallest p at this n",
+        "verdict",
+    ]
     rows: list[list[object]] = [
-        [i.quantity, " vs ".join(i.architectures), ", ".join(i.treatments), len(i.seeds),
-         "yes" if i.same_order else "no", *_test_cells(i), i.verdict]
+        [
+            i.quantity,
+            " vs ".join(i.architectures),
+            ", ".join(i.treatments),
+            len(i.seeds),
+            "yes" if i.same_order else "no",
+            *_test_cells(i),
+            i.verdict,
+        ]
         for i in agreement.interactions
-    ]  # fmt: skip
+    ]
     return Rows(header, rows)
 
 
@@ -204,9 +222,9 @@ def agreement_markdown(agreement: Agreement) -> str:
     lines = [
         AGREEMENT_TEXT.format(sequences=", ".join(agreement.sequences)),
         "",
-        render.markdown(ranking_rows(agreement)),
+        table_render.markdown(ranking_rows(agreement)),
         "",
-        render.markdown(interaction_rows(agreement)),
+        table_render.markdown(interaction_rows(agreement)),
     ]
     for i in agreement.interactions:
         lines += ["", verdict_line(i)]
@@ -228,8 +246,21 @@ def interaction_csv_rows(agreement: Agreement) -> Rows:
     """``tables/interaction.csv``: one row per quantity and pair of architectures, full precision; an
     untested pair has verdict ``cannot be tested`` and the reason in ``note`` (a section that cannot be
     tested at all: one such row)."""
-    header = ["quantity", "architecture_a", "architecture_b", "configurations", "seeds", "same_order",
-              "statistic", "p_value", "permutations", "exact", "smallest_p", "verdict", "note"]  # fmt: skip
+    header = [
+        "quantity",
+        "architecture_a",
+        "architecture_b",
+        "configurations",
+        "seeds",
+        "same_order",
+        "statistic",
+        "p_value",
+        "permutations",
+        "exact",
+        "smallest_p",
+        "verdict",
+        "note",
+    ]
     if agreement.untested:
         return Rows(header, [["", "", "", "", "", "", "", "", "", "", "", UNTESTED, agreement.untested]])
     rows: list[list[object]] = []
@@ -240,6 +271,16 @@ def interaction_csv_rows(agreement: Agreement) -> Rows:
             if t is not None
             else [""] * 5
         )
-        rows.append([i.quantity, *i.architectures, ";".join(i.treatments), ";".join(i.seeds), i.same_order,
-                     *numbers, i.verdict, i.untested or ""])  # fmt: skip
+        rows.append(
+            [
+                i.quantity,
+                *i.architectures,
+                ";".join(i.treatments),
+                ";".join(i.seeds),
+                i.same_order,
+                *numbers,
+                i.verdict,
+                i.untested or "",
+            ]
+        )
     return Rows(header, rows)

@@ -14,14 +14,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lossvo.report import render, statistics
+from lossvo import table_render
+from lossvo.report import statistics
 from lossvo.report.comparison import paired_values
 from lossvo.report.configurations import SCORE, UNKNOWN_ARCHITECTURE, architecture_groups, loss_class_name
 from lossvo.report.convergence import Convergence, epoch_text
 from lossvo.report.jobs import APE_TRANS, RPE_ROT, RPE_TRANS, trained_sequences
-from lossvo.report.render import Rows, prepend_column
 from lossvo.report.statistics import PairedTest
 from lossvo.report.tables import NETWORK, Cell, Column, fmt, mean_std_text, seed_scores
+from lossvo.table_render import Rows, prepend_column
 
 CLAIMED_LOSS = "ChordalLoss"
 CLAIM_ERRORS = (
@@ -289,16 +290,37 @@ def seeds_needed_text(n: float) -> str:
 
 
 def _tests_rows(claim: Claim) -> Rows:
-    header = ["quantity", "versus", "n seeds", f"mean difference ({claim.configuration} − other)", "relative",
-              "95 % CI", "p", "Holm p", "seeds needed", "verdict on the quantity"]  # fmt: skip
+    header = [
+        "quantity",
+        "versus",
+        "n seeds",
+        f"mean difference ({claim.configuration} − other)",
+        "relative",
+        "95 % CI",
+        "p",
+        "Holm p",
+        "seeds needed",
+        "verdict on the quantity",
+    ]
     rows: list[list[object]] = []
     for q in claim.quantities:
         number = _number(q.quantity)
         for t in q.tests:
             ci = f"[{number(t.ci_low)}, {number(t.ci_high)}]" if t.n > 1 else "n/a"
-            rows.append([q.quantity, t.versus, t.n, number(t.mean_diff), _relative_text(t.relative), ci,
-                         fmt(t.p_value, 3), fmt(t.holm_p, 3), seeds_needed_text(t.seeds_needed),
-                         q.verdict])  # fmt: skip
+            rows.append(
+                [
+                    q.quantity,
+                    t.versus,
+                    t.n,
+                    number(t.mean_diff),
+                    _relative_text(t.relative),
+                    ci,
+                    fmt(t.p_value, 3),
+                    fmt(t.holm_p, 3),
+                    seeds_needed_text(t.seeds_needed),
+                    q.verdict,
+                ]
+            )
     return Rows(header, rows)
 
 
@@ -323,16 +345,16 @@ def claim_markdown(claim: Claim, letter: str, level: str = "###") -> str:
     what = "each seed's mean over those sequences" if claim.statement == CLAIM_A else "epochs"
     lines = [head, "", claim.scope, "", f"Measured ({what}; mean ± sample std over seeds):", ""]
     lines += [
-        render.markdown(_measured_rows(claim)),
+        table_render.markdown(_measured_rows(claim)),
         "",
         "Paired by seed:",
         "",
-        render.markdown(_tests_rows(claim)),
+        table_render.markdown(_tests_rows(claim)),
     ]
     secondary = _secondary_rows(claim)
     if secondary.rows:
         lines += ["", f"{SECONDARY[0].upper()}{SECONDARY[1:]} (never decides the verdict):", ""]
-        lines += [render.markdown(secondary)]
+        lines += [table_render.markdown(secondary)]
     lines += [f"\n*Note:* {n}" for n in claim.notes]
     lines += ["", " ".join([f"**Verdict: {claim.verdict}.**", *claim.undecidable])]
     return "\n".join(lines)
@@ -395,10 +417,23 @@ def _seeds_needed_cell(n: float) -> str:
 
 def _test_numbers(t: PairedTest, cells: PairedTest | None) -> list[object]:
     """A paired test's cells from ``n_seeds`` to ``secondary_p``, full precision."""
-    return [t.n, repr(t.mean), repr(t.versus_mean), repr(t.mean_diff), repr(t.relative), repr(t.ci_low),
-            repr(t.ci_high), *map(repr, t.relative_ci), repr(t.p_value), t.method, repr(t.holm_p),
-            repr(statistics.smallest_p(t.n)), _seeds_needed_cell(t.seeds_needed),
-            cells.n if cells else "", repr(cells.p_value) if cells else ""]  # fmt: skip
+    return [
+        t.n,
+        repr(t.mean),
+        repr(t.versus_mean),
+        repr(t.mean_diff),
+        repr(t.relative),
+        repr(t.ci_low),
+        repr(t.ci_high),
+        *map(repr, t.relative_ci),
+        repr(t.p_value),
+        t.method,
+        repr(t.holm_p),
+        repr(statistics.smallest_p(t.n)),
+        _seeds_needed_cell(t.seeds_needed),
+        cells.n if cells else "",
+        repr(cells.p_value) if cells else "",
+    ]
 
 
 def claims_csv_rows(items: Sequence[Claim], by_architecture: bool = False) -> Rows:
@@ -428,4 +463,4 @@ def claims_csv_rows(items: Sequence[Claim], by_architecture: bool = False) -> Ro
 
 def claims_csv(items: Sequence[Claim], by_architecture: bool = False) -> str:
     """:func:`claims_csv_rows` as CSV text."""
-    return render.csv_text(claims_csv_rows(items, by_architecture))
+    return table_render.csv_text(claims_csv_rows(items, by_architecture))

@@ -14,9 +14,9 @@ import numpy as np
 
 from lossvo.report.configurations import UNKNOWN_ARCHITECTURE, architecture_groups
 from lossvo.report.jobs import APE_TRANS, RPE_ROT, RPE_TRANS, metric_value
-from lossvo.report.render import Rows, prepend_column
 from lossvo.report.statistics import ALPHA, PairedTest, can_decide, corrected, paired_test
 from lossvo.report.tables import NETWORK, Column, fmt, samples
+from lossvo.table_render import Rows, prepend_column
 
 COMPARED = (
     ("APE trans RMSE [m]", APE_TRANS),
@@ -95,8 +95,16 @@ def compare(columns: Sequence[Column], by_architecture: bool = False) -> list[Co
         for a, b in combinations(group, 2):
             for metric, path in COMPARED:
                 x, y, used = seed_pairs(a, b, path, sequences)
-                found.append(Comparison(a.label, b.label, metric, paired_test(b.label, x, y), used,
-                                        architecture=a.architecture))  # fmt: skip
+                found.append(
+                    Comparison(
+                        a.label,
+                        b.label,
+                        metric,
+                        paired_test(b.label, x, y),
+                        used,
+                        architecture=a.architecture,
+                    )
+                )
         for metric, _ in COMPARED:
             family = [i for i, c in enumerate(found) if c.metric == metric]
             tests = corrected([found[i].test for i in family])
@@ -116,25 +124,68 @@ def _with_architecture(table: Rows, comparisons: Sequence[Comparison], by_archit
 
 def comparison_rows(comparisons: Sequence[Comparison], by_architecture: bool = False) -> Rows:
     """The section's table (with ``by_architecture`` an ``architecture`` column first)."""
-    header = ["A", "B", "metric", "seeds", "mean A − B", "A lower", "p", "Holm p",
-              f"distinguishable at {ALPHA}"]  # fmt: skip
+    header = [
+        "A",
+        "B",
+        "metric",
+        "seeds",
+        "mean A − B",
+        "A lower",
+        "p",
+        "Holm p",
+        f"distinguishable at {ALPHA}",
+    ]
     rows: list[list[object]] = [
-        [c.a, c.b, c.metric, c.test.n, fmt(c.test.mean_diff), f"{c.test.lower}/{c.test.n}",
-         fmt(c.test.p_value, 3), fmt(c.test.holm_p, 3), c.verdict]
+        [
+            c.a,
+            c.b,
+            c.metric,
+            c.test.n,
+            fmt(c.test.mean_diff),
+            f"{c.test.lower}/{c.test.n}",
+            fmt(c.test.p_value, 3),
+            fmt(c.test.holm_p, 3),
+            c.verdict,
+        ]
         for c in comparisons
-    ]  # fmt: skip
+    ]
     return _with_architecture(Rows(header, rows), comparisons, by_architecture)
 
 
 def comparison_csv_rows(comparisons: Sequence[Comparison], by_architecture: bool = False) -> Rows:
     """``tables/pairwise.csv``: full precision (with ``by_architecture`` an ``architecture`` column first);
     ``sequences``: those each seed's value averages, ``;``-separated."""
-    header = ["a", "b", "metric", "seeds", "sequences", "mean_diff", "ci_low", "ci_high", "a_lower",
-              "p_value", "method", "holm_p", "verdict"]  # fmt: skip
+    header = [
+        "a",
+        "b",
+        "metric",
+        "seeds",
+        "sequences",
+        "mean_diff",
+        "ci_low",
+        "ci_high",
+        "a_lower",
+        "p_value",
+        "method",
+        "holm_p",
+        "verdict",
+    ]
     rows: list[list[object]] = [
-        [c.a, c.b, c.metric, c.test.n, ";".join(c.sequences), repr(c.test.mean_diff), repr(c.test.ci_low),
-         repr(c.test.ci_high), c.test.lower, repr(c.test.p_value), c.test.method, repr(c.test.holm_p),
-         c.verdict]
+        [
+            c.a,
+            c.b,
+            c.metric,
+            c.test.n,
+            ";".join(c.sequences),
+            repr(c.test.mean_diff),
+            repr(c.test.ci_low),
+            repr(c.test.ci_high),
+            c.test.lower,
+            repr(c.test.p_value),
+            c.test.method,
+            repr(c.test.holm_p),
+            c.verdict,
+        ]
         for c in comparisons
-    ]  # fmt: skip
+    ]
     return _with_architecture(Rows(header, rows), comparisons, by_architecture)

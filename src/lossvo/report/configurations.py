@@ -27,8 +27,8 @@ from lossvo.report.jobs import (
     finite_number,
     job_number,
 )
-from lossvo.report.render import Rows, prepend_column
 from lossvo.report.tables import NETWORK, Cell, Column, mean_std_text
+from lossvo.table_render import Rows, prepend_column
 
 SCORE = "val/score"
 """The loss-independent validation score (:mod:`lossvo.training.selection`)."""

@@ -8,11 +8,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lossvo.report import render, statistics
+from lossvo import table_render
+from lossvo.report import statistics
 from lossvo.report.configurations import SCORE, UNKNOWN_ARCHITECTURE, job_selection
 from lossvo.report.jobs import Job
-from lossvo.report.render import Rows, prepend_column
 from lossvo.report.tables import NETWORK, Cell, Column
+from lossvo.table_render import Rows, prepend_column
 
 
 def convergence_metric(job: Job) -> tuple[str, str]:
@@ -97,7 +98,7 @@ def convergence_markdown(items: Sequence[Convergence], by_architecture: bool = F
             f"*Note:* `{SCORE}` is not in every metrics.csv: those jobs are measured on their selection "
             f"monitor ({', '.join(f'`{m}`' for m in fallback)}), which is not on one scale across losses.",
         ]
-    return "\n".join([*lines, "", render.markdown(convergence_rows(items, by_architecture))])
+    return "\n".join([*lines, "", table_render.markdown(convergence_rows(items, by_architecture))])
 
 
 def _architectures(items: Sequence[Convergence]) -> list[str]:
@@ -120,8 +121,16 @@ def convergence_rows(items: Sequence[Convergence], by_architecture: bool = False
         pairs = zip(c.replicates, c.epochs, strict=True)
         per_seed = ", ".join(f"{r}: {e if e is not None else 'n/a'}" for r, e in pairs)
         cell = c.cell()
-        rows.append([c.label, ", ".join(sorted(set(c.metrics))), cell.n, epoch_text(cell), per_seed,
-                     ", ".join(map(str, sorted(set(c.logged))))])  # fmt: skip
+        rows.append(
+            [
+                c.label,
+                ", ".join(sorted(set(c.metrics))),
+                cell.n,
+                epoch_text(cell),
+                per_seed,
+                ", ".join(map(str, sorted(set(c.logged)))),
+            ]
+        )
     table = Rows(header, rows)
     return prepend_column(table, "architecture", _architectures(items)) if by_architecture else table
 

@@ -1,20 +1,7 @@
 """The report of a sweep: reading its jobs, building the tables, analyses and figures, and writing
-``report.md``, ``tables/`` and ``figures/`` (:func:`make_report`), every file atomically.
-
-``report.md`` holds, in this order: a bold warning when the configurations were selected by different
-metrics; the configurations (:mod:`~lossvo.report.configurations`); Tables I-III
-(:mod:`~lossvo.report.tables`); the pairwise comparison (:mod:`~lossvo.report.comparison`); convergence
-(:mod:`~lossvo.report.convergence`); the baselines and each job against them
-(:mod:`~lossvo.report.against_baselines`); the jobs, included or skipped and why; the files; the figures
-(:mod:`~lossvo.report.figures`); where the sweep varies the architecture, whether the architectures rank
-the losses alike (:mod:`~lossvo.report.architectures`); and last the study's claims
-(:mod:`~lossvo.report.claims`).
-
-Where the sweep varies the architecture (:func:`~lossvo.report.configurations.varies_architecture`), the
-tables whose rows are configurations (or jobs) get an ``architecture`` column, Tables I-III, the curves and
-the APE bars are given per architecture (``tables/translation_<architecture>.csv``,
-``figures/curves_<architecture>.png``), pairs are compared and claims tested within an architecture; a
-single-architecture sweep's report is unchanged.
+``report.md``, ``tables/`` and ``figures/`` (:func:`make_report`), every file atomically. Where the sweep
+varies the architecture, tables get an ``architecture`` column and Tables I-III, curves, APE bars, pairs and
+claims are given per architecture; a single-architecture sweep's report is unchanged.
 """
 
 from __future__ import annotations
@@ -26,9 +13,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from lossvo import table_render
 from lossvo.atomic import write_text_atomic
 from lossvo.evaluation.results import file_stem
-from lossvo.report import render
 from lossvo.report.across_datasets import ACROSS_TEXT, ACROSS_TITLE, across_rows, find_evaluations
 from lossvo.report.against_baselines import (
     UNSEEN_KEY,
@@ -62,7 +49,6 @@ from lossvo.report.configurations import (
 from lossvo.report.convergence import Convergence, convergence, convergence_csv_rows, convergence_markdown
 from lossvo.report.figures import plot_ape_bars, plot_curves, plot_trajectories
 from lossvo.report.jobs import Job, ground_truth, job_dirs, load_job, unseen_sequences
-from lossvo.report.render import Rows, prepend_column
 from lossvo.report.speed import SPEED_TEXT, SPEED_TITLE, speed_rows
 from lossvo.report.statistics import ALPHA
 from lossvo.report.tables import (
@@ -76,6 +62,7 @@ from lossvo.report.tables import (
     table_latex,
     table_markdown,
 )
+from lossvo.table_render import Rows, prepend_column
 
 log = logging.getLogger("lossvo")
 
@@ -171,10 +158,16 @@ def jobs_rows(jobs: Sequence[Job], by_architecture: bool = False) -> Rows:
     """Every job: its folder, configuration, seed, status, whether it is in the tables (or why not: the
     file it could not use and why) and notes; with ``by_architecture`` its architecture first."""
     rows: list[list[object]] = [
-        [f"`{job.path.name}`", job.label or "?", job.seed, job.status,
-         "yes" if job.skip is None else f"no: {job.skip}", "; ".join(job.notes)]
+        [
+            f"`{job.path.name}`",
+            job.label or "?",
+            job.seed,
+            job.status,
+            "yes" if job.skip is None else f"no: {job.skip}",
+            "; ".join(job.notes),
+        ]
         for job in jobs
-    ]  # fmt: skip
+    ]
     table = Rows(["job", "configuration", "seed", "status", "in tables", "notes"], rows)
     if not by_architecture:
         return table
@@ -243,7 +236,7 @@ CONFIGURATIONS_TEXT = (
 def configurations_lines(study: Study) -> list[str]:
     if not study.networks:
         return []
-    table = render.markdown(configuration_rows(study.networks, study.by_architecture))
+    table = table_render.markdown(configuration_rows(study.networks, study.by_architecture))
     return ["", "## Configurations", "", CONFIGURATIONS_TEXT, "", table]
 
 
@@ -308,7 +301,7 @@ def pairwise_lines(comparisons: Sequence[Comparison], by_architecture: bool = Fa
             "",
             "Fewer than two configurations with results: nothing to compare.",
         ]
-    table = render.markdown(comparison_rows(comparisons, by_architecture))
+    table = table_render.markdown(comparison_rows(comparisons, by_architecture))
     text = PAIRWISE_TEXT + (PAIRWISE_BY_ARCHITECTURE_TEXT if by_architecture else "")
     return ["", "## Pairwise comparison", "", text, "", table]
 
@@ -359,7 +352,11 @@ class Contents:
 
 
 def render_report(sweep: Path, out: Path, contents: Contents) -> str:
-    """The text of report.md (``contents.figures`` None: not drawn)."""
+    """The text of report.md (``contents.figures`` None: not drawn), in this order: a bold warning when
+    the configurations were selected by different metrics; the configurations; Tables I-III; the pairwise
+    comparison; convergence; the baselines and each job against them; the jobs, included or skipped and
+    why; the files; the figures; where the sweep varies the architecture, whether the architectures rank
+    the losses alike; and last the study's claims."""
     c = contents
     included = [j for j in c.jobs if j.included]
     lines = header_lines(sweep, c.jobs, c.study)
@@ -370,7 +367,7 @@ def render_report(sweep: Path, out: Path, contents: Contents) -> str:
     if c.study.convergence:
         lines += ["", "## Convergence", "", convergence_markdown(c.study.convergence, by)]
     lines += baseline_lines(c.base, c.baselines_on, c.tables, c.study, bool(included))
-    lines += ["", "## Jobs", "", render.markdown(jobs_rows(c.jobs, by)), "", DAMAGED_CURVES_TEXT]
+    lines += ["", "## Jobs", "", table_render.markdown(jobs_rows(c.jobs, by)), "", DAMAGED_CURVES_TEXT]
     lines += files_lines(c.tables, by)
     lines += ["", "## Figures", "", figures_markdown(c.figures, out)]
     if c.study.agreement is not None:
@@ -381,7 +378,7 @@ def render_report(sweep: Path, out: Path, contents: Contents) -> str:
             agreement_markdown(c.study.agreement),
         ]
     if c.speed is not None and c.speed.rows:
-        lines += ["", f"## {SPEED_TITLE}", "", SPEED_TEXT, "", render.markdown(c.speed)]
+        lines += ["", f"## {SPEED_TITLE}", "", SPEED_TEXT, "", table_render.markdown(c.speed)]
     lines += across_lines(c.across, c.across_notes)
     lines += ["", "## The study's claims", "", claims_markdown(c.study.claims, by)]
     return "\n".join(lines) + "\n"
@@ -392,7 +389,7 @@ def across_lines(table: Rows | None, notes: Sequence[str]) -> list[str]:
     unused = [f"- evaluation not used: {note}" for note in notes]
     if table is None or not any(row[1] != row[2] for row in table.rows):
         return ["", *unused] if unused else []
-    lines = ["", f"## {ACROSS_TITLE}", "", ACROSS_TEXT, "", render.markdown(table)]
+    lines = ["", f"## {ACROSS_TITLE}", "", ACROSS_TEXT, "", table_render.markdown(table)]
     return lines + (["", *unused] if unused else [])
 
 
@@ -417,11 +414,11 @@ def write_tables(
         claims_csv_rows(study.claims, by),
     )
     for name, content in zip(TABLE_FILES, rows, strict=True):
-        write_text_atomic(folder / name, render.csv_text(content))
+        write_text_atomic(folder / name, table_render.csv_text(content))
     if study.agreement is not None:
         extra = (rankings_csv_rows(study.agreement), interaction_csv_rows(study.agreement))
         for name, content in zip(ARCHITECTURE_FILES, extra, strict=True):
-            write_text_atomic(folder / name, render.csv_text(content))
+            write_text_atomic(folder / name, table_render.csv_text(content))
 
 
 def ground_truth_note(missing: dict[str, str]) -> list[str]:
@@ -499,12 +496,23 @@ def make_report(
         figures = write_figures(networks, tables, base, sequences, out / "figures", source)
     speed = speed_rows(networks, ground_truth(source, sequences)[0], sequences) if source else None
     if speed is not None:
-        write_text_atomic(out / "tables" / "speed.csv", render.csv_text(speed))
+        write_text_atomic(out / "tables" / "speed.csv", table_render.csv_text(speed))
     evaluations, across_notes = find_evaluations(sweep, included)
     across = across_rows(included, evaluations) if evaluations else None
     if across is not None:
-        write_text_atomic(out / "tables" / "across_datasets.csv", render.csv_text(across))
-    contents = Contents(jobs, sequences, tables, comparisons, base, with_baselines, figures, study, speed,
-                        across, across_notes)  # fmt: skip
+        write_text_atomic(out / "tables" / "across_datasets.csv", table_render.csv_text(across))
+    contents = Contents(
+        jobs,
+        sequences,
+        tables,
+        comparisons,
+        base,
+        with_baselines,
+        figures,
+        study,
+        speed,
+        across,
+        across_notes,
+    )
     write_text_atomic(out / "report.md", render_report(sweep, out, contents))
     return out / "report.md"

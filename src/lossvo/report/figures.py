@@ -118,9 +118,11 @@ def _format_panels(axes: Iterable[Axes]) -> None:
 
 
 BASELINE_STYLES = {
-    baselines.MEAN: {"color": "0.45"}, baselines.ORB: {"color": "tab:olive"},
-    baselines.OWN: {"color": "tab:cyan"}, baselines.FLOW: {"color": "tab:purple"},
-}  # fmt: skip
+    baselines.MEAN: {"color": "0.45"},
+    baselines.ORB: {"color": "tab:olive"},
+    baselines.OWN: {"color": "tab:cyan"},
+    baselines.FLOW: {"color": "tab:purple"},
+}
 """Colours of the baselines' dashed lines in the trajectory figures (any other: light grey)."""
 
 

@@ -31,7 +31,8 @@ import numpy as np
 from lossvo import folder_lock
 from lossvo.checks import is_number
 from lossvo.console import UserError, first_line
-from lossvo.data.kitti import KittiFormatError, read_poses, sequence_names
+from lossvo.data.kitti import KittiFormatError, read_poses
+from lossvo.data.sequence import sequence_names
 from lossvo.evaluation.job_folder import METRICS, RESULTS, Curves, JobFolderError, read_metrics, read_status
 from lossvo.evaluation.results import TRANSLATION_METRIC, DataRecord, Results, ResultsError, Scores
 from lossvo.evaluation.trajectories import read_tum

@@ -19,8 +19,8 @@ import numpy as np
 from lossvo.report.claims import training_sequences
 from lossvo.report.configurations import varies_architecture
 from lossvo.report.jobs import read_trajectory
-from lossvo.report.render import Rows, prepend_column
 from lossvo.report.tables import NETWORK, Cell, Column, fmt, mean_std_text
+from lossvo.table_render import Rows, prepend_column
 
 SHARE = 0.2
 """Fraction of a sequence's frame pairs in each of its slow and fast stretches."""

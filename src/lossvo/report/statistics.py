@@ -1,44 +1,8 @@
 """The statistics behind a sweep report's comparisons and claims: convergence epochs, the seed-level paired
-test with its effect, interval and seeds needed, Holm's correction, the verdict rule, and the architecture
-x loss interaction test.
-
-Seeds are the unit. A configuration's value on one seed is one number (e.g. that seed's mean RPE over the
-evaluated sequences outside the training split, or its convergence epoch); two configurations are paired
-by seed, since the (seed, sequence) cells of one seed share one trained network and are not independent.
-On the n paired differences d = claimed - other (:func:`paired_test`):
-
-- p: the two-sided exact Wilcoxon signed-rank test (``scipy.stats.wilcoxon(d, method="exact")``).
-  Ties or zeros among the differences: the exact sign-flip permutation test of the mean difference instead.
-  (:func:`sign_flip_p`: all 2^n sign patterns, p = the share with |sum| >= the observed |sum|; exact with
-  ties and zeros; above :data:`MAX_ENUMERATED` patterns, :data:`DRAWS` random ones with a fixed seed.)
-  No exact test on n pairs can give p below :func:`smallest_p` = 2 / 2^n: 0.25 at 3 seeds, 0.031 at 6.
-- the effect: the mean difference, its relative size (divided by |the other's mean|) and the exact
-  two-sided 95 % t-interval over seeds, mean ± t_{0.975, n-1} · sd / sqrt(n) (:func:`t_interval`; the
-  relative interval divides it by the same |mean|, taken as fixed);
-- the seeds needed (:func:`seeds_needed`): with m comparisons in the family (see below),
-  n = ceil(((z_{1-alpha/(2m)} + z_{0.8}) · sd / |mean|)^2), the normal-approximation n at which a paired
-  test at the Bonferroni level alpha / m (Holm's level for its smallest p) has 80 % power for the observed
-  mean and SD of the differences, but never below :func:`min_seeds`, the smallest n with
-  m · 2 / 2^n < alpha (6 for m = 1, 7 for m = 2 or 3); infinite where the mean difference is 0.
-
-A claim says that one configuration (the *claimed* one, e.g. the chordal loss) is lower than every other
-on some quantity (an error in m or rad, a convergence epoch). Its family is its m comparisons (claimed vs
-each other configuration) on one quantity; their p-values are corrected by Holm's step-down (:func:`holm`)
-and the verdict (:func:`verdict`) on the corrected p-values is one of :data:`VERDICTS`:
-
-- **supported**: the claimed configuration's mean is lower than every other's and every Holm p < alpha;
-- **contradicted**: some other configuration's mean is lower with Holm p < alpha;
-- **not distinguishable at this n**: anything else (too few seeds, p >= alpha, a missing pair).
-  With m · 2 / 2^n >= alpha (:func:`can_decide`) no outcome of n seeds can give another verdict.
-
-:func:`cells_test` is the secondary Wilcoxon test over (seed, sequence) cells (scipy's default method):
-indicative only, it never decides a verdict.
-
-Where a sweep varies the architecture, :func:`interaction_test` asks whether the losses' effects depend on
-the architecture (an exact randomisation test on the between-architecture differences, seeds as blocks) and
-:func:`interaction_verdict` words its outcome.
-
-Nothing here reads files or formats markdown.
+test (:func:`paired_test`: exact Wilcoxon or sign-flip p, effect, t-interval, seeds needed), Holm's
+correction, the verdict rule (:func:`verdict`) and the architecture x loss interaction test. Seeds are the
+unit: a configuration's value on one seed is one number, and configurations are paired by seed (the cells
+of one seed share one network). :func:`cells_test` over (seed, sequence) cells is indicative only. No I/O.
 """
 
 from __future__ import annotations
@@ -311,8 +275,20 @@ def paired_test(versus: str, claimed: np.ndarray, other: np.ndarray) -> PairedTe
     sd = float(d.std(ddof=1)) if d.size > 1 else math.nan
     low, high = t_interval(d)
     means = float(claimed.mean()), float(other.mean())
-    return PairedTest(versus, int(d.size), *means, p, float(np.median(d)), int((d < 0).sum()), method, sd,
-                      low, high, p, seeds_needed(means[0] - means[1], sd))  # fmt: skip
+    return PairedTest(
+        versus,
+        int(d.size),
+        *means,
+        p,
+        float(np.median(d)),
+        int((d < 0).sum()),
+        method,
+        sd,
+        low,
+        high,
+        p,
+        seeds_needed(means[0] - means[1], sd),
+    )
 
 
 def cells_test(versus: str, claimed: np.ndarray, other: np.ndarray) -> PairedTest:
@@ -322,8 +298,16 @@ def cells_test(versus: str, claimed: np.ndarray, other: np.ndarray) -> PairedTes
     if claimed.size == 0:
         return PairedTest(versus, 0, math.nan, math.nan, math.nan, method="Wilcoxon over cells")
     d = claimed - other
-    return PairedTest(versus, int(d.size), float(claimed.mean()), float(other.mean()), wilcoxon_p(d),
-                      float(np.median(d)), int((d < 0).sum()), "Wilcoxon over cells")  # fmt: skip
+    return PairedTest(
+        versus,
+        int(d.size),
+        float(claimed.mean()),
+        float(other.mean()),
+        wilcoxon_p(d),
+        float(np.median(d)),
+        int((d < 0).sum()),
+        "Wilcoxon over cells",
+    )
 
 
 def corrected(tests: Sequence[PairedTest], alpha: float = ALPHA) -> list[PairedTest]:

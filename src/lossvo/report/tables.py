@@ -3,7 +3,7 @@
 A :class:`Column` is one compared configuration (its seeds) or one baseline; :func:`build_table` fills a
 :class:`Table` of :data:`TABLES` with mean ± sample std over seeds per sequence plus a mean row, and bolds
 the minimum of each row; :func:`table_markdown`, :func:`table_csv` and :func:`table_latex` give its text
-(:mod:`lossvo.report.render`).
+(:mod:`lossvo.table_render`).
 A row may carry a note (e.g. ``unseen motion``): in markdown and LaTeX it follows the sequence name in
 parentheses, in CSV it has its own last column, so the ``sequence`` column stays the bare name.
 Units are those of the metrics: m and rad for APE / RPE, % and deg/100 m for the KITTI errors.
@@ -17,10 +17,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lossvo import table_render
 from lossvo.evaluation.results import Scores
-from lossvo.report import render
 from lossvo.report.jobs import APE_ROT, APE_TRANS, KITTI_R, KITTI_T, RPE_ROT, RPE_TRANS, Job, metric_value
-from lossvo.report.render import Rows
+from lossvo.table_render import Rows
 
 NETWORK, BASELINE = "network", "baseline"
 MEAN_ROW = "mean"
@@ -240,7 +240,7 @@ def table_rows(table: Table, mean_name: str = "**mean**") -> Rows:
 
 def table_markdown(table: Table) -> str:
     """The table as GitHub markdown, best cells in ``**bold**``."""
-    return render.markdown(table_rows(table))
+    return table_render.markdown(table_rows(table))
 
 
 def table_csv(table: Table) -> str:
@@ -258,7 +258,7 @@ def table_csv(table: Table) -> str:
             for cell in col:
                 values += [repr(cell.mean) if cell.n else "", repr(cell.std) if cell.n > 1 else "", cell.n]
         rows.append([*values, table.notes.get(row, "")])
-    return render.csv_text(Rows([*header, "note"], rows))
+    return table_render.csv_text(Rows([*header, "note"], rows))
 
 
 def table_latex(table: Table) -> str:
@@ -268,4 +268,4 @@ def table_latex(table: Table) -> str:
     k = len(table.spec.metrics)
     latex = Rows(["", *(name for _ in table.columns for name, _ in table.spec.metrics)], rows.rows)
     groups = [("Sequence", 1), *((c.label, k) for c in table.columns)]
-    return render.latex(latex, table.spec.title, groups, rule_before={table.rows.index(MEAN_ROW)})
+    return table_render.latex(latex, table.spec.title, groups, rule_before={table.rows.index(MEAN_ROW)})

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lossvo.data.camera import resized_intrinsics
+from lossvo.geometry.camera import resized_intrinsics
 
 KITTI_SIZE = (376, 1241)
 """(height, width) in pixels of KITTI odometry colour images."""
@@ -22,7 +22,7 @@ CAMERA_HEIGHT = 1.65
 
 def intrinsics(height: int, width: int) -> np.ndarray:
     """KITTI's P2 intrinsics scaled to (height, width) pixels, as resizing a KITTI frame scales them
-    (:func:`lossvo.data.camera.resized_intrinsics`): (3, 3) float64 K."""
+    (:func:`lossvo.geometry.camera.resized_intrinsics`): (3, 3) float64 K."""
     fx, fy, cx, cy = KITTI_INTRINSICS
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     return resized_intrinsics(K, KITTI_SIZE, (height, width))

@@ -35,27 +35,52 @@ DESCRIPTION = (
 def _parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="python -m lossvo.data.synthetic", description=DESCRIPTION)
     p.add_argument("--out", type=Path, required=True, help="dataset root to write")
-    p.add_argument("--layout", default="kitti", choices=layouts.LAYOUTS,
-                   help="the dataset layout to write (default: kitti)")  # fmt: skip
+    p.add_argument(
+        "--layout",
+        default="kitti",
+        choices=layouts.LAYOUTS,
+        help="the dataset layout to write (default: kitti)",
+    )
     p.add_argument(
         "--sequences", default=",".join(SEQUENCES), help="comma-separated, e.g. 00,07 (default: 00..12)"
     )
     p.add_argument(
         "--frames", type=int, default=None, help="frames per sequence (default: 100-240 by sequence)"
     )
-    p.add_argument("--scale", type=float, default=1.0,
-                   help="times the layout's default size (kitti 160x512, tum/tartanair 640x480, "
-                   "euroc 752x480, mimir 720x540; default: 1)")  # fmt: skip
-    p.add_argument("--height", type=int, default=None,
-                   help=f"pixels (default: the layout's, kitti {DEFAULT_HEIGHT}, times --scale)")  # fmt: skip
-    p.add_argument("--width", type=int, default=None,
-                   help=f"pixels (default: the layout's, kitti {DEFAULT_WIDTH}, times --scale)")  # fmt: skip
+    p.add_argument(
+        "--scale",
+        type=float,
+        default=1.0,
+        help="times the layout's default size (kitti 160x512, tum/tartanair 640x480, "
+        "euroc 752x480, mimir 720x540; default: 1)",
+    )
+    p.add_argument(
+        "--height",
+        type=int,
+        default=None,
+        help=f"pixels (default: the layout's, kitti {DEFAULT_HEIGHT}, times --scale)",
+    )
+    p.add_argument(
+        "--width",
+        type=int,
+        default=None,
+        help=f"pixels (default: the layout's, kitti {DEFAULT_WIDTH}, times --scale)",
+    )
     p.add_argument("--seed", type=int, default=0, help="same seed, same bytes (default: 0)")
-    p.add_argument("--workers", type=int, default=None,
-                   help="processes (default: one per core; one below 10 million pixels in all)")  # fmt: skip
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="processes (default: one per core; one below 10 million pixels in all)",
+    )
     example = "11=stop_and_go:2+expressway"
-    p.add_argument("--mix", action="append", default=[], metavar="NN=FAMILY[:W][+FAMILY[:W]]",
-                   help=f"route families of a sequence, e.g. {example} (repeatable)")  # fmt: skip
+    p.add_argument(
+        "--mix",
+        action="append",
+        default=[],
+        metavar="NN=FAMILY[:W][+FAMILY[:W]]",
+        help=f"route families of a sequence, e.g. {example} (repeatable)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     return p
 

@@ -28,12 +28,12 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from lossvo.data import tartanair, tum
-from lossvo.data.camera import resized_intrinsics
 from lossvo.data.layouts import LAYOUTS, check_layout
 from lossvo.data.synthetic import platforms, routes
 from lossvo.data.synthetic.png import write_png
 from lossvo.data.synthetic.render import Renderer
 from lossvo.data.synthetic.world import scene, sequence_route
+from lossvo.geometry.camera import resized_intrinsics
 
 
 @dataclass(frozen=True)
@@ -60,12 +60,14 @@ EUROC_K = np.array([[458.654, 0.0, 367.215], [0.0, 457.296, 248.375], [0.0, 0.0,
 """EuRoC cam0's intrinsics (fu, fv, cu, cv) at 752x480 (its sensor.yaml)."""
 EUROC_DISTORTION = np.array([-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05])
 """EuRoC cam0's radial-tangential (k1, k2, p1, p2)."""
-EUROC_T_BS = np.array([
-    [0.0148655429818, -0.999880929698, 0.00414029679422, -0.0216401454975],
-    [0.999557249008, 0.0149672133247, 0.025715529948, -0.064676986768],
-    [-0.0257744366974, 0.00375618835797, 0.999660727178, 0.00981073058949],
-    [0.0, 0.0, 0.0, 1.0],
-])  # fmt: skip
+EUROC_T_BS = np.array(
+    [
+        [0.0148655429818, -0.999880929698, 0.00414029679422, -0.0216401454975],
+        [0.999557249008, 0.0149672133247, 0.025715529948, -0.064676986768],
+        [-0.0257744366974, 0.00375618835797, 0.999660727178, 0.00981073058949],
+        [0.0, 0.0, 0.0, 1.0],
+    ]
+)
 """EuRoC cam0's pose in the body (IMU) frame (its sensor.yaml), orthonormalised below before use."""
 EUROC_BIASES = (-0.002229, 0.020700, 0.076350, -0.012492, 0.547666, 0.068904)
 """Gyroscope (rad/s) and accelerometer (m/s^2) biases written in every ground-truth row (V1_01's first)."""
@@ -330,12 +332,16 @@ def _frame_glob(layout: str) -> tuple[str, tuple[str, ...]]:
     """(glob of a sequence folder's frames, its other required files) of a layout."""
     return {
         "tum": ("rgb/*.png", ("rgb.txt", "groundtruth.txt")),
-        "euroc": ("mav0/cam0/data/*.png", ("mav0/cam0/data.csv", "mav0/cam0/sensor.yaml",
-                                           "mav0/state_groundtruth_estimate0/data.csv")),
+        "euroc": (
+            "mav0/cam0/data/*.png",
+            ("mav0/cam0/data.csv", "mav0/cam0/sensor.yaml", "mav0/state_groundtruth_estimate0/data.csv"),
+        ),
         "tartanair": ("image_left/*_left.png", ("pose_left.txt",)),
-        "mimir": ("rgb/cam0/data/*.png", ("rgb/cam0/data.csv", "rgb/cam0/sensor.yaml",
-                                          "pose_groundtruth/data.csv")),
-    }[layout]  # fmt: skip
+        "mimir": (
+            "rgb/cam0/data/*.png",
+            ("rgb/cam0/data.csv", "rgb/cam0/sensor.yaml", "pose_groundtruth/data.csv"),
+        ),
+    }[layout]
 
 
 def sequence_complete(root: Path, layout: str, sequence: str, n_frames: int) -> bool:
@@ -367,9 +373,14 @@ def route_frames(sequence: str, distance: float, seed: int, spec: routes.RouteSp
 
 
 def render_sequence(
-    folder: Path, layout: str, sequence: str, n_frames: int, size: tuple[int, int], seed: int,
+    folder: Path,
+    layout: str,
+    sequence: str,
+    n_frames: int,
+    size: tuple[int, int],
+    seed: int,
     spec: routes.RouteSpec = routes.DEFAULT_SPEC,
-) -> None:  # fmt: skip
+) -> None:
     """Render one town sequence in a layout into folder (the sequence's own folder, created)."""
     lay, rng = SPECS[layout], _streams(layout, sequence, seed)
     c = clock(layout, n_frames, rng)
@@ -406,9 +417,14 @@ def _euroc_bodies(motion: platforms.Trajectory, t: np.ndarray) -> tuple[np.ndarr
 
 
 def write_sequence(
-    out: Path, layout: str, sequence: str, n_frames: int, size: tuple[int, int], seed: int,
+    out: Path,
+    layout: str,
+    sequence: str,
+    n_frames: int,
+    size: tuple[int, int],
+    seed: int,
     spec: routes.RouteSpec = routes.DEFAULT_SPEC,
-) -> float:  # fmt: skip
+) -> float:
     """Render one sequence into the dataset root out, atomically (a temporary folder inside out, moved
     into place once complete, removed on failure); returns the seconds it took."""
     start = time.perf_counter()

@@ -1,18 +1,11 @@
-"""What a dataset holds: its sequences, the frames of each and the image size; defaults and checks.
-
-Default resolution: 160 x 512, KITTI's 376 x 1241 scaled by about 0.42 (K scaled per axis, as resizing
-KITTI frames does). At 128 x 416 the ORB check of ``tests/test_synthetic.py`` sits too close to its
-0.3 degree bound (up to 0.27); 160 x 512 keeps it below 0.18 for a modest cost. Default frame counts are
-100-240 per sequence (training sequences longer than validation ones), 2,100 frames in all: about 50 s
-of CPU, so the whole default dataset renders in about half a minute on 2 cores (one process per
-sequence), ~230 MB of PNGs.
-"""
+"""What a dataset holds: its sequences, the frames of each and the image size; defaults and checks. The
+default size, 160 x 512, is KITTI's 376 x 1241 scaled by about 0.42 (K scaled per axis)."""
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 
-from lossvo.data.kitti import sequence_name
+from lossvo.data.sequence import sequence_name
 from lossvo.data.synthetic import routes
 
 DEFAULT_HEIGHT = 160

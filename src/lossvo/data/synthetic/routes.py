@@ -27,7 +27,8 @@ import torch
 
 from lossvo import geometry
 from lossvo.checks import is_number
-from lossvo.data.kitti import sequence_name
+from lossvo.data.sequence import sequence_name
+from lossvo.table_render import Rows, markdown
 
 STRETCH = 60
 """Frames (at least) driven in one family before the next family is drawn from the sequence's mix."""
@@ -92,26 +93,83 @@ class Family:
 FAMILIES: dict[str, Family] = {
     f.name: f
     for f in (
-        Family("town", "city streets: right-angle corners at crossings, stops at lights",
-               cruise=(0.5, 1.0), straight=(10, 60), turn=0.65, turn_angle=(75, 105), turn_radius=(10, 22),
-               turn_speed=(0.35, 0.6), lane_change=0.1, stop=0.25, stop_frames=(5, 40), camber=0.01),
-        Family("residential", "quiet side streets at low speed: crossings, parked-car stops",
-               cruise=(0.15, 0.5), straight=(10, 50), turn=0.5, turn_angle=(60, 100), turn_radius=(8, 20),
-               turn_speed=(0.15, 0.35), stop=0.2, stop_frames=(5, 30)),
-        Family("arterial", "fast multi-lane roads: long straights, wide curves, lane changes",
-               cruise=(0.9, 1.4), straight=(50, 200), turn=0.5, turn_angle=(20, 70), turn_radius=(40, 150),
-               turn_speed=(0.7, 1.1), lane_change=0.3, stop=0.05, stop_frames=(10, 25), hill=0.15),
-        Family("country", "winding roads over gentle hills, with camber",
-               cruise=(0.6, 1.1), straight=(10, 40), turn=0.85, turn_angle=(20, 120), turn_radius=(15, 60),
-               turn_speed=(0.5, 0.85), hill=0.35, camber=0.025),
-        Family("stop_and_go", "slow urban traffic: frequent long stops, tight corners at walking pace",
-               cruise=(0.2, 0.5), straight=(8, 25), turn=0.35, turn_angle=(85, 95), turn_radius=(9, 14),
-               turn_speed=(0.2, 0.3), stop=0.6, stop_frames=(10, 40)),
-        Family("expressway", "fast straight roads: very wide curves, lane changes, no stops",
-               cruise=(1.2, 1.45), straight=(100, 300), turn=0.4, turn_angle=(5, 20),
-               turn_radius=(400, 1200), turn_speed=(1.15, 1.4), lane_change=0.5),
+        Family(
+            "town",
+            "city streets: right-angle corners at crossings, stops at lights",
+            cruise=(0.5, 1.0),
+            straight=(10, 60),
+            turn=0.65,
+            turn_angle=(75, 105),
+            turn_radius=(10, 22),
+            turn_speed=(0.35, 0.6),
+            lane_change=0.1,
+            stop=0.25,
+            stop_frames=(5, 40),
+            camber=0.01,
+        ),
+        Family(
+            "residential",
+            "quiet side streets at low speed: crossings, parked-car stops",
+            cruise=(0.15, 0.5),
+            straight=(10, 50),
+            turn=0.5,
+            turn_angle=(60, 100),
+            turn_radius=(8, 20),
+            turn_speed=(0.15, 0.35),
+            stop=0.2,
+            stop_frames=(5, 30),
+        ),
+        Family(
+            "arterial",
+            "fast multi-lane roads: long straights, wide curves, lane changes",
+            cruise=(0.9, 1.4),
+            straight=(50, 200),
+            turn=0.5,
+            turn_angle=(20, 70),
+            turn_radius=(40, 150),
+            turn_speed=(0.7, 1.1),
+            lane_change=0.3,
+            stop=0.05,
+            stop_frames=(10, 25),
+            hill=0.15,
+        ),
+        Family(
+            "country",
+            "winding roads over gentle hills, with camber",
+            cruise=(0.6, 1.1),
+            straight=(10, 40),
+            turn=0.85,
+            turn_angle=(20, 120),
+            turn_radius=(15, 60),
+            turn_speed=(0.5, 0.85),
+            hill=0.35,
+            camber=0.025,
+        ),
+        Family(
+            "stop_and_go",
+            "slow urban traffic: frequent long stops, tight corners at walking pace",
+            cruise=(0.2, 0.5),
+            straight=(8, 25),
+            turn=0.35,
+            turn_angle=(85, 95),
+            turn_radius=(9, 14),
+            turn_speed=(0.2, 0.3),
+            stop=0.6,
+            stop_frames=(10, 40),
+        ),
+        Family(
+            "expressway",
+            "fast straight roads: very wide curves, lane changes, no stops",
+            cruise=(1.2, 1.45),
+            straight=(100, 300),
+            turn=0.4,
+            turn_angle=(5, 20),
+            turn_radius=(400, 1200),
+            turn_speed=(1.15, 1.4),
+            lane_change=0.5,
+        ),
     )
-}  # fmt: skip
+}
 """The route families by name."""
 
 TRAINING_MIX: dict[str, float] = {"town": 0.4, "residential": 0.15, "arterial": 0.25, "country": 0.2}
@@ -169,9 +227,10 @@ FIELDS = tuple(f.name for f in dataclasses.fields(Family) if f.name != "name")
 
 
 def route_spec(
-    families: Mapping[str, Mapping] | None = None, mixes: Mapping[str, Mapping[str, float]] | None = None,
+    families: Mapping[str, Mapping] | None = None,
+    mixes: Mapping[str, Mapping[str, float]] | None = None,
     prefix: str = "",
-) -> RouteSpec:  # fmt: skip
+) -> RouteSpec:
     """The default RouteSpec with families added or changed and sequences' mixes replaced; validated.
 
     families: name -> parameters of :class:`Family` (for a known family, only those that change; for a
@@ -186,16 +245,21 @@ def route_spec(
             )
         unknown = [k for k in params if k not in FIELDS]
         if unknown:
-            raise ValueError(f"{prefix}route_families.{name}: unknown parameter {unknown[0]!r} "
-                             f"(expected some of {', '.join(FIELDS)})")  # fmt: skip
+            raise ValueError(
+                f"{prefix}route_families.{name}: unknown parameter {unknown[0]!r} "
+                f"(expected some of {', '.join(FIELDS)})"
+            )
         values: dict[str, Any] = {  # config values; Family's own checks validate them
             k: tuple(v) if isinstance(v, list | tuple) else v for k, v in params.items()
         }
         if name in table:
             table[name] = dataclasses.replace(table[name], **values)
             continue
-        missing = [k for k in ("description", "cruise", "straight", "turn", "turn_angle", "turn_radius",
-                               "turn_speed") if k not in values]  # fmt: skip
+        missing = [
+            k
+            for k in ("description", "cruise", "straight", "turn", "turn_angle", "turn_radius", "turn_speed")
+            if k not in values
+        ]
         if missing:
             raise ValueError(f"{prefix}route_families.{name}: a new family needs {', '.join(missing)}")
         table[name] = Family(name=str(name), **values)
@@ -353,9 +417,11 @@ def undulation(
 
 
 def make_route(
-    rng: np.random.Generator, n_frames: int, mix: Mapping[str, float] = TRAINING_MIX,
+    rng: np.random.Generator,
+    n_frames: int,
+    mix: Mapping[str, float] = TRAINING_MIX,
     families: Mapping[str, Family] = FAMILIES,
-) -> np.ndarray:  # fmt: skip
+) -> np.ndarray:
     """Camera poses T_w_c (n_frames, 4, 4) float64 of a car driving a route drawn from the mix.
 
     On top of the planned manoeuvres: speed noise of ~3 %, lane wobble, suspension pitch when braking
@@ -401,15 +467,36 @@ def families_markdown() -> str:
     def span(bounds: tuple[float, float], digits: int = 2) -> str:
         return f"{bounds[0]:.{digits}f}-{bounds[1]:.{digits}f}"
 
-    head = ["family", "driving", "cruise m/frame", "straights m", "turns", "turn angle °", "turn radius m",
-            "lane changes", "stops (frames)", "hills m", "camber rad", "sequences"]  # fmt: skip
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    head = [
+        "family",
+        "driving",
+        "cruise m/frame",
+        "straights m",
+        "turns",
+        "turn angle °",
+        "turn radius m",
+        "lane changes",
+        "stops (frames)",
+        "hills m",
+        "camber rad",
+        "sequences",
+    ]
+    rows = []
     for f in FAMILIES.values():
         drives = [s for s, mix in MIXES.items() if mix.get(f.name, 0) > 0]
-        row = [f"`{f.name}`", f.description, span(f.cruise), span(f.straight, 0), f"{f.turn:.0%}",
-               span(f.turn_angle, 0), span(f.turn_radius, 0), f"{f.lane_change:.0%}",
-               f"{f.stop:.0%} ({f.stop_frames[0]}-{f.stop_frames[1]})" if f.stop else "-",
-               f"{f.hill:.2f}" if f.hill else "-", f"{f.camber:.3f}" if f.camber else "-",
-               f"{drives[0]}-{drives[-1]}" if drives else "-"]  # fmt: skip
-        lines.append("| " + " | ".join(row) + " |")
-    return "\n".join(lines)
+        row = [
+            f"`{f.name}`",
+            f.description,
+            span(f.cruise),
+            span(f.straight, 0),
+            f"{f.turn:.0%}",
+            span(f.turn_angle, 0),
+            span(f.turn_radius, 0),
+            f"{f.lane_change:.0%}",
+            f"{f.stop:.0%} ({f.stop_frames[0]}-{f.stop_frames[1]})" if f.stop else "-",
+            f"{f.hill:.2f}" if f.hill else "-",
+            f"{f.camber:.3f}" if f.camber else "-",
+            f"{drives[0]}-{drives[-1]}" if drives else "-",
+        ]
+        rows.append(row)
+    return markdown(Rows(head, rows))

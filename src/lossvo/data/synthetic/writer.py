@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 
 from lossvo.atomic import write_text_atomic
-from lossvo.data import kitti
+from lossvo.data import kitti, pose_files
 from lossvo.data.synthetic import layouts, manifest, routes
 from lossvo.data.synthetic.camera import calib_text, intrinsics
 from lossvo.data.synthetic.parameters import (
@@ -42,9 +42,14 @@ def times_text(n_frames: int) -> str:
 
 
 def render_sequence(
-    folder: Path, sequence: str, n_frames: int, height: int, width: int, seed: int,
+    folder: Path,
+    sequence: str,
+    n_frames: int,
+    height: int,
+    width: int,
+    seed: int,
     spec: routes.RouteSpec = routes.DEFAULT_SPEC,
-) -> None:  # fmt: skip
+) -> None:
     """Render one sequence into folder: folder/NN/{image_2/*.png, calib.txt, times.txt} and folder/NN.txt."""
     poses, world, noise = scene(sequence, n_frames, seed, spec)
     K = intrinsics(height, width)
@@ -54,13 +59,19 @@ def render_sequence(
     renderer = Renderer(world, K, height, width)
     for k, T in enumerate(poses):
         write_png(folder / sequence / "image_2" / f"{k:06d}.png", renderer.render(T, noise))
-    kitti.write_poses(folder / f"{sequence}.txt", poses)
+    pose_files.write_poses(folder / f"{sequence}.txt", poses)
 
 
 def write_sequence(
-    out: Path, sequence: str, n_frames: int, height: int, width: int, seed: int,
-    spec: routes.RouteSpec = routes.DEFAULT_SPEC, layout: str = "kitti",
-) -> float:  # fmt: skip
+    out: Path,
+    sequence: str,
+    n_frames: int,
+    height: int,
+    width: int,
+    seed: int,
+    spec: routes.RouteSpec = routes.DEFAULT_SPEC,
+    layout: str = "kitti",
+) -> float:
     """Render one sequence into the dataset root out, atomically; returns the seconds it took.
 
     Layouts other than kitti: :func:`lossvo.data.synthetic.layouts.write_sequence`. Everything is
@@ -100,9 +111,16 @@ def _worker_count(jobs: int, workers: int | None, pixels: int) -> int:
 
 
 def _render_all(
-    out: Path, counts: dict[str, int], height: int, width: int, seed: int, progress: bool,
-    workers: int | None, spec: routes.RouteSpec, layout: str = "kitti",
-) -> None:  # fmt: skip
+    out: Path,
+    counts: dict[str, int],
+    height: int,
+    width: int,
+    seed: int,
+    progress: bool,
+    workers: int | None,
+    spec: routes.RouteSpec,
+    layout: str = "kitti",
+) -> None:
     """Render the sequences, in parallel spawned worker processes when there are several and cores to spare
     (so a calling script needs the usual ``if __name__ == "__main__":`` guard)."""
     jobs = [(out, s, n, height, width, seed, spec, layout) for s, n in counts.items()]

@@ -1,9 +1,8 @@
-"""The one table renderer of the sweep report: a header and rows of cells as GitHub markdown, CSV or a
-LaTeX ``tabular`` with booktabs rules.
+"""The one table renderer: a header and rows of cells as GitHub markdown, CSV or a LaTeX ``tabular``
+with booktabs rules; the report's sections, the axioms table and the data tables all write tables here.
 
-Every section of the report returns :class:`Rows`; only this module writes table syntax. Cells are text
-(numbers already formatted; CSV cells may be numbers) in markdown's conventions: ``**bold**`` and ``±``,
-which :func:`latex` writes as ``\\textbf{...}`` and ``$\\pm$``.
+Cells are text (numbers already formatted; CSV cells may be numbers) in markdown's conventions:
+``**bold**`` and ``±``, which :func:`latex` writes as ``\\textbf{...}`` and ``$\\pm$``.
 """
 
 from __future__ import annotations

@@ -22,9 +22,13 @@ def resized_intrinsics(K: np.ndarray, source_hw: tuple[int, int], target_hw: tup
     """
     sy, sx = target_hw[0] / source_hw[0], target_hw[1] / source_hw[1]
     K = np.asarray(K, dtype=np.float64) / K[2, 2]
-    return np.array([[K[0, 0] * sx, K[0, 1] * sx, (K[0, 2] + 0.5) * sx - 0.5],
-                     [0.0, K[1, 1] * sy, (K[1, 2] + 0.5) * sy - 0.5],
-                     [0.0, 0.0, 1.0]])  # fmt: skip
+    return np.array(
+        [
+            [K[0, 0] * sx, K[0, 1] * sx, (K[0, 2] + 0.5) * sx - 0.5],
+            [0.0, K[1, 1] * sy, (K[1, 2] + 0.5) * sy - 0.5],
+            [0.0, 0.0, 1.0],
+        ]
+    )
 
 
 def mirrored_intrinsics(K: torch.Tensor, width: int) -> torch.Tensor:
