@@ -15,6 +15,7 @@ from hydra.errors import InstantiationException, MissingConfigException
 from lightning.fabric.utilities.exceptions import MisconfigurationException
 
 from helpers import eval_main
+from lossvo import console
 from lossvo.console import UserError, one_line_main, user_message
 from lossvo.evaluation import checkpoints
 from lossvo.evaluation.checkpoints import CheckpointError
@@ -164,3 +165,12 @@ def test_a_text_file_as_a_checkpoint_is_named_as_such(tmp_path: Path, text: str)
     assert (
         str(error.value) == f"{path}: cannot load as a lossvo checkpoint (not a file written by torch.save)"
     )
+
+
+def test_the_hydra_flags_are_those_of_hydras_parser() -> None:
+    """console.HYDRA_FLAGS is written out (no private import in the product); Hydra's parser is its
+    reference here, so a Hydra release that adds or drops a flag fails this test."""
+    from hydra._internal.utils import get_args_parser
+
+    parser = get_args_parser()
+    assert {option for action in parser._actions for option in action.option_strings} == console.HYDRA_FLAGS

@@ -26,7 +26,6 @@ from collections.abc import Callable, Collection
 from pathlib import Path
 from typing import NoReturn, ParamSpec, TypeVar
 
-from hydra._internal.utils import get_args_parser  # the parser @hydra.main reads the command line with
 from hydra.errors import (
     CompactHydraException,
     HydraException,
@@ -34,6 +33,13 @@ from hydra.errors import (
     MissingConfigException,
     OverrideParseException,
 )
+
+HYDRA_FLAGS = frozenset({
+    "--help", "-h", "--hydra-help", "--version", "--cfg", "-c", "--resolve", "--package", "-p", "--run", "-r",
+    "--multirun", "-m", "--shell-completion", "-sc", "--config-path", "-cp", "--config-name", "-cn",
+    "--config-dir", "-cd", "--experimental-rerun", "--info", "-i",
+})  # fmt: skip
+"""The flags of a ``@hydra.main`` command line, as ``--hydra-help`` documents them."""
 
 FULL_ERROR = "LOSSVO_FULL_ERROR"
 """The environment variable that, set to 1, turns one-line user errors into full tracebacks."""
@@ -227,9 +233,8 @@ def one_line_main(main: Callable[_P, int]) -> Callable[_P, int]:
 def _check_flags(argv: list[str]) -> None:
     """One line and exit status 2 for a command-line flag that Hydra's own parser does not know (it
     would print its usage block)."""
-    known = {option for action in get_args_parser()._actions for option in action.option_strings}
     for arg in argv:
-        if arg.startswith("-") and arg.split("=", 1)[0] not in known:
+        if arg.startswith("-") and arg.split("=", 1)[0] not in HYDRA_FLAGS:
             print(f"error: unrecognized option {arg} (--help lists the options; overrides are KEY=VALUE)",
                   file=sys.stderr)  # fmt: skip
             raise SystemExit(2)
