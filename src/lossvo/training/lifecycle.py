@@ -35,7 +35,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from lossvo import folder_lock, weighting
 from lossvo.atomic import write_text_atomic
-from lossvo.console import UserError, full_error, one_line, user_message
+from lossvo.console import UserError, close_logs_in, full_error, one_line, user_message
 from lossvo.evaluation import job_folder
 from lossvo.evaluation.job_folder import LAST_CHECKPOINT, METRICS, STATUS, Event, Status
 from lossvo.training import metrics_log
@@ -260,18 +260,8 @@ def _leave(run: Run) -> None:
         return
     ours = {f"{HydraConfig.get().job.name}.log", folder_lock.LOCK}
     if run.fresh and run.out_dir.is_dir() and {p.name for p in run.out_dir.iterdir()} <= ours:
-        _close_logs_in(run.out_dir)
+        close_logs_in(run.out_dir)
         shutil.rmtree(run.out_dir, ignore_errors=True)
-
-
-def _close_logs_in(folder: Path) -> None:
-    """Close and detach the log files (Hydra's ``train.log``) kept in a folder about to be removed."""
-    loggers = [logging.getLogger(), *logging.Logger.manager.loggerDict.values()]
-    for logger in (item for item in loggers if isinstance(item, logging.Logger)):
-        for handler in list(logger.handlers):
-            if isinstance(handler, logging.FileHandler) and Path(handler.baseFilename).parent == folder:
-                handler.close()
-                logger.removeHandler(handler)
 
 
 def _failed(run: Run, error: BaseException) -> None:
