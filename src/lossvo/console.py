@@ -54,8 +54,16 @@ USER_ERRORS = (UserError, ValueError)
 """Errors that are the user's: :class:`UserError`, and a ``ValueError`` (a value refused by a library's
 constructor or parser). ``TypeError`` and ``ImportError`` are not: they keep their traceback."""
 
-DISK_ERRORS = (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOENT,
-               errno.ENOTDIR, errno.EISDIR)  # fmt: skip
+DISK_ERRORS = (
+    errno.ENOSPC,
+    errno.EDQUOT,
+    errno.EROFS,
+    errno.EACCES,
+    errno.EPERM,
+    errno.ENOENT,
+    errno.ENOTDIR,
+    errno.EISDIR,
+)
 """OS errors that are the disk's or the user's (full, read-only, not permitted, a path that is missing
 or of the other kind), not lossvo's."""
 
@@ -136,8 +144,9 @@ def hydra_message(error: HydraException) -> str:
     if isinstance(error, OverrideParseException):
         return f"override {error.override!r}: {first_line(error.message)}"
     if isinstance(error, InstantiationException):
-        key = next((line.split(":", 1)[1].strip() for line in text.splitlines()
-                    if line.startswith("full_key:")), "")  # fmt: skip
+        key = next(
+            (line.split(":", 1)[1].strip() for line in text.splitlines() if line.startswith("full_key:")), ""
+        )
         cause = error.__cause__
         if isinstance(cause, ImportError):  # the _target_ does not import
             target = match.group(1) if (match := re.search(r"target '([^']*)'", text)) else "?"
@@ -235,8 +244,10 @@ def _check_flags(argv: list[str]) -> None:
     would print its usage block)."""
     for arg in argv:
         if arg.startswith("-") and arg.split("=", 1)[0] not in HYDRA_FLAGS:
-            print(f"error: unrecognized option {arg} (--help lists the options; overrides are KEY=VALUE)",
-                  file=sys.stderr)  # fmt: skip
+            print(
+                f"error: unrecognized option {arg} (--help lists the options; overrides are KEY=VALUE)",
+                file=sys.stderr,
+            )
             raise SystemExit(2)
 
 

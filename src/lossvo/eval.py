@@ -132,12 +132,22 @@ def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
     available = list(getattr(datamodule, "sequences", None) or sequences)
     unknown = [s for s in sequences if s not in available]
     if unknown:
-        raise UserError(f"sequences: {unknown[0]!r} is not a sequence of the evaluated data (expected one "
-                         f"of {', '.join(available)}; data.test=[...] chooses them)")  # fmt: skip
-    return evaluate_run(network, datamodule, out_dir, sequences, checkpoint=Path(cfg.ckpt_path).resolve(),
-                        align=cfg.get("align", "none"), delta=int(cfg.get("delta", 1)),
-                        carry_state=bool(cfg.get("carry_state", False)), threads=network.threads,
-                        mirror_average=bool(cfg.get("mirror_average", False)))  # fmt: skip
+        raise UserError(
+            f"sequences: {unknown[0]!r} is not a sequence of the evaluated data (expected one "
+            f"of {', '.join(available)}; data.test=[...] chooses them)"
+        )
+    return evaluate_run(
+        network,
+        datamodule,
+        out_dir,
+        sequences,
+        checkpoint=Path(cfg.ckpt_path).resolve(),
+        align=cfg.get("align", "none"),
+        delta=int(cfg.get("delta", 1)),
+        carry_state=bool(cfg.get("carry_state", False)),
+        threads=network.threads,
+        mirror_average=bool(cfg.get("mirror_average", False)),
+    )
 
 
 @one_line_errors

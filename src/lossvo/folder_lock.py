@@ -80,13 +80,18 @@ def _lock(fd: int, path: Path, folder: Path) -> bool:
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
-        raise FolderInUseError(f"{folder}: another process is running in this folder ({_holder(path)}): wait "
-                          "for it to end, or give this run another folder") from None  # fmt: skip
+        raise FolderInUseError(
+            f"{folder}: another process is running in this folder ({_holder(path)}): wait "
+            "for it to end, or give this run another folder"
+        ) from None
     except OSError as e:
         if e.errno not in (errno.ENOLCK, errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):
             raise
-        log.warning("%s: the file system does not lock files (%s): nothing keeps a second process out of "
-                    "this folder", path, e.strerror)  # fmt: skip
+        log.warning(
+            "%s: the file system does not lock files (%s): nothing keeps a second process out of this folder",
+            path,
+            e.strerror,
+        )
         return False
     return True
 

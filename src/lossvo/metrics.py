@@ -59,8 +59,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--delta-unit", choices=("f", "m"), default="f", help="RPE delta unit: frames or metres"
     )
-    parser.add_argument("--pairs-from", choices=PAIRS_FROM, default="estimate",
-                        help="whose path picks RPE pairs in metres (evo: pairs_from_reference)")  # fmt: skip
+    parser.add_argument(
+        "--pairs-from",
+        choices=PAIRS_FROM,
+        default="estimate",
+        help="whose path picks RPE pairs in metres (evo: pairs_from_reference)",
+    )
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
     args = parser.parse_args(argv)
     frames = args.delta_unit == "f"
@@ -70,8 +74,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--delta: expected {unit}, got {args.delta:g}")
     gt, est = read_trajectory(args.gt), read_trajectory(args.est)
     if len(gt) != len(est):
-        raise UserError(f"{args.est} has {len(est)} poses, {args.gt} has {len(gt)}: expected one pose "
-                        f"per frame of the same sequence in both")  # fmt: skip
+        raise UserError(
+            f"{args.est} has {len(est)} poses, {args.gt} has {len(gt)}: expected one pose "
+            f"per frame of the same sequence in both"
+        )
     result = evaluate(gt, est, args.align, delta, args.delta_unit, args.pairs_from)
     emit(json.dumps(result, indent=2) if args.json else format_table(result))
     return 0

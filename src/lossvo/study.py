@@ -98,12 +98,19 @@ class Plan:
     def sweep_command(self) -> list[str]:
         """``python -m lossvo.train -m ...``: the sweep, each job in a joblib (loky) process."""
         return [
-            sys.executable, "-m", "lossvo.train", "-m", f"model={','.join(self.models)}",
-            f"loss={','.join(self.losses)}", f"seed={','.join(map(str, self.seeds))}",
-            "hydra/launcher=joblib", f"hydra.launcher.n_jobs={self.at_once}",
+            sys.executable,
+            "-m",
+            "lossvo.train",
+            "-m",
+            f"model={','.join(self.models)}",
+            f"loss={','.join(self.losses)}",
+            f"seed={','.join(map(str, self.seeds))}",
+            "hydra/launcher=joblib",
+            f"hydra.launcher.n_jobs={self.at_once}",
             f"hydra.sweep.dir={self.sweep_dir}",
-            *(["trainer=gpu"] if self.gpu else []), *self.overrides,
-        ]  # fmt: skip
+            *(["trainer=gpu"] if self.gpu else []),
+            *self.overrides,
+        ]
 
     def report_command(self) -> list[str]:
         return [sys.executable, "-m", "lossvo.report", str(self.sweep_dir)]
@@ -126,10 +133,13 @@ def seed_warning(seeds: Sequence[int], losses: Sequence[str] = LOSSES, alpha: fl
     seeds_ = f"{n} seed{'s' * (n != 1)}"
     smallest = f"2/2^n = {statistics.smallest_p(n):.3g} here"
     if m > 1:
-        smallest += (f", {statistics.smallest_holm_p(n, m):.3g} after Holm's correction over a claim's {m} "
-                     f"comparisons")  # fmt: skip
-    return (f"warning: {seeds_}: no claim can be decided: the smallest two-sided p of an exact Wilcoxon test "
-            f"over n seeds is {smallest}, not below {alpha:g}; {needed} seeds are needed")  # fmt: skip
+        smallest += (
+            f", {statistics.smallest_holm_p(n, m):.3g} after Holm's correction over a claim's {m} comparisons"
+        )
+    return (
+        f"warning: {seeds_}: no claim can be decided: the smallest two-sided p of an exact Wilcoxon test "
+        f"over n seeds is {smallest}, not below {alpha:g}; {needed} seeds are needed"
+    )
 
 
 def gpu_jobs_at_once(jobs: int, job_gib: float, requested: int | None) -> int:
@@ -148,8 +158,9 @@ def gpu_jobs_at_once(jobs: int, job_gib: float, requested: int | None) -> int:
 def compose_job(model: str, loss: str, overrides: Sequence[str]) -> DictConfig:
     """The training config of one job of the study (Hydra's config included, unresolved)."""
     with initialize_config_dir(config_dir=CONFIG_DIR, version_base="1.3"):
-        return compose("train", overrides=[f"model={model}", f"loss={loss}", *overrides],
-                       return_hydra_config=True)  # fmt: skip
+        return compose(
+            "train", overrides=[f"model={model}", f"loss={loss}", *overrides], return_hydra_config=True
+        )
 
 
 def check_job(cfg: DictConfig, out_dir: Path) -> None:
@@ -198,21 +209,26 @@ def job_size(cfg: DictConfig) -> JobSize:
     datamodule.load_metadata()
     sequences = datamodule.sequences
     train = sum(
-        len(windows.training_starts(len(seq.times), datamodule.seq_len, datamodule.stride, step,
-                                    windows.gaps(seq.times)))
-        for seq in (sequences[name] for name in datamodule.splits["train"]) for step in datamodule.frame_steps
-    )  # fmt: skip
+        len(
+            windows.training_starts(
+                len(seq.times), datamodule.seq_len, datamodule.stride, step, windows.gaps(seq.times)
+            )
+        )
+        for seq in (sequences[name] for name in datamodule.splits["train"])
+        for step in datamodule.frame_steps
+    )
     per_epoch = min(datamodule.windows_per_epoch or train, train)
     epochs = int(cfg.trainer.max_epochs)
     steps = epochs * math.ceil(per_epoch / datamodule.batch_size)
     max_steps = int(cfg.trainer.get("max_steps") or -1)
     pairs = {name: len(seq.times) - 1 for name, seq in sequences.items()}
     return JobSize(
-        epochs=epochs, steps=min(steps, max_steps) if max_steps > 0 else steps,
+        epochs=epochs,
+        steps=min(steps, max_steps) if max_steps > 0 else steps,
         val_pairs=sum(pairs[name] for name in datamodule.splits["val"]),
         evaluated_pairs=sum(pairs[name] for name in datamodule.evaluated) if cfg.get("evaluate", True) else 0,
         passes=2 if cfg.get("mirror_average", True) else 1,
-    )  # fmt: skip
+    )
 
 
 # -- measuring on this machine ---------------------------------------------------------------------
@@ -292,10 +308,18 @@ def time_training_step(cfg: DictConfig) -> float:
     batches = [_batch(cfg, int(cfg.data.batch_size), int(cfg.data.seq_len)) for _ in range(CALIBRATION_STEPS)]
     timer = _StepTimes()
     with _quiet():
-        trainer = L.Trainer(accelerator="cpu", devices=1, max_steps=CALIBRATION_STEPS, limit_val_batches=0,
-                            num_sanity_val_steps=0, logger=False, enable_checkpointing=False,
-                            enable_progress_bar=False, enable_model_summary=False,
-                            callbacks=[timer])  # fmt: skip
+        trainer = L.Trainer(
+            accelerator="cpu",
+            devices=1,
+            max_steps=CALIBRATION_STEPS,
+            limit_val_batches=0,
+            num_sanity_val_steps=0,
+            logger=False,
+            enable_checkpointing=False,
+            enable_progress_bar=False,
+            enable_model_summary=False,
+            callbacks=[timer],
+        )
         trainer.fit(_module(cfg), train_dataloaders=DataLoader(cast("Dataset", batches), batch_size=None))
     return median(timer.seconds[2:])
 
@@ -356,21 +380,27 @@ def cpu_estimate(plan: Plan) -> str:
         cfg = compose_job(model, plan.losses[0], plan.overrides)
         size, rate = job_size(cfg), calibrate(cfg, threads)
         job_s += [job_seconds(size, rate)] * (len(plan.seeds) * len(plan.losses))
-        measured.append(f"{model} {rate.step_s * 1e3:.0f} ms a step x {size.steps:,} steps + "
-                        f"{rate.pair_s * 1e3:.2f} ms a pair x {size.inferred_pairs:,} pairs")  # fmt: skip
+        measured.append(
+            f"{model} {rate.step_s * 1e3:.0f} ms a step x {size.steps:,} steps + "
+            f"{rate.pair_s * 1e3:.2f} ms a pair x {size.inferred_pairs:,} pairs"
+        )
     total = _hours(study_seconds(job_s, plan.at_once))
     threads_a_job = f"{threads} thread{'s' * (threads > 1)} a job"
-    return (f"study: {plan.jobs} jobs on the CPU ({plan.at_once} at once), about {total} here (measured on "
-            f"{threads_a_job}: {'; '.join(measured)}; plus {JOB_OVERHEAD_S:g} s a job to start and finish; "
-            f"not counted: building a missing data cache, the report)")  # fmt: skip
+    return (
+        f"study: {plan.jobs} jobs on the CPU ({plan.at_once} at once), about {total} here (measured on "
+        f"{threads_a_job}: {'; '.join(measured)}; plus {JOB_OVERHEAD_S:g} s a job to start and finish; "
+        f"not counted: building a missing data cache, the report)"
+    )
 
 
 def gpu_line(plan: Plan, job_gib: float) -> str:
     """The study's one line on a GPU: its jobs and how many at once (a GPU shared by its jobs is not
     estimated from one job's rate)."""
-    return (f"study: {plan.jobs} jobs on the GPU ({plan.at_once} at once: min(CPU cores, free GPU memory / "
-            f"{job_gib:g} GiB a job, {gpu_jobs.JOB_MEMORY_KEY})); no time estimate: jobs at once share the "
-            f"GPU (benchmarks/gpu_study.py measures them)")  # fmt: skip
+    return (
+        f"study: {plan.jobs} jobs on the GPU ({plan.at_once} at once: min(CPU cores, free GPU memory / "
+        f"{job_gib:g} GiB a job, {gpu_jobs.JOB_MEMORY_KEY})); no time estimate: jobs at once share the "
+        f"GPU (benchmarks/gpu_study.py measures them)"
+    )
 
 
 # -- the command line ------------------------------------------------------------------------------
@@ -404,8 +434,12 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", type=_seeds, default=SEEDS, help="comma list (default: 0-9)")
     p.add_argument("--models", type=_names, default=MODELS, help="default: deepvo_small,flowvo")
     p.add_argument("--losses", type=_names, default=LOSSES, help="default: euler,quat,chordal")
-    p.add_argument("--jobs", type=_positive, default=None,
-                   help=f"jobs at once (default: {CPU_JOBS} on a CPU, as many as fit on a GPU)")  # fmt: skip
+    p.add_argument(
+        "--jobs",
+        type=_positive,
+        default=None,
+        help=f"jobs at once (default: {CPU_JOBS} on a CPU, as many as fit on a GPU)",
+    )
     p.add_argument("--sweep-dir", type=Path, default=None, help="default: outputs/multirun/<date>_<time>")
     p.add_argument("--dry-run", action="store_true", help="print the plan and its estimate; train nothing")
     p.add_argument("overrides", nargs="*", help="Hydra overrides for every job, e.g. weighting=paper")
@@ -432,8 +466,15 @@ def plan_study(args: argparse.Namespace, cuda: bool, job_gib: float, sweep_dir: 
     at ``job_gib`` GiB a job (:func:`gpu_jobs_at_once`); else on the CPU, ``--jobs`` or :data:`CPU_JOBS`."""
     jobs = len(args.seeds) * len(args.models) * len(args.losses)
     at_once = gpu_jobs_at_once(jobs, job_gib, args.jobs) if cuda else args.jobs or CPU_JOBS
-    return Plan(tuple(args.seeds), tuple(args.models), tuple(args.losses), tuple(args.overrides), sweep_dir,
-                gpu=cuda, at_once=at_once)  # fmt: skip
+    return Plan(
+        tuple(args.seeds),
+        tuple(args.models),
+        tuple(args.losses),
+        tuple(args.overrides),
+        sweep_dir,
+        gpu=cuda,
+        at_once=at_once,
+    )
 
 
 def run(plan: Plan) -> int:

@@ -54,8 +54,9 @@ class LossvoOptunaSweeperConf:
     params: Optional[Dict[str, str]] = None  # noqa: UP006, UP045 - key: search space (choice, interval, tag(log, ...), range)
 
 
-ConfigStore.instance().store(group="hydra/sweeper", name="lossvo_optuna", node=LossvoOptunaSweeperConf,
-                             provider="lossvo")  # fmt: skip
+ConfigStore.instance().store(
+    group="hydra/sweeper", name="lossvo_optuna", node=LossvoOptunaSweeperConf, provider="lossvo"
+)
 
 
 def directions_of(direction: Any) -> list[str]:
@@ -78,9 +79,17 @@ def values_of(returned: Any, n: int) -> list[float]:
 class LossvoOptunaSweeper(Sweeper):
     """An Optuna search as a Hydra sweep (module docstring); arguments as :class:`LossvoOptunaSweeperConf`."""
 
-    def __init__(self, direction: Any, study_name: Optional[str], storage: DictConfig, n_trials: int,  # noqa: UP045
-                 n_jobs: int, max_failure_rate: float, sampler: Any, params: Optional[DictConfig]  # noqa: UP045
-                 ) -> None:  # fmt: skip
+    def __init__(
+        self,
+        direction: Any,
+        study_name: Optional[str],  # noqa: UP045
+        storage: DictConfig,
+        n_trials: int,
+        n_jobs: int,
+        max_failure_rate: float,
+        sampler: Any,
+        params: Optional[DictConfig],  # noqa: UP045
+    ) -> None:
         self.directions = directions_of(direction)
         self.study_name = study_name
         self.storage = storage
@@ -106,8 +115,10 @@ class LossvoOptunaSweeper(Sweeper):
             study = self._open(space, fixed)
         except ValueError as e:
             exit_in_one_line(e)
-        log.info(f"Study {study.study_name} in {self._where()}, sampler {type(study.sampler).__name__}, "
-                 f"directions {self.directions}")  # fmt: skip
+        log.info(
+            f"Study {study.study_name} in {self._where()}, sampler {type(study.sampler).__name__}, "
+            f"directions {self.directions}"
+        )
         heartbeats = shared_study.Heartbeats(self.storage.heartbeat_interval)
         left = self.n_trials
         while left > 0:
@@ -122,8 +133,10 @@ class LossvoOptunaSweeper(Sweeper):
             told = [self._tell(study, t, ret, heartbeats) for t, ret in zip(trials, returns, strict=True)]
             failed = [e for e in told if e is not None]
             if len(failed) / len(returns) > self.max_failure_rate:
-                log.error(f"{len(failed)} of {len(returns)} trials failed (max_failure_rate "
-                          f"{self.max_failure_rate})")  # fmt: skip
+                log.error(
+                    f"{len(failed)} of {len(returns)} trials failed (max_failure_rate "
+                    f"{self.max_failure_rate})"
+                )
                 raise failed[0]
             left -= len(trials)
         self._write_results(study)
@@ -146,8 +159,13 @@ class LossvoOptunaSweeper(Sweeper):
             shared_study.check_study(url, self.study_name, wanted, storage)  # creates the study if new
             return optuna.load_study(study_name=self.study_name, storage=storage, sampler=self.sampler)
         directions: Any = self.directions
-        return optuna.create_study(study_name=self.study_name, storage=storage, sampler=self.sampler,
-                                   directions=directions, load_if_exists=True)  # fmt: skip
+        return optuna.create_study(
+            study_name=self.study_name,
+            storage=storage,
+            sampler=self.sampler,
+            directions=directions,
+            load_if_exists=True,
+        )
 
     def _tell(self, study: Any, trial: Any, ret: Any, heartbeats: Any) -> Exception | None:
         """Tell the study a launched trial's result; the error of a failed one (told FAIL), else None."""

@@ -40,9 +40,15 @@ class ResidentWindows:
         device: where the arrays are kept and batches gathered.
     """
 
-    def __init__(self, index: np.ndarray, frames: Sequence[np.ndarray], targets: dict[int, list[Tensor]],
-                 intrinsics: Sequence[Tensor], flow: dict[int, list[np.ndarray]] | None,
-                 device: torch.device) -> None:  # fmt: skip
+    def __init__(
+        self,
+        index: np.ndarray,
+        frames: Sequence[np.ndarray],
+        targets: dict[int, list[Tensor]],
+        intrinsics: Sequence[Tensor],
+        flow: dict[int, list[np.ndarray]] | None,
+        device: torch.device,
+    ) -> None:
         self.index = index
         self.device = device
         self.frame_start = _offsets([len(f) for f in frames])

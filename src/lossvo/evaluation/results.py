@@ -197,8 +197,10 @@ class KittiError:
     @classmethod
     def from_json(cls, obj: Any, where: str) -> KittiError:
         obj = _object(obj, where)
-        t, r = (_number(_field(obj, k, where), _key(where, k), optional=True)
-                for k in ("t_err_pct", "r_err_deg_per_100m"))  # fmt: skip
+        t, r = (
+            _number(_field(obj, k, where), _key(where, k), optional=True)
+            for k in ("t_err_pct", "r_err_deg_per_100m")
+        )
         return cls(t, r, _text(obj.get("note"), _key(where, "note"), optional=True))
 
     def to_json(self) -> dict[str, Any]:
@@ -271,9 +273,10 @@ class SequenceResult:
 def _intrinsics(value: Any, where: str) -> list[list[float]] | None:
     """A 3x3 matrix of finite numbers (or None)."""
     fits = value is None or (
-        isinstance(value, list) and len(value) == 3
+        isinstance(value, list)
+        and len(value) == 3
         and all(isinstance(row, list) and len(row) == 3 and all(is_number(v) for v in row) for row in value)
-    )  # fmt: skip
+    )
     return cast("list[list[float]] | None", _expect(value, where, fits, "a 3x3 matrix (pixels)", True))
 
 
@@ -445,8 +448,10 @@ class Results:
         version = obj.get("schema_version")
         if version != SCHEMA_VERSION:
             found = "no schema_version" if version is None else f"schema_version {version!r}"
-            raise _MalformedError(f"{found}, expected {SCHEMA_VERSION}: evaluate the checkpoint again "
-                             "(python -m lossvo.eval ckpt_path=...)")  # fmt: skip
+            raise _MalformedError(
+                f"{found}, expected {SCHEMA_VERSION}: evaluate the checkpoint again "
+                "(python -m lossvo.eval ckpt_path=...)"
+            )
         sequences = _object(_field(obj, "sequences", ""), "sequences")
         return cls(
             checkpoint=_text(_field(obj, "checkpoint", ""), "checkpoint", optional=True),
@@ -588,9 +593,15 @@ def predict_and_score(
         the trajectory (N, 4, 4) float64 and the sequence's :func:`lossvo.evaluation.metrics.evaluate`
         dict (None without ground truth).
     """
-    relative = predict_sequence(module, datamodule.sequence_inputs(name), datamodule.prepare,
-                                datamodule.seq_len, carry_state=carry_state, mirror_average=mirror_average,
-                                gap=gaps(datamodule.sequence_times(name)))  # fmt: skip
+    relative = predict_sequence(
+        module,
+        datamodule.sequence_inputs(name),
+        datamodule.prepare,
+        datamodule.seq_len,
+        carry_state=carry_state,
+        mirror_average=mirror_average,
+        gap=gaps(datamodule.sequence_times(name)),
+    )
     if gt is None:
         return integrate(torch.from_numpy(relative)), None
     gt_t, relative_t = (torch.as_tensor(a, dtype=torch.float64, device=device) for a in (gt, relative))
@@ -653,11 +664,22 @@ def evaluate_run(
     per_sequence: dict[str, SequenceResult] = {}
     for name in sequences:
         gt = _ground_truth(datamodule, name)
-        est, scores = predict_and_score(module, datamodule, name, gt, pooled, carry_state,
-                                        mirror_average=mirror_average)  # fmt: skip
+        est, scores = predict_and_score(
+            module, datamodule, name, gt, pooled, carry_state, mirror_average=mirror_average
+        )
         times = datamodule.sequence_times(name)
-        entry = _sequence_result(name, est, gt, scores, out_dir, record, times, name in unseen,
-                                 translation, _pose_file(datamodule, name, gt))  # fmt: skip
+        entry = _sequence_result(
+            name,
+            est,
+            gt,
+            scores,
+            out_dir,
+            record,
+            times,
+            name in unseen,
+            translation,
+            _pose_file(datamodule, name, gt),
+        )
         per_sequence[name] = replace(entry, K=datamodule.intrinsics(name).tolist())
     evaluated = [name for name, entry in per_sequence.items() if entry.scores is not None]
     computed = pooled.compute()
@@ -704,10 +726,17 @@ def _pose_file(datamodule: VODataModule, name: str, gt: np.ndarray | None) -> st
 
 
 def _sequence_result(
-    name: str, est: Tensor, gt: np.ndarray | None, scores: dict[str, Any] | None, out_dir: Path,
-    loss: LossRecord, times: np.ndarray, unseen: bool, translation: str = TRANSLATION_METRIC,
+    name: str,
+    est: Tensor,
+    gt: np.ndarray | None,
+    scores: dict[str, Any] | None,
+    out_dir: Path,
+    loss: LossRecord,
+    times: np.ndarray,
+    unseen: bool,
+    translation: str = TRANSLATION_METRIC,
     pose_file: str | None = None,
-) -> SequenceResult:  # fmt: skip
+) -> SequenceResult:
     """One sequence's trajectory files, plot and entry in ``results.json``, from :func:`predict_and_score`'s
     trajectory and scores; ``times`` (N,) s of its frames. The entry's ground truth is ``pose_file`` (the
     dataset's KITTI pose file) where given, else the ``_gt.tum`` written here."""
@@ -724,8 +753,12 @@ def _sequence_result(
     else:
         typed = _scores(scores)
         entry = SequenceResult(len(est), trajectory, plot, gt_file, unseen, typed)
-        log.info("sequence %s: APE trans RMSE %.4g m, RPE trans RMSE %.4g m", name,
-                 typed.ape.trans.rmse, typed.rpe.trans.rmse)  # fmt: skip
+        log.info(
+            "sequence %s: APE trans RMSE %.4g m, RPE trans RMSE %.4g m",
+            name,
+            typed.ape.trans.rmse,
+            typed.rpe.trans.rmse,
+        )
     write_poses(out_dir / trajectory, est)
     label = f"estimate ({loss.name}, k={loss.k:g})" if loss.k is not None else "estimate"
     if translation == TRANSLATION_SCALED and gt is not None:

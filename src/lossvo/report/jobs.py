@@ -264,9 +264,11 @@ def _running(path: Path) -> str:
         return "still running (status.json says running)"
     if alive:
         return f"still running ({folder_lock.holder(path)})"
-    return (f"killed: status.json says running but no process holds {folder_lock.LOCK} (last held by "
-            f"{folder_lock.holder(path)}; SIGKILL, out of memory or a lost node): run the sweep's command "
-            "again to resume")  # fmt: skip
+    return (
+        f"killed: status.json says running but no process holds {folder_lock.LOCK} (last held by "
+        f"{folder_lock.holder(path)}; SIGKILL, out of memory or a lost node): run the sweep's command "
+        "again to resume"
+    )
 
 
 def _skip_reason(job: Job) -> str | None:

@@ -85,8 +85,13 @@ class TrajectoryValidation(Callback):
         mirror_average: see :func:`lossvo.evaluation.inference.predict_sequence`.
     """
 
-    def __init__(self, every_n_epochs: int = 1, align: metrics.AlignMode = "none", delta: int = 1,
-                 mirror_average: bool = False) -> None:  # fmt: skip
+    def __init__(
+        self,
+        every_n_epochs: int = 1,
+        align: metrics.AlignMode = "none",
+        delta: int = 1,
+        mirror_average: bool = False,
+    ) -> None:
         if not is_integer(every_n_epochs, 1):
             raise ValueError(f"every_n_epochs: expected an integer >= 1, got {every_n_epochs!r}")
         if not metrics.is_rpe_delta(delta):
@@ -125,8 +130,9 @@ class TrajectoryValidation(Callback):
         for name in names:
             gt = datamodule.sequence_poses(name)
             if gt is not None:
-                predict_and_score(pl_module, datamodule, name, gt, pooled, device=device,
-                                  mirror_average=self.mirror_average)  # fmt: skip
+                predict_and_score(
+                    pl_module, datamodule, name, gt, pooled, device=device, mirror_average=self.mirror_average
+                )
         computed = pooled.compute()
         if computed is None:
             return

@@ -95,8 +95,10 @@ def check_train_config(cfg: DictConfig) -> None:
     if str(scheduler.get("_target_", "")).endswith("CosineAnnealingLR"):
         t_max = scheduler.get("T_max")
         if not is_integer(t_max, 1):
-            raise UserError(f"scheduler.T_max: expected an integer >= 1 (the cosine schedule's length in "
-                             f"epochs, trainer.max_epochs by default), got {t_max!r}")  # fmt: skip
+            raise UserError(
+                f"scheduler.T_max: expected an integer >= 1 (the cosine schedule's length in "
+                f"epochs, trainer.max_epochs by default), got {t_max!r}"
+            )
     _check_flow(resolved)
     root = _select(resolved, "data.root")
     if isinstance(root, str) and Path(root).expanduser().is_file():
@@ -114,8 +116,10 @@ def _check_flow(resolved: Mapping[str, Any]) -> None:
     """A network that reads optical flow (its config names one: ``model.flow``) needs data with flow."""
     needs, has = _select(resolved, "model.flow"), _select(resolved, "data.flow")
     if needs is not _ABSENT and needs is not None and has in ("none", None):
-        raise UserError(f"model.flow: the network reads optical flow ({needs}) but data.flow={has} caches "
-                         f"none: expected data.flow=dis or farneback")  # fmt: skip
+        raise UserError(
+            f"model.flow: the network reads optical flow ({needs}) but data.flow={has} caches "
+            f"none: expected data.flow=dis or farneback"
+        )
 
 
 def check_devices(devices: Any, strategy: Any) -> None:
@@ -124,8 +128,10 @@ def check_devices(devices: Any, strategy: Any) -> None:
     device, each running the whole command. ``UserError`` naming ``trainer=ddp``."""
     several = (is_integer(devices, 2)) or (isinstance(devices, list) and len(devices) > 1)
     if several and strategy in (_ABSENT, None, "auto"):
-        raise UserError(f"trainer.devices={devices}: several devices need a distributed strategy: add "
-                        f"trainer=ddp (or trainer.devices=1)")  # fmt: skip
+        raise UserError(
+            f"trainer.devices={devices}: several devices need a distributed strategy: add "
+            f"trainer=ddp (or trainer.devices=1)"
+        )
 
 
 def check_accelerator(accelerator: Any, cuda_available: bool, trainer_choice: str | None = None) -> None:
@@ -136,8 +142,10 @@ def check_accelerator(accelerator: Any, cuda_available: bool, trainer_choice: st
         return
     chosen = trainer_choice == GPU_TRAINER
     named = f"trainer={GPU_TRAINER}" if chosen else f"trainer.accelerator={accelerator}"
-    raise UserError(f"{named}: no CUDA GPU here (torch.cuda.is_available() is false): use trainer=default "
-                     f"to train on the CPU")  # fmt: skip
+    raise UserError(
+        f"{named}: no CUDA GPU here (torch.cuda.is_available() is false): use trainer=default "
+        f"to train on the CPU"
+    )
 
 
 def _trainer_choice() -> str | None:

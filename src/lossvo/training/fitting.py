@@ -128,8 +128,9 @@ def train(cfg: DictConfig, run: Run) -> dict[str, float]:
     resumed = _resume_point(trainer, str(ckpt_path), epoch, step) if ckpt_path else None
     run.start(resumed, threads=torch.get_num_threads())
     log.info("%s: %s%s", run.label, run.out_dir, f" (resuming from {ckpt_path})" if ckpt_path else "")
-    metrics_log.continue_history(run.out_dir, Path(ckpt_path).parent.parent if ckpt_path else run.out_dir,
-                                 epoch, step)  # fmt: skip
+    metrics_log.continue_history(
+        run.out_dir, Path(ckpt_path).parent.parent if ckpt_path else run.out_dir, epoch, step
+    )
     for logger in trainer.loggers:
         logger.log_hyperparams(_container(cfg))
     try:
@@ -175,14 +176,33 @@ def evaluate_after_fit(
     """Evaluate the best checkpoint (the last weights if there is none) on the test sequences, writing
     ``results.json``, ``trajectories/`` and ``plots/`` into ``out_dir`` (``mirror_average``: see
     :func:`lossvo.evaluation.inference.predict_sequence`)."""
-    best = next((c.best_model_path for c in trainer.checkpoint_callbacks if isinstance(c, ModelCheckpoint)
-                 and c.monitor and Path(c.best_model_path or "/nonexistent").is_file()), None)  # fmt: skip
+    best = next(
+        (
+            c.best_model_path
+            for c in trainer.checkpoint_callbacks
+            if isinstance(c, ModelCheckpoint)
+            and c.monitor
+            and Path(c.best_model_path or "/nonexistent").is_file()
+        ),
+        None,
+    )
     device = trainer.strategy.root_device  # Lightning moves the module back to the CPU after fit
     network: torch.nn.Module = load_network(best, device) if best else module.to(device)
     if not best:
         log.warning("no best checkpoint: evaluating the last weights")
-    result = evaluate_run(network, datamodule, out_dir, datamodule.evaluated, checkpoint=best,
-                          threads=torch.get_num_threads(), mirror_average=mirror_average)  # fmt: skip
-    log.info("evaluation of %s on %s: %s", best or "the last weights", ", ".join(datamodule.evaluated),
-             out_dir / RESULTS)  # fmt: skip
+    result = evaluate_run(
+        network,
+        datamodule,
+        out_dir,
+        datamodule.evaluated,
+        checkpoint=best,
+        threads=torch.get_num_threads(),
+        mirror_average=mirror_average,
+    )
+    log.info(
+        "evaluation of %s on %s: %s",
+        best or "the last weights",
+        ", ".join(datamodule.evaluated),
+        out_dir / RESULTS,
+    )
     return result

@@ -142,8 +142,11 @@ def save_config(out_dir: Path, cfg: DictConfig) -> None:
     config sets ``hydra.output_subdir: null``)."""
     hydra_cfg = HydraConfig.get()
     folder = out_dir / ".hydra"
-    files = {"config.yaml": cfg, "hydra.yaml": OmegaConf.create({"hydra": hydra_cfg}),
-             "overrides.yaml": hydra_cfg.overrides.task}  # fmt: skip
+    files = {
+        "config.yaml": cfg,
+        "hydra.yaml": OmegaConf.create({"hydra": hydra_cfg}),
+        "overrides.yaml": hydra_cfg.overrides.task,
+    }
     for name, content in files.items():
         write_text_atomic(folder / name, OmegaConf.to_yaml(content))
 
@@ -285,10 +288,19 @@ def _interrupted(run: Run, stop: InterruptedRun) -> None:
         last = run.out_dir / LAST_CHECKPOINT
         stage = "evaluation" if stop.epoch is None else None
         run.history.append(event("stopped", signal=stop.signal_name, epoch=stop.epoch, stage=stage))
-        run.write("interrupted", signal=stop.signal_name, epoch=stop.epoch, stage=stage,
-                  resume_from=str(last) if last.is_file() else None)  # fmt: skip
-    log.error("%s: interrupted by %s during %s; run the same command to resume", run.label,
-              stop.signal_name, stop.stage)  # fmt: skip
+        run.write(
+            "interrupted",
+            signal=stop.signal_name,
+            epoch=stop.epoch,
+            stage=stage,
+            resume_from=str(last) if last.is_file() else None,
+        )
+    log.error(
+        "%s: interrupted by %s during %s; run the same command to resume",
+        run.label,
+        stop.signal_name,
+        stop.stage,
+    )
 
 
 @contextmanager

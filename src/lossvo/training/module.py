@@ -187,8 +187,9 @@ class VOModule(L.LightningModule):
         rows = record.rows()
         bad = first_non_finite(rows)
         if bad is not None:
-            raise self._non_finite(dict(zip(record.keys, rows[bad].tolist(), strict=False)),
-                                   bool(rows[bad, -2]), bad)  # fmt: skip
+            raise self._non_finite(
+                dict(zip(record.keys, rows[bad].tolist(), strict=False)), bool(rows[bad, -2]), bad
+            )
         means = epoch_means(rows, len(record.keys))
         if self.trainer.world_size > 1:  # every process's steps: totals summed across them
             means = self._across_processes(means, int(rows[:, -1].sum()))
@@ -224,8 +225,11 @@ class VOModule(L.LightningModule):
         out = self.loss(pred, targets)
         self.log_dict(
             {f"{stage}/{key}": value for key, value in out.items()},
-            on_step=False, on_epoch=True, batch_size=targets.shape[0] * targets.shape[1], sync_dist=True,
-        )  # fmt: skip
+            on_step=False,
+            on_epoch=True,
+            batch_size=targets.shape[0] * targets.shape[1],
+            sync_dist=True,
+        )
         if stage == "val":
             decoded = self.decode(pred.detach().float())
             if self.loss.translation == "direction":  # no metric scale: the target's, as evaluation

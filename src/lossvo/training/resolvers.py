@@ -27,8 +27,22 @@ from omegaconf import ListConfig, OmegaConf
 from lossvo import weighting
 from lossvo.losses import PoseLoss
 
-PATH_SAFE = str.maketrans({"/": "_", "=": "-", ",": "+", " ": None, "'": None, '"': None,
-                           "[": None, "]": None, "{": None, "}": None, "(": None, ")": None})  # fmt: skip
+PATH_SAFE = str.maketrans(
+    {
+        "/": "_",
+        "=": "-",
+        ",": "+",
+        " ": None,
+        "'": None,
+        '"': None,
+        "[": None,
+        "]": None,
+        "{": None,
+        "}": None,
+        "(": None,
+        ")": None,
+    }
+)
 """Characters of overrides that Hydra's override grammar does not take unquoted (or that would nest
 folders), and what they become in a job folder's name."""
 
@@ -113,8 +127,11 @@ def job_name(overrides: Sequence[str], swept: str = "", exclude: Sequence[str] =
     group sorted, without the ``exclude`` keys, made short and pasteable by :func:`path_safe`, e.g.
     ``loss-euler+data.test-07+data.unseen-11+trainer.max_epochs-1``."""
     first = set(swept.split(",")) - {""}
-    lines = [o.input_line or "" for o in OverridesParser.create().parse_overrides(list(overrides))
-             if o.key_or_group not in exclude]  # fmt: skip
+    lines = [
+        o.input_line or ""
+        for o in OverridesParser.create().parse_overrides(list(overrides))
+        if o.key_or_group not in exclude
+    ]
     keys = {line: line.lstrip("+~").split("=", 1)[0].split("@", 1)[0] for line in lines}
     ordered = sorted(line for line in lines if keys[line] in first)
     ordered += sorted(line for line in lines if keys[line] not in first)
@@ -130,9 +147,14 @@ def sqlite_storage(path: str) -> str:
 
 
 RESOLVERS: dict[str, Callable[..., Any]] = {
-    "dim_of": dim_of, "identity_of": identity_of, "matched_k": matched_k, "paper_k": paper_k,
-    "path_safe": path_safe, "job_name": job_name, "sqlite_storage": sqlite_storage,
-}  # fmt: skip
+    "dim_of": dim_of,
+    "identity_of": identity_of,
+    "matched_k": matched_k,
+    "paper_k": paper_k,
+    "path_safe": path_safe,
+    "job_name": job_name,
+    "sqlite_storage": sqlite_storage,
+}
 
 
 def register() -> None:

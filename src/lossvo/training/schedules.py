@@ -30,6 +30,11 @@ def extend_cosine(scheduler: Any, t_max: Any) -> bool:
     for group, lr in zip(scheduler.optimizer.param_groups, lrs, strict=True):
         group["lr"] = lr
     scheduler._last_lr = list(lrs)
-    log.info("cosine schedule extended from %d to %d epochs: learning rate %s at epoch %d",
-             old, t_max, ", ".join(f"{lr:.3g}" for lr in lrs), scheduler.last_epoch)  # fmt: skip
+    log.info(
+        "cosine schedule extended from %d to %d epochs: learning rate %s at epoch %d",
+        old,
+        t_max,
+        ", ".join(f"{lr:.3g}" for lr in lrs),
+        scheduler.last_epoch,
+    )
     return True

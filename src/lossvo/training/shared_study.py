@@ -178,19 +178,22 @@ class TrialSeededTPESampler(BaseSampler):
     def infer_relative_search_space(self, study: Study, trial: FrozenTrial) -> dict[str, BaseDistribution]:
         return self._of(trial).infer_relative_search_space(study, trial)
 
-    def sample_relative(self, study: Study, trial: FrozenTrial, search_space: dict[str, BaseDistribution]
-                        ) -> dict[str, Any]:  # fmt: skip
+    def sample_relative(
+        self, study: Study, trial: FrozenTrial, search_space: dict[str, BaseDistribution]
+    ) -> dict[str, Any]:
         return self._of(trial).sample_relative(study, trial, search_space)
 
-    def sample_independent(self, study: Study, trial: FrozenTrial, param_name: str,
-                           param_distribution: BaseDistribution) -> Any:  # fmt: skip
+    def sample_independent(
+        self, study: Study, trial: FrozenTrial, param_name: str, param_distribution: BaseDistribution
+    ) -> Any:
         return self._of(trial).sample_independent(study, trial, param_name, param_distribution)
 
     def before_trial(self, study: Study, trial: FrozenTrial) -> None:
         self._of(trial).before_trial(study, trial)
 
-    def after_trial(self, study: Study, trial: FrozenTrial, state: TrialState,
-                    values: Sequence[float] | None) -> None:  # fmt: skip
+    def after_trial(
+        self, study: Study, trial: FrozenTrial, state: TrialState, values: Sequence[float] | None
+    ) -> None:
         self._of(trial).after_trial(study, trial, state, values)
         self._samplers.pop(trial.number, None)
 
@@ -198,8 +201,9 @@ class TrialSeededTPESampler(BaseSampler):
 # -- the search a study was created for ------------------------------------------------------------
 
 
-def search_of(directions: Sequence[str], space: dict[str, BaseDistribution], fixed: dict[str, str]
-              ) -> dict[str, Any]:  # fmt: skip
+def search_of(
+    directions: Sequence[str], space: dict[str, BaseDistribution], fixed: dict[str, str]
+) -> dict[str, Any]:
     """The search a sweep runs, as a study records it: its directions (``minimize``, ``maximize``), its
     search space (the JSON of each distribution) and its fixed overrides, keys sorted."""
     return {
@@ -220,13 +224,17 @@ def difference(recorded: dict[str, Any], wanted: dict[str, Any]) -> str | None:
     old, new = recorded["space"], wanted["space"]
     if old != new:
         names = sorted(name for name in old.keys() | new.keys() if old.get(name) != new.get(name))
-        return (f"it searches {_space_text(old, [n for n in names if n in old])}, "
-                f"not {_space_text(new, [n for n in names if n in new])}")  # fmt: skip
+        return (
+            f"it searches {_space_text(old, [n for n in names if n in old])}, "
+            f"not {_space_text(new, [n for n in names if n in new])}"
+        )
     old, new = recorded["fixed"], wanted["fixed"]
     if old != new:
         names = sorted(name for name in old.keys() | new.keys() if old.get(name) != new.get(name))
-        shown = [(f"{n}={old[n]}" if n in old else f"no {n}", f"{n}={new[n]}" if n in new else f"no {n}")
-                 for n in names]  # fmt: skip
+        shown = [
+            (f"{n}={old[n]}" if n in old else f"no {n}", f"{n}={new[n]}" if n in new else f"no {n}")
+            for n in names
+        ]
         return f"it runs with {' '.join(o for o, _ in shown)}, not {' '.join(n for _, n in shown)}"
     return None
 
@@ -241,8 +249,9 @@ def check_study(url: str, name: str, wanted: dict[str, Any], storage: BaseStorag
             study = optuna.load_study(study_name=name, storage=opened)
         except KeyError:  # a new study (load_if_exists: another worker may create it first)
             directions = [StudyDirection[d.upper()] for d in wanted["directions"]]
-            study = optuna.create_study(storage=opened, study_name=name, directions=directions,
-                                        load_if_exists=True)  # fmt: skip
+            study = optuna.create_study(
+                storage=opened, study_name=name, directions=directions, load_if_exists=True
+            )
         recorded = study.user_attrs.get(SEARCH_ATTR)
         if recorded is None:  # a new study, or one made without this check: its directions are known
             recorded = {**wanted, "directions": [d.name.lower() for d in study.directions]}

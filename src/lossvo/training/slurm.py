@@ -34,8 +34,10 @@ def _query(*command: str) -> subprocess.CompletedProcess[str]:
 def check_reachable() -> None:
     """``sbatch`` on the PATH and the controller answering ``scontrol ping``."""
     if shutil.which("sbatch") is None:
-        raise ClusterError("hydra/launcher: no SLURM cluster here (sbatch is not on the PATH): submit "
-                           "from a cluster's login node, or use hydra/launcher=joblib")  # fmt: skip
+        raise ClusterError(
+            "hydra/launcher: no SLURM cluster here (sbatch is not on the PATH): submit "
+            "from a cluster's login node, or use hydra/launcher=joblib"
+        )
     ping = _query("scontrol", "ping")
     if ping.returncode != 0 or "UP" not in ping.stdout:
         said = first_line(ping.stdout + ping.stderr) or f"exit status {ping.returncode}"
@@ -50,8 +52,10 @@ def check_partition(partition: str | None) -> None:
     missing = [name for name in partition.split(",") if name not in known]
     if missing:
         has = ", ".join(sorted(known)) or "none"
-        raise ClusterError(f"hydra.launcher.partition={partition}: the cluster has no partition "
-                           f"{missing[0]!r} (it has: {has})")  # fmt: skip
+        raise ClusterError(
+            f"hydra.launcher.partition={partition}: the cluster has no partition "
+            f"{missing[0]!r} (it has: {has})"
+        )
 
 
 def check_account(account: str | None) -> None:
@@ -63,8 +67,9 @@ def check_account(account: str | None) -> None:
     known = set(listed.stdout.split())
     if listed.returncode == 0 and account not in known:
         has = ", ".join(sorted(known)) or "none"
-        raise ClusterError(f"hydra.launcher.account={account}: the cluster has no account {account!r} "
-                           f"(it has: {has})")  # fmt: skip
+        raise ClusterError(
+            f"hydra.launcher.account={account}: the cluster has no account {account!r} (it has: {has})"
+        )
 
 
 def check_tasks(launcher: DictConfig, trainer: DictConfig) -> None:
@@ -75,9 +80,11 @@ def check_tasks(launcher: DictConfig, trainer: DictConfig) -> None:
     if devices in (-1, "-1", "auto"):
         devices = launcher.get("gpus_per_node") or 1
     if isinstance(devices, int) and devices != tasks:
-        raise ClusterError(f"hydra.launcher.tasks_per_node={tasks} but trainer.devices={devices}: under "
-                           f"SLURM each device is a task that srun starts (Lightning does not spawn them "
-                           f"there); set hydra.launcher.tasks_per_node={devices}")  # fmt: skip
+        raise ClusterError(
+            f"hydra.launcher.tasks_per_node={tasks} but trainer.devices={devices}: under "
+            f"SLURM each device is a task that srun starts (Lightning does not spawn them "
+            f"there); set hydra.launcher.tasks_per_node={devices}"
+        )
 
 
 def check_cluster(launcher: DictConfig, trainer: DictConfig) -> None:
