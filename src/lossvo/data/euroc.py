@@ -1,4 +1,5 @@
-"""The EuRoC MAV dataset in its own ASL layout, read into lossvo's :class:`~lossvo.data.sequence.Sequence`.
+"""The EuRoC MAV dataset (Burri et al., IJRR 2016) in its own ASL layout, read into a
+:class:`~lossvo.data.sequence.Sequence`.
 
 Layout (one folder per sequence, named as EuRoC names them: ``MH_01_easy``, ``V1_02_medium``)::
 
@@ -9,27 +10,13 @@ Layout (one folder per sequence, named as EuRoC names them: ``MH_01_easy``, ``V1
                                                     17 columns at 200 Hz: timestamp [ns], p_RS_R x y z [m],
                                                     q_RS w x y z, velocity, gyroscope and accelerometer biases
 
-Conventions (from the dataset's own files and its paper, Burri et al., "The EuRoC micro aerial vehicle
-datasets", IJRR 2016):
-
-- Timestamps are integer nanoseconds; they become float64 seconds through :func:`ns_to_seconds` (one
-  rounding, so that stamps near 1.4e18 ns keep their sub-microsecond order). Frame times come from
-  ``data.csv``, never from file names.
-- The ground truth is the pose of the BODY (the IMU, ``S`` in ``p_RS_R``/``q_RS``) in the world ``R``:
-  T_w_b, quaternions in (w, x, y, z) order. ``sensor.yaml``'s ``T_BS`` is the camera's pose in the body
-  frame ("sensor extrinsics wrt. the body-frame": p_B = T_BS p_S), so the camera's pose is
-  ``T_w_c(t) = T_w_b(t) @ T_BS``. cam0's axes are already lossvo's (x right, y down, z forward).
-- T_w_b at a frame's time is interpolated between the two bracketing ground-truth rows (found in integer
-  nanoseconds): translation linearly, rotation along the geodesic (slerp). Frames outside the ground
-  truth's span, and frames whose bracketing rows are more than ``max_gap`` seconds apart (several missing
-  200 Hz rows), are dropped and counted in ``Sequence.dropped``. A dropped frame inside a sequence leaves a
-  hole in ``Sequence.times``; the datamodule cuts windows there, so that no window spans a gap.
-- ``distortion_coefficients`` are radial-tangential (k1, k2, p1, p2), returned as OpenCV's five
-  (k1, k2, p1, p2, 0). ``sensor.yaml`` files written by OpenCV tools start with a ``%YAML:1.0`` line,
-  which PyYAML rejects: it is skipped.
-
-Every bad input raises one :class:`~lossvo.data.sequence.DatasetFormatError` line naming the file (and the
-1-based line or the YAML key) and what was expected.
+Timestamps are integer nanoseconds (float64 seconds through :func:`ns_to_seconds`). The ground truth is the
+body pose T_w_b, so the camera's pose is ``T_w_c(t) = T_w_b(t) @ T_BS``, interpolated at each frame's time
+(translation linearly, rotation by slerp); cam0's axes are lossvo's. Frames outside the ground truth or in a
+gap wider than ``max_gap`` s are dropped and counted in ``Sequence.dropped``. Distortion is radial-tangential,
+returned as OpenCV's five coefficients. Sources and details: docs/data.md. Bad input raises one
+:class:`~lossvo.data.sequence.DatasetFormatError` line naming the file (and the 1-based line or the YAML key)
+and what was expected.
 """
 
 from __future__ import annotations

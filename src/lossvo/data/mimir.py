@@ -1,45 +1,20 @@
-"""The MIMIR-UW underwater dataset (Álvarez-Tuñón et al., IROS 2023) in its own layout: the dataset of the
-study "Loss it right".
+"""The MIMIR-UW underwater dataset (Álvarez-Tuñón et al., IROS 2023), the study's dataset, in its own layout.
 
-Layout (the dataset's README, https://github.com/remaro-network/MIMIR-UW, "Dataset structure")::
+Layout (https://github.com/remaro-network/MIMIR-UW, "Dataset structure")::
 
-    ROOT/<env>/auv0/<track>/rgb/cam0/data/<timestamp>.png    frames (cam0, cam1, cam2: three cameras)
+    ROOT/<env>/auv0/<track>/rgb/cam0/data/<timestamp>.png    frames (cameras cam0, cam1, cam2)
     ROOT/<env>/auv0/<track>/rgb/cam0/data.csv                the frame list, EuRoC's ASL format
-    ROOT/<env>/auv0/<track>/rgb/cam0/sensor.yaml             T_BS, rate_hz, resolution, intrinsics, distortion
+    ROOT/<env>/auv0/<track>/rgb/cam0/sensor.yaml             T_BS, rate_hz, resolution, K, distortion
     ROOT/<env>/auv0/<track>/pose_groundtruth/data.csv        the ground truth
 
-Sequences are named by their path under ROOT: ``"SeaFloor/auv0/track0"``. The study's own configurations
-(``remaro-network/Loss_VO_right``, ``configs/data_loader/MIMIR/SeaFloor/track0.yml``) and the authors'
-ORB-SLAM3 scripts (``olayasturias/ORB_SLAM3``, ``Examples/mimir_mono.sh``) use ``<env>/<track>/auv0`` instead;
-both orders are found, and the name is whichever path holds ``rgb/``.
-
-Conventions, and where each comes from:
-
-- The README: "a dataset format similar to the ASL format proposed by EuRoC", ``T_BS`` "the transform between
-  body and sensor frame", and a ``sensor.yaml`` (JSON, which YAML reads) whose ``T_BS`` is a nested 4x4 list,
-  ``intrinsics`` a nested 3x3 K, ``resolution`` ``[width, height]``, ``distortion_coefficients`` five
-  radial-tangential numbers. Its example ``front_left`` camera has T_BS = a 15 degree rotation about y and
-  (0.45, -0.06, 0) m: the camera frame S has the body's axes (AirSim's x forward, y right, z down; the
-  rotation pitches the camera down by 15 degrees), not optical ones.
-- The README is silent on the ground truth's columns and on the time unit. The study's loader
-  (``Loss_VO_right``, ``data_loader/mimir.py`` via ``utils/general.py`` ``load_poses_from_txt_euroc``) reads a
-  ground-truth line as ``timestamp, tx, ty, tz, qw, qx, qy, qz`` (EuRoC's first 8 columns, further columns
-  ignored) and skips a ``#timestamp``/``timestamp`` header; it matches frame-file stamps with ground-truth
-  stamps in the same unit. The authors' ORB-SLAM3 fork (``Examples/Monocular/mono_mimir.cc``) reads the
-  frame stamps as integer nanoseconds (19-digit stamps in ``MIMIR_TimeStamps/*.txt``, multiplied by 1e-9).
-  So: integer nanoseconds everywhere; ``rgb/cam0/data.csv`` as EuRoC's ``timestamp [ns],filename``.
-- The ground truth is taken as the body pose T_w_b in AirSim's NED world (x north, y east, z down) with body
-  axes x forward, y right, z down (EuRoC's ``p_RS_R``/``q_RS`` reading, AirSim's frames); the study's loader
-  used it as the camera pose directly, ignoring T_BS and the axes. Here the camera's pose is
-  ``ned_to_camera(T_w_b(t) @ T_BS)`` (:func:`lossvo.data.tartanair.ned_to_camera`: body and world axes both
-  turned to x right, y down, z forward).
-- The ground truth's rate is not documented: T_w_b at a frame's time is interpolated between the two
-  bracketing rows (translation linearly, rotation by slerp; :func:`lossvo.data.euroc.camera_poses`); frames
-  outside its span or between rows more than ``max_gap`` apart are dropped and counted in
-  ``Sequence.dropped``.
-
-Every bad input raises one :class:`~lossvo.data.sequence.DatasetFormatError` line naming the file (and the
-1-based line or the YAML key) and what was expected.
+A sequence is named by its path under ROOT (``"SeaFloor/auv0/track0"``; ``<env>/<track>/auv0`` is read too).
+Timestamps are integer nanoseconds; a ground-truth row is ``timestamp, tx, ty, tz, qw, qx, qy, qz`` (further
+columns ignored): the body pose T_w_b in AirSim's NED world, body axes x forward, y right, z down. The camera's
+pose is ``ned_to_camera(T_w_b(t) @ T_BS)`` (:func:`lossvo.data.tartanair.ned_to_camera`), T_w_b interpolated at
+each frame's time (:func:`lossvo.data.euroc.camera_poses`); frames outside the ground truth or in a gap wider
+than ``max_gap`` are dropped and counted in ``Sequence.dropped``. Where each convention comes from:
+docs/data.md. Bad input raises one :class:`~lossvo.data.sequence.DatasetFormatError` line naming the file (and
+the 1-based line or the YAML key) and what was expected.
 """
 
 from __future__ import annotations

@@ -5,27 +5,12 @@ Layout (``castacks/tartanair_tools``, README "Data directory structure" and ``da
     ROOT/<env>/<Easy|Hard>/<Pnnn>/image_left/000000_left.png ...   640x480 RGB frames, numbered from 0
     ROOT/<env>/<Easy|Hard>/<Pnnn>/pose_left.txt                     one line a frame: 'tx ty tz qx qy qz qw'
 
-Sequences are named by their path under ROOT: ``"abandonedfactory/Easy/P000"``.
-
-Conventions, each from tartanair_tools (read at commit 841584a):
-
-- ``data_type.md``: "The number of lines/poses is the same as the number of image frames"; each line is
-  ``tx ty tz qx qy qz qw``, the position and orientation (unit quaternion, x y z w, scipy's order as in
-  ``evaluation/transformation.py`` ``pos_quats2SE_matrices``) of the left camera in a fixed world frame, so a
-  line is T_w_c; "The camera motion is defined in the NED frame ... x-axis is pointing to the camera's
-  forward, the y-axis is pointing to the camera's right, the z-axis is pointing to the camera's downward".
-- ``data_type.md`` "Camera intrinsics": fx = fy = 320, cx = 320, cy = 240, 640x480, 90 degree field of view,
-  pinhole without distortion. Frames of another size are taken as a resized copy of the 640x480 frames and K
-  is scaled to them (:func:`lossvo.geometry.camera.resized_intrinsics`).
-- ``evaluation/trajectory_transform.py`` ``ned2cam`` converts a trajectory with ``T @ pose @ inv(T)``,
-  T = [[0,1,0],[0,0,1],[1,0,0]]: the permutation of :data:`NED_TO_CAMERA`, applied to the body and the
-  world axes alike (:func:`ned_to_camera`).
-- TartanAir has no timestamps. Its v1 tools do not state a frame rate; TartanAir V2's site
-  (https://tartanair.org/modalities.html) states "The images are sampled at 10 Hz", the default of
-  ``rate_hz``. Times are ``index / rate_hz`` seconds.
-
-Every bad input raises one :class:`~lossvo.data.sequence.DatasetFormatError` line naming the file (and the
-1-based line where there is one) and what was expected.
+Sequences are named by their path under ROOT: ``"abandonedfactory/Easy/P000"``. A pose line is the left
+camera's T_w_c in NED axes (x forward, y right, z down), turned into lossvo's (x right, y down, z forward) by
+:func:`ned_to_camera`. The camera is fx = fy = 320, cx = 320, cy = 240 (640x480, no distortion), K scaled to
+frames of another size. Times are ``index / rate_hz`` seconds (10 Hz by default). Sources: docs/data.md. Bad
+input raises one :class:`~lossvo.data.sequence.DatasetFormatError` line naming the file (and the 1-based line
+where there is one) and what was expected.
 """
 
 from __future__ import annotations
