@@ -1,23 +1,16 @@
 """A trained network evaluated on whole sequences, and ``results.json``: the contract between evaluation
 and everything that reads a run (the report, the baselines, users).
 
-:func:`evaluate_run` writes, into a run's folder, per sequence ``trajectories/<sequence>.txt`` (KITTI format,
-first pose = ground truth's), the same estimate and the ground truth it was scored against in TUM format with
-the frames' timestamps, ``trajectories/<sequence>.tum`` and ``trajectories/<sequence>_gt.tum`` (so that
-``evo_ape tum <sequence>_gt.tum <sequence>.tum`` gives lossvo's APE), ``plots/<sequence>.png`` (bird's-eye x-z
-view), a ``/`` in a sequence's name written ``_`` (:func:`file_stem`), and
-``results.json``: a :class:`Results`, written by :meth:`Results.write` and read back by
-:meth:`Results.read`, nowhere else. It holds APE / RPE / KITTI error per sequence and pooled over all
-(:class:`Scores`), the data evaluated and the data the network was trained on (:class:`DataRecord`), the
-evaluation settings (among them ``translation``: whether each predicted step was scaled to the
-ground-truth step length, for networks trained with ``loss.translation=direction``) and
-:data:`SCHEMA_VERSION`. Reading a file that is missing, not JSON, of another
-schema version or of another shape raises :class:`ResultsError`, one line naming the file and the problem.
-``python -m lossvo.train`` calls :func:`evaluate_run` after fitting, ``python -m lossvo.eval`` for a
-checkpoint.
+:func:`evaluate_run` writes into a run's folder, per sequence, ``trajectories/<sequence>.txt`` (KITTI format,
+first pose the ground truth's), the estimate and its ground truth in TUM format (``<sequence>.tum``,
+``<sequence>_gt.tum``: ``evo_ape tum`` gives lossvo's APE), ``plots/<sequence>.png`` (a ``/`` in a name written
+``_``, :func:`file_stem`), and ``results.json``: a :class:`Results` (scores per sequence and pooled, the data
+evaluated and trained on, the evaluation settings, :data:`SCHEMA_VERSION`), written by :meth:`Results.write`
+and read by :meth:`Results.read` only; a file that cannot be read as one raises :class:`ResultsError`, one
+line naming the file and the problem. The fields: docs/training.md.
 
-Units: APE / RPE translation statistics in m, rotation statistics in rad (``rot_rad``); KITTI errors in %
-and deg per 100 m, null where no 100 m segment exists.
+Units: APE / RPE translation in m, rotation in rad (``rot_rad``); KITTI errors in % and deg per 100 m, null
+where no 100 m segment exists.
 """
 
 from __future__ import annotations

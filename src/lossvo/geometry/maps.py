@@ -1,26 +1,20 @@
 """Batched SO(3) / SE(3) maps and conversions: exp / log, the SE(3) V matrix, Euler angles, quaternions,
 6-D rotations, poses.
 
-Every function takes tensors with any leading (batch) dimensions, works in float32 and float64 on
-any device, and is safe under autograd: gradients are finite at the identity and near 180 degrees.
-
-Conventions (lossvo's throughout; poses and camera axes are the KITTI odometry benchmark's, Geiger et al.,
-CVPR 2012; the SE(3) exponential and its V matrix follow Barfoot, *State Estimation for Robotics*, 2017):
+Every function takes tensors with any leading (batch) dimensions, in float32 or float64 on any device, with
+finite gradients at the identity and near 180 degrees. Conventions (poses and camera axes from the KITTI
+odometry benchmark, Geiger et al., CVPR 2012; the SE(3) exponential from Barfoot, *State Estimation for
+Robotics*, 2017):
 
 - A pose is a 4x4 camera-to-world matrix ``T_w_c``; camera axes x right, y down, z forward.
 - se(3) vectors are ``xi = (rho, omega)``: ``Exp(xi) = [[exp(omega^), V(omega) rho], [0, 1]]``.
-- Euler angles are ``(yaw, pitch, roll)`` in radians with ``R = Ry(yaw) @ Rx(pitch) @ Rz(roll)``,
-  i.e. rotations about the camera's y (down), x (right) and z (forward) axes.
+- Euler angles are ``(yaw, pitch, roll)`` in radians, ``R = Ry(yaw) @ Rx(pitch) @ Rz(roll)``.
 - Quaternions are ``(w, x, y, z)``; conversions from matrices return the canonical sign ``w >= 0``.
 - 6-D rotations are the first two columns of the matrix, ``(c1, c2)``, mapped back by Gram-Schmidt.
 
-RoMa does the rotation maths it already does well (rotation vectors, quaternions, Euler angles,
-Gram-Schmidt, Procrustes). Written here is only what it lacks: the SE(3) exponential and logarithm
-(the V matrix and its inverse), and a geodesic angle that is accurate and has finite gradients both at
-0 and at pi (``roma.rotmat_geodesic_distance`` uses an arcsine, whose gradient is infinite at pi).
-
-Distances are in :mod:`lossvo.geometry.distances`; ``python -m lossvo.geometry`` prints which metric
-axioms each rotation distance satisfies (:mod:`lossvo.geometry.axioms`).
+RoMa does the rotation maths; written here is what it lacks: the SE(3) exp / log (the V matrix and its
+inverse) and a geodesic angle accurate with finite gradients at 0 and at pi (``roma.rotmat_geodesic_distance``
+uses an arcsine). Distances: :mod:`lossvo.geometry.distances`.
 """
 
 from __future__ import annotations

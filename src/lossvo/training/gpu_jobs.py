@@ -1,20 +1,14 @@
 """Several training jobs at once on one GPU: how many fit, and the check before a sweep starts.
 
-A sweep on a GPU runs its jobs side by side, each in a process of its own (Hydra's joblib launcher, loky
-processes), all on the one GPU. How many run at once is bounded by the GPU's free memory divided by the
-memory one job needs, and by the CPU cores: each job's Python loop (kernel launches, batch assembly) needs a
-core of its own. :func:`jobs_that_fit` is that number, ``min(cpus, free // job)``.
-
-The memory one job needs is a config value, ``hydra.callbacks.gpu_jobs.job_memory_gib`` in
-``conf/train.yaml`` (4 GiB by default: the CUDA context, about 0.5 GiB; the default dataset's training and
-validation frames and flow resident on the GPU, 0.6 GiB; the network, its gradients and Adam's state; the
-activations of a step; torch.compile's graph pools). The figure is an estimate made without a GPU: re-measure
-it on one (``benchmarks/gpu_study.py`` records each job process's peak GPU memory) and set it from that.
+A sweep on a GPU runs its jobs side by side, each in a process of its own (Hydra's joblib launcher), all on
+the one GPU. :func:`jobs_that_fit` is ``min(cpus, free // job)``: each job's Python loop needs a core, and
+the memory one job needs is ``hydra.callbacks.gpu_jobs.job_memory_gib`` in ``conf/train.yaml`` (GiB; what it
+covers and how to measure it: docs/sweep.md).
 
 :class:`GpuJobsCheck` is a Hydra callback (``hydra.callbacks.gpu_jobs``). Before a sweep trains on a local
 CUDA GPU it refuses, in one line with exit status 2, a trainer that asks for a GPU where there is none, and
-jobs at once (``hydra.launcher.n_jobs`` of the joblib launcher) that do not fit the GPU's free memory.
-Hydra turns a callback's exceptions into warnings, so the callback ends the command itself.
+jobs at once (``hydra.launcher.n_jobs``) that do not fit the GPU's free memory. Hydra turns a callback's
+exceptions into warnings, so the callback ends the command itself.
 """
 
 from __future__ import annotations
