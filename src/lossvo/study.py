@@ -6,14 +6,11 @@ Examples::
     python -m lossvo.study --dry-run    # the plan and its time estimate; nothing trains
     python -m lossvo.study --seeds 0,1,2 --models flowvo weighting=paper selection=loss
 
-It plans the sweep, checks it, estimates its time, then runs ``python -m lossvo.train -m ...`` with Hydra's
-joblib launcher into one sweep folder and ``python -m lossvo.report`` on that folder, and exits with the
-sweep's status (the report's where the report fails). Where ``torch.cuda.is_available()``, the jobs train
-with ``trainer=gpu``, as many at once on the one GPU as fit its free memory and the CPU cores
-(:mod:`lossvo.training.gpu_jobs`); elsewhere on the CPU, two at once as ``make sweep``. On the CPU the
-estimate comes from a measurement on this machine: a few real training steps and an inference pass of each
-architecture at the study's config, times the steps and frame pairs of a job. Fewer than
-the seeds a claim needs (:func:`seed_warning`) is a warning: no claim can then be decided.
+It plans and checks the sweep, estimates its time, runs ``python -m lossvo.train -m ...`` (joblib launcher)
+into one sweep folder and ``python -m lossvo.report`` on it, and exits with the sweep's status. With CUDA the
+jobs train with ``trainer=gpu``, as many at once as fit (:mod:`lossvo.training.gpu_jobs`); on the CPU two at
+once, the time estimated from a few timed training steps and an inference pass per architecture. The plan
+and its estimate: docs/sweep.md.
 """
 
 from __future__ import annotations

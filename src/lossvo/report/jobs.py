@@ -1,19 +1,12 @@
 """Reading a sweep folder and its job folders: what each job is, what happened, what it produced.
 
-A Hydra multirun leaves one job folder per run, ``SWEEP_DIR/<num>_<overrides>/``, holding
-``.hydra/{config,hydra,overrides}.yaml``, ``status.json``, ``metrics.csv``, ``results.json`` and
-``trajectories/NN.txt``. :func:`load_job` reads one into a :class:`Job` and never raises: what cannot be
-used is recorded in ``Job.skip`` (naming the file and why) or ``Job.notes``. A job's architecture is its
-``model`` config group choice (:func:`read_architecture`).
-
-``status.json`` and ``metrics.csv`` are read only through their contract, :mod:`lossvo.evaluation.job_folder`,
-``results.json`` only through its own, :class:`lossvo.evaluation.results.Results`. The data
-a job was evaluated on comes from its ``data`` record (the evaluated dataset's root and splits, the
-training data's root and split) and ``sequences[s].ground_truth`` (the pose file the metrics were
-computed against): :func:`trained_sequences`, :func:`unseen_sequences`, :func:`ground_truth`. Besides
-the job folders, the report reads those pose files (:func:`ground_truth`) and, for the baselines, the
-recorded dataset's frames, calib.txt and pose files (:mod:`lossvo.evaluation.baselines`); it never builds
-a datamodule.
+A Hydra multirun leaves one job folder per run, ``SWEEP_DIR/<num>_<overrides>/``. :func:`load_job` reads one
+into a :class:`Job` and never raises: what cannot be used is recorded in ``Job.skip`` (naming the file and why)
+or ``Job.notes``. ``status.json`` and ``metrics.csv`` are read through their contract
+(:mod:`lossvo.evaluation.job_folder`), ``results.json`` through its own
+(:class:`lossvo.evaluation.results.Results`); the data a job trained and was evaluated on comes from its
+``data`` record (:func:`trained_sequences`, :func:`unseen_sequences`, :func:`ground_truth`). The report never
+builds a datamodule.
 """
 
 from __future__ import annotations

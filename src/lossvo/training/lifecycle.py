@@ -1,18 +1,13 @@
 """A run's life in its job folder, in one place: start, resume, skip, stop, fail and finish.
 
-:func:`job` wraps the body of ``python -m lossvo.train``. Before anything is written it checks the
-config (:func:`~lossvo.training.config_checks.check_train_config`, :func:`lossvo.weighting.check_config`)
-and, in a folder that already ran, that the recorded config defines the same run (:data:`RUN_KEYS`).
-A completed folder is skipped; an interrupted, killed or failed one with a ``checkpoints/last.ckpt`` is
-resumed from it. The folder is claimed (``.hydra/`` written, ``status.json`` "running") by
-:meth:`Run.start`, once everything is built; an error before that leaves no run folder behind (in a
-sweep the job's folder stays, marked failed, so that the report lists it).
-
-``status.json`` (:class:`~lossvo.evaluation.job_folder.Status`) is always true: running, completed,
-failed or interrupted (by the signals of :mod:`lossvo.training.stopping`), with the folder's history
-(:func:`event`). A user error (a config value, a data file, a checkpoint that does not fit, a disk that
-is full, read-only or not ours) ends the run in one line with exit status 2; ``LOSSVO_FULL_ERROR=1``
-shows its traceback instead. Any other failure keeps its traceback.
+:func:`job` wraps the body of ``python -m lossvo.train``. Before anything is written it checks the config and,
+in a folder that already ran, that the recorded config defines the same run (:data:`RUN_KEYS`). A completed
+folder is skipped; an interrupted, killed or failed one with ``checkpoints/last.ckpt`` is resumed from it.
+:meth:`Run.start` claims the folder once everything is built; an error before that leaves no run folder
+behind (a sweep's job folder stays, marked failed). ``status.json`` is always true (running, completed,
+failed or interrupted, with the folder's history, :func:`event`). A user error ends the run in one line with
+exit status 2 (``LOSSVO_FULL_ERROR=1`` shows its traceback); any other failure keeps its traceback. The
+contract, case by case: docs/training.md.
 """
 
 from __future__ import annotations
