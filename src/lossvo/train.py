@@ -7,12 +7,10 @@ Examples::
     python -m lossvo.train -m loss=euler,quat,chordal seed=0,1,2 hydra/launcher=joblib
     python -m lossvo.train experiment=paper data.root=/data/kitti trainer=gpu
 
-A run writes to ``outputs/runs/<time>/``, a sweep job to ``outputs/multirun/<time>/<num>_<overrides>/``:
-the resolved config (``.hydra/``), ``status.json``, ``checkpoints/`` (best on the selection score and
-last), ``metrics.csv``, and from the best checkpoint evaluated on the test sequences ``results.json``,
-``trajectories/`` and ``plots/`` (``evaluate=false`` skips that evaluation, as ``trainer.fast_dev_run``
-does). What a run does in a folder that already ran (skip, resume, refuse) and how it ends:
-:mod:`lossvo.training.lifecycle`; what it builds and trains: :mod:`lossvo.training.fitting`.
+A run writes to ``outputs/runs/<time>/``, a sweep job to ``outputs/multirun/<time>/<num>_<overrides>/`` (what
+a job folder holds: docs/training.md; ``evaluate=false`` and ``trainer.fast_dev_run`` skip the final
+evaluation). A run's life in its folder: :mod:`lossvo.training.lifecycle`; what it builds and trains:
+:mod:`lossvo.training.fitting`.
 """
 
 from __future__ import annotations

@@ -1,20 +1,16 @@
 """How the translation and rotation terms of a pose loss are weighted (config group ``weighting``).
 
-Every loss of :mod:`lossvo.losses` is ``L_t + k * L_r`` per frame pair, with ``L_t = |t - t^|^2`` and a
-rotation term ``L_r = rho(R, R^)`` that behaves like ``gain * theta^2`` for a small rotation error theta
-(each loss class states its ``small_angle_gain``). The presets:
+Every loss of :mod:`lossvo.losses` is ``L_t + k * L_r`` per frame pair, ``L_t = |t - t^|^2`` and
+``L_r ~ gain * theta^2`` for a small rotation error theta (each class's ``small_angle_gain``). Presets:
 
-- ``matched`` (default): ``k = c / gain``, so that every loss's rotation term is ``c * theta^2`` to second
-  order at zero error; one constant ``c`` (default 100, the study's Euler weight) for all losses.
-- ``paper``: the study's weights verbatim (k1 = 100 Euler, k2 = 14 quaternion, k3 = 153 chordal; each
-  class's ``paper_k``).
-- ``learned``: homoscedastic task weighting (Kendall & Cipolla, CVPR 2017),
-  ``L = exp(-s_t) L_t + s_t + exp(-s_r) L_r + s_r`` with learnable log-variances ``s_t``, ``s_r``
-  (:class:`HomoscedasticWeighting`); ``k`` is not used.
+- ``matched`` (default): ``k = c / gain``, every rotation term ``c * theta^2`` at small errors (``c`` 100);
+- ``paper``: the study's k verbatim (100 Euler, 14 quaternion, 153 chordal; each class's ``paper_k``);
+- ``learned``: homoscedastic weighting (Kendall & Cipolla, CVPR 2017),
+  ``L = exp(-s_t) L_t + s_t + exp(-s_r) L_r + s_r`` (:class:`HomoscedasticWeighting`), no k.
 
-An explicit ``loss.k`` wins over ``matched`` and ``paper``; with ``learned`` it is an error (the
-learned weights replace k). The resolvers below compute the preset's k inside the config, so the job's
-logged ``.hydra/config.yaml`` shows the k that was used.
+An explicit ``loss.k`` wins over ``matched`` and ``paper`` and is an error with ``learned``. The resolvers
+compute k inside the config, so a job's ``.hydra/config.yaml`` shows the k used. Gains and k per loss:
+docs/losses.md.
 """
 
 from __future__ import annotations

@@ -9,12 +9,12 @@ Layout (https://github.com/remaro-network/MIMIR-UW, "Dataset structure")::
 
 A sequence is named by its path under ROOT (``"SeaFloor/auv0/track0"``; ``<env>/<track>/auv0`` is read too).
 Timestamps are integer nanoseconds; a ground-truth row is ``timestamp, tx, ty, tz, qw, qx, qy, qz`` (further
-columns ignored): the body pose T_w_b in AirSim's NED world, body axes x forward, y right, z down. The camera's
-pose is ``ned_to_camera(T_w_b(t) @ T_BS)`` (:func:`lossvo.data.tartanair.ned_to_camera`), T_w_b interpolated at
-each frame's time (:func:`lossvo.data.euroc.camera_poses`); frames outside the ground truth or in a gap wider
-than ``max_gap`` are dropped and counted in ``Sequence.dropped``. Where each convention comes from:
-docs/data.md. Bad input raises one :class:`~lossvo.data.sequence.DatasetFormatError` line naming the file (and
-the 1-based line or the YAML key) and what was expected.
+columns ignored): the body pose T_w_b in AirSim's NED world, body axes x forward, y right, z down. The
+camera's pose is ``ned_to_camera(T_w_b(t) @ T_BS)`` (:func:`lossvo.data.tartanair.ned_to_camera`), T_w_b
+interpolated at each frame's time (:func:`lossvo.data.euroc.camera_poses`); frames outside the ground truth or
+in a gap wider than ``max_gap`` are dropped and counted in ``Sequence.dropped``. Where each convention comes
+from: docs/data.md. Bad input raises one :class:`~lossvo.data.sequence.DatasetFormatError` line naming the
+file (and the 1-based line or the YAML key) and what was expected.
 """
 
 from __future__ import annotations

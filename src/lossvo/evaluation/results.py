@@ -1,13 +1,13 @@
-"""A trained network evaluated on whole sequences, and ``results.json``: the contract between evaluation
-and everything that reads a run (the report, the baselines, users).
+"""A trained network evaluated on whole sequences, and ``results.json``: the contract between evaluation and
+everything that reads a run (the report, the baselines, users).
 
 :func:`evaluate_run` writes into a run's folder, per sequence, ``trajectories/<sequence>.txt`` (KITTI format,
 first pose the ground truth's), the estimate and its ground truth in TUM format (``<sequence>.tum``,
-``<sequence>_gt.tum``: ``evo_ape tum`` gives lossvo's APE), ``plots/<sequence>.png`` (a ``/`` in a name written
-``_``, :func:`file_stem`), and ``results.json``: a :class:`Results` (scores per sequence and pooled, the data
-evaluated and trained on, the evaluation settings, :data:`SCHEMA_VERSION`), written by :meth:`Results.write`
-and read by :meth:`Results.read` only; a file that cannot be read as one raises :class:`ResultsError`, one
-line naming the file and the problem. The fields: docs/training.md.
+``<sequence>_gt.tum``: ``evo_ape tum`` gives lossvo's APE), ``plots/<sequence>.png`` (a ``/`` in a name
+written ``_``, :func:`file_stem`), and ``results.json``: a :class:`Results` (scores per sequence and pooled,
+the data evaluated and trained on, the evaluation settings, :data:`SCHEMA_VERSION`), written by
+:meth:`Results.write` and read by :meth:`Results.read` only; a file that cannot be read as one raises
+:class:`ResultsError`, one line naming the file and the problem. The fields: docs/training.md.
 
 Units: APE / RPE translation in m, rotation in rad (``rot_rad``); KITTI errors in % and deg per 100 m, null
 where no 100 m segment exists.

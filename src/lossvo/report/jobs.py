@@ -1,8 +1,8 @@
 """Reading a sweep folder and its job folders: what each job is, what happened, what it produced.
 
 A Hydra multirun leaves one job folder per run, ``SWEEP_DIR/<num>_<overrides>/``. :func:`load_job` reads one
-into a :class:`Job` and never raises: what cannot be used is recorded in ``Job.skip`` (naming the file and why)
-or ``Job.notes``. ``status.json`` and ``metrics.csv`` are read through their contract
+into a :class:`Job` and never raises: what cannot be used is recorded in ``Job.skip`` (naming the file and
+why) or ``Job.notes``. ``status.json`` and ``metrics.csv`` are read through their contract
 (:mod:`lossvo.evaluation.job_folder`), ``results.json`` through its own
 (:class:`lossvo.evaluation.results.Results`); the data a job trained and was evaluated on comes from its
 ``data`` record (:func:`trained_sequences`, :func:`unseen_sequences`, :func:`ground_truth`). The report never

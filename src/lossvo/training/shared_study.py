@@ -1,18 +1,16 @@
-"""An Optuna study that several workers share: ``hparams_search=k_search`` run by two or more processes
-with the same study name and storage, on Optuna's public API (ask and tell).
+"""An Optuna study that several workers share: ``hparams_search=k_search`` run by two or more processes with
+the same study name and storage, on Optuna's public API (ask and tell).
 
-- :func:`open_storage`: the study's storage: an RDB (SQLite on one machine, MariaDB, MySQL or PostgreSQL
-  across machines) from an SQLAlchemy URL, or a journal file (Optuna's ``JournalFileBackend``) from a path.
-- :class:`Heartbeats` and :func:`fail_stale_trials`: each worker records, every ``heartbeat_interval``
-  seconds, the time (Unix seconds) in a user attribute of the trials it runs; before it asks for a trial
-  it marks FAIL the study's running trials whose heartbeat is more than ``grace_period`` seconds old
-  (their worker was killed), so that the study goes on without them. The same on every storage; the
-  workers' clocks must agree to well within the grace period.
-- :class:`TrialSeededTPESampler`: TPE whose draws for trial number k come from a sampler seeded with
-  ``SeedSequence([seed, k])``: the storage hands every trial of a study its own number, so no two trials
-  draw from the same random stream, whichever worker asks for them and however often a worker restarts.
-- :func:`check_study`: records the search (directions, search space, fixed overrides) in a new study and
-  refuses, in one line, a search that differs from the one recorded under the study's name.
+- :func:`open_storage`: an RDB storage (SQLite, MariaDB, MySQL, PostgreSQL) from an SQLAlchemy URL, or a
+  journal file from a path.
+- :class:`Heartbeats` and :func:`fail_stale_trials`: each worker stamps its running trials every
+  ``heartbeat_interval`` s (Unix seconds, a user attribute) and, before asking for a trial, marks FAIL the
+  running trials whose stamp is more than ``grace_period`` s old (their worker was killed).
+- :class:`TrialSeededTPESampler`: TPE drawing trial number k from ``SeedSequence([seed, k])``.
+- :func:`check_study`: records the search in a new study and refuses, in one line, a different search under
+  the same name.
+
+Storages, clocks and restarts: docs/sweep.md.
 """
 
 from __future__ import annotations
