@@ -5,12 +5,9 @@ norm, m/frame) and a rotation (its angle, rad/frame). A split's row pools its se
 5th/50th/95th percentiles and maximum of each, and the fraction of pairs standing still (< 1 cm).
 
 Command line: ``python -m lossvo.data.motion [ROOT] [--train 00,02 --val 07,09 --test ... --unseen 11,12]``
-(ROOT: a KITTI odometry root; default: the embedded synthetic dataset in the cache, after a first
-``make sweep`` or ``python -m lossvo.data.synthetic``), or ``python -m lossvo.data.motion ROOT --layout
-tum|euroc|tartanair|mimir [--sequences A,B]`` for a dataset in its own layout (every sequence found by
-default, as one split ``all``; poses at the frames the reader keeps). Prints a Markdown table: one row per
-split, then one per sequence. Speeds and rotations are per frame: datasets recorded at different frame
-rates differ by that too.
+for a KITTI root (default: the embedded synthetic dataset), ``--layout tum|euroc|tartanair|mimir
+[--sequences A,B]`` for another layout; a Markdown table, one row per split, then one per sequence. Per
+frame, so datasets recorded at different rates differ by that too (docs/data.md).
 """
 
 from __future__ import annotations

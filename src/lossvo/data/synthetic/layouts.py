@@ -2,14 +2,11 @@
 exactly as lossvo's reader of that layout reads it (:mod:`lossvo.data.tum`, :mod:`~lossvo.data.euroc`,
 :mod:`~lossvo.data.tartanair`, :mod:`~lossvo.data.mimir`).
 
-Per layout: its camera (K and distortion at the rendered size, the one its reader returns), its clock
-(frame stamps, ground-truth stamps at its own rate that never coincide with the frames'), its platform
-(:mod:`~lossvo.data.synthetic.platforms`) and its files. Frames are rendered at their stamps, the ground
-truth evaluated at its own stamps, from one continuous trajectory, so the reader's poses are the rendered
-ones (TUM's association by nearest stamp and EuRoC's and MIMIR's interpolation between ground-truth rows
-add their own, sub-millimetre to few-millimetre, differences, as on the real datasets). Every reader
-returns the rendered T_w_c in the town's world (x right, y down, z forward; TartanAir's and MIMIR's NED
-files are its axes permuted).
+Per layout: its camera (K and distortion at the rendered size, as its reader returns them), its clock (frame
+stamps; ground-truth stamps at its own rate, never a frame's), its platform
+(:mod:`~lossvo.data.synthetic.platforms`) and its files. Frames and ground truth are evaluated at their own
+stamps from one continuous trajectory, so every reader returns the rendered T_w_c in the town's world (x
+right, y down, z forward) up to its own association or interpolation (docs/data.md, "Other layouts").
 """
 
 from __future__ import annotations

@@ -1,17 +1,15 @@
 """Car-like camera routes on the ground plane, drawn from route families.
 
-A route is a chain of manoeuvres: a straight stretch, then a turn, a lane change or a stop. Each
-manoeuvre's numbers (speeds, lengths, angles, radii) are drawn from the ranges of a :class:`Family`;
-a sequence draws the family of each stretch of :data:`STRETCH` manoeuvres from its mix (family name ->
-weight, :data:`MIXES`). Speeds follow the planned targets under acceleration and braking limits (a
-forward and a backward pass), so cars brake before corners and stops and stand still exactly during a
-stop. Yaw is curvature times speed, so a standing car does not turn and every turn has its planned
-angle. The ground is one plane: hills are short rises (the camera pitches with the grade and its height
-changes by at most ``Family.hill`` metres), camber is a slowly varying roll.
+A route is a chain of manoeuvres: a straight stretch, then a turn, a lane change or a stop, their numbers
+(speeds, lengths, angles, radii) drawn from a :class:`Family`'s ranges; a sequence draws the family of each
+stretch of :data:`STRETCH` manoeuvres from its mix (:data:`MIXES`). Speeds follow the planned targets under
+acceleration and braking limits (a forward and a backward pass); yaw is curvature times speed, so a standing
+car does not turn. Hills pitch the camera with the grade (height change at most ``Family.hill`` m); camber is
+a slowly varying roll. The families and their motion statistics: docs/data.md.
 
-Units: metres, radians and frames (10 Hz), so speeds are m/frame (1 m/frame = 36 km/h).
-Poses are camera-to-world T_w_c in KITTI's axes (x right, y down, z forward), the first one the identity,
-attitude R = Ry(yaw) @ Rx(pitch) @ Rz(roll).
+Units: metres, radians and frames (10 Hz), speeds in m/frame (1 m/frame = 36 km/h). Poses are camera-to-world
+T_w_c in KITTI's axes (x right, y down, z forward), the first one the identity, R = Ry(yaw) @ Rx(pitch) @
+Rz(roll).
 """
 
 from __future__ import annotations
