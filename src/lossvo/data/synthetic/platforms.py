@@ -1,13 +1,14 @@
 """Platforms other than the car: handheld, flying and underwater cameras moving through a town along its
 route, as continuous functions of time.
 
-A platform travels along the route's path (its N car poses at 10 Hz) at its own speed: the distance d(t) = v0
-t + the integral of a slow speed wave (seconds -> metres, monotone) is mapped to the route parameter tau
-(frames) through the route's arc length; the position is a cubic spline of the route's positions in tau, the
-attitude a slerp. Seeded sums of sinusoids add a sway and a rise (m, in the route's heading frame), a
-look-around (yaw, pitch, roll, rad, R = Ry Rx Rz) and a fast shake (a rotation vector and an offset in the
-camera frame). Vectorised over time and deterministic for a seed, so frame times and ground-truth times give
-poses that agree exactly. Axes and units are the town's (KITTI's): x right, y down, z forward, m, s, rad.
+A platform travels along the route's path (its N car poses at 10 Hz) at its own speed: its distance
+d(t) = v0 t + the integral of a slow speed wave (seconds -> metres, monotone) is mapped to the route
+parameter tau (frames) through the route's arc length; the position is a cubic spline of the route's
+positions in tau, the attitude a slerp. Seeded sums of sinusoids add a sway and a rise (m, in the route's
+heading frame), a look-around (yaw, pitch, roll, rad, R = Ry Rx Rz) and a fast shake (a rotation vector and
+an offset in the camera frame). Vectorised over time and deterministic for a seed, so frame times and
+ground-truth times give poses that agree exactly. Axes and units are the town's (KITTI's): x right, y down,
+z forward, m, s, rad.
 """
 
 from __future__ import annotations
