@@ -59,8 +59,7 @@ LOSSES = ("euler", "quat", "chordal")
 """The study's default seeds, architectures (``model=``) and losses (``loss=``)."""
 
 CPU_JOBS = 2
-"""Jobs at once on a CPU, as ``make sweep`` runs them (on 2 cores, two single-threaded jobs train ~1.5x
-faster than one job on both)."""
+"""Jobs at once on a CPU, as ``make sweep`` runs them, single-threaded (why: docs/experiments.md)."""
 
 JOB_OVERHEAD_S = 15.0
 """Seconds a job spends outside its training steps and inference passes, stated: the process's start

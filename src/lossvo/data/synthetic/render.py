@@ -24,8 +24,8 @@ from lossvo.data.synthetic.textures import MIP_TOP, TEXELS_PER_M, Atlas
 from lossvo.data.synthetic.world import World
 
 SUPERSAMPLE = 1
-"""Render at SUPERSAMPLE x the resolution and area-average down (anti-aliases silhouettes too). 2 costs
-about 2.5x the time and does not improve the ORB check, so textures are anti-aliased by mip-mapping only."""
+"""Render at SUPERSAMPLE x the resolution and area-average down (anti-aliases silhouettes too); at 1,
+textures are anti-aliased by mip-mapping only (the choice: docs/experiments.md)."""
 NEAR = 0.05
 """Metres: nearest depth a surface is drawn at."""
 FAR = 2000.0
