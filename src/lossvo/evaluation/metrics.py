@@ -1,24 +1,19 @@
 """Trajectory metrics equal to evo's APE / RPE and the KITTI odometry error, as torchmetrics.
 
-Everything is computed in float64, vectorised over poses and pairs (no Python loop), on the device of the
-input. Poses are (N, 4, 4) camera-to-world matrices ``T_w_c`` (KITTI).
+Computed in float64, vectorised over poses and pairs, on the input's device. Poses are (N, 4, 4)
+camera-to-world matrices ``T_w_c`` (KITTI). Definitions (checked against evo 1.x, ``evo/core/metrics.py``):
 
-Definitions (checked against evo 1.x, ``evo/core/metrics.py`` and ``evo/core/geometry.py``):
+- APE: error pose ``E_i = inv(P_est_i) @ P_ref_i``; translation error ``|p_est_i - p_ref_i|`` (evo's
+  ``translation_part``; equal to ``|t(E_i)|`` for rigid poses), rotation error the angle of
+  ``R_est_i^T R_ref_i`` (:func:`lossvo.geometry.rotation_angle`).
+- RPE (delta d frames, ``all_pairs=False``): pairs ``(0, d), (d, 2d), ...``,
+  ``E = inv(inv(Q_i) Q_j) @ (inv(P_i) P_j)`` with Q the reference and P the estimate; errors ``|t(E)|`` and
+  the angle of ``R(E)``.
+- Alignment (evo ``PosePath3D.align``): Umeyama on positions, estimate onto reference; ``se3`` applies
+  ``[r | t]``, ``sim3`` scales the estimate's translations by ``s`` first, ``scale`` only scales.
+- KITTI (devkit ``evaluate_odometry.cpp``): :func:`kitti_segment_errors`.
 
-- APE (evo ``APE``): error pose ``E_i = inv(P_est_i) @ P_ref_i``. The translation error is evo's
-  ``translation_part``, which evo computes as ``|p_est_i - p_ref_i|`` (the positions' distance; equal to
-  ``|t(E_i)|`` for rigid poses, and what evo actually evaluates, so we do the same). The rotation error is
-  the angle of ``R(E_i) = R_est_i^T R_ref_i`` (evo: ``|so3_log(R(E_i))|``; here lossvo's robust
-  :func:`lossvo.geometry.rotation_angle`).
-- RPE (evo ``RPE``, delta in frames, ``all_pairs=False``): pairs ``(0, d), (d, 2d), ...`` (consecutive,
-  non-overlapping), ``E = inv(inv(Q_i) Q_j) @ (inv(P_i) P_j)`` with Q the reference and P the estimate;
-  errors ``|t(E)|`` and the angle of ``R(E)``.
-- Alignment (evo ``PosePath3D.align``): Umeyama on positions, estimate onto reference. ``se3`` applies
-  ``[r | t]`` on the left; ``sim3`` scales the estimate's translations by ``s`` and then applies
-  ``[r | t]``; ``scale`` only scales the translations.
-- KITTI (devkit ``evaluate_odometry.cpp``): see :func:`kitti_segment_errors`.
-
-The command line over two KITTI pose files is :mod:`lossvo.metrics`.
+Units: m and rad (KITTI: per metre). The command line over two KITTI pose files is :mod:`lossvo.metrics`.
 """
 
 from __future__ import annotations

@@ -1,22 +1,15 @@
 """Which metric axioms each rotation distance satisfies, checked numerically.
 
-A distance ``d`` on rotations is a metric when, for all rotations x, y, z:
+A distance ``d`` on rotations is a metric when, for all rotations x, y, z: (1) ``d(x, y) >= 0``; (2)
+``d(x, y) = 0`` iff x and y are the same rotation, whichever representation (Euler triple, quaternion sign)
+is used; (3) ``d(x, y) = d(y, x)``; (4) ``d(x, z) <= d(x, y) + d(y, z)``. Each axiom is checked in float64
+on seeded random rotations and on the triples where a failure shows first (midpoints of short and long
+geodesics, midpoints in the representation's own coordinates), the worst case kept as evidence.
+``python -m lossvo.geometry`` prints the table (its copy and what it means: docs/losses.md).
 
-1. non-negativity: ``d(x, y) >= 0``;
-2. identity of indiscernibles *on rotations*: ``d(x, y) = 0`` iff x and y are the same rotation,
-   whichever of its representations (Euler triple, quaternion sign) is used;
-3. symmetry: ``d(x, y) = d(y, x)``;
-4. triangle inequality: ``d(x, z) <= d(x, y) + d(y, z)``.
-
-Each axiom is checked here in float64 on seeded random rotations and on the triples where a failure
-would show first (midpoints of short and long geodesics, midpoints in the representation's own
-coordinates), and the worst case found is kept as evidence. ``python -m lossvo.geometry`` prints the
-resulting table; the property-based tests in ``tests/test_axioms.py`` check the same statements with
-hypothesis, and that the copy of the table in docs/losses.md is the one printed here.
-
-The closed forms in the notes follow from the relative angle ``theta`` in [0, pi]:
-``|q_a -+ q_b|^2 = 2 -+ 2 <q_a, q_b>`` with ``|<q_a, q_b>| = cos(theta / 2)`` gives
-``min_b |q_a - b q_b| = 2 sin(theta / 4)``, and ``|R_a - R_b|_F^2 = 4 (1 - cos theta) = 8 sin^2(theta / 2)``.
+Closed forms in the relative angle ``theta`` in [0, pi]: ``min_b |q_a - b q_b| = 2 sin(theta / 4)``
+(from ``|q_a -+ q_b|^2 = 2 -+ 2 <q_a, q_b>``, ``|<q_a, q_b>| = cos(theta / 2)``) and
+``|R_a - R_b|_F^2 = 4 (1 - cos theta) = 8 sin^2(theta / 2)``.
 """
 
 from __future__ import annotations
