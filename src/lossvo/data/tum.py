@@ -2,17 +2,15 @@
 
 Layout (TUM's own, https://cvg.cit.tum.de/data/datasets/rgbd-dataset/file_formats)::
 
-    ROOT/<sequence>/rgb.txt          '# comments', then lines 'timestamp filename' (filename relative to the
-                                     sequence folder, e.g. 'rgb/1305031102.175304.png')
+    ROOT/<sequence>/rgb.txt          '# comments', then lines 'timestamp filename' (relative to the sequence)
     ROOT/<sequence>/rgb/*.png        640x480 colour frames
-    ROOT/<sequence>/groundtruth.txt  '# comments', then lines 'timestamp tx ty tz qx qy qz qw' (~100 Hz):
-                                     the colour camera's optical centre and orientation in the mocap world
+    ROOT/<sequence>/groundtruth.txt  '# comments', then lines 'timestamp tx ty tz qx qy qz qw' (~100 Hz)
 
-Sequences keep TUM's names (``rgbd_dataset_freiburg1_xyz``). The ground truth's camera axes are already
-x right, y down, z forward, so a ground-truth row is T_w_c in lossvo's convention as it stands. Frames are
-paired with ground-truth stamps by time (:func:`associate`, TUM's ``associate.py``); frames without a stamp
-close enough are left out and counted in ``Sequence.dropped``. Every reader fails with one
-``DatasetFormatError`` naming the file, the line (1-based) where there is one, and what was expected.
+Sequences keep TUM's names (``rgbd_dataset_freiburg1_xyz``). A ground-truth row is the colour camera's T_w_c
+in the mocap world, its axes already lossvo's (x right, y down, z forward). Frames are paired with
+ground-truth stamps by time (:func:`associate`, TUM's ``associate.py``); frames without a close stamp are
+dropped and counted in ``Sequence.dropped``. Bad input raises one ``DatasetFormatError`` naming the file, the
+line (1-based) where there is one, and what was expected.
 """
 
 from __future__ import annotations

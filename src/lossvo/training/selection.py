@@ -1,18 +1,15 @@
 """The loss-independent validation score that selects checkpoints (config group ``selection``).
 
-Runs with different losses must be selected by one criterion: a loss's own ``val/loss`` weighs rotation
-by its own k, so it ranks epochs differently for each loss. ``val/score`` is built from the two
-yardsticks every loss reports on its decoded poses, each relative to predicting no motion on the same
-validation pairs:
+A loss's own ``val/loss`` weighs rotation by its own k, so it ranks epochs differently for each loss.
+``val/score`` is built from the yardsticks every loss reports on its decoded poses, each relative to
+predicting no motion on the same validation pairs:
 
     score = ( sum |t - t^| / sum |t|  +  sum angle(R^T R^) / sum angle(R) ) / 2
 
-summed over every validation frame pair (t, R the target, t^, R^ the prediction). 1 is the error of
-predicting no motion, 0 a perfect prediction; unitless, so metres and radians weigh alike. ``selection=loss``
-monitors ``val/loss`` instead, only to reproduce the study's per-loss selection.
-
-The maths is :func:`selection_score`; :class:`SelectionScore` is its torchmetrics wrapper (sum states,
-reduced across processes), logged by the LightningModule as ``val/score``.
+summed over every validation frame pair (t, R the target, t^, R^ the prediction): 1 is the error of
+predicting no motion, 0 a perfect prediction; unitless. ``selection=loss`` monitors ``val/loss`` instead, to
+reproduce the study. The maths is :func:`selection_score`; :class:`SelectionScore` is its torchmetrics
+wrapper (sum states, reduced across processes).
 """
 
 from __future__ import annotations
