@@ -3,13 +3,12 @@
     python -m lossvo.eval ckpt_path=outputs/multirun/<time>/0_loss-euler+seed-0/checkpoints/best.ckpt
     python -m lossvo.eval ckpt_path=... data=kitti data.root=/data/kitti data.test=[09,10]
 
-The checkpoint says how its network was trained (:mod:`lossvo.evaluation.checkpoints`): frame size,
-``seq_len``, normalisation and its statistics, and the data it was trained on, which is what is evaluated
-unless ``data=...`` chooses another dataset or ``data.KEY=...`` changes a setting; the other data need
-hold no training sequence. An override of the frame size, ``seq_len`` or normalisation that contradicts
-the checkpoint is an error, as is any other bad input (one line naming it, exit status 2; with
-``LOSSVO_FULL_ERROR=1`` its traceback instead). The output folder (``outputs/eval/<time>/``, or
-``hydra.run.dir``) receives what :func:`lossvo.evaluation.results.evaluate_run` writes.
+The checkpoint records how its network was trained (:mod:`lossvo.evaluation.checkpoints`): frame size,
+``seq_len``, normalisation and the training data, which is what is evaluated unless ``data=...`` or
+``data.KEY=...`` chooses otherwise (the other data need hold no training sequence). An override that
+contradicts the checkpoint's frame size, ``seq_len`` or normalisation, like any bad input, ends in one line
+with exit status 2. The output folder (``outputs/eval/<time>/`` or ``hydra.run.dir``) receives what
+:func:`lossvo.evaluation.results.evaluate_run` writes.
 """
 
 from __future__ import annotations

@@ -1,15 +1,12 @@
 """Stopping a run on a signal: which signal stopped it, and the one exception that says so.
 
-Three signals stop a run: SIGINT (Ctrl-C; Python raises ``KeyboardInterrupt``), SIGTERM (``kill``, SLURM's
-preemption or time limit) and SIGUSR2 (submitit's, before the time limit or on preemption: submitit
-requeues the job and exits). While a run runs, :data:`SIGNALS` handles them
-(:meth:`StopSignals.installed`) and records the first that came; :meth:`StopSignals.stop` turns each way a
-stop ends the code it interrupts into an :class:`InterruptedRun` named after that first signal. A signal
-that comes while a stop is under way (SLURM's SIGTERM after submitit's requeue) is not the stop's cause.
-
-During a fit Lightning owns SIGTERM: it ends the fit at its next check with its ``SIGTERMException``,
-calling the handler it found (this one), which then only records the signal. Outside a fit the SIGTERM
-handler raises :class:`InterruptedRun` at once.
+Three signals stop a run: SIGINT (Ctrl-C), SIGTERM (``kill``, SLURM's preemption or time limit) and SIGUSR2
+(submitit's, before the time limit or on preemption). While a run runs, :data:`SIGNALS` handles them
+(:meth:`StopSignals.installed`) and records the first; :meth:`StopSignals.stop` turns each way a stop ends the
+code it interrupts into an :class:`InterruptedRun` named after that first signal (a later one, such as SLURM's
+SIGTERM after submitit's requeue, is not the cause). During a fit Lightning owns SIGTERM and ends the fit at
+its next check, calling this handler, which only records the signal; outside a fit the SIGTERM handler raises
+:class:`InterruptedRun` at once. What a stopped run leaves: docs/training.md.
 """
 
 from __future__ import annotations
