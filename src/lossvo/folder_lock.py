@@ -98,7 +98,7 @@ def _lock(fd: int, path: Path, folder: Path) -> bool:
 
 def in_use(folder: Path) -> bool | None:
     """Whether a live process holds ``folder/run.lock``: None where there is no lock file (a folder
-    from before locks, or never started) or the file system cannot tell."""
+    written without one, or never started) or the file system cannot tell."""
     try:
         fd = os.open(folder / LOCK, os.O_RDONLY | os.O_CLOEXEC)
     except OSError:

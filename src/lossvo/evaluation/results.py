@@ -227,7 +227,7 @@ class SequenceResult:
     """One evaluated sequence: its frame count, trajectory and plot files (relative to the run folder),
     the ground-truth pose file it was scored against (absolute; None without one), whether it is of a
     route family never trained on, its :class:`Scores` (None, with a ``note``, without ground
-    truth) and ``K``, the (3, 3) intrinsics of the frames the network saw (pixels; None in older files)."""
+    truth) and ``K``, the (3, 3) intrinsics of the frames the network saw (pixels; None: not recorded)."""
 
     frames: int
     trajectory: str
@@ -321,7 +321,7 @@ class DataRecord:
     split ``train``) with its input settings (``height``, ``width`` in pixels, ``seq_len`` in frames,
     ``normalization``, per-channel ``mean`` and ``std`` of pixel values in [0, 1]), and both datasets'
     layouts (``layout``, ``train_layout``: :data:`lossvo.data.layouts.LAYOUTS`) and every how-many-th frame of
-    each was kept (``keep_every``, ``train_keep_every``); absent in older files, which read as KITTI's, every
+    each was kept (``keep_every``, ``train_keep_every``); where absent, read as KITTI's, every
     frame. Roots are as recorded; they may no longer exist."""
 
     kind: str | None
@@ -385,7 +385,7 @@ class Results:
     ``checkpoint``: the weights evaluated (None: the last weights of a fit); ``loss``; ``align`` and
     ``delta``: the APE alignment and RPE delta (frames) of every score; ``seq_len``: the window length
     (frames) inferred with; ``carry_state``: whether the recurrent state was carried between windows;
-    ``mirror_average``: whether each pose is the average with the mirrored inputs' (absent in older files:
+    ``mirror_average``: whether each pose is the average with the mirrored inputs' (absent:
     False);
     ``threads``: the CPU thread count the network was trained with (None: not recorded); ``data``;
     ``sequences``: per evaluated sequence; ``overall``: pooled over the sequences with ground truth;
