@@ -1,22 +1,20 @@
-"""The EuRoC MAV dataset (Burri et al., IJRR 2016) in its own ASL layout, read into a
-:class:`~lossvo.data.sequence.Sequence`.
+"""The EuRoC MAV dataset (Burri et al., IJRR 2016) in its own ASL layout.
 
 Layout (one folder per sequence, named as EuRoC names them: ``MH_01_easy``, ``V1_02_medium``)::
 
     ROOT/<sequence>/mav0/cam0/data.csv              '#timestamp [ns],filename', then one frame a line
     ROOT/<sequence>/mav0/cam0/data/<timestamp>.png  752x480 single-channel frames
     ROOT/<sequence>/mav0/cam0/sensor.yaml           T_BS, resolution, intrinsics, distortion
-    ROOT/<sequence>/mav0/state_groundtruth_estimate0/data.csv
-                                                    17 columns at 200 Hz: timestamp [ns], p_RS_R x y z [m],
+    ROOT/<sequence>/mav0/state_groundtruth_estimate0/data.csv   200 Hz: timestamp [ns], p_RS_R x y z [m],
                                                     q_RS w x y z, velocity, gyroscope and accelerometer biases
 
 Timestamps are integer nanoseconds (float64 seconds through :func:`ns_to_seconds`). The ground truth is the
 body pose T_w_b, so the camera's pose is ``T_w_c(t) = T_w_b(t) @ T_BS``, interpolated at each frame's time
 (translation linearly, rotation by slerp); cam0's axes are lossvo's. Frames outside the ground truth or in a
 gap wider than ``max_gap`` s are dropped and counted in ``Sequence.dropped``. Distortion is radial-tangential,
-returned as OpenCV's five coefficients. Sources and details: docs/data.md. Bad input raises one
-:class:`~lossvo.data.sequence.DatasetFormatError` line naming the file (and the 1-based line or the YAML key)
-and what was expected.
+as OpenCV's five coefficients. Sources: docs/data.md. Bad input raises one
+:class:`~lossvo.data.sequence.DatasetFormatError` line naming the file (and line or YAML key) and what was
+expected.
 """
 
 from __future__ import annotations
