@@ -68,6 +68,8 @@ def test_sweep_jobs_are_counted_as_the_basic_sweeper_expands_them() -> None:
     assert gpu_jobs.sweep_jobs(["loss=euler,quat,chordal", "seed=0,1", "trainer=gpu"]) == 6
     assert gpu_jobs.sweep_jobs(["seed=range(0,10)"], {"model": "deepvo_small,flowvo"}) == 20
     assert gpu_jobs.sweep_jobs([]) == 1
+    assert gpu_jobs.sweep_jobs(["seed=0,1", "seed=0,1,2"]) == 3  # a key given twice: the last one counts
+    assert gpu_jobs.sweep_jobs(["+a=1,2", "~b", "c=[1,2]"]) == 2
     assert gpu_jobs.sweep_jobs(["optimizer.lr=interval(0.001,0.1)"]) is None  # not the basic sweeper's
 
 
