@@ -24,6 +24,7 @@ import pytest
 from optuna.distributions import FloatDistribution, distribution_to_json
 from optuna.trial import TrialState
 
+from lossvo.console import UserError
 from lossvo.training import shared_study
 from lossvo.training.shared_study import HEARTBEAT_ATTR, Heartbeats, TrialSeededTPESampler, open_storage
 
@@ -97,7 +98,7 @@ def test_a_trial_whose_worker_stopped_beating_is_failed_after_the_grace_period(k
 
 def test_a_storage_that_cannot_be_opened_is_one_line(tmp_path: Path) -> None:
     for url in (f"sqlite:///{tmp_path / 'missing' / 'optuna.db'}", str(tmp_path / "missing" / "optuna.log")):
-        with pytest.raises(ValueError) as error:
+        with pytest.raises(UserError) as error:
             open_storage(url)
         assert str(error.value).startswith(f"hydra.sweeper.storage.url: cannot open {url}: ")
         assert "\n" not in str(error.value)
@@ -121,7 +122,7 @@ def test_a_study_refuses_another_search(tmp_path: Path) -> None:
         "it runs with loss=euler, not loss=quat": {**search, "fixed": {"loss": "quat"}},
     }  # fmt: skip
     for why, other in others.items():
-        with pytest.raises(ValueError) as error:
+        with pytest.raises(UserError) as error:
             shared_study.check_study(url, STUDY, other)
         assert why in str(error.value) and "\n" not in str(error.value)
         assert str(error.value).startswith(

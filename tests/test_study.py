@@ -18,6 +18,7 @@ from omegaconf import DictConfig, open_dict
 
 from helpers import train_main
 from lossvo import study
+from lossvo.console import UserError
 from lossvo.train import CONFIG_DIR
 from lossvo.training import gpu_jobs
 from lossvo.training.config_checks import check_accelerator
@@ -91,10 +92,10 @@ def test_trains_on_cuda(accelerator: str, cuda: bool, on_cuda: bool) -> None:
 
 
 def test_a_gpu_trainer_without_a_gpu_names_trainer_default() -> None:
-    with pytest.raises(ValueError) as refused:
+    with pytest.raises(UserError) as refused:
         check_accelerator("gpu", False, "gpu")
     assert str(refused.value) == f"trainer=gpu: {NO_GPU}"
-    with pytest.raises(ValueError) as refused:
+    with pytest.raises(UserError) as refused:
         check_accelerator("cuda", False, "default")
     assert str(refused.value) == f"trainer.accelerator=cuda: {NO_GPU}"
     check_accelerator("gpu", True, "gpu")

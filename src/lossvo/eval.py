@@ -123,7 +123,7 @@ def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
     try:
         datamodule = instantiate(data_cfg, _convert_="all")
     except InstantiationException as e:  # a bad data setting: the constructor's own one-line ValueError
-        if isinstance(e.__cause__, ValueError):
+        if isinstance(e.__cause__, (UserError, ValueError)):
             raise e.__cause__ from None
         raise
     datamodule.prepare_data()
@@ -133,7 +133,7 @@ def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
     unknown = [s for s in sequences if s not in available]
     if unknown:
         raise UserError(f"sequences: {unknown[0]!r} is not a sequence of the evaluated data (expected one "
-                         f"of {', '.join(available)}; data.test=[...] chooses them)")  # fmt: skip
+                        f"of {', '.join(available)}; data.test=[...] chooses them)")  # fmt: skip
     return evaluate_run(network, datamodule, out_dir, sequences, checkpoint=Path(cfg.ckpt_path).resolve(),
                         align=cfg.get("align", "none"), delta=int(cfg.get("delta", 1)),
                         carry_state=bool(cfg.get("carry_state", False)), threads=network.threads,

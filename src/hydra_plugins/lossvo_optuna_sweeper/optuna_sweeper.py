@@ -25,6 +25,8 @@ from hydra.plugins.sweeper import Sweeper
 from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
+from lossvo.console import UserError
+
 log = logging.getLogger(__name__)
 
 
@@ -65,14 +67,14 @@ def directions_of(direction: Any) -> list[str]:
 
 
 def values_of(returned: Any, n: int) -> list[float]:
-    """A job's return value as ``n`` numbers (anything ``float`` takes, not a bool), or ValueError."""
+    """A job's return value as ``n`` numbers (anything ``float`` takes, not a bool), or UserError."""
     items = list(returned) if isinstance(returned, (list, tuple, ListConfig)) else [returned]
     try:
         if len(items) != n or any(isinstance(v, bool) for v in items):
             raise TypeError
         return [float(v) for v in items]
     except (TypeError, ValueError):
-        raise ValueError(f"the job returned {returned!r}, not {n} number(s)") from None
+        raise UserError(f"the job returned {returned!r}, not {n} number(s)") from None
 
 
 class LossvoOptunaSweeper(Sweeper):
@@ -98,13 +100,13 @@ class LossvoOptunaSweeper(Sweeper):
         )
 
     def sweep(self, arguments: list[str]) -> None:
-        from lossvo.console import exit_in_one_line
+        from lossvo.console import UserError, exit_in_one_line
         from lossvo.training import search_space, shared_study
 
         try:
             space, fixed = search_space.parse([f"{k}={v}" for k, v in self.params.items()] + list(arguments))
             study = self._open(space, fixed)
-        except ValueError as e:
+        except UserError as e:
             exit_in_one_line(e)
         log.info(f"Study {study.study_name} in {self._where()}, sampler {type(study.sampler).__name__}, "
                  f"directions {self.directions}")  # fmt: skip
@@ -134,7 +136,7 @@ class LossvoOptunaSweeper(Sweeper):
         return "memory" if self.storage.url is None else shown_url(str(self.storage.url))
 
     def _open(self, space: dict[str, Any], fixed: dict[str, str]) -> Any:
-        """The study, its search checked against the one recorded under its name (ValueError)."""
+        """The study, its search checked against the one recorded under its name (UserError)."""
         import optuna
 
         from lossvo.training import shared_study

@@ -20,7 +20,7 @@ from lightning.pytorch.callbacks import Callback, ModelCheckpoint, ProgressBar
 from lightning.pytorch.loggers import Logger, WandbLogger
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from lossvo.console import one_line
+from lossvo.console import UserError, one_line
 from lossvo.evaluation.checkpoints import load_network
 from lossvo.evaluation.job_folder import RESULTS
 from lossvo.evaluation.results import evaluate_run
@@ -45,7 +45,7 @@ def _instantiate_group(group: DictConfig | None, name: str) -> list[Any]:
         if entry is None:
             continue
         if not isinstance(entry, DictConfig) or "_target_" not in entry:
-            raise ValueError(f"{name}.{key!s}: expected a config with a _target_, got {entry!r}")
+            raise UserError(f"{name}.{key!s}: expected a config with a _target_, got {entry!r}")
         built = instantiate(entry)
         if built is not None:
             objects.append(built)
@@ -60,8 +60,8 @@ def _load_flownet(module: VOModule, path: str) -> None:
     """FlowNetS weights into the encoder; any problem with the file is one line naming the key."""
     try:
         report = load_flownet(module.model, path)
-    except (OSError, ValueError) as e:
-        raise ValueError(f"model.flownet: {one_line(e)}") from None
+    except (OSError, UserError) as e:
+        raise UserError(f"model.flownet: {one_line(e)}") from None
     log.info("FlowNetS initialisation: %s", report.summary())
 
 

@@ -154,12 +154,12 @@ class GpuJobsCheck(Callback):
             check_accelerator(accelerator, cuda, config.hydra.runtime.choices.get("trainer"))
             if launcher == JOBLIB_LAUNCHER and trains_on_cuda(accelerator, cuda):
                 self._check_memory(config)
-        except (ValueError, OSError, subprocess.TimeoutExpired) as e:
+        except (UserError, OSError, subprocess.TimeoutExpired) as e:
             exit_in_one_line(e)
 
     def _check_memory(self, config: DictConfig) -> None:
         gib = self.job_memory_gib
         if not (isinstance(gib, (int, float)) and math.isfinite(gib) and gib > 0):
-            raise ValueError(f"{JOB_MEMORY_KEY}: expected a finite number > 0 (GiB), got {gib!r}")
+            raise UserError(f"{JOB_MEMORY_KEY}: expected a finite number > 0 (GiB), got {gib!r}")
         n_jobs = int(config.hydra.launcher.n_jobs)
         check_jobs_fit(n_jobs, at_once_of(config), free_memory(), int(gib * GIB))
