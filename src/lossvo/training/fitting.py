@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any, cast
 
 import lightning as L
 import torch
+from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint, ProgressBar
 from lightning.pytorch.loggers import Logger, WandbLogger
@@ -65,6 +66,17 @@ def _load_flownet(module: VOModule, path: str) -> None:
     log.info("FlowNetS initialisation: %s", report.summary())
 
 
+def _trainer(config: DictConfig, **kwargs: Any) -> L.Trainer:
+    """Lightning's Trainer from the ``trainer`` config; a value it refuses (its ``ValueError``: an unknown
+    accelerator, precision or strategy name) is the user's, one line naming ``trainer``."""
+    try:
+        return cast("L.Trainer", instantiate(config, **kwargs))
+    except InstantiationException as e:
+        if isinstance(e.__cause__, ValueError):
+            raise UserError(f"trainer: {one_line(e.__cause__)}") from e.__cause__
+        raise
+
+
 def build(cfg: DictConfig) -> tuple[VODataModule, VOModule, L.Trainer]:
     """Data (set up for fitting), module and trainer from a composed config; nothing is trained yet."""
     if cfg.model.get("flownet"):
@@ -88,7 +100,7 @@ def build(cfg: DictConfig) -> tuple[VODataModule, VOModule, L.Trainer]:
     _sync_batchnorm_where_supported(cfg)
     callbacks: list[Callback] = _instantiate_group(cfg.get("callbacks"), "callbacks")
     loggers: list[Logger] = _instantiate_group(cfg.get("logger"), "logger")
-    trainer = instantiate(
+    trainer = _trainer(
         cfg.trainer,
         plugins=[checkpoints.AtomicCheckpointIO(), *slurm.lightning_environment()],
         callbacks=callbacks,
