@@ -263,3 +263,18 @@ def test_a_bad_search_space_is_refused_in_one_line_naming_the_key(tiny_sweep_arg
                      "(in loss.k=interval(10, 1))"]  # fmt: skip
     assert not (tmp_path / "sweep" / "optuna.db").exists()
     assert not [p for p in (tmp_path / "sweep").glob("*") if p.is_dir()]
+
+
+@pytest.mark.parametrize("direction", ["up", ["minimize", "largest"]])
+def test_a_direction_optuna_does_not_know_is_one_line_naming_the_key(direction: object) -> None:
+    from omegaconf import OmegaConf
+
+    from hydra_plugins.lossvo_optuna_sweeper.optuna_sweeper import LossvoOptunaSweeper
+
+    sweeper = LossvoOptunaSweeper(direction, None, OmegaConf.create({"url": None}), 1, 1, 0.0, None, None)
+    wrong = direction if isinstance(direction, str) else direction[1]
+    expected = (
+        rf"^hydra\.sweeper\.direction: expected minimize or maximize \(or a list of them\), got '{wrong}'$"
+    )
+    with pytest.raises(UserError, match=expected):
+        sweeper._open({}, {})

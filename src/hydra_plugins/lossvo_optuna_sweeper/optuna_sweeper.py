@@ -139,8 +139,13 @@ class LossvoOptunaSweeper(Sweeper):
         """The study, its search checked against the one recorded under its name (UserError)."""
         import optuna
 
+        from lossvo.console import UserError
         from lossvo.training import shared_study
 
+        wrong = [d for d in self.directions if d not in ("minimize", "maximize")]
+        if wrong:
+            raise UserError(f"hydra.sweeper.direction: expected minimize or maximize (or a list of them), "
+                            f"got {wrong[0]!r}")  # fmt: skip
         url = None if self.storage.url is None else str(self.storage.url)
         storage = None if url is None else shared_study.open_storage(url)
         if url is not None and storage is not None and self.study_name is not None:

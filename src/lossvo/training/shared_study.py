@@ -233,7 +233,7 @@ def difference(recorded: dict[str, Any], wanted: dict[str, Any]) -> str | None:
 
 def check_study(url: str, name: str, wanted: dict[str, Any], storage: BaseStorage | None = None) -> None:
     """Record the search ``wanted`` (:func:`search_of`) in the study ``name`` at ``url`` (through
-    ``storage``, else a storage opened here; the study created if new), or raise ValueError (one line)
+    ``storage``, else a storage opened here; the study created if new), or raise UserError (one line)
     where the study was created for another search or the storage cannot be opened."""
     opened = open_storage(url) if storage is None else storage
     try:
