@@ -45,9 +45,10 @@ FULL_ERROR = "LOSSVO_FULL_ERROR"
 """The environment variable that, set to 1, turns one-line user errors into full tracebacks."""
 
 
-class UserError(ValueError):
+class UserError(Exception):
     """Bad input: a command-line argument, a config value or an input file that lossvo refuses. Its
-    message is one line naming the key, file or line and what was expected."""
+    message is one line naming the key, file or line and what was expected. Not a ``ValueError``: a
+    ``ValueError`` is a programming error (or a library's refusal not yet named at lossvo's boundary)."""
 
 
 USER_ERRORS = (UserError, ValueError)
