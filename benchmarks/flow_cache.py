@@ -1,7 +1,7 @@
 """The optical-flow cache of a dataset: how long each flow setting takes to build it and how large it is.
 
 Run: ``.venv/bin/python benchmarks/flow_cache.py [--rounds 2] [--settings dis-fast dis-medium-x1.5 ...]``
-(``-xS``: ``data.flow_scale=S``, the flow computed on the source images at S times the cached size).
+(``-xS``: ``data.flow.scale=S``, the flow computed on the source images at S times the cached size).
 It reads the default synthetic dataset's frame cache (the default ``data=synthetic`` config: 6,300 frames
 at 64x208, under ``$LOSSVO_CACHE``, rendered first if missing), then builds the flow cache of each setting
 (consecutive pairs of every sequence, each training frame step's pairs of the training ones) into a fresh

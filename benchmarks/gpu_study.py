@@ -22,7 +22,7 @@ folders go to ``--work``, so that ``<out>`` stays a handful of files):
    frames and flow and fills torch.compile's cache (later stages wait for it before they time anything).
 3. **FlowVO's training step at 64x208** (its config: pairs, 20 a batch, the chordal loss): a batch resident
    on the GPU, and batches gathered there from resident arrays with the mirror augmentation, as
-   ``data.on_device`` does; eager, and compiled (``default``, ``reduce-overhead``: CUDA graphs), in fp32
+   ``data.loader.on_device`` does; eager, and compiled (``default``, ``reduce-overhead``: CUDA graphs), in fp32
    and bf16 autocast (``trainer=gpu``'s precision); the fused Adam and the step's record as the module has
    them. Steps/s over interleaved rounds, compile seconds, peak memory, and the host synchronisations of a
    step counted by ``torch.cuda.set_sync_debug_mode``.
@@ -220,7 +220,7 @@ def random_windows(size: tuple[int, int], frames: int, device: torch.device) -> 
 
 
 class Gathered:
-    """Batches as ``data.on_device`` gives them: index batches built on the host, gathered on the device,
+    """Batches as ``data.loader.on_device`` gives them: index batches built on the host, gathered on the device,
     half of them mirrored (frames, targets, flow, K), frames normalised and flow made float."""
 
     def __init__(self, windows: resident.ResidentWindows, batch_size: int, width: int) -> None:

@@ -68,7 +68,7 @@ def test_eval_on_a_root_holding_only_test_sequences(
     out = tmp_path / "eval"
     monkeypatch.setenv("LOSSVO_CACHE", str(tmp_path / "cache"))
     status, err = eval_main([f"ckpt_path={sweep_job / 'checkpoints' / 'best.ckpt'}", "data=kitti",
-                              f"data.root={other}", "data.test=[02]", "device=cpu", f"hydra.run.dir={out}"],
+                              f"data.root={other}", "data.splits.test=[02]", "device=cpu", f"hydra.run.dir={out}"],
                              monkeypatch, capsys)  # fmt: skip
     assert status == 0, err
     result = json.loads((out / "results.json").read_text())
@@ -79,8 +79,8 @@ def test_eval_on_a_root_holding_only_test_sequences(
     assert _ape(result, "02") == pytest.approx(_ape(trained, "02"), rel=1e-9)  # the training normalisation
 
 
-@pytest.mark.parametrize(("override", "given", "recorded"), [("data.seq_len=4", "4", "3"),
-                                                              ("data.height=32", "32", "64")])  # fmt: skip
+@pytest.mark.parametrize(("override", "given", "recorded"), [("data.windows.seq_len=4", "4", "3"),
+                                                              ("data.frames.height=32", "32", "64")])  # fmt: skip
 def test_contradicting_override_names_both_values(
     sweep_job: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys, override: str, given: str,
     recorded: str,
@@ -113,7 +113,7 @@ def test_resume_refuses_another_network_shape(sweep_job: Path, tiny_kitti: Path,
 
 
 def test_resume_refuses_another_frame_size(sweep_job: Path, tiny_kitti: Path, tmp_path: Path) -> None:
-    cfg = _resume_cfg(sweep_job, tiny_kitti, tmp_path, "loss=euler", "data.seq_len=4")
+    cfg = _resume_cfg(sweep_job, tiny_kitti, tmp_path, "loss=euler", "data.windows.seq_len=4")
     with pytest.raises(checkpoints.CheckpointError, match=r"data\.seq_len=3, this run has data\.seq_len=4"):
         fit(cfg)
 
@@ -140,7 +140,7 @@ def test_evaluation_data_takes_the_network_s_settings() -> None:
 
 
 def test_evaluation_data_keeps_the_flow_the_network_read() -> None:
-    """eval.yaml composes no network, so a chosen dataset's ``data.flow`` (which follows ``model.flow``)
+    """eval.yaml composes no network, so a chosen dataset's ``data.flow.method`` (which follows ``model.flow``)
     reads none: the checkpoint's flow setting wins, and an override that contradicts it is refused."""
     flowvo = {**RECORDED, "flow": "dis", "flow_preset": "fast"}
     kitti = {"_target_": "lossvo.data.datamodules.KittiDataModule", "root": "/kitti", "flow": "none",

@@ -255,7 +255,7 @@ def test_window_longer_than_sequences(tiny_kitti: Path, tmp_path: Path) -> None:
 
 
 def test_sequence_names_from_hydra_integers(tiny_kitti: Path, tmp_path: Path) -> None:
-    dm = make_dm(tiny_kitti, tmp_path, train=[0, 1], val=2, test=[2])  # data.val=02 arrives as the int 2
+    dm = make_dm(tiny_kitti, tmp_path, train=[0, 1], val=2, test=[2])  # data.splits.val=02 arrives as the int 2
     assert dm.splits == {"train": ("00", "01"), "val": ("02",), "test": ("02",), "unseen": ()}
 
 

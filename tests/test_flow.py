@@ -115,8 +115,8 @@ def test_the_flow_is_computed_once_per_cache_and_rebuilt_when_stale(tmp_path, mo
 
 @pytest.mark.parametrize(
     ("method", "preset", "message"),
-    [("dense", "medium", "data.flow: expected one of dis, farneback, none, got 'dense'"),
-     ("dis", "slow", "data.flow_preset: expected one of ultrafast, fast, medium, got 'slow'")],
+    [("dense", "medium", "data.flow.method: expected one of dis, farneback, none, got 'dense'"),
+     ("dis", "slow", "data.flow.preset: expected one of ultrafast, fast, medium, got 'slow'")],
 )  # fmt: skip
 def test_unknown_flow_settings_list_the_choices(method: str, preset: str, message: str) -> None:
     with pytest.raises(UserError, match=f"^{message}$"):
@@ -145,7 +145,7 @@ def test_a_resized_flow_keeps_each_pixels_displacement_in_the_new_pixels() -> No
 
 
 def test_a_flow_scale_computes_on_the_source_images_at_that_scale(tiny_kitti, tmp_path, monkeypatch) -> None:
-    """data.flow_scale=2: every field is computed between the sequence's PNGs read at twice the cached size
+    """data.flow.scale=2: every field is computed between the sequence's PNGs read at twice the cached size
     and resized to it; cached under its own key, beside the flow of scale 1, each computed once."""
     from test_datamodules import make_dm
 
@@ -188,7 +188,7 @@ def test_the_intrinsics_channels_are_k_after_resizing() -> None:
 
 
 def test_a_datamodule_caches_the_flow_of_every_pair_it_uses_once(tiny_kitti, tmp_path, monkeypatch) -> None:
-    """data.flow: consecutive pairs of every sequence, and each frame step's pairs of the training ones,
+    """data.flow.method: consecutive pairs of every sequence, and each frame step's pairs of the training ones,
     computed by the first datamodule and read by the next; recorded in the data's description."""
     from test_datamodules import make_dm  # the datamodule of those tests (the tiny dataset at 32x96)
 
@@ -204,7 +204,7 @@ def test_a_datamodule_caches_the_flow_of_every_pair_it_uses_once(tiny_kitti, tmp
     assert dm.description()["flow"] == "dis" and dm.description()["flow_preset"] == "ultrafast"
     make_dm(tiny_kitti, tmp_path, flow="dis", flow_preset="ultrafast", frame_steps=[1, 2])
     assert len(calls) == 43  # another job of the sweep: read, not computed
-    make_dm(tiny_kitti, tmp_path)  # data.flow=none (the default): no flow
+    make_dm(tiny_kitti, tmp_path)  # data.flow.method=none (the default): no flow
     assert len(calls) == 43
 
 

@@ -23,8 +23,8 @@ budget): a loaded CPU slows it down, and every stage must still run."""
 @pytest.mark.timeout(DEADLINE + 600)
 def test_quick_run_goes_through_every_stage(tiny_kitti: Path, tmp_path: Path) -> None:
     data = [
-        "data=kitti", f"data.root={tiny_kitti}", f"data.cache_dir={tmp_path / 'cache'}", "data.train=[00,01]",
-        "data.val=[02]", "data.test=[02]", "data.height=64", "data.width=96", "data.num_workers=0",
+        "data=kitti", f"data.root={tiny_kitti}", f"data.frames.cache_dir={tmp_path / 'cache'}", "data.splits.train=[00,01]",
+        "data.splits.val=[02]", "data.splits.test=[02]", "data.frames.height=64", "data.frames.width=96", "data.loader.num_workers=0",
         "model.channels=[8,8,16,16]", "model.hidden=16", "trainer.max_epochs=1",
     ]  # fmt: skip
     out = tmp_path / "out"

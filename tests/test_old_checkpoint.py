@@ -33,7 +33,7 @@ def test_its_augmentation_arguments_read_as_transforms() -> None:
 def test_it_evaluates_as_the_version_that_wrote_it(
     tiny_kitti: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    args = [f"ckpt_path={FIXTURE}", f"data.root={tiny_kitti}", f"data.cache_dir={tmp_path / 'cache'}",
+    args = [f"ckpt_path={FIXTURE}", f"data.root={tiny_kitti}", f"data.frames.cache_dir={tmp_path / 'cache'}",
             f"hydra.run.dir={tmp_path / 'run'}"]  # fmt: skip
     status, err = eval_main(args, monkeypatch, capsys)
     assert status == 0, err[-3000:]
@@ -45,7 +45,7 @@ def test_it_evaluates_as_the_version_that_wrote_it(
 def test_eval_names_an_unknown_synthetic_sequence_before_any_work(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """A network trained on the synthetic data, evaluated with ``data.test=[99]``: one line, exit 2, and
+    """A network trained on the synthetic data, evaluated with ``data.splits.test=[99]``: one line, exit 2, and
     nothing rendered."""
     content = torch.load(FIXTURE, weights_only=True)
     synthetic = "lossvo.data.datamodules.SyntheticDataModule"
@@ -55,9 +55,9 @@ def test_eval_names_an_unknown_synthetic_sequence_before_any_work(
                         "route_mixes": None}  # fmt: skip
     ckpt = tmp_path / "synthetic.ckpt"
     torch.save(content, ckpt)
-    args = [f"ckpt_path={ckpt}", "data.test=[99]", f"hydra.run.dir={tmp_path / 'run'}"]
+    args = [f"ckpt_path={ckpt}", "data.splits.test=[99]", f"hydra.run.dir={tmp_path / 'run'}"]
     status, err = eval_main(args, monkeypatch, capsys)
     lines = [line for line in err.splitlines() if line.strip()]
     assert status == 2 and len(lines) == 1, err
-    assert "data.test: sequence '99' not found (available: 00, 01, 02)" in lines[0]
+    assert "data.splits.test: sequence '99' not found (available: 00, 01, 02)" in lines[0]
     assert not (tmp_path / "s").exists()

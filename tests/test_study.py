@@ -344,7 +344,7 @@ def test_the_dry_run_on_a_gpu_prints_the_jobs_at_once(
             "weighting=unknown",
             "In 'train': Could not find 'weighting/unknown' (available: learned, matched, paper)",
         ),
-        ("data.batch_size=abc", "data.batch_size: expected an integer >= 1, got 'abc'"),  # a job's own checks
+        ("data.windows.batch_size=abc", "data.windows.batch_size: expected an integer >= 1, got 'abc'"),  # a job's own checks
         ("data=kitti", "data.root: a value is required: add data.root=... to the command line"),
     ],
 )

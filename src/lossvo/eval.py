@@ -1,7 +1,7 @@
 """``python -m lossvo.eval``: evaluate a checkpoint (Hydra, ``lossvo/conf/eval.yaml``)::
 
     python -m lossvo.eval ckpt_path=outputs/multirun/<time>/0_loss-euler+seed-0/checkpoints/best.ckpt
-    python -m lossvo.eval ckpt_path=... data=kitti data.root=/data/kitti data.test=[09,10]
+    python -m lossvo.eval ckpt_path=... data=kitti data.sources.kitti.root=/data/kitti data.splits.test=[09,10]
 
 The checkpoint records how its network was trained (:mod:`lossvo.evaluation.checkpoints`): frame size,
 ``seq_len``, normalisation and the training data, which is what is evaluated unless ``data=...`` or
@@ -59,9 +59,7 @@ def check_config(cfg: Any) -> None:
         raise UserError("ckpt_path is required: python -m lossvo.eval ckpt_path=PATH")
     resolved_config(cfg)  # an interpolation that does not resolve: one line naming its key
     check_checkpoint_path(Path(str(cfg.ckpt_path)))
-    root = (cfg.get("data") or {}).get("root")
-    if root is not None and Path(str(root)).expanduser().is_file():
-        raise UserError(f"data.root: {root} is a file, expected the dataset's folder")
+    check_source_roots(cfg.get("data"))
     missing = sorted(OmegaConf.missing_keys(cfg))
     if missing:
         raise UserError(f"{missing[0]}: a value is required: add {missing[0]}=... to the command line")
@@ -135,7 +133,7 @@ def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
     if unknown:
         raise UserError(
             f"sequences: {unknown[0]!r} is not a sequence of the evaluated data (expected one "
-            f"of {', '.join(available)}; data.test=[...] chooses them)"
+            f"of {', '.join(available)}; data.splits.test=[...] chooses them)"
         )
     return evaluate_run(
         network,

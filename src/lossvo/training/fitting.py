@@ -81,7 +81,7 @@ def build(cfg: DictConfig) -> tuple[VODataModule, VOModule, L.Trainer]:
     """Data (set up for fitting), module and trainer from a composed config; nothing is trained yet."""
     if cfg.model.get("flownet"):
         # FlowNetS weights were trained on img/255 - 0.5; the dataset statistics would not match them.
-        cfg.data.normalization = "flownet"
+        cfg.data.frames.normalization = "flownet"
     datamodule = instantiate(cfg.data, _convert_="all")
     # The FlowNet file initialises the encoder once, here; it is kept out of the module's
     # hyperparameters so that a checkpoint reloads without that file.
