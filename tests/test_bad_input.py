@@ -22,6 +22,7 @@ import torch
 from helpers import exit_status, fit, run_hydra_main, train_main
 from lossvo import eval as lossvo_eval
 from lossvo import metrics as metrics_cli
+from lossvo.console import UserError
 from lossvo.data.synthetic import cli as synthetic_cli
 from lossvo.report import cli as report_cli
 from lossvo.training import shared_study
@@ -289,12 +290,12 @@ def test_trainer_gpu_without_a_gpu_on_the_real_command_line(tiny_kitti: Path, tm
 @pytest.mark.parametrize(
     ("command", "args", "error"),
     [
-        ("train", "data.batch_size=abc", ValueError),
+        ("train", "data.batch_size=abc", UserError),
         ("train", "loss=eular", Exception),  # Hydra's MissingConfigException
-        ("eval", "device=cpu", ValueError),
-        ("report", "<missing folder>", ValueError),
-        ("metrics", "<poses> <malformed poses>", ValueError),
-        ("synthetic", "--out <new folder> --frames 1", ValueError),
+        ("eval", "device=cpu", UserError),
+        ("report", "<missing folder>", UserError),
+        ("metrics", "<poses> <malformed poses>", UserError),
+        ("synthetic", "--out <new folder> --frames 1", UserError),
     ],
 )
 def test_full_error_shows_the_traceback(command: str, args: str, error: type[Exception],

@@ -14,6 +14,7 @@ import pytest
 from evo.core import metrics as evo_metrics
 from evo.core.trajectory import PosePath3D
 
+from lossvo.console import UserError
 from lossvo.data.sequence import Sequence
 from lossvo.evaluation import baselines
 from lossvo.evaluation.results import DataRecord, Scores
@@ -169,7 +170,7 @@ def test_training_mean_motion_comes_from_the_recorded_training_data(tmp_path: Pa
     np.testing.assert_allclose(
         results[baselines.MEAN].trajectory, gt[0] @ chain([constant] * (FRAMES - 1)), atol=1e-9
     )
-    with pytest.raises(ValueError, match=r"data\.train"):
+    with pytest.raises(UserError, match=r"data\.train"):
         baselines.training_mean_motion(data_record(root, train_root, ()))
 
 

@@ -18,6 +18,7 @@ from omegaconf import OmegaConf
 from scipy.stats import t as scipy_t
 from scipy.stats import wilcoxon
 
+from lossvo.console import UserError
 from lossvo.evaluation.results import (
     DataRecord,
     KittiError,
@@ -55,7 +56,7 @@ def test_convergence_epoch_boundary_nan_and_max_mode() -> None:
     assert statistics.convergence_epoch(np.arange(3), np.array([math.nan, 4.0, 1.0])) == 2
     assert statistics.convergence_epoch(np.arange(2), np.array([math.nan, math.nan])) is None
     assert statistics.convergence_epoch(np.arange(4), np.array([0.1, 0.5, 0.95, 1.0]), mode="max") == 2
-    with pytest.raises(ValueError, match="mode"):
+    with pytest.raises(UserError, match="mode"):
         statistics.convergence_epoch(np.arange(2), np.ones(2), mode="lowest")
 
 
@@ -187,7 +188,7 @@ def test_selection_metric_is_the_configs_selection_monitor_and_mode() -> None:
     assert (job_selection(maximised.config).monitor, job_selection(maximised.config).mode) == (
         "val/rot_err_rad", "max")  # fmt: skip
     dangling = job("EulerLoss", callbacks__model_checkpoint__monitor="${selection.monitor}")
-    with pytest.raises(ValueError, match=r"selection\.monitor"):
+    with pytest.raises(UserError, match=r"selection\.monitor"):
         job_selection(dangling.config)
 
 

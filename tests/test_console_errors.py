@@ -6,6 +6,7 @@ from __future__ import annotations
 import errno
 import os
 import subprocess
+import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -31,7 +32,7 @@ def _instantiation(cause: BaseException, text: str = "Error in call to target 'x
 
 
 BUGS = [TypeError("f() got an unexpected keyword"), ImportError("no module x"), AttributeError("no attr"),
-        KeyError("99"), RuntimeError("bug")]  # fmt: skip
+        KeyError("99"), RuntimeError("bug"), ValueError("a bug's value")]  # fmt: skip
 
 
 @pytest.mark.parametrize("error", BUGS)
@@ -46,6 +47,7 @@ def test_user_errors_are_one_line() -> None:
         == "data.root: a file; expected a folder"
     )
     assert issubclass(CheckpointError, UserError) and issubclass(SweepError, UserError)
+    assert not issubclass(UserError, ValueError)  # a ValueError is a bug's, never a user error by its type
     assert user_message(MisconfigurationException("no GPU")) == "no GPU"
     assert user_message(_instantiation(UserError("bad k"))) == "model: bad k"
     located = _instantiation(ImportError("no module named nope"), "Error locating target 'nope.Net':")
@@ -174,3 +176,46 @@ def test_the_hydra_flags_are_those_of_hydras_parser() -> None:
 
     parser = get_args_parser()
     assert {option for action in parser._actions for option in action.option_strings} == console.HYDRA_FLAGS
+
+
+PATCHED_TRAIN = """
+import runpy, sys
+from lossvo.console import UserError
+from lossvo.training import fitting
+
+def build(cfg):
+    raise {error}
+
+fitting.build = build  # deep in training: after the config is composed and the run folder accepted
+sys.argv = ["lossvo.train", *sys.argv[1:]]
+runpy.run_module("lossvo.train", run_name="__main__", alter_sys=True)
+"""
+"""``python -m lossvo.train`` with ``fitting.build`` replaced by one that raises ``{error}``."""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("error", "status", "one_line"),
+    [
+        ('UserError("data.root: /x is a file, expected a folder")', 2, True),
+        ('ValueError("a bug deep in training")', 1, False),
+    ],
+)
+def test_train_ends_a_user_error_in_one_line_and_a_bug_in_its_traceback(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, error: str, status: int, one_line: bool
+) -> None:
+    for name in ("LOSSVO_FULL_ERROR", "HYDRA_FULL_ERROR"):
+        monkeypatch.delenv(name, raising=False)
+    script = tmp_path / "train.py"
+    script.write_text(PATCHED_TRAIN.format(error=error))
+    done = subprocess.run([sys.executable, str(script), f"hydra.run.dir={tmp_path / 'run'}"],
+                          capture_output=True, text=True, timeout=300)  # fmt: skip
+    message = error.split("(", 1)[1].rstrip(")").strip('"')
+    output = done.stdout + done.stderr
+    assert done.returncode == status, output
+    if one_line:  # logged once (the job's log is on the terminal), no traceback
+        lines = [line for line in output.splitlines() if message in line]
+        assert "Traceback" not in output and len(lines) == 1 and lines[0].endswith(message), output
+    else:
+        assert "Traceback (most recent call last)" in done.stderr, output
+        assert done.stderr.rstrip().endswith(f"{error.split('(')[0]}: {message}"), output

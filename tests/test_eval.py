@@ -19,6 +19,7 @@ from torch import Tensor, nn
 from helpers import check_ape_against_evo, eval_main, fit
 from lossvo import eval as lossvo_eval
 from lossvo import geometry
+from lossvo.console import UserError
 from lossvo.data.kitti import read_poses
 from lossvo.data.windows import tile
 from lossvo.evaluation.checkpoints import load_network
@@ -252,7 +253,7 @@ def test_trajectory_validation_skips_datamodules_without_sequences() -> None:
     TrajectoryValidation().on_validation_epoch_end(trainer, NoLog())
     trainer = SimpleNamespace(sanity_checking=False, current_epoch=0, datamodule=None)
     TrajectoryValidation().on_validation_epoch_end(trainer, NoLog())
-    with pytest.raises(ValueError, match="every_n_epochs"):
+    with pytest.raises(UserError, match="every_n_epochs"):
         TrajectoryValidation(every_n_epochs=0)
 
 

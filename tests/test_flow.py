@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 
+from lossvo.console import UserError
 from lossvo.data import flow, synthetic
 from lossvo.data.flow import FlowSetting
 from lossvo.data.transforms import Mirror, Reverse
@@ -118,15 +119,13 @@ def test_the_flow_is_computed_once_per_cache_and_rebuilt_when_stale(tmp_path, mo
      ("dis", "slow", "data.flow_preset: expected one of ultrafast, fast, medium, got 'slow'")],
 )  # fmt: skip
 def test_unknown_flow_settings_list_the_choices(method: str, preset: str, message: str) -> None:
-    with pytest.raises(ValueError, match=f"^{message}$"):
+    with pytest.raises(UserError, match=f"^{message}$"):
         FlowSetting(method, preset)
 
 
 @pytest.mark.parametrize("scale", [0.5, 5, "1.5", None])
 def test_a_flow_scale_outside_one_to_four_is_refused(scale) -> None:
-    with pytest.raises(
-        ValueError, match=rf"^data\.flow_scale: expected a number in \[1, 4\], got {scale!r}$"
-    ):
+    with pytest.raises(UserError, match=rf"^data\.flow_scale: expected a number in \[1, 4\], got {scale!r}$"):
         FlowSetting("dis", "medium", scale)
 
 

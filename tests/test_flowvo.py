@@ -8,6 +8,7 @@ import re
 import pytest
 import torch
 
+from lossvo.console import UserError
 from lossvo.data import synthetic
 from lossvo.geometry.camera import intrinsics_channels
 from lossvo.losses import ChordalLoss, QuaternionLoss, SixDLoss, SVDLoss
@@ -118,7 +119,7 @@ def test_channels_last_gives_the_same_values() -> None:
      ({"intrinsics_layer": 1}, "model.intrinsics_layer: expected true or false, got 1")],
 )  # fmt: skip
 def test_bad_arguments_name_the_key(kwargs: dict, message: str) -> None:
-    with pytest.raises(ValueError, match=f"^{re.escape(message)}"):
+    with pytest.raises(UserError, match=f"^{re.escape(message)}"):
         FlowVO(**({"out_dim": 6, "height": H, "width": W} | kwargs))
 
 

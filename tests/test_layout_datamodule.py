@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+from lossvo.console import UserError
 from lossvo.data import datamodules as datamodules
 from lossvo.data import frame_cache, windows
 from lossvo.data.datamodules import VODataModule
@@ -185,21 +186,21 @@ def test_keep_every_keeps_every_nth_frame(tum_root: Path, tmp_path: Path) -> Non
 
 
 @pytest.mark.parametrize(
-    ("kwargs", "message"),
+    ("kwargs", "error", "message"),
     [
-        ({"layout": "rosbag"}, r"data\.layout: unknown dataset layout 'rosbag' \(expected one of kitti, tum, "
-                               r"euroc, tartanair, mimir\)"),
-        ({"keep_every": 0}, r"data\.keep_every: expected an integer >= 1"),
+        ({"layout": "rosbag"}, UserError, r"data\.layout: unknown dataset layout 'rosbag' \(expected one of "
+                                          r"kitti, tum, euroc, tartanair, mimir\)"),
+        ({"keep_every": 0}, ValueError, r"data\.keep_every: expected an integer >= 1"),
     ],
 )  # fmt: skip
-def test_bad_layout_settings(tum_root: Path, tmp_path: Path, kwargs: dict, message: str) -> None:
-    with pytest.raises(ValueError, match=message):
+def test_bad_layout_settings(tum_root: Path, tmp_path: Path, kwargs: dict, error: type, message: str) -> None:
+    with pytest.raises(error, match=message):
         datamodule(tum_root, tmp_path / "cache", **kwargs)
 
 
 def test_a_sequence_that_does_not_exist_names_those_found(tum_root: Path, tmp_path: Path) -> None:
     dm = datamodule(tum_root, tmp_path / "cache", test=["rgbd_dataset_freiburg1_xyz"])
-    with pytest.raises(ValueError, match=rf"'rgbd_dataset_freiburg1_xyz' not found \(found: {FR1}\)"):
+    with pytest.raises(UserError, match=rf"'rgbd_dataset_freiburg1_xyz' not found \(found: {FR1}\)"):
         dm.prepare_data()
 
 

@@ -14,6 +14,7 @@ from hydra.utils import instantiate
 from scipy.spatial.transform import Rotation
 
 from lossvo import geometry as g
+from lossvo.console import UserError
 from lossvo.losses import (
     ChordalLoss,
     EulerLoss,
@@ -281,7 +282,7 @@ def test_wrong_shapes_raise_value_errors(cls: type[PoseLoss]) -> None:
 
 @pytest.mark.parametrize("k", [-1.0, float("nan"), float("inf"), "100", True])
 def test_invalid_weight_is_rejected(k: object) -> None:
-    with pytest.raises(ValueError, match=r"loss\.k: expected a finite number >= 0 for EulerLoss"):
+    with pytest.raises(UserError, match=r"loss\.k: expected a finite number >= 0 for EulerLoss"):
         EulerLoss(k=k)
 
 

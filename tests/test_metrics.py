@@ -20,6 +20,7 @@ from evo.tools import file_interface
 from helpers import DEVICES
 from lossvo import geometry
 from lossvo import metrics as metrics_cli
+from lossvo.console import UserError
 from lossvo.data.kitti import read_poses
 from lossvo.evaluation import metrics
 
@@ -192,7 +193,7 @@ def test_rpe_in_metres_equals_evo_with_pairs_from_either_path(cases, pairs_from,
     (1, "s", "estimate", "delta_unit"), (1, "f", "both", "pairs_from"),
 ])  # fmt: skip
 def test_rpe_settings_are_checked(delta, unit, pairs_from, message):
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(UserError, match=message):
         metrics.RPE(delta=delta, delta_unit=unit, pairs_from=pairs_from)
 
 
@@ -228,7 +229,7 @@ def test_statistics_like_numpy():
     assert s["std"] == pytest.approx(np.std(x))  # ddof 0
     assert s["rmse"] == pytest.approx(math.sqrt(np.mean(x**2)))
     assert (s["min"], s["max"], s["mean"]) == (1.0, 4.0, pytest.approx(2.375))
-    with pytest.raises(ValueError, match="no errors"):
+    with pytest.raises(UserError, match="no errors"):
         metrics.statistics(torch.zeros(0))
 
 
@@ -263,21 +264,21 @@ def test_any_device_same_numbers(device):
 def test_bad_input():
     ref = make_reference(20)
     est = make_estimate(ref)
-    with pytest.raises(ValueError, match="differ in length"):
+    with pytest.raises(UserError, match="differ in length"):
         metrics.ape_errors(est[:-1], ref)
-    with pytest.raises(ValueError, match="differ in length"):
+    with pytest.raises(UserError, match="differ in length"):
         metrics.rpe_errors(est, ref[:-1])
-    with pytest.raises(ValueError, match="at least 2 poses"):
+    with pytest.raises(UserError, match="at least 2 poses"):
         metrics.ape_errors(est[:1], ref[:1])
-    with pytest.raises(ValueError, match="at least 3 poses"):
+    with pytest.raises(UserError, match="at least 3 poses"):
         metrics.ape_errors(est[:2], ref[:2], align="se3")
-    with pytest.raises(ValueError, match="needs more than 5 poses"):
+    with pytest.raises(UserError, match="needs more than 5 poses"):
         metrics.rpe_errors(est[:5], ref[:5], delta=5)
-    with pytest.raises(ValueError, match="delta"):
+    with pytest.raises(UserError, match="delta"):
         metrics.rpe_errors(est, ref, delta=0)
-    with pytest.raises(ValueError, match="unknown alignment"):
+    with pytest.raises(UserError, match="unknown alignment"):
         metrics.align(est, ref, "sim2")
-    with pytest.raises(ValueError, match=r"shape \(N, 4, 4\)"):
+    with pytest.raises(UserError, match=r"shape \(N, 4, 4\)"):
         metrics.ape_errors(est[:, :3], ref[:, :3])
 
 
@@ -291,9 +292,9 @@ def test_nan_pose_names_first_bad_index():
         lambda: metrics.rpe_errors(est, ref),
         lambda: metrics.align(est, ref, "se3"),
     ):
-        with pytest.raises(ValueError, match="est pose 7 is not finite"):
+        with pytest.raises(UserError, match="est pose 7 is not finite"):
             call()
-    with pytest.raises(ValueError, match="ref pose 7 is not finite"):
+    with pytest.raises(UserError, match="ref pose 7 is not finite"):
         metrics.kitti_odometry_error(ref, est)
 
 
@@ -302,9 +303,9 @@ def test_degenerate_alignment(mode):
     ref = make_reference(10)
     est = ref.clone()
     est[:, :3, 3] = torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64)
-    with pytest.raises(ValueError, match="degenerate alignment: all positions identical"):
+    with pytest.raises(UserError, match="degenerate alignment: all positions identical"):
         metrics.align(est, ref, mode)
-    with pytest.raises(ValueError, match="degenerate alignment"):
+    with pytest.raises(UserError, match="degenerate alignment"):
         metrics.ape_errors(ref, est, align=mode)
 
 

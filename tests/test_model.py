@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from lossvo import losses
+from lossvo.console import UserError
 from lossvo.models import DeepVO, LoadReport, load_flownet
 
 SMALL = {"width_mult": 0.0625, "hidden_size": 16}
@@ -153,7 +154,7 @@ def test_forward_with_state_carries_over_chunks() -> None:
 )
 def test_bad_arguments(kwargs: dict, match: str) -> None:
     args = {"out_dim": 6, "height": 64, "width": 128, **SMALL, **kwargs}
-    with pytest.raises(ValueError, match=match):
+    with pytest.raises(UserError, match=match):
         DeepVO(**args)
 
 
@@ -275,16 +276,16 @@ def test_flownet_missing_file(tmp_path: Path) -> None:
 
 def test_flownet_unreadable_or_empty(tmp_path: Path) -> None:
     (tmp_path / "junk.pth").write_bytes(b"not a checkpoint")
-    with pytest.raises(ValueError, match=r"junk.pth could not be loaded"):
+    with pytest.raises(UserError, match=r"junk.pth could not be loaded"):
         load_flownet(small(), tmp_path / "junk.pth")
     torch.save({"epoch": 3, "arch": "flownets"}, tmp_path / "nostate.pth")
-    with pytest.raises(ValueError, match=r"nostate\.pth holds no state dict"):
+    with pytest.raises(UserError, match=r"nostate\.pth holds no state dict"):
         load_flownet(small(), tmp_path / "nostate.pth")
 
 
 def test_flownet_nothing_matches(tmp_path: Path) -> None:
     torch.save({"state_dict": {k: torch.zeros(s) for k, s in DECODER_KEYS.items()}}, tmp_path / "dec.pth")
-    with pytest.raises(ValueError, match=r"dec.pth: nothing matches the encoder"):
+    with pytest.raises(UserError, match=r"dec.pth: nothing matches the encoder"):
         load_flownet(small(), tmp_path / "dec.pth")
 
 
@@ -292,7 +293,7 @@ def test_flownet_needs_full_width(flownet_file) -> None:
     path, _ = flownet_file
     model = DeepVO(6, 64, 64, width_mult=0.25, hidden_size=4)
     with pytest.raises(
-        ValueError, match=r"nothing matches.*different shapes.*width_mult=1 \(model has width_mult=0.25\)"
+        UserError, match=r"nothing matches.*different shapes.*width_mult=1 \(model has width_mult=0.25\)"
     ):
         load_flownet(model, path)
 

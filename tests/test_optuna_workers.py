@@ -24,6 +24,7 @@ import pytest
 from optuna.distributions import FloatDistribution, distribution_to_json
 from optuna.trial import TrialState
 
+from lossvo.console import UserError
 from lossvo.training import shared_study
 from lossvo.training.shared_study import HEARTBEAT_ATTR, Heartbeats, TrialSeededTPESampler, open_storage
 
@@ -97,7 +98,7 @@ def test_a_trial_whose_worker_stopped_beating_is_failed_after_the_grace_period(k
 
 def test_a_storage_that_cannot_be_opened_is_one_line(tmp_path: Path) -> None:
     for url in (f"sqlite:///{tmp_path / 'missing' / 'optuna.db'}", str(tmp_path / "missing" / "optuna.log")):
-        with pytest.raises(ValueError) as error:
+        with pytest.raises(UserError) as error:
             open_storage(url)
         assert str(error.value).startswith(f"hydra.sweeper.storage.url: cannot open {url}: ")
         assert "\n" not in str(error.value)
@@ -121,7 +122,7 @@ def test_a_study_refuses_another_search(tmp_path: Path) -> None:
         "it runs with loss=euler, not loss=quat": {**search, "fixed": {"loss": "quat"}},
     }  # fmt: skip
     for why, other in others.items():
-        with pytest.raises(ValueError) as error:
+        with pytest.raises(UserError) as error:
             shared_study.check_study(url, STUDY, other)
         assert why in str(error.value) and "\n" not in str(error.value)
         assert str(error.value).startswith(
@@ -262,3 +263,18 @@ def test_a_bad_search_space_is_refused_in_one_line_naming_the_key(tiny_sweep_arg
                      "(in loss.k=interval(10, 1))"]  # fmt: skip
     assert not (tmp_path / "sweep" / "optuna.db").exists()
     assert not [p for p in (tmp_path / "sweep").glob("*") if p.is_dir()]
+
+
+@pytest.mark.parametrize("direction", ["up", ["minimize", "largest"]])
+def test_a_direction_optuna_does_not_know_is_one_line_naming_the_key(direction: object) -> None:
+    from omegaconf import OmegaConf
+
+    from hydra_plugins.lossvo_optuna_sweeper.optuna_sweeper import LossvoOptunaSweeper
+
+    sweeper = LossvoOptunaSweeper(direction, None, OmegaConf.create({"url": None}), 1, 1, 0.0, None, None)
+    wrong = direction if isinstance(direction, str) else direction[1]
+    expected = (
+        rf"^hydra\.sweeper\.direction: expected minimize or maximize \(or a list of them\), got '{wrong}'$"
+    )
+    with pytest.raises(UserError, match=expected):
+        sweeper._open({}, {})

@@ -29,6 +29,7 @@ from evo.core.trajectory import PosePath3D
 from scipy.stats import wilcoxon
 
 from conftest import STUDY_LOSSES, STUDY_SEEDS, STUDY_SEQUENCES
+from lossvo.console import UserError
 from lossvo.evaluation.results import (
     SCHEMA_VERSION,
     DataRecord,
@@ -894,7 +895,7 @@ def test_each_bad_results_json_is_one_line_naming_the_file_and_the_problem(
     with pytest.raises(ResultsError) as caught:
         Results.read(path)
     message = str(caught.value)
-    assert isinstance(caught.value, ValueError) and len(message.splitlines()) == 1
+    assert isinstance(caught.value, UserError) and len(message.splitlines()) == 1
     assert message.startswith(f"{path}: ") and reason in message, message
     assert caught.value.path == path and reason in caught.value.reason
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lossvo.console import UserError
 from lossvo.data import motion, synthetic
 from lossvo.data.synthetic import cli as synthetic_cli
 from lossvo.data.synthetic import routes
@@ -126,7 +127,7 @@ def test_unseen_sequences_drive_only_families_that_no_other_sequence_drives() ->
 
 def test_unknown_family_lists_the_families() -> None:
     expected = "unknown route family 'motorway': expected one of town, residential, arterial"
-    with pytest.raises(ValueError, match=expected):
+    with pytest.raises(UserError, match=expected):
         routes.make_route(np.random.default_rng(0), 10, {"motorway": 1.0})
 
 
@@ -142,12 +143,12 @@ def test_unknown_family_lists_the_families() -> None:
     ],
 )
 def test_impossible_family_parameters_name_the_parameter(change: dict, message: str) -> None:
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(UserError, match=message):
         dataclasses.replace(routes.FAMILIES["town"], **change)
 
 
 def test_bad_mix_weights() -> None:
-    with pytest.raises(ValueError, match="non-negative weights"):
+    with pytest.raises(UserError, match="non-negative weights"):
         routes.check_mix({"town": -1.0})
     assert routes.check_mix({"town": 2.0, "country": 2.0}) == {"town": 0.5, "country": 0.5}
 
@@ -222,7 +223,7 @@ def test_route_spec_adds_families_and_mixes_that_the_routes_follow() -> None:
     ],
 )
 def test_bad_route_config_names_the_key(families, mixes, message: str) -> None:
-    with pytest.raises(ValueError, match=re.escape(message)):
+    with pytest.raises(UserError, match=re.escape(message)):
         routes.route_spec(families, mixes, prefix="data.")
 
 

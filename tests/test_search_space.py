@@ -6,6 +6,7 @@ from __future__ import annotations
 import pytest
 from optuna.distributions import CategoricalDistribution, FloatDistribution, IntDistribution
 
+from lossvo.console import UserError
 from lossvo.training.search_space import parse
 
 
@@ -49,6 +50,6 @@ def test_plain_values_are_fixed_and_the_last_override_of_a_key_wins() -> None:
     ids=["empty-interval", "log-of-zero", "glob", "unparsed", "null-choice"],
 )
 def test_a_bad_search_space_is_one_line_naming_the_key(override: str, message: str) -> None:
-    with pytest.raises(ValueError) as error:
+    with pytest.raises(UserError) as error:
         parse(["optimizer.lr=interval(1e-4, 3e-3)", override])
     assert str(error.value).startswith(message) and "\n" not in str(error.value)

@@ -14,6 +14,7 @@ import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 
 from lossvo import geometry as g
+from lossvo.console import UserError
 from lossvo.training.module import VOModule
 from lossvo.training.step import (
     StepRecord,
@@ -39,7 +40,7 @@ def test_compile_mode(setting: Any, cpu: str | None, cuda: str | None) -> None:
 @pytest.mark.parametrize("setting", ["fast", 1, "graphs"])
 def test_a_compile_setting_that_does_not_exist_is_one_line(setting: Any) -> None:
     with pytest.raises(
-        ValueError, match=r"^compile: expected one of true, false, auto, default, reduce-overhead"
+        UserError, match=r"^compile: expected one of true, false, auto, default, reduce-overhead"
     ):
         compile_mode(setting, CPU)
 

@@ -18,6 +18,7 @@ from omegaconf import DictConfig, open_dict
 
 from helpers import train_main
 from lossvo import study
+from lossvo.console import UserError
 from lossvo.train import CONFIG_DIR
 from lossvo.training import gpu_jobs
 from lossvo.training.config_checks import check_accelerator
@@ -68,6 +69,8 @@ def test_sweep_jobs_are_counted_as_the_basic_sweeper_expands_them() -> None:
     assert gpu_jobs.sweep_jobs(["loss=euler,quat,chordal", "seed=0,1", "trainer=gpu"]) == 6
     assert gpu_jobs.sweep_jobs(["seed=range(0,10)"], {"model": "deepvo_small,flowvo"}) == 20
     assert gpu_jobs.sweep_jobs([]) == 1
+    assert gpu_jobs.sweep_jobs(["seed=0,1", "seed=0,1,2"]) == 3  # a key given twice: the last one counts
+    assert gpu_jobs.sweep_jobs(["+a=1,2", "~b", "c=[1,2]"]) == 2
     assert gpu_jobs.sweep_jobs(["optimizer.lr=interval(0.001,0.1)"]) is None  # not the basic sweeper's
 
 
@@ -89,10 +92,10 @@ def test_trains_on_cuda(accelerator: str, cuda: bool, on_cuda: bool) -> None:
 
 
 def test_a_gpu_trainer_without_a_gpu_names_trainer_default() -> None:
-    with pytest.raises(ValueError) as refused:
+    with pytest.raises(UserError) as refused:
         check_accelerator("gpu", False, "gpu")
     assert str(refused.value) == f"trainer=gpu: {NO_GPU}"
-    with pytest.raises(ValueError) as refused:
+    with pytest.raises(UserError) as refused:
         check_accelerator("cuda", False, "default")
     assert str(refused.value) == f"trainer.accelerator=cuda: {NO_GPU}"
     check_accelerator("gpu", True, "gpu")

@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 import pytest
 
+from lossvo.console import UserError
 from lossvo.data import motion, synthetic
 from lossvo.data.synthetic import cli as synthetic_cli
 from lossvo.data.synthetic import routes, writer
@@ -333,10 +334,10 @@ def test_interrupted_run_leaves_no_complete_looking_sequence(tmp_path: Path, mon
 
 
 def test_bad_parameters_raise_value_errors(tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match="two-digit"):
+    with pytest.raises(UserError, match="two-digit"):
         synthetic.generate(tmp_path, ["7"], 3)
-    with pytest.raises(ValueError, match="frames"):
+    with pytest.raises(UserError, match="frames"):
         synthetic.generate(tmp_path, ["07"], 1)
-    with pytest.raises(ValueError, match="height"):
+    with pytest.raises(UserError, match="height"):
         synthetic.generate(tmp_path, ["07"], 3, height=8)
     assert not list(tmp_path.iterdir())

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from lossvo.console import UserError
 from lossvo.data import tartanair
 from lossvo.data.sequence import DatasetFormatError
 
@@ -268,5 +269,5 @@ def test_pose_count_differs_from_frame_count(tmp_path: Path) -> None:
 
 def test_a_rate_that_is_not_positive(tmp_path: Path) -> None:
     write_sequence(tmp_path, np.stack([pose()] * 2))
-    with pytest.raises(ValueError, match="rate_hz must be positive"):
+    with pytest.raises(UserError, match="rate_hz must be positive"):
         tartanair.load_sequence(tmp_path, NAME, rate_hz=0.0)

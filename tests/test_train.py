@@ -12,6 +12,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, open_dict
 
 from helpers import fit
+from lossvo.console import UserError
 from lossvo.train import CONFIG_DIR
 from lossvo.training import fitting
 from lossvo.training.module import NonFiniteLossError, VOModule
@@ -104,7 +105,7 @@ def test_bad_names_fail_with_hydra_message(tmp_path: Path, override: str, messag
 
 def test_callback_without_target_fails_before_training(tiny_kitti: Path, tmp_path: Path) -> None:
     cfg = compose_train([*tiny_overrides(tiny_kitti, tmp_path), "+callbacks.oops.x=1"], tmp_path / "run")
-    with pytest.raises(ValueError, match=r"callbacks\.oops: expected a config with a _target_"):
+    with pytest.raises(UserError, match=r"callbacks\.oops: expected a config with a _target_"):
         fitting.build(cfg)
 
 

@@ -19,6 +19,7 @@ from torch import Tensor
 
 from helpers import fit
 from lossvo import geometry as g
+from lossvo.console import UserError
 from lossvo.data.kitti import read_poses
 from lossvo.evaluation.checkpoints import load_network
 from lossvo.evaluation.results import (
@@ -205,7 +206,7 @@ def test_direction_yardstick_scales_each_step_to_the_ground_truth_length(cls: ty
 @pytest.mark.parametrize("cls", LOSSES)
 @pytest.mark.parametrize("bad", ["foo", "Metric", "", None, 1, ["metric"]])
 def test_bad_translation_is_one_line_at_construction(cls: type[PoseLoss], bad: object) -> None:
-    with pytest.raises(ValueError) as caught:
+    with pytest.raises(UserError) as caught:
         cls(translation=bad)
     assert str(caught.value) == f"loss.translation: expected one of metric, direction, got {bad!r}"
 

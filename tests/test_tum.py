@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from evo_data import TUM_FR1_XYZ, evo_file
+from lossvo.console import UserError
 from lossvo.data import tum
 from lossvo.data.sequence import DatasetFormatError
 
@@ -236,7 +237,7 @@ def test_matches_the_brute_force_greedy(seed: int) -> None:
 
 
 def test_unsorted_stamps_are_refused() -> None:
-    with pytest.raises(ValueError, match="strictly increasing"):
+    with pytest.raises(UserError, match="strictly increasing"):
         tum.associate(np.array([0.0]), np.array([0.0, 0.0]))
 
 
@@ -298,7 +299,7 @@ def test_camera_overrides() -> None:
     got_K, got_d = tum.camera(FR1, distortion=np.array([0.1, 0.0, 0.0, 0.0]))
     np.testing.assert_allclose(got_K[0, 0], 517.3, atol=0.05)
     np.testing.assert_array_equal(got_d, [0.1, 0.0, 0.0, 0.0])
-    with pytest.raises(ValueError, match="K of shape"):
+    with pytest.raises(UserError, match="K of shape"):
         tum.camera(FR1, K=np.eye(2))
 
 

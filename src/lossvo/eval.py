@@ -36,6 +36,7 @@ from lossvo.evaluation import checkpoints
 from lossvo.evaluation.metrics import ALIGN_MODES, is_rpe_delta
 from lossvo.evaluation.results import Results, evaluate_run
 from lossvo.processes import restore_start_method
+from lossvo.training.config_checks import resolved_config
 
 log = logging.getLogger("lossvo")
 
@@ -56,6 +57,7 @@ def check_config(cfg: Any) -> None:
 
     if OmegaConf.is_missing(cfg, "ckpt_path"):
         raise UserError("ckpt_path is required: python -m lossvo.eval ckpt_path=PATH")
+    resolved_config(cfg)  # an interpolation that does not resolve: one line naming its key
     check_checkpoint_path(Path(str(cfg.ckpt_path)))
     root = (cfg.get("data") or {}).get("root")
     if root is not None and Path(str(root)).expanduser().is_file():
@@ -121,8 +123,8 @@ def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
     data_cfg = checkpoints.evaluation_data(recorded, given if chosen else None, explicit)
     try:
         datamodule = instantiate(data_cfg, _convert_="all")
-    except InstantiationException as e:  # a bad data setting: the constructor's own one-line ValueError
-        if isinstance(e.__cause__, ValueError):
+    except InstantiationException as e:  # a bad data setting: the constructor's own one-line UserError
+        if isinstance(e.__cause__, UserError):
             raise e.__cause__ from None
         raise
     datamodule.prepare_data()

@@ -13,6 +13,7 @@ from torch import Tensor, nn
 
 from lossvo import geometry as g
 from lossvo.checks import is_number
+from lossvo.console import UserError
 from lossvo.weighting import DEFAULT_C, HomoscedasticWeighting, check_k, check_unsquared, learned_from_config
 
 TRANSLATIONS = ("metric", "direction")
@@ -66,14 +67,14 @@ class PoseLoss(nn.Module):
         name = type(self).__name__
         if not isinstance(translation, str) or translation not in TRANSLATIONS:
             expected = ", ".join(TRANSLATIONS)
-            raise ValueError(f"loss.translation: expected one of {expected}, got {translation!r}")
+            raise UserError(f"loss.translation: expected one of {expected}, got {translation!r}")
         self.translation = translation
         self.weighting: HomoscedasticWeighting | None = learned_from_config(learned)
         check_k(k, learned=self.weighting is not None)
         if self.weighting is None and k is None:
             k = self.matched_k()
         if k is not None and (not is_number(k) or not math.isfinite(k) or k < 0):
-            raise ValueError(f"loss.k: expected a finite number >= 0 for {name}, got {k!r}")
+            raise UserError(f"loss.k: expected a finite number >= 0 for {name}, got {k!r}")
         self.k = None if k is None else float(k)
 
     def matched_k(self) -> float:
@@ -262,7 +263,7 @@ class QuaternionLoss(PoseLoss):
         translation: str = "metric",
     ) -> None:
         if not isinstance(squared, bool):
-            raise ValueError(f"loss.squared: expected true or false, got {squared!r}")
+            raise UserError(f"loss.squared: expected true or false, got {squared!r}")
         check_unsquared(squared, k, learned=learned is not None)
         self.squared = squared
         super().__init__(k, learned, translation)

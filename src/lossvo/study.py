@@ -140,7 +140,7 @@ def seed_warning(seeds: Sequence[int], losses: Sequence[str] = LOSSES, alpha: fl
 
 def gpu_jobs_at_once(jobs: int, job_gib: float, requested: int | None) -> int:
     """Jobs at once on this machine's GPU: ``requested`` (checked against its free memory), or as many as
-    fit (:func:`lossvo.training.gpu_jobs.jobs_that_fit`), no more than ``jobs``. Raises ``ValueError`` when
+    fit (:func:`lossvo.training.gpu_jobs.jobs_that_fit`), no more than ``jobs``. Raises ``UserError`` when
     they do not fit (not one, or fewer than requested)."""
     free, job_bytes = gpu_jobs.free_memory(), int(job_gib * gpu_jobs.GIB)
     at_once = requested or min(jobs, gpu_jobs.jobs_that_fit(free, job_bytes, joblib.cpu_count()))
@@ -162,7 +162,7 @@ def compose_job(model: str, loss: str, overrides: Sequence[str]) -> DictConfig:
 def check_job(cfg: DictConfig, out_dir: Path) -> None:
     """The checks a job runs on its config before it builds anything
     (:func:`lossvo.weighting.check_config`, :func:`~lossvo.training.config_checks.check_train_config`),
-    its ``${hydra:...}`` values resolved as in a job writing to ``out_dir``: ``ValueError`` (one line)."""
+    its ``${hydra:...}`` values resolved as in a job writing to ``out_dir``: ``UserError`` (one line)."""
     with open_dict(cfg):
         cfg.hydra.runtime.output_dir = str(out_dir)
     job = cfg.copy()

@@ -24,6 +24,7 @@ from hydra.utils import get_class
 from torch import Tensor, nn
 
 from lossvo.checks import is_number
+from lossvo.console import UserError
 
 DEFAULT_C = 100.0
 """The matched preset's small-angle rotation weight: the study's Euler k1, whose gain is 1."""
@@ -34,7 +35,7 @@ PRESETS = ("matched", "paper", "learned")
 def check_c(c: Any) -> float:
     """``weighting.c`` as a float; one clear error for anything but a finite number > 0."""
     if not is_number(c) or not math.isfinite(c) or c <= 0:
-        raise ValueError(f"weighting.c: expected a finite number > 0, got {c!r}")
+        raise UserError(f"weighting.c: expected a finite number > 0, got {c!r}")
     return float(c)
 
 
@@ -46,7 +47,7 @@ def matched_k(gain: float, c: float = DEFAULT_C) -> float:
 def _loss_class(target: str) -> Any:
     cls = get_class(target)
     if not hasattr(cls, "small_angle_gain"):
-        raise ValueError(f"loss._target_: {target} is not a lossvo pose loss (no small_angle_gain)")
+        raise UserError(f"loss._target_: {target} is not a lossvo pose loss (no small_angle_gain)")
     return cls
 
 
@@ -54,7 +55,7 @@ def preset_k(target: str, preset: str, c: float = DEFAULT_C, squared: bool = Tru
     """The k of a weighting preset for the loss class named ``target`` (None for ``learned``, and for
     a rotation term without a theta^2 gain under ``matched``: the loss then asks for an explicit k)."""
     if preset not in PRESETS:
-        raise ValueError(f"weighting.preset: expected one of {PRESETS}, got {preset!r}")
+        raise UserError(f"weighting.preset: expected one of {PRESETS}, got {preset!r}")
     cls = _loss_class(target)
     if preset == "learned":
         return None
@@ -66,7 +67,7 @@ def preset_k(target: str, preset: str, c: float = DEFAULT_C, squared: bool = Tru
 def check_k(k: Any, learned: bool) -> None:
     """Refuse an explicit ``loss.k`` together with the learned weighting (the learned weights replace k)."""
     if learned and k is not None:
-        raise ValueError(
+        raise UserError(
             f"loss.k={k!r} cannot be combined with weighting=learned (the learned weights replace k): "
             "drop loss.k, or choose weighting=matched or weighting=paper"
         )
@@ -76,7 +77,7 @@ def check_unsquared(squared: Any, k: Any, learned: bool) -> None:
     """Refuse ``loss.squared=false`` with neither ``loss.k`` nor the learned weighting: the unsquared
     quaternion distance has no matched k."""
     if squared is False and k is None and not learned:
-        raise ValueError(
+        raise UserError(
             "loss.squared=false: the unsquared quaternion distance (~ theta / 2) has no matched k; "
             "set loss.k (the study's 14 with weighting=paper) or use weighting=learned"
         )
@@ -86,12 +87,12 @@ def check_config(weighting: Mapping[str, Any], loss: Mapping[str, Any]) -> None:
     """Check a job's ``weighting`` and ``loss`` config entries before anything is built.
 
     Raises:
-        ValueError: one line naming the key: an unknown preset, ``weighting.c`` not a finite number
+        UserError: one line naming the key: an unknown preset, ``weighting.c`` not a finite number
             > 0 (matched), or ``loss.k`` given together with ``weighting=learned``.
     """
     preset = weighting.get("preset")
     if preset not in PRESETS:
-        raise ValueError(f"weighting.preset: expected one of {PRESETS}, got {preset!r}")
+        raise UserError(f"weighting.preset: expected one of {PRESETS}, got {preset!r}")
     if preset == "matched":
         check_c(weighting.get("c"))
         check_unsquared(loss.get("squared"), loss.get("k"), learned=False)
@@ -113,7 +114,7 @@ class HomoscedasticWeighting(nn.Module):
         super().__init__()
         for name, value in (("s_t", s_t), ("s_r", s_r)):
             if not is_number(value) or not math.isfinite(value):
-                raise ValueError(f"weighting.learned.{name}: expected a finite number, got {value!r}")
+                raise UserError(f"weighting.learned.{name}: expected a finite number, got {value!r}")
         self.log_vars = nn.Parameter(torch.tensor([float(s_t), float(s_r)]))
 
     def forward(self, trans_loss: Tensor, rot_loss: Tensor) -> Tensor:
@@ -132,5 +133,5 @@ def learned_from_config(learned: Mapping[str, Any] | None) -> HomoscedasticWeigh
     if learned is None:
         return None
     if not isinstance(learned, Mapping) or set(learned) - {"s_t", "s_r"}:
-        raise ValueError(f"weighting.learned: expected a mapping with keys s_t, s_r, got {learned!r}")
+        raise UserError(f"weighting.learned: expected a mapping with keys s_t, s_r, got {learned!r}")
     return HomoscedasticWeighting(**{k: learned[k] for k in learned})

@@ -25,6 +25,8 @@ from hydra.plugins.sweeper import Sweeper
 from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
+from lossvo.console import UserError
+
 log = logging.getLogger(__name__)
 
 
@@ -66,14 +68,14 @@ def directions_of(direction: Any) -> list[str]:
 
 
 def values_of(returned: Any, n: int) -> list[float]:
-    """A job's return value as ``n`` numbers (anything ``float`` takes, not a bool), or ValueError."""
+    """A job's return value as ``n`` numbers (anything ``float`` takes, not a bool), or UserError."""
     items = list(returned) if isinstance(returned, (list, tuple, ListConfig)) else [returned]
     try:
         if len(items) != n or any(isinstance(v, bool) for v in items):
             raise TypeError
         return [float(v) for v in items]
     except (TypeError, ValueError):
-        raise ValueError(f"the job returned {returned!r}, not {n} number(s)") from None
+        raise UserError(f"the job returned {returned!r}, not {n} number(s)") from None
 
 
 class LossvoOptunaSweeper(Sweeper):
@@ -107,13 +109,13 @@ class LossvoOptunaSweeper(Sweeper):
         )
 
     def sweep(self, arguments: list[str]) -> None:
-        from lossvo.console import exit_in_one_line
+        from lossvo.console import UserError, exit_in_one_line
         from lossvo.training import search_space, shared_study
 
         try:
             space, fixed = search_space.parse([f"{k}={v}" for k, v in self.params.items()] + list(arguments))
             study = self._open(space, fixed)
-        except ValueError as e:
+        except UserError as e:
             exit_in_one_line(e)
         log.info(
             f"Study {study.study_name} in {self._where()}, sampler {type(study.sampler).__name__}, "
@@ -147,11 +149,16 @@ class LossvoOptunaSweeper(Sweeper):
         return "memory" if self.storage.url is None else shown_url(str(self.storage.url))
 
     def _open(self, space: dict[str, Any], fixed: dict[str, str]) -> Any:
-        """The study, its search checked against the one recorded under its name (ValueError)."""
+        """The study, its search checked against the one recorded under its name (UserError)."""
         import optuna
 
+        from lossvo.console import UserError
         from lossvo.training import shared_study
 
+        wrong = [d for d in self.directions if d not in ("minimize", "maximize")]
+        if wrong:
+            raise UserError(f"hydra.sweeper.direction: expected minimize or maximize (or a list of them), "
+                            f"got {wrong[0]!r}")  # fmt: skip
         url = None if self.storage.url is None else str(self.storage.url)
         storage = None if url is None else shared_study.open_storage(url)
         if url is not None and storage is not None and self.study_name is not None:

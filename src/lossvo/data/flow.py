@@ -22,6 +22,7 @@ import torch
 from tqdm import tqdm
 
 from lossvo.checks import is_number
+from lossvo.console import UserError
 from lossvo.data import array_cache, frame_cache
 
 FLOW_VERSION = 1
@@ -42,7 +43,7 @@ class FlowSetting:
     """Which flow a dataset caches: ``method`` one of METHODS (``"none"``: no flow), ``preset`` one of
     DIS_PRESETS (DIS only), ``scale``: the flow is computed between frames resized from their source images
     to ``scale`` times the cached size, then resized to the cached size (values scaled with it): DIS resolves
-    small motions (a slow car's road, a far wall) better on the finer frames. Raises ValueError naming the
+    small motions (a slow car's road, a far wall) better on the finer frames. Raises UserError naming the
     key (``data.flow``, ``data.flow_preset``, ``data.flow_scale``)."""
 
     method: str = "dis"
@@ -51,13 +52,13 @@ class FlowSetting:
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
-            raise ValueError(f"data.flow: expected one of {', '.join(METHODS)}, got {self.method!r}")
+            raise UserError(f"data.flow: expected one of {', '.join(METHODS)}, got {self.method!r}")
         if self.method == "dis" and self.preset not in DIS_PRESETS:
-            raise ValueError(
+            raise UserError(
                 f"data.flow_preset: expected one of {', '.join(DIS_PRESETS)}, got {self.preset!r}"
             )
         if not is_number(self.scale) or not 1.0 <= self.scale <= MAX_SCALE:
-            raise ValueError(f"data.flow_scale: expected a number in [1, {MAX_SCALE:g}], got {self.scale!r}")
+            raise UserError(f"data.flow_scale: expected a number in [1, {MAX_SCALE:g}], got {self.scale!r}")
 
     @property
     def enabled(self) -> bool:
@@ -108,7 +109,7 @@ def pair_flow(first: np.ndarray, second: np.ndarray, setting: FlowSetting = Flow
         (2, H, W) float32 (u, v) in pixels: pixel (x, y) of ``first`` is at (x + u, y + v) in ``second``.
     """
     if not setting.enabled:
-        raise ValueError("data.flow: none computes no flow")
+        raise UserError("data.flow: none computes no flow")
     return _Estimator(setting)(_gray(first), _gray(second))
 
 
@@ -171,7 +172,7 @@ def _reader(
     if setting.scale == 1:
         return lambda k: _gray(frames[k])
     if len(images) != n:
-        raise ValueError(
+        raise UserError(
             f"data.flow_scale={setting.scale:g} reads the source images: expected {n}, got {len(images)}"
         )
     h, w = setting.size(height, width)
@@ -209,7 +210,7 @@ def ensure_flow(
         (max(N - step, 0), 2, H, W) float16 memory map.
     """
     if not setting.enabled:
-        raise ValueError("data.flow: none computes no flow")
+        raise UserError("data.flow: none computes no flow")
     n, _, height, width = frames.shape
     shape = (max(n - step, 0), 2, height, width)
     expected = {

@@ -12,6 +12,7 @@ import os
 from pathlib import Path
 from types import ModuleType
 
+from lossvo.console import UserError
 from lossvo.data import euroc, kitti, mimir, tartanair, tum
 from lossvo.data.sequence import Sequence
 
@@ -28,9 +29,9 @@ LAYOUTS = tuple(READERS)
 
 
 def check_layout(layout: object, key: str = "data.layout") -> str:
-    """``layout`` if it names a layout; ValueError naming ``key`` and the layouts otherwise."""
+    """``layout`` if it names a layout; UserError naming ``key`` and the layouts otherwise."""
     if layout not in READERS:
-        raise ValueError(f"{key}: unknown dataset layout {layout!r} (expected one of {', '.join(LAYOUTS)})")
+        raise UserError(f"{key}: unknown dataset layout {layout!r} (expected one of {', '.join(LAYOUTS)})")
     return str(layout)
 
 

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from lossvo import geometry, table_render
-from lossvo.console import OneLineParser, emit, one_line_main
+from lossvo.console import OneLineParser, UserError, emit, one_line_main
 from lossvo.data import frame_cache, kitti, layouts, sequence
 from lossvo.data.datamodules import PAPER_TEST, PAPER_TRAIN, PAPER_VAL
 from lossvo.data.synthetic import routes
@@ -161,7 +161,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.error(f"--layout {args.layout}: give the dataset root (python -m lossvo.data.motion ROOT)")
         try:
             motion = read_layout_motion(args.layout, args.root, sequence.sequence_names(args.sequences))
-        except ValueError as err:  # DatasetFormatError
+        except UserError as err:  # DatasetFormatError
             parser.error(str(err))
         if not motion:
             parser.error(f"{args.root}: no {args.layout} sequence found")
@@ -172,7 +172,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         root = kitti.find_root(root)
         splits = {s: sequence.sequence_names(getattr(args, s)) for s in PAPER_SPLITS}
         motion = read_motion(root, sorted({n for names in splits.values() for n in names}))
-    except ValueError as err:  # KittiFormatError too
+    except UserError as err:  # KittiFormatError too
         parser.error(str(err))
     if not motion:
         parser.error(f"{root}: no poses file for any of the requested sequences")

@@ -145,11 +145,11 @@ class Sequence:
     def __post_init__(self) -> None:
         n = len(self.images)
         if self.times.shape != (n,):
-            raise ValueError(f"sequence {self.name}: {self.times.shape} timestamps for {n} frames")
+            raise UserError(f"sequence {self.name}: {self.times.shape} timestamps for {n} frames")
         if self.poses is not None and self.poses.shape != (n, 4, 4):
-            raise ValueError(f"sequence {self.name}: poses of shape {self.poses.shape} for {n} frames")
+            raise UserError(f"sequence {self.name}: poses of shape {self.poses.shape} for {n} frames")
         if self.K.shape != (3, 3):
-            raise ValueError(f"sequence {self.name}: K of shape {self.K.shape}, expected (3, 3)")
+            raise UserError(f"sequence {self.name}: K of shape {self.K.shape}, expected (3, 3)")
 
     def every(self, n: int) -> Sequence:
         """The sequence with every ``n``-th frame kept (frames 0, n, 2n, ...): a lower frame rate."""

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lossvo.console import UserError
 from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
@@ -185,10 +186,10 @@ def load_sequence(
     Raises:
         DatasetFormatError: an unknown sequence (naming those found), missing or malformed frames or pose
             file, a pose count that differs from the frame count.
-        ValueError: if ``rate_hz`` is not positive.
+        UserError: if ``rate_hz`` is not positive.
     """
     if not rate_hz > 0:
-        raise ValueError(f"rate_hz must be positive, got {rate_hz}")
+        raise UserError(f"rate_hz must be positive, got {rate_hz}")
     folder = sequence_dir(root, name)
     images = image_paths(folder / IMAGES)
     size = png_size(images[0])

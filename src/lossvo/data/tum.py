@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lossvo.console import UserError
 from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
@@ -185,7 +186,7 @@ def associate(
     frame_times = np.asarray(frame_times, dtype=np.float64)
     gt_times = np.asarray(gt_times, dtype=np.float64)
     if np.any(np.diff(gt_times) <= 0):
-        raise ValueError("gt_times must be strictly increasing")
+        raise UserError("gt_times must be strictly increasing")
     frames, stamps = _candidates(frame_times, gt_times, max_difference)
     difference = np.abs(frame_times[frames] - gt_times[stamps])
     order = np.lexsort((stamps, frames, difference))
@@ -260,7 +261,7 @@ def camera(
         (3, 3) float64 K and (D,) float64 distortion.
     Raises:
         DatasetFormatError: if no camera is known for ``name`` and no ``K`` is given.
-        ValueError: if an override has a wrong shape.
+        UserError: if an override has a wrong shape.
     """
     key = camera_key(name)
     if key is None and K is None:
@@ -274,9 +275,9 @@ def camera(
         distortion = np.array(CAMERAS[key][1]) if key else np.zeros(5)
     K_out, d_out = np.asarray(K, dtype=np.float64), np.asarray(distortion, dtype=np.float64)
     if K_out.shape != (3, 3):
-        raise ValueError(f"sequence {name!r}: K of shape {K_out.shape}, expected (3, 3)")
+        raise UserError(f"sequence {name!r}: K of shape {K_out.shape}, expected (3, 3)")
     if d_out.shape not in ((4,), (5,), (8,), (12,), (14,)):
-        raise ValueError(f"sequence {name!r}: distortion of shape {d_out.shape}, expected (4,), (5,), ...")
+        raise UserError(f"sequence {name!r}: distortion of shape {d_out.shape}, expected (4,), (5,), ...")
     return K_out, d_out
 
 

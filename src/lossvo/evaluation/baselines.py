@@ -22,6 +22,7 @@ import torch
 
 from lossvo import geometry
 from lossvo.atomic import atomic_path
+from lossvo.console import UserError
 from lossvo.data import layouts
 from lossvo.data.flow import FlowSetting, pair_flow
 from lossvo.data.frame_cache import Undistortion, read_frame, undistortion
@@ -146,7 +147,7 @@ def orb_features(images: Sequence[Path]) -> Features:
     for path in images:
         image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
         if image is None:
-            raise ValueError(f"{path}: cannot decode image")
+            raise UserError(f"{path}: cannot decode image")
         orb, shape = orb or _orb(image.shape), image.shape[:2]
         keypoints, desc = orb.detectAndCompute(image, None)
         points.append(np.asarray(cv2.KeyPoint.convert(keypoints), dtype=np.float64).reshape(-1, 2))
@@ -464,11 +465,11 @@ def training_sequences(data: DataRecord) -> list[DatasetSequence]:
     ``data.train_layout`` (poses required).
 
     Raises:
-        ValueError: no training data or sequence recorded; KittiFormatError for a sequence that is not
+        UserError: no training data or sequence recorded; KittiFormatError for a sequence that is not
             there.
     """
     if not data.train or data.train_root is None:
-        raise ValueError("the recorded training split (data.train) is empty: no training mean motion")
+        raise UserError("the recorded training split (data.train) is empty: no training mean motion")
     root = layouts.dataset_root(data.train_layout, data.train_root)
     every = data.train_keep_every
     return [layouts.load_sequence(data.train_layout, root, name).every(every) for name in data.train]
@@ -633,7 +634,7 @@ def compute_baselines(
     Returns:
         {sequence: {baseline name: BaselineResult}}, in the order of ``sequences``.
     Raises:
-        ValueError (KittiFormatError among them): a root, a sequence or a pose file that is not there.
+        UserError (KittiFormatError among them): a root, a sequence or a pose file that is not there.
     """
     training = training_sequences(data)
     train_mean = mean_motion([s.targets for s in training])

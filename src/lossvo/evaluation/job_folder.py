@@ -24,6 +24,7 @@ import numpy as np
 
 from lossvo.atomic import atomic_path, write_text_atomic
 from lossvo.checks import is_integer, is_number
+from lossvo.console import UserError
 
 STATUS = "status.json"
 METRICS = "metrics.csv"
@@ -35,7 +36,7 @@ STATES = ("running", "completed", "failed", "interrupted")
 """What ``status.json`` says of a run."""
 
 
-class JobFolderError(ValueError):
+class JobFolderError(UserError):
     """A ``status.json`` or ``metrics.csv`` that cannot be read; the message is one line,
     ``"<path>: <reason>"``."""
 
@@ -64,7 +65,7 @@ _INTEGERS = ("epoch", "slurm_restarts", "threads")
 
 
 def _typed(name: str, value: Any, where: str) -> Any:
-    """``value`` of field ``name``, checked against the field's type; ValueError naming the key."""
+    """``value`` of field ``name``, checked against the field's type; UserError naming the key."""
     if name in _INTEGERS:
         kind, fits = "an integer", is_integer(value)
     elif name == "metrics":
@@ -73,7 +74,7 @@ def _typed(name: str, value: Any, where: str) -> Any:
     else:
         kind, fits = "a string", isinstance(value, str)
     if not fits:
-        raise ValueError(f"{where}{_JSON_NAMES.get(name, name)}: expected {kind}, got {value!r}")
+        raise UserError(f"{where}{_JSON_NAMES.get(name, name)}: expected {kind}, got {value!r}")
     return value
 
 
@@ -81,7 +82,7 @@ def _from_json(cls: type, obj: Any, where: str) -> dict[str, Any]:
     """The fields of dataclass ``cls`` (``history`` aside) found in the JSON object ``obj``, checked
     (other keys are ignored); ``where``: the object's place in the file, prefixed to a message."""
     if not isinstance(obj, dict):
-        raise ValueError(f"{where}expected an object, got {type(obj).__name__}")
+        raise UserError(f"{where}expected an object, got {type(obj).__name__}")
     keys = {f.name: _JSON_NAMES.get(f.name, f.name) for f in fields(cls) if f.name != "history"}
     return {name: _typed(name, obj[key], where) for name, key in keys.items() if obj.get(key) is not None}
 
@@ -120,7 +121,7 @@ class Event:
     def from_json(cls, obj: Any, where: str) -> Event:
         found = _from_json(cls, obj, where)
         if "event" not in found:
-            raise ValueError(f"{where}expected an 'event'")
+            raise UserError(f"{where}expected an 'event'")
         return cls(**{"time": None, **found})
 
 
@@ -169,10 +170,10 @@ class Status:
     def from_json(cls, obj: Any) -> Status:
         found = _from_json(cls, obj, "")
         if found.get("state") not in STATES:
-            raise ValueError(f"expected 'status' to be one of {', '.join(STATES)}, got {obj.get('status')!r}")
+            raise UserError(f"expected 'status' to be one of {', '.join(STATES)}, got {obj.get('status')!r}")
         history = obj.get("history") or []
         if not isinstance(history, list):
-            raise ValueError(f"history: expected a list, got {type(history).__name__}")
+            raise UserError(f"history: expected a list, got {type(history).__name__}")
         events = tuple(Event.from_json(e, f"history[{i}]: ") for i, e in enumerate(history))
         return cls(**found, history=events)
 
@@ -192,7 +193,7 @@ def read_status(folder: Path) -> Status | None:
         raise JobFolderError(path, f"invalid JSON ({e.msg} at line {e.lineno})") from None
     try:
         return Status.from_json(obj)
-    except ValueError as e:
+    except UserError as e:
         raise JobFolderError(path, str(e)) from None
 
 
@@ -257,9 +258,9 @@ class MetricsTable:
 
 
 def _complete(row: Sequence[str], header: Sequence[str]) -> dict[str, str]:
-    """A row as a dict; ValueError for a row cut short or holding a value that is not a number."""
+    """A row as a dict; UserError for a row cut short, ValueError for a value that is not a number."""
     if len(row) != len(header):
-        raise ValueError(f"{len(row)} fields, header has {len(header)}")
+        raise UserError(f"{len(row)} fields, header has {len(header)}")
     for value in row:
         if value.strip():
             float(value)
@@ -284,7 +285,7 @@ def read_metrics(folder: Path) -> MetricsTable:
     for number, line in enumerate(lines, start=2):
         try:
             rows.append(_complete(line, header))
-        except ValueError as e:
+        except (UserError, ValueError) as e:  # ValueError: float() of a value that is not a number
             damage = f"line {number} is truncated or corrupt ({e}): later rows ignored"
             break
     return MetricsTable(tuple(header), tuple(rows), damage)

@@ -30,6 +30,7 @@ from torchmetrics.utilities import dim_zero_cat
 
 from lossvo import geometry
 from lossvo.checks import is_integer, is_number
+from lossvo.console import UserError
 from lossvo.evaluation.trajectories import integrate
 
 AlignMode = Literal["none", "se3", "sim3", "scale"]
@@ -48,14 +49,14 @@ STATISTICS: tuple[str, ...] = ("rmse", "mean", "median", "std", "min", "max")
 
 
 def _as_poses(x: Tensor | np.ndarray | Sequence, name: str, device: torch.device | None = None) -> Tensor:
-    """``x`` as a float64 (N, 4, 4) tensor; ValueError for another shape or a non-finite pose."""
+    """``x`` as a float64 (N, 4, 4) tensor; UserError for another shape or a non-finite pose."""
     t = torch.as_tensor(x, dtype=torch.float64, device=device)
     if t.dim() != 3 or tuple(t.shape[1:]) != (4, 4):
-        raise ValueError(f"{name} must have shape (N, 4, 4), got {tuple(t.shape)}")
+        raise UserError(f"{name} must have shape (N, 4, 4), got {tuple(t.shape)}")
     bad = ~torch.isfinite(t).flatten(1).all(dim=1)
     if bool(bad.any()):
         index = int(torch.nonzero(bad)[0, 0])
-        raise ValueError(f"{name} pose {index} is not finite (NaN or inf)")
+        raise UserError(f"{name} pose {index} is not finite (NaN or inf)")
     return t
 
 
@@ -64,9 +65,9 @@ def _check_pair(est: Any, ref: Any, min_poses: int) -> tuple[Tensor, Tensor]:
     est = _as_poses(est, "est")
     ref = _as_poses(ref, "ref", device=est.device)
     if len(est) != len(ref):
-        raise ValueError(f"trajectories differ in length: est has {len(est)} poses, ref has {len(ref)}")
+        raise UserError(f"trajectories differ in length: est has {len(est)} poses, ref has {len(ref)}")
     if len(est) < min_poses:
-        raise ValueError(f"need at least {min_poses} poses, got {len(est)}")
+        raise UserError(f"need at least {min_poses} poses, got {len(est)}")
     return est, ref
 
 
@@ -91,18 +92,18 @@ def umeyama(x: Tensor, y: Tensor, with_scale: bool) -> tuple[Tensor, Tensor, Ten
     Returns:
         r (3, 3) rotation, t (3,) translation (metres), c () scale; all float64.
     Raises:
-        ValueError: "degenerate alignment: ..." when the covariance has rank < 2.
+        UserError: "degenerate alignment: ..." when the covariance has rank < 2.
     """
     n = x.shape[0]
     mean_x, mean_y = x.mean(dim=0), y.mean(dim=0)
     xc, yc = x - mean_x, y - mean_y
     if not bool(xc.any()) or not bool(yc.any()):
-        raise ValueError("degenerate alignment: all positions identical")
+        raise UserError("degenerate alignment: all positions identical")
     sigma_x = (xc * xc).sum() / n
     cov = yc.T @ xc / n
     u, d, v = torch.linalg.svd(cov)
     if int((d > torch.finfo(d.dtype).eps).sum()) < 2:
-        raise ValueError("degenerate alignment: positions are collinear (covariance rank < 2)")
+        raise UserError("degenerate alignment: positions are collinear (covariance rank < 2)")
     s = torch.ones(3, dtype=x.dtype, device=x.device)
     if float(torch.linalg.det(u) * torch.linalg.det(v)) < 0.0:
         s[2] = -1.0
@@ -123,11 +124,11 @@ def align(est: Tensor, ref: Tensor, mode: AlignMode = "none") -> Tensor:
     Returns:
         (N, 4, 4) float64 aligned estimate.
     Raises:
-        ValueError: unknown mode, different lengths, non-finite poses, N < 3 for an alignment, degenerate
+        UserError: unknown mode, different lengths, non-finite poses, N < 3 for an alignment, degenerate
             positions.
     """
     if mode not in ALIGN_MODES:
-        raise ValueError(f"unknown alignment {mode!r}; expected one of {', '.join(ALIGN_MODES)}")
+        raise UserError(f"unknown alignment {mode!r}; expected one of {', '.join(ALIGN_MODES)}")
     est, ref = _check_pair(est, ref, 1 if mode == "none" else 3)
     if mode == "none":
         return est
@@ -253,12 +254,12 @@ def is_rpe_delta(delta: object, delta_unit: str = "f") -> bool:
 def check_rpe_settings(delta: float, delta_unit: str, pairs_from: str) -> None:
     """One line naming the setting that is not a valid RPE delta, unit or pair source."""
     if delta_unit not in ("f", "m"):
-        raise ValueError(f"delta_unit must be 'f' (frames) or 'm' (metres), got {delta_unit!r}")
+        raise UserError(f"delta_unit must be 'f' (frames) or 'm' (metres), got {delta_unit!r}")
     if pairs_from not in PAIRS_FROM:
-        raise ValueError(f"pairs_from must be one of {', '.join(PAIRS_FROM)}, got {pairs_from!r}")
+        raise UserError(f"pairs_from must be one of {', '.join(PAIRS_FROM)}, got {pairs_from!r}")
     if not is_rpe_delta(delta, delta_unit):
         what = "integer number of frames" if delta_unit == "f" else "path distance in metres"
-        raise ValueError(f"delta must be a positive {what}, got {delta!r}")
+        raise UserError(f"delta must be a positive {what}, got {delta!r}")
 
 
 def _rpe_pairs(
@@ -267,11 +268,11 @@ def _rpe_pairs(
     check_rpe_settings(delta, delta_unit, pairs_from)
     if delta_unit == "f":
         if len(est) <= delta:
-            raise ValueError(f"delta = {delta} frames needs more than {delta} poses, got {len(est)}")
+            raise UserError(f"delta = {delta} frames needs more than {delta} poses, got {len(est)}")
         return rpe_pairs(len(est), int(delta))
     i, j = rpe_pairs_by_path(ref if pairs_from == "reference" else est, float(delta))
     if len(i) == 0:
-        raise ValueError(f"delta = {delta} m: the {pairs_from}'s path is too short for one pair")
+        raise UserError(f"delta = {delta} m: the {pairs_from}'s path is too short for one pair")
     return i, j
 
 
@@ -292,7 +293,7 @@ def statistics(errors: Tensor) -> dict[str, float]:
     """
     e = torch.as_tensor(errors, dtype=torch.float64).flatten()
     if e.numel() == 0:
-        raise ValueError("no errors to summarise")
+        raise UserError("no errors to summarise")
     s = torch.sort(e).values
     m = e.numel()
     median = 0.5 * (s[(m - 1) // 2] + s[m // 2])
@@ -455,7 +456,7 @@ class APE(_PoseErrorMetric):
 
     def __init__(self, align: AlignMode = "none", **kwargs: Any) -> None:
         if align not in ALIGN_MODES:
-            raise ValueError(f"unknown alignment {align!r}; expected one of {', '.join(ALIGN_MODES)}")
+            raise UserError(f"unknown alignment {align!r}; expected one of {', '.join(ALIGN_MODES)}")
         super().__init__(**kwargs)
         self.align = align
 
@@ -481,7 +482,7 @@ class RPE(_PoseErrorMetric):
     ) -> None:
         check_rpe_settings(delta, delta_unit, pairs_from)
         if align not in ALIGN_MODES:
-            raise ValueError(f"unknown alignment {align!r}; expected one of {', '.join(ALIGN_MODES)}")
+            raise UserError(f"unknown alignment {align!r}; expected one of {', '.join(ALIGN_MODES)}")
         super().__init__(**kwargs)
         self.delta, self.align, self.delta_unit, self.pairs_from = delta, align, delta_unit, pairs_from
 

@@ -1,4 +1,4 @@
-"""The arguments a network's config gives, checked: one ``ValueError`` naming ``model.<key>`` for a bad value;
+"""The arguments a network's config gives, checked: one ``UserError`` naming ``model.<key>`` for a bad value;
 and the two steps both networks take while they build: the seeded build and the memory layout."""
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ import torch
 from torch import Tensor
 
 from lossvo.checks import is_integer, is_number
+from lossvo.console import UserError
 
 
 def head_bias(value: object, out_dim: int) -> Tensor:
@@ -21,13 +22,13 @@ def head_bias(value: object, out_dim: int) -> Tensor:
     except (TypeError, ValueError):
         bias = torch.empty(0)
     if bias.shape != (out_dim,) or not torch.isfinite(bias).all():
-        raise ValueError(f"model.head_bias: expected null or {out_dim} finite numbers, got {value!r}")
+        raise UserError(f"model.head_bias: expected null or {out_dim} finite numbers, got {value!r}")
     return bias
 
 
 def check_int(name: str, value: object, minimum: int, why: str = "") -> int:
     if not is_integer(value, minimum):
-        raise ValueError(f"model.{name}: expected an integer >= {minimum}{why}, got {value!r}")
+        raise UserError(f"model.{name}: expected an integer >= {minimum}{why}, got {value!r}")
     return value
 
 
@@ -38,7 +39,7 @@ def check_float(name: str, value: object, low: float, high: float, high_open: bo
         and (low <= value < high if high_open else low < value <= high)
     ):
         return float(value)
-    raise ValueError(f"model.{name}: expected {what}, got {value!r}")
+    raise UserError(f"model.{name}: expected {what}, got {value!r}")
 
 
 def dropout(name: str, value: object) -> float:
@@ -48,7 +49,7 @@ def dropout(name: str, value: object) -> float:
 def memory_format(channels_last: object) -> torch.memory_format:
     """``model.channels_last``: channels-last (NHWC) or the contiguous layout."""
     if not isinstance(channels_last, bool):
-        raise ValueError(f"model.channels_last: expected true or false, got {channels_last!r}")
+        raise UserError(f"model.channels_last: expected true or false, got {channels_last!r}")
     return torch.channels_last if channels_last else torch.contiguous_format
 
 

@@ -12,6 +12,7 @@ from pathlib import Path
 import torch
 from torch import Tensor, nn
 
+from lossvo.console import UserError
 from lossvo.models.arguments import check_float, check_int, dropout, memory_format, seeded_build
 from lossvo.models.arguments import head_bias as head_bias_of
 from lossvo.models.flownet import load_flownet
@@ -118,9 +119,9 @@ class DeepVO(nn.Module):
         lstm_p = dropout("lstm_dropout", lstm_dropout)
         head_p = dropout("head_dropout", head_dropout)
         if not isinstance(batch_norm, bool):
-            raise ValueError(f"model.batch_norm: expected true or false, got {batch_norm!r}")
+            raise UserError(f"model.batch_norm: expected true or false, got {batch_norm!r}")
         if flownet is not None and not isinstance(flownet, (str, Path)):
-            raise ValueError(f"model.flownet: expected a path or null, got {flownet!r}")
+            raise UserError(f"model.flownet: expected a path or null, got {flownet!r}")
         self.memory_format = memory_format(channels_last)
         self.register_buffer("_head_bias", head_bias_of(head_bias, self.out_dim), persistent=False)
 

@@ -14,6 +14,8 @@ from pathlib import Path
 import torch
 from torch import Tensor, nn
 
+from lossvo.console import UserError
+
 log = logging.getLogger(__name__)
 
 
@@ -40,19 +42,19 @@ class LoadReport:
 
 def _read_state_dict(path: Path) -> dict[str, Tensor]:
     if path.is_dir():
-        raise ValueError(f"FlowNet checkpoint {path} is a folder, expected a file")
+        raise UserError(f"FlowNet checkpoint {path} is a folder, expected a file")
     if not path.is_file():
         raise FileNotFoundError(f"FlowNet checkpoint not found: {path}")
     try:
         obj = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:
-        raise ValueError(
+        raise UserError(
             f"FlowNet checkpoint {path} could not be loaded with torch.load(weights_only=True): {e}"
         ) from e
     if isinstance(obj, dict) and isinstance(obj.get("state_dict"), dict):
         obj = obj["state_dict"]
     if not isinstance(obj, dict) or not obj or not all(isinstance(v, Tensor) for v in obj.values()):
-        raise ValueError(
+        raise UserError(
             f"FlowNet checkpoint {path} holds no state dict (expected a dict with key 'state_dict' or a "
             f"bare name -> tensor dict), got {type(obj).__name__}"
         )
@@ -76,7 +78,7 @@ def load_flownet(model: nn.Module, path: str | Path) -> LoadReport:
 
     Raises:
         FileNotFoundError: no file at ``path``.
-        ValueError: the file cannot be read with ``weights_only=True``, holds no state dict, or no tensor
+        UserError: the file cannot be read with ``weights_only=True``, holds no state dict, or no tensor
             matches the encoder (by name and shape).
     """
     path = Path(path)
@@ -99,13 +101,13 @@ def load_flownet(model: nn.Module, path: str | Path) -> LoadReport:
     if not any(not k.endswith("num_batches_tracked") for k in loaded):  # a counter is not a match
         loaded = []
         if mismatched:
-            raise ValueError(
+            raise UserError(
                 f"FlowNet checkpoint {path}: nothing matches the encoder -- all {len(mismatched)} tensors "
                 f"with matching names have different shapes (e.g. {mismatched[0][0]}: file "
                 f"{mismatched[0][1]} vs model {mismatched[0][2]}); FlowNetS weights need width_mult=1 "
                 f"(model has width_mult={model.width_mult:g})"
             )
-        raise ValueError(
+        raise UserError(
             f"FlowNet checkpoint {path}: nothing matches the encoder -- none of its {len(source)} keys "
             f"(e.g. {next(iter(source))!r}) is an encoder key such as 'conv1.0.weight'"
         )

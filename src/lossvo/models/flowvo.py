@@ -11,6 +11,7 @@ import torch
 from torch import Tensor, nn
 
 from lossvo.checks import is_integer
+from lossvo.console import UserError
 from lossvo.geometry.camera import intrinsics_channels
 from lossvo.models.arguments import check_float, check_int, dropout, memory_format, seeded_build
 from lossvo.models.arguments import head_bias as head_bias_of
@@ -108,7 +109,7 @@ class FlowVO(nn.Module):
     ) -> None:
         super().__init__()
         if not isinstance(intrinsics_layer, bool):
-            raise ValueError(f"model.intrinsics_layer: expected true or false, got {intrinsics_layer!r}")
+            raise UserError(f"model.intrinsics_layer: expected true or false, got {intrinsics_layer!r}")
         self.intrinsics_layer = intrinsics_layer
         self.out_dim = check_int(
             "out_dim", out_dim, TRANSLATION_DIM + 1, " (3 translation outputs and a rotation)"
@@ -118,7 +119,7 @@ class FlowVO(nn.Module):
         self.width = check_int("width", width, TOTAL_STRIDE, why.format("column"))
         widths = list(channels) if isinstance(channels, Sequence) and not isinstance(channels, str) else []
         if len(widths) != 4 or not all(is_integer(c, 1) for c in widths):
-            raise ValueError(f"model.channels: expected 4 integers >= 1, got {channels!r}")
+            raise UserError(f"model.channels: expected 4 integers >= 1, got {channels!r}")
         self.channels = tuple(widths)
         self.hidden = check_int("hidden", hidden, 1)
         self.flow_gain = check_float("flow_gain", flow_gain, 0.0, math.inf, False, "a number > 0")
@@ -126,7 +127,7 @@ class FlowVO(nn.Module):
         self.flow = flow
         self.pool = check_int("pool", pool, 1)
         if self.height % self.pool or self.width % self.pool:
-            raise ValueError(
+            raise UserError(
                 f"model.pool: expected a divisor of the input size ({self.height}, {self.width}), got {pool}"
             )
         self.memory_format = memory_format(channels_last)

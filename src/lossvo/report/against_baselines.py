@@ -75,7 +75,7 @@ def baseline_data(jobs: Sequence[Job]) -> tuple[DataRecord, list[str]]:
     records differ.
 
     Raises:
-        ValueError: the first job's data is no longer on disk.
+        UserError: the first job's data is no longer on disk.
     """
     data = jobs[0].included_results.data
     check_on_disk(data, jobs[0])

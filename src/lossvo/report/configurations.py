@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from lossvo import weighting
+from lossvo.console import UserError
 from lossvo.report.jobs import (
     ARCHITECTURE_KEY,
     REPLICATE_KEY,
@@ -272,12 +273,12 @@ def job_selection(config: Any) -> Selection:
     """The selection metric of a job config.
 
     Raises:
-        ValueError: the config has no ``selection.monitor`` or ``selection.mode`` (:func:`load_job`
+        UserError: the config has no ``selection.monitor`` or ``selection.mode`` (:func:`load_job`
             skips such a job).
     """
     monitor, mode = (config_value(config, f"selection.{key}") for key in ("monitor", "mode"))
     if monitor is None or mode is None:
-        raise ValueError("the job's config has no selection.monitor and selection.mode")
+        raise UserError("the job's config has no selection.monitor and selection.mode")
     return Selection(str(monitor), str(mode))
 
 

@@ -163,7 +163,7 @@ def read_overrides(path: Path) -> dict[str, str]:
 
     items = yaml.safe_load(path.read_text()) or []
     if not isinstance(items, list):
-        raise ValueError("expected a list of key=value strings")
+        raise UserError("expected a list of key=value strings")
     return dict(parse_override(item) for item in items)
 
 
@@ -215,14 +215,14 @@ def load_job(path: Path) -> Job:
 
 
 def _read_config(job: Job) -> None:
-    """``config``, ``overrides`` and ``seed`` of a job from ``.hydra/``; ValueError naming a key of
+    """``config``, ``overrides`` and ``seed`` of a job from ``.hydra/``; UserError naming a key of
     :data:`REQUIRED_CONFIG` that the config lacks."""
     from omegaconf import OmegaConf
 
     job.config = OmegaConf.load(job.path / ".hydra" / "config.yaml")
     missing = [key for key in REQUIRED_CONFIG if config_value(job.config, key) is None]
     if missing:
-        raise ValueError(f".hydra/config.yaml has no {missing[0]}")
+        raise UserError(f".hydra/config.yaml has no {missing[0]}")
     overrides = job.path / ".hydra" / "overrides.yaml"
     job.overrides = read_overrides(overrides) if overrides.is_file() else {}
     job.seed = job.config.get(REPLICATE_KEY, job.overrides.get(REPLICATE_KEY))
@@ -312,10 +312,10 @@ def config_sequences(jobs: Iterable[Job], key: str) -> list[str]:
 
 
 def check_on_disk(data: DataRecord, job: Job) -> None:
-    """ValueError naming the job if the evaluated dataset or the training data is no longer there."""
+    """UserError naming the job if the evaluated dataset or the training data is no longer there."""
     for name, root in (("evaluated dataset", data.root), ("training data", data.train_root)):
         if root is None or not Path(root).is_dir():
-            raise ValueError(f"the {name} of {job.path.name}, {root}, no longer exists")
+            raise UserError(f"the {name} of {job.path.name}, {root}, no longer exists")
 
 
 def trained_sequences(job: Job) -> set[str]:

@@ -17,6 +17,8 @@ import numpy as np
 from scipy.stats import norm, wilcoxon
 from scipy.stats import t as student_t
 
+from lossvo.console import UserError
+
 SUPPORTED = "supported"
 CONTRADICTED = "contradicted"
 NOT_DISTINGUISHABLE = "not distinguishable at this n"
@@ -57,7 +59,7 @@ def convergence_epoch(
         The epoch number, or None if the curve has no finite value.
     """
     if mode not in ("min", "max"):
-        raise ValueError(f"mode: expected 'min' or 'max', got {mode!r}")
+        raise UserError(f"mode: expected 'min' or 'max', got {mode!r}")
     epochs, values = np.asarray(epochs), np.asarray(values, dtype=np.float64)
     finite = np.isfinite(values)
     if not finite.any():

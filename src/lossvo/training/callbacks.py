@@ -19,6 +19,7 @@ import torch
 from lightning.pytorch.callbacks import Callback, RichProgressBar
 
 from lossvo.checks import is_integer
+from lossvo.console import UserError
 from lossvo.evaluation import metrics
 from lossvo.evaluation.results import PooledScores, predict_and_score
 
@@ -93,11 +94,11 @@ class TrajectoryValidation(Callback):
         mirror_average: bool = False,
     ) -> None:
         if not is_integer(every_n_epochs, 1):
-            raise ValueError(f"every_n_epochs: expected an integer >= 1, got {every_n_epochs!r}")
+            raise UserError(f"every_n_epochs: expected an integer >= 1, got {every_n_epochs!r}")
         if not metrics.is_rpe_delta(delta):
-            raise ValueError(f"delta: expected an integer >= 1 (frames), got {delta!r}")
+            raise UserError(f"delta: expected an integer >= 1 (frames), got {delta!r}")
         if not isinstance(mirror_average, bool):
-            raise ValueError(f"mirror_average: expected true or false, got {mirror_average!r}")
+            raise UserError(f"mirror_average: expected true or false, got {mirror_average!r}")
         self.every_n_epochs, self.align, self.delta = every_n_epochs, align, delta
         self.mirror_average = mirror_average
 

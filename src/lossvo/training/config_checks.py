@@ -73,6 +73,15 @@ def _select(config: Mapping[str, Any], key: str) -> Any:
     return node
 
 
+def resolved_config(cfg: DictConfig) -> dict[str, Any]:
+    """The config as plain containers, its interpolations resolved; :class:`~lossvo.console.UserError`
+    naming the key of one that does not resolve (OmegaConf's errors are ``ValueError``)."""
+    try:
+        return cast("dict[str, Any]", OmegaConf.to_container(cfg, resolve=True))
+    except OmegaConfBaseException as e:  # an interpolation that does not resolve
+        raise UserError(f"{e.full_key}: {first_line(e.msg) or type(e).__name__}") from None
+
+
 def check_train_config(cfg: DictConfig) -> None:
     """Raise :class:`~lossvo.console.UserError` (one line: key, value, what was expected) for a training
     config that would fail only once the run is under way: a value left missing (``???``), an
@@ -80,11 +89,8 @@ def check_train_config(cfg: DictConfig) -> None:
     a length, a trainer asking for a CUDA GPU where there is none (:func:`check_accelerator`) or for
     several devices without a distributed strategy (:func:`check_devices`), a ``data.root`` that is a
     file, a ``ckpt_path`` that is no file."""
-    try:
-        missing = sorted(OmegaConf.missing_keys(cfg))
-        resolved = cast("dict[str, Any]", OmegaConf.to_container(cfg, resolve=True))
-    except OmegaConfBaseException as e:  # an interpolation that does not resolve
-        raise UserError(f"{e.full_key}: {first_line(e.msg) or type(e).__name__}") from None
+    resolved = resolved_config(cfg)
+    missing = sorted(OmegaConf.missing_keys(cfg))
     if missing:
         raise UserError(f"{missing[0]}: a value is required: add {missing[0]}=... to the command line")
     for key, test, expected in SCALARS:

@@ -15,12 +15,13 @@ from typing import TYPE_CHECKING, Any, cast
 
 import lightning as L
 import torch
+from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint, ProgressBar
 from lightning.pytorch.loggers import Logger, WandbLogger
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from lossvo.console import one_line
+from lossvo.console import UserError, one_line
 from lossvo.evaluation.checkpoints import load_network
 from lossvo.evaluation.job_folder import RESULTS
 from lossvo.evaluation.results import evaluate_run
@@ -45,7 +46,7 @@ def _instantiate_group(group: DictConfig | None, name: str) -> list[Any]:
         if entry is None:
             continue
         if not isinstance(entry, DictConfig) or "_target_" not in entry:
-            raise ValueError(f"{name}.{key!s}: expected a config with a _target_, got {entry!r}")
+            raise UserError(f"{name}.{key!s}: expected a config with a _target_, got {entry!r}")
         built = instantiate(entry)
         if built is not None:
             objects.append(built)
@@ -60,9 +61,20 @@ def _load_flownet(module: VOModule, path: str) -> None:
     """FlowNetS weights into the encoder; any problem with the file is one line naming the key."""
     try:
         report = load_flownet(module.model, path)
-    except (OSError, ValueError) as e:
-        raise ValueError(f"model.flownet: {one_line(e)}") from None
+    except (OSError, UserError) as e:
+        raise UserError(f"model.flownet: {one_line(e)}") from None
     log.info("FlowNetS initialisation: %s", report.summary())
+
+
+def _trainer(config: DictConfig, **kwargs: Any) -> L.Trainer:
+    """Lightning's Trainer from the ``trainer`` config; a value it refuses (its ``ValueError``: an unknown
+    accelerator, precision or strategy name) is the user's, one line naming ``trainer``."""
+    try:
+        return cast("L.Trainer", instantiate(config, **kwargs))
+    except InstantiationException as e:
+        if isinstance(e.__cause__, ValueError):
+            raise UserError(f"trainer: {one_line(e.__cause__)}") from e.__cause__
+        raise
 
 
 def build(cfg: DictConfig) -> tuple[VODataModule, VOModule, L.Trainer]:
@@ -88,7 +100,7 @@ def build(cfg: DictConfig) -> tuple[VODataModule, VOModule, L.Trainer]:
     _sync_batchnorm_where_supported(cfg)
     callbacks: list[Callback] = _instantiate_group(cfg.get("callbacks"), "callbacks")
     loggers: list[Logger] = _instantiate_group(cfg.get("logger"), "logger")
-    trainer = instantiate(
+    trainer = _trainer(
         cfg.trainer,
         plugins=[checkpoints.AtomicCheckpointIO(), *slurm.lightning_environment()],
         callbacks=callbacks,

@@ -21,8 +21,8 @@ from typing import Any
 
 import joblib
 import torch
-from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
 from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.core.override_parser.types import Override
 from hydra.errors import HydraException
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
@@ -35,7 +35,8 @@ GIB = 2**30
 """Bytes in a GiB."""
 
 JOBLIB_LAUNCHER = "hydra_plugins.hydra_joblib_launcher.joblib_launcher.JoblibLauncher"
-BASIC_SWEEPER = "hydra._internal.core_plugins.basic_sweeper.BasicSweeper"
+BASIC_SWEEPER = "BasicSweeper"
+"""The class name of Hydra's basic sweeper (the last part of its ``hydra.sweeper._target_``)."""
 JOB_MEMORY_KEY = "hydra.callbacks.gpu_jobs.job_memory_gib"
 """The config key of the GPU memory one job needs (GiB)."""
 
@@ -95,9 +96,17 @@ def sweep_jobs(overrides: Sequence[str], params: Mapping[str, Any] | None = None
     given = [f"{key}={value}" for key, value in (params or {}).items()] + list(overrides)
     try:
         parsed = OverridesParser.create().parse_overrides(given)
-        return sum(len(batch) for batch in BasicSweeper.split_arguments(parsed, None))
-    except HydraException:
+        if any(o.is_sweep_override() and not o.is_discrete_sweep() for o in parsed):
+            return None
+        sizes = {o.get_key_element(): _values_of(o) for o in parsed}  # a key given twice: the last counts
+    except HydraException:  # a sweep that needs the config to expand (glob)
         return None
+    return math.prod(sizes.values())
+
+
+def _values_of(override: Override) -> int:
+    """The values one override takes in a sweep: one, or each value of its discrete sweep."""
+    return len(list(override.sweep_string_iterator())) if override.is_sweep_override() else 1
 
 
 def trains_on_cuda(accelerator: str, cuda_available: bool) -> bool:
@@ -110,7 +119,7 @@ def at_once_of(config: DictConfig) -> int:
     where the sweeper is Hydra's basic one."""
     hydra = config.hydra
     size = None
-    if hydra.sweeper.get("_target_") == BASIC_SWEEPER:
+    if str(hydra.sweeper.get("_target_", "")).rsplit(".", 1)[-1] == BASIC_SWEEPER:
         size = sweep_jobs([str(o) for o in hydra.overrides.task], hydra.sweeper.get("params"))
     return jobs_at_once(int(hydra.launcher.n_jobs), size)
 
@@ -139,12 +148,12 @@ class GpuJobsCheck(Callback):
             check_accelerator(accelerator, cuda, config.hydra.runtime.choices.get("trainer"))
             if launcher == JOBLIB_LAUNCHER and trains_on_cuda(accelerator, cuda):
                 self._check_memory(config)
-        except (ValueError, OSError, subprocess.TimeoutExpired) as e:
+        except (UserError, OSError, subprocess.TimeoutExpired) as e:
             exit_in_one_line(e)
 
     def _check_memory(self, config: DictConfig) -> None:
         gib = self.job_memory_gib
         if not (isinstance(gib, (int, float)) and math.isfinite(gib) and gib > 0):
-            raise ValueError(f"{JOB_MEMORY_KEY}: expected a finite number > 0 (GiB), got {gib!r}")
+            raise UserError(f"{JOB_MEMORY_KEY}: expected a finite number > 0 (GiB), got {gib!r}")
         n_jobs = int(config.hydra.launcher.n_jobs)
         check_jobs_fit(n_jobs, at_once_of(config), free_memory(), int(gib * GIB))

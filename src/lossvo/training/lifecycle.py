@@ -208,7 +208,7 @@ def _resume_point(out_dir: Path, status: str | None) -> Path | None:
 
 
 def _accept(run: Run) -> None:
-    """Check the config and the folder, and set what the run does. Raises ValueError (one line)."""
+    """Check the config and the folder, and set what the run does. Raises UserError (one line)."""
     cfg, out_dir = run.cfg, run.out_dir
     if cfg.get("weighting") is not None:
         weighting.check_config(cfg.weighting, cfg.loss)
@@ -217,13 +217,13 @@ def _accept(run: Run) -> None:
     if run.fresh:
         return
     if not cfg.get("resume", True):
-        raise ValueError(f"{out_dir}: holds a run already (resume=false starts afresh only in a new folder: "
-                         f"another hydra.run.dir or hydra.sweep.dir)")  # fmt: skip
+        raise UserError(f"{out_dir}: holds a run already (resume=false starts afresh only in a new folder: "
+                        f"another hydra.run.dir or hydra.sweep.dir)")  # fmt: skip
     if recorded.exists():
         drift = config_drift(OmegaConf.load(recorded), cfg)
         if drift:
-            raise ValueError(f"{out_dir}: holds a run of another configuration ({', '.join(drift)} differ "
-                             f"from {recorded}): use a new folder")  # fmt: skip
+            raise UserError(f"{out_dir}: holds a run of another configuration ({', '.join(drift)} differ "
+                            f"from {recorded}): use a new folder")  # fmt: skip
     recorded_status = job_folder.read_status(out_dir)
     status = recorded_status.state if recorded_status else None
     run.history = list(recorded_status.history) if recorded_status else []
@@ -340,7 +340,7 @@ def _run_in(run: Run) -> Iterator[Run]:
     out_dir = run.out_dir
     try:
         _accept(run)
-    except ValueError as e:
+    except UserError as e:
         if not full_error():
             log.error("%s", one_line(e))  # before the folder goes: the log opens train.log in it
         _failed(run, e)

@@ -28,7 +28,7 @@ from optuna.distributions import (
     IntDistribution,
 )
 
-from lossvo.console import first_line
+from lossvo.console import UserError, first_line
 
 CHOICE_TYPES = (str, int, float, bool, type(None))
 """The types a ``choice`` may hold (Optuna's categorical choices)."""
@@ -36,7 +36,7 @@ CHOICE_TYPES = (str, int, float, bool, type(None))
 
 def distribution_of(override: Override) -> BaseDistribution | str:
     """The distribution of a sweep override, or the value of a plain override as written. Raises
-    ValueError naming the override's key where the sweep is not one a search space can hold."""
+    UserError naming the override's key where the sweep is not one a search space can hold."""
     key = override.get_key_element()
     if not override.is_sweep_override():
         return str(override.get_value_element_as_str())
@@ -50,10 +50,10 @@ def distribution_of(override: Override) -> BaseDistribution | str:
             return _range(value)
         if isinstance(value, IntervalSweep):
             return _interval(value)
-    except ValueError as e:
-        raise ValueError(f"{key}: {first_line(e)} (in {override.input_line})") from e
+    except (UserError, ValueError) as e:  # ValueError: a number Hydra's sweep holds that float() refuses
+        raise UserError(f"{key}: {first_line(e)} (in {override.input_line})") from e
     expected = "choice(...), interval(low, high), tag(log, interval(low, high)) or range(start, stop, step)"
-    raise ValueError(f"{key}: {override.input_line} is not a search space (expected {expected})")
+    raise UserError(f"{key}: {override.input_line} is not a search space (expected {expected})")
 
 
 def _choices(override: Override) -> list[Any]:
@@ -61,14 +61,14 @@ def _choices(override: Override) -> list[Any]:
     choices = list(override.sweep_iterator(transformer=Transformer.encode))
     wrong = [c for c in choices if not isinstance(c, CHOICE_TYPES)]
     if wrong:
-        raise ValueError(f"a choice holds str, int, float, bool or null, not {wrong[0]!r}")
+        raise UserError(f"a choice holds str, int, float, bool or null, not {wrong[0]!r}")
     return choices
 
 
 def _range(value: RangeSweep) -> BaseDistribution:
     """``range(start, stop, step)``: ``start`` to ``stop`` inclusive in steps of ``step``."""
     if value.start is None or value.stop is None:
-        raise ValueError("a range needs a start and a stop")
+        raise UserError("a range needs a start and a stop")
     if any(isinstance(v, float) for v in (value.start, value.stop, value.step)):
         return FloatDistribution(float(value.start), float(value.stop), step=float(value.step))
     return IntDistribution(int(value.start), int(value.stop), step=int(value.step))
@@ -77,7 +77,7 @@ def _range(value: RangeSweep) -> BaseDistribution:
 def _interval(value: IntervalSweep) -> BaseDistribution:
     """``interval(low, high)``, on a log scale where tagged ``log``."""
     if value.start is None or value.end is None:
-        raise ValueError("an interval needs a low and a high end")
+        raise UserError("an interval needs a low and a high end")
     return FloatDistribution(float(value.start), float(value.end), log="log" in value.tags)
 
 
@@ -90,7 +90,7 @@ def _parse_error(error: HydraException) -> str:
 
 def parse(overrides: Sequence[str]) -> tuple[dict[str, BaseDistribution], dict[str, str]]:
     """The search space (key -> distribution, in the order given) and the fixed overrides (key -> value
-    as written) of ``KEY=VALUE`` overrides; a key given twice keeps its last value. Raises ValueError in
+    as written) of ``KEY=VALUE`` overrides; a key given twice keeps its last value. Raises UserError in
     one line naming the key of a sweep that is no search space or an override that does not parse."""
     parser = OverridesParser.create()
     space: dict[str, BaseDistribution] = {}
@@ -99,7 +99,7 @@ def parse(overrides: Sequence[str]) -> tuple[dict[str, BaseDistribution], dict[s
         try:
             (override,) = parser.parse_overrides([line])
         except HydraException as e:
-            raise ValueError(f"{line.split('=', 1)[0]}: {_parse_error(e)} (in {line})") from e
+            raise UserError(f"{line.split('=', 1)[0]}: {_parse_error(e)} (in {line})") from e
         key = override.get_key_element()
         space.pop(key, None)
         fixed.pop(key, None)

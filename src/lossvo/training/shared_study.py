@@ -34,7 +34,7 @@ from optuna.trial import FrozenTrial, TrialState
 from sqlalchemy.engine import make_url
 from sqlalchemy.exc import ArgumentError, SQLAlchemyError
 
-from lossvo.console import first_line
+from lossvo.console import UserError, first_line
 
 log = logging.getLogger("lossvo")
 
@@ -59,7 +59,7 @@ def shown_url(url: str) -> str:
 def open_storage(url: str) -> BaseStorage:
     """The storage at ``url``: an SQLAlchemy URL (``sqlite:///...``, ``mysql+pymysql://...``) opens an
     RDB, its tables created where new; anything else is the path of a journal file, created where new.
-    Raises ValueError (one line naming ``hydra.sweeper.storage.url``) where it cannot be opened."""
+    Raises UserError (one line naming ``hydra.sweeper.storage.url``) where it cannot be opened."""
     try:
         if "://" not in url:
             return JournalStorage(JournalFileBackend(str(Path(url).expanduser())))
@@ -72,7 +72,7 @@ def open_storage(url: str) -> BaseStorage:
                 time.sleep(1.0)
         raise AssertionError("unreachable")
     except (SQLAlchemyError, StorageInternalError, ImportError, OSError) as e:
-        raise ValueError(f"hydra.sweeper.storage.url: cannot open {shown_url(url)}: {first_line(e)}") from e
+        raise UserError(f"hydra.sweeper.storage.url: cannot open {shown_url(url)}: {first_line(e)}") from e
 
 
 def close_storage(storage: BaseStorage) -> None:
@@ -239,7 +239,7 @@ def difference(recorded: dict[str, Any], wanted: dict[str, Any]) -> str | None:
 
 def check_study(url: str, name: str, wanted: dict[str, Any], storage: BaseStorage | None = None) -> None:
     """Record the search ``wanted`` (:func:`search_of`) in the study ``name`` at ``url`` (through
-    ``storage``, else a storage opened here; the study created if new), or raise ValueError (one line)
+    ``storage``, else a storage opened here; the study created if new), or raise UserError (one line)
     where the study was created for another search or the storage cannot be opened."""
     opened = open_storage(url) if storage is None else storage
     try:
@@ -260,5 +260,5 @@ def check_study(url: str, name: str, wanted: dict[str, Any], storage: BaseStorag
         if storage is None:
             close_storage(opened)
     if why is not None:
-        raise ValueError(f"hydra.sweeper.study_name: the study {name!r} in {shown_url(url)} was created for "
-                         f"another search: {why} (choose another study_name or storage)")  # fmt: skip
+        raise UserError(f"hydra.sweeper.study_name: the study {name!r} in {shown_url(url)} was created for "
+                        f"another search: {why} (choose another study_name or storage)")  # fmt: skip

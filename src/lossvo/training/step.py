@@ -18,6 +18,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from lossvo.console import UserError
+
 COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
 """``torch.compile`` modes (``compile=<mode>``); ``reduce-overhead`` also captures CUDA graphs."""
 AUTO_CUDA_MODE = "reduce-overhead"
@@ -44,11 +46,11 @@ def compile_mode(setting: bool | str | None, device: torch.device) -> str | None
 
 
 def check_compile(setting: Any) -> None:
-    """ValueError naming ``compile`` unless the setting is one :func:`compile_mode` takes."""
+    """UserError naming ``compile`` unless the setting is one :func:`compile_mode` takes."""
     if setting is None or isinstance(setting, bool) or setting == "auto" or setting in COMPILE_MODES:
         return
     expected = ", ".join(("true", "false", "auto", *COMPILE_MODES))
-    raise ValueError(f"compile: expected one of {expected}, got {setting!r}")
+    raise UserError(f"compile: expected one of {expected}, got {setting!r}")
 
 
 def compiled(function: Callable[..., Any], mode: str | None) -> Callable[..., Any]:

@@ -86,7 +86,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def parse_mix(text: str) -> tuple[str, dict[str, float]]:
-    """'11=stop_and_go:2+expressway' -> ('11', {'stop_and_go': 2.0, 'expressway': 1.0}); ValueError."""
+    """'11=stop_and_go:2+expressway' -> ('11', {'stop_and_go': 2.0, 'expressway': 1.0}); UserError."""
     sequence, sep, body = text.partition("=")
     if not sep or not body:
         raise UserError(f"--mix: expected NN=FAMILY[:WEIGHT][+FAMILY[:WEIGHT]], got {text!r}")
@@ -99,7 +99,7 @@ def parse_mix(text: str) -> tuple[str, dict[str, float]]:
             raise UserError(f"--mix {text}: the weight of {name!r} is not a number: {weight!r}") from None
     try:
         routes.check_mix(mix)
-    except ValueError as err:
+    except UserError as err:
         raise UserError(f"--mix {text}: {err}") from None
     return parse_sequences(sequence, "--mix")[0], mix
 
@@ -117,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
         spec = routes.route_spec(mixes=dict(parse_mix(m) for m in args.mix))
         if args.out.exists() and not args.out.is_dir():
             raise UserError(f"--out: {args.out} is a file, expected a folder")
-    except ValueError as err:
+    except UserError as err:
         raise_if_full_error()
         parser.error(str(err))
     start = time.perf_counter()

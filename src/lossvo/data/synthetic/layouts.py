@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from lossvo.console import UserError
 from lossvo.data import tartanair, tum
 from lossvo.data.layouts import LAYOUTS, check_layout
 from lossvo.data.synthetic import platforms, routes
@@ -134,9 +135,9 @@ def sequence_name(layout: str, sequence: str) -> str:
 
 
 def scaled_size(size: tuple[int, int], scale: float) -> tuple[int, int]:
-    """(H, W) pixels of size (H, W) scaled by scale, rounded; ValueError for a scale that is not > 0."""
+    """(H, W) pixels of size (H, W) scaled by scale, rounded; UserError for a scale that is not > 0."""
     if not (isinstance(scale, int | float) and math.isfinite(scale) and scale > 0):
-        raise ValueError(f"scale: must be a number > 0, got {scale!r}")
+        raise UserError(f"scale: must be a number > 0, got {scale!r}")
     return round(size[0] * scale), round(size[1] * scale)
 
 
@@ -151,7 +152,7 @@ def camera(layout: str, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         return resized_intrinsics(tartanair.K, tartanair.SIZE, size), np.zeros(5)
     if layout == "mimir":
         return resized_intrinsics(MIMIR_K, SPECS["mimir"].size, size), np.zeros(5)
-    raise ValueError(f"layout {layout!r}: no camera here (kitti: lossvo.data.synthetic.camera)")
+    raise UserError(f"layout {layout!r}: no camera here (kitti: lossvo.data.synthetic.camera)")
 
 
 def mount(layout: str) -> np.ndarray:

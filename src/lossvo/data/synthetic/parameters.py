@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 
+from lossvo.console import UserError
 from lossvo.data.sequence import sequence_name
 from lossvo.data.synthetic import routes
 
@@ -26,7 +27,7 @@ def parse_sequences(text: str, label: str = "sequences") -> tuple[str, ...]:
     """'00,07' -> ('00', '07'): comma-separated two-digit sequence numbers, duplicates dropped."""
     names = [s.strip() for s in text.split(",")]
     if not names or any(len(s) != 2 or not s.isdigit() for s in names):
-        raise ValueError(f"{label}: expected two-digit sequence numbers like 00,07, got {text!r}")
+        raise UserError(f"{label}: expected two-digit sequence numbers like 00,07, got {text!r}")
     return tuple(dict.fromkeys(names))
 
 
@@ -47,12 +48,12 @@ def resolve_frames(
         counts = dict.fromkeys(sequences, int(frames))
     for n in counts.values():
         if n < MIN_FRAMES:
-            raise ValueError(f"{prefix}frames: must be >= {MIN_FRAMES}, got {n}")
+            raise UserError(f"{prefix}frames: must be >= {MIN_FRAMES}, got {n}")
     return counts
 
 
 def check_size(height: int, width: int, prefix: str = "") -> None:
-    """Raise ValueError unless MIN_SIZE <= height, width <= MAX_SIZE pixels (prefix: as resolve_frames)."""
+    """Raise UserError unless MIN_SIZE <= height, width <= MAX_SIZE pixels (prefix: as resolve_frames)."""
     for name, value in (("height", height), ("width", width)):
         if not MIN_SIZE <= value <= MAX_SIZE:
-            raise ValueError(f"{prefix}{name}: must be between {MIN_SIZE} and {MAX_SIZE} pixels, got {value}")
+            raise UserError(f"{prefix}{name}: must be between {MIN_SIZE} and {MAX_SIZE} pixels, got {value}")

@@ -20,6 +20,8 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation, Slerp
 
+from lossvo.console import UserError
+
 
 @dataclass(frozen=True)
 class Platform:
@@ -133,11 +135,11 @@ class Trajectory:
 
 def route_parameter(route: np.ndarray, distance: np.ndarray) -> np.ndarray:
     """(N,) route parameters tau (fractional route frames) at distances (N,) metres along the route's path
-    (cumulative length of its position steps; standstills are skipped); ValueError past its end."""
+    (cumulative length of its position steps; standstills are skipped); UserError past its end."""
     steps = np.linalg.norm(np.diff(route[:, :3, 3], axis=0), axis=1)
     arc = np.concatenate([[0.0], np.cumsum(steps)])
     if distance.max() > arc[-1]:
-        raise ValueError(f"route of {arc[-1]:.1f} m is shorter than the {distance.max():.1f} m travelled")
+        raise UserError(f"route of {arc[-1]:.1f} m is shorter than the {distance.max():.1f} m travelled")
     moving = np.concatenate([[True], steps > 1e-9])  # np.interp needs strictly increasing arc lengths
     return np.interp(distance, arc[moving], np.flatnonzero(moving).astype(np.float64))
 

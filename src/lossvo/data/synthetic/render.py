@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from lossvo.console import UserError
 from lossvo.data.synthetic.camera import CAMERA_HEIGHT
 from lossvo.data.synthetic.textures import MIP_TOP, TEXELS_PER_M, Atlas
 from lossvo.data.synthetic.world import World
@@ -99,7 +100,7 @@ def undistorted_rays(
     through K (3, 3, pixels) and distortion (k1, k2, p1, p2[, k3]): (h, w) float64 each.
 
     OpenCV's fixed-point iteration (as cv2.undistortPoints), run until every pixel re-distorts onto its
-    centre within UNDISTORT_TOLERANCE; ValueError where it does not converge (a lens model that folds).
+    centre within UNDISTORT_TOLERANCE; UserError where it does not converge (a lens model that folds).
     """
     h, w = size
     xd = np.broadcast_to((np.arange(w) - K[0, 2]) / K[0, 0], (h, w))
@@ -111,7 +112,7 @@ def undistorted_rays(
             return x, y
         radial, dx, dy = _lens_terms(x, y, distortion)
         x, y = (xd - dx) / radial, (yd - dy) / radial
-    raise ValueError(f"distortion {list(distortion)}: the pixel grid does not undistort (no convergence)")
+    raise UserError(f"distortion {list(distortion)}: the pixel grid does not undistort (no convergence)")
 
 
 @dataclass

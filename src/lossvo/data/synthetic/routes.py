@@ -25,6 +25,7 @@ import torch
 
 from lossvo import geometry
 from lossvo.checks import is_number
+from lossvo.console import UserError
 from lossvo.data.sequence import sequence_name
 from lossvo.table_render import Rows, markdown
 
@@ -41,22 +42,20 @@ MAX_TILT = 0.045
 
 
 def check_family(f: Family) -> None:
-    """Raise ValueError naming the first impossible parameter of f (negative speed, zero radius, ...)."""
+    """Raise UserError naming the first impossible parameter of f (negative speed, zero radius, ...)."""
     for key in ("cruise", "straight", "turn_angle", "turn_radius", "turn_speed", "stop_frames"):
         lo, hi = getattr(f, key)
         if not (0 < lo <= hi and math.isfinite(hi)):
-            raise ValueError(
-                f"route family {f.name!r}: {key} must be a range 0 < low <= high, got {(lo, hi)}"
-            )
+            raise UserError(f"route family {f.name!r}: {key} must be a range 0 < low <= high, got {(lo, hi)}")
     for key in ("turn", "lane_change", "stop"):
         p = getattr(f, key)
         if not 0.0 <= p <= 1.0:
-            raise ValueError(f"route family {f.name!r}: {key} must be a probability in [0, 1], got {p}")
+            raise UserError(f"route family {f.name!r}: {key} must be a probability in [0, 1], got {p}")
     if f.turn + f.lane_change + f.stop > 1.0:
-        raise ValueError(f"route family {f.name!r}: turn + lane_change + stop must be <= 1")
+        raise UserError(f"route family {f.name!r}: turn + lane_change + stop must be <= 1")
     for key in ("hill", "camber"):
         if not 0.0 <= getattr(f, key) < 1.0:
-            raise ValueError(f"route family {f.name!r}: {key} must be in [0, 1), got {getattr(f, key)}")
+            raise UserError(f"route family {f.name!r}: {key} must be in [0, 1), got {getattr(f, key)}")
 
 
 @dataclass(frozen=True)
@@ -182,18 +181,18 @@ MIXES: dict[str, dict[str, float]] = {
 
 
 def check_mix(mix: Mapping[str, float], families: Mapping[str, Family] = FAMILIES) -> dict[str, float]:
-    """The mix with weights normalised to sum 1; ValueError for unknown families or bad weights."""
+    """The mix with weights normalised to sum 1; UserError for unknown families or bad weights."""
     if not isinstance(mix, Mapping):
-        raise ValueError(f"route mix: expected a mapping of family name to weight, got {mix!r}")
+        raise UserError(f"route mix: expected a mapping of family name to weight, got {mix!r}")
     unknown = [name for name in mix if name not in families]
     if unknown:
-        raise ValueError(f"unknown route family {unknown[0]!r}: expected one of {', '.join(families)}")
+        raise UserError(f"unknown route family {unknown[0]!r}: expected one of {', '.join(families)}")
     weights = [w for w in mix.values() if is_number(w)]
     if not mix or len(weights) < len(mix) or any(not (w >= 0 and math.isfinite(w)) for w in weights):
-        raise ValueError(f"route mix: expected non-negative weights with a positive sum, got {dict(mix)}")
+        raise UserError(f"route mix: expected non-negative weights with a positive sum, got {dict(mix)}")
     total = sum(weights)
     if total <= 0:
-        raise ValueError(f"route mix: expected non-negative weights with a positive sum, got {dict(mix)}")
+        raise UserError(f"route mix: expected non-negative weights with a positive sum, got {dict(mix)}")
     return {name: float(w) / total for name, w in mix.items()}
 
 
@@ -233,17 +232,17 @@ def route_spec(
 
     families: name -> parameters of :class:`Family` (for a known family, only those that change; for a
     new one, all of them); mixes: sequence -> {family: weight}. prefix goes before the key in errors
-    (e.g. "data."). Raises ValueError with one line naming the family, the parameter or the sequence.
+    (e.g. "data."). Raises UserError with one line naming the family, the parameter or the sequence.
     """
     table = dict(FAMILIES)
     for name, params in (families or {}).items():
         if not isinstance(params, Mapping):
-            raise ValueError(
+            raise UserError(
                 f"{prefix}route_families.{name}: expected a mapping of parameters, got {params!r}"
             )
         unknown = [k for k in params if k not in FIELDS]
         if unknown:
-            raise ValueError(
+            raise UserError(
                 f"{prefix}route_families.{name}: unknown parameter {unknown[0]!r} "
                 f"(expected some of {', '.join(FIELDS)})"
             )
@@ -259,15 +258,15 @@ def route_spec(
             if k not in values
         ]
         if missing:
-            raise ValueError(f"{prefix}route_families.{name}: a new family needs {', '.join(missing)}")
+            raise UserError(f"{prefix}route_families.{name}: a new family needs {', '.join(missing)}")
         table[name] = Family(name=str(name), **values)
     chosen = dict(MIXES)
     for sequence, mix in (mixes or {}).items():
         key = sequence_name(sequence)
         try:
             chosen[key] = check_mix(mix, table)
-        except ValueError as err:
-            raise ValueError(f"{prefix}route_mixes.{key}: {err}") from None
+        except UserError as err:
+            raise UserError(f"{prefix}route_mixes.{key}: {err}") from None
     return RouteSpec(table, chosen)
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 import cv2
 
 from lossvo.atomic import write_text_atomic
+from lossvo.console import UserError
 from lossvo.data import kitti, pose_files
 from lossvo.data.synthetic import layouts, manifest, routes
 from lossvo.data.synthetic.camera import calib_text, intrinsics
@@ -154,13 +155,13 @@ def frame_size(
 ) -> tuple[int, int]:
     """(H, W) pixels a layout is rendered at: height and width where given, else the layout's default
     (kitti DEFAULT_HEIGHT x DEFAULT_WIDTH, the others their datasets' native sizes) times scale; checked
-    (ValueError, parameter names after prefix)."""
+    (UserError, parameter names after prefix)."""
     layouts.check_layout(layout)
     default = (DEFAULT_HEIGHT, DEFAULT_WIDTH) if layout == "kitti" else layouts.SPECS[layout].size
     try:
         scaled = layouts.scaled_size(default, scale)
-    except ValueError as err:
-        raise ValueError(f"{prefix}{err}") from None
+    except UserError as err:
+        raise UserError(f"{prefix}{err}") from None
     size = (scaled[0] if height is None else height, scaled[1] if width is None else width)
     check_size(*size, prefix=prefix)
     return size
