@@ -42,6 +42,7 @@ from torch.utils.data import BatchSampler, DataLoader, Sampler, SequentialSample
 
 from lossvo.atomic import write_text_atomic
 from lossvo.checks import is_integer, is_number
+from lossvo.console import UserError
 from lossvo.data import flow as optical_flow
 from lossvo.data import frame_cache, layouts, resident, synthetic, windows
 from lossvo.data import transforms as batch_transforms
@@ -62,7 +63,7 @@ def _names(value: str | int | Seq[str | int], key: str) -> tuple[str, ...]:
     """Sequence names from a config value: ["00", "07"], "00,07", [0, 7] or 7 (Hydra turns 07 into 7)."""
     names = split_names(value)
     if "" in names:
-        raise ValueError(f"data.{key}: empty sequence name in {value!r}")
+        raise UserError(f"data.{key}: empty sequence name in {value!r}")
     return tuple(names)
 
 
@@ -75,9 +76,7 @@ def _statistics(value: Mapping[str, Seq[float]] | None) -> tuple[np.ndarray, np.
     except (KeyError, TypeError, ValueError):
         mean = std = np.zeros(0)
     if mean.shape != (3,) or std.shape != (3,) or not np.all(std > 0) or not np.isfinite(mean).all():
-        raise ValueError(
-            f"data.statistics: expected {{mean: [3 floats], std: [3 floats > 0]}}, got {value!r}"
-        )
+        raise UserError(f"data.statistics: expected {{mean: [3 floats], std: [3 floats > 0]}}, got {value!r}")
     return mean, std
 
 
@@ -115,28 +114,28 @@ ARGUMENT_CHECKS: tuple[tuple[str, Any, str], ...] = (
 
 
 def _check_arguments(values: Mapping[str, Any]) -> None:
-    """ValueError ``data.<argument>: expected <what>, got <value>`` at the first argument of
+    """UserError ``data.<argument>: expected <what>, got <value>`` at the first argument of
     :data:`ARGUMENT_CHECKS` that fails its test."""
     for key, fits, expected in ARGUMENT_CHECKS:
         if not fits(values[key]):
-            raise ValueError(f"data.{key}: expected {expected}, got {values[key]!r}")
+            raise UserError(f"data.{key}: expected {expected}, got {values[key]!r}")
 
 
 def _frame_steps(value: Any) -> tuple[int, ...]:
-    """``data.frame_steps`` as distinct steps in order; ValueError naming the key otherwise."""
+    """``data.frame_steps`` as distinct steps in order; UserError naming the key otherwise."""
     steps = list(value) if isinstance(value, Seq) and not isinstance(value, str) else []
     if not steps or any(not is_integer(v, 1) for v in steps):
-        raise ValueError(f"data.frame_steps: expected a list of integers >= 1 like [1, 2], got {value!r}")
+        raise UserError(f"data.frame_steps: expected a list of integers >= 1 like [1, 2], got {value!r}")
     return tuple(dict.fromkeys(steps))
 
 
 def _transforms(value: Any) -> tuple[batch_transforms.Transform, ...]:
-    """``data.transforms`` as a tuple of batch transforms (:mod:`lossvo.data.transforms`); ValueError naming
+    """``data.transforms`` as a tuple of batch transforms (:mod:`lossvo.data.transforms`); UserError naming
     the key otherwise."""
     items = list(value) if isinstance(value, Seq) and not isinstance(value, str) else None
     if items is None or not all(isinstance(t, batch_transforms.TRANSFORMS) for t in items):
         names = ", ".join(t.__name__ for t in batch_transforms.TRANSFORMS)
-        raise ValueError(f"data.transforms: expected a list of batch transforms ({names} of "
+        raise UserError(f"data.transforms: expected a list of batch transforms ({names} of "
                          f"lossvo.data.transforms, each with its _target_), got {value!r}")  # fmt: skip
     return tuple(items)
 
@@ -155,11 +154,11 @@ class Source:
 
 def _camera(value: Any, key: str) -> tuple[np.ndarray, np.ndarray] | None:
     """``{K: 3x3, distortion: [4, 5, 8, 12 or 14 numbers]}`` (distortion optional: zeros) as arrays, or None;
-    ValueError naming ``key`` otherwise."""
+    UserError naming ``key`` otherwise."""
     if value is None:
         return None
     if not isinstance(value, Mapping) or set(value) - {"K", "distortion"} or "K" not in value:
-        raise ValueError(f"{key}: expected {{K: [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], distortion: [...]}}, "
+        raise UserError(f"{key}: expected {{K: [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], distortion: [...]}}, "
                          f"got {value!r}")  # fmt: skip
     try:
         K = np.asarray(value["K"], dtype=np.float64)
@@ -167,9 +166,9 @@ def _camera(value: Any, key: str) -> tuple[np.ndarray, np.ndarray] | None:
     except (TypeError, ValueError):
         K, distortion = np.zeros(0), np.zeros(0)
     if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise ValueError(f"{key}.K: expected a 3x3 matrix of pixels with fx, fy > 0, got {value['K']!r}")
+        raise UserError(f"{key}.K: expected a 3x3 matrix of pixels with fx, fy > 0, got {value['K']!r}")
     if distortion.shape not in ((4,), (5,), (8,), (12,), (14,)) or not np.isfinite(distortion).all():
-        raise ValueError(
+        raise UserError(
             f"{key}.distortion: expected 4, 5, 8, 12 or 14 numbers, got {value.get('distortion')!r}"
         )
     return K, distortion
@@ -282,11 +281,11 @@ class VODataModule(L.LightningDataModule):
         self.statistics = _statistics(statistics)
         self.flow = optical_flow.FlowSetting(flow, flow_preset, flow_scale)
         if not self.splits["train"] and self.statistics is None:
-            raise ValueError("data.train: expected at least one training sequence")
+            raise UserError("data.train: expected at least one training sequence")
         self.frame_steps = _frame_steps(frame_steps)
         self.transforms = _transforms(transforms)
         if self.flow.enabled and any(isinstance(t, batch_transforms.Reverse) for t in self.transforms):
-            raise ValueError(f"data.transforms: Reverse is not possible with data.flow={flow} (the cache "
+            raise UserError(f"data.transforms: Reverse is not possible with data.flow={flow} (the cache "
                              f"holds each pair's forward flow only)")  # fmt: skip
         self.height, self.width, self.seq_len, self.stride = height, width, seq_len, stride
         self.batch_size, self.num_workers, self.pin_memory = batch_size, num_workers, pin_memory
@@ -442,7 +441,7 @@ class VODataModule(L.LightningDataModule):
             )  # fmt: skip
         if len(self.datasets["train"]) == 0 and self.splits["train"]:
             shortest = min(len(self.sequences[n].images) for n in self.splits["train"])
-            raise ValueError(f"data.seq_len: {self.seq_len} frames is longer than every training sequence "
+            raise UserError(f"data.seq_len: {self.seq_len} frames is longer than every training sequence "
                              f"(shortest: {shortest} frames)")  # fmt: skip
 
     def description(self) -> dict[str, Any]:
@@ -648,28 +647,26 @@ it derives from them."""
 
 def _dataset_entries(datasets: Any) -> dict[str, dict[str, Any]]:
     """``data.datasets`` checked: a mapping of keys (no ``/``) to entries with a ``layout`` and a ``root`` and
-    only :data:`DATASET_KEYS`; ValueError naming the key otherwise."""
+    only :data:`DATASET_KEYS`; UserError naming the key otherwise."""
     if not isinstance(datasets, Mapping) or not datasets:
-        raise ValueError(f"data.datasets: expected a mapping of names to datasets, got {datasets!r}")
+        raise UserError(f"data.datasets: expected a mapping of names to datasets, got {datasets!r}")
     entries = {}
     for key, entry in datasets.items():
         where = f"data.datasets.{key}"
         if not isinstance(key, str) or not key or "/" in key:
-            raise ValueError(f"data.datasets: expected names without '/', got {key!r}")
+            raise UserError(f"data.datasets: expected names without '/', got {key!r}")
         if not isinstance(entry, Mapping):
-            raise ValueError(f"{where}: expected {{layout: ..., root: ..., train: [...]}}, got {entry!r}")
+            raise UserError(f"{where}: expected {{layout: ..., root: ..., train: [...]}}, got {entry!r}")
         unknown = sorted(set(entry) - set(DATASET_KEYS))
         if unknown:
-            raise ValueError(
-                f"{where}.{unknown[0]}: unknown key (expected some of {', '.join(DATASET_KEYS)})"
-            )
+            raise UserError(f"{where}.{unknown[0]}: unknown key (expected some of {', '.join(DATASET_KEYS)})")
         for required in ("layout", "root"):
             if entry.get(required) is None:
-                raise ValueError(f"{where}.{required}: a value is required")
+                raise UserError(f"{where}.{required}: a value is required")
         layouts.check_layout(entry["layout"], f"{where}.layout")
         every = entry.get("keep_every", 1)
         if not is_integer(every, 1):
-            raise ValueError(f"{where}.keep_every: expected an integer >= 1 (frames), got {every!r}")
+            raise UserError(f"{where}.keep_every: expected an integer >= 1 (frames), got {every!r}")
         entries[key] = dict(entry)
     return entries
 
@@ -745,7 +742,7 @@ class SyntheticDataModule(VODataModule):
         self._check_names()
 
     def _check_names(self) -> None:
-        """ValueError ``data.<split>: sequence 'NN' not found (available: ...)`` for a sequence that
+        """UserError ``data.<split>: sequence 'NN' not found (available: ...)`` for a sequence that
         ``frames`` gives no frame count (the dataset cannot hold it)."""
         counts = self.generator_args["frames"]
         if not isinstance(counts, Mapping):
@@ -753,7 +750,7 @@ class SyntheticDataModule(VODataModule):
         for split, names in self.splits.items():
             for name in names:
                 if name not in counts:
-                    raise ValueError(f"data.{split}: sequence {name!r} not found (available: "
+                    raise UserError(f"data.{split}: sequence {name!r} not found (available: "
                                      f"{', '.join(sorted(counts))})")  # fmt: skip
 
     def _load_metadata(self) -> None:
