@@ -36,8 +36,8 @@ BESIDE_MYPY = $(RUFF) || exit 1; $(MYPY) > $(VENV)/mypy.log 2>&1 & mypy=$$!; \
 
 # `make test` (CI: .ci/run) runs every test but the cluster's, the `slow` ones included (the shared sweep,
 # launchers, DDP, the wheel, signals, subprocesses, training runs). The quick loop while editing leaves those
-# out. Each pytest-xdist worker gives torch and OpenCV its share of the cores (tests/conftest.py): all of
-# them in every worker oversubscribes.
+# out. Each pytest-xdist worker gives torch and OpenCV, and the commands its tests start (OMP_NUM_THREADS),
+# its share of the cores (tests/conftest.py): all of them in every worker oversubscribes.
 #   .venv/bin/python -m pytest -m "not slow"
 # `make test-cluster` (CI: after `make test`): the tests marked `cluster` (sweeps, requeues, time limits and
 # DDP through a real single-node SLURM; an Optuna study on its MariaDB), which start the cluster first

@@ -490,7 +490,7 @@ def main() -> None:
             log(f"warm-up job: exit {waited['exit']} after {waited['wall_s']:.0f} s")
 
     plan: list[tuple[str, float, Callable[[], Any]]] = [
-        ("matrix_rate", 15, lambda: matrix_rate(device, 8192 if not args.quick else 256, 2.0)),
+        ("matrix_rate", 15, lambda: matrix_rate(device, *((8192, 2.0) if not args.quick else (256, 0.2)))),
         ("flowvo_step", 90, lambda: flowvo_steps(size, modes, args, device, ready)),
         ("job", 60, lambda: job(args, trainer, env, left, ready)),
         (

@@ -14,7 +14,7 @@ set -euo pipefail
 HERE=${LOSSVO_CLUSTER:-/var/tmp/lossvo-cluster}
 CLUSTER=lossvo
 NODE=$(hostname -s)
-CPUS=$(nproc)
+CPUS=$(env -u OMP_NUM_THREADS -u OMP_THREAD_LIMIT nproc)  # the machine's cores, not a test worker's thread share
 MEMORY=$(( $(awk '/MemTotal/ {print $2}' /proc/meminfo) / 1024 - 1024 ))  # MB, a GB left for the system
 export SLURM_CONF=$HERE/etc/slurm.conf
 

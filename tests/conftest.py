@@ -66,14 +66,16 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 @pytest.fixture(scope="session", autouse=True)
 def threads_per_worker() -> None:
     """Under pytest-xdist, each worker's torch and OpenCV get an equal share of the cores (the library
-    default, every core in every worker, oversubscribes them: threads then wait for each other).
-    Commands the tests start as subprocesses choose their own."""
+    default, every core in every worker, oversubscribes them: threads then wait for each other), and so
+    do the commands its tests start as subprocesses (``OMP_NUM_THREADS``, which torch reads at start-up;
+    a command given its own ``OMP_NUM_THREADS`` or ``threads=`` keeps that)."""
     workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
     if workers > 1:
         import cv2
         import torch
 
         share = max(1, (os.cpu_count() or 1) // workers)
+        os.environ["OMP_NUM_THREADS"] = str(share)
         torch.set_num_threads(share)
         cv2.setNumThreads(share)
 

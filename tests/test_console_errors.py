@@ -32,7 +32,7 @@ def _instantiation(cause: BaseException, text: str = "Error in call to target 'x
 
 
 BUGS = [TypeError("f() got an unexpected keyword"), ImportError("no module x"), AttributeError("no attr"),
-        KeyError("99"), RuntimeError("bug")]  # fmt: skip
+        KeyError("99"), RuntimeError("bug"), ValueError("a bug's value")]  # fmt: skip
 
 
 @pytest.mark.parametrize("error", BUGS)
@@ -196,7 +196,10 @@ runpy.run_module("lossvo.train", run_name="__main__", alter_sys=True)
 @pytest.mark.slow
 @pytest.mark.parametrize(
     ("error", "status", "one_line"),
-    [('UserError("data.root: /x is a file, expected a folder")', 2, True)],
+    [
+        ('UserError("data.root: /x is a file, expected a folder")', 2, True),
+        ('ValueError("a bug deep in training")', 1, False),
+    ],
 )
 def test_train_ends_a_user_error_in_one_line_and_a_bug_in_its_traceback(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, error: str, status: int, one_line: bool

@@ -12,6 +12,7 @@ import pytest
 import torch
 from hydra.utils import instantiate
 
+from lossvo.console import UserError
 from lossvo.data import frame_cache, kitti
 from lossvo.data.datamodules import KittiDataModule, SyntheticDataModule
 from lossvo.data.transforms import Jitter, Mirror, Reverse, Standstill, spec
@@ -245,12 +246,12 @@ def test_missing_sequence_is_named(tiny_kitti: Path, tmp_path: Path) -> None:
     ],
 )
 def test_bad_settings(tiny_kitti: Path, tmp_path: Path, kwargs: dict, message: str) -> None:
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(UserError, match=message):
         make_dm(tiny_kitti, tmp_path, **kwargs)
 
 
 def test_window_longer_than_sequences(tiny_kitti: Path, tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match=r"data\.seq_len: 11 frames is longer than every training sequence"):
+    with pytest.raises(UserError, match=r"data\.seq_len: 11 frames is longer than every training sequence"):
         make_dm(tiny_kitti, tmp_path, seq_len=11)
 
 
@@ -276,7 +277,7 @@ def test_unknown_synthetic_sequence_is_named_before_rendering(tmp_path: Path, sp
     frames = {"00": 6, "01": 6}
     splits = {"train": ["00"], "val": ["01"], "test": ["01"], "unseen": []} | {split: ["99"]}
     message = rf"^data\.{split}: sequence '99' not found \(available: 00, 01\)$"
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(UserError, match=message):
         SyntheticDataModule(root=str(tmp_path / "synth"), frames=frames, cache_dir=str(tmp_path), **splits)
     assert not (tmp_path / "synth").exists()
 
@@ -302,5 +303,5 @@ def test_frame_steps_add_windows_of_every_other_frame_with_recomputed_targets(
 
 @pytest.mark.parametrize("steps", [[], [0, 1], "2", [1.5]])
 def test_bad_frame_steps(tiny_kitti: Path, tmp_path: Path, steps) -> None:
-    with pytest.raises(ValueError, match=r"data\.frame_steps: expected a list of integers >= 1"):
+    with pytest.raises(UserError, match=r"data\.frame_steps: expected a list of integers >= 1"):
         KittiDataModule(str(tiny_kitti), cache_dir=str(tmp_path), frame_steps=steps)

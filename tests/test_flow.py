@@ -243,5 +243,5 @@ def test_windows_carry_their_pairs_flow_and_k_and_mirror_them_together(tiny_kitt
 def test_reversed_windows_need_no_flow(tiny_kitti, tmp_path) -> None:
     from test_datamodules import make_dm
 
-    with pytest.raises(ValueError, match=r"^data\.transforms: Reverse is not possible with data\.flow=dis "):
+    with pytest.raises(UserError, match=r"^data\.transforms: Reverse is not possible with data\.flow=dis "):
         make_dm(tiny_kitti, tmp_path, flow="dis", transforms=[Reverse(0.5)])

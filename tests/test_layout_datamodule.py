@@ -190,7 +190,7 @@ def test_keep_every_keeps_every_nth_frame(tum_root: Path, tmp_path: Path) -> Non
     [
         ({"layout": "rosbag"}, UserError, r"data\.layout: unknown dataset layout 'rosbag' \(expected one of "
                                           r"kitti, tum, euroc, tartanair, mimir\)"),
-        ({"keep_every": 0}, ValueError, r"data\.keep_every: expected an integer >= 1"),
+        ({"keep_every": 0}, UserError, r"data\.keep_every: expected an integer >= 1"),
     ],
 )  # fmt: skip
 def test_bad_layout_settings(tum_root: Path, tmp_path: Path, kwargs: dict, error: type, message: str) -> None:
@@ -255,7 +255,7 @@ def test_a_camera_override_replaces_the_readers(tum_root: Path, tmp_path: Path) 
     ],
 )
 def test_bad_camera_overrides_name_the_key(tum_root: Path, tmp_path: Path, value: dict, message: str) -> None:
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(UserError, match=message):
         datamodule(tum_root, tmp_path / "cache", camera=value)
 
 

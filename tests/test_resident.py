@@ -9,6 +9,7 @@ from types import SimpleNamespace
 import pytest
 import torch
 
+from lossvo.console import UserError
 from lossvo.data.datamodules import KittiDataModule
 from lossvo.data.transforms import Jitter, Mirror, Reverse, Standstill, Zoom
 
@@ -96,12 +97,12 @@ def test_on_device_gathers_from_the_resident_arrays(tiny_kitti: Path, tmp_path: 
 
 @pytest.mark.parametrize("value", ["gpu", 2, None])
 def test_bad_on_device(tiny_kitti: Path, tmp_path: Path, value: object) -> None:
-    with pytest.raises(ValueError, match=r"^data.loader.on_device: expected auto, true or false, got"):
+    with pytest.raises(UserError, match=r"^data.loader.on_device: expected auto, true or false, got"):
         KittiDataModule(str(tiny_kitti), on_device=value, cache_dir=str(tmp_path))
 
 
 def test_bad_device_budget(tiny_kitti: Path, tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match=r"^data.loader.device_budget_gb: expected a number of GiB >= 0, got -1"):
+    with pytest.raises(UserError, match=r"^data.loader.device_budget_gb: expected a number of GiB >= 0, got -1"):
         KittiDataModule(str(tiny_kitti), device_budget_gb=-1, cache_dir=str(tmp_path))
 
 

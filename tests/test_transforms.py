@@ -12,6 +12,7 @@ import torch
 from hydra.utils import instantiate
 
 from lossvo import geometry
+from lossvo.console import UserError
 from lossvo.data import kitti
 from lossvo.data import transforms as T
 from lossvo.data.flow import mirror_flow
@@ -87,7 +88,7 @@ def test_zoomed_flow_is_the_flow_the_zoomed_camera_sees() -> None:
             out["flow"][b, 0, :, 1:-1, 1:-1], expected[:, 1:-1, 1:-1], atol=0.02, rtol=0
         )
     assert not torch.allclose(out["K"][0], out["K"][1])  # one draw a window
-    with pytest.raises(ValueError, match=r"data\.transforms: Zoom\.factor: expected a number in \[1, 4\]"):
+    with pytest.raises(UserError, match=r"data\.transforms: Zoom\.factor: expected a number in \[1, 4\]"):
         T.Zoom(0.5)
 
 
@@ -113,7 +114,7 @@ def test_mirror_is_the_mirrored_trajectory_through_the_mirrored_camera(tiny_kitt
     twice, back = T.Mirror(0.5)(out, out_targets, torch.Generator().manual_seed(seed))
     assert all(torch.equal(twice[k], inputs[k]) for k in ("frames", "flow", "K"))
     assert torch.equal(back, targets)
-    with pytest.raises(ValueError, match=r"data\.transforms: Mirror\.p: expected a probability in \[0, 1\]"):
+    with pytest.raises(UserError, match=r"data\.transforms: Mirror\.p: expected a probability in \[0, 1\]"):
         T.Mirror(2)
 
 
@@ -129,7 +130,7 @@ def test_reverse_plays_the_window_backwards_exactly(tiny_kitti: Path) -> None:
     # (pose_inverse transposes R; the file's rotations are orthonormal to its 9 digits)
     torch.testing.assert_close(out_targets[0], expected, atol=1e-9, rtol=0)
     assert torch.equal(out_targets[1], targets[1])
-    with pytest.raises(ValueError, match=r"data\.transforms: Reverse\.p: expected a probability in \[0, 1\]"):
+    with pytest.raises(UserError, match=r"data\.transforms: Reverse\.p: expected a probability in \[0, 1\]"):
         T.Reverse(1.5)
 
 

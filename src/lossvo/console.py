@@ -5,9 +5,9 @@ A user error (a bad argument, override, config value or input file: :class:`User
 Hydra cannot compose, a full or read-only disk) ends a command in one line naming the key, file or line
 and what was expected, with exit status 2 and no traceback (:func:`user_message` tells which errors are
 the user's; :func:`one_line_errors` wraps a Hydra entry point, :func:`one_line_main` an argparse one).
-Any other error (``TypeError``, ``ImportError``, ``AttributeError``, ``KeyError`` raised by lossvo's own
-code) keeps its traceback. ``LOSSVO_FULL_ERROR=1`` in the environment shows the full traceback of a user
-error too, as ``HYDRA_FULL_ERROR=1`` does for Hydra.
+Any other error (``ValueError``, ``TypeError``, ``ImportError``, ``AttributeError``, ``KeyError`` raised
+by lossvo's own code or a library) keeps its traceback. ``LOSSVO_FULL_ERROR=1`` in the environment shows
+the full traceback of a user error too, as ``HYDRA_FULL_ERROR=1`` does for Hydra.
 """
 
 from __future__ import annotations
@@ -51,9 +51,10 @@ class UserError(Exception):
     ``ValueError`` is a programming error (or a library's refusal not yet named at lossvo's boundary)."""
 
 
-USER_ERRORS = (UserError, ValueError)
-"""Errors that are the user's: :class:`UserError`, and a ``ValueError`` (a value refused by a library's
-constructor or parser). ``TypeError`` and ``ImportError`` are not: they keep their traceback."""
+USER_ERRORS = (UserError,)
+"""Errors that are the user's by their type: :class:`UserError` only. ``ValueError``, ``TypeError`` and
+``ImportError`` are not: they keep their traceback (a library's refusal of a user's value is turned into
+a :class:`UserError` naming the key or file where lossvo calls it)."""
 
 DISK_ERRORS = (
     errno.ENOSPC,

@@ -121,8 +121,8 @@ def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
     data_cfg = checkpoints.evaluation_data(recorded, given if chosen else None, explicit)
     try:
         datamodule = instantiate(data_cfg, _convert_="all")
-    except InstantiationException as e:  # a bad data setting: the constructor's own one-line ValueError
-        if isinstance(e.__cause__, (UserError, ValueError)):
+    except InstantiationException as e:  # a bad data setting: the constructor's own one-line UserError
+        if isinstance(e.__cause__, UserError):
             raise e.__cause__ from None
         raise
     datamodule.prepare_data()

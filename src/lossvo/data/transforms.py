@@ -23,6 +23,7 @@ import torch.nn.functional as F
 
 from lossvo import geometry
 from lossvo.checks import is_number
+from lossvo.console import UserError
 from lossvo.data import flow as optical_flow
 from lossvo.geometry import camera
 
@@ -75,7 +76,7 @@ def _draw(p: float, size: int, generator: torch.Generator | None) -> torch.Tenso
 
 def _check_probability(name: str, p: Any) -> None:
     if not (is_number(p) and 0.0 <= p <= 1.0):
-        raise ValueError(f"data.transforms: {name}.p: expected a probability in [0, 1], got {p!r}")
+        raise UserError(f"data.transforms: {name}.p: expected a probability in [0, 1], got {p!r}")
 
 
 @dataclass(frozen=True)
@@ -124,9 +125,7 @@ class Zoom:
 
     def __post_init__(self) -> None:
         if not (is_number(self.factor) and 1.0 <= self.factor <= 4.0):
-            raise ValueError(
-                f"data.transforms: Zoom.factor: expected a number in [1, 4], got {self.factor!r}"
-            )
+            raise UserError(f"data.transforms: Zoom.factor: expected a number in [1, 4], got {self.factor!r}")
 
     def __call__(
         self, inputs: Inputs, targets: torch.Tensor, generator: torch.Generator | None = None

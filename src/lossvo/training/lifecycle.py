@@ -345,7 +345,7 @@ def _run_in(run: Run) -> Iterator[Run]:
     out_dir = run.out_dir
     try:
         _accept(run)
-    except (UserError, ValueError) as e:
+    except UserError as e:
         if not full_error():
             log.error("%s", one_line(e))  # before the folder goes: the log opens train.log in it
         _failed(run, e)
