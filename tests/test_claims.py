@@ -254,9 +254,9 @@ SLOW = [5.0, 3.0, 1.0]  # epoch 3
 def sweep_columns(
     offset: float, alternate: bool = False, train_penalty: float = 5.0, seeds: int = 3
 ) -> list[Column]:
-    """``seeds`` seeds, held-out sequences 02-05 (00 is in ``data.splits.train``). The ChordalLoss configuration
-    (labelled ``loss=se3``) is :func:`chordal_step` off the EulerLoss one on each held-out sequence and
-    ``train_penalty`` worse on 00; the EulerLoss configuration is (misleadingly) labelled
+    """``seeds`` seeds, held-out sequences 02-05 (00 is in ``data.splits.train``). The ChordalLoss
+    configuration (labelled ``loss=se3``) is :func:`chordal_step` off the EulerLoss one on each held-out
+    sequence and ``train_penalty`` worse on 00; the EulerLoss configuration is (misleadingly) labelled
     ``loss=chordal``. Convergence: the ChordalLoss curves cycle through :data:`FAST` (epochs 2, 3, 2), the
     EulerLoss ones are :data:`SLOW` (epoch 3)."""
     base = [

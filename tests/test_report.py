@@ -524,7 +524,12 @@ def test_each_job_is_compared_with_the_mean_motion_on_the_validation_sequences(
     section = text.split("## Against the mean motion, per job", 1)[1].split("\n## ", 1)[0]
     rows = [line.strip("|").split("|") for line in section.splitlines() if line.startswith("| ")]
     header, body = [c.strip() for c in rows[0]], [[c.strip() for c in r] for r in rows[1:]]
-    assert header == ["configuration", "seed", "02 RPE trans", "02 RPE rot"]  # the tiny sweep's data.splits.val
+    assert header == [
+        "configuration",
+        "seed",
+        "02 RPE trans",
+        "02 RPE rot",
+    ]  # the tiny sweep's data.splits.val
     assert len(body) == len(LOSSES) * len(SEEDS)
     translation = read_table(report / "tables" / "translation.csv")
     rotation = read_table(report / "tables" / "rotation.csv")
@@ -873,7 +878,7 @@ def damaged(content: dict, change: str) -> object:
      ("no rmse", "sequences.01.ape.trans.rmse is missing"),
      ("rmse a string", "sequences.01.rpe.rot_rad.rmse: expected a number"),
      ("sequences a list", "sequences: expected an object"), ("no data", "data is missing"),
-     ("train not names", "data.splits.train: expected a list of sequence names"),
+     ("train not names", "data.train: expected a list of sequence names"),
      ("neither scores nor note", "sequences.11: neither scores"),
      ("another schema", f"schema_version {SCHEMA_VERSION + 1}, expected {SCHEMA_VERSION}"),
      ("no schema", f"no schema_version, expected {SCHEMA_VERSION}")],

@@ -9,24 +9,25 @@ from types import SimpleNamespace
 import pytest
 import torch
 
+from helpers import data_module
 from lossvo.console import UserError
-from lossvo.data.datamodules import KittiDataModule
+from lossvo.data.datamodules import VODataModule
 from lossvo.data.transforms import Jitter, Mirror, Reverse, Standstill, Zoom
 
 AUGMENTED = [Standstill(0.3), Zoom(1.5), Mirror(0.5)]
 
 
-def make_dm(root: Path, cache: Path, **kwargs) -> KittiDataModule:
+def make_dm(root: Path, cache: Path, **kwargs) -> VODataModule:
     args = {"train": ["00", "01"], "val": ["02"], "test": ["02"], "height": 32, "width": 96, "seq_len": 4,
             "batch_size": 3, "num_workers": 0, "cache_dir": str(cache),
             "windows_per_epoch": 11} | kwargs  # fmt: skip
-    dm = KittiDataModule(str(root), **args)
+    dm = data_module(root, **args)
     dm.prepare_data()
     dm.setup("fit")
     return dm
 
 
-def epoch_batches(dm: KittiDataModule, split: str, epoch: int, seed: int) -> list[dict[str, torch.Tensor]]:
+def epoch_batches(dm: VODataModule, split: str, epoch: int, seed: int) -> list[dict[str, torch.Tensor]]:
     """Every batch of one epoch of a split, as the network receives it (on_after_batch_transfer), with the
     global stream seeded first, as a fit is."""
     dm.trainer = SimpleNamespace(training=split == "train")
@@ -98,12 +99,14 @@ def test_on_device_gathers_from_the_resident_arrays(tiny_kitti: Path, tmp_path: 
 @pytest.mark.parametrize("value", ["gpu", 2, None])
 def test_bad_on_device(tiny_kitti: Path, tmp_path: Path, value: object) -> None:
     with pytest.raises(UserError, match=r"^data.loader.on_device: expected auto, true or false, got"):
-        KittiDataModule(str(tiny_kitti), on_device=value, cache_dir=str(tmp_path))
+        data_module(tiny_kitti, on_device=value, cache_dir=str(tmp_path))
 
 
 def test_bad_device_budget(tiny_kitti: Path, tmp_path: Path) -> None:
-    with pytest.raises(UserError, match=r"^data.loader.device_budget_gb: expected a number of GiB >= 0, got -1"):
-        KittiDataModule(str(tiny_kitti), device_budget_gb=-1, cache_dir=str(tmp_path))
+    with pytest.raises(
+        UserError, match=r"^data.loader.device_budget_gb: expected a number of GiB >= 0, got -1"
+    ):
+        data_module(tiny_kitti, device_budget_gb=-1, cache_dir=str(tmp_path))
 
 
 @pytest.mark.slow

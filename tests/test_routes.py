@@ -207,8 +207,16 @@ def test_route_spec_adds_families_and_mixes_that_the_routes_follow() -> None:
             {"11": {"motorway": 1.0}},
             "data.sources.synthetic.route_mixes.11: unknown route family 'motorway': expected one of",
         ),
-        (None, {"11": {"town": "a lot"}}, "data.sources.synthetic.route_mixes.11: route mix: expected non-negative weights"),
-        ({"town": {"speed": 1.0}}, None, "data.sources.synthetic.route_families.town: unknown parameter 'speed'"),
+        (
+            None,
+            {"11": {"town": "a lot"}},
+            "data.sources.synthetic.route_mixes.11: route mix: expected non-negative weights",
+        ),
+        (
+            {"town": {"speed": 1.0}},
+            None,
+            "data.sources.synthetic.route_families.town: unknown parameter 'speed'",
+        ),
         (
             {"crawl": {"cruise": [0.1, 0.2]}},
             None,
@@ -224,7 +232,7 @@ def test_route_spec_adds_families_and_mixes_that_the_routes_follow() -> None:
 )
 def test_bad_route_config_names_the_key(families, mixes, message: str) -> None:
     with pytest.raises(UserError, match=re.escape(message)):
-        routes.route_spec(families, mixes, prefix="data.")
+        routes.route_spec(families, mixes, prefix="data.sources.synthetic.")
 
 
 @pytest.mark.slow

@@ -200,22 +200,18 @@ class JobSize:
 def job_size(cfg: DictConfig) -> JobSize:
     """A job's :class:`JobSize`, from its composed config and the data's metadata (poses and timestamps;
     the embedded dataset is rendered first where it is missing). Training windows follow
-    :func:`lossvo.data.windows.training_starts`, ``windows_per_epoch`` of them an epoch where set."""
+    :func:`lossvo.data.windows.training_starts`, ``data.windows.per_epoch`` of them an epoch where set."""
     datamodule = instantiate(cfg.data, _convert_="all")
     datamodule.load_metadata()
-    sequences = datamodule.sequences
+    sequences, spec = datamodule.sequences, datamodule.windows
     train = sum(
-        len(
-            windows.training_starts(
-                len(seq.times), datamodule.seq_len, datamodule.stride, step, windows.gaps(seq.times)
-            )
-        )
+        len(windows.training_starts(len(seq.times), spec.seq_len, spec.stride, step, windows.gaps(seq.times)))
         for seq in (sequences[name] for name in datamodule.splits["train"])
-        for step in datamodule.frame_steps
+        for step in spec.frame_steps
     )
-    per_epoch = min(datamodule.windows_per_epoch or train, train)
+    per_epoch = min(spec.per_epoch or train, train)
     epochs = int(cfg.trainer.max_epochs)
-    steps = epochs * math.ceil(per_epoch / datamodule.batch_size)
+    steps = epochs * math.ceil(per_epoch / spec.batch_size)
     max_steps = int(cfg.trainer.get("max_steps") or -1)
     pairs = {name: len(seq.times) - 1 for name, seq in sequences.items()}
     return JobSize(
@@ -301,7 +297,8 @@ def _quiet() -> Iterator[None]:
 def time_training_step(cfg: DictConfig) -> float:
     """Median seconds of a training step of the job's network, loss and optimiser on the CPU, through
     Lightning, on batches of the config's shape (:data:`CALIBRATION_STEPS`, the first two not counted)."""
-    batches = [_batch(cfg, int(cfg.data.windows.batch_size), int(cfg.data.windows.seq_len)) for _ in range(CALIBRATION_STEPS)]
+    windows = cfg.data.windows
+    batches = [_batch(cfg, int(windows.batch_size), int(windows.seq_len)) for _ in range(CALIBRATION_STEPS)]
     timer = _StepTimes()
     with _quiet():
         trainer = L.Trainer(

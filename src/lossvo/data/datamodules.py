@@ -445,7 +445,7 @@ class VODataModule(L.LightningDataModule):
         allow, else nothing (the host loader); one log line either way."""
         splits = [s for s in ("train", "val") if s in self.datasets]
         size = sum(resident.resident_bytes(*self._arrays(s)) for s in splits) / resident.GIB
-        setting = f"data.on_device={str(self.loader.on_device).lower()}"
+        setting = f"data.loader.on_device={str(self.loader.on_device).lower()}"
         reason = None
         if self.loader.on_device is False:
             reason = setting
@@ -454,7 +454,7 @@ class VODataModule(L.LightningDataModule):
         elif getattr(self.trainer, "world_size", 1) > 1:
             reason = f"{getattr(self.trainer, 'world_size', 1)} processes"
         elif size > self.loader.device_budget_gb:
-            reason = f"the arrays exceed data.device_budget_gb={self.loader.device_budget_gb:g}"
+            reason = f"the arrays exceed data.loader.device_budget_gb={self.loader.device_budget_gb:g}"
         if reason is not None:
             log.info("data: batches from the host loader (%s; %.2f GiB of frames and flow)", reason, size)
             return {}

@@ -1,4 +1,5 @@
-"""The dataset layouts lossvo reads, by name (``data.layout``): where a layout's name becomes its reader.
+"""The dataset layouts lossvo reads, by name (``data.sources.<name>.layout``): where a layout's name
+becomes its reader.
 
 Each reader module (:mod:`~lossvo.data.kitti`, :mod:`~lossvo.data.tum`, :mod:`~lossvo.data.euroc`,
 :mod:`~lossvo.data.tartanair`, :mod:`~lossvo.data.mimir`) reads its dataset in the dataset's own layout

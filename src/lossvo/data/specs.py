@@ -10,11 +10,13 @@ checkpoints into these specs' form.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+import functools
+import sys
+from collections.abc import Callable, Mapping
 from collections.abc import Sequence as Seq
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -28,6 +30,7 @@ SYNTHETIC = "synthetic"
 """The layout name of the embedded synthetic dataset: rendered in the KITTI layout on first use."""
 NORMALIZATIONS = ("dataset", "flownet")
 SPLITS = ("train", "val", "test", "unseen")
+_R = TypeVar("_R")
 
 
 def _fields(cls: type, value: Any, where: str) -> dict[str, Any]:
@@ -384,7 +387,7 @@ def new_key(flat: str) -> str | None:
     if flat in FLAT_KEYS:
         return f"{FLAT_KEYS[flat]}.{RENAMED.get(flat, flat)}"
     if flat in SOURCE_KEYS:
-        return f"sources.<name>.{flat}"
+        return f"sources.NAME.{flat}"
     if flat in RENDER_KEYS:
         return f"sources.synthetic.{RENDER_KEYS[flat]}"
     if flat == "datasets":
@@ -423,3 +426,28 @@ def nested(flat: Mapping[str, Any]) -> dict[str, Any]:
         layout = source.get("layout", "kitti")
         out["sources"] = {layout: {"layout": layout, **source}}
     return {**out, **{k: v for k, v in specs.items() if v}}
+
+
+def check_overrides(overrides: Seq[str]) -> None:
+    """UserError for a command-line override of a data key of the flat form (``data.root=...``), naming
+    the key that holds it now (``data.sources.<name>.root``). ``data.frames`` and ``data.flow`` are
+    specs of both forms: their own checks name them."""
+    for line in overrides:
+        key = line.lstrip("+~").split("=", 1)[0]
+        flat = key.removeprefix("data.")
+        if key.startswith("data.") and "." not in flat and flat not in ("frames", "flow"):
+            new = new_key(flat)
+            if new is not None:
+                raise UserError(f"{key}: not a data key; the setting is data.{new} (docs/data.md lists them)")
+
+
+def refusing_flat_keys(main: Callable[[], _R]) -> Callable[[], _R]:
+    """A Hydra entry point that refuses a flat-form data override (:func:`check_overrides`) before Hydra
+    composes the config (which would call it a key the config lacks)."""
+
+    @functools.wraps(main)
+    def wrapped() -> _R:
+        check_overrides(sys.argv[1:])
+        return main()
+
+    return wrapped

@@ -59,7 +59,7 @@ RANSAC_THRESHOLD_PX = 0.5
 ORB_FEATURES = 500
 
 FLOW_SETTING = FlowSetting("dis", "medium")
-"""The flow baseline's flow: OpenCV's DIS, preset medium (``data.flow.method=dis`` with its default preset)."""
+"""The flow baseline's flow: OpenCV's DIS, preset medium (``data.flow.method=dis``, its default preset)."""
 FLOW_MAX_WIDTH = 320
 """Frames wider than this (pixels) are downscaled to it (area interpolation, aspect ratio kept) before the
 flow: the synthetic 96x320 frames are used as stored (7-8 ms a pair on one core), KITTI's 376x1241 at
@@ -469,7 +469,7 @@ def training_sequences(data: DataRecord) -> list[DatasetSequence]:
             there.
     """
     if not data.train or data.train_root is None:
-        raise UserError("the recorded training split (data.splits.train) is empty: no training mean motion")
+        raise UserError("the recorded training split (data.train) is empty: no training mean motion")
     root = layouts.dataset_root(data.train_layout, data.train_root)
     every = data.train_keep_every
     return [layouts.load_sequence(data.train_layout, root, name).every(every) for name in data.train]

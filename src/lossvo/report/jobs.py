@@ -320,7 +320,7 @@ def check_on_disk(data: DataRecord, job: Job) -> None:
 
 def trained_sequences(job: Job) -> set[str]:
     """The sequences of the evaluated dataset that an included job's network was trained on: results.json's
-    ``data.splits.train`` when the evaluated root is the training root, none when they differ."""
+    ``data.train`` when the evaluated root is the training root, none when they differ."""
     data = job.included_results.data
     same = data.train_root is not None and os.path.realpath(data.root) == os.path.realpath(data.train_root)
     return set(data.train) if same else set()

@@ -133,7 +133,7 @@ def train(cfg: DictConfig, run: Run) -> dict[str, float]:
     epoch, step = -1, 0
     if ckpt_path:
         try:
-            epoch, step = checkpoints.check_resume(ckpt_path, module, dict(datamodule.hparams))
+            epoch, step = checkpoints.check_resume(ckpt_path, module, datamodule.description())
         except checkpoints.CheckpointError as e:
             key = "ckpt_path" if cfg.get("ckpt_path") else "resume"
             raise checkpoints.CheckpointError(f"{key}: {e}") from None
