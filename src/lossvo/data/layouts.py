@@ -29,7 +29,7 @@ READERS: dict[str, ModuleType] = {
 LAYOUTS = tuple(READERS)
 
 
-def check_layout(layout: object, key: str = "data.layout") -> str:
+def check_layout(layout: object, key: str = "layout") -> str:
     """``layout`` if it names a layout; UserError naming ``key`` and the layouts otherwise."""
     if layout not in READERS:
         raise UserError(f"{key}: unknown dataset layout {layout!r} (expected one of {', '.join(LAYOUTS)})")
