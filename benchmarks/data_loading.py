@@ -20,17 +20,17 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from lossvo.data import synthetic
-from lossvo.data.datamodules import KittiDataModule
+from lossvo.data.datamodules import VODataModule
 
 
 class PngWindows(Dataset):
     """The same windows as the cache's, decoded and resized from PNG files on every access."""
 
-    def __init__(self, dm: KittiDataModule, split: str) -> None:
+    def __init__(self, dm: VODataModule, split: str) -> None:
         """Windows of ``dm``'s ``split`` (its set-up datasets give the same indices and targets)."""
         self.cached = dm.datasets[split]
         self.images = [dm.sequences[n].images for n in dm.splits[split]]
-        self.size = (dm.width, dm.height)
+        self.size = (dm.frames.width, dm.frames.height)
 
     def __len__(self) -> int:
         return len(self.cached)
@@ -45,7 +45,7 @@ class PngWindows(Dataset):
 
 
 def frames_per_second(
-    dm: KittiDataModule, dataset: Dataset, batch_size: int, workers: int, repeats: int = 3
+    dm: VODataModule, dataset: Dataset, batch_size: int, workers: int, repeats: int = 3
 ) -> float:
     """Frames per second until normalised float batches are ready, as the model receives them
     (median over ``repeats`` epochs)."""
@@ -81,9 +81,13 @@ def main() -> None:
             width=args.render_width,
             progress=False,
         )
-        dm = KittiDataModule(str(root), train=names, val=names, test=names, height=args.height,
-                             width=args.width, seq_len=args.seq_len, batch_size=args.batch_size,
-                             num_workers=args.workers, cache_dir=str(Path(tmp) / "cache"))  # fmt: skip
+        dm = VODataModule(
+            sources={"kitti": {"layout": "kitti", "root": str(root)}},
+            splits={"train": names, "val": names, "test": names},
+            frames={"height": args.height, "width": args.width, "cache_dir": str(Path(tmp) / "cache")},
+            windows={"seq_len": args.seq_len, "batch_size": args.batch_size},
+            loader={"num_workers": args.workers},
+        )
         dm.prepare_data()
         dm.setup("fit")
         source = cv2.imread(str(dm.sequences[names[0]].images[0])).shape[:2]

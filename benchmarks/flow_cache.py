@@ -1,7 +1,7 @@
 """The optical-flow cache of a dataset: how long each flow setting takes to build it and how large it is.
 
 Run: ``.venv/bin/python benchmarks/flow_cache.py [--rounds 2] [--settings dis-fast dis-medium-x1.5 ...]``
-(``-xS``: ``data.flow_scale=S``, the flow computed on the source images at S times the cached size).
+(``-xS``: ``data.flow.scale=S``, the flow computed on the source images at S times the cached size).
 It reads the default synthetic dataset's frame cache (the default ``data=synthetic`` config: 6,300 frames
 at 64x208, under ``$LOSSVO_CACHE``, rendered first if missing), then builds the flow cache of each setting
 (consecutive pairs of every sequence, each training frame step's pairs of the training ones) into a fresh
@@ -22,20 +22,20 @@ from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
 from lossvo.data import flow
-from lossvo.data.datamodules import KittiDataModule
+from lossvo.data.datamodules import VODataModule
 from lossvo.train import CONFIG_DIR
 
 
-def _datamodule() -> KittiDataModule:
+def _datamodule() -> VODataModule:
     """The default config's datamodule (data=synthetic), frames cached."""
     with initialize_config_dir(config_dir=CONFIG_DIR, version_base="1.3"):
         cfg = compose("train")
-    dm: KittiDataModule = instantiate(cfg.data)
+    dm: VODataModule = instantiate(cfg.data)
     dm.prepare_data()
     return dm
 
 
-def _build(dm: KittiDataModule, setting: flow.FlowSetting, folder: Path) -> tuple[float, int, int]:
+def _build(dm: VODataModule, setting: flow.FlowSetting, folder: Path) -> tuple[float, int, int]:
     """Seconds to build every flow array the datamodule needs into ``folder``; pairs; bytes."""
     start = time.perf_counter()
     pairs = 0

@@ -140,12 +140,12 @@ def study_settings() -> dict[str, Any]:
     paper, kitti, gpu = config("experiment/paper.yaml"), config("data/kitti.yaml"), config("trainer/gpu.yaml")
     base, flowvo = config("data/shared/base.yaml"), config("model/flowvo.yaml")
     return {
-        "size": [kitti.height, kitti.width],
+        "size": [kitti.frames.height, kitti.frames.width],
         "networks": {
             "deepvo": {
                 "model": plain(config("model/deepvo.yaml")),
-                "seq_len": kitti.seq_len,
-                "batch_size": base.batch_size,
+                "seq_len": kitti.windows.seq_len,
+                "batch_size": base.windows.batch_size,
             },
             "flowvo": {
                 "model": plain(flowvo.model),
@@ -153,15 +153,15 @@ def study_settings() -> dict[str, Any]:
                 "batch_size": flowvo.reads.batch_size,
             },
         },
-        "stride": base.stride,
-        "num_workers": paper.data.num_workers,
-        "pin_memory": paper.data.pin_memory,
+        "stride": base.windows.stride,
+        "num_workers": paper.data.loader.num_workers,
+        "pin_memory": paper.data.loader.pin_memory,
         "lr": paper.optimizer.lr,
         "max_epochs": paper.trainer.max_epochs,
         "precision": gpu.precision,
         "cudnn_benchmark": gpu.benchmark,
-        "train": list(kitti.train),
-        "val": list(kitti.val),
+        "train": list(kitti.splits.train),
+        "val": list(kitti.splits.val),
         "losses": {name: config(f"loss/{name}.yaml")["_target_"] for name in STUDY_LOSSES},
     }
 

@@ -10,7 +10,7 @@ OpenCV and scipy there and the other pure-Python dependencies carried in ``.gpu-
 Check it on a CPU (tiny sizes, eager steps, one seed of the study; ``tests/test_gpu_study_script.py``)::
 
     .venv/bin/python benchmarks/gpu_study.py --quick --device cpu --out /tmp/gpu-study \\
-        --job-overrides data=kitti data.root=<a tiny KITTI-layout folder> ...
+        --job-overrides data=kitti data.sources.kitti.root=<a tiny KITTI-layout folder> ...
 
 Stages, each skipped (and recorded as such) when the time left is below its estimate, every number written
 to ``<out>/gpu_study.json`` after each stage (beside it the commands' logs and the study's report; the runs'
@@ -22,9 +22,9 @@ folders go to ``--work``, so that ``<out>`` stays a handful of files):
    frames and flow and fills torch.compile's cache (later stages wait for it before they time anything).
 3. **FlowVO's training step at 64x208** (its config: pairs, 20 a batch, the chordal loss): a batch resident
    on the GPU, and batches gathered there from resident arrays with the mirror augmentation, as
-   ``data.on_device`` does; eager, and compiled (``default``, ``reduce-overhead``: CUDA graphs), in fp32
-   and bf16 autocast (``trainer=gpu``'s precision); the fused Adam and the step's record as the module has
-   them. Steps/s over interleaved rounds, compile seconds, peak memory, and the host synchronisations of a
+   ``data.loader.on_device`` does; eager, and compiled (``default``, ``reduce-overhead``: CUDA graphs), in
+   fp32 and bf16 autocast (``trainer=gpu``'s precision); the fused Adam and the step's record as the module
+   has them. Steps/s over interleaved rounds, compile seconds, peak memory, and the host synchronisations of a
    step counted by ``torch.cuda.set_sync_debug_mode``.
 4. **One default FlowVO job end to end**: ``python -m lossvo.train model=flowvo trainer=gpu`` (10 epochs and
    the evaluation of 13 sequences) on the cached data: wall seconds, the epochs' seconds from its log.
@@ -220,8 +220,8 @@ def random_windows(size: tuple[int, int], frames: int, device: torch.device) -> 
 
 
 class Gathered:
-    """Batches as ``data.on_device`` gives them: index batches built on the host, gathered on the device,
-    half of them mirrored (frames, targets, flow, K), frames normalised and flow made float."""
+    """Batches as ``data.loader.on_device`` gives them: index batches built on the host, gathered on the
+    device, half of them mirrored (frames, targets, flow, K), frames normalised and flow made float."""
 
     def __init__(self, windows: resident.ResidentWindows, batch_size: int, width: int) -> None:
         self.windows, self.batch_size, self.width = windows, batch_size, width
@@ -288,7 +288,7 @@ def flowvo_steps(size: tuple[int, int], modes: tuple, args: argparse.Namespace, 
                  ready: Callable[[], None]) -> dict[str, Any]:  # fmt: skip
     """FlowVO's step in each mode: compiled and warmed first, then timed in interleaved rounds once
     ``ready()`` returns (the background preparation done)."""
-    batch_size = QUICK_BATCH if args.quick else int(gpu_path.config("model/flowvo.yaml").data.batch_size)
+    batch_size = QUICK_BATCH if args.quick else int(gpu_path.config("model/flowvo.yaml").reads.batch_size)
     windows = random_windows(size, args.frames, device)
     gathered = Gathered(windows, batch_size, size[1])
     fixed = gathered()

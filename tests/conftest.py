@@ -121,16 +121,22 @@ defaults:
   - override /data: kitti
   - override /logger: {logger}
 data:
-  root: {root}
-  cache_dir: {cache}
-  train: ["00", "01"]
-  val: ["02"]
-  test: {test}
-  height: 64
-  width: 96
-  seq_len: 3
-  batch_size: 4
-  num_workers: {num_workers}
+  sources:
+    kitti:
+      root: {root}
+  splits:
+    train: ["00", "01"]
+    val: ["02"]
+    test: {test}
+  frames:
+    height: 64
+    width: 96
+    cache_dir: {cache}
+  windows:
+    seq_len: 3
+    batch_size: 4
+  loader:
+    num_workers: {num_workers}
 model:
   width_mult: 0.0625
   hidden_size: 16

@@ -16,6 +16,8 @@ from omegaconf import DictConfig
 
 from lossvo import eval as lossvo_eval
 from lossvo import train
+from lossvo.data.datamodules import VODataModule
+from lossvo.data.specs import nested
 from lossvo.training import fitting, lifecycle
 
 DEVICES = [
@@ -24,6 +26,14 @@ DEVICES = [
         "cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA is not available")
     ),
 ]
+
+
+def data_module(root: str | Path, layout: str = "kitti", **flat: object) -> VODataModule:
+    """A data module of one dataset, from keyword arguments of the flat form (``height=32``, ``train=[...]``,
+    ``on_device=False``: :func:`lossvo.data.specs.nested` puts each into its spec)."""
+    config = nested({"layout": layout, "root": str(root), **flat})
+    config.pop("_target_")
+    return VODataModule(**config)
 
 
 def exit_status(error: SystemExit) -> int:

@@ -84,7 +84,7 @@ def test_the_table_covers_every_command() -> None:
 
 @pytest.fixture(scope="module")
 def euler_checkpoint(tiny_kitti: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A checkpoint of one tiny training step with loss=euler, data.seq_len=3."""
+    """A checkpoint of one tiny training step with loss=euler, data.windows.seq_len=3."""
     base = tmp_path_factory.mktemp("euler")
     overrides = [*tiny_overrides(tiny_kitti, base / "cache"), "loss=euler", "trainer.max_epochs=1",
                  "+evaluate=false", "+trainer.limit_train_batches=1", "+trainer.limit_val_batches=1",
@@ -290,7 +290,7 @@ def test_trainer_gpu_without_a_gpu_on_the_real_command_line(tiny_kitti: Path, tm
 @pytest.mark.parametrize(
     ("command", "args", "error"),
     [
-        ("train", "data.batch_size=abc", UserError),
+        ("train", "data.windows.batch_size=abc", UserError),
         ("train", "loss=eular", Exception),  # Hydra's MissingConfigException
         ("eval", "device=cpu", UserError),
         ("report", "<missing folder>", UserError),

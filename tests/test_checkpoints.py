@@ -38,9 +38,14 @@ def _ape(result: dict, name: str) -> float:
 def test_checkpoint_records_its_data(sweep_job: Path) -> None:
     content = checkpoints.read(sweep_job / "checkpoints" / "best.ckpt")
     data = content["data"]
-    assert data["_target_"] == "lossvo.data.datamodules.KittiDataModule"
-    assert (data["height"], data["width"], data["seq_len"], data["normalization"]) == (64, 96, 3, "dataset")
-    assert data["train"] == ["00", "01"] and len(data["statistics"]["mean"]) == 3
+    assert data["_target_"] == "lossvo.data.datamodules.VODataModule"
+    assert data["sources"]["kitti"]["layout"] == "kitti" and data["windows"]["seq_len"] == 3
+    assert (data["frames"]["height"], data["frames"]["width"], data["frames"]["normalization"]) == (
+        64,
+        96,
+        "dataset",
+    )
+    assert data["splits"]["train"] == ["00", "01"] and len(data["statistics"]["mean"]) == 3
     assert all(s > 0 for s in data["statistics"]["std"])
 
 
@@ -67,9 +72,18 @@ def test_eval_on_a_root_holding_only_test_sequences(
     shutil.copy(tiny_kitti / "poses" / "02.txt", other / "poses" / "02.txt")
     out = tmp_path / "eval"
     monkeypatch.setenv("LOSSVO_CACHE", str(tmp_path / "cache"))
-    status, err = eval_main([f"ckpt_path={sweep_job / 'checkpoints' / 'best.ckpt'}", "data=kitti",
-                              f"data.root={other}", "data.test=[02]", "device=cpu", f"hydra.run.dir={out}"],
-                             monkeypatch, capsys)  # fmt: skip
+    status, err = eval_main(
+        [
+            f"ckpt_path={sweep_job / 'checkpoints' / 'best.ckpt'}",
+            "data=kitti",
+            f"data.sources.kitti.root={other}",
+            "data.splits.test=[02]",
+            "device=cpu",
+            f"hydra.run.dir={out}",
+        ],
+        monkeypatch,
+        capsys,
+    )
     assert status == 0, err
     result = json.loads((out / "results.json").read_text())
     trained = json.loads((sweep_job / "results.json").read_text())
@@ -79,8 +93,10 @@ def test_eval_on_a_root_holding_only_test_sequences(
     assert _ape(result, "02") == pytest.approx(_ape(trained, "02"), rel=1e-9)  # the training normalisation
 
 
-@pytest.mark.parametrize(("override", "given", "recorded"), [("data.seq_len=4", "4", "3"),
-                                                              ("data.height=32", "32", "64")])  # fmt: skip
+@pytest.mark.parametrize(
+    ("override", "given", "recorded"),
+    [("data.windows.seq_len=4", "4", "3"), ("data.frames.height=32", "32", "64")],
+)
 def test_contradicting_override_names_both_values(
     sweep_job: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys, override: str, given: str,
     recorded: str,
@@ -113,43 +129,82 @@ def test_resume_refuses_another_network_shape(sweep_job: Path, tiny_kitti: Path,
 
 
 def test_resume_refuses_another_frame_size(sweep_job: Path, tiny_kitti: Path, tmp_path: Path) -> None:
-    cfg = _resume_cfg(sweep_job, tiny_kitti, tmp_path, "loss=euler", "data.seq_len=4")
-    with pytest.raises(checkpoints.CheckpointError, match=r"data\.seq_len=3, this run has data\.seq_len=4"):
+    cfg = _resume_cfg(sweep_job, tiny_kitti, tmp_path, "loss=euler", "data.windows.seq_len=4")
+    with pytest.raises(
+        checkpoints.CheckpointError, match=r"data\.windows\.seq_len=3, this run has data\.windows\.seq_len=4"
+    ):
         fit(cfg)
 
 
-RECORDED = {"_target_": "lossvo.data.datamodules.SyntheticDataModule", "root": None, "train": ["00"],
-            "val": ["07"], "test": ["07"], "height": 64, "width": 208, "seq_len": 6,
-            "normalization": "flownet", "statistics": {"mean": [0.5] * 3, "std": [1.0] * 3},
-            "dataset_root": "/data/synthetic"}  # fmt: skip
+RECORDED = {
+    "_target_": "lossvo.data.datamodules.VODataModule",
+    "sources": {"synthetic": {"layout": "synthetic", "root": "/data/synthetic"}},
+    "splits": {"train": ["00"], "val": ["07"], "test": ["07"]},
+    "frames": {"height": 64, "width": 208, "normalization": "flownet"},
+    "windows": {"seq_len": 6},
+    "statistics": {"mean": [0.5] * 3, "std": [1.0] * 3},
+    "dataset_root": "/data/synthetic",
+}
+KITTI = {
+    "_target_": "lossvo.data.datamodules.VODataModule",
+    "sources": {"kitti": {"layout": "kitti", "root": None}},
+    "splits": {"test": ["10"]},
+    "frames": {"height": 184, "width": 608, "normalization": "dataset"},
+    "windows": {"seq_len": 7},
+    "flow": {"method": "none", "preset": "medium"},
+}
 
 
 def test_evaluation_data_takes_the_network_s_settings() -> None:
-    recorded = checkpoints.evaluation_data(RECORDED, None, {"test": ["09"]})
-    assert recorded["_target_"] == RECORDED["_target_"] and recorded["test"] == ["09"]
-    assert (recorded["train"], recorded["val"], recorded["statistics"]) == ([], [], RECORDED["statistics"])
-    assert "dataset_root" not in recorded
-    kitti = {"_target_": "lossvo.data.datamodules.KittiDataModule", "root": "/kitti", "height": 184,
-             "width": 608, "seq_len": 7, "normalization": "dataset", "test": ["10"]}  # fmt: skip
-    chosen = checkpoints.evaluation_data(RECORDED, kitti, {"root": "/kitti"})
-    assert chosen["_target_"] == kitti["_target_"] and chosen["root"] == "/kitti"
-    assert (chosen["height"], chosen["width"], chosen["seq_len"]) == (64, 208, 6)
-    assert chosen["normalization"] == "flownet"  # a FlowNet-initialised network keeps its input range
-    with pytest.raises(checkpoints.CheckpointError, match=r"data\.normalization='dataset'.*'flownet'"):
-        checkpoints.evaluation_data(RECORDED, kitti, {"normalization": "dataset"})
+    recorded = checkpoints.evaluation_data(RECORDED, None, {"splits.test": ["09"]})
+    assert recorded["sources"] == RECORDED["sources"] and recorded["splits"]["test"] == ["09"]
+    assert (recorded["splits"]["train"], recorded["splits"]["val"]) == ([], [])
+    assert recorded["frames"]["statistics"] == RECORDED["statistics"]
+    assert "dataset_root" not in recorded and "statistics" not in recorded
+    chosen = checkpoints.evaluation_data(RECORDED, KITTI, {"sources.kitti.root": "/kitti"})
+    assert chosen["sources"] == {"kitti": {"layout": "kitti", "root": "/kitti"}}
+    assert (chosen["frames"]["height"], chosen["frames"]["width"], chosen["windows"]["seq_len"]) == (
+        64,
+        208,
+        6,
+    )
+    assert (
+        chosen["frames"]["normalization"] == "flownet"
+    )  # a FlowNet-initialised network keeps its input range
+    assert KITTI["sources"]["kitti"]["root"] is None  # the chosen config is not changed
+    with pytest.raises(
+        checkpoints.CheckpointError, match=r"data\.frames\.normalization='dataset'.*'flownet'"
+    ):
+        checkpoints.evaluation_data(RECORDED, KITTI, {"frames.normalization": "dataset"})
 
 
 def test_evaluation_data_keeps_the_flow_the_network_read() -> None:
-    """eval.yaml composes no network, so a chosen dataset's ``data.flow`` (which follows ``model.flow``)
-    reads none: the checkpoint's flow setting wins, and an override that contradicts it is refused."""
-    flowvo = {**RECORDED, "flow": "dis", "flow_preset": "fast"}
-    kitti = {"_target_": "lossvo.data.datamodules.KittiDataModule", "root": "/kitti", "flow": "none",
-             "flow_preset": "medium"}  # fmt: skip
-    chosen = checkpoints.evaluation_data(flowvo, kitti, {"root": "/kitti"})
-    assert (chosen["flow"], chosen["flow_preset"]) == ("dis", "fast")
-    with pytest.raises(checkpoints.CheckpointError, match=r"data\.flow='farneback' contradicts"):
-        checkpoints.evaluation_data(flowvo, kitti, {"flow": "farneback"})
+    """eval.yaml composes no network, so a chosen dataset's ``data.flow.method`` (which follows the
+    network's ``reads``) reads none: the checkpoint's flow setting wins, and an override that contradicts it
+    is refused."""
+    flowvo = {**RECORDED, "flow": {"method": "dis", "preset": "fast", "scale": 1.5}}
+    chosen = checkpoints.evaluation_data(flowvo, KITTI, {"sources.kitti.root": "/kitti"})
+    assert chosen["flow"] == {"method": "dis", "preset": "fast", "scale": 1.5}
+    with pytest.raises(checkpoints.CheckpointError, match=r"data\.flow\.method='farneback' contradicts"):
+        checkpoints.evaluation_data(flowvo, KITTI, {"flow.method": "farneback"})
     assert "flow" not in checkpoints.evaluation_data(RECORDED, None, {})  # a network from before flow existed
+
+
+def test_a_flat_description_of_an_earlier_version_reads_as_specs() -> None:
+    content = {
+        "hyper_parameters": {"model": {}, "loss": {}},
+        "data": {"_target_": "lossvo.data.datamodules.KittiDataModule", "root": "/k", "seq_len": 3,
+                 "flow": "dis", "mirror": 0.5, "statistics": {"mean": [0.5] * 3, "std": [1.0] * 3}},
+    }  # fmt: skip
+    data = checkpoints.Description.of(content).data
+    assert data is not None
+    assert data["sources"] == {"kitti": {"layout": "kitti", "root": "/k"}} and data["windows"] == {
+        "seq_len": 3
+    }
+    assert data["flow"] == {"method": "dis"} and data["transforms"][0]["p"] == 0.5
+    assert (
+        checkpoints.lookup(data, "windows.seq_len") == 3 and checkpoints.lookup(data, "frames.height") is None
+    )
 
 
 def test_foreign_files_are_one_line(tmp_path: Path) -> None:

@@ -254,9 +254,9 @@ SLOW = [5.0, 3.0, 1.0]  # epoch 3
 def sweep_columns(
     offset: float, alternate: bool = False, train_penalty: float = 5.0, seeds: int = 3
 ) -> list[Column]:
-    """``seeds`` seeds, held-out sequences 02-05 (00 is in ``data.train``). The ChordalLoss configuration
-    (labelled ``loss=se3``) is :func:`chordal_step` off the EulerLoss one on each held-out sequence and
-    ``train_penalty`` worse on 00; the EulerLoss configuration is (misleadingly) labelled
+    """``seeds`` seeds, held-out sequences 02-05 (00 is in ``data.splits.train``). The ChordalLoss
+    configuration (labelled ``loss=se3``) is :func:`chordal_step` off the EulerLoss one on each held-out
+    sequence and ``train_penalty`` worse on 00; the EulerLoss configuration is (misleadingly) labelled
     ``loss=chordal``. Convergence: the ChordalLoss curves cycle through :data:`FAST` (epochs 2, 3, 2), the
     EulerLoss ones are :data:`SLOW` (epoch 3)."""
     base = [
@@ -474,7 +474,7 @@ def recorded(column: Column, train: list[str], root: str = "/data/kitti") -> Col
 
 
 def test_held_out_sequences_come_from_the_training_split_that_results_json_records() -> None:
-    j = job("EulerLoss", data__train=["00", "01"])  # the config's data.train is not what counts
+    j = job("EulerLoss", data__train=["00", "01"])  # the config's data.splits.train is not what counts
     j.results = record(["02"])
     assert trained_sequences(j) == {"02"}
     j.results = record(["02"], root="/data/other")  # evaluated on other data: none of it was trained on

@@ -61,12 +61,27 @@ def sacct_states(job: str) -> dict[str, str]:
 def sweep_command(tiny_kitti: Path, tmp_path: Path, sweep: Path, *overrides: str) -> list[str]:
     """A sweep of tiny jobs on ``tiny_kitti`` through the local cluster's launcher, one thread a job."""
     return [
-        sys.executable, "-m", "lossvo.train", "-m", "hydra/launcher=submitit_slurm_local",
-        "data=kitti", f"data.root={tiny_kitti}", f"data.cache_dir={tmp_path / 'cache'}", "data.train=[00,01]",
-        "data.val=[02]", "data.test=[02]", "data.height=64", "data.width=96", "data.seq_len=3",
-        "data.num_workers=0", "model.width_mult=0.0625", "model.hidden_size=16", "threads=1",
-        f"hydra.sweep.dir={sweep}", *overrides,
-    ]  # fmt: skip
+        sys.executable,
+        "-m",
+        "lossvo.train",
+        "-m",
+        "hydra/launcher=submitit_slurm_local",
+        "data=kitti",
+        f"data.sources.kitti.root={tiny_kitti}",
+        f"data.frames.cache_dir={tmp_path / 'cache'}",
+        "data.splits.train=[00,01]",
+        "data.splits.val=[02]",
+        "data.splits.test=[02]",
+        "data.frames.height=64",
+        "data.frames.width=96",
+        "data.windows.seq_len=3",
+        "data.loader.num_workers=0",
+        "model.width_mult=0.0625",
+        "model.hidden_size=16",
+        "threads=1",
+        f"hydra.sweep.dir={sweep}",
+        *overrides,
+    ]
 
 
 def job_folder(sweep: Path) -> Path:

@@ -33,10 +33,19 @@ def data_overrides(layout: str, root: Path, cache: Path) -> list[str]:
     """Train on the layout's 00, validate and test on its 01, at 64x96 pixels."""
     train, test = (synthetic.sequence_name(layout, s) for s in ("00", "01"))
     return [
-        f"data={layout}", f"data.root={root}", f"data.cache_dir={cache}", f"data.train=[{train}]",
-        f"data.val=[{test}]", f"data.test=[{test}]", "data.height=64", "data.width=96", "data.seq_len=3",
-        "data.batch_size=4", "data.num_workers=0", "data.keep_every=1",
-    ]  # fmt: skip
+        f"data={layout}",
+        f"data.sources.{layout}.root={root}",
+        f"data.frames.cache_dir={cache}",
+        f"data.splits.train=[{train}]",
+        f"data.splits.val=[{test}]",
+        f"data.splits.test=[{test}]",
+        "data.frames.height=64",
+        "data.frames.width=96",
+        "data.windows.seq_len=3",
+        "data.windows.batch_size=4",
+        "data.loader.num_workers=0",
+        f"data.sources.{layout}.keep_every=1",
+    ]
 
 
 @pytest.mark.slow
@@ -54,7 +63,7 @@ def test_fast_dev_run_on_each_layout(layouts: dict[str, Path], layout: str, tmp_
 def test_flowvo_fast_dev_run_on_distorted_grey_frames(layouts: dict[str, Path], tmp_path: Path) -> None:
     """EuRoC: grey frames, radial-tangential distortion; FlowVO reads the flow of the undistorted frames and
     their K."""
-    network = ["model=flowvo", "model.channels=[8,8,8,8]", "model.hidden=8", "data.seq_len=2"]
+    network = ["model=flowvo", "model.channels=[8,8,8,8]", "model.hidden=8", "data.windows.seq_len=2"]
     overrides = [*data_overrides("euroc", layouts["euroc"], tmp_path / "cache"), *network,
                  "+trainer.fast_dev_run=1"]  # fmt: skip
     metrics = fit(compose_train(overrides, tmp_path / "run"))
@@ -76,14 +85,21 @@ def test_a_kitti_trained_network_evaluates_on_another_layout_from_its_checkpoint
     kitti_run: Path, layouts: dict[str, Path], layout: str, tmp_path: Path,
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture,
 ) -> None:  # fmt: skip
-    """``python -m lossvo.eval ckpt_path=... data=<layout> data.root=R data.test=[...]``: the frame size,
-    seq_len and normalisation come from the checkpoint; results.json names both datasets; the TUM files
-    beside the estimate reproduce its APE with evo."""
+    """``python -m lossvo.eval ckpt_path=... data=<layout> data.sources.<layout>.root=R
+    data.splits.test=[...]``: the frame size, seq_len and normalisation come from the checkpoint;
+    results.json names both datasets; the TUM files beside the estimate reproduce its APE with evo."""
     name = synthetic.sequence_name(layout, "01")
     out = tmp_path / "eval"
-    args = [f"ckpt_path={kitti_run / 'checkpoints' / 'best.ckpt'}", f"data={layout}",
-            f"data.root={layouts[layout]}", f"data.test=[{name}]", f"data.cache_dir={tmp_path / 'cache'}",
-            "data.num_workers=0", "device=cpu", f"hydra.run.dir={out}"]  # fmt: skip
+    args = [
+        f"ckpt_path={kitti_run / 'checkpoints' / 'best.ckpt'}",
+        f"data={layout}",
+        f"data.sources.{layout}.root={layouts[layout]}",
+        f"data.splits.test=[{name}]",
+        f"data.frames.cache_dir={tmp_path / 'cache'}",
+        "data.loader.num_workers=0",
+        "device=cpu",
+        f"hydra.run.dir={out}",
+    ]
     status, err = eval_main(args, monkeypatch, capsys)
     assert status == 0, err
     results = json.loads((out / "results.json").read_text())
@@ -114,13 +130,23 @@ def multi_overrides(tiny_kitti: Path, layouts: dict[str, Path], cache: Path) -> 
     01)."""
     tum_train, tum_test = (synthetic.sequence_name("tum", s) for s in ("00", "01"))
     return [
-        "data=multi", f"data.cache_dir={cache}", "data.height=64", "data.width=96", "data.seq_len=3",
-        "data.batch_size=4", "data.num_workers=0", f"data.datasets.kitti.root={tiny_kitti}",
-        "data.datasets.kitti.train=[00,01]", "data.datasets.kitti.val=[02]", "data.datasets.kitti.test=[02]",
-        f"data.datasets.tum.root={layouts['tum']}", f"data.datasets.tum.train=[{tum_train}]",
-        "data.datasets.tum.val=[]", f"data.datasets.tum.test=[{tum_test}]", "data.datasets.tum.keep_every=1",
-        "model.width_mult=0.0625", "model.hidden_size=16", "trainer.max_epochs=1",
-    ]  # fmt: skip
+        "data=multi",
+        f"data.frames.cache_dir={cache}",
+        "data.frames.height=64",
+        "data.frames.width=96",
+        "data.windows.seq_len=3",
+        "data.windows.batch_size=4",
+        "data.loader.num_workers=0",
+        f"data.sources.kitti.root={tiny_kitti}",
+        f"data.sources.tum.root={layouts['tum']}",
+        "data.sources.tum.keep_every=1",
+        f"data.splits.train=[kitti/00,kitti/01,tum/{tum_train}]",
+        "data.splits.val=[kitti/02]",
+        f"data.splits.test=[kitti/02,tum/{tum_test}]",
+        "model.width_mult=0.0625",
+        "model.hidden_size=16",
+        "trainer.max_epochs=1",
+    ]
 
 
 @pytest.mark.slow
@@ -157,12 +183,12 @@ def test_one_run_trains_on_two_datasets_and_evaluates_each(
 @pytest.mark.parametrize(
     ("override", "message"),
     [
-        ("data.datasets.tum.layout=rosbag", r"data\.datasets\.tum\.layout: unknown dataset layout 'rosbag'"),
+        ("data.sources.tum.layout=rosbag", r"data\.sources\.tum\.layout: unknown dataset layout 'rosbag'"),
         (
-            "+data.datasets.tum.height=3",
-            r"data\.datasets\.tum\.height: unknown key \(expected some of layout",
+            "+data.sources.tum.height=3",
+            r"data\.sources\.tum\.height: unknown key \(expected some of layout",
         ),
-        ("data.datasets.tum.keep_every=0", r"data\.datasets\.tum\.keep_every: expected an integer >= 1"),
+        ("data.sources.tum.keep_every=0", r"data\.sources\.tum\.keep_every: expected an integer >= 1"),
     ],
 )
 def test_bad_dataset_entries_name_the_key(

@@ -12,16 +12,17 @@ import pytest
 import torch
 from hydra.utils import instantiate
 
+from helpers import data_module
 from lossvo.console import UserError
 from lossvo.data import frame_cache, kitti
-from lossvo.data.datamodules import KittiDataModule, SyntheticDataModule
+from lossvo.data.datamodules import VODataModule
 from lossvo.data.transforms import Jitter, Mirror, Reverse, Standstill, spec
 
 
-def make_dm(root: Path, cache: Path, **kwargs) -> KittiDataModule:
+def make_dm(root: Path, cache: Path, **kwargs) -> VODataModule:
     args = {"train": ["00", "01"], "val": ["02"], "test": ["00", "01", "02"], "height": 32, "width": 96,
             "seq_len": 4, "batch_size": 3, "num_workers": 0, "cache_dir": str(cache)} | kwargs  # fmt: skip
-    dm = KittiDataModule(str(root), **args)
+    dm = data_module(root, **args)
     dm.prepare_data()
     dm.setup("fit")
     return dm
@@ -145,7 +146,7 @@ def test_the_description_records_the_transforms_and_rebuilds_the_datamodule(
     assert described["transforms"] == [spec(Standstill(0.1)), spec(Mirror(0.5)), spec(Jitter())]
     torch.save(described, tmp_path / "described.pt")
     torch.load(tmp_path / "described.pt", weights_only=True)  # primitives only, as a checkpoint holds them
-    arguments = {k: v for k, v in described.items() if k not in ("dataset_root", "intrinsics")}
+    arguments = {k: v for k, v in described.items() if k not in ("dataset_root", "intrinsics", "statistics")}
     rebuilt = instantiate(arguments, _convert_="all")
     assert rebuilt.transforms == dm.transforms
 
@@ -236,13 +237,13 @@ def test_missing_sequence_is_named(tiny_kitti: Path, tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
-        ({"seq_len": 1}, r"data\.seq_len: expected an integer >= 2"),
-        ({"height": 8}, r"data\.height: expected an integer >= 16"),
-        ({"stride": 0}, r"data\.stride: expected an integer >= 1"),
-        ({"normalization": "imagenet"}, r"data\.normalization: expected one of"),
-        ({"train": []}, r"data\.train: expected at least one"),
+        ({"seq_len": 1}, r"data\.windows\.seq_len: expected an integer >= 2"),
+        ({"height": 8}, r"data\.frames\.height: expected an integer >= 16"),
+        ({"stride": 0}, r"data\.windows\.stride: expected an integer >= 1"),
+        ({"normalization": "imagenet"}, r"data\.frames\.normalization: expected one of"),
+        ({"train": []}, r"data\.splits\.train: expected at least one"),
         ({"transforms": [{"p": 0.5}]}, r"data\.transforms: expected a list of batch transforms"),
-        ({"windows_per_epoch": 0}, r"data\.windows_per_epoch: expected null or an integer >= 1"),
+        ({"windows_per_epoch": 0}, r"data\.windows\.per_epoch: expected null or an integer >= 1"),
     ],
 )
 def test_bad_settings(tiny_kitti: Path, tmp_path: Path, kwargs: dict, message: str) -> None:
@@ -251,18 +252,22 @@ def test_bad_settings(tiny_kitti: Path, tmp_path: Path, kwargs: dict, message: s
 
 
 def test_window_longer_than_sequences(tiny_kitti: Path, tmp_path: Path) -> None:
-    with pytest.raises(UserError, match=r"data\.seq_len: 11 frames is longer than every training sequence"):
+    with pytest.raises(
+        UserError, match=r"data\.windows\.seq_len: 11 frames is longer than every training sequence"
+    ):
         make_dm(tiny_kitti, tmp_path, seq_len=11)
 
 
 def test_sequence_names_from_hydra_integers(tiny_kitti: Path, tmp_path: Path) -> None:
-    dm = make_dm(tiny_kitti, tmp_path, train=[0, 1], val=2, test=[2])  # data.val=02 arrives as the int 2
+    dm = make_dm(
+        tiny_kitti, tmp_path, train=[0, 1], val=2, test=[2]
+    )  # data.splits.val=02 arrives as the int 2
     assert dm.splits == {"train": ("00", "01"), "val": ("02",), "test": ("02",), "unseen": ()}
 
 
 @pytest.mark.slow
 def test_synthetic_datamodule_renders_on_first_use(tmp_path: Path) -> None:
-    dm = SyntheticDataModule(root=str(tmp_path / "synth"), frames=6, render_height=48, render_width=160,
+    dm = data_module(tmp_path / "synth", "synthetic", frames=6, render_height=48, render_width=160,
                              train=["00"], val=["01"], test=["01"], height=32, width=96, seq_len=3,
                              num_workers=0, cache_dir=str(tmp_path / "cache"))  # fmt: skip
     dm.prepare_data()
@@ -276,16 +281,16 @@ def test_synthetic_datamodule_renders_on_first_use(tmp_path: Path) -> None:
 def test_unknown_synthetic_sequence_is_named_before_rendering(tmp_path: Path, split: str) -> None:
     frames = {"00": 6, "01": 6}
     splits = {"train": ["00"], "val": ["01"], "test": ["01"], "unseen": []} | {split: ["99"]}
-    message = rf"^data\.{split}: sequence '99' not found \(available: 00, 01\)$"
+    message = rf"^data\.splits\.{split}: sequence '99' not found \(available: 00, 01\)$"
     with pytest.raises(UserError, match=message):
-        SyntheticDataModule(root=str(tmp_path / "synth"), frames=frames, cache_dir=str(tmp_path), **splits)
+        data_module(tmp_path / "synth", "synthetic", frames=frames, cache_dir=str(tmp_path), **splits)
     assert not (tmp_path / "synth").exists()
 
 
 def test_frame_steps_add_windows_of_every_other_frame_with_recomputed_targets(
     tiny_kitti: Path, tmp_path: Path
 ) -> None:
-    dm = KittiDataModule(str(tiny_kitti), train=["00"], val=["02"], test=["02"], height=32, width=96,
+    dm = data_module(tiny_kitti, train=["00"], val=["02"], test=["02"], height=32, width=96,
                          seq_len=3, cache_dir=str(tmp_path), frame_steps=[1, 2])  # fmt: skip
     dm.prepare_data()
     dm.setup()
@@ -303,5 +308,5 @@ def test_frame_steps_add_windows_of_every_other_frame_with_recomputed_targets(
 
 @pytest.mark.parametrize("steps", [[], [0, 1], "2", [1.5]])
 def test_bad_frame_steps(tiny_kitti: Path, tmp_path: Path, steps) -> None:
-    with pytest.raises(UserError, match=r"data\.frame_steps: expected a list of integers >= 1"):
-        KittiDataModule(str(tiny_kitti), cache_dir=str(tmp_path), frame_steps=steps)
+    with pytest.raises(UserError, match=r"data\.windows\.frame_steps: expected a list of integers >= 1"):
+        data_module(tiny_kitti, cache_dir=str(tmp_path), frame_steps=steps)

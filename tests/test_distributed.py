@@ -31,7 +31,7 @@ def _epochs(job: Path, key: str = "val/score") -> list[int]:
 
 def test_ddp_on_two_cpu_processes(tiny_kitti: Path, tmp_path: Path) -> None:
     run = tmp_path / "run"
-    args = [*tiny_overrides(tiny_kitti, tmp_path / "cache"), "data.val=[01,02]", "trainer=ddp",
+    args = [*tiny_overrides(tiny_kitti, tmp_path / "cache"), "data.splits.val=[01,02]", "trainer=ddp",
             "trainer.accelerator=cpu", "trainer.devices=2", "trainer.max_epochs=2", "logger=wandb",
             f"hydra.run.dir={run}"]  # fmt: skip
     env = {

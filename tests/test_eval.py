@@ -231,7 +231,7 @@ def test_sequence_without_ground_truth(trained_run: Path, kitti_copy: Path, tmp_
     next(kitti_copy.rglob("poses/02.txt")).unlink()  # sequence 02 without its ground truth (a test split)
     from hydra.utils import instantiate
 
-    overrides = [*tiny_overrides(kitti_copy, trained_run.parent / "cache"), "data.val=[01]"]
+    overrides = [*tiny_overrides(kitti_copy, trained_run.parent / "cache"), "data.splits.val=[01]"]
     cfg = compose_train(overrides, tmp_path / "x")
     datamodule = instantiate(cfg.data, _convert_="all")
     result = evaluate_run(network, datamodule, tmp_path, ["02"])

@@ -115,8 +115,8 @@ def test_the_flow_is_computed_once_per_cache_and_rebuilt_when_stale(tmp_path, mo
 
 @pytest.mark.parametrize(
     ("method", "preset", "message"),
-    [("dense", "medium", "data.flow: expected one of dis, farneback, none, got 'dense'"),
-     ("dis", "slow", "data.flow_preset: expected one of ultrafast, fast, medium, got 'slow'")],
+    [("dense", "medium", "data.flow.method: expected one of dis, farneback, none, got 'dense'"),
+     ("dis", "slow", "data.flow.preset: expected one of ultrafast, fast, medium, got 'slow'")],
 )  # fmt: skip
 def test_unknown_flow_settings_list_the_choices(method: str, preset: str, message: str) -> None:
     with pytest.raises(UserError, match=f"^{message}$"):
@@ -125,7 +125,9 @@ def test_unknown_flow_settings_list_the_choices(method: str, preset: str, messag
 
 @pytest.mark.parametrize("scale", [0.5, 5, "1.5", None])
 def test_a_flow_scale_outside_one_to_four_is_refused(scale) -> None:
-    with pytest.raises(UserError, match=rf"^data\.flow_scale: expected a number in \[1, 4\], got {scale!r}$"):
+    with pytest.raises(
+        UserError, match=rf"^data\.flow\.scale: expected a number in \[1, 4\], got {scale!r}$"
+    ):
         FlowSetting("dis", "medium", scale)
 
 
@@ -145,7 +147,7 @@ def test_a_resized_flow_keeps_each_pixels_displacement_in_the_new_pixels() -> No
 
 
 def test_a_flow_scale_computes_on_the_source_images_at_that_scale(tiny_kitti, tmp_path, monkeypatch) -> None:
-    """data.flow_scale=2: every field is computed between the sequence's PNGs read at twice the cached size
+    """data.flow.scale=2: every field is computed between the sequence's PNGs read at twice the cached size
     and resized to it; cached under its own key, beside the flow of scale 1, each computed once."""
     from test_datamodules import make_dm
 
@@ -161,7 +163,7 @@ def test_a_flow_scale_computes_on_the_source_images_at_that_scale(tiny_kitti, tm
     expected = flow.resized_flow(flow.pair_flow(first, second, fine.flow), 32, 96)
     cached = np.load(flow.flow_file(fine.cache_path(), "00", 1, fine.flow))
     np.testing.assert_allclose(cached[3], expected, atol=0.01)
-    assert fine.description()["flow_scale"] == 2
+    assert fine.description()["flow"]["scale"] == 2
     sizes.clear()
     coarse = make_dm(tiny_kitti, tmp_path, flow="dis", flow_preset="ultrafast")
     assert set(sizes) == {(32, 96)} and len(sizes) == 27
@@ -188,8 +190,8 @@ def test_the_intrinsics_channels_are_k_after_resizing() -> None:
 
 
 def test_a_datamodule_caches_the_flow_of_every_pair_it_uses_once(tiny_kitti, tmp_path, monkeypatch) -> None:
-    """data.flow: consecutive pairs of every sequence, and each frame step's pairs of the training ones,
-    computed by the first datamodule and read by the next; recorded in the data's description."""
+    """data.flow.method: consecutive pairs of every sequence, and each frame step's pairs of the training
+    ones, computed by the first datamodule and read by the next; recorded in the data's description."""
     from test_datamodules import make_dm  # the datamodule of those tests (the tiny dataset at 32x96)
 
     calls = _counted(monkeypatch)
@@ -201,10 +203,10 @@ def test_a_datamodule_caches_the_flow_of_every_pair_it_uses_once(tiny_kitti, tmp
         "00.flow-dis-ultrafast-s1.npy", "00.flow-dis-ultrafast-s2.npy", "01.flow-dis-ultrafast-s1.npy",
         "01.flow-dis-ultrafast-s2.npy", "02.flow-dis-ultrafast-s1.npy",
     ]  # fmt: skip
-    assert dm.description()["flow"] == "dis" and dm.description()["flow_preset"] == "ultrafast"
+    assert dm.description()["flow"] == {"method": "dis", "preset": "ultrafast", "scale": 1.0}
     make_dm(tiny_kitti, tmp_path, flow="dis", flow_preset="ultrafast", frame_steps=[1, 2])
     assert len(calls) == 43  # another job of the sweep: read, not computed
-    make_dm(tiny_kitti, tmp_path)  # data.flow=none (the default): no flow
+    make_dm(tiny_kitti, tmp_path)  # data.flow.method=none (the default): no flow
     assert len(calls) == 43
 
 
@@ -243,5 +245,7 @@ def test_windows_carry_their_pairs_flow_and_k_and_mirror_them_together(tiny_kitt
 def test_reversed_windows_need_no_flow(tiny_kitti, tmp_path) -> None:
     from test_datamodules import make_dm
 
-    with pytest.raises(UserError, match=r"^data\.transforms: Reverse is not possible with data\.flow=dis "):
+    with pytest.raises(
+        UserError, match=r"^data\.transforms: Reverse is not possible with data\.flow\.method=dis "
+    ):
         make_dm(tiny_kitti, tmp_path, flow="dis", transforms=[Reverse(0.5)])

@@ -145,7 +145,7 @@ def _flowvo_overrides(tiny_kitti, cache) -> list[str]:
 @pytest.mark.slow
 @pytest.mark.parametrize("loss", ["euler", "quat", "chordal"])
 def test_model_flowvo_trains_on_the_flow_it_selects(loss: str, tiny_kitti, tmp_path) -> None:
-    """``model=flowvo`` alone: data.flow follows the network (DIS), the flow is cached, a fit runs."""
+    """``model=flowvo`` alone: data.flow.method follows the network (DIS), the flow is cached, a fit runs."""
     from helpers import fit
     from test_train import compose_train
 
@@ -155,7 +155,7 @@ def test_model_flowvo_trains_on_the_flow_it_selects(loss: str, tiny_kitti, tmp_p
         "+trainer.fast_dev_run=1",
     ]
     cfg = compose_train(overrides, tmp_path / "run")
-    assert cfg.data.flow == "dis"
+    assert cfg.data.flow.method == "dis"
     metrics = fit(cfg)
     assert all(torch.isfinite(torch.tensor(v)) for v in metrics.values())
     assert list((tmp_path / "cache").rglob("*.flow-dis-medium-x1.5-s1.npy"))
@@ -165,7 +165,7 @@ def test_model_flowvo_trains_on_the_flow_it_selects(loss: str, tiny_kitti, tmp_p
 def test_a_flowvo_checkpoint_evaluates_where_no_flow_is_cached(
     tiny_kitti, tmp_path, monkeypatch, capsys
 ) -> None:
-    """``python -m lossvo.eval ... data=kitti`` composes no network, so the chosen data's ``data.flow``
+    """``python -m lossvo.eval ... data=kitti`` composes no network, so the chosen data's ``data.flow.method``
     reads none: the flow comes from the checkpoint, is computed into an empty cache, and the results equal
     those of the training run's own evaluation."""
     from helpers import eval_main, fit, scores_of
@@ -174,8 +174,14 @@ def test_a_flowvo_checkpoint_evaluates_where_no_flow_is_cached(
     run = tmp_path / "run"
     fit(compose_train([*_flowvo_overrides(tiny_kitti, tmp_path / "cache"), "trainer.max_epochs=1"], run))
     out = tmp_path / "eval"
-    args = [f"ckpt_path={run}/checkpoints/best.ckpt", "data=kitti", f"data.root={tiny_kitti}",
-            "data.test=[02]", f"data.cache_dir={tmp_path / 'empty'}", f"hydra.run.dir={out}"]  # fmt: skip
+    args = [
+        f"ckpt_path={run}/checkpoints/best.ckpt",
+        "data=kitti",
+        f"data.sources.kitti.root={tiny_kitti}",
+        "data.splits.test=[02]",
+        f"data.frames.cache_dir={tmp_path / 'empty'}",
+        f"hydra.run.dir={out}",
+    ]
     status, err = eval_main(args, monkeypatch, capsys)
     assert status == 0, err
     assert list((tmp_path / "empty").rglob("02.flow-dis-medium-x1.5-s1.npy"))

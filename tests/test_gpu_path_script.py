@@ -37,22 +37,26 @@ def test_settings_are_what_the_study_runs() -> None:
     gpu_path = script()
     settings = gpu_path.study_settings()
     paper = composed("experiment=paper", "loss=chordal")
-    assert settings["size"] == [paper.data.height, paper.data.width]
-    for key in ("stride", "num_workers", "pin_memory"):
-        assert settings[key] == paper.data[key]
+    assert settings["size"] == [paper.data.frames.height, paper.data.frames.width]
+    assert settings["stride"] == paper.data.windows.stride
+    for key in ("num_workers", "pin_memory"):
+        assert settings[key] == paper.data.loader[key]
     assert (settings["lr"], settings["max_epochs"]) == (paper.optimizer.lr, paper.trainer.max_epochs)
     assert (settings["precision"], settings["cudnn_benchmark"]) == (
         paper.trainer.precision,
         paper.trainer.benchmark,
     )
-    assert (settings["train"], settings["val"]) == (list(paper.data.train), list(paper.data.val))
+    assert (settings["train"], settings["val"]) == (
+        list(paper.data.splits.train),
+        list(paper.data.splits.val),
+    )
     flowvo = composed("experiment=paper", "model=flowvo", "loss=chordal")  # with FlowVO's own windows
-    assert (flowvo.data.seq_len, flowvo.data.batch_size) == (2, 20)
-    assert (paper.data.seq_len, paper.data.batch_size) == (7, 8)
+    assert (flowvo.data.windows.seq_len, flowvo.data.windows.batch_size) == (2, 20)
+    assert (paper.data.windows.seq_len, paper.data.windows.batch_size) == (7, 8)
     for name, cfg in (("deepvo", paper), ("flowvo", flowvo)):
         net = gpu_path.network(name, settings, quick=False)
         assert f"{net.cls.__module__.rsplit('.', 1)[0]}.{net.cls.__name__}" == cfg.model._target_
-        assert (net.seq_len, net.batch_size) == (cfg.data.seq_len, cfg.data.batch_size)
+        assert (net.seq_len, net.batch_size) == (cfg.data.windows.seq_len, cfg.data.windows.batch_size)
         assert net.shipped_layout == ("channels_last" if cfg.model.channels_last else "contiguous")
         for key, value in net.kwargs.items():
             assert cfg.model[key] == value, key

@@ -23,14 +23,37 @@ budget): a loaded CPU slows it down, and every stage must still run."""
 @pytest.mark.timeout(DEADLINE + 600)
 def test_quick_run_goes_through_every_stage(tiny_kitti: Path, tmp_path: Path) -> None:
     data = [
-        "data=kitti", f"data.root={tiny_kitti}", f"data.cache_dir={tmp_path / 'cache'}", "data.train=[00,01]",
-        "data.val=[02]", "data.test=[02]", "data.height=64", "data.width=96", "data.num_workers=0",
-        "model.channels=[8,8,16,16]", "model.hidden=16", "trainer.max_epochs=1",
-    ]  # fmt: skip
+        "data=kitti",
+        f"data.sources.kitti.root={tiny_kitti}",
+        f"data.frames.cache_dir={tmp_path / 'cache'}",
+        "data.splits.train=[00,01]",
+        "data.splits.val=[02]",
+        "data.splits.test=[02]",
+        "data.frames.height=64",
+        "data.frames.width=96",
+        "data.loader.num_workers=0",
+        "model.channels=[8,8,16,16]",
+        "model.hidden=16",
+        "trainer.max_epochs=1",
+    ]
     out = tmp_path / "out"
-    command = [sys.executable, str(SCRIPT), "--quick", "--device", "cpu", "--out", str(out), "--work",
-               str(tmp_path / "runs"), "--deadline", str(DEADLINE), "--study-models", "flowvo",
-               "--job-overrides", *data]  # fmt: skip
+    command = [
+        sys.executable,
+        str(SCRIPT),
+        "--quick",
+        "--device",
+        "cpu",
+        "--out",
+        str(out),
+        "--work",
+        str(tmp_path / "runs"),
+        "--deadline",
+        str(DEADLINE),
+        "--study-models",
+        "flowvo",
+        "--job-overrides",
+        *data,
+    ]
     proc = subprocess.run(command, capture_output=True, text=True, cwd=ROOT, timeout=DEADLINE + 300)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     stages = json.loads((out / "gpu_study.json").read_text())["stages"]

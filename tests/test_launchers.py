@@ -41,9 +41,18 @@ def test_optuna_search_of_three_trials_goes_on_after_a_failing_one(
     process)."""
     (tmp_path / "conf" / "hparams_search").mkdir(parents=True)
     (tmp_path / "conf" / "hparams_search" / "failing.yaml").write_text(FAILING_SEARCH)
-    long = ["optimizer.weight_decay=0.0", "trainer.log_every_n_steps=1", "trainer.gradient_clip_val=null",
-            "data.num_workers=0", "data.batch_size=4", "data.seq_len=3", "model.hidden_size=16",
-            "weighting.c=100.0", "selection=score", "scheduler=cosine"]  # fmt: skip
+    long = [
+        "optimizer.weight_decay=0.0",
+        "trainer.log_every_n_steps=1",
+        "trainer.gradient_clip_val=null",
+        "data.loader.num_workers=0",
+        "data.windows.batch_size=4",
+        "data.windows.seq_len=3",
+        "model.hidden_size=16",
+        "weighting.c=100.0",
+        "selection=score",
+        "scheduler=cosine",
+    ]
     args = ["hparams_search=[k_search,failing]", "hydra.sweeper.n_trials=3", *long]
     assert run_tiny_sweep_here(tmp_path, tmp_path / "sweep", args) == 0
     sweep = tmp_path / "sweep"

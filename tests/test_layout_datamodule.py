@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+from helpers import data_module
 from lossvo.console import UserError
 from lossvo.data import datamodules as datamodules
 from lossvo.data import frame_cache, windows
@@ -115,7 +116,7 @@ def datamodule(root: Path, cache: Path, **kwargs) -> VODataModule:
     settings = {"layout": "tum", "train": [FR1], "val": [], "test": [FR1], "height": 24, "width": 32,
                 "seq_len": 4, "batch_size": 4, "num_workers": 0, "cache_dir": str(cache)}  # fmt: skip
     settings.update(kwargs)
-    return VODataModule(str(root), **settings)
+    return data_module(root, **settings)
 
 
 def test_tum_layout_through_the_datamodule(tum_root: Path, tmp_path: Path) -> None:
@@ -188,9 +189,9 @@ def test_keep_every_keeps_every_nth_frame(tum_root: Path, tmp_path: Path) -> Non
 @pytest.mark.parametrize(
     ("kwargs", "error", "message"),
     [
-        ({"layout": "rosbag"}, UserError, r"data\.layout: unknown dataset layout 'rosbag' \(expected one of "
-                                          r"kitti, tum, euroc, tartanair, mimir\)"),
-        ({"keep_every": 0}, UserError, r"data\.keep_every: expected an integer >= 1"),
+        ({"layout": "rosbag"}, UserError, r"data\.sources\.rosbag\.layout: unknown dataset layout 'rosbag' "
+                                          r"\(expected one of kitti, tum, euroc, tartanair, mimir\)"),
+        ({"keep_every": 0}, UserError, r"data\.sources\.tum\.keep_every: expected an integer >= 1"),
     ],
 )  # fmt: skip
 def test_bad_layout_settings(tum_root: Path, tmp_path: Path, kwargs: dict, error: type, message: str) -> None:
@@ -236,7 +237,8 @@ def test_crop_cuts_the_centred_window_and_K_follows(tum_root: Path, tmp_path: Pa
 
 
 def test_a_camera_override_replaces_the_readers(tum_root: Path, tmp_path: Path) -> None:
-    """data.camera: another camera for every sequence (here undistorted, so nothing is undistorted)."""
+    """data.sources.<name>.camera: another camera for every sequence (here undistorted, so nothing is
+    undistorted)."""
     K = [[40.0, 0.0, 31.5], [0.0, 40.0, 23.5], [0.0, 0.0, 1.0]]
     dm = datamodule(tum_root, tmp_path / "cache", camera={"K": K})
     dm.setup()
@@ -249,9 +251,12 @@ def test_a_camera_override_replaces_the_readers(tum_root: Path, tmp_path: Path) 
 @pytest.mark.parametrize(
     ("value", "message"),
     [
-        ({"K": [[1, 0], [0, 1]]}, r"data\.camera\.K: expected a 3x3 matrix"),
-        ({"K": np.eye(3).tolist(), "distortion": [0.1]}, r"data\.camera\.distortion: expected 4, 5, 8"),
-        ({"fx": 3}, r"data\.camera: expected \{K: "),
+        ({"K": [[1, 0], [0, 1]]}, r"data\.sources\.tum\.camera\.K: expected a 3x3 matrix"),
+        (
+            {"K": np.eye(3).tolist(), "distortion": [0.1]},
+            r"data\.sources\.tum\.camera\.distortion: expected 4, 5, 8",
+        ),
+        ({"fx": 3}, r"data\.sources\.tum\.camera: expected \{K: "),
     ],
 )
 def test_bad_camera_overrides_name_the_key(tum_root: Path, tmp_path: Path, value: dict, message: str) -> None:

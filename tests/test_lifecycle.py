@@ -245,11 +245,27 @@ def test_long_override_lists_give_short_stable_folder_names() -> None:
     assert path_safe("loss=euler,seed=0") == "loss-euler+seed-0"  # short ones read as before
 
 
-TWENTY = ["optimizer.lr=0.001", "optimizer.weight_decay=0.0", "trainer.log_every_n_steps=1",
-          "trainer.gradient_clip_val=null", "trainer.check_val_every_n_epoch=1", "data.num_workers=0",
-          "data.batch_size=4", "data.seq_len=3", "data.height=64", "data.width=96", "model.hidden_size=16",
-          "model.width_mult=0.0625", "weighting.c=100.0", "selection=score", "scheduler=cosine",
-          "logger=csv", "trainer.max_epochs=1", "trainer.deterministic=true", "threads=1"]  # fmt: skip
+TWENTY = [
+    "optimizer.lr=0.001",
+    "optimizer.weight_decay=0.0",
+    "trainer.log_every_n_steps=1",
+    "trainer.gradient_clip_val=null",
+    "trainer.check_val_every_n_epoch=1",
+    "data.loader.num_workers=0",
+    "data.windows.batch_size=4",
+    "data.windows.seq_len=3",
+    "data.frames.height=64",
+    "data.frames.width=96",
+    "model.hidden_size=16",
+    "model.width_mult=0.0625",
+    "weighting.c=100.0",
+    "selection=score",
+    "scheduler=cosine",
+    "logger=csv",
+    "trainer.max_epochs=1",
+    "trainer.deterministic=true",
+    "threads=1",
+]
 """Nineteen overrides that leave the tiny experiment as it is, the thread count set; with the swept
 ``loss=euler,quat`` a job has twenty."""
 

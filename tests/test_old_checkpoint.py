@@ -35,7 +35,7 @@ def test_its_augmentation_arguments_read_as_transforms() -> None:
     data = checkpoints.load_network(FIXTURE).data
     assert data is not None and not {"mirror", "augment", "zoom", "reverse", "standstill"} & set(data)
     assert data["transforms"] == [T.spec(T.Zoom(1.2)), T.spec(T.Mirror(0.5)), T.spec(T.Jitter())]
-    assert (data["height"], data["width"], data["seq_len"]) == (64, 96, 3)
+    assert (data["frames"]["height"], data["frames"]["width"], data["windows"]["seq_len"]) == (64, 96, 3)
 
 
 @pytest.mark.parametrize(("fixture", "ape"), [(FIXTURE, APE_02), (FIXTURE_805664B, APE_02_805664B)])
@@ -47,8 +47,14 @@ def test_it_evaluates_as_the_version_that_wrote_it(
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    args = [f"ckpt_path={fixture}", f"data.root={tiny_kitti}", f"data.cache_dir={tmp_path / 'cache'}",
-            f"hydra.run.dir={tmp_path / 'run'}"]  # fmt: skip
+    args = [
+        f"ckpt_path={fixture}",
+        "data=kitti",
+        f"data.sources.kitti.root={tiny_kitti}",
+        "data.splits.test=[02]",
+        f"data.frames.cache_dir={tmp_path / 'cache'}",
+        f"hydra.run.dir={tmp_path / 'run'}",
+    ]
     status, err = eval_main(args, monkeypatch, capsys)
     assert status == 0, err[-3000:]
     result = json.loads((tmp_path / "run" / "results.json").read_text())
@@ -59,19 +65,26 @@ def test_it_evaluates_as_the_version_that_wrote_it(
 def test_eval_names_an_unknown_synthetic_sequence_before_any_work(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """A network trained on the synthetic data, evaluated with ``data.test=[99]``: one line, exit 2, and
-    nothing rendered."""
+    """A network trained on the synthetic data, evaluated with ``data.splits.test=[99]``: one line, exit 2,
+    and nothing rendered."""
     content = torch.load(FIXTURE, weights_only=True)
     synthetic = "lossvo.data.datamodules.SyntheticDataModule"
     frames = {"00": 10, "01": 10, "02": 10}
-    content["data"] |= {"_target_": synthetic, "root": str(tmp_path / "s"), "frames": frames, "seed": 0,
-                        "render_height": 64, "render_width": 208, "route_families": None,
-                        "route_mixes": None}  # fmt: skip
+    content["data"] |= {
+        "_target_": synthetic,
+        "root": str(tmp_path / "s"),
+        "frames": frames,
+        "seed": 0,
+        "render_height": 64,
+        "render_width": 208,
+        "route_families": None,
+        "route_mixes": None,
+    }
     ckpt = tmp_path / "synthetic.ckpt"
     torch.save(content, ckpt)
-    args = [f"ckpt_path={ckpt}", "data.test=[99]", f"hydra.run.dir={tmp_path / 'run'}"]
+    args = [f"ckpt_path={ckpt}", "data.splits.test=[99]", f"hydra.run.dir={tmp_path / 'run'}"]
     status, err = eval_main(args, monkeypatch, capsys)
     lines = [line for line in err.splitlines() if line.strip()]
     assert status == 2 and len(lines) == 1, err
-    assert "data.test: sequence '99' not found (available: 00, 01, 02)" in lines[0]
+    assert "data.splits.test: sequence '99' not found (available: 00, 01, 02)" in lines[0]
     assert not (tmp_path / "s").exists()

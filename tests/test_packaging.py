@@ -40,7 +40,9 @@ def test_wheel_holds_the_configs_and_trains_from_an_empty_folder(tmp_path: Path)
     job = subprocess.run(command, cwd=empty, env=env, capture_output=True, text=True)
     assert job.returncode == 0, job.stderr[-2000:]
     assert "_target_: lossvo.losses.EulerLoss" in job.stdout
-    assert "_target_: lossvo.data.datamodules.SyntheticDataModule" in job.stdout
+    assert (
+        "_target_: lossvo.data.datamodules.VODataModule" in job.stdout and "layout: synthetic" in job.stdout
+    )
     assert not list(empty.iterdir())  # --cfg job writes nothing
     assert "hydra_plugins/lossvo_optuna_sweeper/optuna_sweeper.py" in names  # hparams_search's sweeper
     show = [sys.executable, "-m", "lossvo.train", "--cfg", "hydra", "hparams_search=k_search"]

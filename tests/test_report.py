@@ -492,7 +492,7 @@ def test_claims_test_the_chordal_loss_class_on_held_out_sequences(sweep: Path, t
             (job / ".hydra" / "config.yaml").write_text(yaml.safe_dump(cfg))
     path = make_report(copy, with_baselines=False, with_figures=False)
     results = job_results(sweep)
-    held_out = [s for s in SEQUENCES if s not in ("00", "01")]  # data.train of the tiny experiment
+    held_out = [s for s in SEQUENCES if s not in ("00", "01")]  # data.splits.train of the tiny experiment
     with (path.parent / "tables" / "claims.csv").open() as f:
         rows = {(r["claim"], r["quantity"]): r for r in csv.DictReader(f)}
     row = rows[("the chordal loss gives the lowest errors", "RPE trans RMSE [m]")]
@@ -524,7 +524,12 @@ def test_each_job_is_compared_with_the_mean_motion_on_the_validation_sequences(
     section = text.split("## Against the mean motion, per job", 1)[1].split("\n## ", 1)[0]
     rows = [line.strip("|").split("|") for line in section.splitlines() if line.startswith("| ")]
     header, body = [c.strip() for c in rows[0]], [[c.strip() for c in r] for r in rows[1:]]
-    assert header == ["configuration", "seed", "02 RPE trans", "02 RPE rot"]  # the tiny sweep's data.val
+    assert header == [
+        "configuration",
+        "seed",
+        "02 RPE trans",
+        "02 RPE rot",
+    ]  # the tiny sweep's data.splits.val
     assert len(body) == len(LOSSES) * len(SEEDS)
     translation = read_table(report / "tables" / "translation.csv")
     rotation = read_table(report / "tables" / "rotation.csv")

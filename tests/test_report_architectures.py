@@ -267,7 +267,7 @@ def test_jobs_against_the_baselines_carry_their_architecture_and_are_counted_per
     columns = hand_columns(True)
     for c in columns:  # the hand-made configs name their validation sequence
         for j in c.jobs:
-            OmegaConf.update(j.config, "data.val", ["02"], force_add=True)
+            OmegaConf.update(j.config, "data.splits.val", ["02"], force_add=True)
     zero = Column(baselines.ZERO, BASELINE, ["deterministic"], [{"03": scores(10.0)}])
     own = Column(baselines.OWN, BASELINE, ["deterministic"], [{"03": scores(2.5)}])
     mean = Column(baselines.MEAN, BASELINE, ["deterministic"], [{"02": scores(2.0)}])

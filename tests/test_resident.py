@@ -9,24 +9,25 @@ from types import SimpleNamespace
 import pytest
 import torch
 
+from helpers import data_module
 from lossvo.console import UserError
-from lossvo.data.datamodules import KittiDataModule
+from lossvo.data.datamodules import VODataModule
 from lossvo.data.transforms import Jitter, Mirror, Reverse, Standstill, Zoom
 
 AUGMENTED = [Standstill(0.3), Zoom(1.5), Mirror(0.5)]
 
 
-def make_dm(root: Path, cache: Path, **kwargs) -> KittiDataModule:
+def make_dm(root: Path, cache: Path, **kwargs) -> VODataModule:
     args = {"train": ["00", "01"], "val": ["02"], "test": ["02"], "height": 32, "width": 96, "seq_len": 4,
             "batch_size": 3, "num_workers": 0, "cache_dir": str(cache),
             "windows_per_epoch": 11} | kwargs  # fmt: skip
-    dm = KittiDataModule(str(root), **args)
+    dm = data_module(root, **args)
     dm.prepare_data()
     dm.setup("fit")
     return dm
 
 
-def epoch_batches(dm: KittiDataModule, split: str, epoch: int, seed: int) -> list[dict[str, torch.Tensor]]:
+def epoch_batches(dm: VODataModule, split: str, epoch: int, seed: int) -> list[dict[str, torch.Tensor]]:
     """Every batch of one epoch of a split, as the network receives it (on_after_batch_transfer), with the
     global stream seeded first, as a fit is."""
     dm.trainer = SimpleNamespace(training=split == "train")
@@ -72,7 +73,7 @@ def test_a_budget_the_data_do_not_fit_takes_the_host_loader_and_says_so(
         next(iter(dm.val_dataloader()))
     assert "frames" in batch and "frame_index" not in batch
     said = [r.getMessage() for r in caplog.records if r.getMessage().startswith("data:")]
-    assert len(said) == 1 and "host loader (the arrays exceed data.device_budget_gb=1e-06" in said[0]
+    assert len(said) == 1 and "host loader (the arrays exceed data.loader.device_budget_gb=1e-06" in said[0]
 
 
 def test_auto_keeps_the_host_loader_on_a_cpu(tiny_kitti: Path, tmp_path: Path,
@@ -80,7 +81,7 @@ def test_auto_keeps_the_host_loader_on_a_cpu(tiny_kitti: Path, tmp_path: Path,
     dm = make_dm(tiny_kitti, tmp_path)
     with caplog.at_level(logging.INFO, logger="lossvo"):
         assert dm.resident_windows("train") is None
-    assert "host loader (data.on_device=auto on a CPU" in caplog.text
+    assert "host loader (data.loader.on_device=auto on a CPU" in caplog.text
 
 
 def test_on_device_gathers_from_the_resident_arrays(tiny_kitti: Path, tmp_path: Path,
@@ -97,13 +98,15 @@ def test_on_device_gathers_from_the_resident_arrays(tiny_kitti: Path, tmp_path: 
 
 @pytest.mark.parametrize("value", ["gpu", 2, None])
 def test_bad_on_device(tiny_kitti: Path, tmp_path: Path, value: object) -> None:
-    with pytest.raises(UserError, match=r"^data.on_device: expected auto, true or false, got"):
-        KittiDataModule(str(tiny_kitti), on_device=value, cache_dir=str(tmp_path))
+    with pytest.raises(UserError, match=r"^data.loader.on_device: expected auto, true or false, got"):
+        data_module(tiny_kitti, on_device=value, cache_dir=str(tmp_path))
 
 
 def test_bad_device_budget(tiny_kitti: Path, tmp_path: Path) -> None:
-    with pytest.raises(UserError, match=r"^data.device_budget_gb: expected a number of GiB >= 0, got -1"):
-        KittiDataModule(str(tiny_kitti), device_budget_gb=-1, cache_dir=str(tmp_path))
+    with pytest.raises(
+        UserError, match=r"^data.loader.device_budget_gb: expected a number of GiB >= 0, got -1"
+    ):
+        data_module(tiny_kitti, device_budget_gb=-1, cache_dir=str(tmp_path))
 
 
 @pytest.mark.slow
@@ -122,7 +125,7 @@ def test_a_fit_on_the_device_equals_one_on_the_host_loader(
     for on_device in ("false", "true"):
         runs[on_device] = tmp_path / on_device
         mirror = "data.transforms=[{_target_:lossvo.data.transforms.Mirror,p:0.5}]"
-        settings = ["trainer.max_epochs=2", mirror, f"data.on_device={on_device}"]
+        settings = ["trainer.max_epochs=2", mirror, f"data.loader.on_device={on_device}"]
         cfg = compose_train([*overrides, *settings], runs[on_device])
         fit(cfg)
     host, device = ((runs[k] / "metrics.csv").read_text() for k in ("false", "true"))

@@ -205,26 +205,34 @@ def test_route_spec_adds_families_and_mixes_that_the_routes_follow() -> None:
         (
             None,
             {"11": {"motorway": 1.0}},
-            "data.route_mixes.11: unknown route family 'motorway': expected one of",
+            "data.sources.synthetic.route_mixes.11: unknown route family 'motorway': expected one of",
         ),
-        (None, {"11": {"town": "a lot"}}, "data.route_mixes.11: route mix: expected non-negative weights"),
-        ({"town": {"speed": 1.0}}, None, "data.route_families.town: unknown parameter 'speed'"),
+        (
+            None,
+            {"11": {"town": "a lot"}},
+            "data.sources.synthetic.route_mixes.11: route mix: expected non-negative weights",
+        ),
+        (
+            {"town": {"speed": 1.0}},
+            None,
+            "data.sources.synthetic.route_families.town: unknown parameter 'speed'",
+        ),
         (
             {"crawl": {"cruise": [0.1, 0.2]}},
             None,
-            "data.route_families.crawl: a new family needs description",
+            "data.sources.synthetic.route_families.crawl: a new family needs description",
         ),
         (
             {"town": {"turn_radius": [0, 10]}},
             None,
             "route family 'town': turn_radius must be a range 0 < low",
         ),
-        ({"town": 3}, None, "data.route_families.town: expected a mapping of parameters"),
+        ({"town": 3}, None, "data.sources.synthetic.route_families.town: expected a mapping of parameters"),
     ],
 )
 def test_bad_route_config_names_the_key(families, mixes, message: str) -> None:
     with pytest.raises(UserError, match=re.escape(message)):
-        routes.route_spec(families, mixes, prefix="data.")
+        routes.route_spec(families, mixes, prefix="data.sources.synthetic.")
 
 
 @pytest.mark.slow

@@ -218,7 +218,7 @@ def test_a_training_epoch_reads_nothing_back_to_the_host(tiny_kitti: Path, tmp_p
     monkeypatch.setattr(fitting, "build", build_with_probe)
     overrides = (_flowvo_overrides if network == "flowvo" else tiny_overrides)(tiny_kitti, tmp_path / "cache")
     mirror = "data.transforms=[{_target_:lossvo.data.transforms.Mirror,p:0.5}]"
-    cfg = compose_train([*overrides, "trainer.max_epochs=2", mirror, f"data.on_device={on_device}",
+    cfg = compose_train([*overrides, "trainer.max_epochs=2", mirror, f"data.loader.on_device={on_device}",
                          "+evaluate=false"], tmp_path / "run")  # fmt: skip
     with probe:
         fit(cfg)

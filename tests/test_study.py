@@ -344,8 +344,15 @@ def test_the_dry_run_on_a_gpu_prints_the_jobs_at_once(
             "weighting=unknown",
             "In 'train': Could not find 'weighting/unknown' (available: learned, matched, paper)",
         ),
-        ("data.batch_size=abc", "data.batch_size: expected an integer >= 1, got 'abc'"),  # a job's own checks
-        ("data=kitti", "data.root: a value is required: add data.root=... to the command line"),
+        (
+            "data.windows.batch_size=abc",
+            "data.windows.batch_size: expected an integer >= 1, got 'abc'",
+        ),  # a job's own checks
+        (
+            "data=kitti",
+            "data.sources.kitti.root: a value is required: "
+            "add data.sources.kitti.root=... to the command line",
+        ),
     ],
 )
 def test_a_bad_override_is_one_line_before_anything_is_measured(

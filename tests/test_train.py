@@ -21,11 +21,21 @@ from lossvo.training.module import NonFiniteLossError, VOModule
 def tiny_overrides(root: Path, cache: Path) -> list[str]:
     """The tiny synthetic dataset through the real KITTI reader, a very small DeepVO, CSV logging."""
     return [
-        "data=kitti", f"data.root={root}", f"data.cache_dir={cache}", "data.train=[00,01]", "data.val=[02]",
-        "data.test=[02]", "data.height=64", "data.width=96", "data.seq_len=3", "data.batch_size=4",
-        "data.num_workers=0", "model.width_mult=0.0625", "model.hidden_size=16",
+        "data=kitti",
+        f"data.sources.kitti.root={root}",
+        f"data.frames.cache_dir={cache}",
+        "data.splits.train=[00,01]",
+        "data.splits.val=[02]",
+        "data.splits.test=[02]",
+        "data.frames.height=64",
+        "data.frames.width=96",
+        "data.windows.seq_len=3",
+        "data.windows.batch_size=4",
+        "data.loader.num_workers=0",
+        "model.width_mult=0.0625",
+        "model.hidden_size=16",
         "trainer.log_every_n_steps=1",
-    ]  # fmt: skip
+    ]
 
 
 def compose_train(overrides: list[str], out: Path) -> DictConfig:

@@ -7,8 +7,8 @@ import pytest
 import torch
 from torch.utils.data import SequentialSampler
 
+from helpers import data_module
 from lossvo.data import windows
-from lossvo.data.datamodules import KittiDataModule
 from lossvo.data.kitti import relative_targets
 
 
@@ -50,7 +50,7 @@ def test_same_length_batches_keep_order_and_lengths() -> None:
 
 def test_validation_loader_sees_every_pair_once(tiny_kitti, tmp_path) -> None:
     """10 frames in windows of 5: tiles (0, 5), (4, 8), (8, 10); the last one is shorter, batched alone."""
-    dm = KittiDataModule(str(tiny_kitti), train=["00"], val=["01", "02"], test=["02"], height=32, width=96,
+    dm = data_module(tiny_kitti, train=["00"], val=["01", "02"], test=["02"], height=32, width=96,
                          seq_len=5, batch_size=2, cache_dir=str(tmp_path), num_workers=0)  # fmt: skip
     dm.prepare_data()
     dm.setup()

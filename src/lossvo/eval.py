@@ -1,7 +1,8 @@
 """``python -m lossvo.eval``: evaluate a checkpoint (Hydra, ``lossvo/conf/eval.yaml``)::
 
     python -m lossvo.eval ckpt_path=outputs/multirun/<time>/0_loss-euler+seed-0/checkpoints/best.ckpt
-    python -m lossvo.eval ckpt_path=... data=kitti data.root=/data/kitti data.test=[09,10]
+    python -m lossvo.eval ckpt_path=... data=kitti data.sources.kitti.root=/data/kitti \
+        data.splits.test=[09,10]
 
 The checkpoint records how its network was trained (:mod:`lossvo.evaluation.checkpoints`): frame size,
 ``seq_len``, normalisation and the training data, which is what is evaluated unless ``data=...`` or
@@ -32,11 +33,12 @@ from lossvo.console import (
     user_message,
 )
 from lossvo.data.sequence import sequence_names
+from lossvo.data.specs import refusing_flat_keys
 from lossvo.evaluation import checkpoints
 from lossvo.evaluation.metrics import ALIGN_MODES, is_rpe_delta
 from lossvo.evaluation.results import Results, evaluate_run
 from lossvo.processes import restore_start_method
-from lossvo.training.config_checks import resolved_config
+from lossvo.training.config_checks import check_source_roots, resolved_config
 
 log = logging.getLogger("lossvo")
 
@@ -59,9 +61,7 @@ def check_config(cfg: Any) -> None:
         raise UserError("ckpt_path is required: python -m lossvo.eval ckpt_path=PATH")
     resolved_config(cfg)  # an interpolation that does not resolve: one line naming its key
     check_checkpoint_path(Path(str(cfg.ckpt_path)))
-    root = (cfg.get("data") or {}).get("root")
-    if root is not None and Path(str(root)).expanduser().is_file():
-        raise UserError(f"data.root: {root} is a file, expected the dataset's folder")
+    check_source_roots(cfg.get("data"))
     missing = sorted(OmegaConf.missing_keys(cfg))
     if missing:
         raise UserError(f"{missing[0]}: a value is required: add {missing[0]}=... to the command line")
@@ -94,7 +94,7 @@ def check_checkpoint_path(path: Path) -> None:
 
 def data_overrides(overrides: Sequence[str]) -> tuple[bool, list[str]]:
     """From command-line overrides: whether a data config was chosen (``data=kitti``) and the data keys
-    set (``data.root=...`` gives ``root``)."""
+    set, dotted below ``data`` (``data.frames.cache_dir=...`` gives ``frames.cache_dir``)."""
     from hydra.core.override_parser.overrides_parser import OverridesParser
 
     chosen, keys = False, []
@@ -103,7 +103,7 @@ def data_overrides(overrides: Sequence[str]) -> tuple[bool, list[str]]:
         if key == "data":
             chosen = True
         elif key.startswith("data."):
-            keys.append(key.split(".")[1])
+            keys.append(key.removeprefix("data."))
     return chosen, list(dict.fromkeys(keys))
 
 
@@ -119,7 +119,7 @@ def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
     chosen, keys = data_overrides(overrides)
     given = cast("dict[str, Any]", OmegaConf.to_container(cfg.data, resolve=True))
     recorded = checkpoints.recorded_data(cfg.ckpt_path, network)
-    explicit = {k: given[k] for k in keys if k in given}
+    explicit = {k: checkpoints.lookup(given, k) for k in keys}
     data_cfg = checkpoints.evaluation_data(recorded, given if chosen else None, explicit)
     try:
         datamodule = instantiate(data_cfg, _convert_="all")
@@ -135,7 +135,7 @@ def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
     if unknown:
         raise UserError(
             f"sequences: {unknown[0]!r} is not a sequence of the evaluated data (expected one "
-            f"of {', '.join(available)}; data.test=[...] chooses them)"
+            f"of {', '.join(available)}; data.splits.test=[...] chooses them)"
         )
     return evaluate_run(
         network,
@@ -152,6 +152,7 @@ def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
 
 
 @one_line_errors
+@refusing_flat_keys
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="eval")
 def main(cfg: DictConfig) -> None:
     """Evaluate ``cfg.ckpt_path`` into this Hydra job's folder; bad input is one line, exit status 2,

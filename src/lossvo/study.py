@@ -200,22 +200,18 @@ class JobSize:
 def job_size(cfg: DictConfig) -> JobSize:
     """A job's :class:`JobSize`, from its composed config and the data's metadata (poses and timestamps;
     the embedded dataset is rendered first where it is missing). Training windows follow
-    :func:`lossvo.data.windows.training_starts`, ``windows_per_epoch`` of them an epoch where set."""
+    :func:`lossvo.data.windows.training_starts`, ``data.windows.per_epoch`` of them an epoch where set."""
     datamodule = instantiate(cfg.data, _convert_="all")
     datamodule.load_metadata()
-    sequences = datamodule.sequences
+    sequences, spec = datamodule.sequences, datamodule.windows
     train = sum(
-        len(
-            windows.training_starts(
-                len(seq.times), datamodule.seq_len, datamodule.stride, step, windows.gaps(seq.times)
-            )
-        )
+        len(windows.training_starts(len(seq.times), spec.seq_len, spec.stride, step, windows.gaps(seq.times)))
         for seq in (sequences[name] for name in datamodule.splits["train"])
-        for step in datamodule.frame_steps
+        for step in spec.frame_steps
     )
-    per_epoch = min(datamodule.windows_per_epoch or train, train)
+    per_epoch = min(spec.per_epoch or train, train)
     epochs = int(cfg.trainer.max_epochs)
-    steps = epochs * math.ceil(per_epoch / datamodule.batch_size)
+    steps = epochs * math.ceil(per_epoch / spec.batch_size)
     max_steps = int(cfg.trainer.get("max_steps") or -1)
     pairs = {name: len(seq.times) - 1 for name, seq in sequences.items()}
     return JobSize(
@@ -268,7 +264,7 @@ def _batch(cfg: DictConfig, windows_: int, seq_len: int) -> dict[str, torch.Tens
     """A batch as the data module hands it to the network: ``windows_`` windows of ``seq_len`` frames of
     random normalised frames (B, L, 3, H, W), flow (B, L-1, 2, H, W) in pixels, K (B, 3, 3) and targets
     (B, L-1, 4, 4) of no motion."""
-    h, w = int(cfg.data.height), int(cfg.data.width)
+    h, w = int(cfg.data.frames.height), int(cfg.data.frames.width)
     K = torch.tensor([[w, 0.0, w / 2], [0.0, w, h / 2], [0.0, 0.0, 1.0]])
     return {
         "frames": torch.randn(windows_, seq_len, 3, h, w),
@@ -301,7 +297,8 @@ def _quiet() -> Iterator[None]:
 def time_training_step(cfg: DictConfig) -> float:
     """Median seconds of a training step of the job's network, loss and optimiser on the CPU, through
     Lightning, on batches of the config's shape (:data:`CALIBRATION_STEPS`, the first two not counted)."""
-    batches = [_batch(cfg, int(cfg.data.batch_size), int(cfg.data.seq_len)) for _ in range(CALIBRATION_STEPS)]
+    windows = cfg.data.windows
+    batches = [_batch(cfg, int(windows.batch_size), int(windows.seq_len)) for _ in range(CALIBRATION_STEPS)]
     timer = _StepTimes()
     with _quiet():
         trainer = L.Trainer(
@@ -325,7 +322,7 @@ def time_inference_pair(cfg: DictConfig, windows_per_pass: int = 32) -> float:
     validation's trajectories and the evaluation run it
     (:func:`lossvo.evaluation.inference.predict_sequence`), on ``windows_per_pass`` windows of random
     inputs after one warm-up pass."""
-    seq_len = int(cfg.data.seq_len)
+    seq_len = int(cfg.data.windows.seq_len)
     frames = windows_per_pass * (seq_len - 1) + 1
     batch = _batch(cfg, 1, frames)
     inputs = {name: batch[name][0].numpy() for name in ("frames", "flow", "K")}

@@ -5,7 +5,7 @@ Examples::
     python -m lossvo.train                                   # chordal loss, embedded synthetic data
     python -m lossvo.train -m loss=euler,quat,chordal        # the study's three-way comparison
     python -m lossvo.train -m loss=euler,quat,chordal seed=0,1,2 hydra/launcher=joblib
-    python -m lossvo.train experiment=paper data.root=/data/kitti trainer=gpu
+    python -m lossvo.train experiment=paper data.sources.kitti.root=/data/kitti trainer=gpu
 
 A run writes to ``outputs/runs/<time>/``, a sweep job to ``outputs/multirun/<time>/<num>_<overrides>/`` (what
 a job folder holds: docs/training.md; ``evaluate=false`` and ``trainer.fast_dev_run`` skip the final
@@ -22,6 +22,7 @@ import hydra
 from omegaconf import DictConfig
 
 from lossvo.console import one_line_errors, quiet_lightning
+from lossvo.data.specs import refusing_flat_keys
 from lossvo.processes import restore_start_method
 from lossvo.training import fitting, lifecycle, resolvers
 
@@ -34,6 +35,7 @@ CONFIG_DIR = str(Path(__file__).resolve().parent / "conf")
 
 @one_line_errors
 @resolvers.names_swept_jobs
+@refusing_flat_keys
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")
 def main(cfg: DictConfig) -> float | None:
     """Train in this Hydra job's folder; returns ``cfg.optimized_metric`` for hyperparameter sweepers.

@@ -44,7 +44,7 @@ class FlowSetting:
     DIS_PRESETS (DIS only), ``scale``: the flow is computed between frames resized from their source images
     to ``scale`` times the cached size, then resized to the cached size (values scaled with it): DIS resolves
     small motions (a slow car's road, a far wall) better on the finer frames. Raises UserError naming the
-    key (``data.flow``, ``data.flow_preset``, ``data.flow_scale``)."""
+    key (``data.flow.method``, ``data.flow.preset``, ``data.flow.scale``)."""
 
     method: str = "dis"
     preset: str = "medium"
@@ -52,13 +52,13 @@ class FlowSetting:
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
-            raise UserError(f"data.flow: expected one of {', '.join(METHODS)}, got {self.method!r}")
+            raise UserError(f"data.flow.method: expected one of {', '.join(METHODS)}, got {self.method!r}")
         if self.method == "dis" and self.preset not in DIS_PRESETS:
             raise UserError(
-                f"data.flow_preset: expected one of {', '.join(DIS_PRESETS)}, got {self.preset!r}"
+                f"data.flow.preset: expected one of {', '.join(DIS_PRESETS)}, got {self.preset!r}"
             )
         if not is_number(self.scale) or not 1.0 <= self.scale <= MAX_SCALE:
-            raise UserError(f"data.flow_scale: expected a number in [1, {MAX_SCALE:g}], got {self.scale!r}")
+            raise UserError(f"data.flow.scale: expected a number in [1, {MAX_SCALE:g}], got {self.scale!r}")
 
     @property
     def enabled(self) -> bool:
@@ -109,7 +109,7 @@ def pair_flow(first: np.ndarray, second: np.ndarray, setting: FlowSetting = Flow
         (2, H, W) float32 (u, v) in pixels: pixel (x, y) of ``first`` is at (x + u, y + v) in ``second``.
     """
     if not setting.enabled:
-        raise UserError("data.flow: none computes no flow")
+        raise UserError("data.flow.method: none computes no flow")
     return _Estimator(setting)(_gray(first), _gray(second))
 
 
@@ -173,7 +173,7 @@ def _reader(
         return lambda k: _gray(frames[k])
     if len(images) != n:
         raise UserError(
-            f"data.flow_scale={setting.scale:g} reads the source images: expected {n}, got {len(images)}"
+            f"data.flow.scale={setting.scale:g} reads the source images: expected {n}, got {len(images)}"
         )
     h, w = setting.size(height, width)
     return lambda k: _gray(frame_cache.read_frame(images[k], h, w, undistort, crop)[0])
@@ -210,7 +210,7 @@ def ensure_flow(
         (max(N - step, 0), 2, H, W) float16 memory map.
     """
     if not setting.enabled:
-        raise UserError("data.flow: none computes no flow")
+        raise UserError("data.flow.method: none computes no flow")
     n, _, height, width = frames.shape
     shape = (max(n - step, 0), 2, height, width)
     expected = {

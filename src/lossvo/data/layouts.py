@@ -1,4 +1,5 @@
-"""The dataset layouts lossvo reads, by name (``data.layout``): where a layout's name becomes its reader.
+"""The dataset layouts lossvo reads, by name (``data.sources.<name>.layout``): where a layout's name
+becomes its reader.
 
 Each reader module (:mod:`~lossvo.data.kitti`, :mod:`~lossvo.data.tum`, :mod:`~lossvo.data.euroc`,
 :mod:`~lossvo.data.tartanair`, :mod:`~lossvo.data.mimir`) reads its dataset in the dataset's own layout
@@ -28,7 +29,7 @@ READERS: dict[str, ModuleType] = {
 LAYOUTS = tuple(READERS)
 
 
-def check_layout(layout: object, key: str = "data.layout") -> str:
+def check_layout(layout: object, key: str = "layout") -> str:
     """``layout`` if it names a layout; UserError naming ``key`` and the layouts otherwise."""
     if layout not in READERS:
         raise UserError(f"{key}: unknown dataset layout {layout!r} (expected one of {', '.join(LAYOUTS)})")

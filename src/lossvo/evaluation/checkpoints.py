@@ -26,11 +26,21 @@ from torch import Tensor, nn
 from lossvo import models
 from lossvo.checks import is_integer
 from lossvo.console import UserError, first_line
+from lossvo.data.specs import nested
 from lossvo.data.transforms import upgrade_description
 from lossvo.losses import PoseLoss
 
-TRAINED_WITH = ("height", "width", "seq_len", "normalization", "flow", "flow_preset", "flow_scale")
-"""Data settings a trained network depends on: evaluation takes them from its checkpoint."""
+TRAINED_WITH = (
+    "frames.height",
+    "frames.width",
+    "windows.seq_len",
+    "frames.normalization",
+    "flow.method",
+    "flow.preset",
+    "flow.scale",
+)
+"""Data settings a trained network depends on (paths in the data config): evaluation takes them from its
+checkpoint."""
 
 RECORD_ONLY = ("statistics", "dataset_root", "intrinsics")
 """Entries of a checkpoint's ``data`` that describe the training data but are not datamodule arguments."""
@@ -48,8 +58,9 @@ class Description:
     Attributes:
         model, loss: the configs the network and its loss were built from (``hyper_parameters``).
         data: :meth:`lossvo.data.datamodules.VODataModule.description` of the training data: the
-            datamodule's ``_target_`` and arguments (frame size, ``seq_len``, splits, normalisation mode
-            ...), ``dataset_root`` and the normalisation ``statistics``; None where none was recorded.
+            datamodule's ``_target_`` and specs (sources, splits, frames, windows, flow, loader,
+            transforms), ``dataset_root`` and the normalisation ``statistics``; an earlier version's flat
+            description in that form (:func:`lossvo.data.specs.nested`); None where none was recorded.
         threads: the CPU thread count (``torch.get_num_threads()``) it was trained with, or None.
         epoch: the epoch the checkpoint was saved in, counted from 0. global_step: its global step.
     """
@@ -66,6 +77,7 @@ class Description:
         """The description in a checkpoint's content (:func:`read`: it holds ``model`` and ``loss``)."""
         hparams, threads = content["hyper_parameters"], content.get("threads")
         data = upgrade_description(content.get("data"))  # a checkpoint of an earlier version too
+        data = nested(data) if isinstance(data, Mapping) else None
         return cls(hparams["model"], hparams["loss"], data if isinstance(data, dict) else None,
                    threads if is_integer(threads) else None, int(content.get("epoch", 0)),
                    int(content.get("global_step", 0)))  # fmt: skip
@@ -150,6 +162,24 @@ def recorded_data(path: str | os.PathLike, network: TrainedNetwork) -> dict[str,
     return network.data
 
 
+def lookup(data: Mapping[str, Any], path: str) -> Any:
+    """The entry at a dotted ``path`` of a data config (``frames.height``), or None."""
+    for part in path.split("."):
+        if not isinstance(data, Mapping):
+            return None
+        data = data.get(part)  # type: ignore[assignment]
+    return data
+
+
+def _with(data: Mapping[str, Any], path: str, value: Any) -> dict[str, Any]:
+    """A copy of ``data`` with ``value`` at the dotted ``path`` (the mappings on the way copied or made)."""
+    head, _, rest = path.partition(".")
+    out = dict(data)
+    inner = out.get(head)
+    out[head] = _with(inner if isinstance(inner, Mapping) else {}, rest, value) if rest else value
+    return out
+
+
 def evaluation_data(
     recorded: Mapping[str, Any], selected: Mapping[str, Any] | None, explicit: Mapping[str, Any]
 ) -> dict[str, Any]:
@@ -159,23 +189,28 @@ def evaluation_data(
         recorded: the checkpoint's ``data`` (:func:`recorded_data`).
         selected: the composed data config when another dataset was chosen (``data=kitti``), else None:
             the recorded one is used.
-        explicit: the ``data.KEY=VALUE`` overrides given on the command line, by key.
+        explicit: the ``data.KEY=VALUE`` overrides given on the command line, by dotted key
+            (``frames.cache_dir``, ``sources.kitti.root``).
     Returns:
         A datamodule config: the chosen (or recorded) one with the explicit overrides, the frame size,
-        ``seq_len`` and normalisation of the checkpoint, its ``statistics``, and no training or
+        ``seq_len``, normalisation and flow of the checkpoint, its ``statistics``, and no training or
         validation sequences (the data need not hold any).
     Raises:
         CheckpointError: an explicit override contradicts what the network was trained with.
     """
     for key in TRAINED_WITH:
-        if key in explicit and explicit[key] != recorded.get(key):
+        if key in explicit and explicit[key] != lookup(recorded, key):
             raise CheckpointError(
                 f"data.{key}={explicit[key]!r} contradicts the checkpoint, whose network was trained with "
-                f"data.{key}={recorded.get(key)!r}: drop the override"
+                f"data.{key}={lookup(recorded, key)!r}: drop the override"
             )
     base = dict(selected) if selected is not None else {
         k: v for k, v in recorded.items() if k not in RECORD_ONLY
     }  # fmt: skip
-    base.update(explicit)
-    base.update({key: recorded[key] for key in TRAINED_WITH if key in recorded})
-    return {**base, "train": [], "val": [], "statistics": recorded["statistics"]}
+    for key, value in explicit.items():
+        base = _with(base, key, value)
+    for key in TRAINED_WITH:
+        if lookup(recorded, key) is not None:
+            base = _with(base, key, lookup(recorded, key))
+    base = _with(_with(base, "splits.train", []), "splits.val", [])
+    return _with(base, "frames.statistics", recorded["statistics"])

@@ -509,24 +509,37 @@ def data_record(
     """
     trained = trained or evaluated
     stats = trained.get("statistics") or {}
+    frames = trained.get("frames") or {}
+    layout, keep_every = _reading(evaluated)
+    train_layout, train_keep_every = _reading(trained)
     return DataRecord(
         kind=evaluated.get("_target_"),
         root=str(evaluated["dataset_root"]),
         test=list(splits.get("test", ())),
         unseen=list(splits.get("unseen", ())),
         train_root=trained.get("dataset_root"),
-        train=sequence_names(trained.get("train")),
-        height=trained.get("height"),
-        width=trained.get("width"),
-        seq_len=trained.get("seq_len"),
-        normalization=trained.get("normalization"),
+        train=sequence_names((trained.get("splits") or {}).get("train")),
+        height=frames.get("height"),
+        width=frames.get("width"),
+        seq_len=(trained.get("windows") or {}).get("seq_len"),
+        normalization=frames.get("normalization"),
         mean=stats.get("mean"),
         std=stats.get("std"),
-        layout=str(evaluated.get("layout", "kitti")),
-        train_layout=str(trained.get("layout", "kitti")),
-        keep_every=int(evaluated.get("keep_every") or 1),
-        train_keep_every=int(trained.get("keep_every") or 1),
+        layout=layout,
+        train_layout=train_layout,
+        keep_every=keep_every,
+        train_keep_every=train_keep_every,
     )
+
+
+def _reading(description: Mapping[str, Any]) -> tuple[str, int]:
+    """The layout a data description's sequences are read in and every how-many-th frame it keeps: its
+    one source's; ``multi`` and 1 for several sources (each sequence is named ``<source>/<sequence>``)."""
+    sources = list((description.get("sources") or {}).values())
+    if len(sources) != 1:
+        return "multi", 1
+    layout = str(sources[0].get("layout"))
+    return ("kitti" if layout == "synthetic" else layout), int(sources[0].get("keep_every") or 1)
 
 
 class PooledScores:
@@ -713,7 +726,7 @@ def file_stem(name: str) -> str:
 
 def _pose_file(datamodule: VODataModule, name: str, gt: np.ndarray | None) -> str | None:
     """The dataset's KITTI pose file of a sequence with ground truth (KITTI layout), else None."""
-    if gt is None or datamodule.layout != "kitti":
+    if gt is None or [s.reader for s in datamodule.sources.values()] != ["kitti"]:
         return None
     return str(pose_path(datamodule.dataset_root(), name))
 

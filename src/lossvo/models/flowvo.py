@@ -77,7 +77,7 @@ class FlowVO(nn.Module):
         flow_gain: the flow enters as ``flow * flow_gain / (W, H)``: a fraction of the image, of order 1.
         head_dropout: dropout on the features before each head.
         head_bias: the heads' initial output (out_dim,), the loss's identity output; null: zeros.
-        flow: the optical flow the network reads (``data.flow``), recorded with it.
+        flow: the optical flow the network reads (``data.flow.method``), recorded with it.
         pool: the encoder's input (flow and intrinsics layer) is average-pooled by this factor: a
             quarter of the pixels at 2, where the flow field is smooth.
         channels_last: run the encoder in the channels-last memory layout (NHWC), which the oneDNN CPU

@@ -4,7 +4,7 @@ An evaluation is a folder holding the ``results.json`` that ``python -m lossvo.e
 of one of the sweep's jobs, found under ``SWEEP/evaluations/`` (any depth), for example::
 
     python -m lossvo.eval ckpt_path=SWEEP/3_loss-quat+seed-0/checkpoints/best.ckpt data=tum \\
-        data.root=/data/tum hydra.run.dir=SWEEP/evaluations/tum/3
+        data.sources.tum.root=/data/tum hydra.run.dir=SWEEP/evaluations/tum/3
 
 Each row pools one configuration (the job's label, seeds apart) on one evaluated dataset: the mean ± standard
 deviation over its seeds (n) of the pooled APE and RPE of every evaluated sequence. The sweep's own

@@ -36,7 +36,7 @@ from lossvo.report.jobs import (
 from lossvo.report.tables import BASELINE, Column, fmt
 from lossvo.table_render import Rows, prepend_column
 
-UNSEEN_KEY = "data.unseen"
+UNSEEN_KEY = "data.splits.unseen"
 UNSEEN_ROTATION_BAR = 0.30
 """Fraction by which a job's RPE rotation RMSE must lie below zero motion's on an unseen-motion sequence."""
 LEARNING_METRICS = (("RPE trans", RPE_TRANS), ("RPE rot", RPE_ROT))
@@ -184,10 +184,10 @@ def _architecture(column: Column) -> str:
 
 
 def learning_markdown(networks: Sequence[Column], base: BaselineRun, by_architecture: bool = False) -> str:
-    """Per job and validation sequence (the configs' ``data.val``): how far below the mean-motion
+    """Per job and validation sequence (the configs' ``data.splits.val``): how far below the mean-motion
     baseline its RPE lies (with ``by_architecture`` the job's architecture first)."""
     mean_motion = _baseline(base, baselines.MEAN)
-    sequences = config_sequences((j for c in networks for j in c.jobs), "data.val")
+    sequences = config_sequences((j for c in networks for j in c.jobs), "data.splits.val")
     if mean_motion is None or not sequences:
         return "No mean-motion baseline or no validation sequence: nothing to compare."
     header = ["configuration", "seed"] + [f"{s} {name}" for s in sequences for name, _ in LEARNING_METRICS]

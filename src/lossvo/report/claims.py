@@ -237,7 +237,7 @@ def claims_by_architecture(
 CLAIMS_RULE = (
     "Rule (`lossvo.report.statistics`): seeds are the unit, since the sequences of one seed share one "
     "trained network. A seed's value is its mean over the evaluated sequences outside the training split "
-    "(`data.train`) for claim (a), its convergence epoch (*Convergence*) for claim (b); the chordal "
+    "(`data.splits.train`) for claim (a), its convergence epoch (*Convergence*) for claim (b); the chordal "
     f"configuration (`loss._target_` class `{CLAIMED_LOSS}`) is paired by seed with every other "
     "configuration. Each pair is tested on its n per-seed differences (chordal − other) with the two-sided "
     'exact Wilcoxon signed-rank test (`scipy.stats.wilcoxon`, `method="exact"`); where the differences '

@@ -298,7 +298,7 @@ def config_value(config: Any, key: str, default: Any = None) -> Any:
 
 
 def config_sequences(jobs: Iterable[Job], key: str) -> list[str]:
-    """The sequence names listed at ``key`` (e.g. ``data.val``) in the jobs' configs, in order of first
+    """The sequence names listed at ``key`` (e.g. ``data.splits.val``) in the jobs' configs, in order of first
     appearance; a missing or empty key lists none."""
     names: list[str] = []
     for job in jobs:
@@ -328,7 +328,7 @@ def trained_sequences(job: Job) -> set[str]:
 
 def unseen_sequences(job: Job) -> set[str]:
     """The sequences of route families an included job's network never trained on: those its
-    results.json flags (``sequences[s].unseen``) and lists (``data.unseen``)."""
+    results.json flags (``sequences[s].unseen``) and lists (``data.splits.unseen``)."""
     return job.included_results.unseen()
 
 

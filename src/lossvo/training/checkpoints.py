@@ -16,7 +16,7 @@ from lightning.pytorch.plugins.io import TorchCheckpointIO
 
 from lossvo.atomic import atomic_path
 from lossvo.console import first_line
-from lossvo.evaluation.checkpoints import TRAINED_WITH, CheckpointError, Description, read
+from lossvo.evaluation.checkpoints import TRAINED_WITH, CheckpointError, Description, lookup, read
 from lossvo.training.module import VOModule
 
 
@@ -51,9 +51,11 @@ def check_resume(path: str | os.PathLike, module: VOModule, data: Mapping[str, A
     _check_shapes(path, content["state_dict"], module.state_dict())
     recorded = described.data or {}
     for key in TRAINED_WITH:
-        if key in recorded and recorded[key] != data.get(key):
-            raise CheckpointError(f"{path}: trained with data.{key}={recorded[key]!r}, this run has "
-                                  f"data.{key}={data.get(key)!r}")  # fmt: skip
+        theirs, ours = lookup(recorded, key), lookup(data, key)
+        if theirs is not None and theirs != ours:
+            raise CheckpointError(
+                f"{path}: trained with data.{key}={theirs!r}, this run has data.{key}={ours!r}"
+            )
     return described.epoch, described.global_step
 
 

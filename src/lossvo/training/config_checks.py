@@ -2,7 +2,7 @@
 
 The settings that Lightning, torch or the data loader would otherwise refuse deep inside a run (or
 misread without a word) are checked first, each failure a :class:`~lossvo.console.UserError` naming the
-key, the value and what was expected, e.g. ``data.batch_size: expected an integer >= 1, got 'abc'``.
+key, the value and what was expected, e.g. ``data.windows.batch_size: expected an integer >= 1, got 'abc'``.
 The constructors check their own arguments (:class:`lossvo.data.datamodules.VODataModule`),
 :func:`lossvo.weighting.check_config` the loss weights.
 """
@@ -41,8 +41,8 @@ NO_LIMIT = "an integer >= 1, or -1 for no limit"
 
 SCALARS: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
     ("seed", lambda v: v is None or (is_integer(v, 0) and v < 2**32), "null or an integer in [0, 2**32)"),
-    ("data.batch_size", lambda v: is_integer(v, 1), "an integer >= 1"),
-    ("data.num_workers", lambda v: is_integer(v, 0), "an integer >= 0"),
+    ("data.windows.batch_size", lambda v: is_integer(v, 1), "an integer >= 1"),
+    ("data.loader.num_workers", lambda v: is_integer(v, 0), "an integer >= 0"),
     ("trainer.max_epochs", _limit, NO_LIMIT),
     ("trainer.max_steps", _limit, NO_LIMIT),
     ("trainer.log_every_n_steps", lambda v: is_integer(v, 1), "an integer >= 1"),
@@ -87,7 +87,7 @@ def check_train_config(cfg: DictConfig) -> None:
     config that would fail only once the run is under way: a value left missing (``???``), an
     interpolation that does not resolve, a bad scalar setting (:data:`SCALARS`), a cosine schedule without
     a length, a trainer asking for a CUDA GPU where there is none (:func:`check_accelerator`) or for
-    several devices without a distributed strategy (:func:`check_devices`), a ``data.root`` that is a
+    several devices without a distributed strategy (:func:`check_devices`), a source ``root`` that is a
     file, a ``ckpt_path`` that is no file."""
     resolved = resolved_config(cfg)
     missing = sorted(OmegaConf.missing_keys(cfg))
@@ -106,9 +106,7 @@ def check_train_config(cfg: DictConfig) -> None:
                 f"epochs, trainer.max_epochs by default), got {t_max!r}"
             )
     _check_flow(resolved)
-    root = _select(resolved, "data.root")
-    if isinstance(root, str) and Path(root).expanduser().is_file():
-        raise UserError(f"data.root: {root} is a file, expected the dataset's folder")
+    check_source_roots(resolved.get("data"))
     check_devices(_select(resolved, "trainer.devices"), _select(resolved, "trainer.strategy"))
     accelerator = _select(resolved, "trainer.accelerator")
     if accelerator in CUDA_ACCELERATORS:
@@ -118,13 +116,22 @@ def check_train_config(cfg: DictConfig) -> None:
         raise UserError(f"ckpt_path: checkpoint not found: {ckpt_path}")
 
 
+def check_source_roots(data: Any) -> None:
+    """Refuse a ``data.sources.<name>.root`` that is a file (a dataset is a folder)."""
+    sources = data.get("sources") if isinstance(data, Mapping) else None
+    for name, source in (sources or {}).items():
+        root = source.get("root") if isinstance(source, Mapping) else None
+        if isinstance(root, str) and Path(root).expanduser().is_file():
+            raise UserError(f"data.sources.{name}.root: {root} is a file, expected the dataset's folder")
+
+
 def _check_flow(resolved: Mapping[str, Any]) -> None:
     """A network that reads optical flow (its config names one: ``model.flow``) needs data with flow."""
-    needs, has = _select(resolved, "model.flow"), _select(resolved, "data.flow")
+    needs, has = _select(resolved, "model.flow"), _select(resolved, "data.flow.method")
     if needs is not _ABSENT and needs is not None and has in ("none", None):
         raise UserError(
-            f"model.flow: the network reads optical flow ({needs}) but data.flow={has} caches "
-            f"none: expected data.flow=dis or farneback"
+            f"model.flow: the network reads optical flow ({needs}) but data.flow.method={has} caches "
+            f"none: expected data.flow.method=dis or farneback"
         )
 
 

@@ -81,7 +81,7 @@ def build(cfg: DictConfig) -> tuple[VODataModule, VOModule, L.Trainer]:
     """Data (set up for fitting), module and trainer from a composed config; nothing is trained yet."""
     if cfg.model.get("flownet"):
         # FlowNetS weights were trained on img/255 - 0.5; the dataset statistics would not match them.
-        cfg.data.normalization = "flownet"
+        cfg.data.frames.normalization = "flownet"
     datamodule = instantiate(cfg.data, _convert_="all")
     # The FlowNet file initialises the encoder once, here; it is kept out of the module's
     # hyperparameters so that a checkpoint reloads without that file.
@@ -133,7 +133,7 @@ def train(cfg: DictConfig, run: Run) -> dict[str, float]:
     epoch, step = -1, 0
     if ckpt_path:
         try:
-            epoch, step = checkpoints.check_resume(ckpt_path, module, dict(datamodule.hparams))
+            epoch, step = checkpoints.check_resume(ckpt_path, module, datamodule.description())
         except checkpoints.CheckpointError as e:
             key = "ckpt_path" if cfg.get("ckpt_path") else "resume"
             raise checkpoints.CheckpointError(f"{key}: {e}") from None

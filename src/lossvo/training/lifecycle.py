@@ -47,8 +47,9 @@ one found in a folder is removed when its run resumes."""
 RUN_KEYS = ("data", "model", "loss", "weighting", "selection", "seed", "optimizer", "threads")
 """Config keys that define a run: a folder whose recorded config differs in one is refused."""
 
-NOT_DEFINING = ("data.root", "data.cache_dir", "data.num_workers")
-"""Keys under :data:`RUN_KEYS` that say where the data lies or how it is loaded, not what is trained."""
+NOT_DEFINING = ("data.frames.cache_dir", "data.loader.num_workers")
+"""Keys under :data:`RUN_KEYS` that say where the data lies or how it is loaded, not what is trained; the
+sources' roots (``data.sources.<name>.root``) too."""
 
 
 class JobError(UserError):
@@ -83,7 +84,11 @@ def _defining(cfg: DictConfig | ListConfig) -> dict[str, Any]:
         container = OmegaConf.to_container(cfg, resolve=False)
     assert isinstance(container, dict)
     flat = {k: v for key in RUN_KEYS for k, v in _flat(container.get(key), key).items()}
-    return {k: v for k, v in flat.items() if not k.startswith(NOT_DEFINING)}
+    return {
+        k: v
+        for k, v in flat.items()
+        if not k.startswith(NOT_DEFINING) and not (k.startswith("data.sources.") and k.endswith(".root"))
+    }
 
 
 def killed(out_dir: Path) -> Event:

@@ -125,7 +125,7 @@ def job_name(overrides: Sequence[str], swept: str = "", exclude: Sequence[str] =
     """A sweep job's folder name from its overrides (``hydra.overrides.task``): the swept keys first
     (``swept``, comma-separated: the ones that differ between the sweep's jobs), then the others, each
     group sorted, without the ``exclude`` keys, made short and pasteable by :func:`path_safe`, e.g.
-    ``loss-euler+data.test-07+data.unseen-11+trainer.max_epochs-1``."""
+    ``loss-euler+data.splits.test-07+data.splits.unseen-11+trainer.max_epochs-1``."""
     first = set(swept.split(",")) - {""}
     lines = [
         o.input_line or ""

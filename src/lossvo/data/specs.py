@@ -1,0 +1,453 @@
+"""What a data module is built from: the datasets it reads (:class:`Source`), its splits, frames, windows,
+flow and loader settings, each a small frozen dataclass checked where it is made.
+
+``data.<spec>.<key>`` in a config is the field ``key`` of the spec (``data.windows.seq_len``); every
+``of`` classmethod takes the mapping Hydra gives and raises :class:`~lossvo.console.UserError` naming the
+full key of the first entry it refuses. :func:`nested` turns the flat data description of earlier
+checkpoints into these specs' form.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import sys
+from collections.abc import Callable, Mapping
+from collections.abc import Sequence as Seq
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+
+from lossvo.checks import is_integer, is_number
+from lossvo.console import UserError
+from lossvo.data import layouts
+from lossvo.data.flow import FlowSetting
+from lossvo.data.sequence import split_names
+
+SYNTHETIC = "synthetic"
+"""The layout name of the embedded synthetic dataset: rendered in the KITTI layout on first use."""
+NORMALIZATIONS = ("dataset", "flownet")
+SPLITS = ("train", "val", "test", "unseen")
+_R = TypeVar("_R")
+
+
+def _fields(cls: type, value: Any, where: str) -> dict[str, Any]:
+    """``value`` as a dict of ``cls``'s fields; UserError naming ``where`` for a non-mapping or the first
+    unknown key."""
+    if isinstance(value, cls):
+        return {f.name: getattr(value, f.name) for f in dataclasses.fields(cls)}
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping):
+        raise UserError(f"{where}: expected a mapping of {', '.join(_names(cls))}, got {value!r}")
+    unknown = sorted(set(map(str, value)) - set(_names(cls)))
+    if unknown:
+        raise UserError(f"{where}.{unknown[0]}: unknown key (expected some of {', '.join(_names(cls))})")
+    return dict(value)
+
+
+def _names(cls: type) -> list[str]:
+    return [f.name for f in dataclasses.fields(cls)]
+
+
+def _check(where: str, key: str, value: Any, fits: bool, expected: str) -> None:
+    """UserError ``<where>.<key>: expected <expected>, got <value>`` unless ``fits``."""
+    if not fits:
+        raise UserError(f"{where}.{key}: expected {expected}, got {value!r}")
+
+
+def _camera(value: Any, key: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """``{K: 3x3, distortion: [4, 5, 8, 12 or 14 numbers]}`` (distortion optional: zeros) as arrays, or None;
+    UserError naming ``key`` otherwise."""
+    if value is None:
+        return None
+    if not isinstance(value, Mapping) or set(value) - {"K", "distortion"} or "K" not in value:
+        raise UserError(
+            f"{key}: expected {{K: [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], distortion: [...]}}, got {value!r}"
+        )
+    try:
+        K = np.asarray(value["K"], dtype=np.float64)
+        distortion = np.asarray(value.get("distortion") or np.zeros(5), dtype=np.float64)
+    except (TypeError, ValueError):
+        K, distortion = np.zeros(0), np.zeros(0)
+    if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise UserError(f"{key}.K: expected a 3x3 matrix of pixels with fx, fy > 0, got {value['K']!r}")
+    if distortion.shape not in ((4,), (5,), (8,), (12,), (14,)) or not np.isfinite(distortion).all():
+        raise UserError(
+            f"{key}.distortion: expected 4, 5, 8, 12 or 14 numbers, got {value.get('distortion')!r}"
+        )
+    return K, distortion
+
+
+@dataclass(frozen=True)
+class Render:
+    """How the synthetic dataset is rendered (:func:`lossvo.data.synthetic.ensure_dataset`): frames per
+    sequence (``frame_counts``: one count or name -> count; None: the generator's), the resolution written
+    (None: the generator's), the generator's ``seed``, route families added or changed and sequences driving
+    other families (:func:`lossvo.data.synthetic.routes.route_spec`)."""
+
+    frame_counts: int | dict[str, int] | None = None
+    render_height: int | None = None
+    render_width: int | None = None
+    seed: int = 0
+    route_families: dict[str, Any] | None = None
+    route_mixes: dict[str, Any] | None = None
+
+
+@dataclass(frozen=True)
+class Source:
+    """One dataset a data module reads.
+
+    Attributes:
+        layout: :data:`lossvo.data.layouts.LAYOUTS`, or ``synthetic`` (rendered in the KITTI layout into
+            ``root`` on first use, as ``render`` says).
+        root: the dataset's folder (for KITTI the one holding ``sequences/`` or ``dataset/``); the
+            synthetic dataset's default is ``<frames.cache_dir>/synthetic``.
+        keep_every: keep every n-th frame of each sequence, in every split (matches frame rates).
+        camera: K (3, 3) pixels and OpenCV distortion replacing the reader's camera; None: the reader's.
+        render: the synthetic dataset's rendering; None for the other layouts.
+    """
+
+    layout: str
+    root: Path
+    keep_every: int = 1
+    camera: tuple[np.ndarray, np.ndarray] | None = None
+    render: Render | None = None
+
+    @property
+    def reader(self) -> str:
+        """The layout its files are read in."""
+        return "kitti" if self.layout == SYNTHETIC else self.layout
+
+    @classmethod
+    def of(cls, value: Any, where: str, cache_dir: Path) -> Source:
+        """A source from its config ``{layout, root, keep_every, camera}`` (and, for ``synthetic``, the
+        fields of :class:`Render`)."""
+        if isinstance(value, Source):
+            return value
+        if not isinstance(value, Mapping):
+            raise UserError(f"{where}: expected {{layout: ..., root: ...}}, got {value!r}")
+        layout = value.get("layout")
+        if layout != SYNTHETIC:
+            layouts.check_layout(layout, f"{where}.layout")
+        render_keys = _names(Render) if layout == SYNTHETIC else []
+        allowed = ["layout", "root", "keep_every", "camera", *render_keys]
+        unknown = sorted(set(map(str, value)) - set(allowed))
+        if unknown:
+            raise UserError(f"{where}.{unknown[0]}: unknown key (expected some of {', '.join(allowed)})")
+        root = value.get("root")
+        if root is None and layout != SYNTHETIC:
+            raise UserError(f"{where}.root: a value is required (the dataset's folder)")
+        every = value.get("keep_every", 1)
+        _check(where, "keep_every", every, is_integer(every, 1), "an integer >= 1 (frames)")
+        render = Render(**{k: _plain(value[k]) for k in render_keys if k in value}) if render_keys else None
+        if render is not None and render.frame_counts is not None:
+            counts = render.frame_counts
+            fits = is_integer(counts, 2) or (
+                isinstance(counts, Mapping) and all(is_integer(v, 2) for v in counts.values())
+            )
+            _check(where, "frame_counts", counts, fits, "an integer >= 2 or {sequence: frames}")
+        folder = Path(str(root)).expanduser() if root is not None else cache_dir / SYNTHETIC
+        return cls(str(layout), folder, int(every), _camera(value.get("camera"), f"{where}.camera"), render)
+
+    def config(self) -> dict[str, Any]:
+        """The source as its config (primitives): what :meth:`of` takes."""
+        out: dict[str, Any] = {"layout": self.layout, "root": str(self.root), "keep_every": self.keep_every}
+        out["camera"] = (
+            None
+            if self.camera is None
+            else {"K": self.camera[0].tolist(), "distortion": self.camera[1].tolist()}
+        )
+        if self.render is not None:
+            out.update(dataclasses.asdict(self.render))
+        return out
+
+
+def _plain(value: Any) -> Any:
+    """A config value as plain Python containers (OmegaConf's are converted by Hydra already)."""
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, Seq) and not isinstance(value, str):
+        return [_plain(v) for v in value]
+    return value
+
+
+def sources_of(value: Any, cache_dir: Path) -> dict[str, Source]:
+    """``data.sources``: name -> :class:`Source`, at least one; names without ``/``."""
+    if not isinstance(value, Mapping) or not value:
+        raise UserError(f"data.sources: expected a mapping of names to datasets, got {value!r}")
+    sources = {}
+    for name, entry in value.items():
+        if not isinstance(name, str) or not name or "/" in name:
+            raise UserError(f"data.sources: expected names without '/', got {name!r}")
+        sources[name] = Source.of(entry, f"data.sources.{name}", cache_dir)
+    return sources
+
+
+@dataclass(frozen=True)
+class Splits:
+    """Sequence names of each split, as the run names them: a sequence's own name with one source,
+    ``<source>/<sequence>`` with several. ``unseen``: sequences of motion unlike the training split's,
+    evaluated beside the test ones."""
+
+    train: tuple[str, ...] = ()
+    val: tuple[str, ...] = ()
+    test: tuple[str, ...] = ()
+    unseen: tuple[str, ...] = ()
+
+    @classmethod
+    def of(cls, value: Any) -> Splits:
+        """From ``{train: [...], ...}``; a value may be ``["00", "07"]``, ``"00,07"``, ``[0, 7]`` or ``7``."""
+        fields = _fields(cls, value, "data.splits")
+        made = {}
+        for key in SPLITS:
+            names = tuple(split_names(fields.get(key) or []))
+            if "" in names:
+                raise UserError(f"data.splits.{key}: empty sequence name in {fields[key]!r}")
+            made[key] = names
+        return cls(**made)
+
+    def as_dict(self) -> dict[str, tuple[str, ...]]:
+        return {key: getattr(self, key) for key in SPLITS}
+
+
+@dataclass(frozen=True)
+class Frames:
+    """The cached frames: (height, width) pixels the network sees (area interpolation); ``crop`` cuts each
+    frame's centred window of that aspect ratio first (K follows); ``normalization`` ``dataset`` (per-channel
+    mean/std of the training sequences) or ``flownet`` (x/255 - 0.5); ``statistics`` ``{mean: [3], std: [3]}``
+    given instead of computed (a trained network's); ``cache_dir`` None: ``$LOSSVO_CACHE`` or
+    ``~/.cache/lossvo``."""
+
+    height: int = 184
+    width: int = 608
+    crop: bool = False
+    normalization: str = "dataset"
+    statistics: dict[str, list[float]] | None = None
+    cache_dir: str | None = None
+
+    @classmethod
+    def of(cls, value: Any) -> Frames:
+        f = {**dataclasses.asdict(cls()), **_fields(cls, value, "data.frames")}
+        for key in ("height", "width"):
+            _check("data.frames", key, f[key], is_integer(f[key], 16), "an integer >= 16 pixels")
+        _check("data.frames", "crop", f["crop"], isinstance(f["crop"], bool), "true or false")
+        normalization = f["normalization"]
+        _check(
+            "data.frames",
+            "normalization",
+            normalization,
+            normalization in NORMALIZATIONS,
+            f"one of {', '.join(NORMALIZATIONS)}",
+        )
+        f["statistics"] = _statistics(f["statistics"])
+        return cls(**f)
+
+
+def _statistics(value: Any) -> dict[str, list[float]] | None:
+    """``{"mean": [3], "std": [3 > 0]}`` as lists of floats, or None; UserError naming the key otherwise."""
+    if value is None:
+        return None
+    try:
+        mean, std = (np.asarray(value[key], dtype=np.float64) for key in ("mean", "std"))
+    except (KeyError, TypeError, ValueError):
+        mean = std = np.zeros(0)
+    if mean.shape != (3,) or std.shape != (3,) or not np.all(std > 0) or not np.isfinite(mean).all():
+        raise UserError(
+            f"data.frames.statistics: expected {{mean: [3 floats], std: [3 floats > 0]}}, got {value!r}"
+        )
+    return {"mean": mean.tolist(), "std": std.tolist()}
+
+
+@dataclass(frozen=True)
+class Windows:
+    """Training windows: ``seq_len`` frames (``seq_len - 1`` pairs), a start every ``stride`` frames, at
+    each of ``frame_steps`` (every s-th frame: faster motion); ``per_epoch`` windows drawn afresh each epoch
+    (None: all); ``batch_size`` windows a batch. Validation and evaluation tile consecutive frames."""
+
+    seq_len: int = 7
+    stride: int = 1
+    frame_steps: tuple[int, ...] = (1,)
+    per_epoch: int | None = None
+    batch_size: int = 8
+
+    @classmethod
+    def of(cls, value: Any) -> Windows:
+        f = {**dataclasses.asdict(cls()), **_fields(cls, value, "data.windows")}
+        _check("data.windows", "seq_len", f["seq_len"], is_integer(f["seq_len"], 2), "an integer >= 2 frames")
+        _check("data.windows", "stride", f["stride"], is_integer(f["stride"], 1), "an integer >= 1")
+        per_epoch = f["per_epoch"]
+        _check(
+            "data.windows",
+            "per_epoch",
+            per_epoch,
+            per_epoch is None or is_integer(per_epoch, 1),
+            "null or an integer >= 1",
+        )
+        _check(
+            "data.windows", "batch_size", f["batch_size"], is_integer(f["batch_size"], 1), "an integer >= 1"
+        )
+        steps = f["frame_steps"]
+        listed = list(steps) if isinstance(steps, Seq) and not isinstance(steps, str) else []
+        _check(
+            "data.windows",
+            "frame_steps",
+            steps,
+            bool(listed) and all(is_integer(v, 1) for v in listed),
+            "a list of integers >= 1 like [1, 2]",
+        )
+        return cls(f["seq_len"], f["stride"], tuple(dict.fromkeys(listed)), per_epoch, f["batch_size"])
+
+
+def flow_of(value: Any) -> FlowSetting:
+    """``data.flow`` ``{method, preset, scale}`` as a :class:`lossvo.data.flow.FlowSetting`."""
+    f = {"method": "none", "preset": "medium", "scale": 1.0, **_fields(FlowSetting, value, "data.flow")}
+    return FlowSetting(f["method"], f["preset"], f["scale"])
+
+
+@dataclass(frozen=True)
+class Loader:
+    """Where batches are assembled: ``num_workers`` and ``pin_memory`` of the host loader; ``on_device``
+    ``auto`` (gathered on an accelerator where the splits' arrays fit ``device_budget_gb`` GiB), ``true``
+    (on the training device whenever they fit, a CPU included) or ``false`` (the host loader)."""
+
+    num_workers: int = 2
+    pin_memory: bool = False
+    on_device: bool | str = "auto"
+    device_budget_gb: float = 8.0
+
+    @classmethod
+    def of(cls, value: Any) -> Loader:
+        f = {**dataclasses.asdict(cls()), **_fields(cls, value, "data.loader")}
+        _check(
+            "data.loader", "num_workers", f["num_workers"], is_integer(f["num_workers"], 0), "an integer >= 0"
+        )
+        _check(
+            "data.loader", "pin_memory", f["pin_memory"], isinstance(f["pin_memory"], bool), "true or false"
+        )
+        on_device = f["on_device"]
+        _check(
+            "data.loader",
+            "on_device",
+            on_device,
+            on_device == "auto" or isinstance(on_device, bool),
+            "auto, true or false",
+        )
+        budget = f["device_budget_gb"]
+        _check(
+            "data.loader",
+            "device_budget_gb",
+            budget,
+            is_number(budget) and budget >= 0,
+            "a number of GiB >= 0",
+        )
+        return cls(f["num_workers"], f["pin_memory"], on_device, float(budget))
+
+
+FLAT_KEYS = {
+    "train": "splits",
+    "val": "splits",
+    "test": "splits",
+    "unseen": "splits",
+    "height": "frames",
+    "width": "frames",
+    "crop": "frames",
+    "normalization": "frames",
+    "cache_dir": "frames",
+    "seq_len": "windows",
+    "stride": "windows",
+    "frame_steps": "windows",
+    "windows_per_epoch": "windows",
+    "batch_size": "windows",
+    "flow": "flow",
+    "flow_preset": "flow",
+    "flow_scale": "flow",
+    "num_workers": "loader",
+    "pin_memory": "loader",
+    "on_device": "loader",
+    "device_budget_gb": "loader",
+}
+"""The data keys of the flat form -> the spec that holds them."""
+RENAMED = {"windows_per_epoch": "per_epoch", "flow": "method", "flow_preset": "preset", "flow_scale": "scale"}
+SOURCE_KEYS = ("layout", "root", "keep_every", "camera")
+RENDER_KEYS = {
+    "frames": "frame_counts",
+    "render_height": "render_height",
+    "render_width": "render_width",
+    "seed": "seed",
+    "route_families": "route_families",
+    "route_mixes": "route_mixes",
+}
+
+
+def new_key(flat: str) -> str | None:
+    """The key that replaced a flat data key (``test`` -> ``splits.test``), or None for none."""
+    if flat in FLAT_KEYS:
+        return f"{FLAT_KEYS[flat]}.{RENAMED.get(flat, flat)}"
+    if flat in SOURCE_KEYS:
+        return f"sources.NAME.{flat}"
+    if flat in RENDER_KEYS:
+        return f"sources.synthetic.{RENDER_KEYS[flat]}"
+    if flat == "datasets":
+        return "sources"
+    return None
+
+
+def nested(flat: Mapping[str, Any]) -> dict[str, Any]:
+    """A data config or description in the flat form (every argument at the top, ``datasets`` for several)
+    in the specs' form; one already nested (it has ``sources``) as it is. Keys of neither form (the
+    description's ``statistics``, ``dataset_root``, ``intrinsics``) stay at the top."""
+    if "sources" in flat:
+        return dict(flat)
+    target = str(flat.get("_target_", ""))
+    out: dict[str, Any] = {"_target_": "lossvo.data.datamodules.VODataModule"}
+    specs: dict[str, dict[str, Any]] = {"splits": {}, "frames": {}, "windows": {}, "flow": {}, "loader": {}}
+    source: dict[str, Any] = {}
+    for key, value in flat.items():
+        if key in FLAT_KEYS:
+            specs[FLAT_KEYS[key]][RENAMED.get(key, key)] = value
+        elif key in SOURCE_KEYS or key in RENDER_KEYS:
+            source[RENDER_KEYS.get(key, key)] = value
+        elif key not in ("_target_", "datasets"):
+            out[key] = value
+    if "datasets" in flat:
+        out["sources"] = {
+            k: {s: v for s, v in e.items() if s in SOURCE_KEYS} for k, e in flat["datasets"].items()
+        }
+        for split in SPLITS:  # the datasets' own splits, as the run names them
+            named = [f"{k}/{n}" for k, e in flat["datasets"].items() for n in split_names(e.get(split) or [])]
+            specs["splits"][split] = specs["splits"].get(split) or named
+    elif target.endswith("SyntheticDataModule"):
+        source.pop("layout", None)
+        out["sources"] = {SYNTHETIC: {"layout": SYNTHETIC, **source}}
+    else:
+        layout = source.get("layout", "kitti")
+        out["sources"] = {layout: {"layout": layout, **source}}
+    return {**out, **{k: v for k, v in specs.items() if v}}
+
+
+def check_overrides(overrides: Seq[str]) -> None:
+    """UserError for a command-line override of a data key of the flat form (``data.root=...``), naming
+    the key that holds it now (``data.sources.<name>.root``). ``data.frames`` and ``data.flow`` are
+    specs of both forms: their own checks name them."""
+    for line in overrides:
+        key = line.lstrip("+~").split("=", 1)[0]
+        flat = key.removeprefix("data.")
+        if key.startswith("data.") and "." not in flat and flat not in ("frames", "flow"):
+            new = new_key(flat)
+            if new is not None:
+                raise UserError(f"{key}: not a data key; the setting is data.{new} (docs/data.md lists them)")
+
+
+def refusing_flat_keys(main: Callable[[], _R]) -> Callable[[], _R]:
+    """A Hydra entry point that refuses a flat-form data override (:func:`check_overrides`) before Hydra
+    composes the config (which would call it a key the config lacks)."""
+
+    @functools.wraps(main)
+    def wrapped() -> _R:
+        check_overrides(sys.argv[1:])
+        return main()
+
+    return wrapped

@@ -1,0 +1,178 @@
+"""lossvo.data.specs: specs built from the mappings Hydra passes, one line naming the full key for bad
+input, and the flat descriptions of earlier checkpoints read in the specs' form."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+
+from lossvo.console import UserError
+from lossvo.data import specs
+from lossvo.data.datamodules import VODataModule
+from lossvo.data.flow import FlowSetting
+from lossvo.evaluation.checkpoints import Description
+
+FIXTURES = Path(__file__).resolve().parent / "data"
+
+
+def test_specs_take_defaults_and_freeze_lists() -> None:
+    windows = specs.Windows.of({"seq_len": 3, "frame_steps": [1, 2, 1]})
+    assert windows == specs.Windows(seq_len=3, frame_steps=(1, 2))
+    assert specs.Frames.of(None) == specs.Frames()
+    assert specs.flow_of({"method": "dis"}) == FlowSetting("dis", "medium", 1.0)
+    assert specs.Loader.of({"on_device": False}) == specs.Loader(on_device=False)
+
+
+def test_splits_name_integer_sequences_with_two_digits() -> None:
+    """YAML reads ``data.splits.test=[07]`` as [7]: the name is ``07``."""
+    splits = specs.Splits.of({"test": [7], "train": ["00", "kitti/02"], "val": "03,04"})
+    assert splits == specs.Splits(train=("00", "kitti/02"), val=("03", "04"), test=("07",))
+
+
+def test_sources_keep_their_names_and_the_synthetic_root_defaults_to_the_cache(tmp_path: Path) -> None:
+    sources = specs.sources_of(
+        {"kitti": {"layout": "kitti", "root": "/k"}, "tum": {"layout": "tum", "root": "/t", "keep_every": 3}},
+        tmp_path,
+    )
+    assert sources["kitti"] == specs.Source("kitti", Path("/k"))
+    assert sources["tum"] == specs.Source("tum", Path("/t"), 3)
+    synthetic = specs.sources_of({"s": {"layout": "synthetic", "frame_counts": {"00": 10}}}, tmp_path)["s"]
+    assert synthetic.root == tmp_path / "synthetic" and synthetic.reader == "kitti"
+    assert synthetic.render == specs.Render(frame_counts={"00": 10})
+    assert specs.Source.of(synthetic.config(), "x", tmp_path) == synthetic
+
+
+BAD: list[tuple[Any, Any, str]] = [
+    (specs.Windows.of, {"seq_len": 1}, "data.windows.seq_len: expected an integer >= 2 frames, got 1"),
+    (specs.Windows.of, {"frame_steps": [0]}, "data.windows.frame_steps: expected a list of integers >= 1"),
+    (specs.Windows.of, {"frame_steps": []}, "data.windows.frame_steps: expected a list of integers >= 1"),
+    (specs.Windows.of, {"per_epoch": 0}, "data.windows.per_epoch: expected null or an integer >= 1, got 0"),
+    (specs.Windows.of, {"windows_per_epoch": 8}, "data.windows.windows_per_epoch: unknown key"),
+    (specs.Windows.of, [3], "data.windows: expected a mapping of seq_len, stride"),
+    (specs.Frames.of, {"height": 8}, "data.frames.height: expected an integer >= 16 pixels, got 8"),
+    (specs.Frames.of, {"crop": "yes"}, "data.frames.crop: expected true or false, got 'yes'"),
+    (specs.Frames.of, {"normalization": "x"}, "data.frames.normalization: expected one of dataset, flownet"),
+    (specs.Frames.of, {"statistics": {"mean": [0.5]}}, "data.frames.statistics: expected {mean: [3 floats]"),
+    (specs.flow_of, {"method": "raft"}, "data.flow.method: expected one of dis, farneback, none"),
+    (specs.flow_of, {"methods": "dis"}, "data.flow.methods: unknown key (expected some of method, preset"),
+    (specs.Loader.of, {"on_device": "gpu"}, "data.loader.on_device: expected auto, true or false, got 'gpu'"),
+    (specs.Loader.of, {"num_workers": -1}, "data.loader.num_workers: expected an integer >= 0, got -1"),
+    (
+        specs.Loader.of,
+        {"device_budget_gb": -1},
+        "data.loader.device_budget_gb: expected a number of GiB >= 0",
+    ),
+    (specs.Splits.of, {"test": ["00", ""]}, "data.splits.test: empty sequence name"),
+    (specs.Splits.of, {"tests": ["00"]}, "data.splits.tests: unknown key (expected some of train, val"),
+]
+
+
+@pytest.mark.parametrize(("make", "value", "message"), BAD, ids=[m for _, _, m in BAD])
+def test_bad_input_names_the_full_key(make: Any, value: Any, message: str) -> None:
+    with pytest.raises(UserError) as caught:
+        make(value)
+    assert str(caught.value).startswith(message) and "\n" not in str(caught.value)
+
+
+BAD_SOURCES: list[tuple[Any, str]] = [
+    ({}, "data.sources: expected a mapping of names to datasets"),
+    ({"a/b": {"layout": "kitti", "root": "/k"}}, "data.sources: expected names without '/', got 'a/b'"),
+    ({"k": {"layout": "rosbag", "root": "/k"}}, "data.sources.k.layout: unknown dataset layout 'rosbag'"),
+    ({"k": {"layout": "kitti"}}, "data.sources.k.root: a value is required"),
+    (
+        {"k": {"layout": "kitti", "root": "/k", "keep_every": 0}},
+        "data.sources.k.keep_every: expected an integer",
+    ),
+    ({"k": {"layout": "kitti", "root": "/k", "seed": 1}}, "data.sources.k.seed: unknown key"),
+    (
+        {"s": {"layout": "synthetic", "frame_counts": 1}},
+        "data.sources.s.frame_counts: expected an integer >= 2",
+    ),
+    (
+        {"k": {"layout": "kitti", "root": "/k", "camera": {"K": [1]}}},
+        "data.sources.k.camera.K: expected a 3x3",
+    ),
+]
+
+
+@pytest.mark.parametrize(("value", "message"), BAD_SOURCES, ids=[m for _, m in BAD_SOURCES])
+def test_bad_sources_name_the_full_key(value: Any, message: str, tmp_path: Path) -> None:
+    with pytest.raises(UserError) as caught:
+        specs.sources_of(value, tmp_path)
+    assert str(caught.value).startswith(message)
+
+
+def test_a_flat_kitti_description_reads_as_specs() -> None:
+    flat = {"_target_": "lossvo.data.datamodules.KittiDataModule", "root": "/k", "train": ["00"],
+            "test": ["02"], "height": 32, "width": 96, "seq_len": 3, "windows_per_epoch": 4, "flow": "dis",
+            "flow_preset": "fast", "num_workers": 0, "statistics": {"mean": [0.5] * 3, "std": [0.2] * 3},
+            "transforms": []}  # fmt: skip
+    assert specs.nested(flat) == {
+        "_target_": "lossvo.data.datamodules.VODataModule",
+        "sources": {"kitti": {"layout": "kitti", "root": "/k"}},
+        "splits": {"train": ["00"], "test": ["02"]},
+        "frames": {"height": 32, "width": 96},
+        "windows": {"seq_len": 3, "per_epoch": 4},
+        "flow": {"method": "dis", "preset": "fast"},
+        "loader": {"num_workers": 0},
+        "statistics": {"mean": [0.5] * 3, "std": [0.2] * 3},
+        "transforms": [],
+    }
+    assert specs.nested(specs.nested(flat)) == specs.nested(flat)
+
+
+def test_flat_synthetic_and_several_dataset_descriptions_read_as_specs() -> None:
+    synthetic = {"_target_": "lossvo.data.datamodules.SyntheticDataModule", "root": None, "frames": {"00": 6},
+                 "render_height": 48, "seed": 1, "train": ["00"]}  # fmt: skip
+    assert specs.nested(synthetic)["sources"] == {
+        "synthetic": {
+            "layout": "synthetic",
+            "root": None,
+            "frame_counts": {"00": 6},
+            "render_height": 48,
+            "seed": 1,
+        }
+    }
+    datasets = {
+        "kitti": {"layout": "kitti", "root": "/k", "train": ["00"]},
+        "tum": {"layout": "tum", "root": "/t", "keep_every": 3, "test": ["x"]},
+    }
+    several = {"_target_": "lossvo.data.datamodules.MultiDataModule", "height": 32, "datasets": datasets}
+    made = specs.nested(several)
+    assert made["sources"] == {"kitti": {"layout": "kitti", "root": "/k"},
+                               "tum": {"layout": "tum", "root": "/t", "keep_every": 3}}  # fmt: skip
+    assert made["splits"] == {"train": ["kitti/00"], "val": [], "test": ["tum/x"], "unseen": []}
+
+
+@pytest.mark.parametrize("fixture", ["checkpoint_35d7877.ckpt", "checkpoint_805664b.ckpt"])
+def test_an_earlier_checkpoints_description_builds_a_data_module(fixture: str, tmp_path: Path) -> None:
+    data = Description.of(torch.load(FIXTURES / fixture, weights_only=True)).data
+    assert data is not None and set(data["sources"]) == {"kitti"}
+    arguments = {k: v for k, v in data.items() if k in ("sources", "splits", "frames", "windows", "flow")}
+    module = VODataModule(**arguments)
+    assert module.windows.seq_len == 3 and module.sources["kitti"].layout == "kitti"
+
+
+@pytest.mark.parametrize(
+    ("flat", "new"),
+    [("root", "sources.NAME.root"), ("seq_len", "windows.seq_len"), ("flow_preset", "flow.preset"),
+     ("windows_per_epoch", "windows.per_epoch"), ("route_mixes", "sources.synthetic.route_mixes"),
+     ("datasets", "sources"), ("test", "splits.test"), ("nope", None)],
+)  # fmt: skip
+def test_new_key(flat: str, new: str | None) -> None:
+    assert specs.new_key(flat) == new
+
+
+def test_a_flat_override_is_refused_naming_its_new_key() -> None:
+    with pytest.raises(
+        UserError, match=r"^data\.seq_len: not a data key; the setting is data\.windows\.seq_len"
+    ):
+        specs.check_overrides(["loss=euler", "data.seq_len=3"])
+    with pytest.raises(UserError, match=r"^data\.root: .* data\.sources\.NAME\.root"):
+        specs.check_overrides(["+data.root=/k"])
+    specs.check_overrides(
+        ["data.windows.seq_len=3", "data.flow=dis", "data.sources.kitti.root=/k", "seq_len=3"]
+    )
