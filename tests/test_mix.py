@@ -136,3 +136,18 @@ def test_data_mix_composes_four_platforms() -> None:
     assert dm.sources["car"].render is not None and dm.sources["car"].render.cameras is not None
     assert all(name.split("/")[1] not in ("10", "11", "12") for name in dm.splits["train"])
     assert not set(dm.splits["train"]) & set(dm.splits["test"])
+
+
+@pytest.mark.slow
+def test_a_source_no_split_reads_is_not_rendered(tmp_path: Path) -> None:
+    dm = VODataModule(
+        sources={"car": {"layout": "synthetic", "frame_counts": 6, "render_height": 48, "render_width": 160},
+                 "drone": {"layout": "synthetic", "render_layout": "tartanair", "render_scale": 0.1}},
+        splits={"train": ["car/00"], "test": ["car/00"]},
+        frames={"height": 32, "width": 96, "cache_dir": str(tmp_path)},
+        windows={"seq_len": 2},
+        loader={"num_workers": 0},
+    )  # fmt: skip
+    dm.prepare_data()
+    assert (tmp_path / "synthetic-car" / "sequences" / "00").is_dir()
+    assert not (tmp_path / "synthetic-drone").exists()

@@ -201,6 +201,8 @@ class VODataModule(L.LightningDataModule):
             if source.render is None:
                 continue
             names = [local for n in self.all_names for k, local in [self._split_name(n)] if k == key]
+            if not names:  # a source no split reads
+                continue
             render = source.render
             source.root.mkdir(parents=True, exist_ok=True)
             with FileLock(source.root.parent / f".{source.root.name}.lock"):
