@@ -40,7 +40,7 @@ def test_sources_keep_their_names_and_the_synthetic_root_defaults_to_the_cache(t
     assert sources["kitti"] == specs.Source("kitti", Path("/k"))
     assert sources["tum"] == specs.Source("tum", Path("/t"), 3)
     synthetic = specs.sources_of({"s": {"layout": "synthetic", "frame_counts": {"00": 10}}}, tmp_path)["s"]
-    assert synthetic.root == tmp_path / "synthetic" and synthetic.reader == "kitti"
+    assert synthetic.root == tmp_path / "synthetic-s" and synthetic.reader == "kitti"
     assert synthetic.render == specs.Render(frame_counts={"00": 10})
     assert specs.Source.of(synthetic.config(), "x", tmp_path) == synthetic
 

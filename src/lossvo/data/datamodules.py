@@ -201,6 +201,8 @@ class VODataModule(L.LightningDataModule):
             if source.render is None:
                 continue
             names = [local for n in self.all_names for k, local in [self._split_name(n)] if k == key]
+            if not names:  # a source no split reads
+                continue
             render = source.render
             source.root.mkdir(parents=True, exist_ok=True)
             with FileLock(source.root.parent / f".{source.root.name}.lock"):
@@ -208,12 +210,15 @@ class VODataModule(L.LightningDataModule):
                     source.root,
                     sequences=names,
                     frames=render.frame_counts,
-                    height=render.render_height or synthetic.DEFAULT_HEIGHT,
-                    width=render.render_width or synthetic.DEFAULT_WIDTH,
+                    height=render.render_height,
+                    width=render.render_width,
                     seed=render.seed,
                     spec=routes.route_spec(
                         render.route_families, render.route_mixes, prefix=f"data.sources.{key}."
                     ),
+                    layout=render.render_layout,
+                    scale=render.render_scale,
+                    cameras=render.cameras,
                 )
 
     def _load_metadata(self) -> None:
@@ -226,7 +231,9 @@ class VODataModule(L.LightningDataModule):
         for name in self.all_names:
             source, local = self.source_of(name)
             root = layouts.dataset_root(source.reader, source.root)
-            seq = layouts.load_sequence(source.reader, root, local, require_poses=name in labelled)
+            seq = layouts.load_sequence(
+                source.reader, root, source.file_name(local), require_poses=name in labelled
+            )
             if source.camera is not None:
                 seq = dataclasses.replace(seq, K=source.camera[0], distortion=source.camera[1])
             self.sequences[name] = seq.every(source.keep_every)

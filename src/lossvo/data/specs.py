@@ -25,6 +25,8 @@ from lossvo.console import UserError
 from lossvo.data import layouts
 from lossvo.data.flow import FlowSetting
 from lossvo.data.sequence import split_names
+from lossvo.data.synthetic import layouts as synthetic_layouts
+from lossvo.data.synthetic.camera import CameraRange
 
 SYNTHETIC = "synthetic"
 """The layout name of the embedded synthetic dataset: rendered in the KITTI layout on first use."""
@@ -85,8 +87,12 @@ def _camera(value: Any, key: str) -> tuple[np.ndarray, np.ndarray] | None:
 class Render:
     """How the synthetic dataset is rendered (:func:`lossvo.data.synthetic.ensure_dataset`): frames per
     sequence (``frame_counts``: one count or name -> count; None: the generator's), the resolution written
-    (None: the generator's), the generator's ``seed``, route families added or changed and sequences driving
-    other families (:func:`lossvo.data.synthetic.routes.route_spec`)."""
+    (None: the layout's, times ``render_scale``), the generator's ``seed``, route families added or changed
+    and sequences driving other families (:func:`lossvo.data.synthetic.routes.route_spec`), the layout it is
+    written in (``render_layout``: its platform, camera and clock, :mod:`lossvo.data.synthetic.layouts`; the
+    run names its sequences by their two digits all the same) and, in the KITTI layout, ranges each
+    sequence's camera is drawn from (``cameras``: :class:`lossvo.data.synthetic.camera.CameraRange`; None:
+    KITTI's camera)."""
 
     frame_counts: int | dict[str, int] | None = None
     render_height: int | None = None
@@ -94,6 +100,9 @@ class Render:
     seed: int = 0
     route_families: dict[str, Any] | None = None
     route_mixes: dict[str, Any] | None = None
+    render_layout: str = "kitti"
+    render_scale: float = 1.0
+    cameras: CameraRange | None = None
 
 
 @dataclass(frozen=True)
@@ -104,7 +113,8 @@ class Source:
         layout: :data:`lossvo.data.layouts.LAYOUTS`, or ``synthetic`` (rendered in the KITTI layout into
             ``root`` on first use, as ``render`` says).
         root: the dataset's folder (for KITTI the one holding ``sequences/`` or ``dataset/``); the
-            synthetic dataset's default is ``<frames.cache_dir>/synthetic``.
+            synthetic dataset's default is ``<frames.cache_dir>/synthetic`` (``synthetic-<name>`` for a
+            source of another name).
         keep_every: keep every n-th frame of each sequence, in every split (matches frame rates).
         camera: K (3, 3) pixels and OpenCV distortion replacing the reader's camera; None: the reader's.
         render: the synthetic dataset's rendering; None for the other layouts.
@@ -119,12 +129,17 @@ class Source:
     @property
     def reader(self) -> str:
         """The layout its files are read in."""
-        return "kitti" if self.layout == SYNTHETIC else self.layout
+        return self.render.render_layout if self.render is not None else self.layout
+
+    def file_name(self, name: str) -> str:
+        """The name the reader knows a sequence by: a rendered sequence's two digits in its layout's naming
+        (:func:`lossvo.data.synthetic.layouts.sequence_name`), any other as it is."""
+        return synthetic_layouts.sequence_name(self.reader, name) if self.render is not None else name
 
     @classmethod
-    def of(cls, value: Any, where: str, cache_dir: Path) -> Source:
+    def of(cls, value: Any, where: str, default_root: Path) -> Source:
         """A source from its config ``{layout, root, keep_every, camera}`` (and, for ``synthetic``, the
-        fields of :class:`Render`)."""
+        fields of :class:`Render`); a synthetic one without a root is rendered into ``default_root``."""
         if isinstance(value, Source):
             return value
         if not isinstance(value, Mapping):
@@ -142,14 +157,14 @@ class Source:
             raise UserError(f"{where}.root: a value is required (the dataset's folder)")
         every = value.get("keep_every", 1)
         _check(where, "keep_every", every, is_integer(every, 1), "an integer >= 1 (frames)")
-        render = Render(**{k: _plain(value[k]) for k in render_keys if k in value}) if render_keys else None
+        render = _render(value, where) if render_keys else None
         if render is not None and render.frame_counts is not None:
             counts = render.frame_counts
             fits = is_integer(counts, 2) or (
                 isinstance(counts, Mapping) and all(is_integer(v, 2) for v in counts.values())
             )
             _check(where, "frame_counts", counts, fits, "an integer >= 2 or {sequence: frames}")
-        folder = Path(str(root)).expanduser() if root is not None else cache_dir / SYNTHETIC
+        folder = Path(str(root)).expanduser() if root is not None else default_root
         return cls(str(layout), folder, int(every), _camera(value.get("camera"), f"{where}.camera"), render)
 
     def config(self) -> dict[str, Any]:
@@ -162,7 +177,25 @@ class Source:
         )
         if self.render is not None:
             out.update(dataclasses.asdict(self.render))
+            out["cameras"] = None if self.render.cameras is None else self.render.cameras.manifest()
         return out
+
+
+def _render(value: Mapping[str, Any], where: str) -> Render:
+    """A synthetic source's :class:`Render` from its config; UserError naming the key otherwise."""
+    fields = {k: _plain(value[k]) for k in _names(Render) if k in value}
+    layout = fields.get("render_layout", "kitti")
+    layouts.check_layout(layout, f"{where}.render_layout")
+    scale = fields.get("render_scale", 1.0)
+    _check(where, "render_scale", scale, is_number(scale) and scale > 0, "a number > 0")
+    if fields.get("cameras") is not None:
+        if layout != "kitti":
+            raise UserError(
+                f"{where}.cameras: cameras drawn per sequence are rendered in the KITTI layout only (its "
+                f"calib.txt holds each sequence's K), not with render_layout={layout}"
+            )
+        fields["cameras"] = CameraRange.of(fields["cameras"], f"{where}.cameras")
+    return Render(**fields)
 
 
 def _plain(value: Any) -> Any:
@@ -175,14 +208,17 @@ def _plain(value: Any) -> Any:
 
 
 def sources_of(value: Any, cache_dir: Path) -> dict[str, Source]:
-    """``data.sources``: name -> :class:`Source`, at least one; names without ``/``."""
+    """``data.sources``: name -> :class:`Source`, at least one; names without ``/``. A synthetic source
+    without a root is rendered into ``<cache_dir>/synthetic`` (the one named ``synthetic``) or
+    ``<cache_dir>/synthetic-<name>``."""
     if not isinstance(value, Mapping) or not value:
         raise UserError(f"data.sources: expected a mapping of names to datasets, got {value!r}")
     sources = {}
     for name, entry in value.items():
         if not isinstance(name, str) or not name or "/" in name:
             raise UserError(f"data.sources: expected names without '/', got {name!r}")
-        sources[name] = Source.of(entry, f"data.sources.{name}", cache_dir)
+        folder = SYNTHETIC if name == SYNTHETIC else f"{SYNTHETIC}-{name}"
+        sources[name] = Source.of(entry, f"data.sources.{name}", cache_dir / folder)
     return sources
 
 

@@ -539,7 +539,9 @@ def _reading(description: Mapping[str, Any]) -> tuple[str, int]:
     if len(sources) != 1:
         return "multi", 1
     layout = str(sources[0].get("layout"))
-    return ("kitti" if layout == "synthetic" else layout), int(sources[0].get("keep_every") or 1)
+    if layout == "synthetic":
+        layout = str(sources[0].get("render_layout") or "kitti")
+    return layout, int(sources[0].get("keep_every") or 1)
 
 
 class PooledScores:

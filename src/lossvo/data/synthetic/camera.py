@@ -1,5 +1,6 @@
 """The camera: KITTI's left colour camera (image_2) scaled to the rendered size, mounted CAMERA_HEIGHT
-above the ground, and the calib.txt that describes it.
+above the ground, and the calib.txt that describes it; or, with :class:`CameraRange`, a camera drawn per
+sequence within stated ranges of focal length, principal point and aspect.
 
 Axes are KITTI's: x right, y down, z forward; K maps camera coordinates to pixels with pixel centres at
 integer coordinates.
@@ -7,8 +8,14 @@ integer coordinates.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from typing import Any
+
 import numpy as np
 
+from lossvo.console import UserError
 from lossvo.geometry.camera import resized_intrinsics
 
 KITTI_SIZE = (376, 1241)
@@ -26,6 +33,69 @@ def intrinsics(height: int, width: int) -> np.ndarray:
     fx, fy, cx, cy = KITTI_INTRINSICS
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     return resized_intrinsics(K, KITTI_SIZE, (height, width))
+
+
+@dataclass(frozen=True)
+class CameraRange:
+    """Ranges (low, high) a sequence's camera is drawn from, uniformly and independently: ``focal``, fx as a
+    fraction of the frame width (KITTI's camera 0.58, TartanAir's 0.5, TUM's 0.81); ``principal``, (cx, cy)
+    as fractions of the width and height (0.5: the centre); ``aspect``, fy / fx."""
+
+    focal: tuple[float, float] = (0.45, 0.85)
+    principal: tuple[float, float] = (0.45, 0.55)
+    aspect: tuple[float, float] = (0.95, 1.05)
+
+    @classmethod
+    def of(cls, value: Any, where: str) -> CameraRange:
+        """From ``{focal: [lo, hi], principal: [lo, hi], aspect: [lo, hi]}`` (each optional); UserError
+        naming ``<where>.<key>`` for a range that is not two finite numbers lo <= hi, a focal length or aspect
+        not > 0, or a principal point outside the frame (0 < p < 1)."""
+        if not isinstance(value, Mapping):
+            raise UserError(f"{where}: expected {{focal: [lo, hi], principal: [lo, hi], aspect: [lo, hi]}}, "
+                            f"got {value!r}")  # fmt: skip
+        unknown = sorted(set(map(str, value)) - set(asdict(cls())))
+        if unknown:
+            raise UserError(f"{where}.{unknown[0]}: unknown key (expected some of focal, principal, aspect)")
+        ranges = {**asdict(cls()), **value}
+        for key in ("focal", "principal", "aspect"):
+            ranges[key] = _range(ranges[key], f"{where}.{key}")
+        for key in ("focal", "aspect"):
+            if ranges[key][0] <= 0:
+                raise UserError(f"{where}.{key}: expected values > 0, got {list(ranges[key])}")
+        if not (ranges["principal"][0] > 0 and ranges["principal"][1] < 1):
+            raise UserError(f"{where}.principal: expected fractions of the frame inside (0, 1), "
+                            f"got {list(ranges['principal'])}")  # fmt: skip
+        return cls(ranges["focal"], ranges["principal"], ranges["aspect"])
+
+    def draw(self, height: int, width: int, rng: np.random.Generator) -> np.ndarray:
+        """(3, 3) float64 K of a frame of (height, width) pixels, drawn from the ranges."""
+        focal, cx, cy, aspect = (
+            rng.uniform(*r) for r in (self.focal, self.principal, self.principal, self.aspect)
+        )
+        fx = focal * width
+        return np.array([[fx, 0.0, cx * width], [0.0, fx * aspect, cy * height], [0.0, 0.0, 1.0]])
+
+    def manifest(self) -> dict[str, list[float]]:
+        """The ranges as a manifest records them."""
+        return {key: list(value) for key, value in asdict(self).items()}
+
+
+def _range(value: Any, key: str) -> tuple[float, float]:
+    """``[lo, hi]`` as floats; UserError naming ``key`` unless two finite numbers with lo <= hi."""
+    try:
+        low, high = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise UserError(f"{key}: expected a range [low, high] of two numbers, got {value!r}") from None
+    if not (math.isfinite(low) and math.isfinite(high)) or low > high:
+        raise UserError(f"{key}: expected a range [low, high] with low <= high, got {value!r}")
+    return low, high
+
+
+def drawn_intrinsics(cameras: CameraRange, height: int, width: int, seed: int, sequence: str) -> np.ndarray:
+    """(3, 3) K of a sequence's camera drawn from ``cameras`` (the same for a seed and sequence, from a
+    stream of its own: the town and the route do not change with the ranges)."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, int(sequence), 7919]))
+    return cameras.draw(height, width, rng)
 
 
 def calib_text(K: np.ndarray) -> str:

@@ -12,16 +12,25 @@ from pathlib import Path
 
 from lossvo.data import kitti
 from lossvo.data.synthetic import layouts, routes
+from lossvo.data.synthetic.camera import CameraRange
 
 MANIFEST = "lossvo_synthetic.json"
 VERSION = 2
 """Bumped whenever the rendered content changes, so that ensure_dataset regenerates old datasets."""
 
 
-def header(height: int, width: int, seed: int, spec: routes.RouteSpec, layout: str = "kitti") -> dict:
+def header(
+    height: int,
+    width: int,
+    seed: int,
+    spec: routes.RouteSpec,
+    layout: str = "kitti",
+    cameras: CameraRange | None = None,
+) -> dict:
     """The manifest entries that every sequence of one dataset shares (JSON-normalised, so that they
     compare equal to the ones read back from a manifest); a "layout" entry for layouts other than kitti
-    (a manifest without one is a KITTI-layout dataset)."""
+    (a manifest without one is a KITTI-layout dataset), a "cameras" entry for cameras drawn per sequence
+    (without one: KITTI's camera)."""
     entries = {
         "generator": "lossvo.data.synthetic",
         "version": VERSION,
@@ -32,6 +41,8 @@ def header(height: int, width: int, seed: int, spec: routes.RouteSpec, layout: s
     }
     if layout != "kitti":
         entries["layout"] = layout
+    if cameras is not None:
+        entries["cameras"] = cameras.manifest()
     return json.loads(json.dumps(entries))
 
 
@@ -62,6 +73,7 @@ def complete_sequences(root: Path, shared: dict) -> dict[str, int]:
         manifest is None
         or any(manifest.get(k) != v for k, v in shared.items())
         or manifest.get("layout", "kitti") != layout
+        or manifest.get("cameras") != shared.get("cameras")
     ):
         return {}
     frames = manifest.get("frames", {})

@@ -21,7 +21,7 @@ from lossvo.atomic import write_text_atomic
 from lossvo.console import UserError
 from lossvo.data import kitti, pose_files
 from lossvo.data.synthetic import layouts, manifest, routes
-from lossvo.data.synthetic.camera import calib_text, intrinsics
+from lossvo.data.synthetic.camera import CameraRange, calib_text, drawn_intrinsics, intrinsics
 from lossvo.data.synthetic.parameters import (
     DEFAULT_HEIGHT,
     DEFAULT_WIDTH,
@@ -50,10 +50,16 @@ def render_sequence(
     width: int,
     seed: int,
     spec: routes.RouteSpec = routes.DEFAULT_SPEC,
+    cameras: CameraRange | None = None,
 ) -> None:
-    """Render one sequence into folder: folder/NN/{image_2/*.png, calib.txt, times.txt} and folder/NN.txt."""
+    """Render one sequence into folder: folder/NN/{image_2/*.png, calib.txt, times.txt} and folder/NN.txt,
+    seen by KITTI's camera or, with ``cameras``, by one drawn from those ranges."""
     poses, world, noise = scene(sequence, n_frames, seed, spec)
-    K = intrinsics(height, width)
+    K = (
+        intrinsics(height, width)
+        if cameras is None
+        else drawn_intrinsics(cameras, height, width, seed, sequence)
+    )
     (folder / sequence / "image_2").mkdir(parents=True)
     (folder / sequence / "calib.txt").write_text(calib_text(K))
     (folder / sequence / "times.txt").write_text(times_text(n_frames))
@@ -72,6 +78,7 @@ def write_sequence(
     seed: int,
     spec: routes.RouteSpec = routes.DEFAULT_SPEC,
     layout: str = "kitti",
+    cameras: CameraRange | None = None,
 ) -> float:
     """Render one sequence into the dataset root out, atomically; returns the seconds it took.
 
@@ -85,7 +92,7 @@ def write_sequence(
     tmp = out / f".tmp-{sequence}-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     try:
-        render_sequence(tmp, sequence, n_frames, height, width, seed, spec)
+        render_sequence(tmp, sequence, n_frames, height, width, seed, spec, cameras)
         (out / "sequences").mkdir(exist_ok=True)
         (out / "poses").mkdir(exist_ok=True)
         shutil.rmtree(out / "sequences" / sequence, ignore_errors=True)
@@ -121,10 +128,11 @@ def _render_all(
     workers: int | None,
     spec: routes.RouteSpec,
     layout: str = "kitti",
+    cameras: CameraRange | None = None,
 ) -> None:
     """Render the sequences, in parallel spawned worker processes when there are several and cores to spare
     (so a calling script needs the usual ``if __name__ == "__main__":`` guard)."""
-    jobs = [(out, s, n, height, width, seed, spec, layout) for s, n in counts.items()]
+    jobs = [(out, s, n, height, width, seed, spec, layout, cameras) for s, n in counts.items()]
     workers = _worker_count(len(jobs), workers, sum(counts.values()) * height * width)
     pool = None
     if workers > 1:
@@ -144,6 +152,14 @@ def _render_all(
     finally:
         if pool:
             pool.shutdown(cancel_futures=True)
+
+
+def check_cameras(layout: str, cameras: CameraRange | None, key: str = "cameras") -> None:
+    """UserError naming ``key`` for cameras drawn per sequence in a layout other than KITTI's, whose readers
+    know one camera (TUM, TartanAir) or whose files are not written per drawn camera."""
+    if cameras is not None and layout != "kitti":
+        raise UserError(f"{key}: cameras drawn per sequence are rendered in the KITTI layout only (its "
+                        f"calib.txt holds each sequence's K), not in {layout}")  # fmt: skip
 
 
 def frame_size(
@@ -179,6 +195,7 @@ def generate(
     spec: routes.RouteSpec = routes.DEFAULT_SPEC,
     layout: str = "kitti",
     scale: float = 1.0,
+    cameras: CameraRange | None = None,
 ) -> Path:
     """Render the synthetic dataset into out in a layout (:data:`lossvo.data.synthetic.layouts.LAYOUTS`,
     default the KITTI odometry layout); returns out as a Path.
@@ -187,18 +204,20 @@ def generate(
     :func:`lossvo.data.synthetic.layouts.sequence_name`); frames: None (DEFAULT_FRAMES), one count for
     all, or a mapping; height, width: pixels, by default the layout's size times scale
     (:func:`frame_size`); seed: the same seed gives byte-identical files; spec: route families and mixes
-    (:func:`lossvo.data.synthetic.routes.route_spec`). Sequences of an earlier dataset in out generated
+    (:func:`lossvo.data.synthetic.routes.route_spec`); cameras: each sequence's camera drawn from these
+    ranges (KITTI layout only; None: KITTI's camera). Sequences of an earlier dataset in out generated
     with the same layout, size, seed and spec are kept. The manifest is removed first and written last,
     so an interrupted run never looks complete.
     """
     out = Path(out)
     counts = resolve_frames(sequences, frames)
     height, width = frame_size(layout, height, width, scale)
+    check_cameras(layout, cameras)
     out.mkdir(parents=True, exist_ok=True)
-    shared = manifest.header(height, width, seed, spec, layout)
+    shared = manifest.header(height, width, seed, spec, layout, cameras)
     kept = {s: n for s, n in manifest.complete_sequences(out, shared).items() if s not in counts}
     (out / manifest.MANIFEST).unlink(missing_ok=True)
-    _render_all(out, counts, height, width, seed, progress, workers, spec, layout)
+    _render_all(out, counts, height, width, seed, progress, workers, spec, layout, cameras)
     entries = {**shared, "frames": dict(sorted({**kept, **counts}.items()))}
     write_text_atomic(out / manifest.MANIFEST, json.dumps(entries, indent=2) + "\n")
     return out
@@ -216,6 +235,7 @@ def ensure_dataset(
     spec: routes.RouteSpec = routes.DEFAULT_SPEC,
     layout: str = "kitti",
     scale: float = 1.0,
+    cameras: CameraRange | None = None,
 ) -> Path:
     """Root as a Path, holding the requested synthetic sequences: generated unless already there.
 
@@ -226,7 +246,10 @@ def ensure_dataset(
     root = Path(root)
     counts = resolve_frames(sequences, frames)
     height, width = frame_size(layout, height, width, scale)
-    present = manifest.complete_sequences(root, manifest.header(height, width, seed, spec, layout))
+    check_cameras(layout, cameras)
+    present = manifest.complete_sequences(root, manifest.header(height, width, seed, spec, layout, cameras))
     if all(present.get(s) == n for s, n in counts.items()):
         return root
-    return generate(root, counts, counts, height, width, seed, progress, workers, spec, layout)
+    return generate(
+        root, counts, counts, height, width, seed, progress, workers, spec, layout, scale, cameras
+    )
