@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lossvo.evaluation import baselines
 from lossvo.evaluation.results import Overall
 from lossvo.report.document import make_report
 from test_report import data_record, entry, results_json, write_job
@@ -70,3 +71,48 @@ def test_no_evaluations_no_section(sweep: Path, tmp_path: Path) -> None:
     report = make_report(sweep, tmp_path / "report", with_baselines=False, with_figures=False).read_text()
     assert "## Across datasets" not in report
     assert not (tmp_path / "report" / "tables" / "across_datasets.csv").exists()
+
+
+@pytest.mark.slow
+def test_each_other_dataset_gets_its_baselines_and_the_rotation_against_zero_motion(tmp_path: Path) -> None:
+    """A sweep trained on a KITTI-layout render, evaluated on a TUM-layout one: the baselines follow the
+    TUM rows, computed on its sequence, and every row says how far its rotation lies below zero motion's."""
+    from lossvo.data.synthetic.writer import generate
+
+    kitti = generate(tmp_path / "kitti", ["00", "07"], frames=20, height=48, width=160, progress=False)
+    tum = generate(tmp_path / "tum", ["07"], frames=20, layout="tum", scale=0.25, progress=False)
+    name = "rgbd_dataset_freiburg1_synthetic_07"
+    sweep = tmp_path / "sweep"
+    record = data_record(kitti, ["07"], [])
+    scores = {"07": entry(0.1, 0.01)}
+    job = write_job(sweep, 0, "euler", {"train": ["00"], "val": ["07"]}, scores, record)
+    replace(results_json(record, scores), overall=Overall(["07"], scores["07"])).write(job / "results.json")
+    evaluated = replace(data_record(tum, [name], [], None), layout="tum", train_root=str(kitti))
+    tum_scores = replace(entry(0.2, 0.001), rpe_scaled=entry(0.05, 0.001).rpe)
+    results = results_json(evaluated, {name: tum_scores})
+    tum_entry = replace(results.sequences[name], metric_scale=False)
+    checkpoint = str(job / "checkpoints" / "best.ckpt")
+    results = replace(
+        results, sequences={name: tum_entry}, checkpoint=checkpoint, overall=Overall([name], tum_scores)
+    )
+    (sweep / "evaluations" / "tum").mkdir(parents=True)
+    results.write(sweep / "evaluations" / "tum" / "results.json")
+    report = make_report(sweep, tmp_path / "report", with_figures=False, n_jobs=1).read_text()
+    section = report.split("## Across datasets", 1)[1].splitlines()
+    table = [[c.strip() for c in line.strip("|").split("|")] for line in section if line.startswith("|")]
+    header = table[0]
+    rows = {
+        cells[0]: dict(zip(header, cells, strict=True)) for cells in table[2:] if cells[2].startswith("tum")
+    }
+    assert next(iter(rows)) == "loss=euler" and set(rows) == {"loss=euler", *baselines.NAMES}
+    zero, orb, network = rows[baselines.ZERO], rows[baselines.ORB], rows["loss=euler"]
+    assert zero["rot below zero motion"] == "0%"
+    expected = 1 - 0.001 / float(zero["RPE rot RMSE (rad)"])
+    assert network["rot below zero motion"] == f"{expected:.0%}"
+    assert (
+        network["RPE trans RMSE, scale given (m)"] == "0.05"
+        and network["translation read as"] == "scale given"
+    )
+    assert float(orb["RPE trans RMSE (m)"]) == pytest.approx(
+        float(orb["RPE trans RMSE, scale given (m)"]), rel=1e-3
+    )

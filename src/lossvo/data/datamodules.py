@@ -594,6 +594,10 @@ class VODataModule(L.LightningDataModule):
         self.setup()
         return self.sequences[name].poses
 
+    def sequence_layout(self, name: str) -> str:
+        """The layout one sequence is read in (a synthetic source's: the layout it is rendered in)."""
+        return self.source_of(name)[0].reader
+
     def sequence_times(self, name: str) -> np.ndarray:
         """(N,) float64 timestamps (s) of one sequence's frames."""
         self.setup()

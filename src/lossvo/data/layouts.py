@@ -27,6 +27,12 @@ READERS: dict[str, ModuleType] = {
 """Reader module of each layout; each has ``load_sequence(root, name, require_poses)`` and
 ``list_sequences(root)``."""
 LAYOUTS = tuple(READERS)
+METRIC_SCALE_LAYOUTS = ("kitti",)
+"""Layouts whose platform gives monocular metric scale a cue (a car's camera at a known height above a road):
+their translation is read as the metric RPE, the others' as the scale-given RPE (each step scaled to the
+ground truth's length)."""
+ASSUMED_RATE_HZ = {"tartanair": tartanair.RATE_HZ}
+"""Layouts without timestamps and the frame rate (Hz) their reader assumes."""
 
 
 def check_layout(layout: object, key: str = "layout") -> str:

@@ -39,7 +39,7 @@ T = TypeVar("T")
 ZERO, MEAN, ORB = "zero motion", "mean motion (train)", "ORB+E (GT scale)"
 OWN, FLOW = "own mean motion (oracle)", "flow yaw + road speed (one line)"
 NAMES: tuple[str, ...] = (ZERO, MEAN, ORB, OWN, FLOW)
-VERSION = 4
+VERSION = 5
 """Bump when a baseline's computation changes: cached results then no longer match."""
 
 MIN_MATCHES = 8

@@ -31,7 +31,7 @@ from torchmetrics.utilities import dim_zero_cat
 from lossvo import geometry
 from lossvo.checks import is_integer, is_number
 from lossvo.console import UserError
-from lossvo.evaluation.trajectories import integrate
+from lossvo.evaluation.trajectories import integrate, scale_steps
 
 AlignMode = Literal["none", "se3", "sim3", "scale"]
 ALIGN_MODES: tuple[str, ...] = ("none", "se3", "sim3", "scale")
@@ -563,6 +563,7 @@ def evaluate_relative(
     align: AlignMode = "none",
     delta: int = 1,
     pooled: Sequence[Metric] = (),
+    pooled_scaled: Sequence[Metric] = (),
 ) -> tuple[Tensor, dict[str, Any]]:
     """Relative poses -> trajectory -> scores: the one path that validation, evaluation and the
     baselines share.
@@ -570,13 +571,23 @@ def evaluate_relative(
     The (N-1, 4, 4) relative poses ``T_k`` are integrated from the first ground-truth pose
     (:func:`lossvo.evaluation.trajectories.integrate`) and scored against ``gt`` (N, 4, 4) with
     :func:`evaluate`; ``pooled`` metrics (:class:`APE`, :class:`RPE`, :class:`KittiOdometryError`) are updated
-    with the sequence, for scores over several sequences.
+    with the sequence, for scores over several sequences. The scale-given RPE (``rpe_scaled``) scores the
+    same steps each scaled to the ground-truth step length
+    (:func:`lossvo.evaluation.trajectories.scale_steps`, as the ORB+E baseline is scored): the translation's
+    direction where a camera gives no metric scale; ``pooled_scaled`` metrics are updated with that
+    trajectory.
 
     Returns:
-        trajectory (N, 4, 4) float64 and :func:`evaluate`'s dict.
+        trajectory (N, 4, 4) float64 and :func:`evaluate`'s dict with ``rpe_scaled`` added.
     """
     gt_t = torch.as_tensor(gt, dtype=torch.float64)
-    est = integrate(torch.as_tensor(relative, dtype=torch.float64), start=gt_t[0])
+    relative_t = torch.as_tensor(relative, dtype=torch.float64)
+    est = integrate(relative_t, start=gt_t[0])
     for metric in pooled:
         metric.update(est, gt_t)
-    return est, evaluate(gt_t, est, align, delta)
+    scaled = integrate(scale_steps(relative_t, geometry.consecutive_relative_poses(gt_t)), start=gt_t[0])
+    for metric in pooled_scaled:
+        metric.update(scaled, gt_t)
+    trans, rot = rpe_errors(scaled, gt_t, delta, align)
+    rpe_scaled = {"trans": statistics(trans), "rot_rad": statistics(rot)}
+    return est, evaluate(gt_t, est, align, delta) | {"rpe_scaled": rpe_scaled}

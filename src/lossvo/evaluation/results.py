@@ -31,6 +31,7 @@ from lossvo import geometry
 from lossvo.atomic import write_text_atomic
 from lossvo.checks import is_integer, is_number
 from lossvo.console import UserError
+from lossvo.data import layouts
 from lossvo.data.kitti import KittiFormatError, pose_path
 from lossvo.data.pose_files import write_poses
 from lossvo.data.sequence import sequence_names
@@ -204,22 +205,28 @@ class KittiError:
 @dataclass(frozen=True)
 class Scores:
     """One trajectory (or several pooled) against its ground truth: APE, RPE and the KITTI error, as
-    :func:`lossvo.evaluation.metrics.evaluate` computes them."""
+    :func:`lossvo.evaluation.metrics.evaluate` computes them, and the scale-given RPE ``rpe_scaled``
+    (each step scaled to the ground-truth step length; None: not recorded)."""
 
     ape: PoseErrors
     rpe: PoseErrors
     kitti: KittiError
+    rpe_scaled: PoseErrors | None = None
 
     @classmethod
     def from_json(cls, obj: Any, where: str = "") -> Scores:
-        """From :func:`lossvo.evaluation.metrics.evaluate`'s dict (or its JSON); ValueError naming the
-        key path of a field that does not fit."""
+        """From :func:`lossvo.evaluation.metrics.evaluate_relative`'s dict (or its JSON); ValueError naming
+        the key path of a field that does not fit."""
         obj = _object(obj, where)
         ape, rpe = (PoseErrors.from_json(_field(obj, k, where), _key(where, k)) for k in ("ape", "rpe"))
-        return cls(ape, rpe, KittiError.from_json(_field(obj, "kitti", where), _key(where, "kitti")))
+        kitti = KittiError.from_json(_field(obj, "kitti", where), _key(where, "kitti"))
+        scaled = obj.get("rpe_scaled")
+        scaled = None if scaled is None else PoseErrors.from_json(scaled, _key(where, "rpe_scaled"))
+        return cls(ape, rpe, kitti, scaled)
 
     def to_json(self) -> dict[str, Any]:
-        return {"ape": self.ape.to_json(), "rpe": self.rpe.to_json(), "kitti": self.kitti.to_json()}
+        out = {"ape": self.ape.to_json(), "rpe": self.rpe.to_json(), "kitti": self.kitti.to_json()}
+        return out | ({"rpe_scaled": self.rpe_scaled.to_json()} if self.rpe_scaled is not None else {})
 
 
 @dataclass(frozen=True)
@@ -227,7 +234,12 @@ class SequenceResult:
     """One evaluated sequence: its frame count, trajectory and plot files (relative to the run folder),
     the ground-truth pose file it was scored against (absolute; None without one), whether it is of a
     route family never trained on, its :class:`Scores` (None, with a ``note``, without ground
-    truth) and ``K``, the (3, 3) intrinsics of the frames the network saw (pixels; None: not recorded)."""
+    truth) and ``K``, the (3, 3) intrinsics of the frames the network saw (pixels; None: not recorded);
+    ``rate_hz``, the frames a second it was given (of the frames kept); ``rate_from``, ``"timestamps"``
+    or ``"assumed"`` (a layout without timestamps: its reader's rate,
+    :data:`lossvo.data.layouts.ASSUMED_RATE_HZ`); ``metric_scale``, whether the sequence's platform gives
+    metric scale a cue (:data:`lossvo.data.layouts.METRIC_SCALE_LAYOUTS`): its translation is read as the
+    metric RPE where true, as the scale-given RPE where false (each None: not recorded)."""
 
     frames: int
     trajectory: str
@@ -237,6 +249,9 @@ class SequenceResult:
     scores: Scores | None = None
     note: str | None = None
     K: list[list[float]] | None = None
+    rate_hz: float | None = None
+    rate_from: str | None = None
+    metric_scale: bool | None = None
 
     @classmethod
     def from_json(cls, obj: Any, where: str) -> SequenceResult:
@@ -254,13 +269,22 @@ class SequenceResult:
             scores=scores,
             note=note,
             K=_intrinsics(obj.get("K"), _key(where, "K")),
+            rate_hz=_number(obj.get("rate_hz"), _key(where, "rate_hz"), optional=True),
+            rate_from=_text(obj.get("rate_from"), _key(where, "rate_from"), optional=True),
+            metric_scale=_optional_flag(obj.get("metric_scale"), _key(where, "metric_scale")),
         )
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {"frames": self.frames, "trajectory": self.trajectory, "plot": self.plot}
         out |= {"note": self.note} if self.scores is None else self.scores.to_json()
-        out |= {"K": self.K} if self.K is not None else {}
+        optional = {"K": self.K, "rate_hz": self.rate_hz, "rate_from": self.rate_from}
+        optional["metric_scale"] = self.metric_scale
+        out |= {key: value for key, value in optional.items() if value is not None}
         return out | {"ground_truth": self.ground_truth, "unseen": self.unseen}
+
+
+def _optional_flag(value: Any, where: str) -> bool | None:
+    return None if value is None else _flag(value, where)
 
 
 def _intrinsics(value: Any, where: str) -> list[list[float]] | None:
@@ -559,13 +583,15 @@ class PooledScores:
         self.ape = metrics.APE(align=align, sync_on_compute=sync)
         self.rpe = metrics.RPE(delta=delta, align=align, sync_on_compute=sync)
         self.kitti = metrics.KittiOdometryError(sync_on_compute=sync)
+        self.rpe_scaled = metrics.RPE(delta=delta, align=align, sync_on_compute=sync)
 
     def compute(self) -> dict[str, Any] | None:
-        """:func:`lossvo.evaluation.metrics.evaluate`'s dict over every sequence scored; None before the
-        first."""
+        """:func:`lossvo.evaluation.metrics.evaluate_relative`'s dict over every sequence scored; None
+        before the first."""
         if not self.ape.trans:
             return None
-        return {"ape": self.ape.compute(), "rpe": self.rpe.compute(), "kitti": self.kitti.compute()}
+        computed = {"ape": self.ape.compute(), "rpe": self.rpe.compute(), "kitti": self.kitti.compute()}
+        return computed | {"rpe_scaled": self.rpe_scaled.compute()}
 
 
 def predict_and_score(
@@ -616,7 +642,9 @@ def predict_and_score(
     if translation_record(module) == TRANSLATION_SCALED:
         relative_t = scale_steps(relative_t, geometry.consecutive_relative_poses(gt_t))
     pooled_metrics = (pooled.ape, pooled.rpe, pooled.kitti)
-    return metrics.evaluate_relative(relative_t, gt_t, pooled.align, pooled.delta, pooled_metrics)
+    return metrics.evaluate_relative(
+        relative_t, gt_t, pooled.align, pooled.delta, pooled_metrics, (pooled.rpe_scaled,)
+    )
 
 
 def translation_record(module: nn.Module) -> str:
@@ -688,7 +716,7 @@ def evaluate_run(
             translation,
             _pose_file(datamodule, name, gt),
         )
-        per_sequence[name] = replace(entry, K=datamodule.intrinsics(name).tolist())
+        per_sequence[name] = replace(entry, K=datamodule.intrinsics(name).tolist(), **_rate(datamodule, name))
     evaluated = [name for name, entry in per_sequence.items() if entry.scores is not None]
     computed = pooled.compute()
     overall = Overall([], note=NO_METRICS_NOTE) if computed is None else Overall(evaluated, _scores(computed))
@@ -710,6 +738,27 @@ def evaluate_run(
     )
     result.write(out_dir / RESULTS)
     return result
+
+
+def _rate(datamodule: VODataModule, name: str) -> dict[str, Any]:
+    """A sequence's ``rate_hz``, ``rate_from`` and ``metric_scale`` (:class:`SequenceResult`): the frame rate
+    of its kept frames (1 / the median time step, s) and whether its layout's platform gives metric scale a
+    cue."""
+    layout = datamodule.sequence_layout(name)
+    steps = np.diff(datamodule.sequence_times(name))
+    rate = float(1.0 / np.median(steps)) if len(steps) else None
+    assumed = layout in layouts.ASSUMED_RATE_HZ
+    log.info(
+        "sequence %s: %s frames a second (%s)",
+        name,
+        f"{rate:.4g}" if rate else "?",
+        "assumed: the layout has no timestamps" if assumed else "from its timestamps",
+    )
+    return {
+        "rate_hz": rate,
+        "rate_from": "assumed" if assumed else "timestamps",
+        "metric_scale": layout in layouts.METRIC_SCALE_LAYOUTS,
+    }
 
 
 def _scores(computed: dict[str, Any]) -> Scores:

@@ -14,12 +14,16 @@ evaluations (on the data each job trained with) are the rows where both datasets
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
-from lossvo.evaluation.results import DataRecord, Results, ResultsError
+from lossvo.console import first_line
+from lossvo.evaluation import baselines
+from lossvo.evaluation.metrics import AlignMode
+from lossvo.evaluation.results import DataRecord, Results, ResultsError, Scores
 from lossvo.report.jobs import Job
 from lossvo.table_render import Rows
 
@@ -29,7 +33,13 @@ ACROSS_TITLE = "Across datasets: trained on X, evaluated on Y"
 ACROSS_TEXT = (
     "Each configuration's checkpoints evaluated on other datasets (`python -m lossvo.eval ... "
     f"hydra.run.dir=SWEEP/{EVALUATIONS}/...`): mean ± standard deviation over seeds (n) of the APE and RPE "
-    "pooled over the evaluated sequences; rows whose two datasets agree are the sweep's own evaluations."
+    "pooled over the evaluated sequences; rows whose two datasets agree are the sweep's own evaluations. "
+    "The scale-given RPE scores each predicted step scaled to the ground truth's length (as ORB+E); a "
+    "platform whose camera gives metric scale a cue (a car's, at a known height above a road) is read by the "
+    "metric RPE, the others by the scale-given one (*translation read as*). On each other dataset the "
+    "baselines follow its networks, computed on the same sequences (the mean motion and the flow's speed "
+    "fitted on the training split of a network trained on one dataset); *rot below zero motion* is how far "
+    "the mean rotation RPE lies below zero motion's there."
 )
 HEADER = (
     "network",
@@ -39,7 +49,10 @@ HEADER = (
     "n",
     "APE trans RMSE (m)",
     "RPE trans RMSE (m)",
+    "RPE trans RMSE, scale given (m)",
     "RPE rot RMSE (rad)",
+    "rot below zero motion",
+    "translation read as",
 )
 
 
@@ -83,15 +96,23 @@ def _key(job: Job, results: Results) -> tuple[str, str, str]:
 
 
 def _cell(values: list[float]) -> str:
-    """``mean ± std`` (sample standard deviation; the mean alone for one value)."""
+    """``mean ± std`` (sample standard deviation; the mean alone for one value; ``-`` for none)."""
+    if not values:
+        return "-"
     if len(values) == 1:
         return f"{values[0]:.4g}"
     return f"{np.mean(values):.4g} ± {np.std(values, ddof=1):.2g}"
 
 
-def across_rows(jobs: Sequence[Job], evaluations: Sequence[Evaluation]) -> Rows:
+def across_rows(
+    jobs: Sequence[Job],
+    evaluations: Sequence[Evaluation],
+    base: dict[str, dict[str, Rmses]] | None = None,
+) -> Rows:
     """The table: one row per (configuration, trained on, evaluated on), the sweep's own evaluations first,
-    then the other datasets in name order; cells over seeds (:func:`_cell`)."""
+    then the other datasets in name order, each followed by its baselines (``base``: {evaluated dataset:
+    {baseline: pooled RMSEs}}, :func:`across_baselines`); cells over seeds (:func:`_cell`)."""
+    base = base or {}
     runs = [(job, job.included_results) for job in jobs if job.included]
     runs += [(e.job, e.results) for e in evaluations]
     groups: dict[tuple[str, str, str], list[Results]] = {}
@@ -99,20 +120,116 @@ def across_rows(jobs: Sequence[Job], evaluations: Sequence[Evaluation]) -> Rows:
         if results.overall.scores is not None:
             groups.setdefault(_key(job, results), []).append(results)
     order = sorted(groups, key=lambda k: (k[2] != k[1], k[2], k[0]))
-    rows = []
-    for label, trained, evaluated in order:
-        scores = [r.overall.scores for r in groups[label, trained, evaluated] if r.overall.scores is not None]
-        sequences = ", ".join(groups[label, trained, evaluated][0].overall.sequences)
-        rows.append(
-            [
-                label,
-                trained,
-                evaluated,
-                sequences,
-                len(scores),
-                _cell([s.ape.trans.rmse for s in scores]),
-                _cell([s.rpe.trans.rmse for s in scores]),
-                _cell([s.rpe.rot_rad.rmse for s in scores]),
-            ]
-        )
+    rows: list[list[object]] = []
+    for i, (label, trained, evaluated) in enumerate(order):
+        group = groups[label, trained, evaluated]
+        scores = [r.overall.scores for r in group if r.overall.scores is not None]
+        zero = base.get(evaluated, {}).get(baselines.ZERO)
+        cells = _score_cells([Rmses.of(s) for s in scores], zero)
+        sequences, read = ", ".join(group[0].overall.sequences), read_as(group[0])
+        rows.append([label, trained, evaluated, sequences, len(scores), *cells, read])
+        last_of_dataset = i + 1 == len(order) or order[i + 1][2] != evaluated
+        for name, pooled in base.get(evaluated, {}).items() if last_of_dataset else ():
+            rows.append([name, "-", evaluated, sequences, "-", *_score_cells([pooled], zero), read])
     return Rows(HEADER, rows)
+
+
+@dataclass(frozen=True)
+class Rmses:
+    """What a row shows of one set of scores: the APE and RPE translation RMSEs (m), the scale-given RPE's
+    (m; None: not recorded) and the RPE rotation RMSE (rad)."""
+
+    ape: float
+    rpe: float
+    rpe_scaled: float | None
+    rot: float
+
+    @classmethod
+    def of(cls, scores: Scores) -> Rmses:
+        scaled = None if scores.rpe_scaled is None else scores.rpe_scaled.trans.rmse
+        return cls(scores.ape.trans.rmse, scores.rpe.trans.rmse, scaled, scores.rpe.rot_rad.rmse)
+
+
+def _score_cells(values: Sequence[Rmses], zero: Rmses | None) -> list[str]:
+    """APE, RPE, scale-given RPE and rotation cells over ``values`` (one a seed) and the rotation's reduction
+    against ``zero`` (zero motion's; ``-`` without)."""
+    rot = [v.rot for v in values]
+    below = "-" if zero is None else f"{1 - float(np.mean(rot)) / zero.rot:.0%}"
+    scaled = [v.rpe_scaled for v in values if v.rpe_scaled is not None]
+    return [_cell([v.ape for v in values]), _cell([v.rpe for v in values]), _cell(scaled), _cell(rot), below]
+
+
+def across_baselines(
+    evaluations: Sequence[Evaluation], cache_dir: Path, n_jobs: int
+) -> tuple[dict[str, dict[str, Rmses]], list[str]]:
+    """The baselines (:func:`lossvo.evaluation.baselines.compute_baselines`) on each dataset the sweep's
+    checkpoints were evaluated on, other than their training data, pooled over the evaluated sequences
+    (:func:`pooled_rmses`): {evaluated dataset: {baseline: RMSEs}}, and a note for each dataset without.
+
+    The mean motion and the flow's speed scale need one training split: that of the first evaluation (on the
+    dataset, else on any) whose network was trained on one dataset; without one, that dataset has none."""
+    by_dataset: dict[str, list[Results]] = {}
+    for e in evaluations:
+        data = e.results.data
+        evaluated = dataset_name(data.layout, data.root)
+        if evaluated != dataset_name(data.train_layout, data.train_root) and e.results.overall.scores:
+            by_dataset.setdefault(evaluated, []).append(e.results)
+    single = [e.results.data for e in evaluations if e.results.data.train_layout != "multi"]
+    out, notes = {}, []
+    for evaluated, results in sorted(by_dataset.items()):
+        own = [r.data for r in results if r.data.train_layout != "multi"]
+        training = next(iter(own or single), None)
+        if training is None:
+            notes.append(f"{evaluated}: no baselines: every network evaluated trained on several datasets")
+            continue
+        first = results[0]
+        data = with_training(first.data, training)
+        sequences = first.overall.sequences
+        try:
+            align = cast("AlignMode", first.align)
+            computed = baselines.compute_baselines(data, sequences, cache_dir, align, first.delta, n_jobs)
+        except Exception as e:  # missing data, a damaged sequence: the table goes on without them
+            notes.append(f"{evaluated}: baselines skipped: {type(e).__name__}: {first_line(e)}")
+            continue
+        out[evaluated] = {
+            name: pooled_rmses([computed[s][name] for s in sequences], first.delta)
+            for name in baselines.NAMES
+        }
+    return out, notes
+
+
+def with_training(data: DataRecord, training: DataRecord) -> DataRecord:
+    """``data``'s evaluated dataset with ``training``'s training split (root, names, layout, frames kept)."""
+    keys = ("train_root", "train", "train_layout", "train_keep_every")
+    return replace(data, **{key: getattr(training, key) for key in keys})
+
+
+def pooled_rmses(results: Sequence[baselines.BaselineResult], delta: int) -> Rmses:
+    """One baseline's RMSEs pooled over sequences, as a network's ``overall``: each over every sequence's
+    errors, from each sequence's RMSE and its count of poses (APE) or of pose pairs ``delta`` apart (RPE)."""
+    frames = np.array([len(r.trajectory) for r in results], dtype=np.float64)
+    pairs = np.maximum(frames - delta, 0)
+    each = [Rmses.of(r.scores) for r in results]
+
+    def rmse(values: Sequence[float | None], counts: np.ndarray) -> float:
+        squares = np.square(np.asarray(values, dtype=np.float64)) * counts
+        return float(np.sqrt(np.sum(squares) / max(float(np.sum(counts)), 1.0)))
+
+    scaled = [v.rpe_scaled for v in each]
+    return Rmses(
+        ape=rmse([v.ape for v in each], frames),
+        rpe=rmse([v.rpe for v in each], pairs),
+        rpe_scaled=None if None in scaled else rmse(scaled, pairs),
+        rot=rmse([v.rot for v in each], pairs),
+    )
+
+
+def read_as(results: Results) -> str:
+    """Which translation RPE reads an evaluation: ``metric`` where every scored sequence's platform gives
+    metric scale a cue, ``scale given`` where none does, ``per sequence`` for a mix, ``-`` unrecorded."""
+    flags = {s.metric_scale for s in results.sequences.values() if s.scores is not None}
+    if flags == {True}:
+        return "metric"
+    if flags == {False}:
+        return "scale given"
+    return "-" if flags <= {None} else "per sequence"

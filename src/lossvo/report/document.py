@@ -16,7 +16,14 @@ from pathlib import Path
 from lossvo import table_render
 from lossvo.atomic import write_text_atomic
 from lossvo.evaluation.results import file_stem
-from lossvo.report.across_datasets import ACROSS_TEXT, ACROSS_TITLE, across_rows, find_evaluations
+from lossvo.report.across_datasets import (
+    ACROSS_TEXT,
+    ACROSS_TITLE,
+    Rmses,
+    across_baselines,
+    across_rows,
+    find_evaluations,
+)
 from lossvo.report.against_baselines import (
     UNSEEN_KEY,
     BaselineRun,
@@ -386,7 +393,7 @@ def render_report(sweep: Path, out: Path, contents: Contents) -> str:
 
 def across_lines(table: Rows | None, notes: Sequence[str]) -> list[str]:
     """The section "Across datasets" where the sweep's checkpoints were evaluated on other data."""
-    unused = [f"- evaluation not used: {note}" for note in notes]
+    unused = [f"- {note}" for note in notes]
     if table is None or not any(row[1] != row[2] for row in table.rows):
         return ["", *unused] if unused else []
     lines = ["", f"## {ACROSS_TITLE}", "", ACROSS_TEXT, "", table_render.markdown(table)]
@@ -497,8 +504,13 @@ def make_report(
     speed = speed_rows(networks, ground_truth(source, sequences)[0], sequences) if source else None
     if speed is not None:
         write_text_atomic(out / "tables" / "speed.csv", table_render.csv_text(speed))
-    evaluations, across_notes = find_evaluations(sweep, included)
-    across = across_rows(included, evaluations) if evaluations else None
+    evaluations, unused = find_evaluations(sweep, included)
+    across_notes = [f"evaluation not used: {note}" for note in unused]
+    across_base: dict[str, dict[str, Rmses]] = {}
+    if with_baselines and evaluations:
+        across_base, base_notes = across_baselines(evaluations, out / "cache", n_jobs or os.cpu_count() or 1)
+        across_notes += base_notes
+    across = across_rows(included, evaluations, across_base) if evaluations else None
     if across is not None:
         write_text_atomic(out / "tables" / "across_datasets.csv", table_render.csv_text(across))
     contents = Contents(
