@@ -122,7 +122,9 @@ class Sweep:
     def _poll(self) -> None:
         submitit = self.folder / ".submitit"
         if not self.job and submitit.is_dir():  # submitit submits a one-job sweep alone, not as an array
-            self.job = next((p.name for p in sorted(submitit.glob("[0-9]*"))), "")
+            # a job's folder is named by its id; submitit's submission pickles (``<hex uuid>.pkl``) sit beside
+            jobs = sorted(p.name for p in submitit.iterdir() if p.is_dir() and p.name.isdigit())
+            self.job = jobs[0] if jobs else ""
         if self.job:
             self.watch.look(self.job)
 
