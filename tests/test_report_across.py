@@ -65,6 +65,20 @@ def test_evaluations_on_other_data_make_the_across_datasets_table(sweep: Path, t
     assert (tmp_path / "report" / "tables" / "across_datasets.csv").is_file()
 
 
+def test_an_evaluation_on_other_sequences_of_the_training_data_is_a_row_not_a_seed(
+    sweep: Path, tmp_path: Path
+) -> None:
+    kitti, job = tmp_path / "synthetic", next(sweep.glob("0_*"))
+    write_evaluation(sweep / "evaluations" / "again" / "0", job, "kitti", kitti, 0.5, kitti)
+    report = make_report(sweep, tmp_path / "report", with_baselines=False, with_figures=False).read_text()
+    section = report.split("## Across datasets", 1)[1].splitlines()
+    table = [[c.strip() for c in line.strip("|").split("|")] for line in section if line.startswith("|")]
+    rows = {(cells[0], cells[2], cells[3]): cells for cells in table[2:]}
+    assert rows[("loss=euler", "kitti: synthetic", "07")][4] == "2"  # the sweep's own, its two seeds
+    again = rows[("loss=euler", "kitti: synthetic", "s")]
+    assert again[4] == "1" and again[6] == "0.5"
+
+
 def test_no_evaluations_no_section(sweep: Path, tmp_path: Path) -> None:
     for path in sorted((sweep / "evaluations").rglob("*"), reverse=True):
         path.unlink() if path.is_file() else path.rmdir()

@@ -90,9 +90,12 @@ def find_evaluations(sweep: Path, jobs: Sequence[Job]) -> tuple[list[Evaluation]
     return found, notes
 
 
-def _key(job: Job, results: Results) -> tuple[str, str, str]:
+def _key(job: Job, results: Results) -> tuple[str, str, str, str]:
+    """A row: the configuration, its training data, the evaluated data and sequences (so that an evaluation
+    on other sequences of the training data is a row of its own, not one more seed of the sweep's own)."""
     data: DataRecord = results.data
-    return job.label, dataset_name(data.train_layout, data.train_root), dataset_name(data.layout, data.root)
+    trained = dataset_name(data.train_layout, data.train_root)
+    return job.label, trained, dataset_name(data.layout, data.root), ", ".join(results.overall.sequences)
 
 
 def _cell(values: list[float]) -> str:
@@ -109,24 +112,24 @@ def across_rows(
     evaluations: Sequence[Evaluation],
     base: dict[str, dict[str, Rmses]] | None = None,
 ) -> Rows:
-    """The table: one row per (configuration, trained on, evaluated on), the sweep's own evaluations first,
-    then the other datasets in name order, each followed by its baselines (``base``: {evaluated dataset:
-    {baseline: pooled RMSEs}}, :func:`across_baselines`); cells over seeds (:func:`_cell`)."""
+    """The table: one row per (configuration, trained on, evaluated on, sequences), the sweep's own
+    evaluations first, then the other datasets in name order, each followed by its baselines (``base``:
+    {evaluated dataset: {baseline: pooled RMSEs}}, :func:`across_baselines`); cells over seeds
+    (:func:`_cell`)."""
     base = base or {}
     runs = [(job, job.included_results) for job in jobs if job.included]
     runs += [(e.job, e.results) for e in evaluations]
-    groups: dict[tuple[str, str, str], list[Results]] = {}
+    groups: dict[tuple[str, str, str, str], list[Results]] = {}
     for job, results in runs:
         if results.overall.scores is not None:
             groups.setdefault(_key(job, results), []).append(results)
-    order = sorted(groups, key=lambda k: (k[2] != k[1], k[2], k[0]))
+    order = sorted(groups, key=lambda k: (k[2] != k[1], k[2], k[3], k[0]))
     rows: list[list[object]] = []
-    for i, (label, trained, evaluated) in enumerate(order):
-        group = groups[label, trained, evaluated]
+    for i, key in enumerate(order):
+        (label, trained, evaluated, sequences), group = key, groups[key]
         scores = [r.overall.scores for r in group if r.overall.scores is not None]
         zero = base.get(evaluated, {}).get(baselines.ZERO)
-        cells = _score_cells([Rmses.of(s) for s in scores], zero)
-        sequences, read = ", ".join(group[0].overall.sequences), read_as(group[0])
+        cells, read = _score_cells([Rmses.of(s) for s in scores], zero), read_as(group[0])
         rows.append([label, trained, evaluated, sequences, len(scores), *cells, read])
         last_of_dataset = i + 1 == len(order) or order[i + 1][2] != evaluated
         for name, pooled in base.get(evaluated, {}).items() if last_of_dataset else ():
