@@ -27,6 +27,12 @@ def write_evaluation(
     results.write(folder / "results.json")
 
 
+def across_table(report: str) -> list[list[str]]:
+    """The cells of the report's Across datasets table, its header first."""
+    section = report.split("## Across datasets", 1)[1].splitlines()
+    return [[c.strip() for c in line.strip("|").split("|")] for line in section if line.startswith("|")]
+
+
 @pytest.fixture
 def sweep(tmp_path: Path) -> Path:
     """Two configurations (euler, quat), each with two seeds; seed 0 and 1 of each evaluated on a
@@ -51,8 +57,7 @@ def sweep(tmp_path: Path) -> Path:
 
 def test_evaluations_on_other_data_make_the_across_datasets_table(sweep: Path, tmp_path: Path) -> None:
     report = make_report(sweep, tmp_path / "report", with_baselines=False, with_figures=False).read_text()
-    section = report.split("## Across datasets", 1)[1].splitlines()
-    table = [[c.strip() for c in line.strip("|").split("|")] for line in section if line.startswith("|")]
+    table = across_table(report)
     assert table[0][:5] == ["network", "trained on", "evaluated on", "sequences", "n"]
     by_key = {(cells[0], cells[2]): cells for cells in table[2:]}
     assert len(by_key) == len(table) - 2 == 4
@@ -71,8 +76,7 @@ def test_an_evaluation_on_other_sequences_of_the_training_data_is_a_row_not_a_se
     kitti, job = tmp_path / "synthetic", next(sweep.glob("0_*"))
     write_evaluation(sweep / "evaluations" / "again" / "0", job, "kitti", kitti, 0.5, kitti)
     report = make_report(sweep, tmp_path / "report", with_baselines=False, with_figures=False).read_text()
-    section = report.split("## Across datasets", 1)[1].splitlines()
-    table = [[c.strip() for c in line.strip("|").split("|")] for line in section if line.startswith("|")]
+    table = across_table(report)
     rows = {(cells[0], cells[2], cells[3]): cells for cells in table[2:]}
     assert rows[("loss=euler", "kitti: synthetic", "07")][4] == "2"  # the sweep's own, its two seeds
     again = rows[("loss=euler", "kitti: synthetic", "s")]
@@ -112,8 +116,7 @@ def test_each_other_dataset_gets_its_baselines_and_the_rotation_against_zero_mot
     (sweep / "evaluations" / "tum").mkdir(parents=True)
     results.write(sweep / "evaluations" / "tum" / "results.json")
     report = make_report(sweep, tmp_path / "report", with_figures=False, n_jobs=1).read_text()
-    section = report.split("## Across datasets", 1)[1].splitlines()
-    table = [[c.strip() for c in line.strip("|").split("|")] for line in section if line.startswith("|")]
+    table = across_table(report)
     header = table[0]
     rows = {
         cells[0]: dict(zip(header, cells, strict=True)) for cells in table[2:] if cells[2].startswith("tum")
