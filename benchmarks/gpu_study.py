@@ -216,7 +216,9 @@ def random_windows(size: tuple[int, int], frames: int, device: torch.device) -> 
     starts = np.arange(frames - 1)
     index = np.stack([np.zeros_like(starts), starts, starts + 2, np.ones_like(starts)], axis=1)
     K = gpu_path.kitti_like_K(H, W)
-    return resident.ResidentWindows(index, [image], {1: [targets]}, [K], {1: [flow]}, device)
+    return resident.ResidentWindows(
+        index, [image], {1: [targets]}, [K], [torch.tensor(True)], {1: [flow]}, device
+    )
 
 
 class Gathered:

@@ -169,10 +169,16 @@ def test_one_run_trains_on_two_datasets_and_evaluates_each(
     assert len(Ks) == 2  # KITTI's camera and freiburg1's (undistorted), each resized to 64x96
     starts = dm.datasets["train"].index[:, 0]
     assert set(starts.tolist()) == {0, 1, 2}  # windows from every training sequence of both datasets
+    # the car's camera gives metric scale a cue, the handheld TUM camera does not: one flag a window
+    assert [bool(m) for m in dm.datasets["train"].metric] == [True, True, False]
+    dataset = dm.datasets["train"]
+    flags = torch.stack([dataset[i]["metric"] for i in range(len(dataset))])
+    assert torch.equal(flags, torch.from_numpy(starts < 2))
     fit(cfg)
     results = json.loads((tmp_path / "run" / "results.json").read_text())
     assert list(results["sequences"]) == ["kitti/02", tum_test]
     assert results["data"]["layout"] == "multi"
+    assert [results["sequences"][n]["metric_scale"] for n in ("kitti/02", tum_test)] == [True, False]
     stem = tum_test.replace("/", "_")
     entry = results["sequences"][tum_test]
     check_ape_against_evo(

@@ -445,3 +445,45 @@ def test_the_rankings_and_the_interaction_test_follow_the_jobs_results(
     assert {(r["architecture"], r["configuration"]) for r in claim_rows} == {
         (a, f"model={a},loss=chordal") for a in ARCHITECTURES
     }
+
+
+def test_claims_pair_configurations_trained_on_the_same_data(tmp_path: Path) -> None:
+    """A sweep over ``data`` and ``loss``: each training dataset evaluates its own sequences, so the claims,
+    the rankings and the configurations' groups are made within each dataset, never across them."""
+    from test_report import data_record, entry, write_job
+
+    sweep, number = tmp_path / "sweep", 0
+    for data, sequence in (("mix", "car/07"), ("synthetic", "07")):
+        record = data_record(tmp_path / data, [sequence], [])
+        for loss in ("euler", "chordal"):
+            for seed in range(3):
+                rpe = (0.1 if loss == "chordal" else 0.2) + 0.01 * seed + (0.5 if data == "mix" else 0.0)
+                scores = {sequence: entry(rpe, 0.01)}
+                job = write_job(sweep, number, loss, {"train": ["00"], "val": [sequence]}, scores, record)
+                job = job.rename(sweep / f"{number}_data-{data}+loss-{loss}+seed-{seed}")
+                overrides = [f"data={data}", "model=flowvo", f"loss={loss}", f"seed={seed}"]
+                (job / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(overrides))
+                config = yaml.safe_load((job / ".hydra" / "config.yaml").read_text())
+                target = {"_target_": f"lossvo.losses.{LOSS_CLASSES[loss]}"}
+                (job / ".hydra" / "config.yaml").write_text(
+                    yaml.safe_dump({**config, "seed": seed, "loss": target})
+                )
+                number += 1
+    report = make_report(sweep, tmp_path / "report", with_baselines=False, with_figures=False).read_text()
+    claims = report.split("## The study's claims", 1)[1]
+    for data in ("mix", "synthetic"):
+        section = claims.split(f"### Architecture `flowvo on data={data}`", 1)[1].split(
+            "### Architecture", 1
+        )[0]
+        rows = [
+            line.split(" | ") for line in section.splitlines() if line.startswith("| RPE trans RMSE [m] |")
+        ]
+        paired = rows[0]  # paired by seed: 3 seeds of each configuration, every one 0.1 m lower with chordal
+        assert paired[1:4] == [f"data={data},loss=euler", "3", "-0.1000"], paired
+    ranking = [
+        line for line in report.splitlines() if line.startswith("| RPE trans RMSE [m] | flowvo on data=")
+    ]
+    assert [line.split(" | ")[2] for line in ranking[:2]] == [
+        "loss=chordal (0.6100 ± 0.010) < loss=euler (0.7100 ± 0.010) |",
+        "loss=chordal (0.1100 ± 0.010) < loss=euler (0.2100 ± 0.010) |",
+    ]

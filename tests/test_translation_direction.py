@@ -208,18 +208,22 @@ def test_direction_yardstick_scales_each_step_to_the_ground_truth_length(cls: ty
 def test_bad_translation_is_one_line_at_construction(cls: type[PoseLoss], bad: object) -> None:
     with pytest.raises(UserError) as caught:
         cls(translation=bad)
-    assert str(caught.value) == f"loss.translation: expected one of metric, direction, got {bad!r}"
+    assert str(caught.value) == f"loss.translation: expected one of metric, direction, cue, got {bad!r}"
 
 
 @pytest.mark.parametrize("name", ["euler", "quat", "chordal", "geodesic", "sixd", "svd", "quat10d"])
-def test_every_loss_config_says_metric_and_takes_direction(name: str) -> None:
+def test_every_loss_config_says_cue_and_takes_metric_and_direction(name: str) -> None:
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose("train", overrides=[f"loss={name}"])
-        direction = instantiate(
-            compose("train", overrides=[f"loss={name}", "loss.translation=direction"]).loss
-        )
-    assert cfg.loss.translation == "metric" and instantiate(cfg.loss).translation == "metric"
-    assert direction.translation == "direction"
+        chosen = {
+            value: instantiate(compose("train", overrides=[f"loss={name}", f"loss.translation={value}"]).loss)
+            for value in ("metric", "direction")
+        }
+    assert cfg.loss.translation == "cue" and instantiate(cfg.loss).translation == "cue"
+    assert {value: loss.translation for value, loss in chosen.items()} == {
+        "metric": "metric",
+        "direction": "direction",
+    }
 
 
 # -- evaluation: steps scaled to the ground-truth step lengths ---------------------------------------

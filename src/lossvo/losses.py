@@ -16,8 +16,10 @@ from lossvo.checks import is_number
 from lossvo.console import UserError
 from lossvo.weighting import DEFAULT_C, HomoscedasticWeighting, check_k, check_unsquared, learned_from_config
 
-TRANSLATIONS = ("metric", "direction")
-"""The translation terms (``loss.translation``): ``|t - t^|^2``, or the direction only, up to scale."""
+TRANSLATIONS = ("metric", "direction", "cue")
+"""The translation terms (``loss.translation``): ``|t - t^|^2``; the direction only, up to scale; or
+``|t - t^|^2`` on the windows whose platform gives metric scale a cue and the scale-given
+``|t |t^| / |t| - t^|^2`` on the others (:meth:`PoseLoss.translation_term`)."""
 
 MIN_STEP_M = 1e-3
 """The shortest step with a direction, in metres. ``translation="direction"``: a ground-truth step
@@ -48,9 +50,12 @@ class PoseLoss(nn.Module):
         k: rotation weight; None: the matched weighting ``100 / small_angle_gain``.
         learned: initial log-variances ``{"s_t": .., "s_r": ..}`` for the learned (homoscedastic)
             weighting instead of k (then k must be None).
-        translation: ``"metric"`` (``|t - t^|^2``, the study's) or ``"direction"``: the direction only,
-            ``DIRECTION_WEIGHT_M2 * |t / |t| - t^ / |t^||^2`` (:meth:`translation_term`); metric scale
-            then comes from evaluation, which scales each step to the ground-truth length.
+        translation: ``"metric"`` (``|t - t^|^2``, the study's); ``"direction"``: the direction only,
+            ``DIRECTION_WEIGHT_M2 * |t / |t| - t^ / |t^||^2`` (:meth:`translation_term`), metric scale
+            then coming from evaluation, which scales each step to the ground-truth length; or ``"cue"``:
+            metric on the windows whose platform gives metric scale a cue (the batch's ``metric`` flag), on
+            the others the step scaled to the target's length, ``|t |t^| / |t| - t^|^2``, as their
+            translation is scored (the scale-given RPE).
     """
 
     dim: int
@@ -129,12 +134,14 @@ class PoseLoss(nn.Module):
 
     # -- loss -------------------------------------------------------------------------------------
 
-    def forward(self, pred: Tensor, target: Tensor) -> dict[str, Tensor]:
+    def forward(self, pred: Tensor, target: Tensor, metric: Tensor | None = None) -> dict[str, Tensor]:
         """Loss between network outputs and relative-pose targets.
 
         Args:
             pred: (B, T, dim) network outputs (any leading dims, matching ``target``'s).
             target: (B, T, 4, 4) relative poses ``inv(T_w_k) @ T_w_{k+1}``.
+            metric: (B,) bool, whether each window's platform gives metric scale a cue (read by
+                ``translation="cue"`` only; None: every window's does).
         Returns:
             Scalar tensors ``loss``, the unweighted means ``trans_loss`` and ``rot_loss``, and two
             yardsticks without gradient, the same for every loss: ``trans_err_m`` (mean ``|t - t^|``,
@@ -142,12 +149,16 @@ class PoseLoss(nn.Module):
         """
         self._check_pred(pred)
         self._check_target(pred, target)
+        if metric is not None and (metric.dim() != 1 or pred.dim() < 2 or len(metric) != pred.shape[0]):
+            raise ValueError(
+                f"metric: expected shape ({pred.shape[0]},), one flag a window, got {tuple(metric.shape)}"
+            )
         dtype = torch.promote_types(pred.dtype, torch.float32)
         with torch.autocast(device_type=pred.device.type, enabled=False):
             pred, target = pred.to(dtype), target.to(dtype)
             R_target, t_target = target[..., :3, :3], target[..., :3, 3]
             R, t = self.decode_rt(pred)
-            trans, trans_err = self.translation_term(t, t_target)
+            trans, trans_err = self.translation_term(t, t_target, metric)
             rot = self.rotation_term(pred, R, R_target)
             with torch.no_grad():
                 rot_err = g.so3_geodesic_distance(R_target, R).mean()
@@ -163,7 +174,9 @@ class PoseLoss(nn.Module):
                 out.update(self.weighting.values())
             return out
 
-    def translation_term(self, t: Tensor, t_target: Tensor) -> tuple[Tensor, Tensor]:
+    def translation_term(
+        self, t: Tensor, t_target: Tensor, metric: Tensor | None = None
+    ) -> tuple[Tensor, Tensor]:
         """The translation term per pair and the yardstick ``trans_err_m`` (its mean, no gradient).
 
         For a direction error alpha, ``|u - u^|^2 = 2 - 2 cos(alpha) = alpha^2 + O(alpha^4)``: the
@@ -171,15 +184,23 @@ class PoseLoss(nn.Module):
         :data:`MIN_STEP_M` (finite value and gradient at ``t = 0``); a ground-truth step shorter than it
         has no direction and no term, and the mean still divides by all pairs.
 
+        ``cue``: the metric term where ``metric`` is true, elsewhere the scale-given term
+        ``|t |t^| / |t| - t^|^2``, in m^2 as the metric term is (a step's direction error alpha costs
+        ``|t^|^2 alpha^2``: short steps, whose direction is least observable, weigh least), with ``|t|``
+        floored as above; one kernel path for both (no host synchronisation).
+
         Args:
-            t: (..., 3) decoded translations (metres).
-            t_target: (..., 3) target translations (metres).
+            t: (B, ..., 3) decoded translations (metres).
+            t_target: (B, ..., 3) target translations (metres).
+            metric: (B,) bool for ``cue`` (None: every window metric).
         Returns:
-            (...) terms: ``|t - t^|^2`` (``metric``) or the direction term (``direction``, 0 where
-            ``|t^| < MIN_STEP_M``); and the scalar mean of ``|t - t^|`` (``metric``) or of
-            ``|t / |t| * |t^| - t^|`` (``direction``).
+            (B, ...) terms: ``|t - t^|^2`` (``metric``), the direction term (``direction``, 0 where
+            ``|t^| < MIN_STEP_M``) or either (``cue``); and the scalar mean of ``|t - t^|`` on metric
+            pairs and of ``|t / |t| * |t^| - t^|`` on the others.
         """
-        if self.translation == "metric":
+        if self.translation == "cue" and metric is not None:
+            return self._cue_term(t, t_target, metric)
+        if self.translation != "direction":
             trans_sq = (t - t_target).square().sum(-1)
             with torch.no_grad():
                 return trans_sq, torch.sqrt(trans_sq).mean()
@@ -192,6 +213,17 @@ class PoseLoss(nn.Module):
         with torch.no_grad():
             err = torch.linalg.vector_norm(g.scale_to_length(t, step) - t_target, dim=-1).mean()
         return term, err
+
+    @staticmethod
+    def _cue_term(t: Tensor, t_target: Tensor, metric: Tensor) -> tuple[Tensor, Tensor]:
+        """:meth:`translation_term` for ``cue``: (B, ...) terms and the scalar yardstick."""
+        metric = metric.to(torch.bool).view(-1, *([1] * (t.dim() - 2)))
+        step = torch.linalg.vector_norm(t_target, dim=-1, keepdim=True)
+        unit = t / torch.sqrt(t.square().sum(-1, keepdim=True).clamp_min(MIN_STEP_M**2))
+        error = torch.where(metric[..., None], t, unit * step) - t_target
+        term = error.square().sum(-1)
+        with torch.no_grad():
+            return term, torch.sqrt(term).mean()
 
     def weigh(self, trans_loss: Tensor, rot_loss: Tensor) -> Tensor:
         """The loss from the unweighted mean terms: ``L_t + k L_r``, or the learned weighting."""

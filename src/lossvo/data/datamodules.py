@@ -7,6 +7,7 @@ a batch is a dict, as the model receives it::
     "frames":  (B, seq_len, 3, H, W) float32, normalised per channel
     "targets": (B, seq_len - 1, 4, 4) float32, inv(T_w_k) @ T_w_{k+1} computed in float64
     "K":       (B, 3, 3) float32, the intrinsics of the cached frames (pixels)
+    "metric":  (B,) bool, whether the window's platform gives metric scale a cue (a KITTI-layout car)
     "flow":    (B, seq_len - 1, 2, H, W) float32, optical flow of each pair in pixels (with ``flow``)
 
 The loaders carry frames as uint8 (a window is one copy out of the memory map) and the DataModule
@@ -373,6 +374,7 @@ class VODataModule(L.LightningDataModule):
                 intrinsics=[self.intrinsics(n) for n, _ in labelled],
                 flow_files=flow_files,
                 times=[self.sequences[n].times for n, _ in labelled],
+                metric=[self.metric_scale(n) for n, _ in labelled],
             )
         if len(self.datasets["train"]) == 0 and self.splits["train"]:
             shortest = min(len(self.sequences[n].images) for n in self.splits["train"])
@@ -481,7 +483,9 @@ class VODataModule(L.LightningDataModule):
     def _resident_split(self, split: str, device: torch.device) -> resident.ResidentWindows:
         data = self.datasets[split]
         frames, flow = self._arrays(split)
-        return resident.ResidentWindows(data.index, frames, data.targets, data.intrinsics, flow, device)
+        return resident.ResidentWindows(
+            data.index, frames, data.targets, data.intrinsics, data.metric, flow, device
+        )
 
     # -- loaders --------------------------------------------------------------------------------------
 
@@ -597,6 +601,11 @@ class VODataModule(L.LightningDataModule):
     def sequence_layout(self, name: str) -> str:
         """The layout one sequence is read in (a synthetic source's: the layout it is rendered in)."""
         return self.source_of(name)[0].reader
+
+    def metric_scale(self, name: str) -> bool:
+        """Whether one sequence's platform gives monocular metric scale a cue
+        (:data:`lossvo.data.layouts.METRIC_SCALE_LAYOUTS`: a car's camera at a known height above a road)."""
+        return self.sequence_layout(name) in layouts.METRIC_SCALE_LAYOUTS
 
     def sequence_times(self, name: str) -> np.ndarray:
         """(N,) float64 timestamps (s) of one sequence's frames."""

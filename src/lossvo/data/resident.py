@@ -36,6 +36,7 @@ class ResidentWindows:
         frames: (N_i, 3, H, W) uint8 per sequence (memory maps are read once, a sequence at a time).
         targets: frame step -> (N_i - step, 4, 4) float32 relative poses per sequence.
         intrinsics: (3, 3) float32 K per sequence.
+        metric: () bool per sequence, whether its platform gives metric scale a cue.
         flow: frame step -> (N_i - step, 2, H, W) float16 flow per sequence; None without flow.
         device: where the arrays are kept and batches gathered.
     """
@@ -46,6 +47,7 @@ class ResidentWindows:
         frames: Sequence[np.ndarray],
         targets: dict[int, list[Tensor]],
         intrinsics: Sequence[Tensor],
+        metric: Sequence[Tensor],
         flow: dict[int, list[np.ndarray]] | None,
         device: torch.device,
     ) -> None:
@@ -58,6 +60,7 @@ class ResidentWindows:
         self.target_start = _table_offsets([targets[s] for s in steps])
         self.targets = torch.cat([t for s in steps for t in targets[s]]).to(device)
         self.K = torch.stack(list(intrinsics)).to(device)
+        self.metric = torch.stack(list(metric)).to(device)
         self.flow: Tensor | None = None
         if flow is not None:  # the same steps as the targets': each step's pairs have their flow
             self.flow = _stacked([f for s in steps for f in flow[s]], device)
@@ -91,12 +94,15 @@ class ResidentWindows:
 
     def gather(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         """The batch of windows an index batch names, as the host loader gives it: ``frames`` (B, L, 3, H, W)
-        uint8, ``targets`` (B, L-1, 4, 4) float32, ``K`` (B, 3, 3) float32 and, with flow, ``flow``
+        uint8, ``targets`` (B, L-1, 4, 4) float32, ``K`` (B, 3, 3) float32, ``metric`` (B,) bool and, with
+        flow, ``flow``
         (B, L-1, 2, H, W) float16, on the device (the index arrays may be on the host or the device)."""
+        sequence = batch["camera"].to(self.device, non_blocking=True)
         out = {
             "frames": _take(self.frames, batch["frame_index"]),
             "targets": _take(self.targets, batch["target_index"]),
-            "K": self.K.index_select(0, batch["camera"].to(self.device, non_blocking=True)),
+            "K": self.K.index_select(0, sequence),
+            "metric": self.metric.index_select(0, sequence),
         }
         if self.flow is not None:
             out["flow"] = _take(self.flow, batch["flow_index"])

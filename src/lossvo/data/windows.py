@@ -126,7 +126,8 @@ class WindowDataset(Dataset):
     """Windows of cached frames with their relative-pose targets.
 
     Items are dicts: ``frames`` (L, 3, H, W) uint8, ``targets`` (L - 1, 4, 4) float32, ``K`` (3, 3)
-    float32 and, with flow, ``flow`` (L - 1, 2, H, W) float16: a window costs one memory copy. Training
+    float32, ``metric`` () bool (whether the sequence's platform gives metric scale a cue) and, with flow,
+    ``flow`` (L - 1, 2, H, W) float16: a window costs one memory copy. Training
     windows (:func:`lossvo.data.training_starts`) have ``seq_len`` frames, start every ``stride``
     frames and exist at each frame step s of ``steps``: every s-th frame, with targets ``inv(T_w_k) @
     T_w_{k+s}`` computed from the poses in float64 (s = 2 doubles the speeds and rotations the network
@@ -146,18 +147,22 @@ class WindowDataset(Dataset):
             used; None: no flow.
         times: (N_i,) timestamps (s) per sequence: training windows never span a gap in them
             (:func:`gaps`); None: no gaps.
+        metric: per sequence, whether its platform gives metric scale a cue (None: every one does).
     """
 
     def __init__(
         self, cache_files: list[Path], poses: list[np.ndarray], seq_len: int, stride: int = 1,
         steps: Sequence[int] = (1,), tiled: bool = False, intrinsics: list[np.ndarray] | None = None,
         flow_files: dict[int, list[Path]] | None = None, times: list[np.ndarray] | None = None,
+        metric: Sequence[bool] | None = None,
     ) -> None:  # fmt: skip
         self.cache_files = cache_files
         self.flow_files = flow_files
         self.seq_len = seq_len
         Ks = intrinsics if intrinsics is not None else [np.eye(3)] * len(poses)
         self.intrinsics = [torch.from_numpy(np.asarray(K, dtype=np.float32)) for K in Ks]
+        flags = [True] * len(poses) if metric is None else list(metric)
+        self.metric = [torch.tensor(bool(flag)) for flag in flags]
         steps = (1,) if tiled else tuple(steps)
         self.targets = {
             s: [torch.from_numpy(relative_targets(p, s).astype(np.float32)) for p in poses] for s in steps
@@ -218,6 +223,7 @@ class WindowDataset(Dataset):
             "frames": torch.from_numpy(np.array(self.frames[seq][start:stop:step])),  # one copy
             "targets": self.targets[step][seq][start : stop - 1 : step],
             "K": self.intrinsics[seq],
+            "metric": self.metric[seq],
         }
         if self.flow_files is not None:  # pair (k, k + step) is field k of the step's flow
             item["flow"] = torch.from_numpy(np.array(self.flow[step][seq][start : stop - 1 : step]))

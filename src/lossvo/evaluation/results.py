@@ -52,9 +52,11 @@ SCHEMA_VERSION = 2
 """The version of :class:`Results` that this code writes and reads."""
 TRANSLATION_METRIC = "metric"
 TRANSLATION_SCALED = "direction (scaled to the ground-truth step length)"
-TRANSLATIONS = {"metric": TRANSLATION_METRIC, "direction": TRANSLATION_SCALED}
+TRANSLATIONS = {"metric": TRANSLATION_METRIC, "direction": TRANSLATION_SCALED, "cue": TRANSLATION_METRIC}
 """``Results.translation`` for each ``loss.translation`` (:data:`lossvo.losses.TRANSLATIONS`): a network
-trained on the direction only is scored with each predicted step scaled to the ground-truth step length."""
+trained on the direction only is scored with each predicted step scaled to the ground-truth step length;
+one trained on metric steps where a platform gives scale a cue chains its steps as predicted, and each
+sequence's ``metric_scale`` says whether its metric or its scale-given RPE is the one to read."""
 NO_SEGMENT_NOTE = "sequence too short for any KITTI segment (100-800 m): no KITTI error"
 NO_GT_NOTE = "no ground truth (no pose file): trajectory starts at identity, no metrics"
 NO_METRICS_NOTE = "no sequence with ground truth: no metrics"
@@ -757,7 +759,7 @@ def _rate(datamodule: VODataModule, name: str) -> dict[str, Any]:
     return {
         "rate_hz": rate,
         "rate_from": "assumed" if assumed else "timestamps",
-        "metric_scale": layout in layouts.METRIC_SCALE_LAYOUTS,
+        "metric_scale": datamodule.metric_scale(name),
     }
 
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from lossvo import table_render
 from lossvo.report import statistics
-from lossvo.report.claims import CLAIM_ERRORS, training_sequences
+from lossvo.report.claims import CLAIM_ERRORS, heldout_sequences
 from lossvo.report.configurations import architecture_groups, treatments
 from lossvo.report.statistics import InteractionTest
 from lossvo.report.tables import Cell, Column, fmt, mean_std_text, seed_scores
@@ -100,18 +100,18 @@ def interaction(
 
 def architecture_agreement(networks: Sequence[Column], sequences: Sequence[str]) -> Agreement:
     """Rankings per architecture and interaction tests per pair of architectures, on each quantity of
-    :data:`lossvo.report.claims.CLAIM_ERRORS`, over the evaluated ``sequences`` outside the training
-    split."""
+    :data:`lossvo.report.claims.CLAIM_ERRORS`, each architecture's over the ``sequences`` it evaluated
+    outside its training split (:func:`lossvo.report.claims.heldout_sequences`)."""
     groups = architecture_groups(networks)
     names = treatments(networks)
-    train = training_sequences([c for g in groups.values() for c in g])
-    heldout = [s for s in sequences if s not in train]
-    if not heldout:
+    heldout = {architecture: heldout_sequences(group, sequences) for architecture, group in groups.items()}
+    every = [s for s in sequences if any(s in h for h in heldout.values())]
+    if not every:
         return Agreement(untested="no evaluated sequence is outside the training split")
-    out = Agreement(heldout)
+    out = Agreement(every)
     for quantity, path in CLAIM_ERRORS:
         scores = {
-            architecture: {names[c.label]: seed_scores(c, path, heldout) for c in group}
+            architecture: {names[c.label]: seed_scores(c, path, heldout[architecture]) for c in group}
             for architecture, group in groups.items()
         }
         rankings = {architecture: rank(quantity, architecture, s) for architecture, s in scores.items()}
@@ -126,9 +126,10 @@ def architecture_agreement(networks: Sequence[Column], sequences: Sequence[str])
 # --------------------------------------------------------------------------------------------------
 
 AGREEMENT_TEXT = (
-    "The sweep varies the architecture. A seed's score is its mean over the sequences outside the training "
-    "split ({sequences}), as in claim (a); each architecture ranks its configurations, named without the "
-    "architecture, by the mean over seeds, lowest first. For each pair of architectures A, B, on the "
+    "The sweep varies the architecture. A seed's score is its mean over the sequences its architecture "
+    "evaluated outside its training split (of {sequences}), as in claim (a); each architecture ranks its "
+    "configurations, named without the architecture, by the mean over seeds, lowest first. For each pair "
+    "of architectures A, B, on the "
     "configurations both have and the seeds every one of them has, the differences d[l, s] = y[B, l, s] − "
     "y[A, l, s] (configuration l, seed s) are tested for an architecture × loss interaction "
     "(`lossvo.report.statistics.interaction_test`): F is the interaction F of the two-way ANOVA with seeds "

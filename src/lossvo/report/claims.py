@@ -85,6 +85,13 @@ def training_sequences(columns: Sequence[Column]) -> set[str]:
     return {s for c in columns for j in c.jobs for s in trained_sequences(j)}
 
 
+def heldout_sequences(columns: Sequence[Column], sequences: Sequence[str]) -> list[str]:
+    """The ``sequences`` that some job of ``columns`` evaluated and none of them trained on, in order."""
+    evaluated = {name for c in columns for per_sequence in c.results for name in per_sequence}
+    train = training_sequences(columns)
+    return [s for s in sequences if s in evaluated and s not in train]
+
+
 def restrict(column: Column, sequences: Sequence[str]) -> Column:
     """A copy of a column whose results hold only ``sequences``."""
     results = [{s: r[s] for s in sequences if s in r} for r in column.results]
@@ -220,11 +227,14 @@ def claims_by_architecture(
     columns: Sequence[Column], items: Sequence[Convergence], sequences: Sequence[str]
 ) -> list[Claim]:
     """:func:`study_claims` within each architecture (its chordal configurations against its other
-    configurations), architecture by architecture, each claim naming its architecture."""
+    configurations, on the sequences they evaluated), architecture by architecture, each claim naming its
+    architecture."""
     out = []
     for architecture, group in architecture_groups(columns).items():
         labels = {c.label for c in group}
-        for claim in study_claims(group, [i for i in items if i.label in labels], sequences):
+        evaluated = {name for c in group for per_sequence in c.results for name in per_sequence}
+        own = [s for s in sequences if s in evaluated]
+        for claim in study_claims(group, [i for i in items if i.label in labels], own):
             claim.architecture = architecture
             out.append(claim)
     return out
@@ -361,8 +371,9 @@ def claim_markdown(claim: Claim, letter: str, level: str = "###") -> str:
 
 
 BY_ARCHITECTURE_TEXT = (
-    "This sweep varies the architecture: each claim is tested within each architecture, its chordal "
-    "configuration against that architecture's other configurations, with a verdict per architecture."
+    "This sweep varies the architecture: each claim is tested within each architecture (and training "
+    "data, where the sweep varies `data`), its chordal configuration against that architecture's other "
+    "configurations on the sequences they evaluated, with a verdict per architecture."
 )
 
 

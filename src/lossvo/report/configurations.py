@@ -1,5 +1,6 @@
 """The compared configurations of a sweep: jobs grouped by the overrides that differ (seeds as
-replicates), each with its architecture, grouped by architecture where the sweep varies it; each
+replicates), each with its architecture (and its training data where the sweep varies it), grouped by
+architecture where the sweep varies either; each
 configuration's rotation weighting (k · gain) and the metric that selected its best checkpoint, and the
 configurations table of report.md and ``tables/configurations.csv``.
 
@@ -31,6 +32,9 @@ from lossvo.report.jobs import (
 from lossvo.report.tables import NETWORK, Cell, Column, mean_std_text
 from lossvo.table_render import Rows, prepend_column
 
+DATA_KEY = "data"
+"""The config group naming a job's training data: configurations trained on different data are compared
+only within their own data, as configurations of different architectures are."""
 SCORE = "val/score"
 """The loss-independent validation score (:mod:`lossvo.training.selection`)."""
 LOSS_DEPENDENT = ("val/loss", "val/rot_loss")
@@ -66,8 +70,8 @@ def label_jobs(jobs: Sequence[Job]) -> None:
 
 def network_columns(jobs: Sequence[Job]) -> list[Column]:
     """One column per configuration (jobs with equal labels), replicates ordered by seed, with its
-    architecture (:func:`column_architecture`); only included jobs; in the order of the configurations'
-    first job."""
+    architecture (:func:`column_architecture`; ``flowvo on data=mix`` where the jobs vary
+    :data:`DATA_KEY`); only included jobs; in the order of the configurations' first job."""
     columns: dict[str, Column] = {}
     for job in jobs:
         if job.included:
@@ -77,6 +81,11 @@ def network_columns(jobs: Sequence[Job]) -> list[Column]:
         column.replicates = [f"{REPLICATE_KEY}={j.seed}" for j in column.jobs]
         column.results = [j.included_results.scored() for j in column.jobs]
         column.architecture = column_architecture(column.jobs)
+    included = [j for c in columns.values() for j in c.jobs]
+    if DATA_KEY in varying_keys(included):  # trained on different data: compared within each
+        for column in columns.values():
+            data = " + ".join(sorted({str(j.overrides.get(DATA_KEY, "default")) for j in column.jobs}))
+            column.architecture = f"{column.architecture} on {DATA_KEY}={data}"
     return list(columns.values())
 
 
@@ -117,10 +126,12 @@ def architecture_file_name(architecture: str) -> str:
 
 def treatments(columns: Sequence[Column]) -> dict[str, str]:
     """``{label: treatment}`` of the network columns: a configuration's varying overrides without
-    :data:`lossvo.report.jobs.ARCHITECTURE_KEY` (``model=flowvo,loss=euler`` -> ``loss=euler``), which
-    names the same loss (and weights, ...) in every architecture; ``defaults`` where nothing else varies."""
+    :data:`lossvo.report.jobs.ARCHITECTURE_KEY` and :data:`DATA_KEY` (``model=flowvo,loss=euler`` ->
+    ``loss=euler``), which names the same loss (and weights, ...) in every architecture and training
+    data; ``defaults`` where nothing else varies."""
     networks = [c for c in columns if c.kind == NETWORK and c.jobs]
-    keys = [k for k in varying_keys([j for c in networks for j in c.jobs]) if k != ARCHITECTURE_KEY]
+    grouping = (ARCHITECTURE_KEY, DATA_KEY)
+    keys = [k for k in varying_keys([j for c in networks for j in c.jobs]) if k not in grouping]
     out = {}
     for column in networks:
         overrides = column.jobs[0].overrides

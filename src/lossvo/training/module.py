@@ -7,7 +7,8 @@ loss without Hydra. Every key the loss returns is logged per epoch as ``train/<k
 ``val/<key>`` (``loss``, ``trans_loss``, ``rot_loss``, ``trans_err_m``, ``rot_err_rad``; ``s_t``, ``s_r``
 under the learned weighting), and validation also logs the loss-independent selection score
 ``val/score`` (:mod:`lossvo.training.selection`; for a loss with ``translation="direction"`` on the
-predicted steps scaled to the target step lengths, as evaluation scores them). Checkpoints also record
+predicted steps scaled to the target step lengths, as evaluation scores them, and with
+``translation="cue"`` so on the windows whose platform gives metric scale no cue). Checkpoints also record
 the training data (:mod:`lossvo.evaluation.checkpoints`).
 """
 
@@ -132,14 +133,18 @@ class VOModule(L.LightningModule):
 
     # -- steps ----------------------------------------------------------------------------------------
 
-    def losses(self, inputs: Mapping[str, Tensor], targets: Tensor) -> tuple[Tensor, Tensor]:
+    def losses(
+        self, inputs: Mapping[str, Tensor], targets: Tensor, metric: Tensor | None = None
+    ) -> tuple[Tensor, Tensor]:
         """The training loss (scalar) of a batch and its record row (:func:`lossvo.training.step.step_row`).
 
         Args:
-            inputs: the batch's entries the network reads; targets: (B, L-1, 4, 4) relative poses.
+            inputs: the batch's entries the network reads; targets: (B, L-1, 4, 4) relative poses;
+            metric: (B,) bool, whether each window's platform gives metric scale a cue (the loss's
+                ``translation="cue"`` reads it).
         """
         pred = self(inputs)
-        out = self.loss(pred, targets)
+        out = self.loss(pred, targets, metric)
         return out["loss"], step_row(out, pred, targets.shape[0] * targets.shape[1])
 
     def training_step(self, batch: Mapping[str, Tensor], batch_idx: int) -> Tensor:
@@ -149,7 +154,7 @@ class VOModule(L.LightningModule):
         if self._mode is not None:
             torch.compiler.cudagraph_mark_step_begin()  # the previous step's graph outputs are done with
         inputs = {name: batch[name] for name in models.inputs_of(self.model)}
-        loss, row = self._train_losses(inputs, batch["targets"])
+        loss, row = self._train_losses(inputs, batch["targets"], batch.get("metric"))
         if self._mode is not None:
             loss = loss.clone()  # Lightning holds it past the step; a CUDA graph's output is overwritten
         self._record.write(row)
@@ -221,8 +226,9 @@ class VOModule(L.LightningModule):
     def _step(self, batch: Mapping[str, Tensor], stage: str) -> Tensor:
         """A validation or test step: the loss's terms logged per epoch, the selection score updated."""
         targets = batch["targets"]  # epoch means weight each batch by its frame pairs
+        metric = batch.get("metric")
         pred = self(batch)
-        out = self.loss(pred, targets)
+        out = self.loss(pred, targets, metric)
         self.log_dict(
             {f"{stage}/{key}": value for key, value in out.items()},
             on_step=False,
@@ -234,6 +240,9 @@ class VOModule(L.LightningModule):
             decoded = self.decode(pred.detach().float())
             if self.loss.translation == "direction":  # no metric scale: the target's, as evaluation
                 decoded = scale_steps(decoded, targets)
+            elif self.loss.translation == "cue" and metric is not None:  # the target's where no cue
+                scaled = scale_steps(decoded, targets)
+                decoded = torch.where(metric.view(-1, 1, 1, 1), decoded, scaled)
             self.val_score.update(decoded, targets)
             self.log(SCORE_KEY, self.val_score, on_step=False, on_epoch=True)
         return out["loss"]
