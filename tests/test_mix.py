@@ -136,6 +136,9 @@ def test_data_mix_composes_four_platforms() -> None:
     assert dm.sources["car"].render is not None and dm.sources["car"].render.cameras is not None
     assert all(name.split("/")[1] not in ("10", "11", "12") for name in dm.splits["train"])
     assert not set(dm.splits["train"]) & set(dm.splits["test"])
+    # only the car's road gives metric scale a cue: its windows train the metric translation term
+    flags = {name.split("/")[0]: dm.metric_scale(name) for name in dm.splits["train"]}
+    assert flags == {"car": True, "handheld": False, "flying": False, "drone": False}
 
 
 @pytest.mark.slow
