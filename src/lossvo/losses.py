@@ -31,6 +31,12 @@ DIRECTION_WEIGHT_M2 = 1.0
 step of the right length with the same direction error."""
 
 
+def _floored_unit(t: Tensor) -> Tensor:
+    """(..., 3) ``t / max(|t|, MIN_STEP_M)``: the sqrt of the floored squared norm, so no 0/0 in the value
+    or the gradient at ``t = 0``."""
+    return t / torch.sqrt(t.square().sum(-1, keepdim=True).clamp_min(MIN_STEP_M**2))
+
+
 class PoseLoss(nn.Module):
     """Base class: shape checks, the shared translation term, the weighting, the yardsticks.
 
@@ -205,8 +211,7 @@ class PoseLoss(nn.Module):
             with torch.no_grad():
                 return trans_sq, torch.sqrt(trans_sq).mean()
         step = torch.linalg.vector_norm(t_target, dim=-1)
-        # sqrt of the floored squared norm: no 0/0 in the value or the gradient at t = 0
-        unit = t / torch.sqrt(t.square().sum(-1, keepdim=True).clamp_min(MIN_STEP_M**2))
+        unit = _floored_unit(t)
         unit_target = t_target / step.clamp_min(MIN_STEP_M)[..., None]
         moving = step >= MIN_STEP_M  # a standing car has no direction: no translation term
         term = torch.where(moving, (unit - unit_target).square().sum(-1), 0.0) * DIRECTION_WEIGHT_M2
@@ -219,8 +224,7 @@ class PoseLoss(nn.Module):
         """:meth:`translation_term` for ``cue``: (B, ...) terms and the scalar yardstick."""
         metric = metric.to(torch.bool).view(-1, *([1] * (t.dim() - 2)))
         step = torch.linalg.vector_norm(t_target, dim=-1, keepdim=True)
-        unit = t / torch.sqrt(t.square().sum(-1, keepdim=True).clamp_min(MIN_STEP_M**2))
-        error = torch.where(metric[..., None], t, unit * step) - t_target
+        error = torch.where(metric[..., None], t, _floored_unit(t) * step) - t_target
         term = error.square().sum(-1)
         with torch.no_grad():
             return term, torch.sqrt(term).mean()

@@ -95,8 +95,8 @@ class ResidentWindows:
     def gather(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         """The batch of windows an index batch names, as the host loader gives it: ``frames`` (B, L, 3, H, W)
         uint8, ``targets`` (B, L-1, 4, 4) float32, ``K`` (B, 3, 3) float32, ``metric`` (B,) bool and, with
-        flow, ``flow``
-        (B, L-1, 2, H, W) float16, on the device (the index arrays may be on the host or the device)."""
+        flow, ``flow`` (B, L-1, 2, H, W) float16, on the device (the index arrays may be on the host or the
+        device)."""
         sequence = batch["camera"].to(self.device, non_blocking=True)
         out = {
             "frames": _take(self.frames, batch["frame_index"]),

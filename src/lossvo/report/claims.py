@@ -85,11 +85,16 @@ def training_sequences(columns: Sequence[Column]) -> set[str]:
     return {s for c in columns for j in c.jobs for s in trained_sequences(j)}
 
 
+def evaluated_by(columns: Sequence[Column], sequences: Sequence[str]) -> list[str]:
+    """The ``sequences`` that some job of ``columns`` has results for, in order."""
+    evaluated = {name for c in columns for per_sequence in c.results for name in per_sequence}
+    return [s for s in sequences if s in evaluated]
+
+
 def heldout_sequences(columns: Sequence[Column], sequences: Sequence[str]) -> list[str]:
     """The ``sequences`` that some job of ``columns`` evaluated and none of them trained on, in order."""
-    evaluated = {name for c in columns for per_sequence in c.results for name in per_sequence}
     train = training_sequences(columns)
-    return [s for s in sequences if s in evaluated and s not in train]
+    return [s for s in evaluated_by(columns, sequences) if s not in train]
 
 
 def restrict(column: Column, sequences: Sequence[str]) -> Column:
@@ -232,8 +237,7 @@ def claims_by_architecture(
     out = []
     for architecture, group in architecture_groups(columns).items():
         labels = {c.label for c in group}
-        evaluated = {name for c in group for per_sequence in c.results for name in per_sequence}
-        own = [s for s in sequences if s in evaluated]
+        own = evaluated_by(group, sequences)
         for claim in study_claims(group, [i for i in items if i.label in labels], own):
             claim.architecture = architecture
             out.append(claim)
