@@ -13,6 +13,8 @@ import torch
 
 from helpers import check_ape_against_evo, eval_main, fit
 from lossvo.data import synthetic
+from lossvo.evaluation import baselines
+from lossvo.evaluation.results import DataRecord
 from test_train import compose_train, tiny_overrides
 
 LAYOUTS = ("tum", "euroc", "tartanair", "mimir")
@@ -179,6 +181,14 @@ def test_one_run_trains_on_two_datasets_and_evaluates_each(
     assert list(results["sequences"]) == ["kitti/02", tum_test]
     assert results["data"]["layout"] == "multi"
     assert [results["sequences"][n]["metric_scale"] for n in ("kitti/02", tum_test)] == [True, False]
+    sources = results["data"]["train_sources"]  # each dataset's reading, for the baselines' training split
+    assert sources == results["data"]["sources"]
+    assert {k: (v["layout"], v["keep_every"]) for k, v in sources.items()} == {
+        "kitti": ("kitti", 1),
+        "tum": ("tum", 1),
+    }
+    training = baselines.training_sequences(DataRecord.from_json(results["data"]))
+    assert [len(t.poses) for t in training] == [len(dm.sequence_poses(n)) for n in dm.splits["train"]]
     stem = tum_test.replace("/", "_")
     entry = results["sequences"][tum_test]
     check_ape_against_evo(

@@ -335,6 +335,20 @@ def test_columns_are_named_by_the_overrides_that_differ() -> None:
     assert {j.label for j in jobs} == {"evaluate=false,loss=euler"}
 
 
+def test_settings_of_each_training_data_do_not_name_configurations() -> None:
+    def job(*overrides: str) -> Job:
+        return Job(Path("job"), overrides=dict(parse_override(o) for o in overrides))
+
+    mix, car = ("data=mix", "data.sources.drone.root=/d"), ("data=synthetic",)
+    jobs = [job(*data, f"loss={loss}", "seed=0") for data in (mix, car) for loss in ("euler", "quat")]
+    assert varying_keys(jobs) == ["data", "loss"]  # the drone's folder comes with data=mix
+    label_jobs(jobs)
+    expected = [f"data={d},loss={loss}" for d in ("mix", "synthetic") for loss in ("euler", "quat")]
+    assert [j.label for j in jobs] == expected
+    jobs.append(job("data=mix", "data.sources.drone.root=/e", "loss=euler", "seed=0"))  # a second folder
+    assert varying_keys(jobs) == ["data", "data.sources.drone.root", "loss"]
+
+
 def test_truncated_metrics_csv_keeps_the_complete_rows(tmp_path: Path) -> None:
     path = tmp_path / "metrics.csv"
     path.write_text(

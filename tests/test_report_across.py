@@ -133,3 +133,56 @@ def test_each_other_dataset_gets_its_baselines_and_the_rotation_against_zero_mot
     assert float(orb["RPE trans RMSE (m)"]) == pytest.approx(
         float(orb["RPE trans RMSE, scale given (m)"]), rel=1e-3
     )
+
+
+@pytest.mark.slow
+def test_a_network_trained_on_several_datasets_gets_baselines_on_each_set_of_sequences(
+    tmp_path: Path,
+) -> None:
+    """A sweep trained on a car (KITTI layout) and a handheld camera (TUM layout), evaluated on two other
+    TUM-layout sequences one at a time: each set of sequences is followed by baselines computed on it, the
+    mean motion that of every training sequence of both sources."""
+    from lossvo.data.synthetic.writer import generate
+    from lossvo.evaluation.results import MULTI_LAYOUT, SourceRecord
+
+    car = generate(tmp_path / "car", ["00", "07"], frames=20, height=48, width=160, progress=False)
+    hand = generate(
+        tmp_path / "hand", ["00", "07", "08"], frames=20, layout="tum", scale=0.25, progress=False
+    )
+    name = {s: f"rgbd_dataset_freiburg1_synthetic_{s}" for s in ("00", "07", "08")}
+    sources = {"car": SourceRecord("kitti", str(car)), "hand": SourceRecord("tum", str(hand))}
+    mix = replace(
+        data_record(tmp_path, ["car/07"], [], ["car/00", f"hand/{name['00']}"]),
+        layout=MULTI_LAYOUT, train_layout=MULTI_LAYOUT, sources=sources, train_sources=sources,
+    )  # fmt: skip
+    sweep, scores = tmp_path / "sweep", {"car/07": entry(0.1, 0.01)}
+    job = write_job(sweep, 0, "euler", {"train": mix.train, "val": ["car/07"]}, scores, mix)
+    replace(results_json(mix, scores), overall=Overall(["car/07"], scores["car/07"])).write(
+        job / "results.json"
+    )
+    for s, rot in (("07", 0.001), ("08", 0.002)):
+        evaluated = replace(mix, kind=None, root=str(hand), test=[name[s]], layout="tum", sources={})
+        results = results_json(evaluated, {name[s]: entry(0.2, rot)})
+        checkpoint = str(job / "checkpoints" / "best.ckpt")
+        overall = Overall([name[s]], entry(0.2, rot))
+        replace(results, checkpoint=checkpoint, overall=overall).write(
+            sweep / "evaluations" / s / "results.json"
+        )
+    report = make_report(sweep, tmp_path / "report", with_figures=False, n_jobs=1).read_text()
+    assert "no baselines" not in report and "baselines skipped" not in report
+    table = across_table(report)
+    rows = [dict(zip(table[0], cells, strict=True)) for cells in table[2:] if cells[2].startswith("tum")]
+    assert [(r["network"], r["sequences"]) for r in rows] == [
+        (network, name[s]) for s in ("07", "08") for network in ("loss=euler", *baselines.NAMES)
+    ]
+    zero = {r["sequences"]: r for r in rows if r["network"] == baselines.ZERO}
+    training = [sequence.targets for sequence in baselines.training_sequences(mix)]
+    assert len(training) == 2  # the car's sequence and the handheld one, each read in its layout
+    for s, rot in (("07", 0.001), ("08", 0.002)):
+        computed = baselines.compute_baselines(
+            replace(mix, root=str(hand), layout="tum"), [name[s]], tmp_path
+        )
+        expected = computed[name[s]][baselines.ZERO].scores.rpe.rot_rad.rmse
+        assert float(zero[name[s]]["RPE rot RMSE (rad)"]) == pytest.approx(expected, rel=1e-3)
+        network = next(r for r in rows if r["sequences"] == name[s] and r["network"] == "loss=euler")
+        assert network["rot below zero motion"] == f"{1 - rot / expected:.0%}"

@@ -30,7 +30,7 @@ from lossvo.data.kitti import KittiFormatError, check_png
 from lossvo.data.sequence import Sequence as DatasetSequence
 from lossvo.data.sequence import png_size
 from lossvo.evaluation import metrics
-from lossvo.evaluation.results import DataRecord, Scores
+from lossvo.evaluation.results import MULTI_LAYOUT, DataRecord, Scores, SourceRecord
 from lossvo.geometry import camera
 
 log = logging.getLogger("lossvo")
@@ -462,17 +462,38 @@ def sequence_baselines(
 
 def training_sequences(data: DataRecord) -> list[DatasetSequence]:
     """The training split recorded in ``data``: its sequences under ``data.train_root``, read in
-    ``data.train_layout`` (poses required).
+    ``data.train_layout`` (poses required; each of several datasets' from its source, :func:`read_sequence`).
 
     Raises:
-        UserError: no training data or sequence recorded; KittiFormatError for a sequence that is not
-            there.
+        UserError: no training data or sequence recorded, or a source of several not recorded;
+            KittiFormatError for a sequence that is not there.
     """
     if not data.train or data.train_root is None:
         raise UserError("the recorded training split (data.train) is empty: no training mean motion")
-    root = layouts.dataset_root(data.train_layout, data.train_root)
-    every = data.train_keep_every
-    return [layouts.load_sequence(data.train_layout, root, name).every(every) for name in data.train]
+    where = (data.train_layout, data.train_root, data.train_keep_every, data.train_sources)
+    return [read_sequence(*where, name) for name in data.train]
+
+
+def read_sequence(
+    layout: str, root: str, keep_every: int, sources: Mapping[str, SourceRecord], name: str
+) -> DatasetSequence:
+    """Sequence ``name`` of the dataset at ``root`` read in ``layout``, every ``keep_every``-th frame; of
+    data of several datasets (:data:`MULTI_LAYOUT`), ``<source>/<sequence>`` read from its source.
+
+    Raises:
+        UserError: a source not in ``sources``; KittiFormatError for a sequence that is not there.
+    """
+    if layout == MULTI_LAYOUT:
+        source_name, _, name = name.partition("/")
+        source = sources.get(source_name)
+        if source is None:
+            recorded = ", ".join(sources) or "none recorded"
+            raise UserError(
+                f"sequence {source_name}/{name}: its dataset is not among the recorded sources ({recorded}): "
+                "evaluate the checkpoint again to record them"
+            )
+        layout, root, keep_every = source.layout, source.root, source.keep_every
+    return layouts.load_sequence(layout, layouts.dataset_root(layout, root), name).every(keep_every)
 
 
 def training_mean_motion(data: DataRecord) -> np.ndarray:
@@ -639,8 +660,8 @@ def compute_baselines(
     training = training_sequences(data)
     train_mean = mean_motion([s.targets for s in training])
     train_flow = [flow_key(s) for s in training]
-    root = layouts.dataset_root(data.layout, data.root)
-    loaded = {n: layouts.load_sequence(data.layout, root, n).every(data.keep_every) for n in sequences}
+    where = (data.layout, data.root, data.keep_every, data.sources)
+    loaded = {n: read_sequence(*where, n) for n in sequences}
     paths = {
         n: cache_dir / f"{cache_key(data.identity(), loaded[n], train_mean, train_flow, align, delta)}.npz"
         for n in sequences

@@ -339,6 +339,33 @@ class LossRecord:
         return {"class": self.name, "k": self.k}
 
 
+MULTI_LAYOUT = "multi"
+"""The training layout recorded for a network trained on several datasets (their sources:
+:attr:`DataRecord.train_sources`)."""
+
+
+@dataclass(frozen=True)
+class SourceRecord:
+    """One dataset of a training on several: the ``layout`` its sequences are read in
+    (:data:`lossvo.data.layouts.LAYOUTS`), its ``root`` folder and every how-many-th frame it kept."""
+
+    layout: str
+    root: str
+    keep_every: int = 1
+
+    @classmethod
+    def from_json(cls, obj: Any, where: str) -> SourceRecord:
+        obj = _object(obj, where)
+        return cls(
+            layout=cast("str", _text(_field(obj, "layout", where), _key(where, "layout"))),
+            root=cast("str", _text(_field(obj, "root", where), _key(where, "root"))),
+            keep_every=cast("int", _integer(obj.get("keep_every", 1), _key(where, "keep_every"))),
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        return {"layout": self.layout, "root": self.root, "keep_every": self.keep_every}
+
+
 @dataclass(frozen=True)
 class DataRecord:
     """The data of an evaluation: the evaluated dataset (``kind``: its datamodule's class path;
@@ -348,7 +375,9 @@ class DataRecord:
     ``normalization``, per-channel ``mean`` and ``std`` of pixel values in [0, 1]), and both datasets'
     layouts (``layout``, ``train_layout``: :data:`lossvo.data.layouts.LAYOUTS`) and every how-many-th frame of
     each was kept (``keep_every``, ``train_keep_every``); where absent, read as KITTI's, every
-    frame. Roots are as recorded; they may no longer exist."""
+    frame. Data of several datasets has the layout :data:`MULTI_LAYOUT`, sequences named
+    ``<source>/<sequence>`` and each source in ``sources`` (evaluated) or ``train_sources`` (trained on);
+    both are empty for one dataset. Roots are as recorded; they may no longer exist."""
 
     kind: str | None
     root: str
@@ -366,11 +395,18 @@ class DataRecord:
     train_layout: str = "kitti"
     keep_every: int = 1
     train_keep_every: int = 1
+    sources: dict[str, SourceRecord] = field(default_factory=dict)
+    train_sources: dict[str, SourceRecord] = field(default_factory=dict)
 
     def identity(self) -> dict[str, Any]:
         """What decides the frames on disk and the training split's poses (a cache key)."""
         train_root = None if self.train_root is None else str(Path(self.train_root))
-        return {"root": str(Path(self.root)), "train_root": train_root, "train": list(self.train)}
+        identity: dict[str, Any] = {"root": str(Path(self.root)), "train_root": train_root}
+        identity["train"] = list(self.train)
+        for key in SOURCE_FIELDS:
+            if getattr(self, key):
+                identity[key] = {k: s.to_json() for k, s in getattr(self, key).items()}
+        return identity
 
     @classmethod
     def from_json(cls, obj: Any, where: str = "data") -> DataRecord:
@@ -398,10 +434,27 @@ class DataRecord:
             train_keep_every=cast(
                 "int", _integer(obj.get("train_keep_every", 1), _key(where, "train_keep_every"))
             ),
+            sources=_source_records(obj.get("sources", {}), _key(where, "sources")),
+            train_sources=_source_records(obj.get("train_sources", {}), _key(where, "train_sources")),
         )
 
     def to_json(self) -> dict[str, Any]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in SOURCE_FIELDS}
+        for key in SOURCE_FIELDS:  # written only for data of several datasets
+            if getattr(self, key):
+                out[key] = {k: s.to_json() for k, s in getattr(self, key).items()}
+        return out
+
+
+SOURCE_FIELDS = ("sources", "train_sources")
+"""The fields of :class:`DataRecord` that list the datasets of data of several."""
+
+
+def _source_records(obj: Any, where: str) -> dict[str, SourceRecord]:
+    """``{name: SourceRecord}`` of a ``sources`` or ``train_sources`` object."""
+    return {
+        name: SourceRecord.from_json(value, _key(where, name)) for name, value in _object(obj, where).items()
+    }
 
 
 @dataclass(frozen=True)
@@ -555,7 +608,19 @@ def data_record(
         train_layout=train_layout,
         keep_every=keep_every,
         train_keep_every=train_keep_every,
+        sources=_sources(evaluated) if layout == MULTI_LAYOUT else {},
+        train_sources=_sources(trained) if train_layout == MULTI_LAYOUT else {},
     )
+
+
+def _sources(description: Mapping[str, Any]) -> dict[str, SourceRecord]:
+    """Each source of a data description with several: its reading layout (:func:`_reading`), root
+    folder and every how-many-th frame kept."""
+    out = {}
+    for name, source in (description.get("sources") or {}).items():
+        layout, keep_every = _reading({"sources": {name: source}})
+        out[name] = SourceRecord(layout, str(source.get("root")), keep_every)
+    return out
 
 
 def _reading(description: Mapping[str, Any]) -> tuple[str, int]:
@@ -563,7 +628,7 @@ def _reading(description: Mapping[str, Any]) -> tuple[str, int]:
     one source's; ``multi`` and 1 for several sources (each sequence is named ``<source>/<sequence>``)."""
     sources = list((description.get("sources") or {}).values())
     if len(sources) != 1:
-        return "multi", 1
+        return MULTI_LAYOUT, 1
     layout = str(sources[0].get("layout"))
     if layout == "synthetic":
         layout = str(sources[0].get("render_layout") or "kitti")

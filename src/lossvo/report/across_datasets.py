@@ -23,7 +23,7 @@ import numpy as np
 from lossvo.console import first_line
 from lossvo.evaluation import baselines
 from lossvo.evaluation.metrics import AlignMode
-from lossvo.evaluation.results import DataRecord, Results, ResultsError, Scores
+from lossvo.evaluation.results import MULTI_LAYOUT, DataRecord, Results, ResultsError, Scores
 from lossvo.report.jobs import Job
 from lossvo.table_render import Rows
 
@@ -37,9 +37,10 @@ ACROSS_TEXT = (
     "The scale-given RPE scores each predicted step scaled to the ground truth's length (as ORB+E); a "
     "platform whose camera gives metric scale a cue (a car's, at a known height above a road) is read by the "
     "metric RPE, the others by the scale-given one (*translation read as*). On each other dataset the "
-    "baselines follow its networks, computed on the same sequences (the mean motion and the flow's speed "
-    "fitted on the training split of a network trained on one dataset); *rot below zero motion* is how far "
-    "the mean rotation RPE lies below zero motion's there."
+    "baselines follow each set of its sequences, computed on those sequences (the mean motion and the flow's "
+    "speed fitted on the training split of a network trained on one dataset where one was evaluated, else on "
+    "every training sequence of a network trained on several); *rot below zero motion* is how far the mean "
+    "rotation RPE lies below zero motion's there."
 )
 HEADER = (
     "network",
@@ -110,12 +111,12 @@ def _cell(values: list[float]) -> str:
 def across_rows(
     jobs: Sequence[Job],
     evaluations: Sequence[Evaluation],
-    base: dict[str, dict[str, Rmses]] | None = None,
+    base: dict[tuple[str, str], dict[str, Rmses]] | None = None,
 ) -> Rows:
     """The table: one row per (configuration, trained on, evaluated on, sequences), the sweep's own
-    evaluations first, then the other datasets in name order, each followed by its baselines (``base``:
-    {evaluated dataset: {baseline: pooled RMSEs}}, :func:`across_baselines`); cells over seeds
-    (:func:`_cell`)."""
+    evaluations first, then the other datasets in name order, each set of sequences followed by its
+    baselines (``base``: {(evaluated dataset, sequences): {baseline: pooled RMSEs}},
+    :func:`across_baselines`); cells over seeds (:func:`_cell`)."""
     base = base or {}
     runs = [(job, job.included_results) for job in jobs if job.included]
     runs += [(e.job, e.results) for e in evaluations]
@@ -128,12 +129,22 @@ def across_rows(
     for i, key in enumerate(order):
         (label, trained, evaluated, sequences), group = key, groups[key]
         scores = [r.overall.scores for r in group if r.overall.scores is not None]
-        zero = base.get(evaluated, {}).get(baselines.ZERO)
-        cells, read = _score_cells([Rmses.of(s) for s in scores], zero), read_as(group[0])
+        here = base.get((evaluated, sequences), {})
+        cells, read = _score_cells([Rmses.of(s) for s in scores], here.get(baselines.ZERO)), read_as(group[0])
         rows.append([label, trained, evaluated, sequences, len(scores), *cells, read])
-        last_of_dataset = i + 1 == len(order) or order[i + 1][2] != evaluated
-        for name, pooled in base.get(evaluated, {}).items() if last_of_dataset else ():
-            rows.append([name, "-", evaluated, sequences, "-", *_score_cells([pooled], zero), read])
+        last_here = i + 1 == len(order) or order[i + 1][2:] != key[2:]
+        for name, pooled in here.items() if last_here else ():
+            rows.append(
+                [
+                    name,
+                    "-",
+                    evaluated,
+                    sequences,
+                    "-",
+                    *_score_cells([pooled], here.get(baselines.ZERO)),
+                    read,
+                ]
+            )
     return Rows(HEADER, rows)
 
 
@@ -164,26 +175,25 @@ def _score_cells(values: Sequence[Rmses], zero: Rmses | None) -> list[str]:
 
 def across_baselines(
     evaluations: Sequence[Evaluation], cache_dir: Path, n_jobs: int
-) -> tuple[dict[str, dict[str, Rmses]], list[str]]:
-    """The baselines (:func:`lossvo.evaluation.baselines.compute_baselines`) on each dataset the sweep's
-    checkpoints were evaluated on, other than their training data, pooled over the evaluated sequences
-    (:func:`pooled_rmses`): {evaluated dataset: {baseline: RMSEs}}, and a note for each dataset without.
-
-    The mean motion and the flow's speed scale need one training split: that of the first evaluation (on the
-    dataset, else on any) whose network was trained on one dataset; without one, that dataset has none."""
-    by_dataset: dict[str, list[Results]] = {}
+) -> tuple[dict[tuple[str, str], dict[str, Rmses]], list[str]]:
+    """The baselines (:func:`lossvo.evaluation.baselines.compute_baselines`) on each dataset and set of
+    sequences the sweep's checkpoints were evaluated on, other than their training data, pooled over those
+    sequences (:func:`pooled_rmses`): {(evaluated dataset, sequences): {baseline: RMSEs}}, and a note for
+    each without (:func:`baseline_training`)."""
+    by_key: dict[tuple[str, str], list[Results]] = {}
     for e in evaluations:
         data = e.results.data
         evaluated = dataset_name(data.layout, data.root)
         if evaluated != dataset_name(data.train_layout, data.train_root) and e.results.overall.scores:
-            by_dataset.setdefault(evaluated, []).append(e.results)
-    single = [e.results.data for e in evaluations if e.results.data.train_layout != "multi"]
+            by_key.setdefault((evaluated, ", ".join(e.results.overall.sequences)), []).append(e.results)
+    single = [e.results.data for e in evaluations if e.results.data.train_layout != MULTI_LAYOUT]
     out, notes = {}, []
-    for evaluated, results in sorted(by_dataset.items()):
-        own = [r.data for r in results if r.data.train_layout != "multi"]
-        training = next(iter(own or single), None)
+    for (evaluated, names), results in sorted(by_key.items()):
+        training = baseline_training(results, single)
         if training is None:
-            notes.append(f"{evaluated}: no baselines: every network evaluated trained on several datasets")
+            notes.append(
+                f"{evaluated} ({names}): no baselines: no network evaluated there has its training recorded"
+            )
             continue
         first = results[0]
         data = with_training(first.data, training)
@@ -192,18 +202,28 @@ def across_baselines(
             align = cast("AlignMode", first.align)
             computed = baselines.compute_baselines(data, sequences, cache_dir, align, first.delta, n_jobs)
         except Exception as e:  # missing data, a damaged sequence: the table goes on without them
-            notes.append(f"{evaluated}: baselines skipped: {type(e).__name__}: {first_line(e)}")
+            notes.append(f"{evaluated} ({names}): baselines skipped: {type(e).__name__}: {first_line(e)}")
             continue
-        out[evaluated] = {
+        out[(evaluated, names)] = {
             name: pooled_rmses([computed[s][name] for s in sequences], first.delta)
             for name in baselines.NAMES
         }
     return out, notes
 
 
+def baseline_training(results: Sequence[Results], single: Sequence[DataRecord]) -> DataRecord | None:
+    """Whose training split fits the baselines of the evaluations ``results`` of one dataset (the mean
+    motion, the flow's speed scale): the first there of a network trained on one dataset, else the first
+    such anywhere (``single``), else the first there of a network trained on several with their sources
+    recorded (its mean motion is that of every platform's training sequences); None without."""
+    own = [r.data for r in results if r.data.train_layout != MULTI_LAYOUT]
+    several = [r.data for r in results if r.data.train_layout == MULTI_LAYOUT and r.data.train_sources]
+    return next(iter([*own, *single, *several]), None)
+
+
 def with_training(data: DataRecord, training: DataRecord) -> DataRecord:
     """``data``'s evaluated dataset with ``training``'s training split (root, names, layout, frames kept)."""
-    keys = ("train_root", "train", "train_layout", "train_keep_every")
+    keys = ("train_root", "train", "train_layout", "train_keep_every", "train_sources")
     return replace(data, **{key: getattr(training, key) for key in keys})
 
 

@@ -49,12 +49,29 @@ configurations that differ in loss or weighting."""
 
 def varying_keys(jobs: Sequence[Job]) -> list[str]:
     """Override keys (other than ``seed``) whose value differs between jobs or is missing in some, in the
-    order they first appear."""
+    order they first appear; without the settings of a varying group that each of its choices fixes
+    (:func:`_fixed_by_group`)."""
     keys: list[str] = []
     for job in jobs:
         keys.extend(k for k in job.overrides if k not in keys and k != REPLICATE_KEY)
     values = {k: {job.overrides.get(k) for job in jobs} for k in keys}
-    return [k for k in keys if len(values[k]) > 1]
+    varying = [k for k in keys if len(values[k]) > 1]
+    return [k for k in varying if not _fixed_by_group(k, varying, jobs)]
+
+
+def _fixed_by_group(key: str, varying: Sequence[str], jobs: Sequence[Job]) -> bool:
+    """Whether ``key`` sets part of a varying config group (:data:`DATA_KEY`, :data:`ARCHITECTURE_KEY`;
+    ``data.sources.car.root`` of ``data``) and takes one value (or none) among the jobs of each of the
+    group's choices: part of what the choice names (its data's folders), not a compared treatment."""
+    for group in (DATA_KEY, ARCHITECTURE_KEY):
+        if group not in varying or not key.startswith(f"{group}."):
+            continue
+        by_choice: dict[str | None, set[str | None]] = {}
+        for job in jobs:
+            by_choice.setdefault(job.overrides.get(group), set()).add(job.overrides.get(key))
+        if all(len(values) == 1 for values in by_choice.values()):
+            return True
+    return False
 
 
 def label_jobs(jobs: Sequence[Job]) -> None:

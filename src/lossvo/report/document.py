@@ -506,7 +506,7 @@ def make_report(
         write_text_atomic(out / "tables" / "speed.csv", table_render.csv_text(speed))
     evaluations, unused = find_evaluations(sweep, included)
     across_notes = [f"evaluation not used: {note}" for note in unused]
-    across_base: dict[str, dict[str, Rmses]] = {}
+    across_base: dict[tuple[str, str], dict[str, Rmses]] = {}
     if with_baselines and evaluations:
         across_base, base_notes = across_baselines(evaluations, out / "cache", n_jobs or os.cpu_count() or 1)
         across_notes += base_notes
