@@ -139,6 +139,20 @@ def test_data_mix_composes_four_platforms() -> None:
     # only the car's road gives metric scale a cue: its windows train the metric translation term
     flags = {name.split("/")[0]: dm.metric_scale(name) for name in dm.splits["train"]}
     assert flags == {"car": True, "handheld": False, "flying": False, "drone": False}
+    with initialize_config_dir(config_dir=CONFIG_DIR, version_base="1.3"):
+        car_only = compose("train", overrides=["data=synthetic", "model=flowvo"]).data
+        experiment = compose("train", overrides=["experiment=mix"])
+    # the car drives the car-only network's training and validation routes, at their lengths
+    assert [f"car/{n}" for n in car_only.splits.train] == [
+        n for n in dm.splits["train"] if n.startswith("car/")
+    ]
+    counts = car_only.sources.synthetic.frame_counts
+    assert {
+        n: counts[n] for n in car_only.splits.train + car_only.splits.val
+    } == cfg.data.sources.car.frame_counts
+    assert (
+        experiment.data == cfg.data and experiment.model == cfg.model and experiment.trainer.max_epochs == 14
+    )
 
 
 @pytest.mark.slow
