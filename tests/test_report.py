@@ -337,7 +337,8 @@ def test_columns_are_named_by_the_overrides_that_differ() -> None:
 
 def test_settings_of_each_training_data_do_not_name_configurations() -> None:
     def job(*overrides: str) -> Job:
-        return Job(Path("job"), overrides=dict(parse_override(o) for o in overrides))
+        parsed = dict(parse_override(o) for o in overrides)
+        return Job(Path("job"), overrides=parsed, data=parsed.get("data"))
 
     mix, car = ("data=mix", "data.sources.drone.root=/d"), ("data=synthetic",)
     jobs = [job(*data, f"loss={loss}", "seed=0") for data in (mix, car) for loss in ("euler", "quat")]

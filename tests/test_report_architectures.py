@@ -447,9 +447,11 @@ def test_the_rankings_and_the_interaction_test_follow_the_jobs_results(
     }
 
 
-def test_claims_pair_configurations_trained_on_the_same_data(tmp_path: Path) -> None:
-    """A sweep over ``data`` and ``loss``: each training dataset evaluates its own sequences, so the claims,
-    the rankings and the configurations' groups are made within each dataset, never across them."""
+@pytest.mark.parametrize("mix_by", ["data=mix", "experiment=mix"])
+def test_claims_pair_configurations_trained_on_the_same_data(tmp_path: Path, mix_by: str) -> None:
+    """A sweep over ``data`` and ``loss`` (the mix chosen on the command line, or by an experiment that
+    sets the data and model groups): each training dataset evaluates its own sequences, so the claims, the
+    rankings and the configurations' groups are made within each dataset, never across them."""
     from test_report import data_record, entry, write_job
 
     sweep, number = tmp_path / "sweep", 0
@@ -461,8 +463,14 @@ def test_claims_pair_configurations_trained_on_the_same_data(tmp_path: Path) -> 
                 scores = {sequence: entry(rpe, 0.01)}
                 job = write_job(sweep, number, loss, {"train": ["00"], "val": [sequence]}, scores, record)
                 job = job.rename(sweep / f"{number}_data-{data}+loss-{loss}+seed-{seed}")
-                overrides = [f"data={data}", "model=flowvo", f"loss={loss}", f"seed={seed}"]
+                chosen = [mix_by] if data == "mix" else [f"data={data}"]
+                chosen += [] if chosen[0].startswith("experiment") else ["model=flowvo"]
+                overrides = [*chosen, "data.sources.car.root=/r", f"loss={loss}", f"seed={seed}"]
                 (job / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(overrides))
+                choices = {"data": data, "model": "flowvo", "loss": loss}
+                (job / ".hydra" / "hydra.yaml").write_text(
+                    yaml.safe_dump({"hydra": {"runtime": {"choices": choices}}})
+                )
                 config = yaml.safe_load((job / ".hydra" / "config.yaml").read_text())
                 target = {"_target_": f"lossvo.losses.{LOSS_CLASSES[loss]}"}
                 (job / ".hydra" / "config.yaml").write_text(
@@ -479,7 +487,10 @@ def test_claims_pair_configurations_trained_on_the_same_data(tmp_path: Path) -> 
             line.split(" | ") for line in section.splitlines() if line.startswith("| RPE trans RMSE [m] |")
         ]
         paired = rows[0]  # paired by seed: 3 seeds of each configuration, every one 0.1 m lower with chordal
-        assert paired[1:4] == [f"data={data},loss=euler", "3", "-0.1000"], paired
+        label = {"mix": f"{mix_by},loss=euler", "synthetic": "data=synthetic,loss=euler"}[data]
+        if mix_by.startswith("experiment") and data == "synthetic":  # keys in the order they first appear
+            label = "loss=euler,data=synthetic"  # model=flowvo is every job's architecture: not named
+        assert paired[1:4] == [label, "3", "-0.1000"], paired
     ranking = [
         line for line in report.splitlines() if line.startswith("| RPE trans RMSE [m] | flowvo on data=")
     ]

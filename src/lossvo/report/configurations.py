@@ -22,6 +22,7 @@ from lossvo import weighting
 from lossvo.console import UserError
 from lossvo.report.jobs import (
     ARCHITECTURE_KEY,
+    DATA_KEY,
     REPLICATE_KEY,
     Curves,
     Job,
@@ -32,9 +33,6 @@ from lossvo.report.jobs import (
 from lossvo.report.tables import NETWORK, Cell, Column, mean_std_text
 from lossvo.table_render import Rows, prepend_column
 
-DATA_KEY = "data"
-"""The config group naming a job's training data: configurations trained on different data are compared
-only within their own data, as configurations of different architectures are."""
 SCORE = "val/score"
 """The loss-independent validation score (:mod:`lossvo.training.selection`)."""
 LOSS_DEPENDENT = ("val/loss", "val/rot_loss")
@@ -49,27 +47,40 @@ configurations that differ in loss or weighting."""
 
 def varying_keys(jobs: Sequence[Job]) -> list[str]:
     """Override keys (other than ``seed``) whose value differs between jobs or is missing in some, in the
-    order they first appear; without the settings of a varying group that each of its choices fixes
-    (:func:`_fixed_by_group`)."""
+    order they first appear; the training data's and the architecture's only where the choice they
+    resolve to differs (:func:`group_choice`: an ``experiment`` may make it), and without the settings
+    that each choice fixes (:func:`_fixed_by_group`)."""
     keys: list[str] = []
     for job in jobs:
         keys.extend(k for k in job.overrides if k not in keys and k != REPLICATE_KEY)
     values = {k: {job.overrides.get(k) for job in jobs} for k in keys}
-    varying = [k for k in keys if len(values[k]) > 1]
-    return [k for k in varying if not _fixed_by_group(k, varying, jobs)]
+    for group in GROUPS:
+        values[group] = {group_choice(job, group) for job in jobs}
+    return [k for k in keys if len(values[k]) > 1 and not _fixed_by_group(k, jobs)]
 
 
-def _fixed_by_group(key: str, varying: Sequence[str], jobs: Sequence[Job]) -> bool:
-    """Whether ``key`` sets part of a varying config group (:data:`DATA_KEY`, :data:`ARCHITECTURE_KEY`;
-    ``data.sources.car.root`` of ``data``) and takes one value (or none) among the jobs of each of the
-    group's choices: part of what the choice names (its data's folders), not a compared treatment."""
-    for group in (DATA_KEY, ARCHITECTURE_KEY):
-        if group not in varying or not key.startswith(f"{group}."):
+GROUPS = (DATA_KEY, ARCHITECTURE_KEY)
+"""The config groups whose choice groups configurations (compared within each choice)."""
+
+
+def group_choice(job: Job, group: str) -> str | None:
+    """A job's choice in one of :data:`GROUPS`: as it resolved (``job.data``, ``job.architecture``), else
+    its override."""
+    resolved = job.data if group == DATA_KEY else job.architecture
+    return resolved if resolved is not None else job.overrides.get(group)
+
+
+def _fixed_by_group(key: str, jobs: Sequence[Job]) -> bool:
+    """Whether ``key`` sets part of one of :data:`GROUPS` whose choice differs between jobs
+    (``data.sources.car.root`` of ``data``) and takes one value (or none) among the jobs of each choice:
+    part of what the choice names (its data's folders), not a compared treatment."""
+    for group in GROUPS:
+        if not key.startswith(f"{group}."):
             continue
         by_choice: dict[str | None, set[str | None]] = {}
         for job in jobs:
-            by_choice.setdefault(job.overrides.get(group), set()).add(job.overrides.get(key))
-        if all(len(values) == 1 for values in by_choice.values()):
+            by_choice.setdefault(group_choice(job, group), set()).add(job.overrides.get(key))
+        if len(by_choice) > 1 and all(len(values) == 1 for values in by_choice.values()):
             return True
     return False
 
@@ -99,9 +110,11 @@ def network_columns(jobs: Sequence[Job]) -> list[Column]:
         column.results = [j.included_results.scored() for j in column.jobs]
         column.architecture = column_architecture(column.jobs)
     included = [j for c in columns.values() for j in c.jobs]
-    if DATA_KEY in varying_keys(included):  # trained on different data: compared within each
+    if (
+        len({group_choice(j, DATA_KEY) for j in included}) > 1
+    ):  # trained on different data: compared within each
         for column in columns.values():
-            data = " + ".join(sorted({str(j.overrides.get(DATA_KEY, "default")) for j in column.jobs}))
+            data = " + ".join(sorted({str(group_choice(j, DATA_KEY)) for j in column.jobs}))
             column.architecture = f"{column.architecture} on {DATA_KEY}={data}"
     return list(columns.values())
 
@@ -142,13 +155,21 @@ def architecture_file_name(architecture: str) -> str:
 
 
 def treatments(columns: Sequence[Column]) -> dict[str, str]:
-    """``{label: treatment}`` of the network columns: a configuration's varying overrides without
-    :data:`lossvo.report.jobs.ARCHITECTURE_KEY` and :data:`DATA_KEY` (``model=flowvo,loss=euler`` ->
-    ``loss=euler``), which names the same loss (and weights, ...) in every architecture and training
-    data; ``defaults`` where nothing else varies."""
+    """``{label: treatment}`` of the network columns: a configuration's varying overrides without those
+    that name its group (:data:`GROUPS`, and any other, such as ``experiment=mix``, that takes one value
+    within each group: ``model=flowvo,loss=euler`` -> ``loss=euler``), which names the same loss (and
+    weights, ...) in every architecture and training data; ``defaults`` where nothing else varies."""
     networks = [c for c in columns if c.kind == NETWORK and c.jobs]
-    grouping = (ARCHITECTURE_KEY, DATA_KEY)
-    keys = [k for k in varying_keys([j for c in networks for j in c.jobs]) if k not in grouping]
+    jobs = [j for c in networks for j in c.jobs]
+    groups: dict[tuple[str | None, ...], list[Job]] = {}
+    for job in jobs:
+        groups.setdefault(tuple(group_choice(job, g) for g in GROUPS), []).append(job)
+
+    def names_group(key: str) -> bool:
+        within = [{j.overrides.get(key) for j in members} for members in groups.values()]
+        return key in GROUPS or (len(groups) > 1 and all(len(values) == 1 for values in within))
+
+    keys = [k for k in varying_keys(jobs) if not names_group(k)]
     out = {}
     for column in networks:
         overrides = column.jobs[0].overrides

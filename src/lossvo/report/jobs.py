@@ -34,6 +34,9 @@ REPLICATE_KEY = "seed"
 """The override that names a replicate of a configuration; every other varying override names one."""
 ARCHITECTURE_KEY = "model"
 """The config group whose choice names a job's architecture (``model=deepvo_small``, ``model=flowvo``)."""
+DATA_KEY = "data"
+"""The config group naming a job's training data: configurations trained on different data are compared
+only within their own data, as configurations of different architectures are."""
 
 APE_TRANS = ("ape", "trans", "rmse")
 APE_ROT = ("ape", "rot_rad", "rmse")
@@ -120,8 +123,8 @@ def _started(path: Path) -> tuple[float, str]:
 
 @dataclass
 class Job:
-    """One job folder as read: what it is (overrides, seed, architecture), what happened (status), what it
-    produced."""
+    """One job folder as read: what it is (overrides, seed, architecture, training data's config choice),
+    what happened (status), what it produced."""
 
     path: Path
     overrides: dict[str, str] = field(default_factory=dict)
@@ -135,6 +138,7 @@ class Job:
     notes: list[str] = field(default_factory=list)
     label: str = ""
     architecture: str | None = None
+    data: str | None = None
 
     @property
     def included(self) -> bool:
@@ -226,28 +230,38 @@ def _read_config(job: Job) -> None:
     overrides = job.path / ".hydra" / "overrides.yaml"
     job.overrides = read_overrides(overrides) if overrides.is_file() else {}
     job.seed = job.config.get(REPLICATE_KEY, job.overrides.get(REPLICATE_KEY))
-    job.architecture = read_architecture(job.path / ".hydra" / "hydra.yaml", job.overrides, job.config)
+    hydra_yaml = job.path / ".hydra" / "hydra.yaml"
+    job.architecture = read_architecture(hydra_yaml, job.overrides, job.config)
+    job.data = read_choice(hydra_yaml, DATA_KEY, job.overrides)
 
 
-def read_architecture(hydra_yaml: Path, overrides: dict[str, str], config: Any) -> str | None:
-    """A job's architecture as a short name: the :data:`ARCHITECTURE_KEY` config group's choice recorded in
-    ``.hydra/hydra.yaml`` (``hydra.runtime.choices.model``: ``deepvo_small``, ``flowvo``), else the
-    ``model=`` override, else the class name of ``model._target_`` (``DeepVO``); None without any. A
-    missing or unreadable hydra.yaml falls back (it decides nothing else)."""
+def read_choice(hydra_yaml: Path, group: str, overrides: dict[str, str]) -> str | None:
+    """A job's choice in a config group: the one recorded in ``.hydra/hydra.yaml``
+    (``hydra.runtime.choices.<group>``, set on the command line or by an ``experiment``), else the
+    ``<group>=`` override; None without either. A missing or unreadable hydra.yaml falls back (it decides
+    nothing else)."""
     import yaml
 
     choice: Any = None
     try:
         if hydra_yaml.is_file():
-            choice = yaml.safe_load(hydra_yaml.read_text())["hydra"]["runtime"]["choices"][ARCHITECTURE_KEY]
+            choice = yaml.safe_load(hydra_yaml.read_text())["hydra"]["runtime"]["choices"][group]
     except Exception:  # YAML errors of many classes, another shape: fall back
         choice = None
     if choice is None:
-        choice = overrides.get(ARCHITECTURE_KEY)
+        choice = overrides.get(group)
+    return str(choice) if choice is not None else None
+
+
+def read_architecture(hydra_yaml: Path, overrides: dict[str, str], config: Any) -> str | None:
+    """A job's architecture as a short name: the :data:`ARCHITECTURE_KEY` config group's choice
+    (:func:`read_choice`: ``deepvo_small``, ``flowvo``), else the class name of ``model._target_``
+    (``DeepVO``); None without either."""
+    choice = read_choice(hydra_yaml, ARCHITECTURE_KEY, overrides)
     if choice is None:
         target = config_value(config, f"{ARCHITECTURE_KEY}._target_")
         choice = str(target).rsplit(".", 1)[-1] if target is not None else None
-    return str(choice) if choice is not None else None
+    return choice
 
 
 def _running(path: Path) -> str:
