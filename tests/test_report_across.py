@@ -150,9 +150,13 @@ def test_a_network_trained_on_several_datasets_gets_baselines_on_each_set_of_seq
         tmp_path / "hand", ["00", "07", "08"], frames=20, layout="tum", scale=0.25, progress=False
     )
     name = {s: f"rgbd_dataset_freiburg1_synthetic_{s}" for s in ("00", "07", "08")}
-    sources = {"car": SourceRecord("kitti", str(car)), "hand": SourceRecord("tum", str(hand))}
+    # rendered sources: the mix names their sequences by two digits, the TUM reader by its own names
+    sources = {
+        "car": SourceRecord("kitti", str(car), rendered=True),
+        "hand": SourceRecord("tum", str(hand), rendered=True),
+    }
     mix = replace(
-        data_record(tmp_path, ["car/07"], [], ["car/00", f"hand/{name['00']}"]),
+        data_record(tmp_path, ["car/07"], [], ["car/00", "hand/00"]),
         layout=MULTI_LAYOUT, train_layout=MULTI_LAYOUT, sources=sources, train_sources=sources,
     )  # fmt: skip
     sweep, scores = tmp_path / "sweep", {"car/07": entry(0.1, 0.01)}

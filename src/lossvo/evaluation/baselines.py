@@ -29,6 +29,7 @@ from lossvo.data.frame_cache import Undistortion, read_frame, undistortion
 from lossvo.data.kitti import KittiFormatError, check_png
 from lossvo.data.sequence import Sequence as DatasetSequence
 from lossvo.data.sequence import png_size
+from lossvo.data.synthetic import layouts as synthetic_layouts
 from lossvo.evaluation import metrics
 from lossvo.evaluation.results import MULTI_LAYOUT, DataRecord, Scores, SourceRecord
 from lossvo.geometry import camera
@@ -493,6 +494,7 @@ def read_sequence(
                 "evaluate the checkpoint again to record them"
             )
         layout, root, keep_every = source.layout, source.root, source.keep_every
+        name = synthetic_layouts.sequence_name(layout, name) if source.rendered else name
     return layouts.load_sequence(layout, layouts.dataset_root(layout, root), name).every(keep_every)
 
 

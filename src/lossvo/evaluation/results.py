@@ -346,12 +346,15 @@ MULTI_LAYOUT = "multi"
 
 @dataclass(frozen=True)
 class SourceRecord:
-    """One dataset of a training on several: the ``layout`` its sequences are read in
-    (:data:`lossvo.data.layouts.LAYOUTS`), its ``root`` folder and every how-many-th frame it kept."""
+    """One dataset of several: the ``layout`` its sequences are read in
+    (:data:`lossvo.data.layouts.LAYOUTS`), its ``root`` folder, every how-many-th frame it kept, and whether
+    it is the synthetic town ``rendered`` in that layout (its sequences' two digits are then named as the
+    layout names them, :func:`lossvo.data.synthetic.layouts.sequence_name`)."""
 
     layout: str
     root: str
     keep_every: int = 1
+    rendered: bool = False
 
     @classmethod
     def from_json(cls, obj: Any, where: str) -> SourceRecord:
@@ -360,10 +363,11 @@ class SourceRecord:
             layout=cast("str", _text(_field(obj, "layout", where), _key(where, "layout"))),
             root=cast("str", _text(_field(obj, "root", where), _key(where, "root"))),
             keep_every=cast("int", _integer(obj.get("keep_every", 1), _key(where, "keep_every"))),
+            rendered=_flag(obj.get("rendered", False), _key(where, "rendered")),
         )
 
     def to_json(self) -> dict[str, Any]:
-        return {"layout": self.layout, "root": self.root, "keep_every": self.keep_every}
+        return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
 @dataclass(frozen=True)
@@ -619,7 +623,8 @@ def _sources(description: Mapping[str, Any]) -> dict[str, SourceRecord]:
     out = {}
     for name, source in (description.get("sources") or {}).items():
         layout, keep_every = _reading({"sources": {name: source}})
-        out[name] = SourceRecord(layout, str(source.get("root")), keep_every)
+        rendered = source.get("layout") == "synthetic"
+        out[name] = SourceRecord(layout, str(source.get("root")), keep_every, rendered)
     return out
 
 
