@@ -195,3 +195,16 @@ def test_cache_key_changes_with_the_recorded_data_the_training_mean_and_flow(
     assert baselines.flow_key(sequence) != flow_key
     keys.add(baselines.cache_key(data.identity(), sequence, np.eye(4), flow, "none", 1))
     assert len(keys) == 6
+
+
+def test_a_sequence_of_several_datasets_names_its_recorded_source(tmp_path: Path) -> None:
+    from lossvo.evaluation.results import MULTI_LAYOUT, SourceRecord
+
+    sources = {"car": SourceRecord("kitti", str(tmp_path), rendered=True)}
+    for name in ("00", "drone/00"):  # no source named, or one not recorded
+        with pytest.raises(
+            UserError, match=rf"^sequence {name}: not <source>/<sequence> of a recorded dataset \(car\)"
+        ):
+            baselines.read_sequence(MULTI_LAYOUT, str(tmp_path), 1, sources, name)
+    with pytest.raises(UserError, match=r"none recorded"):
+        baselines.read_sequence(MULTI_LAYOUT, str(tmp_path), 1, {}, "car/00")

@@ -485,16 +485,16 @@ def read_sequence(
         UserError: a source not in ``sources``; KittiFormatError for a sequence that is not there.
     """
     if layout == MULTI_LAYOUT:
-        source_name, _, name = name.partition("/")
-        source = sources.get(source_name)
+        source_name, _, inner = name.partition("/")
+        source = sources.get(source_name) if inner else None
         if source is None:
             recorded = ", ".join(sources) or "none recorded"
             raise UserError(
-                f"sequence {source_name}/{name}: its dataset is not among the recorded sources ({recorded}): "
-                "evaluate the checkpoint again to record them"
+                f"sequence {name}: not <source>/<sequence> of a recorded dataset ({recorded}); results.json "
+                "written before the sources were recorded: evaluate the checkpoint again"
             )
         layout, root, keep_every = source.layout, source.root, source.keep_every
-        name = synthetic_layouts.sequence_name(layout, name) if source.rendered else name
+        name = synthetic_layouts.sequence_name(layout, inner) if source.rendered else inner
     return layouts.load_sequence(layout, layouts.dataset_root(layout, root), name).every(keep_every)
 
 
