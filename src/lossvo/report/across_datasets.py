@@ -130,21 +130,12 @@ def across_rows(
         (label, trained, evaluated, sequences), group = key, groups[key]
         scores = [r.overall.scores for r in group if r.overall.scores is not None]
         here = base.get((evaluated, sequences), {})
-        cells, read = _score_cells([Rmses.of(s) for s in scores], here.get(baselines.ZERO)), read_as(group[0])
+        zero = here.get(baselines.ZERO)
+        cells, read = _score_cells([Rmses.of(s) for s in scores], zero), read_as(group[0])
         rows.append([label, trained, evaluated, sequences, len(scores), *cells, read])
         last_here = i + 1 == len(order) or order[i + 1][2:] != key[2:]
         for name, pooled in here.items() if last_here else ():
-            rows.append(
-                [
-                    name,
-                    "-",
-                    evaluated,
-                    sequences,
-                    "-",
-                    *_score_cells([pooled], here.get(baselines.ZERO)),
-                    read,
-                ]
-            )
+            rows.append([name, "-", evaluated, sequences, "-", *_score_cells([pooled], zero), read])
     return Rows(HEADER, rows)
 
 
