@@ -405,12 +405,8 @@ class DataRecord:
     def identity(self) -> dict[str, Any]:
         """What decides the frames on disk and the training split's poses (a cache key)."""
         train_root = None if self.train_root is None else str(Path(self.train_root))
-        identity: dict[str, Any] = {"root": str(Path(self.root)), "train_root": train_root}
-        identity["train"] = list(self.train)
-        for key in SOURCE_FIELDS:
-            if getattr(self, key):
-                identity[key] = {k: s.to_json() for k, s in getattr(self, key).items()}
-        return identity
+        identity = {"root": str(Path(self.root)), "train_root": train_root, "train": list(self.train)}
+        return identity | self._sources_json()
 
     @classmethod
     def from_json(cls, obj: Any, where: str = "data") -> DataRecord:
@@ -444,10 +440,15 @@ class DataRecord:
 
     def to_json(self) -> dict[str, Any]:
         out = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in SOURCE_FIELDS}
-        for key in SOURCE_FIELDS:  # written only for data of several datasets
-            if getattr(self, key):
-                out[key] = {k: s.to_json() for k, s in getattr(self, key).items()}
-        return out
+        return out | self._sources_json()
+
+    def _sources_json(self) -> dict[str, Any]:
+        """``sources`` and ``train_sources`` as JSON, each only where it lists datasets (data of several)."""
+        return {
+            key: {k: s.to_json() for k, s in getattr(self, key).items()}
+            for key in SOURCE_FIELDS
+            if getattr(self, key)
+        }
 
 
 SOURCE_FIELDS = ("sources", "train_sources")
