@@ -43,7 +43,7 @@ from lossvo.evaluation.results import (
     SequenceResult,
     Statistics,
 )
-from lossvo.report.against_baselines import BaselineRun
+from lossvo.report.against_baselines import BaselineRun, data_groups
 from lossvo.report.cli import main
 from lossvo.report.configurations import label_jobs, varying_keys
 from lossvo.report.document import make_report
@@ -754,6 +754,42 @@ def test_baselines_and_ground_truth_come_from_the_data_results_json_records(
 
 
 @pytest.mark.slow
+def test_each_sequence_gets_the_baselines_and_ground_truth_of_the_data_that_evaluated_it(
+    tiny_kitti: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Two jobs trained on different data (00; 01), each evaluated on its own sequence (01; 02): each
+    sequence's mean motion is its own job's training split's, and both have ground truth."""
+    forbid_datamodules(monkeypatch)
+    sweep = tmp_path / "sweep"
+    for number, (loss, train, evaluated) in enumerate((("euler", "00", "01"), ("quat", "01", "02"))):
+        record = data_record(tiny_kitti, [evaluated], [], train=[train])
+        job = write_job(sweep, number, loss, {"train": [train]}, {evaluated: entry(0.1, 0.01)}, record)
+        (job / "trajectories").mkdir()
+        gt = read_pose_file(tiny_kitti / "poses" / f"{evaluated}.txt")
+        np.savetxt(job / "trajectories" / f"{evaluated}.txt", gt[:, :3, :].reshape(-1, 12))
+    path = make_report(sweep, n_jobs=1)
+    check_zero_and_mean_motion(path.parent, tiny_kitti, ("00",), ("01",))
+    check_zero_and_mean_motion(path.parent, tiny_kitti, ("01",), ("02",))
+    text = path.read_text()
+    assert "baselines skipped" not in text and "without ground truth" not in text
+
+
+def test_jobs_are_grouped_by_their_data_for_the_baselines(tmp_path: Path) -> None:
+    """Each data's first job takes the sequences its jobs evaluated that no earlier data did; a sequence
+    evaluated on two data is named in a note."""
+    x, y = (data_record(tmp_path, [], [], train=[t]) for t in ("00", "01"))
+    jobs = [
+        Job(tmp_path / name, results=results_json(record, {s: entry(0.1, 0.01) for s in evaluated}))
+        for name, record, evaluated in (("a", x, ["01"]), ("b", y, ["02", "01"]), ("c", x, ["00"]))
+    ]
+    groups, notes = data_groups(jobs, ["00", "01", "02"])
+    assert [(job.path.name, own) for job, own in groups] == [("a", ["00", "01"]), ("b", ["02"])]
+    assert notes == ["jobs of different data evaluated 01: their baselines use the first one's"]
+    groups, notes = data_groups(jobs[:1] + jobs[2:], ["00", "01", "02"])
+    assert [(job.path.name, own) for job, own in groups] == [("a", ["00", "01"])] and notes == []
+
+
+@pytest.mark.slow
 def test_without_the_recorded_data_the_report_renders_and_says_why_once(
     tiny_kitti: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -784,7 +820,7 @@ def test_ground_truth_is_read_from_the_pose_file_results_json_names(tiny_kitti: 
     results = results_json(data_record(tiny_kitti, list(named), []), {s: entry(0.1, 0.01) for s in named})
     sequences = {s: replace(e, ground_truth=named[s]) for s, e in results.sequences.items()}
     job = Job(tmp_path / "0_job", results=replace(results, sequences=sequences))
-    found, missing = ground_truth(job, ["01", "02", "03", "04"])
+    found, missing = ground_truth([job], ["01", "02", "03", "04"])
     assert set(found) == {"01"} and np.array_equal(found["01"], read_pose_file(elsewhere))
     assert set(missing) == {"02", "03", "04"}
     assert "names no ground-truth file" in missing["02"] and "missing.txt" in missing["03"]

@@ -3,9 +3,11 @@
 sequences (:func:`learning_markdown`), below zero motion in rotation and below the sequence's own mean
 motion in translation on the unseen-motion sequences (:func:`unseen_markdown`).
 
-The baselines' data is what the first included job's results.json records (its
-:class:`lossvo.evaluation.results.DataRecord`); where it is no longer on disk, the report has no baseline
-columns and one note says why.
+The baselines of a sequence use the data that the results.json of a job which evaluated it records (its
+:class:`lossvo.evaluation.results.DataRecord`): the included jobs are grouped by their data, and each group's
+first job gives the baselines of the sequences its group evaluated (a sequence two groups evaluated takes the
+first group's, with a note). Where a group's data is no longer on disk, its sequences have no baseline and one
+note says why.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from lossvo import table_render
 from lossvo.console import first_line
 from lossvo.evaluation import baselines
 from lossvo.evaluation.metrics import AlignMode
-from lossvo.evaluation.results import DataRecord, Scores
+from lossvo.evaluation.results import Scores
 from lossvo.report.jobs import (
     RPE_ROT,
     RPE_TRANS,
@@ -70,38 +72,53 @@ def evaluation_settings(jobs: Sequence[Job]) -> tuple[str, int, list[str]]:
     return first[0], first[1], notes
 
 
-def baseline_data(jobs: Sequence[Job]) -> tuple[DataRecord, list[str]]:
-    """The data record of the first included job (which the baselines use) and a note if the jobs'
-    records differ.
-
-    Raises:
-        UserError: the first job's data is no longer on disk.
-    """
-    data = jobs[0].included_results.data
-    check_on_disk(data, jobs[0])
-    identities = {json.dumps(job.included_results.data.identity(), sort_keys=True) for job in jobs}
+def data_groups(
+    jobs: Sequence[Job], sequences: Sequence[str]
+) -> tuple[list[tuple[Job, list[str]]], list[str]]:
+    """The included ``jobs`` grouped by their data (:meth:`DataRecord.identity`), in order of first
+    appearance: each group's first job and the ``sequences`` its group evaluated that no earlier group did;
+    and a note naming the sequences several groups evaluated."""
+    groups: dict[str, tuple[Job, set[str]]] = {}
+    for job in jobs:
+        key = json.dumps(job.included_results.data.identity(), sort_keys=True)
+        _, evaluated = groups.setdefault(key, (job, set()))
+        evaluated.update(job.included_results.sequences)
+    taken: set[str] = set()
+    shared: set[str] = set()
+    result = []
+    for first, evaluated in groups.values():
+        shared |= evaluated & taken
+        result.append((first, [s for s in sequences if s in evaluated and s not in taken]))
+        taken |= evaluated
     notes = (
-        [] if len(identities) == 1 else [f"jobs differ in their data: baselines use {jobs[0].path.name}'s"]
+        [f"jobs of different data evaluated {', '.join(sorted(shared))}: their baselines use the first one's"]
+        if shared
+        else []
     )
-    return data, notes
+    return [(job, own) for job, own in result if own], notes
 
 
 def run_baselines(jobs: Sequence[Job], sequences: Sequence[str], cache_dir: Path, n_jobs: int) -> BaselineRun:
-    """Baselines on ``sequences`` of the data the first included job records; never raises (a failure
-    becomes a note and no baseline columns)."""
+    """Baselines on ``sequences``, each on the data of the jobs that evaluated it (:func:`data_groups`);
+    never raises (a group's failure becomes a note and no baseline for its sequences)."""
     run = BaselineRun()
     start = time.perf_counter()
     align, delta, run.notes = evaluation_settings(jobs)
-    try:
-        data, notes = baseline_data(jobs)
-        run.notes += notes
-        mode = cast("AlignMode", align)  # results.json's text; metrics.align rejects an unknown mode
-        results = baselines.compute_baselines(data, sequences, cache_dir, mode, delta, n_jobs)
-    except Exception as e:  # missing data, a damaged sequence: the report goes on without baselines
-        run.notes.append(f"baselines skipped: {type(e).__name__}: {first_line(e)}")
-        run.seconds = time.perf_counter() - start
-        return run
-    _fill(run, results, sequences)
+    mode = cast("AlignMode", align)  # results.json's text; metrics.align rejects an unknown mode
+    groups, notes = data_groups(jobs, sequences)
+    run.notes += notes
+    results: dict[str, dict[str, baselines.BaselineResult]] = {}
+    for job, own in groups:
+        try:
+            check_on_disk(job.included_results.data, job)
+            results |= baselines.compute_baselines(
+                job.included_results.data, own, cache_dir, mode, delta, n_jobs
+            )
+        except Exception as e:  # missing data, a damaged sequence: the report goes on without these baselines
+            where = "" if len(groups) == 1 else f" ({job.path.name}'s data)"
+            run.notes.append(f"baselines skipped{where}: {type(e).__name__}: {first_line(e)}")
+    if results:
+        _fill(run, results, [s for s in sequences if s in results])
     run.seconds = time.perf_counter() - start
     return run
 

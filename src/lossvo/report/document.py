@@ -445,9 +445,9 @@ def write_figures(
     base: BaselineRun,
     sequences: Sequence[str],
     folder: Path,
-    source: Job | None,
+    jobs: Sequence[Job],
 ) -> Figures:
-    """Every figure, the ground truth read from the pose files that ``source``'s results.json names
+    """Every figure, the ground truth read from the pose files that the ``jobs``' results.json name
     (:func:`lossvo.report.jobs.ground_truth`); the curves and the APE bars per architecture where the
     networks span several (``curves_<architecture>.png``). Returns the paths written and a note if some
     trajectory figure lacks ground truth."""
@@ -460,7 +460,7 @@ def write_figures(
         if table.columns:
             plot_ape_bars(table, folder / f"ape_trans_rmse{suffix}.png")
             figures.paths.append(folder / f"ape_trans_rmse{suffix}.png")
-    gt, missing = ground_truth(source, sequences) if source is not None else ({}, {})
+    gt, missing = ground_truth(jobs, sequences)
     figures.notes += ground_truth_note(missing)
     for s in sequences:
         extra = {k: v for k, v in base.trajectories.get(s, {}).items() if not k.startswith("zero")}
@@ -498,10 +498,9 @@ def make_report(
     comparisons = compare(networks, study.by_architecture)
     write_tables(tables, comparisons, study, out / "tables")
     figures = None
-    source = included[0] if included else None
     if with_figures:
-        figures = write_figures(networks, tables, base, sequences, out / "figures", source)
-    speed = speed_rows(networks, ground_truth(source, sequences)[0], sequences) if source else None
+        figures = write_figures(networks, tables, base, sequences, out / "figures", included)
+    speed = speed_rows(networks, ground_truth(included, sequences)[0], sequences) if included else None
     if speed is not None:
         write_text_atomic(out / "tables" / "speed.csv", table_render.csv_text(speed))
     evaluations, unused = find_evaluations(sweep, included)

@@ -361,18 +361,24 @@ def read_trajectory(job: Job, sequence: str) -> np.ndarray | None:
         return None
 
 
-def ground_truth(job: Job, sequences: Sequence[str]) -> tuple[dict[str, np.ndarray], dict[str, str]]:
-    """Ground-truth poses (N, 4, 4), translation in m, of the sequences, read from the pose files that the
-    job's results.json names (``sequences[s].ground_truth``: a KITTI pose file, or a TUM file ``.tum``).
+def ground_truth(
+    jobs: Sequence[Job], sequences: Sequence[str]
+) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    """Ground-truth poses (N, 4, 4), translation in m, of the sequences, each read from the pose file that
+    the results.json of the first of ``jobs`` to evaluate it names (``sequences[s].ground_truth``: a KITTI
+    pose file, or a TUM file ``.tum``).
 
     Returns:
         ``{sequence: poses}`` of the sequences whose file could be read, and ``{sequence: reason}`` of the
-        others (no file named, a file that no longer exists or cannot be read).
+        others (evaluated by no job, no file named, a file that no longer exists or cannot be read).
     """
-    entries = job.results.sequences if job.results else {}
     found, missing = {}, {}
     for s in sequences:
-        path = entries[s].ground_truth if s in entries else None
+        job = next((j for j in jobs if j.results and s in j.results.sequences), None)
+        if job is None or job.results is None:
+            missing[s] = "no job's results.json has it"
+            continue
+        path = job.results.sequences[s].ground_truth
         if path is None:
             missing[s] = f"{job.path.name}/results.json names no ground-truth file"
             continue
