@@ -13,6 +13,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import numpy as np
+
 from lossvo import table_render
 from lossvo.atomic import write_text_atomic
 from lossvo.evaluation.results import file_stem
@@ -445,9 +447,10 @@ def write_figures(
     base: BaselineRun,
     sequences: Sequence[str],
     folder: Path,
-    jobs: Sequence[Job],
+    gt: dict[str, np.ndarray],
+    missing: dict[str, str],
 ) -> Figures:
-    """Every figure, the ground truth read from the pose files that the ``jobs``' results.json name
+    """Every figure, with the ground truth ``gt`` and the reasons it is ``missing`` for the other sequences
     (:func:`lossvo.report.jobs.ground_truth`); the curves and the APE bars per architecture where the
     networks span several (``curves_<architecture>.png``). Returns the paths written and a note if some
     trajectory figure lacks ground truth."""
@@ -460,7 +463,6 @@ def write_figures(
         if table.columns:
             plot_ape_bars(table, folder / f"ape_trans_rmse{suffix}.png")
             figures.paths.append(folder / f"ape_trans_rmse{suffix}.png")
-    gt, missing = ground_truth(jobs, sequences)
     figures.notes += ground_truth_note(missing)
     for s in sequences:
         extra = {k: v for k, v in base.trajectories.get(s, {}).items() if not k.startswith("zero")}
@@ -498,9 +500,10 @@ def make_report(
     comparisons = compare(networks, study.by_architecture)
     write_tables(tables, comparisons, study, out / "tables")
     figures = None
+    gt, missing = ground_truth(included, sequences)
     if with_figures:
-        figures = write_figures(networks, tables, base, sequences, out / "figures", included)
-    speed = speed_rows(networks, ground_truth(included, sequences)[0], sequences) if included else None
+        figures = write_figures(networks, tables, base, sequences, out / "figures", gt, missing)
+    speed = speed_rows(networks, gt, sequences) if included else None
     if speed is not None:
         write_text_atomic(out / "tables" / "speed.csv", table_render.csv_text(speed))
     evaluations, unused = find_evaluations(sweep, included)
