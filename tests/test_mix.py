@@ -168,3 +168,46 @@ def test_a_source_no_split_reads_is_not_rendered(tmp_path: Path) -> None:
     dm.prepare_data()
     assert (tmp_path / "synthetic-car" / "sequences" / "00").is_dir()
     assert not (tmp_path / "synthetic-drone").exists()
+
+
+def two_sources(root: Path, cache: Path, shares: Any) -> VODataModule:
+    """A data module reading the same KITTI-layout root as sources ``a`` (two training sequences) and
+    ``b`` (one), with ``data.windows.shares``."""
+    return VODataModule(
+        sources={"a": {"layout": "kitti", "root": str(root)}, "b": {"layout": "kitti", "root": str(root)}},
+        splits={"train": ["a/00", "a/01", "b/02"], "val": ["a/02"], "test": ["a/02"]},
+        frames={"height": 32, "width": 96, "cache_dir": str(cache)},
+        windows={"seq_len": 2, "shares": shares},
+        loader={"num_workers": 0},
+    )
+
+
+def test_shares_set_each_sources_part_of_an_epoch(tiny_kitti: Path, tmp_path: Path) -> None:
+    dm = two_sources(tiny_kitti, tmp_path, {"b": 0.5})
+    dm.prepare_data()
+    dm.setup("fit")
+    data = dm.datasets["train"]
+    assert len(data) == 27  # 9 pairs a sequence: 18 of a, 9 of b
+    drawn = np.array(list(dm.train_dataloader().sampler))
+    of_b = data.index[drawn, 0] == 2
+    assert len(drawn) == 27 and of_b.sum() in (13, 14)  # half of the epoch, b's 9 windows repeated
+    assert set(data.index[drawn[of_b], 1].tolist()) == set(range(9))
+    assert dm.description()["windows"]["shares"] == {"b": 0.5}
+
+
+@pytest.mark.parametrize(
+    ("shares", "message"),
+    [
+        ({"c": 0.5}, r"^data\.windows\.shares\.c: not a source \(expected some of a, b\)$"),
+        ({"a": 1.0}, r"^data\.windows\.shares: sum 1 leaves no windows for b \(expected < 1"),
+        ({"a": 0.5, "b": 0.4}, r"^data\.windows\.shares: a share for every source must sum to 1, got 0\.9$"),
+        ({"a": 0}, r"^data\.windows\.shares\.a: expected a fraction of each epoch's windows in \(0, 1\]"),
+        ({"a": 0.7, "b": 0.6}, r"^data\.windows\.shares: expected fractions that sum to at most 1 \(sum 1"),
+        ([0.5], r"^data\.windows\.shares: expected \{source: fraction of each epoch\}, got \[0\.5\]$"),
+    ],
+)
+def test_shares_that_cannot_be_drawn_are_one_line_naming_the_key(
+    tiny_kitti: Path, tmp_path: Path, shares: Any, message: str
+) -> None:
+    with pytest.raises(UserError, match=message):
+        two_sources(tiny_kitti, tmp_path, shares)

@@ -301,13 +301,17 @@ def _statistics(value: Any) -> dict[str, list[float]] | None:
 class Windows:
     """Training windows: ``seq_len`` frames (``seq_len - 1`` pairs), a start every ``stride`` frames, at
     each of ``frame_steps`` (every s-th frame: faster motion); ``per_epoch`` windows drawn afresh each epoch
-    (None: all); ``batch_size`` windows a batch. Validation and evaluation tile consecutive frames."""
+    (None: all); ``batch_size`` windows a batch; ``shares``, source name -> the fraction of each epoch's
+    windows drawn from that source's (the sources not named split the rest in proportion to their window
+    counts; None: every source in proportion to its windows). Validation and evaluation tile consecutive
+    frames."""
 
     seq_len: int = 7
     stride: int = 1
     frame_steps: tuple[int, ...] = (1,)
     per_epoch: int | None = None
     batch_size: int = 8
+    shares: dict[str, float] | None = None
 
     @classmethod
     def of(cls, value: Any) -> Windows:
@@ -334,7 +338,24 @@ class Windows:
             bool(listed) and all(is_integer(v, 1) for v in listed),
             "a list of integers >= 1 like [1, 2]",
         )
-        return cls(f["seq_len"], f["stride"], tuple(dict.fromkeys(listed)), per_epoch, f["batch_size"])
+        steps, shares = tuple(dict.fromkeys(listed)), _shares(f["shares"])
+        return cls(f["seq_len"], f["stride"], steps, per_epoch, f["batch_size"], shares)
+
+
+def _shares(value: Any) -> dict[str, float] | None:
+    """``data.windows.shares`` as ``{source: fraction}``, each in (0, 1] and together at most 1, or None;
+    UserError naming the key otherwise."""
+    if value is None:
+        return None
+    _check("data.windows", "shares", value, isinstance(value, Mapping), "{source: fraction of each epoch}")
+    shares = {str(k): v for k, v in value.items()}
+    for name, share in shares.items():
+        fits = is_number(share) and 0 < share <= 1
+        _check("data.windows.shares", name, share, fits, "a fraction of each epoch's windows in (0, 1]")
+    total = sum(shares.values())
+    expected = f"fractions that sum to at most 1 (sum {total:g})"
+    _check("data.windows", "shares", value, total <= 1 + 1e-9, expected)
+    return {k: float(v) for k, v in shares.items()}
 
 
 def flow_of(value: Any) -> FlowSetting:

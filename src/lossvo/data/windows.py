@@ -244,10 +244,60 @@ class EpochShuffle(Sampler[int]):
     def set_epoch(self, epoch: int) -> None:
         self.epoch = epoch
 
-    def __iter__(self) -> Iterator[int]:
+    def generator(self) -> torch.Generator:
+        """The epoch's own random stream: a function of the seed and the epoch only."""
         state = np.random.SeedSequence([self.seed % 2**63, self.epoch]).generate_state(2, dtype=np.uint32)
-        generator = torch.Generator().manual_seed(int(state[0]) << 32 | int(state[1]))
-        return iter(torch.randperm(self.n, generator=generator)[: self.count].tolist())
+        return torch.Generator().manual_seed(int(state[0]) << 32 | int(state[1]))
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(torch.randperm(self.n, generator=self.generator())[: self.count].tolist())
 
     def __len__(self) -> int:
         return self.count
+
+
+def share_counts(count: int, fractions: np.ndarray) -> np.ndarray:
+    """Whole numbers of windows that sum to ``count``, in the proportions ``fractions`` (largest remainder).
+
+    Args:
+        count: windows an epoch; fractions: (G,) >= 0, summing to 1.
+    Returns:
+        (G,) int64.
+    """
+    exact = count * np.asarray(fractions, dtype=np.float64)
+    counts = np.floor(exact).astype(np.int64)
+    counts[np.argsort(counts - exact, kind="stable")[: count - int(counts.sum())]] += 1
+    return counts
+
+
+class SharedEpochShuffle(EpochShuffle):
+    """``count`` indices an epoch, ``fractions[g]`` of them from group g (e.g. a dataset of a mix), in a
+    random order that depends on ``seed`` and the epoch only. A group gives its indices without
+    replacement, and again in a fresh order once all are given (a share above its size repeats them).
+
+    Args:
+        groups: (n,) int, the group of each index; fractions: (G,) >= 0 summing to 1, the share of
+            each group (one with indices where its share is > 0); count: indices an epoch; seed: the run's.
+    """
+
+    def __init__(self, groups: np.ndarray, fractions: np.ndarray, count: int, seed: int) -> None:
+        super().__init__(len(groups), count, seed)
+        self.members = [torch.from_numpy(np.flatnonzero(groups == g)) for g in range(len(fractions))]
+        self.counts = share_counts(count, fractions)
+
+    def __iter__(self) -> Iterator[int]:
+        generator = self.generator()
+        drawn = [
+            members[_cycled_permutation(len(members), int(k), generator)]
+            for members, k in zip(self.members, self.counts, strict=True)
+        ]
+        chosen = torch.cat(drawn)
+        return iter(chosen[torch.randperm(len(chosen), generator=generator)].tolist())
+
+
+def _cycled_permutation(n: int, count: int, generator: torch.Generator) -> torch.Tensor:
+    """(count,) int64 positions in [0, n): permutations of ``range(n)`` in turn, cut at ``count``."""
+    if count == 0:
+        return torch.zeros(0, dtype=torch.int64)
+    rounds = -(-count // n)
+    return torch.cat([torch.randperm(n, generator=generator) for _ in range(rounds)])[:count]
