@@ -198,6 +198,111 @@ class Mirror:
 
 
 @dataclass(frozen=True)
+class Roll:
+    """Turn the cameras of a window about their optical axes, with probability ``p``: each frame after the
+    first by its own angle drawn from U[-``max_rad``, ``max_rad``] (radians), so that every pair gains a
+    roll the data may lack (:func:`rolled_windows`). A turn about the camera's centre moves every pixel by
+    a map that depends on K alone, not on depth, so frames and flow follow exactly (the flow of later
+    pairs is resampled, bilinear, the border extended)."""
+
+    p: float
+    max_rad: float
+
+    def __post_init__(self) -> None:
+        _check_probability("Roll", self.p)
+        if not (is_number(self.max_rad) and 0.0 <= self.max_rad <= 0.5):
+            raise UserError(
+                f"data.transforms: Roll.max_rad: expected radians in [0, 0.5], got {self.max_rad!r}"
+            )
+
+    def __call__(
+        self, inputs: Inputs, targets: torch.Tensor, generator: torch.Generator | None = None
+    ) -> tuple[Inputs, torch.Tensor]:
+        B, L = inputs["frames"].shape[:2]
+        which = _draw(self.p, B, generator)
+        draw = (2.0 * torch.rand(B, L - 1, generator=generator) - 1.0) * self.max_rad * which[:, None]
+        angles = torch.cat((torch.zeros(B, 1), draw), 1).to(targets.device, non_blocking=True)
+        return rolled_windows(inputs, targets, angles)
+
+
+def roll_poses(poses: torch.Tensor, angles: torch.Tensor) -> torch.Tensor:
+    """Relative poses between cameras each turned about its optical axis: ``Rz(a_k)^T T_k Rz(a_k+1)``, where
+    ``T_w_j`` becomes ``T_w_j Rz(a_j)``.
+
+    Args:
+        poses: (B, P, 4, 4) ``inv(T_w_k) @ T_w_{k+1}``; angles: (B, P + 1) radians, one a frame.
+    Returns:
+        (B, P, 4, 4).
+    """
+    cos, sin = angles.cos(), angles.sin()
+    turn = torch.zeros(*angles.shape, 4, 4, dtype=poses.dtype, device=poses.device)
+    turn[..., 0, 0], turn[..., 0, 1], turn[..., 1, 0], turn[..., 1, 1] = cos, -sin, sin, cos
+    turn[..., 2, 2] = turn[..., 3, 3] = 1.0
+    return turn[:, :-1].transpose(-1, -2) @ poses @ turn[:, 1:]
+
+
+def _turn(K: torch.Tensor, pixels: torch.Tensor, angles: torch.Tensor) -> torch.Tensor:
+    """Where pixels of a camera turned by ``angles`` about its optical axis lie in the unturned camera's
+    frame: ``K Rz(a) K^-1 p`` (an affine map: the turn keeps depth).
+
+    Args:
+        K: (B, 3, 3) pixels; pixels: (B, T, H, W, 2) coordinates (x, y), pixel centres at integers;
+            angles: (B, T) radians.
+    Returns:
+        (B, T, H, W, 2).
+    """
+    fx, fy, cx, cy = (K[:, i, j, None, None, None] for i, j in ((0, 0), (1, 1), (0, 2), (1, 2)))
+    u, v = (pixels[..., 0] - cx) / fx, (pixels[..., 1] - cy) / fy
+    cos, sin = angles.cos()[..., None, None], angles.sin()[..., None, None]
+    return torch.stack((fx * (cos * u - sin * v) + cx, fy * (sin * u + cos * v) + cy), dim=-1)
+
+
+def _sample(x: torch.Tensor, pixels: torch.Tensor) -> torch.Tensor:
+    """``x`` (B, T, C, H, W) read at ``pixels`` (B, T, H, W, 2) (bilinear, the border extended)."""
+    B, T, C, H, W = x.shape
+    scale = torch.tensor([2.0 / W, 2.0 / H], dtype=pixels.dtype, device=pixels.device)
+    grid = ((pixels + 0.5) * scale - 1.0).reshape(B * T, H, W, 2)
+    out = F.grid_sample(
+        x.reshape(B * T, C, H, W).to(grid.dtype), grid, align_corners=False, padding_mode="border"
+    )
+    return out.reshape(x.shape)
+
+
+def rolled_windows(
+    inputs: Inputs, targets: torch.Tensor, angles: torch.Tensor
+) -> tuple[Inputs, torch.Tensor]:
+    """Windows seen by cameras each turned about its optical axis (:class:`Roll`): frame j by
+    ``angles[:, j]``. Frame j becomes ``I(K Rz(a_j) K^-1 p)``; pair k's flow, at pixel p of the turned
+    frame k, the turned frame k+1's pixel of the old match minus p; targets by :func:`roll_poses`.
+
+    Args:
+        inputs: ``frames`` (B, L, C, H, W), ``K`` (B, 3, 3) pixels, optionally ``flow`` (B, L-1, 2, H, W)
+            pixels; targets: (B, L-1, 4, 4); angles: (B, L) radians.
+    Returns:
+        the same entries, turned (other entries as they are), and the targets.
+    """
+    frames, K = inputs["frames"], inputs["K"].float()
+    (B, L), (H, W) = frames.shape[:2], frames.shape[-2:]
+    angles = angles.to(torch.float32)
+    ys, xs = torch.meshgrid(
+        torch.arange(H, dtype=K.dtype, device=K.device),
+        torch.arange(W, dtype=K.dtype, device=K.device),
+        indexing="ij",
+    )
+    grid = torch.stack((xs, ys), dim=-1)  # (H, W, 2) pixel coordinates
+    source = _turn(K, grid.expand(B, L, H, W, 2), angles)
+    turned = _sample(frames, source)
+    out = dict(inputs)
+    out["frames"] = turned if frames.is_floating_point() else turned.round().clamp(0, 255).to(frames.dtype)
+    if "flow" in inputs:
+        flow = inputs["flow"]
+        old_match = source[:, :-1] + _sample(flow, source[:, :-1]).movedim(2, -1)  # (B, P, H, W, 2)
+        match = _turn(K, old_match, -angles[:, 1:])
+        out["flow"] = (match - grid).movedim(-1, 2).to(flow.dtype)
+    return out, roll_poses(targets, angles.to(targets.dtype))
+
+
+@dataclass(frozen=True)
 class Reverse:
     """Play a window backwards with probability ``p``: frames in reverse order, targets the inverse
     relative poses in reverse order (frame k seen from frame k+1), which is exact. Not with flow (the cache
@@ -241,10 +346,10 @@ def jitter(frames: torch.Tensor, generator: torch.Generator | None = None) -> to
     return ((frames - 127.5) * (1.0 + 0.4 * gain) + 127.5 + 50.0 * bias).clamp(0.0, 255.0)
 
 
-TRANSFORMS = (Standstill, Zoom, Mirror, Reverse, Jitter)
+TRANSFORMS = (Standstill, Zoom, Mirror, Roll, Reverse, Jitter)
 """The batch transforms, in the order the configs list them."""
 
-Transform = Standstill | Zoom | Mirror | Reverse | Jitter
+Transform = Standstill | Zoom | Mirror | Roll | Reverse | Jitter
 
 
 def spec(transform: Any) -> dict[str, Any]:
