@@ -106,6 +106,28 @@ def test_channels_last_gives_the_same_values() -> None:
     torch.testing.assert_close(grads[0], grads[1], rtol=1e-3, atol=1e-5)
 
 
+def test_leaky_heads_pass_gradient_through_units_below_zero() -> None:
+    """Every hidden unit of both heads pushed below zero: ReLU heads (slope 0) pass no gradient to their
+    hidden layers, so the units cannot recover; leaky heads do. Slope 0 is ReLU exactly."""
+    flow, K = _batch()
+    grads = {}
+    for slope in (0.0, 0.1):
+        torch.manual_seed(0)
+        net = FlowVO(7, H, W, head_negative_slope=slope)
+        for head in (net.translation_head, net.rotation_head):
+            torch.nn.init.constant_(head.hidden.bias, -1e3)
+        out = net(flow, K)
+        out.square().sum().backward()
+        grads[slope] = [h.hidden.weight.grad.abs().sum() for h in (net.translation_head, net.rotation_head)]
+    assert all(g == 0 for g in grads[0.0])
+    assert all(g > 0 for g in grads[0.1])
+    torch.manual_seed(0)
+    relu = FlowVO(7, H, W)
+    x = relu.stages(relu.stem(relu.encoder_input(flow, K))).flatten(1)
+    head = relu.rotation_head
+    torch.testing.assert_close(head(x), head.out(torch.relu(head.hidden(x))), rtol=0, atol=0)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [({"out_dim": 3}, "model.out_dim: expected an integer >= 4"),
@@ -115,6 +137,8 @@ def test_channels_last_gives_the_same_values() -> None:
      ({"pool": 0}, "model.pool: expected an integer >= 1, got 0"),
      ({"pool": 3}, "model.pool: expected a divisor of the input size (64, 208), got 3"),
      ({"head_dropout": 1.5}, "model.head_dropout: expected a probability in [0, 1), got 1.5"),
+     ({"head_negative_slope": 1}, "model.head_negative_slope: expected a slope in [0, 1), got 1"),
+     ({"head_negative_slope": -0.1}, "model.head_negative_slope: expected a slope in [0, 1), got -0.1"),
      ({"channels_last": "yes"}, "model.channels_last: expected true or false, got 'yes'"),
      ({"intrinsics_layer": 1}, "model.intrinsics_layer: expected true or false, got 1")],
 )  # fmt: skip

@@ -8,6 +8,7 @@ import math
 from collections.abc import Sequence
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 from lossvo.checks import is_integer
@@ -42,16 +43,18 @@ class Residual(nn.Module):
 
 
 class Head(nn.Module):
-    """Dropout, a hidden layer with ReLU, a linear output."""
+    """Dropout, a hidden layer with a leaky ReLU of slope ``negative_slope`` below zero (0: ReLU), a linear
+    output."""
 
-    def __init__(self, features: int, hidden: int, out: int, p: float) -> None:
+    def __init__(self, features: int, hidden: int, out: int, p: float, negative_slope: float) -> None:
         super().__init__()
         self.dropout = nn.Dropout(p)
         self.hidden = nn.Linear(features, hidden)
         self.out = nn.Linear(hidden, out)
+        self.negative_slope = negative_slope
 
     def forward(self, x: Tensor) -> Tensor:
-        return self.out(torch.relu(self.hidden(self.dropout(x))))
+        return self.out(F.leaky_relu(self.hidden(self.dropout(x)), self.negative_slope))
 
 
 class FlowVO(nn.Module):
@@ -77,6 +80,9 @@ class FlowVO(nn.Module):
         flow_gain: the flow enters as ``flow * flow_gain / (W, H)``: a fraction of the image, of order 1.
         head_dropout: dropout on the features before each head.
         head_bias: the heads' initial output (out_dim,), the loss's identity output; null: zeros.
+        head_negative_slope: the slope of the heads' hidden units below zero (a leaky ReLU; 0: ReLU). With
+            0, a unit whose input stays below zero passes no gradient and never recovers; a head that keeps
+            too few units cannot express every rotation axis.
         flow: the optical flow the network reads (``data.flow.method``), recorded with it.
         pool: the encoder's input (flow and intrinsics layer) is average-pooled by this factor: a
             quarter of the pixels at 2, where the flow field is smooth.
@@ -102,6 +108,7 @@ class FlowVO(nn.Module):
         flow_gain: float = 20.0,
         head_dropout: float = 0.0,
         head_bias: list[float] | None = None,
+        head_negative_slope: float = 0.0,
         flow: str = "dis",
         pool: int = 1,
         channels_last: bool = False,
@@ -124,6 +131,9 @@ class FlowVO(nn.Module):
         self.hidden = check_int("hidden", hidden, 1)
         self.flow_gain = check_float("flow_gain", flow_gain, 0.0, math.inf, False, "a number > 0")
         p = dropout("head_dropout", head_dropout)
+        self.head_negative_slope = check_float(
+            "head_negative_slope", head_negative_slope, 0.0, 1.0, True, "a slope in [0, 1)"
+        )
         self.flow = flow
         self.pool = check_int("pool", pool, 1)
         if self.height % self.pool or self.width % self.pool:
@@ -150,16 +160,17 @@ class FlowVO(nn.Module):
         h, w = self.height // self.pool, self.width // self.pool
         self.feature_shape = (c3, -(-h // TOTAL_STRIDE), -(-w // TOTAL_STRIDE))
         features = math.prod(self.feature_shape)
-        self.translation_head = Head(features, self.hidden, TRANSLATION_DIM, p)
-        self.rotation_head = Head(features, self.hidden, self.out_dim - TRANSLATION_DIM, p)
+        slope = self.head_negative_slope
+        self.translation_head = Head(features, self.hidden, TRANSLATION_DIM, p, slope)
+        self.rotation_head = Head(features, self.hidden, self.out_dim - TRANSLATION_DIM, p, slope)
 
     @torch.no_grad()
     def reset_parameters(self, seed: int | None = None) -> None:
         """Initialise every layer: the encoder and translation head (the same for every loss) from a
         generator seeded with ``seed``, the rotation head from one seeded with ``seed + 1`` (None: one draw
         from the global stream). Convs Kaiming normal (ReLU, fan-out); BatchNorm weight 1, bias 0, the last
-        of each residual branch 0 (every stage starts as its shortcut); head layers Kaiming uniform, the
-        last normal with std 1e-3 and the loss's identity output as bias."""
+        of each residual branch 0 (every stage starts as its shortcut); head layers Kaiming uniform (for the
+        hidden units' slope), the last normal with std 1e-3 and the loss's identity output as bias."""
         if seed is None:
             seed = int(torch.randint(0, 2**62, ()))
         backbone = torch.Generator().manual_seed(seed)
@@ -179,7 +190,9 @@ class FlowVO(nn.Module):
             (self.translation_head, backbone, bias[0]),
             (self.rotation_head, rotation, bias[1]),
         ):
-            nn.init.kaiming_uniform_(head.hidden.weight, nonlinearity="relu", generator=generator)
+            nn.init.kaiming_uniform_(
+                head.hidden.weight, a=head.negative_slope, nonlinearity="leaky_relu", generator=generator
+            )
             nn.init.zeros_(head.hidden.bias)
             nn.init.normal_(head.out.weight, std=1e-3, generator=generator)
             head.out.bias.copy_(b)
