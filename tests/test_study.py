@@ -245,7 +245,7 @@ def plan_of(argv: list[str], cuda: bool = False) -> study.Plan:
 def test_the_default_study_is_60_jobs_two_at_once_on_the_cpu() -> None:
     plan = plan_of([])
     assert plan.jobs == 60 and plan.at_once == 2 and not plan.gpu
-    command = plan.sweep_command()
+    command = plan.sweep_commands()[0]
     assert command[1:7] == ["-m", "lossvo.train", "-m", "model=deepvo_small,flowvo",
                             "loss=euler,quat,chordal", "seed=0,1,2,3,4,5,6,7,8,9"]  # fmt: skip
     assert "hydra/launcher=joblib" in command and "hydra.launcher.n_jobs=2" in command
@@ -257,7 +257,7 @@ def test_overrides_and_options_reach_the_sweep() -> None:
     argv = ["--seeds", "3,4", "--models", "flowvo", "--jobs", "3", "--sweep-dir", "s", "weighting=paper"]
     plan = plan_of(argv)
     assert plan.jobs == 6 and plan.at_once == 3
-    assert plan.sweep_command()[4:] == ["model=flowvo", "loss=euler,quat,chordal", "seed=3,4",
+    assert plan.sweep_commands()[0][4:] == ["model=flowvo", "loss=euler,quat,chordal", "seed=3,4",
                                         "hydra/launcher=joblib", "hydra.launcher.n_jobs=3",
                                         "hydra.sweep.dir=s", "weighting=paper"]  # fmt: skip
 
@@ -267,7 +267,7 @@ def test_on_a_gpu_as_many_jobs_as_fit_run_with_trainer_gpu(monkeypatch: pytest.M
     monkeypatch.setattr(gpu_jobs, "free_memory", lambda: int(139 * GIB))
     plan = plan_of([], cuda=True)
     assert plan.gpu and plan.at_once == 16
-    assert {"trainer=gpu", "hydra.launcher.n_jobs=16"} <= set(plan.sweep_command())
+    assert {"trainer=gpu", "hydra.launcher.n_jobs=16"} <= set(plan.sweep_commands()[0])
     monkeypatch.setattr(gpu_jobs, "free_memory", lambda: int(22.5 * GIB))
     assert plan_of([], cuda=True).at_once == 5
     assert plan_of(["--seeds", "0", "--models", "flowvo"], cuda=True).at_once == 3  # no more than its jobs
@@ -300,10 +300,10 @@ def test_the_study_time_shares_the_jobs_out_but_is_no_shorter_than_its_longest()
 def test_job_size_from_the_composed_config(tiny_kitti: Path, tmp_path: Path) -> None:
     """Two training sequences of 10 frames, windows of 3 frames a stride 1: 8 each, 4 a batch: 4 steps an
     epoch; 9 pairs validated (02) and evaluated (02), twice for trajectories (mirror averaging)."""
-    cfg = study.compose_job("deepvo_small", "euler", tiny_overrides(tiny_kitti, tmp_path / "cache"))
+    cfg = study.compose_job("model=deepvo_small", "euler", tiny_overrides(tiny_kitti, tmp_path / "cache"))
     assert study.job_size(cfg) == study.JobSize(epochs=10, steps=40, val_pairs=9, evaluated_pairs=9, passes=2)
     tiny = [o for o in tiny_overrides(tiny_kitti, tmp_path / "cache") if not o.startswith("model.")]
-    cfg = study.compose_job("flowvo", "quat", [*tiny, "trainer.max_epochs=2", "mirror_average=false"])
+    cfg = study.compose_job("model=flowvo", "quat", [*tiny, "trainer.max_epochs=2", "mirror_average=false"])
     assert study.job_size(cfg) == study.JobSize(epochs=2, steps=8, val_pairs=9, evaluated_pairs=9, passes=1)
 
 

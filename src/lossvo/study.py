@@ -5,9 +5,11 @@ Examples::
     python -m lossvo.study              # seeds 0-9 x deepvo_small, flowvo x euler, quat, chordal
     python -m lossvo.study --dry-run    # the plan and its time estimate; nothing trains
     python -m lossvo.study --seeds 0,1,2 --models flowvo weighting=paper selection=loss
+    python -m lossvo.study --models none --experiments mix --seeds 0,1,2,3,4,5,6 --sweep-dir S
 
 It plans and checks the sweep, estimates its time, runs ``python -m lossvo.train -m ...`` (joblib launcher)
-into one sweep folder and ``python -m lossvo.report`` on it, and exits with the sweep's status. With CUDA the
+into one sweep folder (the architectures in one multirun, then each experiment in one of its own, their job
+folders side by side) and ``python -m lossvo.report`` on it, and exits with the sweeps' status. With CUDA the
 jobs train with ``trainer=gpu``, as many at once as fit (:mod:`lossvo.training.gpu_jobs`); on the CPU two at
 once, the time estimated from a few timed training steps and an inference pass per architecture. The plan
 and its estimate: docs/sweep.md.
@@ -55,8 +57,12 @@ from lossvo.training.module import VOModule
 
 SEEDS = tuple(range(10))
 MODELS = ("deepvo_small", "flowvo")
+EXPERIMENTS: tuple[str, ...] = ()
 LOSSES = ("euler", "quat", "chordal")
-"""The study's default seeds, architectures (``model=``) and losses (``loss=``)."""
+"""The study's default seeds, architectures (``model=``), experiments (``experiment=``, each a configuration
+of its own, e.g. ``mix``) and losses (``loss=``)."""
+NONE = "none"
+"""``--models none`` / ``--experiments none``: no configuration of that kind."""
 
 CPU_JOBS = 2
 """Jobs at once on a CPU, as ``make sweep`` runs them, single-threaded (why: docs/experiments.md)."""
@@ -76,8 +82,9 @@ CALIBRATION_STEPS = 8
 
 @dataclass(frozen=True)
 class Plan:
-    """A study's sweep: ``seeds`` x ``models`` x ``losses`` with ``overrides`` for every job, ``at_once``
-    jobs at a time on the GPU (``gpu``) or the CPU, written into ``sweep_dir``."""
+    """A study's sweep: ``seeds`` x configurations (``models``, then ``experiments``) x ``losses`` with
+    ``overrides`` for every job, ``at_once`` jobs at a time on the GPU (``gpu``) or the CPU, written into
+    ``sweep_dir``."""
 
     seeds: tuple[int, ...]
     models: tuple[str, ...]
@@ -86,19 +93,30 @@ class Plan:
     sweep_dir: Path
     gpu: bool
     at_once: int
+    experiments: tuple[str, ...] = ()
+
+    @property
+    def configurations(self) -> tuple[str, ...]:
+        """Each configuration's override: ``model=deepvo_small``, ..., ``experiment=mix``."""
+        return (*(f"model={m}" for m in self.models), *(f"experiment={e}" for e in self.experiments))
 
     @property
     def jobs(self) -> int:
-        return len(self.seeds) * len(self.models) * len(self.losses)
+        return len(self.seeds) * len(self.configurations) * len(self.losses)
 
-    def sweep_command(self) -> list[str]:
-        """``python -m lossvo.train -m ...``: the sweep, each job in a joblib (loky) process."""
+    def sweep_commands(self) -> list[list[str]]:
+        """``python -m lossvo.train -m ...``: one multirun of the architectures, then one per experiment,
+        into the one sweep folder, each job in a joblib (loky) process."""
+        groups = [f"model={','.join(self.models)}"] if self.models else []
+        return [self._sweep(group) for group in [*groups, *(f"experiment={e}" for e in self.experiments)]]
+
+    def _sweep(self, configuration: str) -> list[str]:
         return [
             sys.executable,
             "-m",
             "lossvo.train",
             "-m",
-            f"model={','.join(self.models)}",
+            configuration,
             f"loss={','.join(self.losses)}",
             f"seed={','.join(map(str, self.seeds))}",
             "hydra/launcher=joblib",
@@ -151,12 +169,25 @@ def gpu_jobs_at_once(jobs: int, job_gib: float, requested: int | None) -> int:
 # -- what a job does, from its composed config -------------------------------------------------------
 
 
-def compose_job(model: str, loss: str, overrides: Sequence[str]) -> DictConfig:
-    """The training config of one job of the study (Hydra's config included, unresolved)."""
+def compose_job(configuration: str, loss: str, overrides: Sequence[str]) -> DictConfig:
+    """The training config of one job of the study (Hydra's config included, unresolved);
+    ``configuration`` is its override (``model=flowvo``, ``experiment=mix``)."""
     with initialize_config_dir(config_dir=CONFIG_DIR, version_base="1.3"):
         return compose(
-            "train", overrides=[f"model={model}", f"loss={loss}", *overrides], return_hydra_config=True
+            "train", overrides=[configuration, f"loss={loss}", *overrides], return_hydra_config=True
         )
+
+
+def check_configurations(models: Sequence[str], experiments: Sequence[str]) -> None:
+    """``UserError`` naming a model or experiment that has no config in ``conf/`` (and those that do)."""
+    for group, names in (("model", models), ("experiment", experiments)):
+        known = sorted(p.stem for p in (Path(CONFIG_DIR) / group).glob("*.yaml"))
+        unknown = [name for name in names if name not in known]
+        if unknown:
+            flag = "models" if group == "model" else "experiments"
+            raise UserError(
+                f"--{flag}: no {group} config {unknown[0]!r} (expected some of {', '.join(known)})"
+            )
 
 
 def check_job(cfg: DictConfig, out_dir: Path) -> None:
@@ -369,12 +400,12 @@ def cpu_estimate(plan: Plan) -> str:
     here for each architecture (on the threads joblib gives each job)."""
     threads = max(joblib.cpu_count() // plan.at_once, 1)
     job_s, measured = [], []
-    for model in plan.models:
-        cfg = compose_job(model, plan.losses[0], plan.overrides)
+    for configuration in plan.configurations:
+        cfg = compose_job(configuration, plan.losses[0], plan.overrides)
         size, rate = job_size(cfg), calibrate(cfg, threads)
         job_s += [job_seconds(size, rate)] * (len(plan.seeds) * len(plan.losses))
         measured.append(
-            f"{model} {rate.step_s * 1e3:.0f} ms a step x {size.steps:,} steps + "
+            f"{configuration.split('=')[1]} {rate.step_s * 1e3:.0f} ms a step x {size.steps:,} steps + "
             f"{rate.pair_s * 1e3:.2f} ms a pair x {size.inferred_pairs:,} pairs"
         )
     total = _hours(study_seconds(job_s, plan.at_once))
@@ -406,6 +437,11 @@ def _names(text: str) -> tuple[str, ...]:
     return names
 
 
+def _configurations(text: str) -> tuple[str, ...]:
+    """A comma list of config names, or ``none``."""
+    return () if text.strip() == NONE else _names(text)
+
+
 def _seeds(text: str) -> tuple[int, ...]:
     try:
         seeds = tuple(int(seed) for seed in _names(text))
@@ -425,7 +461,15 @@ def _positive(text: str) -> int:
 def parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="python -m lossvo.study", description=__doc__.split("\n")[0])
     p.add_argument("--seeds", type=_seeds, default=SEEDS, help="comma list (default: 0-9)")
-    p.add_argument("--models", type=_names, default=MODELS, help="default: deepvo_small,flowvo")
+    p.add_argument(
+        "--models", type=_configurations, default=MODELS, help="default: deepvo_small,flowvo; none"
+    )
+    p.add_argument(
+        "--experiments",
+        type=_configurations,
+        default=EXPERIMENTS,
+        help="experiments run beside the architectures, each a configuration (e.g. mix; default: none)",
+    )
     p.add_argument("--losses", type=_names, default=LOSSES, help="default: euler,quat,chordal")
     p.add_argument(
         "--jobs",
@@ -440,11 +484,15 @@ def parser() -> argparse.ArgumentParser:
 
 
 def checked_jobs(args: argparse.Namespace, sweep_dir: Path) -> float:
-    """Compose and check (:func:`check_job`) one job of each architecture and loss of the command line;
+    """Compose and check (:func:`check_job`) one job of each configuration and loss of the command line;
     the GPU memory one job needs, GiB (``hydra.callbacks.gpu_jobs.job_memory_gib``, overridable)."""
-    for model in args.models:
+    check_configurations(args.models, args.experiments)
+    if not args.models and not args.experiments:
+        raise UserError("--models none with no --experiments: the study has no configuration")
+    configurations = [*(f"model={m}" for m in args.models), *(f"experiment={e}" for e in args.experiments)]
+    for configuration in configurations:
         for loss in args.losses:
-            cfg = compose_job(model, loss, args.overrides)
+            cfg = compose_job(configuration, loss, args.overrides)
             check_job(cfg, sweep_dir / "check")
     return float(cfg.hydra.callbacks.gpu_jobs.job_memory_gib)
 
@@ -457,7 +505,7 @@ def sweep_dir_of(args: argparse.Namespace) -> Path:
 def plan_study(args: argparse.Namespace, cuda: bool, job_gib: float, sweep_dir: Path) -> Plan:
     """The :class:`Plan` of the parsed command line: on the GPU where ``cuda``, as many jobs at once as fit
     at ``job_gib`` GiB a job (:func:`gpu_jobs_at_once`); else on the CPU, ``--jobs`` or :data:`CPU_JOBS`."""
-    jobs = len(args.seeds) * len(args.models) * len(args.losses)
+    jobs = len(args.seeds) * (len(args.models) + len(args.experiments)) * len(args.losses)
     at_once = gpu_jobs_at_once(jobs, job_gib, args.jobs) if cuda else args.jobs or CPU_JOBS
     return Plan(
         tuple(args.seeds),
@@ -467,13 +515,15 @@ def plan_study(args: argparse.Namespace, cuda: bool, job_gib: float, sweep_dir: 
         sweep_dir,
         gpu=cuda,
         at_once=at_once,
+        experiments=tuple(args.experiments),
     )
 
 
 def run(plan: Plan) -> int:
-    """The sweep, then its report (also after a failed job): the sweep's exit status, or the report's
-    where the report fails."""
-    status = subprocess.run(plan.sweep_command()).returncode
+    """The sweeps, then their report (also after a failed job): the first failed sweep's exit status, or
+    the report's where the report fails."""
+    statuses = [subprocess.run(command).returncode for command in plan.sweep_commands()]
+    status = next((s for s in statuses if s != 0), 0)
     report = subprocess.run(plan.report_command()).returncode
     return report if report != 0 else status
 
@@ -498,7 +548,8 @@ def main(argv: list[str] | None = None) -> int:
     except OmegaConfBaseException as e:  # a study's override that does not resolve
         raise UserError(one_line(e)) from None
     emit(estimate(plan, job_gib))
-    emit(shlex.join(["python", *plan.sweep_command()[1:]]))
+    for command in plan.sweep_commands():
+        emit(shlex.join(["python", *command[1:]]))
     if args.dry_run:
         return 0
     return run(plan)

@@ -100,6 +100,7 @@ class Event:
         source: the checkpoint a resume continues from (``"from"`` in the file).
         error: the error of a failure, ``"Type: message"``.
         slurm_job, slurm_restarts: the SLURM job and how often SLURM requeued it.
+        code: the code version of a start or resume (:func:`lossvo.code_version.code_version`).
     """
 
     event: str
@@ -111,6 +112,7 @@ class Event:
     error: str | None = None
     slurm_job: str | None = None
     slurm_restarts: int | None = None
+    code: str | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The entry as a JSON object: ``event`` and ``time``, then the fields that are set."""

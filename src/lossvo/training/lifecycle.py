@@ -30,6 +30,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from lossvo import folder_lock, weighting
 from lossvo.atomic import write_text_atomic
+from lossvo.code_version import code_version
 from lossvo.console import UserError, close_logs_in, full_error, one_line, user_message
 from lossvo.evaluation import job_folder
 from lossvo.evaluation.job_folder import LAST_CHECKPOINT, METRICS, STATUS, Event, Status
@@ -185,7 +186,11 @@ class Run:
         continues (``{"epoch": N, "source": checkpoint}`` or ``{"stage": "evaluation", ...}``), recorded
         in its history. A checkpoint of an earlier stop (:data:`UNREAD_CHECKPOINT`) goes."""
         self.threads = threads
-        self.history.append(event("resumed", **resumed) if resumed is not None else event("started"))
+        self.history.append(
+            event("resumed", code=code_version(), **resumed)
+            if resumed is not None
+            else event("started", code=code_version())
+        )
         if _first_process():
             save_config(self.out_dir, self.cfg)
             if resumed is not None:
