@@ -72,7 +72,7 @@ def lower_by(offsets: np.ndarray, n: int = 10) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_supported_when_lower_than_every_other_with_p_below_alpha() -> None:
-    x, y = lower_by(0.01 * (1 + np.arange(10)))
+    x, y = lower_by(0.1 * (1 + np.arange(10)))
     tests = [statistics.paired_test("euler", x, y), statistics.paired_test("quat", x, y + 0.5)]
     assert tests[0].n == 10 and tests[0].p_value == pytest.approx(2 / 2**10)  # exact: all one sign
     assert tests[0].mean == pytest.approx(x.mean()) and tests[0].versus_mean == pytest.approx(y.mean())
@@ -80,38 +80,38 @@ def test_supported_when_lower_than_every_other_with_p_below_alpha() -> None:
 
 
 def test_contradicted_when_another_is_lower_with_p_below_alpha() -> None:
-    x, y = lower_by(0.01 * (1 + np.arange(10)))
+    x, y = lower_by(0.1 * (1 + np.arange(10)))
     better = statistics.paired_test("quat", x, y)
     worse = statistics.paired_test("euler", y, x)  # the claimed one is higher on every pair
     assert worse.p_value == pytest.approx(2 / 2**10)
-    assert statistics.verdict([better, worse]) == statistics.CONTRADICTED
-    assert statistics.verdict([worse]) == statistics.CONTRADICTED
+    assert statistics.verdict([better, worse]) == statistics.REFUTED
+    assert statistics.verdict([worse]) == statistics.REFUTED
 
 
 def test_not_distinguishable_for_mixed_signs_small_n_or_no_test() -> None:
     x, y = lower_by(np.array([0.1, -0.2, 0.3, -0.4, 0.5, -0.6, 0.7, -0.8, 0.9, -0.05]))
     mixed = statistics.paired_test("quat", x, y)
     assert mixed.p_value > 0.5
-    assert statistics.verdict([mixed]) == statistics.NOT_DISTINGUISHABLE
+    assert statistics.verdict([mixed]) == statistics.CANNOT_DECIDE
     assert (
-        statistics.verdict([statistics.paired_test("quat", y, x)]) == statistics.NOT_DISTINGUISHABLE
+        statistics.verdict([statistics.paired_test("quat", y, x)]) == statistics.CANNOT_DECIDE
     )  # other lower, p > 0.5
     few = statistics.paired_test("euler", np.array([1.0, 2.0, 3.0]), np.array([2.0, 4.0, 6.0]))
     assert few.claimed_lower and few.p_value == pytest.approx(0.25) == statistics.smallest_p(3)
-    assert statistics.verdict([few]) == statistics.NOT_DISTINGUISHABLE
+    assert statistics.verdict([few]) == statistics.CANNOT_DECIDE
     assert statistics.verdict(
         [statistics.paired_test("euler", few_y := np.array([2.0, 4.0, 6.0]), few_y / 2)]
-    ) == (statistics.NOT_DISTINGUISHABLE)  # the other is lower on all three pairs, but p = 0.25
+    ) == (statistics.CANNOT_DECIDE)  # the other is lower on all three pairs, but p = 0.25
     assert (
         statistics.verdict([statistics.paired_test("euler", np.array([]), np.array([]))])
-        == statistics.NOT_DISTINGUISHABLE
+        == statistics.CANNOT_DECIDE
     )
-    assert statistics.verdict([]) == statistics.NOT_DISTINGUISHABLE
+    assert statistics.verdict([]) == statistics.CANNOT_DECIDE
 
 
 def test_smallest_p_and_combining_verdicts() -> None:
     assert [statistics.smallest_p(n) for n in (0, 1, 3, 5, 6)] == [1.0, 1.0, 0.25, 0.0625, 0.03125]
-    s, c, n = statistics.SUPPORTED, statistics.CONTRADICTED, statistics.NOT_DISTINGUISHABLE
+    s, c, n = statistics.SUPPORTED, statistics.REFUTED, statistics.CANNOT_DECIDE
     assert statistics.combine([s, s]) == s
     assert statistics.combine([s, n]) == n
     assert statistics.combine([s, c, n]) == c
@@ -283,8 +283,8 @@ def chordal_step(offset: float, j: int, seed: int, alternate: bool) -> float:
 
 @pytest.mark.parametrize(
     ("offset", "alternate", "seeds", "expected"),
-    [(-0.05, False, 10, statistics.SUPPORTED), (0.05, False, 10, statistics.CONTRADICTED),
-     (-0.05, True, 10, statistics.NOT_DISTINGUISHABLE), (-0.05, False, 3, statistics.NOT_DISTINGUISHABLE)],
+    [(-0.5, False, 10, statistics.SUPPORTED), (0.5, False, 10, statistics.REFUTED),
+     (-0.5, True, 10, statistics.CANNOT_DECIDE), (-0.5, False, 3, statistics.CANNOT_DECIDE)],
 )  # fmt: skip
 def test_error_claim_pairs_seed_means_over_held_out_sequences_of_the_chordal_loss_class(
     offset: float, alternate: bool, seeds: int, expected: str
@@ -313,7 +313,7 @@ def test_error_claim_pairs_seed_means_over_held_out_sequences_of_the_chordal_los
         assert a.undecidable == [CANNOT_DECIDE_3]
         assert f"**Verdict: {expected}.** 3 seeds cannot decide: " in text
     else:
-        assert a.undecidable == [] and "cannot decide" not in text.split("**Verdict")[1]
+        assert a.undecidable == [] and "seeds cannot decide" not in text.split("**Verdict")[1]
     theirs = columns[1].results  # mean over held-out sequences per seed, then mean ± std over seeds
     per_seed = np.array([np.mean([r[s].rpe.trans.rmse for s in HELD_OUT]) for r in theirs])
     cell = a.measured["loss=se3"]["RPE trans RMSE [m]"]
@@ -364,21 +364,21 @@ def test_a_known_effect_is_supported_with_ten_seeds_and_cannot_be_decided_with_t
         assert a.verdict == statistics.SUPPORTED and t.p_value < 0.05 and low < high < 0
         assert "**Verdict: supported.**" in text
     else:
-        assert a.verdict == statistics.NOT_DISTINGUISHABLE
-        verdict = "**Verdict: not distinguishable at this n.**"
+        assert a.verdict == statistics.CANNOT_DECIDE
+        verdict = "**Verdict: cannot decide at this n.**"
         assert f"{verdict} {CANNOT_DECIDE_3}" in text
 
 
 def test_cells_that_would_decide_do_not_when_the_seed_means_cannot() -> None:
     columns = noisy_columns({"euler": 0.1}, seeds=3, sequences=13)  # 3 seeds x 13 sequences = 39 cells
     sequences = sorted({s for r in columns[0].results for s in r})
-    a, _ = study_claims(columns, convergence(columns), sequences)
+    a, _ = study_claims(columns, convergence(columns), sequences, margin=0.01)  # ~6 %: no equivalence
     for q in a.quantities:
         (cells,) = q.secondary
         assert cells.n == 39 and cells.p_value < 1e-6  # every cell lower: the cells alone would "decide"
         (t,) = q.tests
         assert t.n == 3 and t.p_value >= statistics.smallest_p(3) == 0.25
-    assert a.verdict == statistics.NOT_DISTINGUISHABLE
+    assert a.verdict == statistics.CANNOT_DECIDE
     assert a.undecidable == [CANNOT_DECIDE_3]
     text = claims_markdown([a])
     assert "Secondary: (seed, sequence) cells share a network; indicative only (never decides" in text
@@ -388,7 +388,7 @@ def test_another_configuration_clearly_lower_contradicts_with_holm_over_the_othe
     columns = noisy_columns({"euler": 0.1, "quat": -0.1}, seeds=10)  # quat clearly lower than chordal
     sequences = sorted({s for r in columns[0].results for s in r})
     a, _ = study_claims(columns, convergence(columns), sequences)
-    assert a.verdict == statistics.CONTRADICTED
+    assert a.verdict == statistics.REFUTED
     q = a.quantities[0]
     assert [t.versus for t in q.tests] == ["loss=euler", "loss=quat"]
     ours = held_out_means(columns[0], sequences[1:])
@@ -405,7 +405,7 @@ def test_another_configuration_clearly_lower_contradicts_with_holm_over_the_othe
 
 
 def test_convergence_claim_pairs_epochs_by_seed_and_cannot_reach_p_below_alpha_with_three() -> None:
-    columns = sweep_columns(-0.05)
+    columns = sweep_columns(-0.5)
     items = convergence(columns)
     by_label = {c.label: c for c in items}
     assert by_label["loss=se3"].epochs == [2, 3, 2] and by_label["loss=chordal"].epochs == [3, 3, 3]
@@ -415,13 +415,13 @@ def test_convergence_claim_pairs_epochs_by_seed_and_cannot_reach_p_below_alpha_w
     assert (t.n, t.mean, t.versus_mean) == (3, pytest.approx(7 / 3), 3.0)
     # d = (-1, 0, -1): a zero, so the sign-flip test: |sum| >= 2 in 4 of the 8 sign patterns
     assert t.method == statistics.SIGN_FLIP and t.p_value == 0.5 >= statistics.smallest_p(3) == 0.25
-    assert b.verdict == statistics.NOT_DISTINGUISHABLE
+    assert b.verdict == statistics.CANNOT_DECIDE
     text = claims_markdown(study_claims(columns, items, SEQUENCES))
-    assert text.count(f"**Verdict: not distinguishable at this n.** {CANNOT_DECIDE_3}") == 2  # (a) and (b)
+    assert text.count(f"**Verdict: cannot decide at this n.** {CANNOT_DECIDE_3}") == 2  # (a) and (b)
 
 
 def test_convergence_claim_with_ten_seeds_is_an_exact_sign_flip_test_with_ties() -> None:
-    columns = sweep_columns(-0.05, seeds=10)
+    columns = sweep_columns(-0.5, seeds=10)
     _, b = study_claims(columns, convergence(columns), SEQUENCES)
     (t,) = b.quantities[0].tests  # d = (-1, 0, -1) repeated: 7 of -1 and 3 zeros
     assert t.n == 10 and t.method == statistics.SIGN_FLIP
@@ -430,7 +430,7 @@ def test_convergence_claim_with_ten_seeds_is_an_exact_sign_flip_test_with_ties()
 
 
 def test_claims_cannot_be_tested_without_a_chordal_configuration() -> None:
-    columns = [c for c in sweep_columns(-0.05) if c.label == "loss=chordal"]  # the EulerLoss one
+    columns = [c for c in sweep_columns(-0.5) if c.label == "loss=chordal"]  # the EulerLoss one
     found = study_claims(columns, convergence(columns), ["00", "02"])
     assert all(c.untested and "no chordal configuration" in c.untested for c in found)
     assert claims_markdown(found).count("Cannot be tested: the sweep has no chordal configuration") == 2
@@ -439,21 +439,21 @@ def test_claims_cannot_be_tested_without_a_chordal_configuration() -> None:
 
 
 def test_claims_csv_has_a_row_per_test_and_one_per_claim() -> None:
-    columns = sweep_columns(-0.05)
+    columns = sweep_columns(-0.5)
     found = study_claims(columns, convergence(columns), SEQUENCES)
     rows = list(csv.DictReader(io.StringIO(claims_csv(found))))
     assert len(rows) == 3 + 1 + 1 + 1  # three error metrics + overall, the epochs + overall
     overall = {r["claim"]: r for r in rows if r["versus"] == "all"}
     assert {c: r["verdict"] for c, r in overall.items()} == {
-        "the chordal loss gives the lowest errors": "not distinguishable at this n",
-        "it converges fastest": "not distinguishable at this n"}  # fmt: skip
+        "the chordal loss gives the lowest errors": "cannot decide at this n",
+        "it converges fastest": "cannot decide at this n"}  # fmt: skip
     assert all(r["note"].startswith("3 seeds cannot decide") for r in overall.values())
     epochs = next(r for r in rows if r["quantity"] == "convergence epoch")
     assert float(epochs["smallest_p"]) == 0.25 and int(epochs["n_seeds"]) == 3
     assert float(epochs["mean_difference"]) == pytest.approx(-2 / 3) and epochs["secondary_cells"] == ""
     assert float(epochs["p_value"]) == float(epochs["holm_p"]) == 0.5
     errors = next(r for r in rows if r["quantity"] == "RPE trans RMSE [m]")
-    d = np.array([np.mean([chordal_step(-0.05, j, s, False) for j in range(1, 5)]) for s in range(3)])
+    d = np.array([np.mean([chordal_step(-0.5, j, s, False) for j in range(1, 5)]) for s in range(3)])
     assert float(errors["mean_difference"]) == pytest.approx(d.mean())
     assert int(errors["seeds_needed"]) == statistics.seeds_needed(d.mean(), d.std(ddof=1))
     assert int(errors["secondary_cells"]) == 12 and float(errors["secondary_p"]) == pytest.approx(2 / 2**12)
@@ -479,10 +479,10 @@ def test_held_out_sequences_come_from_the_training_split_that_results_json_recor
     assert trained_sequences(j) == {"02"}
     j.results = record(["02"], root="/data/other")  # evaluated on other data: none of it was trained on
     assert trained_sequences(j) == set()
-    columns = [recorded(c, ["00", "02"]) for c in sweep_columns(-0.05)]
+    columns = [recorded(c, ["00", "02"]) for c in sweep_columns(-0.5)]
     a, _ = study_claims(columns, convergence(columns), SEQUENCES)
     assert a.scope == "On the sequences outside the training split: 03, 04, 05."
-    d = np.array([np.mean([chordal_step(-0.05, j, s, False) for j in range(2, 5)]) for s in range(3)])
+    d = np.array([np.mean([chordal_step(-0.5, j, s, False) for j in range(2, 5)]) for s in range(3)])
     for q in a.quantities:
         (t,), (cells,) = q.tests, q.secondary
         assert t.n == 3 and t.mean_diff == pytest.approx(d.mean())  # each seed's mean over 03-05

@@ -525,10 +525,10 @@ def test_claims_test_the_chordal_loss_class_on_held_out_sequences(sweep: Path, t
              for loss in ("quat", "euler")]  # fmt: skip
     assert int(row["secondary_cells"]) == len(SEEDS) * len(held_out)
     assert float(row["secondary_p"]) == pytest.approx(wilcoxon(cells[0] - cells[1]).pvalue)
-    assert row["verdict"] == "not distinguishable at this n"  # 2 seeds: p >= 0.5 whatever the numbers
+    assert row["verdict"] == "cannot decide at this n"  # 2 seeds: p >= 0.5 whatever the numbers
     text = path.read_text()
     assert (
-        text.count("**Verdict: not distinguishable at this n.** 2 seeds cannot decide: the smallest p") == 2
+        text.count("**Verdict: cannot decide at this n.** 2 seeds cannot decide: the smallest p") == 2
     )
 
 

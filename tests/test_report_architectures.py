@@ -253,7 +253,7 @@ def test_pairs_and_claims_stay_within_an_architecture() -> None:
     for claim, sign in zip(error_claims, (-1, 1), strict=True):
         assert all(t.n == 3 and t.lower == (3 if sign < 0 else 0) for q in claim.quantities for t in q.tests)
         assert all(np.sign(t.mean_diff) == sign for q in claim.quantities for t in q.tests)
-        assert claim.verdict == statistics.NOT_DISTINGUISHABLE
+        assert claim.verdict == statistics.CANNOT_DECIDE
         assert claim.undecidable == [
             "3 seeds cannot decide: the smallest p an exact test can give with 3 paired seeds is 0.250, "
             "0.500 after Holm's correction over 2 comparisons (7 seeds are needed for a corrected p < 0.05)."

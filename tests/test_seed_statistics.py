@@ -12,7 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from scipy.stats import norm, permutation_test, wilcoxon
+from scipy.stats import norm, permutation_test, ttest_1samp, wilcoxon
 from scipy.stats import t as scipy_t
 
 from lossvo.evaluation.results import KittiError, PoseErrors, Scores, Statistics
@@ -128,11 +128,11 @@ def test_the_verdict_uses_holm_corrected_p_values() -> None:
     assert statistics.verdict([lower]) == statistics.SUPPORTED  # one comparison: 0.031 < 0.05
     family = statistics.corrected([lower, replace(lower, versus="quat")])
     assert [t.holm_p for t in family] == [0.0625, 0.0625]  # two: 2 x 0.031 >= 0.05
-    assert statistics.verdict(family) == statistics.NOT_DISTINGUISHABLE
+    assert statistics.verdict(family) == statistics.CANNOT_DECIDE
     assert all(t.seeds_needed >= 7 for t in family)
     higher = statistics.paired_test("quat", other, other - 0.1 * (1 + np.arange(6)))
-    assert statistics.verdict([higher]) == statistics.CONTRADICTED
-    assert statistics.verdict([lower, higher]) == statistics.NOT_DISTINGUISHABLE  # Holm: 0.0625 each
+    assert statistics.verdict([higher]) == statistics.REFUTED
+    assert statistics.verdict([lower, higher]) == statistics.CANNOT_DECIDE  # Holm: 0.0625 each
 
 
 def test_the_cannot_decide_sentence_names_the_smallest_p_and_the_seeds_needed() -> None:
@@ -199,3 +199,98 @@ def test_pairwise_comparison_says_when_the_seeds_cannot_decide() -> None:
     assert all(c.test.n == 3 and c.test.p_value == 0.25 for c in found)
     single = compare([network("a", base[:1], sequences), network("b", base[:1] + 0.5, sequences)])
     assert single[0].verdict == "n/a (one seed: no seed-noise estimate)"
+
+
+# --------------------------------------------------------------------------------------------------
+# Equivalence as a verdict: known numbers
+# --------------------------------------------------------------------------------------------------
+
+
+def with_relative_effect(effect: float, sd: float, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(claimed, other) of n seeds whose relative differences (claimed - other) / other have exactly the
+    mean ``effect`` and sample SD ``sd``; ``other`` is a seed-level error near 0.1 m."""
+    rng = np.random.default_rng(seed)
+    z = rng.standard_normal(n)
+    z = (z - z.mean()) / z.std(ddof=1)
+    other = 0.1 * (1 + 0.2 * rng.random(n))
+    return other * (1 + effect + sd * z), other
+
+
+SEEDS_TRIED = range(8)
+"""Random draws of each known case: the verdict must hold for every one."""
+
+
+@pytest.mark.parametrize("draw", SEEDS_TRIED)
+def test_minus_ten_percent_with_two_percent_sd_is_supported_at_ten_seeds(draw: int) -> None:
+    x, y = with_relative_effect(-0.10, 0.02, 10, draw)
+    tests = statistics.corrected(
+        [statistics.paired_test("euler", x, y), statistics.paired_test("quat", x, y)]
+    )
+    assert [statistics.decide(t) for t in tests] == [statistics.SUPPORTED] * 2
+    assert statistics.verdict(tests) == statistics.SUPPORTED
+    assert tests[0].rel_mean == pytest.approx(-0.10, abs=1e-12) and tests[0].rel_high < -0.05
+
+
+@pytest.mark.parametrize("draw", SEEDS_TRIED)
+def test_zero_with_one_percent_sd_is_equivalent_within_five_percent_at_ten_seeds(draw: int) -> None:
+    x, y = with_relative_effect(0.0, 0.01, 10, draw)
+    test = statistics.corrected([statistics.paired_test("euler", x, y)])[0]
+    assert statistics.decide(test) == statistics.EQUIVALENT and test.tost_p < 0.05
+    assert -0.05 < test.rel_low < test.rel_high < 0.05
+    assert statistics.verdict_text(statistics.verdict([test])) == "equivalent within ±5 %"
+    wide = statistics.corrected([statistics.paired_test("euler", x, y, margin=0.002)])[0]
+    assert statistics.decide(wide) == statistics.CANNOT_DECIDE  # the same numbers, a margin of ±0.2 %
+
+
+@pytest.mark.parametrize("draw", SEEDS_TRIED)
+def test_zero_with_twenty_percent_sd_cannot_decide_and_states_the_seeds_needed(draw: int) -> None:
+    x, y = with_relative_effect(0.0, 0.20, 10, draw)
+    test = statistics.corrected([statistics.paired_test("euler", x, y)])[0]
+    assert statistics.decide(test) == statistics.CANNOT_DECIDE
+    z = norm.ppf(0.95) + norm.ppf(0.8)
+    assert (
+        test.seeds_equivalence == math.ceil((z * 0.20 / 0.05) ** 2) == 99
+    )  # mean 0: room of the whole margin
+    assert math.isfinite(test.seeds_needed) and test.seeds_needed > 10
+    assert seeds_needed_text(test.seeds_equivalence) == "99"
+
+
+@pytest.mark.parametrize("draw", SEEDS_TRIED)
+def test_p_values_and_intervals_equal_scipys(draw: int) -> None:
+    x, y = with_relative_effect(-0.03, 0.05, 10, draw)
+    t = statistics.paired_test("euler", x, y, margin=0.04)
+    d, r = x - y, (x - y) / y
+    assert t.p_value == pytest.approx(wilcoxon(d, method="exact").pvalue, rel=1e-12, abs=1e-12)
+    ci = ttest_1samp(d, 0.0).confidence_interval(0.95)
+    assert (t.ci_low, t.ci_high) == (pytest.approx(ci.low, abs=1e-12), pytest.approx(ci.high, abs=1e-12))
+    ci90 = ttest_1samp(r, 0.0).confidence_interval(0.90)
+    assert (t.rel_low, t.rel_high) == (
+        pytest.approx(ci90.low, abs=1e-12),
+        pytest.approx(ci90.high, abs=1e-12),
+    )
+    tost = max(
+        ttest_1samp(r, -0.04, alternative="greater").pvalue, ttest_1samp(r, 0.04, alternative="less").pvalue
+    )
+    assert t.tost_p == pytest.approx(tost, rel=1e-12, abs=1e-12)
+    assert (t.tost_p < 0.05) == (t.rel_low > -0.04 and t.rel_high < 0.04)  # TOST = the 90 % interval inside
+
+
+def test_equivalence_comes_first_then_the_corrected_difference() -> None:
+    x, y = with_relative_effect(-0.02, 0.002, 10, 0)  # significantly lower, yet within ±5 %
+    test = statistics.corrected([statistics.paired_test("euler", x, y)])[0]
+    assert test.holm_p < 0.05 and statistics.decide(test) == statistics.EQUIVALENT
+    strict = statistics.corrected([statistics.paired_test("euler", x, y, margin=0.01)])[0]
+    assert statistics.decide(strict) == statistics.SUPPORTED
+    higher = statistics.corrected([statistics.paired_test("euler", y * 1.2, y)])[0]
+    assert statistics.decide(higher) == statistics.REFUTED
+
+
+def test_combining_comparisons_with_equivalence() -> None:
+    s, r, e, c, p = (statistics.SUPPORTED, statistics.REFUTED, statistics.EQUIVALENT,
+                     statistics.CANNOT_DECIDE, statistics.PARTLY)  # fmt: skip
+    assert statistics.combine([e, e]) == e
+    assert statistics.combine([s, e]) == p and statistics.combine([p, s]) == p
+    assert statistics.combine([e, c]) == c and statistics.combine([e, r]) == r
+    assert statistics.verdict_text(p, 0.02) == "lower than some, equivalent to the others within ±2 %"
+    assert statistics.seeds_for_equivalence(0.06, 0.01) == math.inf  # outside the margin already
+    assert math.isnan(statistics.tost_p(np.array([0.01])))

@@ -47,6 +47,7 @@ class QuantityTests:
     tests: list[PairedTest]
     verdict: str
     secondary: list[PairedTest] = field(default_factory=list)
+    decisions: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -60,6 +61,7 @@ class Claim:
     statement: str
     configuration: str
     scope: str = ""
+    margin: float = statistics.MARGIN
     measured: dict[str, dict[str, Cell]] = field(default_factory=dict)
     quantities: list[QuantityTests] = field(default_factory=list)
     verdict: str = ""
@@ -109,13 +111,19 @@ def seed_means(column: Column, path: Sequence[str], sequences: Sequence[str]) ->
     return Cell.of(np.array(list(seed_scores(column, path, sequences).values()), dtype=np.float64))
 
 
-def seed_test(claimed: Column, other: Column, path: Sequence[str], sequences: Sequence[str]) -> PairedTest:
+def seed_test(
+    claimed: Column,
+    other: Column,
+    path: Sequence[str],
+    sequences: Sequence[str],
+    margin: float = statistics.MARGIN,
+) -> PairedTest:
     """The claimed configuration against ``other`` on one metric, paired by seed: each seed's mean over
     ``sequences`` (:func:`lossvo.report.tables.seed_scores`), on the seeds both have."""
     a, b = seed_scores(claimed, path, sequences), seed_scores(other, path, sequences)
     seeds = [r for r in claimed.replicates if r in a and r in b]
     x, y = (np.array([v[r] for r in seeds], dtype=np.float64) for v in (a, b))
-    return statistics.paired_test(other.label, x, y)
+    return statistics.paired_test(other.label, x, y, margin)
 
 
 def cells_test(claimed: Column, other: Column, path: Sequence[str], sequences: Sequence[str]) -> PairedTest:
@@ -127,8 +135,15 @@ def cells_test(claimed: Column, other: Column, path: Sequence[str], sequences: S
 def quantity_tests(
     quantity: str, tests: Sequence[PairedTest], secondary: Sequence[PairedTest] = ()
 ) -> QuantityTests:
-    """One quantity's tests as one family: Holm-corrected, with their verdict."""
-    return QuantityTests(quantity, statistics.corrected(tests), statistics.verdict(tests), list(secondary))
+    """One quantity's tests as one family: Holm-corrected, each with its verdict, and theirs combined."""
+    family = statistics.corrected(tests)
+    return QuantityTests(
+        quantity,
+        family,
+        statistics.verdict(tests),
+        list(secondary),
+        [statistics.decide(t) for t in family],
+    )
 
 
 def undecidable(n: int, comparisons: int) -> str | None:
@@ -152,21 +167,28 @@ def undecidable(n: int, comparisons: int) -> str | None:
 
 
 def undecidable_sentences(quantities: Sequence[QuantityTests]) -> list[str]:
-    """:func:`undecidable` for every n among the tests, each sentence once."""
-    found = (undecidable(t.n, len(q.tests)) for q in quantities for t in q.tests)
+    """:func:`undecidable` for every n among the undecided tests, each sentence once."""
+    found = (
+        undecidable(t.n, len(q.tests))
+        for q in quantities
+        for t, d in zip(q.tests, q.decisions, strict=True)
+        if d == statistics.CANNOT_DECIDE
+    )
     return list(dict.fromkeys(x for x in found if x))
 
 
-def error_claim(claimed: Column, others: Sequence[Column], heldout: Sequence[str]) -> Claim:
+def error_claim(
+    claimed: Column, others: Sequence[Column], heldout: Sequence[str], margin: float = statistics.MARGIN
+) -> Claim:
     """Claim (a): the claimed configuration's errors against every other's, paired by seed (each seed's
     mean over the held-out sequences), one verdict per metric of :data:`CLAIM_ERRORS` (Holm over the
     other configurations), combined by :func:`lossvo.report.statistics.combine`."""
     scope = f"On the sequences outside the training split: {', '.join(heldout)}."
-    claim = Claim(CLAIM_A, claimed.label, scope)
+    claim = Claim(CLAIM_A, claimed.label, scope, margin)
     for column in (claimed, *others):
         claim.measured[column.label] = {q: seed_means(column, p, heldout) for q, p in CLAIM_ERRORS}
     for quantity, path in CLAIM_ERRORS:
-        tests = [seed_test(claimed, other, path, heldout) for other in others]
+        tests = [seed_test(claimed, other, path, heldout, margin) for other in others]
         cells = [cells_test(claimed, other, path, heldout) for other in others]
         claim.quantities.append(quantity_tests(quantity, tests, cells))
     claim.verdict = statistics.combine([q.verdict for q in claim.quantities])
@@ -174,21 +196,24 @@ def error_claim(claimed: Column, others: Sequence[Column], heldout: Sequence[str
     return claim
 
 
-def epoch_test(claimed: Convergence, other: Convergence) -> PairedTest:
+def epoch_test(claimed: Convergence, other: Convergence, margin: float = statistics.MARGIN) -> PairedTest:
     """The claimed configuration's convergence epochs against ``other``'s, paired by seed (seeds where
     either has no epoch are left out)."""
     pairs = [(claimed.epoch_of(r), other.epoch_of(r)) for r in claimed.replicates]
     kept = [(x, y) for x, y in pairs if x is not None and y is not None]
     x, y = (np.array([p[i] for p in kept], dtype=np.float64) for i in (0, 1))
-    return statistics.paired_test(other.label, x, y)
+    return statistics.paired_test(other.label, x, y, margin)
 
 
-def convergence_claim(claimed: Convergence, others: Sequence[Convergence]) -> Claim:
+def convergence_claim(
+    claimed: Convergence, others: Sequence[Convergence], margin: float = statistics.MARGIN
+) -> Claim:
     """Claim (b): the claimed configuration's convergence epochs against every other's, paired by seed."""
-    claim = Claim(CLAIM_B, claimed.label, "Paired by seed, on the epochs of *Convergence*.")
+    claim = Claim(CLAIM_B, claimed.label, "Paired by seed, on the epochs of *Convergence*.", margin)
     for c in (claimed, *others):
         claim.measured[c.label] = {EPOCHS: c.cell()}
-    claim.quantities.append(quantity_tests(EPOCHS, [epoch_test(claimed, other) for other in others]))
+    tests = [epoch_test(claimed, other, margin) for other in others]
+    claim.quantities.append(quantity_tests(EPOCHS, tests))
     claim.verdict = claim.quantities[0].verdict
     claim.undecidable = undecidable_sentences(claim.quantities)
     metrics = {m for c in (claimed, *others) for m in c.metrics}
@@ -201,7 +226,10 @@ def convergence_claim(claimed: Convergence, others: Sequence[Convergence]) -> Cl
 
 
 def study_claims(
-    columns: Sequence[Column], items: Sequence[Convergence], sequences: Sequence[str]
+    columns: Sequence[Column],
+    items: Sequence[Convergence],
+    sequences: Sequence[str],
+    margin: float = statistics.MARGIN,
 ) -> list[Claim]:
     """Claims (a) and (b) for every chordal configuration against all non-chordal ones (an untested
     claim says why: no chordal configuration, nothing to compare with, no held-out sequence)."""
@@ -221,15 +249,18 @@ def study_claims(
             out += [Claim(s, column.label, untested=reason) for s in (CLAIM_A, CLAIM_B)]
             continue
         if heldout:
-            a = error_claim(column, others, heldout)
+            a = error_claim(column, others, heldout, margin)
         else:
             a = Claim(CLAIM_A, column.label, untested="no evaluated sequence is outside the training split")
-        out += [a, convergence_claim(by_label[column.label], [by_label[o.label] for o in others])]
+        out += [a, convergence_claim(by_label[column.label], [by_label[o.label] for o in others], margin)]
     return out
 
 
 def claims_by_architecture(
-    columns: Sequence[Column], items: Sequence[Convergence], sequences: Sequence[str]
+    columns: Sequence[Column],
+    items: Sequence[Convergence],
+    sequences: Sequence[str],
+    margin: float = statistics.MARGIN,
 ) -> list[Claim]:
     """:func:`study_claims` within each architecture (its chordal configurations against its other
     configurations, on the sequences they evaluated), architecture by architecture, each claim naming its
@@ -238,7 +269,7 @@ def claims_by_architecture(
     for architecture, group in architecture_groups(columns).items():
         labels = {c.label for c in group}
         own = evaluated_by(group, sequences)
-        for claim in study_claims(group, [i for i in items if i.label in labels], own):
+        for claim in study_claims(group, [i for i in items if i.label in labels], own, margin):
             claim.architecture = architecture
             out.append(claim)
     return out
@@ -248,30 +279,41 @@ def claims_by_architecture(
 # Text and rows
 # --------------------------------------------------------------------------------------------------
 
-CLAIMS_RULE = (
-    "Rule (`lossvo.report.statistics`): seeds are the unit, since the sequences of one seed share one "
-    "trained network. A seed's value is its mean over the evaluated sequences outside the training split "
-    "(`data.splits.train`) for claim (a), its convergence epoch (*Convergence*) for claim (b); the chordal "
-    f"configuration (`loss._target_` class `{CLAIMED_LOSS}`) is paired by seed with every other "
-    "configuration. Each pair is tested on its n per-seed differences (chordal − other) with the two-sided "
-    'exact Wilcoxon signed-rank test (`scipy.stats.wilcoxon`, `method="exact"`); where the differences '
-    "have ties or zeros, with the exact sign-flip permutation test of the mean difference (all 2^n sign "
-    "patterns). The p-values of one claim on one quantity (the chordal configuration against each of the m "
-    "others) are one family, corrected by Holm's step-down (*Holm p*). "
-    f"**{statistics.SUPPORTED}**: the chordal mean is lower than every other configuration's and every "
-    f"Holm p < {statistics.ALPHA}; **{statistics.CONTRADICTED}**: some other configuration's mean is lower "
-    f"with Holm p < {statistics.ALPHA}; otherwise **{statistics.NOT_DISTINGUISHABLE}**. No exact test on n "
-    "seeds gives p below 2/2^n (0.25 with 3 seeds, 0.031 with 6) and Holm multiplies the smallest p by m, "
-    f"so a claim can be decided only where m · 2/2^n < {statistics.ALPHA}: 6 seeds against one other "
-    "configuration, 7 against two or three. The effect is the mean difference (chordal − other), relative "
-    "to the other's mean, with the exact 95 % t-interval over seeds (mean ± t · sd / √n); *seeds needed* "
-    "is ⌈((z_{1−α/(2m)} + z_{0.8}) · sd / |mean|)²⌉, the seeds at which a paired test at α/m would detect "
-    "the observed mean difference with 80 % power at the observed SD of the differences (normal "
-    "approximation), never fewer than the seeds that can decide. Claim (a) is tested per error metric, "
-    f"and the metrics combine as: {statistics.CONTRADICTED} if any metric is, {statistics.SUPPORTED} if all "
-    f"are, otherwise {statistics.NOT_DISTINGUISHABLE}. Its Wilcoxon test over (seed, sequence) cells is "
-    f"secondary and never decides: {SECONDARY.removeprefix('secondary: ')}."
-)
+
+def claims_rule(margin: float = statistics.MARGIN) -> str:
+    """How a claim is decided, in the report's words, with the equivalence margin ``margin``."""
+    alpha, delta, level = statistics.ALPHA, f"{100 * margin:g} %", 1 - 2 * statistics.ALPHA
+    parts = [
+        "Rule (`lossvo.report.statistics`): seeds are the unit, since the sequences of one seed share one",
+        "trained network. A seed's value is its mean over the evaluated sequences outside the training",
+        "split (`data.splits.train`) for claim (a), its convergence epoch (*Convergence*) for claim (b); the",
+        f"chordal configuration (`loss._target_` class `{CLAIMED_LOSS}`) is paired by seed with every other",
+        "configuration, and each pair is judged on its n per-seed relative differences",
+        f"r = (chordal − other) / other. **{statistics.EQUIVALENT} within ±{delta}**: the {100 * level:g} %",
+        f"t-interval of the mean of r (`scipy.stats.ttest_1samp(r).confidence_interval({level:g})`) lies",
+        f"inside ±{delta}, i.e. both one-sided t-tests of TOST reject at {alpha} (*TOST p*; no correction:",
+        "equivalence to every other configuration is an intersection-union test). Otherwise the per-seed",
+        "differences d = chordal − other are tested with the two-sided exact Wilcoxon signed-rank test",
+        '(`scipy.stats.wilcoxon`, `method="exact"`; where d has ties or zeros, the exact sign-flip test',
+        "of the mean, `scipy.stats.permutation_test`), and the p-values of one claim on one quantity",
+        "(the chordal configuration against each of the m others) are one family, corrected by Holm's",
+        f"step-down (*Holm p*): Holm p < {alpha} with the chordal mean lower: **{statistics.SUPPORTED}**,",
+        f"higher: **{statistics.REFUTED}**; otherwise **{statistics.CANNOT_DECIDE}**,",
+        "with the seeds needed for either outcome: *seeds to detect* is",
+        "⌈((z_{1−α/(2m)} + z_{0.8}) · sd_d / |mean_d|)²⌉, the seeds at",
+        "which a paired test at α/m would detect the observed difference with 80 % power (never fewer than",
+        "the seeds that can decide: no exact test on n seeds gives p below 2/2^n, so 6 seeds against one",
+        "other configuration, 7 against two or three); *seeds for equivalence* is",
+        f"⌈((z_{{1−α}} + z_{{0.8}}) · sd_r / ({delta} − |mean_r|))²⌉, the seeds at which TOST would show",
+        f"equivalence if the observed difference were the true one (∞ where it is outside ±{delta}). A",
+        "claim's comparisons, and then claim (a)'s metrics, combine as:",
+        f"{statistics.REFUTED} if any is; {statistics.SUPPORTED} or {statistics.EQUIVALENT} if all are;",
+        f"*{statistics.PARTLY}* where each is one of those; otherwise {statistics.CANNOT_DECIDE}. The",
+        "95 % CI column is the t-interval of the mean difference in the quantity's unit. Claim (a)'s",
+        "Wilcoxon test over (seed, sequence) cells is secondary and never decides:",
+        f"{SECONDARY.removeprefix('secondary: ')}.",
+    ]
+    return " ".join(parts)
 
 
 def _measured_rows(claim: Claim) -> Rows:
@@ -295,11 +337,18 @@ def _relative_text(x: float) -> str:
     return f"{100 * x:+.1f} %" if math.isfinite(x) else "n/a"
 
 
-def seeds_needed_text(n: float) -> str:
-    """:func:`lossvo.report.statistics.seeds_needed` as text: the count, ``no effect observed`` (inf) or
-    ``n/a`` (fewer than two seeds)."""
+def relative_interval_text(t: PairedTest) -> str:
+    """A test's relative difference with its 90 % interval: ``-10.2 % [-11.4, -9.0]``."""
+    if t.n < 2 or not math.isfinite(t.rel_low):
+        return _relative_text(t.rel_mean)
+    return f"{_relative_text(t.rel_mean)} [{100 * t.rel_low:+.1f}, {100 * t.rel_high:+.1f}]"
+
+
+def seeds_needed_text(n: float, infinite: str = "no effect observed") -> str:
+    """:func:`lossvo.report.statistics.seeds_needed` as text: the count, ``infinite`` (inf) or ``n/a``
+    (fewer than two seeds)."""
     if math.isinf(n):
-        return "no effect observed"
+        return infinite
     return str(int(n)) if math.isfinite(n) else "n/a"
 
 
@@ -309,17 +358,19 @@ def _tests_rows(claim: Claim) -> Rows:
         "versus",
         "n seeds",
         f"mean difference ({claim.configuration} − other)",
-        "relative",
         "95 % CI",
+        "relative, 90 % CI",
         "p",
         "Holm p",
-        "seeds needed",
-        "verdict on the quantity",
+        "TOST p",
+        "seeds to detect",
+        "seeds for equivalence",
+        "verdict",
     ]
     rows: list[list[object]] = []
     for q in claim.quantities:
         number = _number(q.quantity)
-        for t in q.tests:
+        for t, decision in zip(q.tests, q.decisions, strict=True):
             ci = f"[{number(t.ci_low)}, {number(t.ci_high)}]" if t.n > 1 else "n/a"
             rows.append(
                 [
@@ -327,12 +378,14 @@ def _tests_rows(claim: Claim) -> Rows:
                     t.versus,
                     t.n,
                     number(t.mean_diff),
-                    _relative_text(t.relative),
                     ci,
+                    relative_interval_text(t),
                     fmt(t.p_value, 3),
                     fmt(t.holm_p, 3),
+                    fmt(t.tost_p, 3),
                     seeds_needed_text(t.seeds_needed),
-                    q.verdict,
+                    seeds_needed_text(t.seeds_equivalence, "outside the margin"),
+                    statistics.verdict_text(decision, claim.margin),
                 ]
             )
     return Rows(header, rows)
@@ -370,7 +423,8 @@ def claim_markdown(claim: Claim, letter: str, level: str = "###") -> str:
         lines += ["", f"{SECONDARY[0].upper()}{SECONDARY[1:]} (never decides the verdict):", ""]
         lines += [table_render.markdown(secondary)]
     lines += [f"\n*Note:* {n}" for n in claim.notes]
-    lines += ["", " ".join([f"**Verdict: {claim.verdict}.**", *claim.undecidable])]
+    verdict = statistics.verdict_text(claim.verdict, claim.margin)
+    lines += ["", " ".join([f"**Verdict: {verdict}.**", *claim.undecidable])]
     return "\n".join(lines)
 
 
@@ -384,9 +438,10 @@ BY_ARCHITECTURE_TEXT = (
 def claims_markdown(items: Sequence[Claim], by_architecture: bool = False) -> str:
     """The rule and every claim; with ``by_architecture`` a subsection per architecture."""
     letters = {CLAIM_A: "a", CLAIM_B: "b"}
+    rule = claims_rule(items[0].margin if items else statistics.MARGIN)
     if not by_architecture:
-        return "\n\n".join([CLAIMS_RULE, *(claim_markdown(c, letters[c.statement]) for c in items)])
-    parts = [CLAIMS_RULE, BY_ARCHITECTURE_TEXT]
+        return "\n\n".join([rule, *(claim_markdown(c, letters[c.statement]) for c in items)])
+    parts = [rule, BY_ARCHITECTURE_TEXT]
     for architecture in dict.fromkeys(c.architecture or UNKNOWN_ARCHITECTURE for c in items):
         parts.append(f"### Architecture `{architecture}`")
         parts += [
@@ -411,19 +466,28 @@ CLAIMS_HEADER = [
     "ci_high",
     "relative_ci_low",
     "relative_ci_high",
+    "relative_mean",
+    "relative_low_90",
+    "relative_high_90",
     "p_value",
     "p_method",
     "holm_p",
     "smallest_p",
     "seeds_needed",
+    "tost_p",
+    "margin",
+    "seeds_for_equivalence",
     "secondary_cells",
     "secondary_p",
     "verdict",
     "note",
 ]
 """``tables/claims.csv``: a test's numbers over seeds in the claim's unit (``relative``: over |versus_mean|;
-``ci_*``: the 95 % t-interval of the mean difference), p, its method and Holm's, ``smallest_p`` at n,
-``seeds_needed`` (``inf``: no effect observed), and the :data:`SECONDARY` test over cells."""
+``ci_*``: the 95 % t-interval of the mean difference), the mean of the per-seed relative differences and
+their 90 % t-interval, p (on those), its method and Holm's, ``smallest_p`` at n, ``seeds_needed`` to detect
+the difference (``inf``: no effect observed), TOST's p at ``margin`` and the seeds for equivalence
+(``inf``: the difference is outside the margin), the :data:`SECONDARY` test over cells, and the verdict
+(a test row's: that comparison's; an ``all`` row's: the claim's)."""
 
 
 def _seeds_needed_cell(n: float) -> str:
@@ -441,11 +505,17 @@ def _test_numbers(t: PairedTest, cells: PairedTest | None) -> list[object]:
         repr(t.ci_low),
         repr(t.ci_high),
         *map(repr, t.relative_ci),
+        repr(t.rel_mean),
+        repr(t.rel_low),
+        repr(t.rel_high),
         repr(t.p_value),
         t.method,
         repr(t.holm_p),
         repr(statistics.smallest_p(t.n)),
         _seeds_needed_cell(t.seeds_needed),
+        repr(t.tost_p),
+        repr(t.margin),
+        _seeds_needed_cell(t.seeds_equivalence),
         cells.n if cells else "",
         repr(cells.p_value) if cells else "",
     ]
@@ -466,9 +536,9 @@ def claims_csv_rows(items: Sequence[Claim], by_architecture: bool = False) -> Ro
         else:
             for q in c.quantities:
                 secondary = {s.versus: s for s in q.secondary}
-                for t in q.tests:
+                for t, decision in zip(q.tests, q.decisions, strict=True):
                     numbers = _test_numbers(t, secondary.get(t.versus))
-                    rows.append([c.statement, c.configuration, t.versus, q.quantity, *numbers, q.verdict, ""])
+                    rows.append([c.statement, c.configuration, t.versus, q.quantity, *numbers, decision, ""])
             note = " ".join([*c.undecidable, *c.notes])
             rows.append([c.statement, c.configuration, "all", "all", *blank[2:], c.verdict, note])
         architectures += [c.architecture or UNKNOWN_ARCHITECTURE] * (len(rows) - start)

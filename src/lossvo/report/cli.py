@@ -5,6 +5,7 @@ Command line::
     python -m lossvo.report outputs/multirun/2026-11-23_10-00-00
     python -m lossvo.report --latest outputs/multirun          # the newest sweep under that folder
     python -m lossvo.report SWEEP_DIR --out DIR --no-baselines
+    python -m lossvo.report SWEEP_DIR --margin 0.02        # equivalence within ±2 % (default 5 %)
 
 It prints the path of ``report.md``. A folder that is not a sweep, a bad option or an ``--out`` that is a
 file is a one-line error, exit status 2 (``LOSSVO_FULL_ERROR=1``: its traceback instead).
@@ -23,6 +24,7 @@ from pathlib import Path
 from lossvo.console import OneLineParser, UserError, emit, one_line_main
 from lossvo.report.document import make_report
 from lossvo.report.jobs import job_dirs, latest_sweep
+from lossvo.report.statistics import MARGIN
 
 log = logging.getLogger("lossvo")
 
@@ -39,6 +41,12 @@ def parser() -> argparse.ArgumentParser:
     out.add_argument("--latest", action="store_true", help="report the newest sweep under SWEEP_DIR")
     out.add_argument("--no-baselines", action="store_true", help="skip the zero / mean / ORB baselines")
     out.add_argument("--no-figures", action="store_true", help="write the tables only")
+    out.add_argument(
+        "--margin",
+        type=float,
+        default=MARGIN,
+        help=f"equivalence margin δ, a fraction in (0, 1) (default {MARGIN:g}: within ±{100 * MARGIN:g} %%)",
+    )
     out.add_argument(
         "--jobs",
         type=int,
@@ -71,6 +79,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = command.parse_args(argv)
     if args.jobs is not None and args.jobs < 1:
         command.error(f"--jobs: expected an integer >= 1, got {args.jobs}")
+    if not 0 < args.margin < 1:
+        command.error(f"--margin: expected a fraction between 0 and 1 (0.05: ±5 %), got {args.margin:g}")
     if args.out is not None and args.out.exists() and not args.out.is_dir():
         command.error(f"--out: {args.out} is a file, expected a folder")
     logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)
@@ -78,7 +88,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     sweep = latest_sweep(args.sweep_dir) if args.latest else args.sweep_dir
     job_dirs(sweep)  # a folder that is no sweep is refused first
     check_writable(args.out if args.out is not None else sweep / "report", args.out is not None)
-    path = make_report(sweep, args.out, not args.no_baselines, not args.no_figures, args.jobs)
+    path = make_report(sweep, args.out, not args.no_baselines, not args.no_figures, args.jobs, args.margin)
     log.info("report written in %.1f s", time.perf_counter() - start)
     emit(str(path))
     return 0

@@ -59,7 +59,7 @@ from lossvo.report.convergence import Convergence, convergence, convergence_csv_
 from lossvo.report.figures import plot_ape_bars, plot_curves, plot_trajectories
 from lossvo.report.jobs import Job, ground_truth, job_dirs, load_job, unseen_sequences
 from lossvo.report.speed import SPEED_TEXT, SPEED_TITLE, speed_rows
-from lossvo.report.statistics import ALPHA
+from lossvo.report.statistics import ALPHA, MARGIN
 from lossvo.report.tables import (
     NETWORK,
     TABLES,
@@ -114,15 +114,15 @@ def unseen_of(networks: Sequence[Column], sequences: Sequence[str]) -> list[str]
     return [s for s in sequences if s in unseen]
 
 
-def analyse(networks: Sequence[Column], sequences: Sequence[str]) -> Study:
-    """Convergence, claims and unseen-motion sequences of the network columns on the evaluated
-    ``sequences``; where they span several architectures, the claims within each and the agreement of
-    the architectures' rankings."""
+def analyse(networks: Sequence[Column], sequences: Sequence[str], margin: float = MARGIN) -> Study:
+    """Convergence, claims (equivalence within ±``margin``) and unseen-motion sequences of the network
+    columns on the evaluated ``sequences``; where they span several architectures, the claims within each
+    and the agreement of the architectures' rankings."""
     items = convergence(networks)
     unseen = unseen_of(networks, sequences)
     if not varies_architecture(networks):
-        return Study(list(networks), items, study_claims(networks, items, sequences), unseen)
-    claimed = claims_by_architecture(networks, items, sequences)
+        return Study(list(networks), items, study_claims(networks, items, sequences, margin), unseen)
+    claimed = claims_by_architecture(networks, items, sequences, margin)
     return Study(list(networks), items, claimed, unseen, True, architecture_agreement(networks, sequences))
 
 
@@ -478,8 +478,10 @@ def make_report(
     with_baselines: bool = True,
     with_figures: bool = True,
     n_jobs: int | None = None,
+    margin: float = MARGIN,
 ) -> Path:
-    """Write the report of a sweep folder; returns the path of report.md.
+    """Write the report of a sweep folder, claims decided with the equivalence margin ``margin``; returns
+    the path of report.md.
 
     Raises:
         SweepError: if ``sweep`` is not a sweep folder.
@@ -494,7 +496,7 @@ def make_report(
     base = BaselineRun()
     if with_baselines and included and sequences:
         base = run_baselines(included, sequences, out / "cache", n_jobs or os.cpu_count() or 1)
-    study = analyse(networks, sequences)
+    study = analyse(networks, sequences, margin)
     notes = dict.fromkeys(study.unseen, UNSEEN_NOTE)
     tables = build_tables(networks, base.columns, sequences, notes)
     comparisons = compare(networks, study.by_architecture)

@@ -1,6 +1,7 @@
 """The statistics behind a sweep report's comparisons and claims: convergence epochs, the seed-level paired
-test (:func:`paired_test`: exact Wilcoxon or sign-flip p, effect, t-interval, seeds needed), Holm's
-correction, the verdict rule (:func:`verdict`) and the architecture x loss interaction test. Seeds are the
+test (:func:`paired_test`: exact Wilcoxon or sign-flip p and the TOST equivalence test on the per-seed
+relative differences, effect, t-intervals, seeds needed for either outcome), Holm's correction, the verdict
+rule (:func:`decide`, :func:`verdict`) and the architecture x loss interaction test. Seeds are the
 unit: a configuration's value on one seed is one number, and configurations are paired by seed (the cells
 of one seed share one network). :func:`cells_test` over (seed, sequence) cells is indicative only. No I/O.
 """
@@ -14,17 +15,22 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.stats import norm, wilcoxon
-from scipy.stats import t as student_t
+from scipy.stats import norm, permutation_test, ttest_1samp, wilcoxon
 
 from lossvo.console import UserError
 
 SUPPORTED = "supported"
-CONTRADICTED = "contradicted"
-NOT_DISTINGUISHABLE = "not distinguishable at this n"
-VERDICTS = (SUPPORTED, CONTRADICTED, NOT_DISTINGUISHABLE)
+REFUTED = "refuted"
+EQUIVALENT = "equivalent"
+PARTLY = "lower than some, equivalent to the others"
+CANNOT_DECIDE = "cannot decide at this n"
+VERDICTS = (SUPPORTED, REFUTED, EQUIVALENT, PARTLY, CANNOT_DECIDE)
+"""A comparison's verdict (:func:`decide`): lower (supported), higher (refuted), equivalent within the
+margin, or undecided; a family's (:func:`combine`) may also be :data:`PARTLY`."""
 ALPHA = 0.05
 """The significance level of every test in the report."""
+MARGIN = 0.05
+"""The default equivalence margin δ: a relative difference inside ±δ counts as no difference that matters."""
 CONFIDENCE = 0.95
 """The level of every confidence interval in the report."""
 POWER = 0.8
@@ -94,26 +100,24 @@ def has_ties(differences: np.ndarray) -> bool:
 
 def sign_flip_p(differences: np.ndarray, max_enumerated: int = MAX_ENUMERATED) -> tuple[float, bool]:
     """Two-sided sign-flip permutation p-value of the mean of paired differences (n,) and whether it is
-    exact.
-
-    Under the null the differences are symmetric about 0, so each of the 2^n sign patterns is equally
-    likely; p is the share of patterns whose |sum| is at least the observed |sum| (the observed pattern
-    included), exact with ties and zeros. Above ``max_enumerated`` patterns p is estimated from
-    :data:`DRAWS` random patterns (fixed seed) as (1 + hits) / (1 + DRAWS). 1.0 for n = 0 or all zeros.
-    """
+    exact: ``scipy.stats.permutation_test`` with ``permutation_type="samples"`` on one sample (each of the
+    2^n sign patterns equally likely under the null that the differences are symmetric about 0), exact
+    with ties and zeros. Above ``max_enumerated`` patterns p is estimated from :data:`DRAWS` random
+    patterns (fixed seed) as (1 + hits) / (1 + DRAWS). 1.0 for n = 0 or all zeros."""
     d = np.asarray(differences, dtype=np.float64)
-    observed = abs(float(d.sum()))
-    if not np.any(d != 0):
+    if d.size < 2 or not np.any(d != 0):  # one difference: both patterns' |sum| are equal
         return 1.0, True
-    tolerance = 1e-9 * float(np.abs(d).sum())
-    if 2.0**d.size <= max_enumerated:
-        sums = np.zeros(1)
-        for x in d:  # (2^k,) the sums of the first k differences under every sign pattern
-            sums = np.concatenate([sums + x, sums - x])
-        return float(np.mean(np.abs(sums) >= observed - tolerance)), True
-    signs = np.random.default_rng(0).choice([-1.0, 1.0], size=(DRAWS, d.size))
-    hits = int(np.sum(np.abs(signs @ d) >= observed - tolerance))
-    return (1 + hits) / (1 + DRAWS), False
+    exact = 2.0**d.size <= max_enumerated
+    result = permutation_test(
+        (d,),
+        lambda x, axis: np.mean(x, axis=axis),
+        permutation_type="samples",
+        vectorized=True,
+        n_resamples=np.inf if exact else DRAWS,
+        alternative="two-sided",
+        rng=np.random.default_rng(0),
+    )
+    return min(1.0, float(result.pvalue)), exact
 
 
 def seed_p(differences: np.ndarray) -> tuple[float, str]:
@@ -180,13 +184,43 @@ def holm(p_values: Sequence[float]) -> np.ndarray:
 
 def t_interval(differences: np.ndarray, confidence: float = CONFIDENCE) -> tuple[float, float]:
     """The two-sided t-interval of the mean of paired differences (n,), in their unit:
-    mean ± t_{(1+confidence)/2, n-1} · sd / sqrt(n) (sd with ddof = 1); (NaN, NaN) for n < 2."""
+    mean ± t_{(1+confidence)/2, n-1} · sd / sqrt(n) (sd with ddof = 1), as
+    ``scipy.stats.ttest_1samp(d).confidence_interval(confidence)``; (NaN, NaN) for n < 2, (mean, mean)
+    where every difference is the same (scipy gives NaN there)."""
     d = np.asarray(differences, dtype=np.float64)
     if d.size < 2:
         return math.nan, math.nan
-    half = float(student_t.ppf((1 + confidence) / 2, d.size - 1)) * float(d.std(ddof=1)) / math.sqrt(d.size)
-    mean = float(d.mean())
-    return mean - half, mean + half
+    if np.all(d == d[0]):
+        return float(d[0]), float(d[0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # scipy's precision note on near-equal values
+        ci = ttest_1samp(d, 0.0).confidence_interval(confidence)
+    return float(ci.low), float(ci.high)
+
+
+def relative_differences(claimed: np.ndarray, other: np.ndarray) -> np.ndarray:
+    """Per-pair relative differences (n,): (claimed - other) / |other|, unitless (-0.1: 10 % lower);
+    pairs where ``other`` is 0 are left out."""
+    claimed, other = np.asarray(claimed, dtype=np.float64), np.asarray(other, dtype=np.float64)
+    kept = other != 0
+    return (claimed[kept] - other[kept]) / np.abs(other[kept])
+
+
+def tost_p(relative: np.ndarray, margin: float = MARGIN) -> float:
+    """The p-value of the two one-sided t-tests (TOST) of equivalence within ±``margin``: the larger p of
+    H0: mean <= -margin (``ttest_1samp(r, -margin, alternative="greater")``) and H0: mean >= margin
+    (``alternative="less"``). p < alpha exactly where the (1 - 2 alpha) t-interval lies inside
+    (-margin, margin). NaN for n < 2; where every value is the same, 0 inside the margin and 1 outside."""
+    r = np.asarray(relative, dtype=np.float64)
+    if r.size < 2:
+        return math.nan
+    if np.all(r == r[0]):
+        return 0.0 if abs(float(r[0])) < margin else 1.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # scipy's precision note on near-equal values
+        above = float(ttest_1samp(r, -margin, alternative="greater").pvalue)
+        below = float(ttest_1samp(r, margin, alternative="less").pvalue)
+    return max(above, below)
 
 
 def seeds_needed(
@@ -209,6 +243,26 @@ def seeds_needed(
     return float(max(math.ceil((z * sd / abs(mean)) ** 2), min_seeds(m, alpha)))
 
 
+def seeds_for_equivalence(
+    mean: float, sd: float, margin: float = MARGIN, alpha: float = ALPHA, power: float = POWER
+) -> float:
+    """The paired seeds at which TOST would show equivalence within ±``margin`` if the true relative
+    difference were ``mean`` with spread ``sd`` (both unitless, per seed).
+
+    n = ceil(((z_{1-alpha} + z_{power}) · sd / (margin - |mean|))^2) (normal approximation; each one-sided
+    test at alpha, no correction: equivalence to every other configuration is an intersection-union
+    test), at least 2. inf where |mean| >= margin (the observed difference is itself outside the margin);
+    NaN where ``mean`` or ``sd`` is not finite.
+    """
+    if not (math.isfinite(mean) and math.isfinite(sd)):
+        return math.nan
+    room = margin - abs(mean)
+    if room <= 0:
+        return math.inf
+    z = float(norm.ppf(1 - alpha)) + float(norm.ppf(power))
+    return float(max(math.ceil((z * sd / room) ** 2), 2))
+
+
 # --------------------------------------------------------------------------------------------------
 # The paired test and the verdict
 # --------------------------------------------------------------------------------------------------
@@ -221,7 +275,11 @@ class PairedTest:
     p-value (NaN for n = 0) and its ``method``, the median and sample SD (ddof = 1; NaN for n < 2) of
     the differences (this - versus), the pairs where this one is lower, the 95 % interval of the mean
     difference (``ci_low``, ``ci_high``), the Holm-corrected p and the :func:`seeds_needed` of its family
-    (:func:`corrected`; a family of one as built)."""
+    (:func:`corrected`; a family of one as built).
+
+    On the per-seed relative differences r = (this - versus) / |versus| (unitless): their mean
+    ``rel_mean`` and SD ``rel_sd``, the (1 - 2 alpha) t-interval ``rel_low``, ``rel_high`` (90 %), the TOST
+    p of equivalence within ±``margin`` (:func:`tost_p`) and :func:`seeds_for_equivalence`."""
 
     versus: str
     n: int
@@ -236,6 +294,13 @@ class PairedTest:
     ci_high: float = math.nan
     holm_p: float = math.nan
     seeds_needed: float = math.nan
+    rel_mean: float = math.nan
+    rel_sd: float = math.nan
+    rel_low: float = math.nan
+    rel_high: float = math.nan
+    tost_p: float = math.nan
+    margin: float = MARGIN
+    seeds_equivalence: float = math.nan
 
     @property
     def claimed_lower(self) -> bool:
@@ -265,17 +330,22 @@ def _checked(claimed: np.ndarray, other: np.ndarray) -> tuple[np.ndarray, np.nda
     return claimed, other
 
 
-def paired_test(versus: str, claimed: np.ndarray, other: np.ndarray) -> PairedTest:
+def paired_test(
+    versus: str, claimed: np.ndarray, other: np.ndarray, margin: float = MARGIN, alpha: float = ALPHA
+) -> PairedTest:
     """The report's paired test: per-seed values (n,) of one configuration against (n,) of ``versus``
-    (paired by position), p by :func:`seed_p`, the effect, its interval and the seeds needed as a family
-    of one."""
+    (paired by position): p by :func:`seed_p` on the differences, the effect, its intervals,
+    TOST within ±``margin`` and the seeds needed for either outcome, as a family of one."""
     claimed, other = _checked(claimed, other)
     if claimed.size == 0:
-        return PairedTest(versus, 0, math.nan, math.nan, math.nan)
-    d = claimed - other
+        return PairedTest(versus, 0, math.nan, math.nan, math.nan, margin=margin)
+    d, r = claimed - other, relative_differences(claimed, other)
     p, method = seed_p(d)
     sd = float(d.std(ddof=1)) if d.size > 1 else math.nan
+    rel_mean = float(r.mean()) if r.size else math.nan
+    rel_sd = float(r.std(ddof=1)) if r.size > 1 else math.nan
     low, high = t_interval(d)
+    rel_low, rel_high = t_interval(r, 1 - 2 * alpha)
     means = float(claimed.mean()), float(other.mean())
     return PairedTest(
         versus,
@@ -289,7 +359,14 @@ def paired_test(versus: str, claimed: np.ndarray, other: np.ndarray) -> PairedTe
         low,
         high,
         p,
-        seeds_needed(means[0] - means[1], sd),
+        seeds_needed(means[0] - means[1], sd, 1, alpha),
+        rel_mean,
+        rel_sd,
+        rel_low,
+        rel_high,
+        tost_p(r, margin),
+        margin,
+        seeds_for_equivalence(rel_mean, rel_sd, margin, alpha),
     )
 
 
@@ -314,7 +391,7 @@ def cells_test(versus: str, claimed: np.ndarray, other: np.ndarray) -> PairedTes
 
 def corrected(tests: Sequence[PairedTest], alpha: float = ALPHA) -> list[PairedTest]:
     """A family of tests (one claim's comparisons on one quantity) with its Holm-corrected p-values
-    (:func:`holm`) and the seeds needed for m = ``len(tests)`` comparisons."""
+    (:func:`holm`) and the seeds needed to detect each difference for m = ``len(tests)`` comparisons."""
     adjusted = holm([x.p_value for x in tests])
     return [
         replace(x, holm_p=float(q), seeds_needed=seeds_needed(x.mean_diff, x.sd_diff, len(tests), alpha))
@@ -322,30 +399,47 @@ def corrected(tests: Sequence[PairedTest], alpha: float = ALPHA) -> list[PairedT
     ]
 
 
-def verdict(tests: Sequence[PairedTest], alpha: float = ALPHA) -> str:
-    """The verdict on "the claimed configuration is lower than every other" from its paired tests, on
-    their Holm-corrected p-values (:func:`holm` over ``tests``, the family).
-
-    Contradicted if some other configuration has a lower mean with corrected p < ``alpha``; supported if
-    there is at least one test and in every test the claimed mean is lower with corrected p < ``alpha``;
-    otherwise not distinguishable at this n.
-    """
-    adjusted = holm([x.p_value for x in tests])
-    if any(x.n > 0 and x.versus_mean < x.mean and q < alpha for x, q in zip(tests, adjusted, strict=True)):
-        return CONTRADICTED
-    if tests and all(x.claimed_lower and q < alpha for x, q in zip(tests, adjusted, strict=True)):
-        return SUPPORTED
-    return NOT_DISTINGUISHABLE
+def decide(test: PairedTest, alpha: float = ALPHA) -> str:
+    """One comparison's verdict, from a test of a corrected family (:func:`corrected`):
+    :data:`EQUIVALENT` where the (1 - 2 alpha) interval of the relative difference lies inside ±margin
+    (TOST p < alpha); else :data:`SUPPORTED` (lower) or :data:`REFUTED` (higher) where the Holm p <
+    alpha; else :data:`CANNOT_DECIDE`."""
+    if test.n > 1 and test.tost_p < alpha:
+        return EQUIVALENT
+    if test.n > 0 and test.holm_p < alpha:
+        return SUPPORTED if test.claimed_lower else REFUTED
+    return CANNOT_DECIDE
 
 
 def combine(verdicts: Sequence[str]) -> str:
-    """One verdict from several (e.g. one per error metric): contradicted if any is, supported if all
-    are (and there is at least one), otherwise not distinguishable at this n."""
-    if CONTRADICTED in verdicts:
-        return CONTRADICTED
-    if verdicts and all(v == SUPPORTED for v in verdicts):
-        return SUPPORTED
-    return NOT_DISTINGUISHABLE
+    """One verdict from several (a claim's comparisons, or its quantities): refuted if any is;
+    supported, equivalent if all are (and there is at least one); :data:`PARTLY` if every one is
+    supported, equivalent or partly; otherwise cannot decide at this n."""
+    if REFUTED in verdicts:
+        return REFUTED
+    for same in (SUPPORTED, EQUIVALENT):
+        if verdicts and all(v == same for v in verdicts):
+            return same
+    if verdicts and all(v in (SUPPORTED, EQUIVALENT, PARTLY) for v in verdicts):
+        return PARTLY
+    return CANNOT_DECIDE
+
+
+def verdict(tests: Sequence[PairedTest], alpha: float = ALPHA) -> str:
+    """The verdict on "the claimed configuration is lower than every other" from its paired tests as one
+    family: :func:`decide` on each test after Holm's correction over ``tests``, then :func:`combine`."""
+    return combine([decide(t, alpha) for t in corrected(tests, alpha)])
+
+
+def verdict_text(verdict_: str, margin: float = MARGIN) -> str:
+    """A verdict as the report words it: ``equivalent within ±5 %`` for :data:`EQUIVALENT` (and in
+    :data:`PARTLY`), else the verdict itself."""
+    within = f"within ±{100 * margin:g} %"
+    if verdict_ == EQUIVALENT:
+        return f"{EQUIVALENT} {within}"
+    if verdict_ == PARTLY:
+        return f"{PARTLY} {within}"
+    return verdict_
 
 
 # --------------------------------------------------------------------------------------------------
@@ -354,7 +448,6 @@ def combine(verdicts: Sequence[str]) -> str:
 
 INTERACTION = "the losses' effects differ between the architectures (interaction)"
 NO_INTERACTION = "no interaction detected at this n"
-CANNOT_DECIDE = "cannot decide at this n"
 INTERACTION_VERDICTS = (INTERACTION, NO_INTERACTION, CANNOT_DECIDE)
 
 
