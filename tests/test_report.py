@@ -26,7 +26,7 @@ import pytest
 import yaml
 from evo.core import metrics as evo_metrics
 from evo.core.trajectory import PosePath3D
-from scipy.stats import wilcoxon
+from scipy.stats import ttest_1samp, wilcoxon
 
 from conftest import STUDY_LOSSES, STUDY_SEEDS, STUDY_SEQUENCES
 from lossvo.console import UserError
@@ -461,6 +461,29 @@ def test_different_selection_metrics_give_a_bold_warning_at_the_top(sweep: Path,
     assert "loss=quat: `val/loss` (min)" in warning and "loss=euler: `val/score` (min)" in warning
 
 
+def test_jobs_of_different_code_versions_are_named_and_pooled(
+    sweep: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    copy = copy_sweep(sweep, tmp_path)
+    names = sorted(p.name for p in copy.iterdir() if (p / "status.json").is_file())
+    versions = {
+        name: json.loads((copy / name / "status.json").read_text())["history"][0]["code"] for name in names
+    }
+    assert len(set(versions.values())) == 1  # one sweep: one version, recorded when each job started
+    text = make_report(copy, with_baselines=False, with_figures=False).read_text()
+    assert "code versions" not in text
+    status = json.loads((copy / names[0] / "status.json").read_text())
+    status["history"][0]["code"] = "0.0.9+000000000000"
+    (copy / names[0] / "status.json").write_text(json.dumps(status))
+    with caplog.at_level("WARNING", logger="lossvo"):
+        text = make_report(copy, with_baselines=False, with_figures=False).read_text()
+    top = text.split("\n## ", 1)[0]
+    note = next(line for line in top.splitlines() if "code versions" in line)
+    assert note.startswith("**The included jobs ran 2 code versions**, pooled in every table and test")
+    assert f"`0.0.9+000000000000`: {names[0]}" in note and f"`{versions[names[1]]}`: {names[1]}" in note
+    assert any("ran 2 code versions" in r.message for r in caplog.records)
+
+
 def first_within_ten_percent(path: Path, column: str = "val/score") -> int:
     """The 1-based epoch at which ``column`` first comes within 10 % of its minimum, from metrics.csv read
     with the csv module (the last value logged in an epoch counts)."""
@@ -525,11 +548,16 @@ def test_claims_test_the_chordal_loss_class_on_held_out_sequences(sweep: Path, t
              for loss in ("quat", "euler")]  # fmt: skip
     assert int(row["secondary_cells"]) == len(SEEDS) * len(held_out)
     assert float(row["secondary_p"]) == pytest.approx(wilcoxon(cells[0] - cells[1]).pvalue)
-    assert row["verdict"] == "cannot decide at this n"  # 2 seeds: p >= 0.5 whatever the numbers
-    text = path.read_text()
-    assert (
-        text.count("**Verdict: cannot decide at this n.** 2 seeds cannot decide: the smallest p") == 2
+    r = (x - y) / y  # 2 seeds: p >= 0.5 whatever the numbers, so only equivalence can decide
+    ci = ttest_1samp(r, 0.0).confidence_interval(0.90)
+    inside = ci.low > -0.05 and ci.high < 0.05
+    assert (float(row["relative_low_90"]), float(row["relative_high_90"])) == (
+        pytest.approx(ci.low, abs=1e-12),
+        pytest.approx(ci.high, abs=1e-12),
     )
+    assert row["verdict"] == ("equivalent" if inside else "cannot decide at this n")
+    text = path.read_text()
+    assert "**Verdict: cannot decide at this n.** 2 seeds cannot decide: the smallest p" in text  # claim (b)
 
 
 def test_each_job_is_compared_with_the_mean_motion_on_the_validation_sequences(

@@ -270,12 +270,15 @@ def test_on_a_gpu_as_many_jobs_as_fit_run_with_trainer_gpu(monkeypatch: pytest.M
     assert {"trainer=gpu", "hydra.launcher.n_jobs=16"} <= set(plan.sweep_commands()[0])
     monkeypatch.setattr(gpu_jobs, "free_memory", lambda: int(22.5 * GIB))
     assert plan_of([], cuda=True).at_once == 5
-    assert plan_of(["--seeds", "0", "--models", "flowvo"], cuda=True).at_once == 3  # no more than its jobs
+    few = ["--seeds", "0,1", "--models", "flowvo", "--losses", "euler"]
+    assert plan_of(few, cuda=True).at_once == 2  # no more than its jobs
     with pytest.raises(gpu_jobs.GpuMemoryError, match=r"hydra\.launcher\.n_jobs=8: 8 jobs at once"):
         plan_of(["--jobs", "8"], cuda=True)
 
 
-@pytest.mark.parametrize("argv", [["--seeds", "a"], ["--seeds", "0,0"], ["--seeds", "-1"], ["--jobs", "0"]])
+@pytest.mark.parametrize(
+    "argv", [["--seeds", "a"], ["--seeds", "0,0"], ["--seeds", "-1"], ["--seeds", "0"], ["--jobs", "0"]]
+)
 def test_bad_options_are_one_line(argv: list[str], capsys: pytest.CaptureFixture) -> None:
     with pytest.raises(SystemExit) as ended:
         study.parser().parse_args(argv)
@@ -335,6 +338,39 @@ def test_the_dry_run_on_a_gpu_prints_the_jobs_at_once(
     assert not err
     assert out.startswith("study: 60 jobs on the GPU (16 at once: min(CPU cores, free GPU memory / 4 GiB")
     assert "trainer=gpu" in out.splitlines()[1]
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (
+            ["--models", "resnet"],
+            "--models: no model config 'resnet' (expected some of deepvo, deepvo_small, flowvo)",
+        ),
+        (
+            ["--experiments", "mixed"],
+            "--experiments: no experiment config 'mixed' (expected some of mix, paper)",
+        ),
+        (["--models", "none"], "--models none with no --experiments: the study has no configuration"),
+    ],
+)
+def test_a_configuration_that_does_not_exist_is_one_line(
+    argv: list[str], message: str, capsys: pytest.CaptureFixture
+) -> None:
+    assert study.main(["--dry-run", *argv]) == 2
+    assert capsys.readouterr() == ("", f"error: {message}\n")
+
+
+def test_an_experiment_is_a_configuration_of_its_own_in_the_same_sweep_folder() -> None:
+    plan = plan_of(["--seeds", "0,1", "--experiments", "mix", "--sweep-dir", "s"])
+    assert plan.configurations == ("model=deepvo_small", "model=flowvo", "experiment=mix")
+    assert plan.jobs == 2 * 3 * 3
+    first, second = plan.sweep_commands()
+    assert first[4:7] == ["model=deepvo_small,flowvo", "loss=euler,quat,chordal", "seed=0,1"]
+    assert second[4:7] == ["experiment=mix", "loss=euler,quat,chordal", "seed=0,1"]
+    assert "hydra.sweep.dir=s" in first and "hydra.sweep.dir=s" in second
+    (alone,) = plan_of(["--seeds", "0,1", "--models", "none", "--experiments", "mix"]).sweep_commands()
+    assert alone[4] == "experiment=mix"
 
 
 @pytest.mark.parametrize(

@@ -43,6 +43,7 @@ from lightning.pytorch.callbacks import Callback
 from omegaconf import DictConfig, OmegaConf, open_dict
 from omegaconf.errors import OmegaConfBaseException
 from torch.utils.data import DataLoader, Dataset
+from torch.utils.flop_counter import FlopCounterMode
 
 from lossvo import weighting
 from lossvo.console import OneLineParser, UserError, emit, one_line, one_line_main
@@ -260,24 +261,43 @@ def job_size(cfg: DictConfig) -> JobSize:
 @dataclass(frozen=True)
 class Calibration:
     """One architecture's rates measured here: ``step_s`` seconds a training step (forward, loss,
-    backward, optimiser, through Lightning), ``pair_s`` seconds a frame pair's inference pass."""
+    backward, optimiser, through Lightning), ``pair_s`` seconds a frame pair's inference pass; and the
+    floating-point operations of each, ``step_flops`` and ``pair_flops``
+    (``torch.utils.flop_counter.FlopCounterMode``: matrix products and convolutions, forward and
+    backward)."""
 
     step_s: float
     pair_s: float
+    step_flops: float = 0.0
+    pair_flops: float = 0.0
+
+    @property
+    def flops_per_s(self) -> float:
+        """The rate of the timed training steps, FLOP/s on the job's threads."""
+        return self.step_flops / self.step_s
 
 
 class _StepTimes(Callback):
-    """Wall time of each training batch (its forward, loss, backward and optimiser step), seconds."""
+    """Wall time of each training batch (its forward, loss, backward and optimiser step), seconds, and
+    the FLOPs of the first (a warm-up step, not timed: counting slows it)."""
 
     def __init__(self) -> None:
         self.seconds: list[float] = []
+        self.flops = 0
         self._start = 0.0
+        self._counter: FlopCounterMode | None = None
 
     def on_train_batch_start(self, *args: Any) -> None:
+        if not self.seconds and self._counter is None and not self.flops:
+            self._counter = FlopCounterMode(display=False)
+            self._counter.__enter__()
         self._start = time.perf_counter()
 
     def on_train_batch_end(self, *args: Any) -> None:
         self.seconds.append(time.perf_counter() - self._start)
+        if self._counter is not None:
+            self._counter.__exit__(None, None, None)
+            self.flops, self._counter = self._counter.get_total_flops(), None
 
 
 def _container(node: Any) -> dict[str, Any]:
@@ -325,9 +345,10 @@ def _quiet() -> Iterator[None]:
             logger.setLevel(level)
 
 
-def time_training_step(cfg: DictConfig) -> float:
+def time_training_step(cfg: DictConfig) -> tuple[float, float]:
     """Median seconds of a training step of the job's network, loss and optimiser on the CPU, through
-    Lightning, on batches of the config's shape (:data:`CALIBRATION_STEPS`, the first two not counted)."""
+    Lightning, on batches of the config's shape (:data:`CALIBRATION_STEPS`, the first two not counted),
+    and the FLOPs of one step."""
     windows = cfg.data.windows
     batches = [_batch(cfg, int(windows.batch_size), int(windows.seq_len)) for _ in range(CALIBRATION_STEPS)]
     timer = _StepTimes()
@@ -345,25 +366,25 @@ def time_training_step(cfg: DictConfig) -> float:
             callbacks=[timer],
         )
         trainer.fit(_module(cfg), train_dataloaders=DataLoader(cast("Dataset", batches), batch_size=None))
-    return median(timer.seconds[2:])
+    return median(timer.seconds[2:]), float(timer.flops)
 
 
-def time_inference_pair(cfg: DictConfig, windows_per_pass: int = 32) -> float:
+def time_inference_pair(cfg: DictConfig, windows_per_pass: int = 32) -> tuple[float, float]:
     """Seconds a frame pair takes in one inference pass over a sequence (eval mode, no gradient), as
     validation's trajectories and the evaluation run it
     (:func:`lossvo.evaluation.inference.predict_sequence`), on ``windows_per_pass`` windows of random
-    inputs after one warm-up pass."""
+    inputs after one warm-up pass (whose FLOPs are counted); and a pair's FLOPs."""
     seq_len = int(cfg.data.windows.seq_len)
     frames = windows_per_pass * (seq_len - 1) + 1
     batch = _batch(cfg, 1, frames)
     inputs = {name: batch[name][0].numpy() for name in ("frames", "flow", "K")}
     module = _module(cfg)
-    seconds = []
-    for _ in range(2):
-        start = time.perf_counter()
+    with FlopCounterMode(display=False) as counter:
         predict_sequence(module, inputs, lambda loaded: loaded, seq_len)
-        seconds.append(time.perf_counter() - start)
-    return seconds[-1] / (frames - 1)
+    start = time.perf_counter()
+    predict_sequence(module, inputs, lambda loaded: loaded, seq_len)
+    pairs = frames - 1
+    return (time.perf_counter() - start) / pairs, counter.get_total_flops() / pairs
 
 
 def calibrate(cfg: DictConfig, threads: int) -> Calibration:
@@ -373,7 +394,8 @@ def calibrate(cfg: DictConfig, threads: int) -> Calibration:
     torch.set_num_threads(threads)
     L.seed_everything(0, verbose=False)
     try:
-        return Calibration(time_training_step(cfg), time_inference_pair(cfg))
+        (step_s, step_flops), (pair_s, pair_flops) = time_training_step(cfg), time_inference_pair(cfg)
+        return Calibration(step_s, pair_s, step_flops, pair_flops)
     finally:
         torch.set_num_threads(previous)
 
@@ -395,26 +417,71 @@ def _hours(seconds: float) -> str:
     return f"{seconds / 3600:.1f} h" if seconds >= 3600 else f"{seconds / 60:.0f} min"
 
 
-def cpu_estimate(plan: Plan) -> str:
+@dataclass(frozen=True)
+class Floor:
+    """A study's compute floor on the CPU: ``train_flops`` and ``infer_flops`` of all its jobs, done at
+    the rate each architecture's timed training steps reached on one core (``flops_per_core_s``, FLOP/s)
+    on all of ``cores``: ``seconds``. A wall time's ratio to it is what the study lost to everything
+    else (process starts, data loading, validation's bookkeeping, checkpoints, the report, idle cores)."""
+
+    train_flops: float
+    infer_flops: float
+    seconds: float
+    flops_per_core_s: tuple[float, ...]
+    cores: int
+
+    def text(self) -> str:
+        rates = " / ".join(f"{r / 1e9:.1f}" for r in self.flops_per_core_s)
+        return (
+            f"compute floor {_hours(self.seconds)}: {(self.train_flops + self.infer_flops) / 1e12:.1f} TFLOP "
+            f"(training {self.train_flops / 1e12:.1f}, inference {self.infer_flops / 1e12:.1f}; "
+            "torch.utils.flop_counter) at the calibration steps' "
+            f"{rates} GFLOP/s a core x {self.cores} cores"
+        )
+
+
+def compute_floor(work: Sequence[tuple[JobSize, Calibration, int]], cores: int) -> Floor:
+    """The :class:`Floor` of ``(size, calibration, jobs)`` per configuration, the calibration measured on
+    one thread a job, the jobs sharing ``cores``."""
+    train = sum(jobs * size.steps * rate.step_flops for size, rate, jobs in work)
+    infer = sum(jobs * size.inferred_pairs * rate.pair_flops for size, rate, jobs in work)
+    seconds = sum(
+        jobs * (size.steps * rate.step_flops + size.inferred_pairs * rate.pair_flops) / rate.flops_per_s
+        for size, rate, jobs in work
+    )
+    return Floor(train, infer, seconds / cores, tuple(rate.flops_per_s for _, rate, _ in work), cores)
+
+
+def cpu_estimate(plan: Plan) -> tuple[str, Floor]:
     """The study's one line on a CPU: its jobs, how many at once and about how long, with what was measured
-    here for each architecture (on the threads joblib gives each job)."""
+    here for each architecture (on the threads joblib gives each job), then its :class:`Floor`."""
     threads = max(joblib.cpu_count() // plan.at_once, 1)
-    job_s, measured = [], []
+    job_s, measured, work = [], [], []
     for configuration in plan.configurations:
         cfg = compose_job(configuration, plan.losses[0], plan.overrides)
         size, rate = job_size(cfg), calibrate(cfg, threads)
-        job_s += [job_seconds(size, rate)] * (len(plan.seeds) * len(plan.losses))
+        jobs = len(plan.seeds) * len(plan.losses)
+        job_s += [job_seconds(size, rate)] * jobs
+        work.append((size, rate, jobs))
         measured.append(
             f"{configuration.split('=')[1]} {rate.step_s * 1e3:.0f} ms a step x {size.steps:,} steps + "
             f"{rate.pair_s * 1e3:.2f} ms a pair x {size.inferred_pairs:,} pairs"
         )
     total = _hours(study_seconds(job_s, plan.at_once))
     threads_a_job = f"{threads} thread{'s' * (threads > 1)} a job"
-    return (
+    floor = compute_floor(work, min(joblib.cpu_count(), plan.at_once * threads))
+    line = (
         f"study: {plan.jobs} jobs on the CPU ({plan.at_once} at once), about {total} here (measured on "
         f"{threads_a_job}: {'; '.join(measured)}; plus {JOB_OVERHEAD_S:g} s a job to start and finish; "
-        f"not counted: building a missing data cache, the report)"
+        f"not counted: building a missing data cache, the report); {floor.text()}"
     )
+    return line, floor
+
+
+def wall_line(seconds: float, floor: Floor | None) -> str:
+    """The study's last line: its wall time and, on the CPU, that time's ratio to its compute floor."""
+    ratio = f", {seconds / floor.seconds:.2f}x its compute floor of {_hours(floor.seconds)}" if floor else ""
+    return f"study: wall time {_hours(seconds)}{ratio}"
 
 
 def gpu_line(plan: Plan, job_gib: float) -> str:
@@ -449,6 +516,10 @@ def _seeds(text: str) -> tuple[int, ...]:
         raise argparse.ArgumentTypeError(f"expected integers >= 0 like 0,1,2, got {text!r}") from None
     if any(seed < 0 for seed in seeds) or len(set(seeds)) != len(seeds):
         raise argparse.ArgumentTypeError(f"expected distinct integers >= 0 like 0,1,2, got {text!r}")
+    if len(seeds) < 2:
+        raise argparse.ArgumentTypeError(
+            f"expected at least 2 seeds (seeds are the unit of every test), got {text!r}"
+        )
     return seeds
 
 
@@ -519,18 +590,20 @@ def plan_study(args: argparse.Namespace, cuda: bool, job_gib: float, sweep_dir: 
     )
 
 
-def run(plan: Plan) -> int:
-    """The sweeps, then their report (also after a failed job): the first failed sweep's exit status, or
-    the report's where the report fails."""
+def run(plan: Plan, floor: Floor | None = None) -> int:
+    """The sweeps, then their report (also after a failed job), then the wall time (:func:`wall_line`):
+    the first failed sweep's exit status, or the report's where the report fails."""
+    start = time.perf_counter()
     statuses = [subprocess.run(command).returncode for command in plan.sweep_commands()]
     status = next((s for s in statuses if s != 0), 0)
     report = subprocess.run(plan.report_command()).returncode
+    emit(wall_line(time.perf_counter() - start, floor))
     return report if report != 0 else status
 
 
-def estimate(plan: Plan, job_gib: float) -> str:
-    """The plan's one line: :func:`gpu_line` on a GPU, :func:`cpu_estimate` on the CPU."""
-    return gpu_line(plan, job_gib) if plan.gpu else cpu_estimate(plan)
+def estimate(plan: Plan, job_gib: float) -> tuple[str, Floor | None]:
+    """The plan's one line: :func:`gpu_line` on a GPU (no floor), :func:`cpu_estimate` on the CPU."""
+    return (gpu_line(plan, job_gib), None) if plan.gpu else cpu_estimate(plan)
 
 
 @one_line_main
@@ -547,12 +620,13 @@ def main(argv: list[str] | None = None) -> int:
         plan = plan_study(args, torch.cuda.is_available(), job_gib, sweep_dir)
     except OmegaConfBaseException as e:  # a study's override that does not resolve
         raise UserError(one_line(e)) from None
-    emit(estimate(plan, job_gib))
+    line, floor = estimate(plan, job_gib)
+    emit(line)
     for command in plan.sweep_commands():
         emit(shlex.join(["python", *command[1:]]))
     if args.dry_run:
         return 0
-    return run(plan)
+    return run(plan, floor)
 
 
 if __name__ == "__main__":

@@ -55,13 +55,15 @@ class Claim:
     """One claim about one claimed configuration: what was paired (``scope``), per configuration the
     measured numbers ``{label: {quantity: Cell over seeds}}``, the tests per quantity, the overall
     verdict, the sentences saying why its n cannot decide (``undecidable``; empty where it can) and
-    notes. ``untested`` says why there are no tests (then ``verdict`` is empty).
+    notes. ``untested`` says why there are no tests (then ``verdict`` is empty); ``sequences``: claim (a)'s
+    held-out sequences, whose per-seed mean is a seed's value.
     ``architecture``: the architecture it was tested within (:func:`claims_by_architecture`), else None."""
 
     statement: str
     configuration: str
     scope: str = ""
     margin: float = statistics.MARGIN
+    sequences: list[str] = field(default_factory=list)
     measured: dict[str, dict[str, Cell]] = field(default_factory=dict)
     quantities: list[QuantityTests] = field(default_factory=list)
     verdict: str = ""
@@ -184,7 +186,7 @@ def error_claim(
     mean over the held-out sequences), one verdict per metric of :data:`CLAIM_ERRORS` (Holm over the
     other configurations), combined by :func:`lossvo.report.statistics.combine`."""
     scope = f"On the sequences outside the training split: {', '.join(heldout)}."
-    claim = Claim(CLAIM_A, claimed.label, scope, margin)
+    claim = Claim(CLAIM_A, claimed.label, scope, margin, list(heldout))
     for column in (claimed, *others):
         claim.measured[column.label] = {q: seed_means(column, p, heldout) for q, p in CLAIM_ERRORS}
     for quantity, path in CLAIM_ERRORS:

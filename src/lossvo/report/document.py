@@ -56,8 +56,8 @@ from lossvo.report.configurations import (
     varies_architecture,
 )
 from lossvo.report.convergence import Convergence, convergence, convergence_csv_rows, convergence_markdown
-from lossvo.report.figures import plot_ape_bars, plot_curves, plot_trajectories
-from lossvo.report.jobs import Job, ground_truth, job_dirs, load_job, unseen_sequences
+from lossvo.report.figures import plot_ape_bars, plot_curves, plot_forest, plot_trajectories
+from lossvo.report.jobs import Job, code_versions_note, ground_truth, job_dirs, load_job, unseen_sequences
 from lossvo.report.speed import SPEED_TEXT, SPEED_TITLE, speed_rows
 from lossvo.report.statistics import ALPHA, MARGIN
 from lossvo.report.tables import (
@@ -220,8 +220,8 @@ def header_lines(sweep: Path, jobs: Sequence[Job], study: Study) -> list[str]:
         groups = architecture_groups(study.networks)
         names = ", ".join(f"`{a}` ({sum(len(c.jobs) for c in g)} jobs)" for a, g in groups.items())
         lines += ["", ARCHITECTURES_TEXT.format(names=names)]
-    warning = selection_warning(study.networks)
-    return lines + (["", warning] if warning else [])
+    warnings = [selection_warning(study.networks), code_versions_note(jobs)]
+    return lines + [x for w in warnings if w for x in ("", w)]
 
 
 ARCHITECTURES_TEXT = (
@@ -449,11 +449,12 @@ def write_figures(
     folder: Path,
     gt: dict[str, np.ndarray],
     missing: dict[str, str],
+    claims: Sequence[Claim] = (),
 ) -> Figures:
     """Every figure, with the ground truth ``gt`` and the reasons it is ``missing`` for the other sequences
     (:func:`lossvo.report.jobs.ground_truth`); the curves and the APE bars per architecture where the
     networks span several (``curves_<architecture>.png``). Returns the paths written and a note if some
-    trajectory figure lacks ground truth."""
+    trajectory figure lacks ground truth; the forest plot of the claims where claim (a) was tested."""
     figures = Figures()
     groups = architecture_groups(networks) if varies_architecture(networks) else {"": list(networks)}
     for (architecture, group), table in zip(groups.items(), tables, strict=False):  # Table I's first
@@ -463,6 +464,8 @@ def write_figures(
         if table.columns:
             plot_ape_bars(table, folder / f"ape_trans_rmse{suffix}.png")
             figures.paths.append(folder / f"ape_trans_rmse{suffix}.png")
+    if plot_forest(claims, networks, folder / "forest.png"):
+        figures.paths.append(folder / "forest.png")
     figures.notes += ground_truth_note(missing)
     for s in sequences:
         extra = {k: v for k, v in base.trajectories.get(s, {}).items() if not k.startswith("zero")}
@@ -489,6 +492,9 @@ def make_report(
     sweep = Path(sweep)
     out = Path(out) if out is not None else sweep / "report"
     jobs = [load_job(p) for p in job_dirs(sweep)]
+    versions = code_versions_note(jobs)
+    if versions:
+        log.warning("%s", versions.replace("**", ""))
     label_jobs([j for j in jobs if j.config is not None])
     networks = network_columns(jobs)
     sequences = evaluated_sequences(networks)
@@ -504,7 +510,7 @@ def make_report(
     figures = None
     gt, missing = ground_truth(included, sequences)
     if with_figures:
-        figures = write_figures(networks, tables, base, sequences, out / "figures", gt, missing)
+        figures = write_figures(networks, tables, base, sequences, out / "figures", gt, missing, study.claims)
     speed = speed_rows(networks, gt, sequences) if included else None
     if speed is not None:
         write_text_atomic(out / "tables" / "speed.csv", table_render.csv_text(speed))

@@ -1,4 +1,4 @@
-"""Figures of a sweep report: loss curves, bird's-eye trajectories, APE bar chart.
+"""Figures of a sweep report: loss curves, bird's-eye trajectories, APE bar chart, the claims' forest plot.
 
 Each ``plot_*`` function draws one PNG (sizes in inches) on a figure of
 :func:`lossvo.evaluation.plots.new_figure` (Agg canvas, no pyplot state) and saves it atomically
@@ -9,6 +9,7 @@ without figures never loads it.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -17,8 +18,10 @@ import numpy as np
 
 from lossvo.evaluation import baselines
 from lossvo.evaluation.plots import colors, new_figure, plot_birdseye, save_png
+from lossvo.report import statistics
+from lossvo.report.claims import CLAIM_A, CLAIM_ERRORS, Claim
 from lossvo.report.jobs import Job, read_trajectory
-from lossvo.report.tables import BASELINE, Column, Table
+from lossvo.report.tables import BASELINE, Column, Table, seed_scores
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -183,3 +186,98 @@ def plot_ape_bars(table: Table, path: Path) -> None:
     ax.grid(True, axis="y", alpha=0.3)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     save_png(fig, path)
+
+
+SeedValues = dict[str, dict[str, float]]
+"""``{quantity: {seed: value}}`` of one configuration."""
+
+
+def forest_rows(claim: Claim, columns: Mapping[str, Column]) -> list[tuple[str, SeedValues]]:
+    """Claim (a)'s configurations, the claimed one first, each with its per-seed values: each seed's mean
+    over the claim's held-out sequences of each metric of :data:`CLAIM_ERRORS` (the numbers it tests)."""
+    labels = [claim.configuration, *(t.versus for t in claim.quantities[0].tests)]
+    return [
+        (label, {q: seed_scores(columns[label], path, claim.sequences) for q, path in CLAIM_ERRORS})
+        for label in labels
+    ]
+
+
+def plot_forest(claims: Sequence[Claim], columns: Sequence[Column], path: Path) -> bool:
+    """The forest plot of claim (a), one column of panels per error metric (:data:`CLAIM_ERRORS`) and,
+    within the claims of each architecture, one row per configuration.
+
+    Top: each seed's value (m or rad: its mean over the held-out sequences) as a dot, the mean with its
+    95 % t-interval as a diamond and bar. Bottom: each seed's relative difference (claimed − other) /
+    other (%) against each other configuration as a dot, their mean with the 90 % t-interval that TOST
+    reads, the ±margin band shaded and the comparison's verdict written at the right. Returns False (and
+    writes nothing) when no claim (a) was tested."""
+    tested = [c for c in claims if c.statement == CLAIM_A and not c.untested and c.quantities]
+    if not tested:
+        return False
+    by_label = {c.label: c for c in columns}
+    blocks = [(c, forest_rows(c, by_label)) for c in tested]
+    n_top = sum(len(rows) for _, rows in blocks)
+    n_bottom = n_top - len(blocks)
+    fig = new_figure(4.6 * len(CLAIM_ERRORS) + 2.0, 1.6 + 0.34 * (n_top + n_bottom))
+    ratios = {"height_ratios": [n_top, max(n_bottom, 1)]}
+    axes = fig.subplots(2, len(CLAIM_ERRORS), squeeze=False, gridspec_kw=ratios)
+    for col, (quantity, _) in enumerate(CLAIM_ERRORS):
+        _forest_values(axes[0][col], blocks, quantity, show_labels=col == 0)
+        _forest_relative(axes[1][col], blocks, quantity, show_labels=col == 0)
+    save_png(fig, path)
+    return True
+
+
+def _row_label(claim: Claim, label: str) -> str:
+    return f"{claim.architecture}: {label}" if claim.architecture else label
+
+
+def _rows_axis(ax: Axes, labels: Sequence[str], show_labels: bool) -> None:
+    ax.set_yticks([-i for i in range(len(labels))], labels if show_labels else [""] * len(labels))
+    ax.set_ylim(-len(labels) + 0.4, 0.6)
+    ax.grid(True, axis="x", alpha=0.3)
+
+
+def _dots_and_interval(ax: Axes, values: np.ndarray, y: float, confidence: float, color: Any) -> None:
+    """Values (n,) as dots on row y, and their mean with its t-interval at ``confidence`` just below."""
+    ax.scatter(values, np.full(values.size, y), s=14, color=color, alpha=0.6, lw=0)
+    if not values.size:
+        return
+    low, high = statistics.t_interval(values, confidence)
+    if math.isfinite(low):
+        ax.plot([low, high], [y - 0.25, y - 0.25], color=color, lw=2)
+    ax.scatter([values.mean()], [y - 0.25], marker="D", s=28, color=color, edgecolor="black", lw=0.5)
+
+
+def _forest_values(
+    ax: Axes, blocks: Sequence[tuple[Claim, list[tuple[str, SeedValues]]]], quantity: str, show_labels: bool
+) -> None:
+    labels: list[str] = []
+    for claim, rows in blocks:
+        for (label, values), color in zip(rows, colors(len(rows)), strict=True):
+            _dots_and_interval(ax, np.array(list(values[quantity].values())), -len(labels), 0.95, color)
+            labels.append(_row_label(claim, label))
+    _rows_axis(ax, labels, show_labels)
+    ax.set_title(quantity)
+
+
+def _forest_relative(
+    ax: Axes, blocks: Sequence[tuple[Claim, list[tuple[str, SeedValues]]]], quantity: str, show_labels: bool
+) -> None:
+    labels: list[str] = []
+    margin = 100 * blocks[0][0].margin
+    for claim, rows in blocks:
+        ours = rows[0][1][quantity]
+        decisions = next(q.decisions for q in claim.quantities if q.quantity == quantity)
+        for (label, values), decision, color in zip(rows[1:], decisions, colors(len(rows))[1:], strict=True):
+            theirs = values[quantity]
+            seeds = [s for s in ours if s in theirs and theirs[s] != 0]
+            r = np.array([100 * (ours[s] - theirs[s]) / abs(theirs[s]) for s in seeds])
+            y = -len(labels)
+            _dots_and_interval(ax, r, y, 1 - 2 * statistics.ALPHA, color)
+            ax.annotate(decision, (0.99, y), xycoords=("axes fraction", "data"), fontsize=7, ha="right")
+            labels.append(_row_label(claim, f"{claim.configuration} vs {label}"))
+    ax.axvspan(-margin, margin, color="tab:green", alpha=0.12, lw=0)
+    ax.axvline(0.0, color="0.4", lw=0.8)
+    _rows_axis(ax, labels, show_labels)
+    ax.set_xlabel(f"relative difference (%); 90 % interval; ±{margin:g} % shaded")

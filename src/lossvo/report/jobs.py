@@ -124,7 +124,8 @@ def _started(path: Path) -> tuple[float, str]:
 @dataclass
 class Job:
     """One job folder as read: what it is (overrides, seed, architecture, training data's config choice),
-    what happened (status), what it produced."""
+    what happened (status), what it produced; ``code``: the code versions its processes ran
+    (:func:`lossvo.code_version.code_version`, from status.json's history; none where unrecorded)."""
 
     path: Path
     overrides: dict[str, str] = field(default_factory=dict)
@@ -139,6 +140,7 @@ class Job:
     label: str = ""
     architecture: str | None = None
     data: str | None = None
+    code: tuple[str, ...] = ()
 
     @property
     def included(self) -> bool:
@@ -201,6 +203,7 @@ def load_job(path: Path) -> Job:
     if status is not None:
         job.status = status.state
         job.error = status.stop if status.state == "interrupted" else status.error
+        job.code = tuple(dict.fromkeys(e.code for e in status.history if e.code))
     job.skip = _skip_reason(job)
     if job.skip is None:
         try:
@@ -291,6 +294,33 @@ def _skip_reason(job: Job) -> str | None:
             return "completed but no results.json (trained with +evaluate=false?)"
         return "no results.json yet (still running, or stopped before the evaluation)"
     return None
+
+
+UNRECORDED = "unrecorded"
+"""The code version of a job whose status.json records none."""
+
+
+def code_versions(jobs: Iterable[Job]) -> dict[str, list[str]]:
+    """``{code version: [job folder names]}`` of ``jobs``, versions in order of first appearance; a job
+    resumed under another version is listed under each, one without a record under :data:`UNRECORDED`."""
+    found: dict[str, list[str]] = {}
+    for job in jobs:
+        for version in job.code or (UNRECORDED,):
+            found.setdefault(version, []).append(job.path.name)
+    return found
+
+
+def code_versions_note(jobs: Sequence[Job]) -> str | None:
+    """The report's note where the included jobs ran more than one code version (None where they ran
+    one): each version with its jobs, and that they are pooled."""
+    found = code_versions(j for j in jobs if j.included)
+    if len(found) < 2:
+        return None
+    listed = "; ".join(f"`{version}`: {', '.join(names)}" for version, names in found.items())
+    return (
+        f"**The included jobs ran {len(found)} code versions**, pooled in every table and test (a job "
+        f"resumed under another version counts under each): {listed}."
+    )
 
 
 # --------------------------------------------------------------------------------------------------
