@@ -499,7 +499,9 @@ def interaction_f(differences: np.ndarray) -> float:
 
 def interaction_test(differences: np.ndarray, max_enumerated: int = MAX_ENUMERATED) -> InteractionTest:
     """Does the effect of the loss depend on the architecture? An exact randomisation test of the
-    architecture x loss interaction of two architectures A, B with seeds as blocks.
+    architecture x loss interaction of two architectures A, B with seeds as blocks. Written here because
+    ``scipy.stats.permutation_test`` enumerates all (L!)^S relabellings, L! times more than the distinct
+    ones counted below (it cannot fix the first seed), too many to be exact at 10 seeds.
 
     Let y[a, l, s] be a score (e.g. a seed's mean RPE over the held-out sequences) of architecture a, loss
     l = 1..L and seed s = 1..S, and d[l, s] = y[B, l, s] - y[A, l, s]. With no interaction, d[l, s] =
