@@ -12,6 +12,7 @@ import json
 import math
 import re
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -21,9 +22,19 @@ from omegaconf import OmegaConf
 from scipy.stats import permutation_test
 
 from lossvo.evaluation import baselines
-from lossvo.evaluation.results import DataRecord, KittiError, LossRecord, Overall, PoseErrors, Results, Scores
+from lossvo.evaluation.results import (
+    DataRecord,
+    KittiError,
+    LossRecord,
+    Overall,
+    PoseErrors,
+    Results,
+    Scores,
+    SequenceResult,
+)
 from lossvo.evaluation.results import Statistics as ErrorStatistics
 from lossvo.report import statistics
+from lossvo.report.across_datasets import Evaluation
 from lossvo.report.against_baselines import BaselineRun, learning_markdown, unseen_markdown
 from lossvo.report.architectures import architecture_agreement, interaction_csv_rows, verdict_line
 from lossvo.report.claims import claims_by_architecture, claims_markdown
@@ -213,7 +224,7 @@ def test_rankings_and_interaction_of_hand_made_configurations(flowvo_reversed: b
             assert i.test.p_value > 0.05 and i.verdict == statistics.NO_INTERACTION
     line = verdict_line(agreement.interactions[0])
     assert "n = 3 seeds (seed=0, seed=1, seed=2) × 3 configurations (loss=chordal, " in line
-    assert "× 2 architectures;" in line
+    assert "× 2 architectures, a seed's score its mean over 02 (data), 03 (data);" in line
     assert re.search(r"F = \S+, p = 0\.0278 < 0\.05" if flowvo_reversed else r"p = \S+ ≥ 0\.05\.$", line), (
         line
     )
@@ -229,9 +240,56 @@ def test_a_configuration_missing_in_one_architecture_is_left_out_and_one_in_comm
     agreement = architecture_agreement(alone, ["00", "02", "03"])
     assert all(i.test is None and i.verdict == "cannot be tested" for i in agreement.interactions)
     rows = interaction_csv_rows(agreement).rows
-    assert all(r[-2] == "cannot be tested" and "fewer than two" in r[-1] for r in rows)
+    assert all(r[-3] == "cannot be tested" and "fewer than two" in r[-2] for r in rows)
     trained_only = architecture_agreement(columns, ["00"])
     assert trained_only.untested == "no evaluated sequence is outside the training split"
+
+
+def on_other_data(column: Column, root: str, train: list[str]) -> Column:
+    """``column`` as trained on the data at ``root`` (its jobs' results.json record it), its sequences renamed
+    ``car/<name>``."""
+    for job in column.jobs:
+        job.results = replace(recorded(train), data=replace(recorded(train).data, root=root, train_root=root))
+    results = [{f"car/{s}": v for s, v in r.items()} for r in column.results]
+    return Column(
+        column.label, column.kind, column.replicates, results, column.jobs, f"{column.architecture} mix"
+    )
+
+
+def evaluated_on(column: Column, root: str, values: list[float]) -> list[Evaluation]:
+    """Each job of ``column`` evaluated on 02 and 03 of the dataset at ``root``, ``values[seed]`` their
+    mean."""
+    out = []
+    for job, v in zip(column.jobs, values, strict=True):
+        data = replace(recorded([]).data, root=root, train_root="/mix", train=["car/00"])
+        sequences = {s: SequenceResult(10, f"t/{s}.txt", f"p/{s}.png", None, False, scores(k * v))
+                     for s, k in (("02", 0.9), ("03", 1.1))}  # fmt: skip
+        out.append(Evaluation(job, replace(recorded([]), data=data, sequences=sequences)))
+    return out
+
+
+def test_configurations_trained_on_other_data_are_compared_on_their_evaluations_of_the_same_frames() -> None:
+    """The car-only network (trained on /data) against the mix (trained on /mix, whose own sequences are
+    car/...): the interaction is tested on the frames both were evaluated on, /data's 02 and 03, from the
+    mix jobs' evaluations there; without those evaluations it cannot be tested, and says how to make them."""
+    columns = hand_columns(True)
+    car = [c for c in columns if c.architecture == "deepvo_small"]
+    mix = [on_other_data(c, "/mix", ["car/00"]) for c in columns if c.architecture == "flowvo"]
+    alone = architecture_agreement([*car, *mix], ["00", "02", "03", "car/02", "car/03"])
+    assert all(i.test is None and "no sequence of one dataset that both evaluated" in (i.untested or "")
+               for i in alone.interactions)  # fmt: skip
+    reversed_ = {"chordal": [5.0, 5.3, 5.1], "quat": [4.5, 4.6, 4.5], "euler": [4.0, 4.2, 4.1]}
+    evaluations = [e for c in mix for e in evaluated_on(c, "/data", reversed_[c.label.split("loss=")[1]])]
+    agreement = architecture_agreement([*car, *mix], ["00", "02", "03", "car/02", "car/03"], evaluations)
+    for i in agreement.interactions:
+        assert i.architectures == ("deepvo_small", "flowvo mix") and i.sequences == ["02 (data)", "03 (data)"]
+        assert i.test is not None and i.test.p_value == pytest.approx(
+            1 / 36
+        )  # the mix ranks the losses reversed
+        assert i.verdict == statistics.INTERACTION
+    car_values = {"chordal": [1.0, 1.2, 1.1], "quat": [1.5, 1.6, 1.45], "euler": [2.0, 2.3, 2.1]}
+    d = np.array([[reversed_[loss][s] - base for s, base in enumerate(v)] for loss, v in car_values.items()])
+    assert agreement.interactions[0].test.statistic == pytest.approx(statistics.interaction_f(d))
 
 
 def test_pairs_and_claims_stay_within_an_architecture() -> None:

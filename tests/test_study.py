@@ -5,6 +5,7 @@ pretended."""
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -371,6 +372,36 @@ def test_an_experiment_is_a_configuration_of_its_own_in_the_same_sweep_folder() 
     assert "hydra.sweep.dir=s" in first and "hydra.sweep.dir=s" in second
     (alone,) = plan_of(["--seeds", "0,1", "--models", "none", "--experiments", "mix"]).sweep_commands()
     assert alone[4] == "experiment=mix"
+
+
+def test_an_experiment_on_other_data_is_evaluated_on_the_architectures_held_out_sequences(
+    tmp_path: Path,
+) -> None:
+    """experiment=mix trains on data=mix: each completed mix job with a best checkpoint is evaluated on
+    data=synthetic's sequences outside its training split, once (an evaluation already there is kept);
+    the architectures' own jobs are not."""
+    sweep = tmp_path / "sweep"
+    plan = plan_of(["--seeds", "0,1", "--experiments", "mix", "--sweep-dir", str(sweep)])
+    jobs = {"0_experiment-mix+loss-euler+seed-0": ("experiment=mix", "completed"),
+            "1_experiment-mix+loss-euler+seed-1": ("experiment=mix", "running"),
+            "2_experiment-mix+loss-quat+seed-0": ("experiment=mix", "completed"),
+            "0_loss-euler+model-flowvo+seed-0": ("model=flowvo", "completed")}  # fmt: skip
+    for name, (chosen, state) in jobs.items():
+        (sweep / name / ".hydra").mkdir(parents=True)
+        (sweep / name / ".hydra" / "overrides.yaml").write_text(f"- {chosen}\n- loss=euler\n")
+        (sweep / name / "status.json").write_text(json.dumps({"status": state, "history": []}))
+        (sweep / name / "checkpoints").mkdir()
+        (sweep / name / "checkpoints" / "best.ckpt").write_bytes(b"")
+    done = sweep / "evaluations" / "synthetic" / "2_experiment-mix+loss-quat+seed-0" / "results.json"
+    done.parent.mkdir(parents=True)
+    done.write_text("{}")
+    (command,) = study.cross_evaluations(plan)
+    job = sweep / "0_experiment-mix+loss-euler+seed-0"
+    assert command[1:] == ["-m", "lossvo.eval", f"ckpt_path={job / 'checkpoints' / 'best.ckpt'}",
+                           "data=synthetic", "data.frames.crop=true", "data.splits.test=[01,07,09,10]",
+                           "data.splits.unseen=[11,12]",
+                           f"hydra.run.dir={sweep / 'evaluations' / 'synthetic' / job.name}"]  # fmt: skip
+    assert study.cross_evaluations(plan_of(["--seeds", "0,1", "--sweep-dir", str(sweep)])) == []
 
 
 @pytest.mark.parametrize(

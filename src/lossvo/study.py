@@ -48,8 +48,10 @@ from torch.utils.flop_counter import FlopCounterMode
 from lossvo import weighting
 from lossvo.console import OneLineParser, UserError, emit, one_line, one_line_main
 from lossvo.data import windows
+from lossvo.evaluation import job_folder
 from lossvo.evaluation.inference import predict_sequence
 from lossvo.report import statistics
+from lossvo.report.across_datasets import EVALUATIONS
 from lossvo.report.statistics import ALPHA
 from lossvo.train import CONFIG_DIR
 from lossvo.training import gpu_jobs
@@ -590,11 +592,84 @@ def plan_study(args: argparse.Namespace, cuda: bool, job_gib: float, sweep_dir: 
     )
 
 
+# -- the experiments on the architectures' data ----------------------------------------------------
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """The data the architectures train on (``data=`` choice and the study's ``data.sources`` overrides) and
+    the sequences they evaluate outside their training split (``test`` and ``unseen``)."""
+
+    choice: str
+    overrides: tuple[str, ...]
+    test: tuple[str, ...]
+    unseen: tuple[str, ...]
+
+
+def held_out(plan: Plan) -> HeldOut:
+    """The architectures' :class:`HeldOut` (the train config's defaults where the study has none)."""
+    first = plan.configurations[0] if plan.models else f"model={MODELS[0]}"
+    cfg = compose_job(first, plan.losses[0], [o for o in plan.overrides if not o.startswith("experiment=")])
+    splits, train = cfg.data.splits, set(cfg.data.splits.train)
+    data_overrides = tuple(
+        o for o in plan.overrides if o.split("=")[0] == "data" or o.startswith("data.sources.")
+    )
+    return HeldOut(
+        str(cfg.hydra.runtime.choices.data),
+        data_overrides,
+        tuple(str(s) for s in splits.test if s not in train),
+        tuple(str(s) for s in splits.get("unseen") or () if s not in train),
+    )
+
+
+def _job_of(folder: Path, experiment: str) -> bool:
+    """Whether a job folder is a completed job of ``experiment`` with a best checkpoint."""
+    import yaml
+
+    overrides = folder / ".hydra" / "overrides.yaml"
+    if not (overrides.is_file() and (folder / "checkpoints" / "best.ckpt").is_file()):
+        return False
+    status = job_folder.read_status(folder)
+    chosen = f"experiment={experiment}" in (yaml.safe_load(overrides.read_text()) or [])
+    return chosen and status is not None and status.state == "completed"
+
+
+def cross_evaluations(plan: Plan) -> list[list[str]]:
+    """``python -m lossvo.eval`` of each completed job of an experiment trained on other data than the
+    architectures (``experiment=mix``), on the architectures' held-out sequences (:func:`held_out`), into
+    ``<sweep>/evaluations/<data>/<job>`` (those already there are not repeated): the report then compares
+    the two on the same frames (the interaction of training data and loss)."""
+    base, commands = held_out(plan), []
+    for experiment in plan.experiments:
+        cfg = compose_job(f"experiment={experiment}", plan.losses[0], plan.overrides)
+        if str(cfg.hydra.runtime.choices.data) == base.choice:
+            continue
+        crop = bool(cfg.data.frames.get("crop", False))
+        jobs = (
+            sorted(p for p in plan.sweep_dir.iterdir() if _job_of(p, experiment))
+            if plan.sweep_dir.is_dir()
+            else []
+        )
+        for job in jobs:
+            out = plan.sweep_dir / EVALUATIONS / base.choice / job.name
+            if (out / "results.json").is_file():
+                continue
+            commands.append([
+                sys.executable, "-m", "lossvo.eval", f"ckpt_path={job / 'checkpoints' / 'best.ckpt'}",
+                f"data={base.choice}", *base.overrides, f"data.frames.crop={str(crop).lower()}",
+                f"data.splits.test=[{','.join(base.test)}]", f"data.splits.unseen=[{','.join(base.unseen)}]",
+                f"hydra.run.dir={out}",
+            ])  # fmt: skip
+    return commands
+
+
 def run(plan: Plan, floor: Floor | None = None) -> int:
-    """The sweeps, then their report (also after a failed job), then the wall time (:func:`wall_line`):
-    the first failed sweep's exit status, or the report's where the report fails."""
+    """The sweeps, the experiments' evaluations on the architectures' data (:func:`cross_evaluations`),
+    then the report (also after a failed job), then the wall time (:func:`wall_line`): the first failed
+    command's exit status, or the report's where the report fails."""
     start = time.perf_counter()
     statuses = [subprocess.run(command).returncode for command in plan.sweep_commands()]
+    statuses += [subprocess.run(command).returncode for command in cross_evaluations(plan)]
     status = next((s for s in statuses if s != 0), 0)
     report = subprocess.run(plan.report_command()).returncode
     emit(wall_line(time.perf_counter() - start, floor))

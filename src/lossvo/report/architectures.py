@@ -13,14 +13,17 @@ of those configurations has, the architecture x loss interaction is tested by
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from itertools import combinations
+from pathlib import Path
 
 import numpy as np
 
 from lossvo import table_render
 from lossvo.report import statistics
+from lossvo.report.across_datasets import Evaluation
 from lossvo.report.claims import CLAIM_ERRORS, heldout_sequences
 from lossvo.report.configurations import architecture_groups, treatments
 from lossvo.report.statistics import InteractionTest
@@ -48,7 +51,8 @@ class Ranking:
 class Interaction:
     """The interaction test of one pair of architectures (A, B) on one quantity: the treatments and seeds
     it used, whether the two rankings order those treatments alike, the test (None where untested, then
-    ``untested`` says why) and its verdict."""
+    ``untested`` says why), its verdict and the ``sequences`` a seed's score averages (with their dataset's
+    folder)."""
 
     quantity: str
     architectures: tuple[str, str]
@@ -58,6 +62,7 @@ class Interaction:
     test: InteractionTest | None
     verdict: str
     untested: str | None = None
+    sequences: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -98,10 +103,75 @@ def interaction(
     return Interaction(quantity, names, common, seeds, same, test, statistics.interaction_verdict(test))
 
 
-def architecture_agreement(networks: Sequence[Column], sequences: Sequence[str]) -> Agreement:
+KEY_SEPARATOR = "|"
+"""Between a dataset's folder and a sequence's name in a :func:`keyed` column: one sequence of one dataset."""
+
+
+def _root(path: str | None) -> str:
+    return os.path.realpath(path) if path else "?"
+
+
+def keyed(
+    column: Column, sequences: Sequence[str], evaluations: Sequence[Evaluation]
+) -> tuple[Column, set[str]]:
+    """A copy of a network column whose results are keyed ``<dataset folder>|<sequence>`` (its own of
+    ``sequences``, and those of its jobs' evaluations on other data, :mod:`lossvo.report.across_datasets`),
+    and the keys its jobs trained on: two configurations trained on different data are compared on the
+    frames both were evaluated on."""
+    own = [s for s in sequences]
+    by_job: dict[Path, list[Evaluation]] = {}
+    for e in evaluations:
+        by_job.setdefault(e.job.path, []).append(e)
+    results, trained = [], set()
+    for job, per_sequence in zip(column.jobs, column.results, strict=True):
+        data = job.results.data if job.results is not None else None
+        root = _root(data.root if data else None)
+        entry = {f"{root}{KEY_SEPARATOR}{s}": per_sequence[s] for s in own if s in per_sequence}
+        for e in by_job.get(job.path, []):
+            other = _root(e.results.data.root)
+            entry.update(
+                {f"{other}{KEY_SEPARATOR}{s}": r.scores for s, r in e.results.sequences.items() if r.scores}
+            )
+        results.append(entry)
+        if data is not None:
+            trained |= {f"{_root(data.train_root)}{KEY_SEPARATOR}{s}" for s in data.train}
+    copy = Column(column.label, column.kind, list(column.replicates), results, list(column.jobs))
+    return copy, trained
+
+
+def common_held_out(a: Sequence[tuple[Column, set[str]]], b: Sequence[tuple[Column, set[str]]]) -> list[str]:
+    """The keys that some configuration of each of two groups of :func:`keyed` columns has and none of
+    them trained on, in order of first appearance."""
+
+    def keys(group: Sequence[tuple[Column, set[str]]]) -> list[str]:
+        return list(dict.fromkeys(k for c, _ in group for r in c.results for k in r))
+
+    trained = {k for _, t in (*a, *b) for k in t}
+    theirs = set(keys(b))
+    return [k for k in keys(a) if k in theirs and k not in trained]
+
+
+def sequence_name(key: str) -> str:
+    """A key as the report names it: ``07 (synthetic)``, the sequence and its dataset's folder."""
+    root, _, name = key.rpartition(KEY_SEPARATOR)
+    return f"{name} ({Path(root).name})"
+
+
+NO_COMMON = (
+    "no sequence of one dataset that both evaluated and neither trained on (evaluate one's checkpoints on "
+    "the other's data into <sweep>/evaluations/<data>/<job>: python -m lossvo.eval ckpt_path=... data=... "
+    "hydra.run.dir=...)"
+)
+
+
+def architecture_agreement(
+    networks: Sequence[Column], sequences: Sequence[str], evaluations: Sequence[Evaluation] = ()
+) -> Agreement:
     """Rankings per architecture and interaction tests per pair of architectures, on each quantity of
-    :data:`lossvo.report.claims.CLAIM_ERRORS`, each architecture's over the ``sequences`` it evaluated
-    outside its training split (:func:`lossvo.report.claims.heldout_sequences`)."""
+    :data:`lossvo.report.claims.CLAIM_ERRORS`: each architecture ranked over the ``sequences`` it evaluated
+    outside its training split (:func:`lossvo.report.claims.heldout_sequences`); each pair tested over the
+    sequences of one dataset that both evaluated, on their own data or in ``evaluations``, and neither
+    trained on (:func:`common_held_out`)."""
     groups = architecture_groups(networks)
     names = treatments(networks)
     heldout = {architecture: heldout_sequences(group, sequences) for architecture, group in groups.items()}
@@ -109,6 +179,8 @@ def architecture_agreement(networks: Sequence[Column], sequences: Sequence[str])
     if not every:
         return Agreement(untested="no evaluated sequence is outside the training split")
     out = Agreement(every)
+    keyed_groups = {a: [keyed(c, sequences, evaluations) for c in g] for a, g in groups.items()}
+    pairs = {(x, y): common_held_out(keyed_groups[x], keyed_groups[y]) for x, y in combinations(groups, 2)}
     for quantity, path in CLAIM_ERRORS:
         scores = {
             architecture: {names[c.label]: seed_scores(c, path, heldout[architecture]) for c in group}
@@ -116,8 +188,18 @@ def architecture_agreement(networks: Sequence[Column], sequences: Sequence[str])
         }
         rankings = {architecture: rank(quantity, architecture, s) for architecture, s in scores.items()}
         out.rankings += rankings.values()
-        for x, y in combinations(groups, 2):
-            out.interactions.append(interaction(quantity, (rankings[x], rankings[y]), (scores[x], scores[y])))
+        for (x, y), common in pairs.items():
+            if not common:
+                out.interactions.append(
+                    Interaction(quantity, (x, y), [], [], False, None, UNTESTED, NO_COMMON)
+                )
+                continue
+            pair_scores = tuple(
+                {names[c.label]: seed_scores(c, path, common) for c, _ in keyed_groups[a]} for a in (x, y)
+            )
+            found = interaction(quantity, (rankings[x], rankings[y]), pair_scores)
+            found.sequences = [sequence_name(k) for k in common]
+            out.interactions.append(found)
     return out
 
 
@@ -199,7 +281,7 @@ def verdict_line(i: Interaction) -> str:
     t = i.test
     n = (
         f"n = {t.seeds} seeds ({', '.join(i.seeds)}) × {t.losses} configurations ({', '.join(i.treatments)}) "
-        "× 2 architectures"
+        f"× 2 architectures, a seed's score its mean over {', '.join(i.sequences)}"
     )
     how = "exact" if t.exact else f"{t.permutations} random"
     test = (
@@ -261,9 +343,10 @@ def interaction_csv_rows(agreement: Agreement) -> Rows:
         "smallest_p",
         "verdict",
         "note",
+        "sequences",
     ]
     if agreement.untested:
-        return Rows(header, [["", "", "", "", "", "", "", "", "", "", "", UNTESTED, agreement.untested]])
+        return Rows(header, [["", "", "", "", "", "", "", "", "", "", "", UNTESTED, agreement.untested, ""]])
     rows: list[list[object]] = []
     for i in agreement.interactions:
         t = i.test
@@ -282,6 +365,7 @@ def interaction_csv_rows(agreement: Agreement) -> Rows:
                 *numbers,
                 i.verdict,
                 i.untested or "",
+                ";".join(i.sequences),
             ]
         )
     return Rows(header, rows)

@@ -21,6 +21,7 @@ from lossvo.evaluation.results import file_stem
 from lossvo.report.across_datasets import (
     ACROSS_TEXT,
     ACROSS_TITLE,
+    Evaluation,
     Rmses,
     across_baselines,
     across_rows,
@@ -114,16 +115,23 @@ def unseen_of(networks: Sequence[Column], sequences: Sequence[str]) -> list[str]
     return [s for s in sequences if s in unseen]
 
 
-def analyse(networks: Sequence[Column], sequences: Sequence[str], margin: float = MARGIN) -> Study:
+def analyse(
+    networks: Sequence[Column],
+    sequences: Sequence[str],
+    margin: float = MARGIN,
+    evaluations: Sequence[Evaluation] = (),
+) -> Study:
     """Convergence, claims (equivalence within ±``margin``) and unseen-motion sequences of the network
     columns on the evaluated ``sequences``; where they span several architectures, the claims within each
-    and the agreement of the architectures' rankings."""
+    and the agreement of the architectures' rankings (pairs trained on different data compared on their
+    ``evaluations`` on one another's)."""
     items = convergence(networks)
     unseen = unseen_of(networks, sequences)
     if not varies_architecture(networks):
         return Study(list(networks), items, study_claims(networks, items, sequences, margin), unseen)
     claimed = claims_by_architecture(networks, items, sequences, margin)
-    return Study(list(networks), items, claimed, unseen, True, architecture_agreement(networks, sequences))
+    agreement = architecture_agreement(networks, sequences, evaluations)
+    return Study(list(networks), items, claimed, unseen, True, agreement)
 
 
 def architecture_spec(spec: TableSpec, architecture: str) -> TableSpec:
@@ -502,7 +510,8 @@ def make_report(
     base = BaselineRun()
     if with_baselines and included and sequences:
         base = run_baselines(included, sequences, out / "cache", n_jobs or os.cpu_count() or 1)
-    study = analyse(networks, sequences, margin)
+    evaluations, unused = find_evaluations(sweep, included)
+    study = analyse(networks, sequences, margin, evaluations)
     notes = dict.fromkeys(study.unseen, UNSEEN_NOTE)
     tables = build_tables(networks, base.columns, sequences, notes)
     comparisons = compare(networks, study.by_architecture)
@@ -514,7 +523,6 @@ def make_report(
     speed = speed_rows(networks, gt, sequences) if included else None
     if speed is not None:
         write_text_atomic(out / "tables" / "speed.csv", table_render.csv_text(speed))
-    evaluations, unused = find_evaluations(sweep, included)
     across_notes = [f"evaluation not used: {note}" for note in unused]
     across_base: dict[tuple[str, str], dict[str, Rmses]] = {}
     if with_baselines and evaluations:
