@@ -30,11 +30,17 @@ from lossvo.evaluation.results import (
     Statistics,
 )
 from lossvo.report import statistics
-from lossvo.report.claims import claims_csv, claims_markdown, study_claims
+from lossvo.report.claims import (
+    answer_rows,
+    claims_csv,
+    claims_markdown,
+    relative_interval_text,
+    study_claims,
+)
 from lossvo.report.configurations import job_selection, job_weighting, selection_warning, weight_text
 from lossvo.report.convergence import convergence
 from lossvo.report.jobs import Curves, Job, trained_sequences
-from lossvo.report.tables import NETWORK, Column
+from lossvo.report.tables import NETWORK, Column, mean_std_text
 
 LOSSES = "lossvo.losses"
 
@@ -363,6 +369,10 @@ def test_a_known_effect_is_supported_with_ten_seeds_and_cannot_be_decided_with_t
     if seeds == 10:
         assert a.verdict == statistics.SUPPORTED and t.p_value < 0.05 and low < high < 0
         assert "**Verdict: supported.**" in text
+        answer = [r for r in answer_rows([a]).rows if r[1] == "RPE trans RMSE [m]"]
+        cells = {label: mean_std_text(a.measured[label]["RPE trans RMSE [m]"]) for label in a.measured}
+        assert answer == [["", "RPE trans RMSE [m]", cells["loss=chordal"], "loss=euler", cells["loss=euler"],
+                           relative_interval_text(t), 10, "supported", ""]]  # fmt: skip
     else:
         assert a.verdict == statistics.CANNOT_DECIDE
         verdict = "**Verdict: cannot decide at this n.**"

@@ -437,13 +437,55 @@ BY_ARCHITECTURE_TEXT = (
 )
 
 
+def answer_rows(items: Sequence[Claim]) -> Rows:
+    """The study's answer in one table: per architecture, claim, quantity and comparison the claimed
+    configuration's and the other's mean ± std over seeds, the relative difference with its 90 % interval,
+    the comparison's verdict and, where it cannot decide, the seeds that would decide either way."""
+    rows: list[list[object]] = []
+    for c in items:
+        if c.untested:
+            continue
+        for q in c.quantities:
+            text = epoch_text if q.quantity == EPOCHS else mean_std_text
+            for t, decision in zip(q.tests, q.decisions, strict=True):
+                undecided = decision == statistics.CANNOT_DECIDE
+                needed = (
+                    f"{seeds_needed_text(t.seeds_needed)} / "
+                    f"{seeds_needed_text(t.seeds_equivalence, 'outside the margin')}"
+                    if undecided
+                    else ""
+                )
+                rows.append(
+                    [
+                        c.architecture or "",
+                        q.quantity,
+                        f"{text(c.measured[c.configuration][q.quantity])}",
+                        t.versus,
+                        f"{text(c.measured[t.versus][q.quantity])}",
+                        relative_interval_text(t),
+                        t.n,
+                        statistics.verdict_text(decision, c.margin),
+                        needed,
+                    ]
+                )
+    header = ["architecture", "quantity", "chordal", "versus", "other", "relative, 90 % CI", "n seeds",
+              "verdict", "seeds to detect / for equivalence"]  # fmt: skip
+    return Rows(header, rows)
+
+
 def claims_markdown(items: Sequence[Claim], by_architecture: bool = False) -> str:
     """The rule and every claim; with ``by_architecture`` a subsection per architecture."""
     letters = {CLAIM_A: "a", CLAIM_B: "b"}
     rule = claims_rule(items[0].margin if items else statistics.MARGIN)
+    answer = answer_rows(items)
+    head = (
+        [rule, f"The answer, comparison by comparison:\n\n{table_render.markdown(answer)}"]
+        if answer.rows
+        else [rule]
+    )
     if not by_architecture:
-        return "\n\n".join([rule, *(claim_markdown(c, letters[c.statement]) for c in items)])
-    parts = [rule, BY_ARCHITECTURE_TEXT]
+        return "\n\n".join([*head, *(claim_markdown(c, letters[c.statement]) for c in items)])
+    parts = [*head, BY_ARCHITECTURE_TEXT]
     for architecture in dict.fromkeys(c.architecture or UNKNOWN_ARCHITECTURE for c in items):
         parts.append(f"### Architecture `{architecture}`")
         parts += [
