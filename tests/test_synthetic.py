@@ -22,6 +22,7 @@ from lossvo.console import UserError
 from lossvo.data import motion, synthetic
 from lossvo.data.synthetic import cli as synthetic_cli
 from lossvo.data.synthetic import routes, writer
+from lossvo.data.synthetic.manifest import RENDERING
 
 GEOMETRY_SEQUENCES = ("00", "07", "11")
 GEOMETRY_FRAMES = 40
@@ -324,13 +325,41 @@ def test_interrupted_run_leaves_no_complete_looking_sequence(tmp_path: Path, mon
     monkeypatch.setattr(synthetic.Renderer, "render", failing_render)
     with pytest.raises(KeyboardInterrupt):
         synthetic.generate(tmp_path, ["05"], 4, progress=False, workers=1)
-    assert not (tmp_path / synthetic.MANIFEST).exists()
+    assert (
+        not (tmp_path / synthetic.MANIFEST).exists() and (tmp_path / RENDERING).exists()
+    )  # ours, unfinished
     assert not (tmp_path / "sequences/05").exists() and not (tmp_path / "poses/05.txt").exists()
     assert not list(tmp_path.glob(".tmp*"))
     monkeypatch.undo()
 
     synthetic.ensure_dataset(tmp_path, ["05"], 3, progress=False, workers=1)
     assert len(list((tmp_path / "sequences/05/image_2").glob("*.png"))) == 3
+
+
+def test_a_folder_of_someone_elses_data_is_refused_and_left_as_it_was(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """A KITTI tree lossvo did not render (no manifest): one line, exit status 2, every file as it was. An
+    empty folder, or an interrupted render of lossvo's, is written into."""
+    kitti = tmp_path / "K"
+    files = {"poses/00.txt": "1 0 0 0 0 1 0 0 0 0 1 0\n", "sequences/00/image_2/000000.png": "not a png"}
+    for name, text in files.items():
+        (kitti / name).parent.mkdir(parents=True, exist_ok=True)
+        (kitti / name).write_text(text)
+    before = {p: p.read_bytes() for p in kitti.rglob("*") if p.is_file()}
+    argv = ["--out", str(kitti), "--sequences", "00", "--scale", "0.25", "--frames", "10"]
+    assert synthetic_cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        f"error: {kitti}: holds files that lossvo did not render (no {synthetic.MANIFEST}): give a new or "
+        "empty folder for the synthetic dataset; lossvo does not write into data it did not make\n"
+    )
+    assert {p: p.read_bytes() for p in kitti.rglob("*") if p.is_file()} == before
+    (tmp_path / "empty").mkdir()
+    synthetic.generate(tmp_path / "empty", ["04"], 3, progress=False, workers=1)
+    assert (
+        not (tmp_path / "empty" / RENDERING).exists() and (tmp_path / "empty" / synthetic.MANIFEST).is_file()
+    )
 
 
 def test_bad_parameters_raise_value_errors(tmp_path: Path) -> None:

@@ -10,11 +10,15 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from lossvo.console import UserError
 from lossvo.data import kitti
 from lossvo.data.synthetic import layouts, routes
 from lossvo.data.synthetic.camera import CameraRange
 
 MANIFEST = "lossvo_synthetic.json"
+RENDERING = "lossvo_synthetic.rendering"
+"""Written first and removed once the manifest is written: a folder holding it is a render of lossvo's
+that was interrupted, so a later render may write into it."""
 VERSION = 2
 """Bumped whenever the rendered content changes, so that ensure_dataset regenerates old datasets."""
 
@@ -80,3 +84,18 @@ def complete_sequences(root: Path, shared: dict) -> dict[str, int]:
     if layout == "kitti":
         return {s: n for s, n in frames.items() if sequence_complete(root, s, n)}
     return {s: n for s, n in frames.items() if layouts.sequence_complete(root, layout, s, n)}
+
+
+def check_ours(root: Path) -> None:
+    """``UserError`` where ``root`` is a file, or a folder holding files that lossvo did not render (neither
+    :data:`MANIFEST` nor :data:`RENDERING`): lossvo writes only into folders it made."""
+    root = Path(root)
+    if root.exists() and not root.is_dir():
+        raise UserError(f"{root}: is a file: give a new or empty folder for the synthetic dataset")
+    if not root.is_dir() or (root / MANIFEST).is_file() or (root / RENDERING).is_file():
+        return
+    if any(root.iterdir()):
+        raise UserError(
+            f"{root}: holds files that lossvo did not render (no {MANIFEST}): give a new or empty folder "
+            "for the synthetic dataset; lossvo does not write into data it did not make"
+        )

@@ -207,19 +207,23 @@ def generate(
     (:func:`lossvo.data.synthetic.routes.route_spec`); cameras: each sequence's camera drawn from these
     ranges (KITTI layout only; None: KITTI's camera). Sequences of an earlier dataset in out generated
     with the same layout, size, seed and spec are kept. The manifest is removed first and written last,
-    so an interrupted run never looks complete.
+    so an interrupted run never looks complete; out must be new, empty or a render of lossvo's
+    (:func:`lossvo.data.synthetic.manifest.check_ours`: ``UserError`` otherwise).
     """
     out = Path(out)
     counts = resolve_frames(sequences, frames)
     height, width = frame_size(layout, height, width, scale)
     check_cameras(layout, cameras)
+    manifest.check_ours(out)
     out.mkdir(parents=True, exist_ok=True)
+    (out / manifest.RENDERING).touch()
     shared = manifest.header(height, width, seed, spec, layout, cameras)
     kept = {s: n for s, n in manifest.complete_sequences(out, shared).items() if s not in counts}
     (out / manifest.MANIFEST).unlink(missing_ok=True)
     _render_all(out, counts, height, width, seed, progress, workers, spec, layout, cameras)
     entries = {**shared, "frames": dict(sorted({**kept, **counts}.items()))}
     write_text_atomic(out / manifest.MANIFEST, json.dumps(entries, indent=2) + "\n")
+    (out / manifest.RENDERING).unlink()
     return out
 
 
