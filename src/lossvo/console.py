@@ -290,13 +290,19 @@ def close_logs_in(folder: Path) -> None:
                 logger.removeHandler(handler)
 
 
-def remove_refused(folder: Path, made: Collection[str]) -> None:
+def remove_refused(folder: Path, made: Collection[str], keep_folder: bool = False) -> None:
     """Remove the output folder of a command refused on bad input when it holds only what the command
     made before the refusal (``made``: names such as ``.hydra`` and ``eval.log``), so that a refused
-    command leaves nothing behind; a folder holding anything else is left as it is."""
-    if folder.is_dir() and {p.name for p in folder.iterdir()} <= set(made):
-        close_logs_in(folder)
-        shutil.rmtree(folder, ignore_errors=True)
+    command leaves nothing behind; with ``keep_folder`` (an empty folder the user gave) only what it made.
+    A folder holding anything else is left as it is."""
+    if not (folder.is_dir() and {p.name for p in folder.iterdir()} <= set(made)):
+        return
+    close_logs_in(folder)
+    for path in folder.iterdir() if keep_folder else [folder]:
+        if path.is_dir():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
 
 
 LIGHTNING_HINTS = (r"The `srun` command is available on your system but is not used",)

@@ -24,6 +24,7 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
+from lossvo import output_folders
 from lossvo.console import (
     UserError,
     end_in_one_line,
@@ -164,8 +165,9 @@ def main(cfg: DictConfig) -> None:
         check_config(cfg)
         result = run(cfg, out_dir, HydraConfig.get().overrides.task)
     except Exception as e:  # in the job: Hydra would print a line of its own before a raised error's
-        if user_message(e) is not None:
-            remove_refused(out_dir, {".hydra", f"{HydraConfig.get().job.name}.log"})
+        if user_message(e) is not None and output_folders.was_empty(out_dir):
+            made = {".hydra", f"{HydraConfig.get().job.name}.log"}
+            remove_refused(out_dir, made, keep_folder=output_folders.existed(out_dir))
         end_in_one_line(e)
         raise
     overall = result.overall

@@ -28,7 +28,7 @@ from lightning.pytorch.utilities import rank_zero_only
 from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from lossvo import folder_lock, weighting
+from lossvo import folder_lock, output_folders, weighting
 from lossvo.atomic import write_text_atomic
 from lossvo.code_version import code_version
 from lossvo.console import UserError, close_logs_in, full_error, one_line, user_message
@@ -260,16 +260,28 @@ def _signals_stop_the_run() -> AbstractContextManager[None]:
 
 
 def _leave(run: Run) -> None:
-    """An error before the run started: a single run's fresh folder (holding at most its log) is
-    removed; a sweep job's folder records the failure for the report."""
+    """An error before the run started: a single run's folder that this run created (holding at most its
+    log) is removed, an empty one it was given emptied again; a sweep job's folder records the failure for
+    the report."""
     if HydraConfig.get().mode == RunMode.MULTIRUN:
         if run.fresh:
             run.start()
         return
     ours = {f"{HydraConfig.get().job.name}.log", folder_lock.LOCK}
-    if run.fresh and run.out_dir.is_dir() and {p.name for p in run.out_dir.iterdir()} <= ours:
-        close_logs_in(run.out_dir)
-        shutil.rmtree(run.out_dir, ignore_errors=True)
+    out = run.out_dir
+    if not (
+        run.fresh
+        and output_folders.was_empty(out)
+        and out.is_dir()
+        and {p.name for p in out.iterdir()} <= ours
+    ):
+        return
+    close_logs_in(out)
+    if output_folders.existed(out):  # the user's empty folder: as it was found
+        for name in ours:
+            (out / name).unlink(missing_ok=True)
+    else:
+        shutil.rmtree(out, ignore_errors=True)
 
 
 def _failed(run: Run, error: BaseException) -> None:

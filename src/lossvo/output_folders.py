@@ -1,0 +1,87 @@
+"""Output folders lossvo may write into: those it creates, and those that carry its own marker (a run's
+``.hydra/config.yaml`` or ``status.json``, an evaluation's ``results.json``, a sweep's ``multirun.yaml`` or
+job folders). A Hydra callback checks ``hydra.run.dir`` / ``hydra.sweep.dir`` before Hydra creates or
+writes anything there; a folder that already existed is never removed by a refused run."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+from hydra.experimental.callback import Callback
+from omegaconf import DictConfig
+
+from lossvo.console import UserError, exit_in_one_line
+
+RUN_MARKERS = (".hydra/config.yaml", "status.json", "results.json")
+"""Files of a run or an evaluation folder of lossvo's: one of them makes an existing folder its own."""
+
+SWEEP_MARKERS = ("multirun.yaml", "optuna.db")
+"""Files of a sweep folder of lossvo's (Hydra's record of the sweep; the Optuna search's default storage,
+made before its first job), besides job folders."""
+
+_EXISTED: dict[str, bool] = {}
+"""The output folders that existed before this process's Hydra run began (never removed on a refusal), each
+with whether it was empty then."""
+
+
+def _key(folder: Path) -> str:
+    return os.path.realpath(folder)
+
+
+def existed(folder: Path) -> bool:
+    """Whether ``folder`` existed before this process's run began (:class:`OutputFolderCheck`)."""
+    return _key(folder) in _EXISTED
+
+
+def was_empty(folder: Path) -> bool:
+    """Whether ``folder`` did not exist, or was empty, before this process's run began."""
+    return _EXISTED.get(_key(folder), True)
+
+
+def _is_ours(folder: Path, sweep: bool) -> bool:
+    if any((folder / marker).is_file() for marker in RUN_MARKERS):
+        return True
+    return sweep and (
+        any((folder / marker).is_file() for marker in SWEEP_MARKERS)
+        or any((p / ".hydra" / "config.yaml").is_file() for p in folder.iterdir())
+    )
+
+
+def check_output_folder(folder: Path, key: str, sweep: bool = False) -> None:
+    """``UserError`` (one line naming ``key``) where ``folder`` is a file, or an existing folder that holds
+    files and no marker of lossvo's; an existing folder is remembered (:func:`existed`)."""
+    what = "sweep" if sweep else "run"
+    if folder.exists() and not folder.is_dir():
+        raise UserError(
+            f"{key}: {folder} is a file: give a folder (a new one, or a {what} folder of lossvo's)"
+        )
+    if not folder.is_dir():
+        return
+    _EXISTED[_key(folder)] = not any(folder.iterdir())
+    if not _EXISTED[_key(folder)] and not _is_ours(folder, sweep):
+        raise UserError(
+            f"{key}: {folder} holds files that lossvo did not write (no {what} of lossvo's in it): give a "
+            f"new folder, or a {what} folder of lossvo's to resume"
+        )
+
+
+class OutputFolderCheck(Callback):
+    """Before Hydra creates or writes the output folder: :func:`check_output_folder` on ``hydra.run.dir``
+    (a run) or ``hydra.sweep.dir`` (a sweep), a refusal one line with exit status 2."""
+
+    def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
+        self._check(config, "hydra.run.dir", False)
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        self._check(config, "hydra.sweep.dir", True)
+
+    @staticmethod
+    def _check(config: DictConfig, key: str, sweep: bool) -> None:
+        try:
+            check_output_folder(
+                Path(str(config.hydra.sweep.dir if sweep else config.hydra.run.dir)), key, sweep
+            )
+        except UserError as e:
+            exit_in_one_line(e)
