@@ -118,6 +118,8 @@ def numbered_lines(path: Path, what: str) -> list[tuple[int, str]]:
         lines = path.read_text().splitlines()
     except OSError as e:
         raise KittiFormatError(f"{path}: cannot read {what} ({e.strerror})") from None
+    except UnicodeDecodeError:
+        raise KittiFormatError(f"{path}: cannot read {what} (not a text file)") from None
     return [(i, line) for i, line in enumerate(lines, start=1) if line.strip()]
 
 

@@ -91,6 +91,8 @@ def read_tum(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
         lines = path.read_text().splitlines()
     except OSError as e:
         raise KittiFormatError(f"{path}: cannot read TUM file ({e.strerror})") from None
+    except UnicodeDecodeError:
+        raise KittiFormatError(f"{path}: cannot read TUM file (not a text file)") from None
     rows, numbers = [], []
     for i, line in enumerate(lines, start=1):
         if line.strip() and not line.lstrip().startswith("#"):

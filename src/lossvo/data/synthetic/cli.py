@@ -32,6 +32,17 @@ DESCRIPTION = (
 )
 
 
+def _seed(text: str) -> int:
+    """``--seed``: an integer >= 0 (numpy's generators take no negative seed)."""
+    try:
+        seed = int(text)
+    except ValueError:
+        seed = -1
+    if seed < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return seed
+
+
 def _parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="python -m lossvo.data.synthetic", description=DESCRIPTION)
     p.add_argument("--out", type=Path, required=True, help="dataset root to write")
@@ -66,7 +77,9 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help=f"pixels (default: the layout's, kitti {DEFAULT_WIDTH}, times --scale)",
     )
-    p.add_argument("--seed", type=int, default=0, help="same seed, same bytes (default: 0)")
+    p.add_argument(
+        "--seed", type=_seed, default=0, help="an integer >= 0; same seed, same bytes (default: 0)"
+    )
     p.add_argument(
         "--workers",
         type=int,
