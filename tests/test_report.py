@@ -1097,3 +1097,27 @@ def test_the_speed_section_follows_the_jobs_trajectories(sweep: Path, report: Pa
         assert float(row["slowest: predicted / true"].split(" ± ")[0]) == pytest.approx(
             np.mean(ratios), rel=5e-3
         )
+
+
+def test_a_sweep_without_results_is_reported_and_exits_non_zero_naming_each_job(
+    tmp_path: Path, capsys: pytest.CaptureFixture, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Every job failed, or its files are broken: report.md still lists them, stderr names each job left out
+    and why, and the command exits with status 2."""
+    sweep = tmp_path / "sweep"
+    jobs = {"0_loss-euler": '{"status": "failed", "error": "UserError: bad"}', "1_loss-quat": "{"}
+    for name, status in jobs.items():
+        (sweep / name / ".hydra").mkdir(parents=True)
+        (sweep / name / ".hydra" / "config.yaml").write_text("selection: {monitor: val/score, mode: min}\n")
+        (sweep / name / "status.json").write_text(status)
+    with caplog.at_level("WARNING", logger="lossvo"):  # on stderr in a real process (logging to stderr)
+        assert main([str(sweep), "--no-baselines", "--no-figures"]) == 2
+    left = [r.getMessage() for r in caplog.records if r.getMessage().startswith("left out")]
+    assert left[0] == "left out 0_loss-euler: failed: UserError: bad" and left[1].startswith(
+        "left out 1_loss-quat"
+    )
+    err = capsys.readouterr().err
+    assert (
+        err.startswith(f"error: {sweep}: no job has results to report (2 left out") and err.count("\n") == 1
+    )
+    assert (sweep / "report" / "report.md").is_file()

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from lossvo.console import OneLineParser, UserError, emit, one_line_main
 from lossvo.report.document import make_report
-from lossvo.report.jobs import job_dirs, latest_sweep
+from lossvo.report.jobs import job_dirs, latest_sweep, load_job
 from lossvo.report.statistics import MARGIN
 
 log = logging.getLogger("lossvo")
@@ -90,5 +90,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     check_writable(args.out if args.out is not None else sweep / "report", args.out is not None)
     path = make_report(sweep, args.out, not args.no_baselines, not args.no_figures, args.jobs, args.margin)
     log.info("report written in %.1f s", time.perf_counter() - start)
+    jobs = [load_job(p) for p in job_dirs(sweep)]
+    for job in jobs:
+        if not job.included:
+            log.warning("left out %s: %s", job.path.name, job.skip)
     emit(str(path))
+    if not any(job.included for job in jobs):
+        raise UserError(
+            f"{sweep}: no job has results to report ({len(jobs)} left out, each named above): {path}"
+        )
     return 0
