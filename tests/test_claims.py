@@ -497,3 +497,22 @@ def test_held_out_sequences_come_from_the_training_split_that_results_json_recor
         (t,), (cells,) = q.tests, q.secondary
         assert t.n == 3 and t.mean_diff == pytest.approx(d.mean())  # each seed's mean over 03-05
         assert cells.n == 3 * 3
+
+
+def test_the_forest_plot_draws_claim_a_and_nothing_without_it(tmp_path: Path) -> None:
+    from lossvo.report.figures import forest_rows, plot_forest
+
+    columns = noisy_columns({"euler": 0.1, "quat": 0.0}, seeds=10)
+    sequences = sorted({s for r in columns[0].results for s in r})
+    claims = study_claims(columns, convergence(columns), sequences)
+    rows = forest_rows(claims[0], {c.label: c for c in columns})
+    assert [label for label, _ in rows] == ["loss=chordal", "loss=euler", "loss=quat"]
+    seeds = rows[0][1]["RPE trans RMSE [m]"]
+    assert list(seeds.values()) == pytest.approx(list(held_out_means(columns[0], sequences[1:])))
+    assert plot_forest(claims, columns, tmp_path / "forest.png")
+    assert (tmp_path / "forest.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    untested = [c for c in sweep_columns(-0.5) if c.label == "loss=chordal"]
+    assert not plot_forest(
+        study_claims(untested, convergence(untested), ["00", "02"]), untested, tmp_path / "x.png"
+    )
+    assert not (tmp_path / "x.png").exists()
