@@ -17,9 +17,9 @@ from lossvo.console import UserError, exit_in_one_line
 RUN_MARKERS = (".hydra/config.yaml", "status.json", "results.json")
 """Files of a run or an evaluation folder of lossvo's: one of them makes an existing folder its own."""
 
-SWEEP_MARKERS = ("multirun.yaml", "optuna.db")
-"""Files of a sweep folder of lossvo's (Hydra's record of the sweep; the Optuna search's default storage,
-made before its first job), besides job folders."""
+SWEEP_MARKERS = ("multirun.yaml", "optuna.db", ".submitit")
+"""Entries of a sweep folder of lossvo's besides job folders: Hydra's record of the sweep, the Optuna
+search's default storage (made before its first job), the SLURM launcher's folder (made at submission)."""
 
 _EXISTED: dict[str, bool] = {}
 """The output folders that existed before this process's Hydra run began (never removed on a refusal), each
@@ -44,7 +44,7 @@ def _is_ours(folder: Path, sweep: bool) -> bool:
     if any((folder / marker).is_file() for marker in RUN_MARKERS):
         return True
     return sweep and (
-        any((folder / marker).is_file() for marker in SWEEP_MARKERS)
+        any((folder / marker).exists() for marker in SWEEP_MARKERS)
         or any((p / ".hydra" / "config.yaml").is_file() for p in folder.iterdir())
     )
 
