@@ -98,7 +98,7 @@ class Event:
         epoch: the epoch a stop interrupted, or a resume continues with, counted from 1.
         stage: ``"evaluation"`` where a stop interrupted, or a resume continues with, the evaluation.
         source: the checkpoint a resume continues from (``"from"`` in the file).
-        error: the error of a failure, ``"Type: message"``.
+        error: the error of a failure: a user error's one line, any other ``"Type: message"``.
         slurm_job, slurm_restarts: the SLURM job and how often SLURM requeued it.
         code: the code version of a start or resume (:func:`lossvo.code_version.code_version`).
     """
@@ -136,7 +136,7 @@ class Status:
         history: the folder's events, oldest first, across every process that ran in it.
         threads: the CPU thread count the run trains with.
         metrics: a completed run's last value of each column of ``metrics.csv``.
-        error: a failed run's error, ``"Type: message"``.
+        error: a failed run's error: a user error's one line, any other ``"Type: message"``.
         signal, epoch, stage: what stopped an interrupted run, during which epoch (from 1) or stage.
         resume_from: the ``last.ckpt`` an interrupted run resumes from; None where there is none.
     """

@@ -291,7 +291,8 @@ def _failed(run: Run, error: BaseException) -> None:
         _leave(run)
     if not run.started:
         return
-    message = f"{type(error).__name__}: {one_line(error)}"
+    line = user_message(error, run.out_dir)
+    message = line if line is not None else f"{type(error).__name__}: {one_line(error)}"
     run.history.append(event("failed", error=message))
     try:
         run.write("failed", error=message)
