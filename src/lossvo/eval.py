@@ -39,7 +39,7 @@ from lossvo.evaluation import checkpoints
 from lossvo.evaluation.metrics import ALIGN_MODES, is_rpe_delta
 from lossvo.evaluation.results import Results, evaluate_run
 from lossvo.processes import restore_start_method
-from lossvo.training.config_checks import check_source_roots, resolved_config
+from lossvo.training.config_checks import check_checkpoint_path, check_source_roots, resolved_config
 
 log = logging.getLogger("lossvo")
 
@@ -82,15 +82,6 @@ def check_config(cfg: Any) -> None:
     for key in ("carry_state", "mirror_average"):
         if not isinstance(cfg.get(key, False), bool):
             raise UserError(f"{key}: expected true or false, got {cfg.get(key)!r}")
-
-
-def check_checkpoint_path(path: Path) -> None:
-    """Refuse a ``ckpt_path`` that is a folder, naming the checkpoint files in it."""
-    if not path.is_dir():
-        return
-    found = sorted(str(p.relative_to(path)) for p in path.rglob("*.ckpt"))
-    inside = f"in it: {', '.join(found[:4])}{', ...' if len(found) > 4 else ''}" if found else "it holds none"
-    raise UserError(f"ckpt_path: {path} is a folder, expected a .ckpt file ({inside})")
 
 
 def data_overrides(overrides: Sequence[str]) -> tuple[bool, list[str]]:

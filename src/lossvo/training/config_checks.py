@@ -112,8 +112,19 @@ def check_train_config(cfg: DictConfig) -> None:
     if accelerator in CUDA_ACCELERATORS:
         check_accelerator(accelerator, torch.cuda.is_available(), _trainer_choice())
     ckpt_path = resolved.get("ckpt_path")
-    if ckpt_path is not None and not Path(str(ckpt_path)).expanduser().is_file():
-        raise UserError(f"ckpt_path: checkpoint not found: {ckpt_path}")
+    if ckpt_path is not None:
+        check_checkpoint_path(Path(str(ckpt_path)).expanduser())
+        if not Path(str(ckpt_path)).expanduser().is_file():
+            raise UserError(f"ckpt_path: checkpoint not found: {ckpt_path}")
+
+
+def check_checkpoint_path(path: Path) -> None:
+    """Refuse a ``ckpt_path`` that is a folder, naming the checkpoint files in it."""
+    if not path.is_dir():
+        return
+    found = sorted(str(p.relative_to(path)) for p in path.rglob("*.ckpt"))
+    inside = f"in it: {', '.join(found[:4])}{', ...' if len(found) > 4 else ''}" if found else "it holds none"
+    raise UserError(f"ckpt_path: {path} is a folder, expected a .ckpt file ({inside})")
 
 
 def check_source_roots(data: Any) -> None:
