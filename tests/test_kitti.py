@@ -162,3 +162,13 @@ def test_times_txt_is_required_and_matches_the_frames(kitti_copy: Path) -> None:
     path.unlink()
     with pytest.raises(kitti.KittiFormatError, match=r"times\.txt: cannot read timestamps"):
         kitti.load_sequence(kitti_copy, "00")
+
+
+def test_a_tum_trajectory_read_as_kitti_poses_says_so(tmp_path: Path) -> None:
+    path = tmp_path / "traj.txt"
+    path.write_text("1.0 0 0 0 0 0 0 1\n1.1 0 0 1 0 0 0 1\n")
+    expected = (
+        r"traj\.txt:1: expected 12 numbers \(a KITTI pose file\), got 8: a TUM trajectory .* Name it \.tum"
+    )
+    with pytest.raises(kitti.KittiFormatError, match=expected):
+        kitti.read_poses(path)

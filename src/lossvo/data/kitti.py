@@ -160,6 +160,12 @@ def read_poses(path: str | os.PathLike) -> np.ndarray:
     rows = numbered_lines(path, "pose file")
     if not rows:
         raise KittiFormatError(f"{path}: empty pose file (expected one line of 12 numbers per frame)")
+    first = rows[0][1].split()
+    if len(first) == 8 and not rows[0][1].lstrip().startswith("#"):
+        raise KittiFormatError(
+            f"{_where(path, rows[0][0])}: expected 12 numbers (a KITTI pose file), got 8: a TUM trajectory "
+            "('timestamp tx ty tz qx qy qz qw')? Name it .tum to read it as one"
+        )
     values = np.array([_parse_numbers(path, i, line, 12) for i, line in rows], dtype=np.float64)
     poses = np.zeros((len(values), 4, 4))
     poses[:, :3, :] = values.reshape(-1, 3, 4)
