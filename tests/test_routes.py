@@ -177,6 +177,23 @@ def test_motion_command_prints_a_row_per_split_and_sequence(
     assert float(cells[11]) == pytest.approx(np.sqrt((rotation**2).mean()), abs=5e-5)
 
 
+def test_motion_command_refuses_a_named_sequence_without_poses(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    (tmp_path / "sequences" / "00").mkdir(parents=True)
+    (tmp_path / "poses").mkdir()
+    poses = family_route("town", 50)
+    np.savetxt(tmp_path / "poses" / "00.txt", poses[:, :3].reshape(len(poses), 12))
+    with pytest.raises(SystemExit) as exit_info:
+        motion.main([str(tmp_path), "--train", "00,99"])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"python -m lossvo.data.motion: error: --train: {tmp_path} has no poses file for 99 (poses/NN.txt)"
+    ]
+    assert motion.main([str(tmp_path)]) == 0  # the default splits' missing sequences (01-12) are left out
+
+
 def test_motion_command_bad_root_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     with pytest.raises(SystemExit) as exit_info:
         motion.main([str(tmp_path / "missing")])

@@ -147,7 +147,7 @@ def _parser() -> argparse.ArgumentParser:
         "--sequences", default="", help="with --layout other than kitti: the sequences (default: all)"
     )
     for split, names in PAPER_SPLITS.items():
-        p.add_argument(f"--{split}", default=",".join(names), help=f"sequences (default: {','.join(names)})")
+        p.add_argument(f"--{split}", default=None, help=f"sequences (default: {','.join(names)})")
     return p
 
 
@@ -170,12 +170,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     root = args.root or frame_cache.default_cache_dir() / "synthetic"
     try:
         root = kitti.find_root(root)
-        splits = {s: sequence.sequence_names(getattr(args, s)) for s in PAPER_SPLITS}
+        given = {s: getattr(args, s) for s in PAPER_SPLITS if getattr(args, s) is not None}
+        splits = {s: sequence.sequence_names(given.get(s, ",".join(n))) for s, n in PAPER_SPLITS.items()}
         motion = read_motion(root, sorted({n for names in splits.values() for n in names}))
     except UserError as err:  # KittiFormatError too
         parser.error(str(err))
     if not motion:
         parser.error(f"{root}: no poses file for any of the requested sequences")
+    for split in given:  # a split the user named must exist; the defaults' missing ones are left out
+        missing = [n for n in splits[split] if n not in motion]
+        if missing:
+            parser.error(f"--{split}: {root} has no poses file for {', '.join(missing)} (poses/NN.txt)")
     emit(markdown(split_statistics(motion, splits)))
     return 0
 
