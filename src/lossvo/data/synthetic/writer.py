@@ -179,6 +179,14 @@ def frame_size(
     except UserError as err:
         raise UserError(f"{prefix}{err}") from None
     size = (scaled[0] if height is None else height, scaled[1] if width is None else width)
+    if height is None or width is None:  # a size from the scale: the error names the scale
+        try:
+            check_size(*size)
+        except UserError as err:
+            raise UserError(
+                f"{prefix}scale: {scale:g} gives {size[0]}x{size[1]} pixels for the {layout} layout's "
+                f"{default[0]}x{default[1]} ({err})"
+            ) from None
     check_size(*size, prefix=prefix)
     return size
 
