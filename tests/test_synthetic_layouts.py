@@ -295,7 +295,10 @@ def test_cli_writes_a_layout(tmp_path: Path) -> None:
             "invalid choice: 'colmap' (choose from 'kitti', 'tum', 'euroc', 'tartanair', 'mimir')",
         ),
         (["--layout", "tum", "--scale", "0"], "--scale: must be a number > 0, got 0.0"),
-        (["--layout", "tum", "--scale", "0.01"], "--height: must be between 32 and 4096 pixels, got 5"),
+        (
+            ["--layout", "tum", "--scale", "0.01"],
+            "--scale: 0.01 gives 5x6 pixels for the tum layout's 480x640",
+        ),
     ],
 )
 def test_cli_bad_values_exit_2_with_one_line(
