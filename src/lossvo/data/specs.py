@@ -43,7 +43,10 @@ def _fields(cls: type, value: Any, where: str) -> dict[str, Any]:
     if value is None:
         return {}
     if not isinstance(value, Mapping):
-        raise UserError(f"{where}: expected a mapping of {', '.join(_names(cls))}, got {value!r}")
+        names = _names(cls)
+        one = isinstance(value, str | int | float)
+        hint = f" (to set one of them: {where}.{names[0]}={value})" if one else ""
+        raise UserError(f"{where}: expected a mapping of {', '.join(names)}, got {value!r}{hint}")
     unknown = sorted(set(map(str, value)) - set(_names(cls)))
     if unknown:
         raise UserError(f"{where}.{unknown[0]}: unknown key (expected some of {', '.join(_names(cls))})")
