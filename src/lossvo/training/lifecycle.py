@@ -358,6 +358,22 @@ def job(cfg: DictConfig) -> Iterator[Run]:
         yield from _run_in(run)
 
 
+def _longer(run: Run) -> str:
+    """What to do where a completed run is asked for more epochs than it trained (its schedule has
+    ended there, so it is not extended); empty otherwise."""
+    recorded = run.out_dir / ".hydra" / "config.yaml"
+    if not recorded.is_file():
+        return ""
+    trained = OmegaConf.select(OmegaConf.load(recorded), "trainer.max_epochs", default=None)
+    asked = OmegaConf.select(run.cfg, "trainer.max_epochs", default=None)
+    if not (isinstance(trained, int) and isinstance(asked, int) and asked > trained):
+        return ""
+    return (
+        f"; it trained {trained} epochs, and trainer.max_epochs={asked} does not extend it (its schedule "
+        "ended there): train the longer run in another folder (hydra.run.dir=... or hydra.sweep.dir=...)"
+    )
+
+
 def _run_in(run: Run) -> Iterator[Run]:
     """:func:`job`'s body, in the held folder."""
     out_dir = run.out_dir
@@ -371,7 +387,7 @@ def _run_in(run: Run) -> Iterator[Run]:
             raise
         raise _user_error(one_line(e)) from None
     if run.completed is not None:
-        log.info("%s: already completed (resume=true): %s", run.label, out_dir / STATUS)
+        log.info("%s: already completed (resume=true): %s%s", run.label, out_dir / STATUS, _longer(run))
         yield run
         return
     try:
