@@ -74,8 +74,8 @@ def test_a_sweep_job_equals_its_config_run_alone_on_its_thread_count(
     with caplog.at_level("INFO", logger="lossvo"):  # the completed run asked for more epochs: not extended
         assert train_main([*args, "trainer.max_epochs=3"], monkeypatch) == 0
     (line,) = [r.getMessage() for r in caplog.records if "already completed" in r.getMessage()]
-    hint = ("it trained 1 epochs, and trainer.max_epochs=3 does not extend it (its schedule ended there): train "
-            "the longer run in another folder (hydra.run.dir=... or hydra.sweep.dir=...)")  # fmt: skip
+    hint = ("it trained 1 epochs, and trainer.max_epochs=3 does not extend it (its schedule ended there): "
+            "train the longer run in another folder (hydra.run.dir=... or hydra.sweep.dir=...)")  # fmt: skip
     assert line.endswith(hint)
     assert status_of(alone)["history"][-1]["event"] == "completed"
 
