@@ -8,7 +8,7 @@ Examples::
     python -m lossvo.train experiment=paper data.sources.kitti.root=/data/kitti trainer=gpu
 
 A run writes to ``outputs/runs/<time>/``, a sweep job to ``outputs/multirun/<time>/<num>_<overrides>/`` (what
-a job folder holds: docs/training.md; ``evaluate=false`` and ``trainer.fast_dev_run`` skip the final
+a job folder holds: docs/training.md; ``+evaluate=false`` and ``trainer.fast_dev_run`` skip the final
 evaluation). A run's life in its folder: :mod:`lossvo.training.lifecycle`; what it builds and trains:
 :mod:`lossvo.training.fitting`.
 """
