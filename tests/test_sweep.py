@@ -48,7 +48,7 @@ def test_sweep_over_losses_and_seeds_with_joblib_and_wandb(study_sweep: Path) ->
 
 
 def test_a_sweep_job_equals_its_config_run_alone_on_its_thread_count(
-    study_sweep: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+    study_sweep: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture
 ) -> None:
     """A job of the shared sweep (a joblib worker, ``threads=null``) records its thread count; the same
     config trained alone in this process with ``threads=`` that count gives every number again."""
@@ -70,10 +70,9 @@ def test_a_sweep_job_equals_its_config_run_alone_on_its_thread_count(
     assert [[e["event"] for e in h] for h in history] == [["started", "completed"]] * 2
     assert scores_of(alone) == scores_of(job) and scores_of(alone)["threads"] == threads
     assert torch.load(alone / "checkpoints" / "best.ckpt", weights_only=True)["threads"] == threads
-    caplog.clear()
-    with caplog.at_level("INFO", logger="lossvo"):  # the completed run asked for more epochs: not extended
-        assert train_main([*args, "trainer.max_epochs=3"], monkeypatch) == 0
-    (line,) = [r.getMessage() for r in caplog.records if "already completed" in r.getMessage()]
+    capfd.readouterr()
+    assert train_main([*args, "trainer.max_epochs=3"], monkeypatch) == 0  # more epochs asked: not extended
+    (line,) = [x for x in "".join(capfd.readouterr()).splitlines() if "already completed" in x]
     hint = ("it trained 1 epochs, and trainer.max_epochs=3 does not extend it (its schedule ended there): "
             "train the longer run in another folder (hydra.run.dir=... or hydra.sweep.dir=...)")  # fmt: skip
     assert line.endswith(hint)
