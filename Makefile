@@ -86,9 +86,11 @@ sweep-paper: venv
 # once as the GPU's free memory and the cores allow; elsewhere two at once on the CPU, as `make sweep`. With
 # too few seeds to decide a claim (7 for three losses; `make study SEEDS=0,1,2`) it says so, and runs.
 # `python -m lossvo.study --dry-run` prints the plan alone.
+# `make study EXPERIMENTS=mix`: the camera arm (experiment=mix) beside the architectures, in the same folder.
+EXPERIMENTS ?= none
 study: SEEDS = 0,1,2,3,4,5,6,7,8,9
 study: venv
-	$(PY) -m lossvo.study --seeds $(SEEDS) --models $(MODELS)
+	$(PY) -m lossvo.study --seeds $(SEEDS) --models $(MODELS) --experiments $(EXPERIMENTS)
 
 # The report of the newest sweep under outputs/multirun (python -m lossvo.report SWEEP_DIR for another).
 report: venv
