@@ -111,7 +111,16 @@ LAYERS = (
     ("evaluation",),
     ("data", "losses", "weighting", "models"),
     ("geometry",),
-    ("console", "atomic", "processes", "checks", "folder_lock", "table_render"),
+    (
+        "console",
+        "atomic",
+        "processes",
+        "checks",
+        "folder_lock",
+        "output_folders",
+        "code_version",
+        "table_render",
+    ),
 )
 """The library's layers, top to bottom, by the first name under ``lossvo``; each imports only its own
 layer and the ones below it."""
