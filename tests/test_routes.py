@@ -159,13 +159,19 @@ def test_docs_show_the_route_families_table() -> None:
     assert table == routes.families_markdown()
 
 
+def town_sequence(root: Path, frames: int) -> np.ndarray:
+    """A KITTI-layout root holding sequence 00's pose file only: a town route of ``frames`` poses."""
+    (root / "sequences" / "00").mkdir(parents=True)
+    (root / "poses").mkdir()
+    poses = family_route("town", frames)
+    np.savetxt(root / "poses" / "00.txt", poses[:, :3].reshape(len(poses), 12))
+    return poses
+
+
 def test_motion_command_prints_a_row_per_split_and_sequence(
     tmp_path: Path, capsys: pytest.CaptureFixture
 ) -> None:
-    (tmp_path / "sequences" / "00").mkdir(parents=True)
-    (tmp_path / "poses").mkdir()
-    poses = family_route("town", 200)
-    np.savetxt(tmp_path / "poses" / "00.txt", poses[:, :3].reshape(len(poses), 12))
+    poses = town_sequence(tmp_path, 200)
     assert motion.main([str(tmp_path), "--train", "00", "--val", "", "--test", "00", "--unseen", ""]) == 0
     out = capsys.readouterr().out.splitlines()
     assert out[0].startswith("| split / sequence | pairs | speed mean")
@@ -180,10 +186,7 @@ def test_motion_command_prints_a_row_per_split_and_sequence(
 def test_motion_command_refuses_a_named_sequence_without_poses(
     tmp_path: Path, capsys: pytest.CaptureFixture
 ) -> None:
-    (tmp_path / "sequences" / "00").mkdir(parents=True)
-    (tmp_path / "poses").mkdir()
-    poses = family_route("town", 50)
-    np.savetxt(tmp_path / "poses" / "00.txt", poses[:, :3].reshape(len(poses), 12))
+    town_sequence(tmp_path, 50)
     with pytest.raises(SystemExit) as exit_info:
         motion.main([str(tmp_path), "--train", "00,99"])
     assert exit_info.value.code == 2
