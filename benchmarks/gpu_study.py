@@ -538,7 +538,7 @@ def job(args: argparse.Namespace, trainer: str, env: dict[str, str], left: Calla
 def study(args: argparse.Namespace, env: dict[str, str], left: Callable[[], float],
           device: torch.device) -> dict[str, Any]:  # fmt: skip
     """``python -m lossvo.study`` with as many seeds as the time left allows (10: ``make study``)."""
-    seeds = 1 if args.quick else 10 if left() > 600 else 3 if left() > 200 else 1
+    seeds = 2 if args.quick else 10 if left() > 600 else 3 if left() > 200 else 2  # a study has >= 2 seeds
     sweep = args.work / "study"
     command = [sys.executable, "-m", "lossvo.study", "--seeds", ",".join(map(str, range(seeds))),
                "--models", args.study_models, "--sweep-dir", str(sweep), *args.job_overrides]  # fmt: skip

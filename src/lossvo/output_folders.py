@@ -14,8 +14,9 @@ from omegaconf import DictConfig
 
 from lossvo.console import UserError, exit_in_one_line
 
-RUN_MARKERS = (".hydra/config.yaml", "status.json", "results.json")
-"""Files of a run or an evaluation folder of lossvo's: one of them makes an existing folder its own."""
+RUN_MARKERS = (".hydra/config.yaml", "status.json", "results.json", "run.lock")
+"""Files of a run or an evaluation folder of lossvo's (``run.lock``: a job that has just started): one of
+them makes an existing folder its own, and a sweep folder holding such a folder."""
 
 SWEEP_MARKERS = ("multirun.yaml", "optuna.db", ".submitit")
 """Entries of a sweep folder of lossvo's besides job folders: Hydra's record of the sweep, the Optuna
@@ -45,7 +46,7 @@ def _is_ours(folder: Path, sweep: bool) -> bool:
         return True
     return sweep and (
         any((folder / marker).exists() for marker in SWEEP_MARKERS)
-        or any((p / ".hydra" / "config.yaml").is_file() for p in folder.iterdir())
+        or any(any((p / marker).is_file() for marker in RUN_MARKERS) for p in folder.iterdir())
     )
 
 

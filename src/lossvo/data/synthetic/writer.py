@@ -25,6 +25,8 @@ from lossvo.data.synthetic.camera import CameraRange, calib_text, drawn_intrinsi
 from lossvo.data.synthetic.parameters import (
     DEFAULT_HEIGHT,
     DEFAULT_WIDTH,
+    MAX_SIZE,
+    MIN_SIZE,
     SEQUENCES,
     check_size,
     resolve_frames,
@@ -179,15 +181,16 @@ def frame_size(
     except UserError as err:
         raise UserError(f"{prefix}{err}") from None
     size = (scaled[0] if height is None else height, scaled[1] if width is None else width)
-    if height is None or width is None:  # a size from the scale: the error names the scale
-        try:
-            check_size(*size)
-        except UserError as err:
-            raise UserError(
-                f"{prefix}scale: {scale:g} gives {size[0]}x{size[1]} pixels for the {layout} layout's "
-                f"{default[0]}x{default[1]} ({err})"
-            ) from None
-    check_size(*size, prefix=prefix)
+    try:
+        check_size(*size, prefix=prefix)
+    except UserError as err:
+        bad_height = not MIN_SIZE <= size[0] <= MAX_SIZE
+        if (height if bad_height else width) is not None:  # a size given: the error names it
+            raise
+        raise UserError(  # a size from the scale: the error names the scale
+            f"{prefix}scale: {scale:g} gives {size[0]}x{size[1]} pixels for the {layout} layout's "
+            f"{default[0]}x{default[1]} ({str(err).removeprefix(prefix)})"
+        ) from None
     return size
 
 
