@@ -52,6 +52,7 @@ from lossvo.evaluation import job_folder
 from lossvo.evaluation.inference import predict_sequence
 from lossvo.report import statistics
 from lossvo.report.across_datasets import EVALUATIONS
+from lossvo.report.jobs import read_overrides
 from lossvo.report.statistics import ALPHA
 from lossvo.train import CONFIG_DIR
 from lossvo.training import gpu_jobs
@@ -290,7 +291,7 @@ class _StepTimes(Callback):
         self._counter: FlopCounterMode | None = None
 
     def on_train_batch_start(self, *args: Any) -> None:
-        if not self.seconds and self._counter is None and not self.flops:
+        if not self.seconds:  # the first batch
             self._counter = FlopCounterMode(display=False)
             self._counter.__enter__()
         self._start = time.perf_counter()
@@ -624,13 +625,11 @@ def held_out(plan: Plan) -> HeldOut:
 
 def _job_of(folder: Path, experiment: str) -> bool:
     """Whether a job folder is a completed job of ``experiment`` with a best checkpoint."""
-    import yaml
-
     overrides = folder / ".hydra" / "overrides.yaml"
     if not (overrides.is_file() and (folder / "checkpoints" / "best.ckpt").is_file()):
         return False
     status = job_folder.read_status(folder)
-    chosen = f"experiment={experiment}" in (yaml.safe_load(overrides.read_text()) or [])
+    chosen = read_overrides(overrides).get("experiment") == experiment
     return chosen and status is not None and status.state == "completed"
 
 

@@ -118,7 +118,6 @@ def keyed(
     ``sequences``, and those of its jobs' evaluations on other data, :mod:`lossvo.report.across_datasets`),
     and the keys its jobs trained on: two configurations trained on different data are compared on the
     frames both were evaluated on."""
-    own = [s for s in sequences]
     by_job: dict[Path, list[Evaluation]] = {}
     for e in evaluations:
         by_job.setdefault(e.job.path, []).append(e)
@@ -126,7 +125,7 @@ def keyed(
     for job, per_sequence in zip(column.jobs, column.results, strict=True):
         data = job.results.data if job.results is not None else None
         root = _root(data.root if data else None)
-        entry = {f"{root}{KEY_SEPARATOR}{s}": per_sequence[s] for s in own if s in per_sequence}
+        entry = {f"{root}{KEY_SEPARATOR}{s}": per_sequence[s] for s in sequences if s in per_sequence}
         for e in by_job.get(job.path, []):
             other = _root(e.results.data.root)
             entry.update(

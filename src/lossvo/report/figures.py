@@ -277,8 +277,9 @@ def _forest_relative(
         decisions = next(q.decisions for q in claim.quantities if q.quantity == quantity)
         for (label, values), decision, color in zip(rows[1:], decisions, colors(len(rows))[1:], strict=True):
             theirs = values[quantity]
-            seeds = [s for s in ours if s in theirs and theirs[s] != 0]
-            r = np.array([100 * (ours[s] - theirs[s]) / abs(theirs[s]) for s in seeds])
+            seeds = [s for s in ours if s in theirs]
+            pairs = np.array([[ours[s], theirs[s]] for s in seeds]).reshape(-1, 2)
+            r = 100 * statistics.relative_differences(pairs[:, 0], pairs[:, 1])
             y = -len(labels)
             _dots_and_interval(ax, r, y, 1 - 2 * statistics.ALPHA, color)
             box = {"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.8}
