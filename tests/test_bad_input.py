@@ -180,8 +180,9 @@ def check_output(row: Row, message: str, status: int, out: str, err: str) -> Non
     lines = error_lines(out + "\n" + err)
     assert len(lines) == 1, f"expected one line of error output, got {len(lines)}:\n" + "\n".join(lines)
     assert message in lines[0], f"{message!r} not in {lines[0]!r}"
+    assert lines[0] in err.splitlines() and not error_lines(out), out  # the line is on stderr
     if row.command in ("report", "metrics", "synthetic"):
-        assert not out.strip(), out  # the error is on stderr, nothing on stdout
+        assert not out.strip(), out  # nothing on stdout
 
 
 def check_nothing_done(row: Row, places: dict[str, str], tmp_path: Path) -> None:

@@ -35,7 +35,8 @@ def test_the_swept_key_comes_first_and_survives_the_length_limit() -> None:
 
 
 def test_a_real_sweep_names_its_jobs_by_the_swept_key(tmp_path: Path) -> None:
-    """Jobs refused by a config check keep their folders (marked failed): the names cost no training."""
+    """Jobs refused by the network's check keep their folders (marked failed): the names cost no training.
+    (The sweep's own check composes configs and checks data settings, not the network's arguments.)"""
     sweep = tmp_path / "sweep"
     env = {**os.environ, "LOSSVO_CACHE": str(tmp_path / "cache")}
     env.pop("LOSSVO_FULL_ERROR", None)
@@ -45,14 +46,16 @@ def test_a_real_sweep_names_its_jobs_by_the_swept_key(tmp_path: Path) -> None:
         "lossvo.train",
         "-m",
         *COMMAND,
-        "data.windows.batch_size=0",
+        "model.hidden_size=0",
         f"hydra.sweep.dir={sweep}",
     ]
     done = subprocess.run(command, capture_output=True, text=True, env=env, timeout=300)
     assert done.returncode == 2, done.stdout + done.stderr
     assert (
         done.stderr.strip().splitlines()[-1]
-        == "error: data.windows.batch_size: expected an integer >= 1, got 0"
+        == "error: job 1/2 (loss=euler trainer.max_epochs=1 data.windows.per_epoch=16 data.splits.test=[07] "
+        "data.splits.unseen=[11] model.hidden_size=0) failed (its line is above and in its status.json); "
+        f"the sweep's other jobs ran: python -m lossvo.report {sweep} tables them"
     )
     names = sorted(p.name for p in sweep.iterdir() if p.is_dir())
     assert [name[:15] for name in names] == ["0_loss-euler+da", "1_loss-chordal+"], names

@@ -33,6 +33,14 @@ def _error_lines(output: str) -> list[str]:
     return [line for line in output.splitlines() if "[ERROR]" in line or line.startswith("error:")]
 
 
+def _user_error(captured: pytest.CaptureResult[str]) -> str:
+    """The one line of a user error: ``error: ...`` on stderr, nothing of it on stdout."""
+    assert not _error_lines(captured.out), captured.out
+    (line,) = _error_lines(captured.err)
+    assert line.startswith("error: ")
+    return line
+
+
 @pytest.fixture(scope="module")
 def uninterrupted(tiny_kitti: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     """A run of two epochs, start to finish, in process."""
@@ -99,7 +107,7 @@ def test_a_changed_config_in_a_completed_folder_is_refused(
     capsys.readouterr()
     args = _args(tiny_kitti, run, "loss=euler", "trainer.max_epochs=5")
     assert train_main(args, monkeypatch) == 2
-    (line,) = _error_lines(capsys.readouterr().out)
+    line = _user_error(capsys.readouterr())
     assert f"{run}: holds a run of another configuration (" in line
     assert "loss._target_" in line and "trainer.max_epochs" not in line
     assert {name: (run / name).read_bytes() for name in before} == before
@@ -118,7 +126,7 @@ def test_resume_false_in_a_used_folder_is_refused(
     run = tmp_path / "run"
     shutil.copytree(uninterrupted, run)
     assert train_main(_args(tiny_kitti, run, "resume=false"), monkeypatch) == 2
-    (line,) = _error_lines(capsys.readouterr().out)
+    line = _user_error(capsys.readouterr())
     assert "resume=false starts afresh only in a new folder" in line
     assert metrics_rows(run) == metrics_rows(uninterrupted)
 
@@ -141,9 +149,9 @@ def test_a_disk_error_during_training_is_one_line(
     monkeypatch.setattr(Path, "write_bytes", refused)
     run = tmp_path / "run"
     assert train_main(_args(tiny_kitti, run), monkeypatch) == 2
-    out = capsys.readouterr().out
-    (line,) = _error_lines(out)
-    assert line.endswith(f"{run}/checkpoints/best.ckpt: {cause}") and "Traceback" not in out
+    captured = capsys.readouterr()
+    line = _user_error(captured)
+    assert line.endswith(f"{run}/checkpoints/best.ckpt: {cause}") and "Traceback" not in captured.err
     status = status_of(run)
     assert status["status"] == "failed" and cause in status["error"]
 
@@ -174,7 +182,7 @@ def test_a_malformed_status_json_is_one_line_naming_it(
     before = (run / "status.json").read_bytes()
     assert train_main(_args(tiny_kitti, run), monkeypatch) == 2
     captured = capsys.readouterr()
-    (line,) = _error_lines(captured.out)
+    line = _user_error(captured)
     assert line.endswith(f"{run}/status.json: metrics: expected an object of numbers, got []")
     assert "Traceback" not in captured.out
     assert sorted(p.name for p in run.iterdir()) == ["run.lock", "status.json", "train.log"]  # nothing else
@@ -219,7 +227,7 @@ def test_a_run_on_a_full_disk(
     assert train_main(args, monkeypatch) == 2
     captured = capsys.readouterr()
     assert "Traceback" not in captured.out + captured.err
-    (line,) = _error_lines(captured.out + captured.err)
+    line = _user_error(captured)
     assert line.endswith(": No space left on device") and f"{run}/" in line
     status = status_of(run)
     assert status["status"] == "failed" and "No space left on device" in status["error"]

@@ -190,7 +190,7 @@ def test_a_second_process_is_refused_and_a_killed_run_is_told_and_resumes(
     second = _start(tiny_kitti, tmp_path, "trainer.max_epochs=200")
     output = second.communicate(timeout=240)[0]
     assert second.returncode == 2, output[-3000:]
-    (line,) = [line for line in output.splitlines() if "[ERROR]" in line]
+    (line,) = [line for line in output.splitlines() if line.startswith("error:")]
     assert f"{run}: another process is running in this folder (pid {proc.pid} on " in line, line
     assert "Traceback" not in output
     assert proc.poll() is None  # the first run trains on

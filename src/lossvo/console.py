@@ -51,6 +51,25 @@ class UserError(Exception):
     ``ValueError`` is a programming error (or a library's refusal not yet named at lossvo's boundary)."""
 
 
+class JobFailedError(UserError):
+    """A sweep job's user error, already printed by the job (:func:`user_error_line`) and recorded in its
+    ``status.json``: the sweep's end names the job instead of repeating the line. Built from the job's
+    label, the line and the sweep folder (in ``args``, so that it crosses a launcher's process boundary)."""
+
+    def __init__(self, label: str, line: str, sweep_dir: str) -> None:
+        super().__init__(label, line, sweep_dir)
+
+    def __str__(self) -> str:
+        return f"{self.args[0]}: {self.args[1]}"
+
+    def summary(self) -> str:
+        """The sweep's last line: which job failed, where its line is."""
+        return (
+            f"{self.args[0]} failed (its line is above and in its status.json); the sweep's other jobs "
+            f"ran: python -m lossvo.report {self.args[2]} tables them"
+        )
+
+
 USER_ERRORS = (UserError,)
 """Errors that are the user's by their type: :class:`UserError` only. ``ValueError``, ``TypeError`` and
 ``ImportError`` are not: they keep their traceback (a library's refusal of a user's value is turned into
@@ -83,6 +102,30 @@ def emit(text: str) -> None:
     except BrokenPipeError:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())  # the interpreter's final flush then succeeds
+
+
+def log_to_files(logger: logging.Logger, message: str) -> None:
+    """An ERROR record of ``message`` in the log files ``logger`` writes to (Hydra's ``<job>.log``), not on
+    its terminal handlers: a user error reaches the terminal once, as ``error: ...`` on stderr. A log file
+    that cannot be written (a full disk) is passed over in silence."""
+    record = logger.makeRecord(logger.name, logging.ERROR, "(lossvo)", 0, message, (), None)
+    raising, logging.raiseExceptions = logging.raiseExceptions, False  # a full disk: the line is on stderr
+    try:
+        current: logging.Logger | None = logger
+        while current is not None:
+            for handler in current.handlers:
+                if isinstance(handler, logging.FileHandler) and record.levelno >= handler.level:
+                    handler.handle(record)
+            current = current.parent if current.propagate else None
+    finally:
+        logging.raiseExceptions = raising
+
+
+def user_error_line(logger: logging.Logger, message: str) -> None:
+    """A user error's one line: ``error: ...`` on stderr, and the same line in the log files of ``logger``
+    (:func:`log_to_files`)."""
+    print(f"error: {message}", file=sys.stderr, flush=True)
+    log_to_files(logger, message)
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -212,7 +255,7 @@ def printed_one_line(error: BaseException, folder: object = None) -> bool:
     """Called in an ``except`` block of an entry point: for a user error (:func:`user_message`), print
     ``error: ...`` on stderr and return True (the command then exits with status 2); otherwise, or with
     ``LOSSVO_FULL_ERROR=1``, print nothing and return False (the caller re-raises)."""
-    message = user_message(error, folder)
+    message = error.summary() if isinstance(error, JobFailedError) else user_message(error, folder)
     if message is None or full_error():
         return False
     print(f"error: {message}", file=sys.stderr)
@@ -286,7 +329,10 @@ def close_logs_in(folder: Path) -> None:
     for logger in (item for item in loggers if isinstance(item, logging.Logger)):
         for handler in list(logger.handlers):
             if isinstance(handler, logging.FileHandler) and Path(handler.baseFilename).parent == folder:
-                handler.close()
+                try:
+                    handler.close()
+                except OSError:  # a full disk: the lines it holds cannot be written
+                    handler.stream = None  # type: ignore[assignment]
                 logger.removeHandler(handler)
 
 
@@ -305,12 +351,18 @@ def remove_refused(folder: Path, made: Collection[str], keep_folder: bool = Fals
             path.unlink(missing_ok=True)
 
 
-LIGHTNING_HINTS = (r"The `srun` command is available on your system but is not used",)
+LIGHTNING_HINTS = (
+    r"The `srun` command is available on your system but is not used",
+    r"The number of training batches .* is smaller than the logging interval",
+    r"`isinstance\(treespec, LeafSpec\)` is deprecated",
+)
 """Lightning's warnings that do not fit lossvo: ``srun`` on the PATH of a login node is no sign that a
-run should be started with it (:mod:`lossvo.training.slurm` starts cluster jobs)."""
+run should be started with it (:mod:`lossvo.training.slurm` starts cluster jobs); the logging interval
+is the training curve's, whose points are epoch means (an epoch shorter than it loses no point); the
+pytree deprecation is Lightning's call of a torch API, not the user's to fix."""
 
-LIGHTNING_TIPS = ("Tip: For seamless cloud uploads",)
-"""Lightning's advertising lines (its ``litmodels`` tip), dropped from its log."""
+LIGHTNING_TIPS = ("Tip: For seamless cloud ",)
+"""Lightning's advertising lines (its ``litmodels`` and ``litlogger`` tips), dropped from its log."""
 
 _RANK_ZERO_LOGGERS = ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.rank_zero")
 """The loggers of Lightning's ``rank_zero_info``."""

@@ -28,6 +28,8 @@ from lossvo import output_folders
 from lossvo.console import (
     UserError,
     end_in_one_line,
+    full_error,
+    log_to_files,
     one_line_errors,
     quiet_lightning,
     remove_refused,
@@ -144,6 +146,7 @@ def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
 
 
 @one_line_errors
+@output_folders.leaving_as_found
 @refusing_flat_keys
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="eval")
 def main(cfg: DictConfig) -> None:
@@ -156,10 +159,13 @@ def main(cfg: DictConfig) -> None:
         check_config(cfg)
         result = run(cfg, out_dir, HydraConfig.get().overrides.task)
     except Exception as e:  # in the job: Hydra would print a line of its own before a raised error's
-        if user_message(e) is not None and output_folders.was_empty(out_dir):
+        message = user_message(e, out_dir)
+        if message is not None and not full_error():
+            log_to_files(log, message)
+        if message is not None and output_folders.was_empty(out_dir):
             made = {".hydra", f"{HydraConfig.get().job.name}.log"}
             remove_refused(out_dir, made, keep_folder=output_folders.existed(out_dir))
-        end_in_one_line(e)
+        end_in_one_line(e, out_dir)
         raise
     overall = result.overall
     if overall.scores is not None:

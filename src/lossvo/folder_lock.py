@@ -68,8 +68,11 @@ def held(folder: Path, details: str = "") -> Iterator[Held]:
     try:
         guarded = _lock(fd, path, folder)
         if guarded:
-            os.ftruncate(fd, 0)
-            os.pwrite(fd, (_describe(details) + "\n").encode(), 0)
+            try:
+                os.ftruncate(fd, 0)
+                os.pwrite(fd, (_describe(details) + "\n").encode(), 0)
+            except OSError as e:  # a full disk: name the file
+                raise OSError(e.errno, e.strerror, str(path)) from None
         yield Held(path, guarded)
     finally:
         os.close(fd)

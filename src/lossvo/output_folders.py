@@ -5,14 +5,20 @@ writes anything there; a folder that already existed is never removed by a refus
 
 from __future__ import annotations
 
+import functools
 import os
+import shutil
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, ParamSpec, TypeVar
 
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
-from lossvo.console import UserError, exit_in_one_line
+from lossvo.console import UserError, close_logs_in, disk_error, exit_in_one_line
+
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
 
 RUN_MARKERS = (".hydra/config.yaml", "status.json", "results.json", "run.lock")
 """Files of a run or an evaluation folder of lossvo's (``run.lock``: a job that has just started): one of
@@ -80,9 +86,43 @@ class OutputFolderCheck(Callback):
 
     @staticmethod
     def _check(config: DictConfig, key: str, sweep: bool) -> None:
+        folder = Path(str(config.hydra.sweep.dir if sweep else config.hydra.run.dir))
         try:
-            check_output_folder(
-                Path(str(config.hydra.sweep.dir if sweep else config.hydra.run.dir)), key, sweep
-            )
+            check_output_folder(folder, key, sweep)
         except UserError as e:
             exit_in_one_line(e)
+        _CHECKED.append(folder)
+
+
+_CHECKED: list[Path] = []
+"""The output folders :class:`OutputFolderCheck` accepted in this process."""
+
+HYDRA_FILES = ("multirun.yaml", ".hydra", "run.lock")
+"""What Hydra (and a run's lock) writes in an output folder before lossvo's first file; the log beside them
+is ``<job name>.log``."""
+
+
+def _made_by_hydra(folder: Path) -> bool:
+    return all(p.name in HYDRA_FILES or p.suffix == ".log" for p in folder.iterdir())
+
+
+def leaving_as_found(main: Callable[_P, _R]) -> Callable[_P, _R]:
+    """A Hydra entry point whose disk errors (a full or read-only disk, :func:`~lossvo.console.disk_error`)
+    name the output folder where the error names no file, and leave each output folder as it was found:
+    one it created removed, an empty one it was given emptied, where it holds only what Hydra wrote."""
+
+    @functools.wraps(main)
+    def wrapped(*args: _P.args, **kwargs: _P.kwargs) -> _R:
+        try:
+            return main(*args, **kwargs)
+        except OSError as e:
+            if disk_error(e) is not None and _CHECKED:
+                if e.filename is None:
+                    e.filename = str(_CHECKED[-1])
+                for folder in (f for f in _CHECKED if f.is_dir() and was_empty(f) and _made_by_hydra(f)):
+                    close_logs_in(folder)
+                    for path in folder.iterdir() if existed(folder) else [folder]:
+                        shutil.rmtree(path) if path.is_dir() else path.unlink()
+            raise
+
+    return wrapped

@@ -37,15 +37,13 @@ import joblib
 import lightning as L
 import torch
 from hydra import compose, initialize_config_dir
-from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
 from lightning.pytorch.callbacks import Callback
-from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 from torch.utils.data import DataLoader, Dataset
 from torch.utils.flop_counter import FlopCounterMode
 
-from lossvo import weighting
 from lossvo.console import OneLineParser, UserError, emit, one_line, one_line_main
 from lossvo.data import windows
 from lossvo.evaluation import job_folder
@@ -56,7 +54,7 @@ from lossvo.report.jobs import read_overrides
 from lossvo.report.statistics import ALPHA
 from lossvo.train import CONFIG_DIR
 from lossvo.training import gpu_jobs
-from lossvo.training.config_checks import check_train_config
+from lossvo.training.config_checks import check_job
 from lossvo.training.module import VOModule
 
 SEEDS = tuple(range(10))
@@ -192,25 +190,6 @@ def check_configurations(models: Sequence[str], experiments: Sequence[str]) -> N
             raise UserError(
                 f"--{flag}: no {group} config {unknown[0]!r} (expected some of {', '.join(known)})"
             )
-
-
-def check_job(cfg: DictConfig, out_dir: Path) -> None:
-    """The checks a job runs on its config before it builds anything
-    (:func:`lossvo.weighting.check_config`, :func:`~lossvo.training.config_checks.check_train_config`),
-    its ``${hydra:...}`` values resolved as in a job writing to ``out_dir``: ``UserError`` (one line)."""
-    with open_dict(cfg):
-        cfg.hydra.runtime.output_dir = str(out_dir)
-    job = cfg.copy()
-    with open_dict(job):
-        del job.hydra
-    hydra, previous = HydraConfig.instance(), HydraConfig.instance().cfg
-    hydra.set_config(cfg)
-    try:
-        if job.get("weighting") is not None:
-            weighting.check_config(job.weighting, job.loss)
-        check_train_config(job)
-    finally:
-        hydra.cfg = previous
 
 
 @dataclass(frozen=True)
@@ -558,8 +537,9 @@ def parser() -> argparse.ArgumentParser:
 
 
 def checked_jobs(args: argparse.Namespace, sweep_dir: Path) -> float:
-    """Compose and check (:func:`check_job`) one job of each configuration and loss of the command line;
-    the GPU memory one job needs, GiB (``hydra.callbacks.gpu_jobs.job_memory_gib``, overridable)."""
+    """Compose and check (:func:`~lossvo.training.config_checks.check_job`) one job of each configuration
+    and loss of the command line; the GPU memory one job needs, GiB
+    (``hydra.callbacks.gpu_jobs.job_memory_gib``, overridable)."""
     check_configurations(args.models, args.experiments)
     if not args.models and not args.experiments:
         raise UserError("--models none with no --experiments: the study has no configuration")

@@ -21,6 +21,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
+from lossvo import output_folders
 from lossvo.console import one_line_errors, quiet_lightning
 from lossvo.data.specs import refusing_flat_keys
 from lossvo.processes import restore_start_method
@@ -34,6 +35,7 @@ CONFIG_DIR = str(Path(__file__).resolve().parent / "conf")
 
 
 @one_line_errors
+@output_folders.leaving_as_found
 @resolvers.names_swept_jobs
 @refusing_flat_keys
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")
@@ -48,7 +50,7 @@ def main(cfg: DictConfig) -> float | None:
     restore_start_method()  # a joblib-launched job: let its loader workers and renderer start
     with lifecycle.job(cfg) as run:
         if run.completed is None:
-            log.info("%s: run folder %s (preparing the data and the network)", run.label, run.out_dir)
+            log.info("%s: preparing the data and the network", run.label)
             fitting.train(cfg, run)
     return run.optimized_metric()
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -33,22 +34,23 @@ def manifest_of(data: Path) -> Path:
 
 
 def open_array(
-    data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type
+    data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type, say: bool = True
 ) -> np.ndarray | None:
     """The array in ``data`` as a read-only memory map, or None if it is missing, incomplete or stale:
     its manifest must hold every entry of ``expected`` with the same value, and the array ``shape`` and
-    ``dtype``."""
+    ``dtype``. ``say``: a warning names an unreadable or stale array."""
     manifest = manifest_of(data)
     try:
         meta = json.loads(manifest.read_text())
         array = np.load(data, mmap_mode="r")
     except (OSError, ValueError) as e:
-        if manifest.exists() or data.exists():
+        if say and (manifest.exists() or data.exists()):
             log.warning("cache %s is unreadable (%s): rebuilding", data, e)
         return None
     current = isinstance(meta, dict) and all(meta.get(key) == value for key, value in expected.items())
     if not current or array.shape != shape or array.dtype != np.dtype(dtype):
-        log.warning("cache %s is stale or incomplete: rebuilding", data)
+        if say:
+            log.warning("cache %s is stale or incomplete: rebuilding", data)
         return None
     return array
 
@@ -63,6 +65,7 @@ def build_array(
     manifest = manifest_of(data)
     manifest.unlink(missing_ok=True)  # the manifest marks a complete array; none while writing
     tmp = data.with_name(f".{data.name}.{os.getpid()}.tmp")
+    start = time.perf_counter()
     out = np.lib.format.open_memmap(tmp, mode="w+", dtype=dtype, shape=shape)
     try:
         found = fill(out)
@@ -73,6 +76,7 @@ def build_array(
         tmp.unlink(missing_ok=True)
         raise
     write_text_atomic(manifest, json.dumps({**expected, "shape": list(shape), **found}))
+    log.info("cache %s: built in %.1f s", data, time.perf_counter() - start)
     return np.load(data, mmap_mode="r")
 
 
@@ -86,7 +90,7 @@ def ensure_array(
         return array
     data.parent.mkdir(parents=True, exist_ok=True)
     with FileLock(data.parent / f".{data.stem}.lock"):
-        array = open_array(data, expected, shape, dtype)  # another job may have built it meanwhile
+        array = open_array(data, expected, shape, dtype, say=False)  # another job may have built it
         if array is None:
             array = build_array(data, expected, shape, dtype, fill)
     return array

@@ -45,7 +45,7 @@ from lossvo.console import UserError
 from lossvo.data import flow as optical_flow
 from lossvo.data import frame_cache, layouts, resident, specs, synthetic, windows
 from lossvo.data import transforms as batch_transforms
-from lossvo.data.sequence import Sequence
+from lossvo.data.sequence import DatasetFormatError, Sequence
 from lossvo.data.synthetic import routes
 from lossvo.data.windows import EpochShuffle, SharedEpochShuffle, WindowDataset
 from lossvo.geometry import camera
@@ -251,12 +251,28 @@ class VODataModule(L.LightningDataModule):
         for name in self.all_names:
             source, local = self.source_of(name)
             root = layouts.dataset_root(source.reader, source.root)
-            seq = layouts.load_sequence(
-                source.reader, root, source.file_name(local), require_poses=name in labelled
-            )
+            try:
+                seq = layouts.load_sequence(
+                    source.reader, root, source.file_name(local), require_poses=name in labelled
+                )
+            except DatasetFormatError as e:
+                self._name_unknown(name, source, root, e)
+                raise
             if source.camera is not None:
                 seq = dataclasses.replace(seq, K=source.camera[0], distortion=source.camera[1])
             self.sequences[name] = seq.every(source.keep_every)
+
+    def _name_unknown(self, name: str, source: specs.Source, root: Path, error: Exception) -> None:
+        """Where sequence ``name`` of a split is not in its dataset: ``UserError`` naming the split's key,
+        the dataset and the sequences it has (the reader's error names only a path)."""
+        found = layouts.list_sequences(source.reader, root)
+        if source.file_name(self.source_of(name)[1]) in found:
+            return
+        split = next(k for k, names in self.splits.items() if name in names)
+        raise UserError(
+            f"data.splits.{split}: no sequence {name!r} in {root} ({source.reader} layout; it has "
+            f"{', '.join(found) or 'none'})"
+        ) from error
 
     def load_metadata(self) -> None:
         """Read and check every sequence's poses, calibration and image list, without building the

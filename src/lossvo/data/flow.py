@@ -143,7 +143,7 @@ def _computer(
                 total=len(out),
                 desc=f"flow {name} (step {step}, {setting.key})",
                 unit="pair",
-                disable=not progress,
+                disable=None if progress else True,  # None: off where stderr is no terminal
                 leave=False,
             ) as bar,
         ):

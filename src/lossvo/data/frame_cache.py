@@ -186,7 +186,7 @@ def _decoder(
                 total=len(seq.images),
                 desc=f"caching {seq.name} at {height}x{width}",
                 unit="frame",
-                disable=not progress,
+                disable=None if progress else True,  # None: off where stderr is no terminal
                 leave=False,
             )
             for i, (frame, size) in enumerate(bar):

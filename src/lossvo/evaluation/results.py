@@ -821,7 +821,7 @@ def _rate(datamodule: VODataModule, name: str) -> dict[str, Any]:
     steps = np.diff(datamodule.sequence_times(name))
     rate = float(1.0 / np.median(steps)) if len(steps) else None
     assumed = layout in layouts.ASSUMED_RATE_HZ
-    log.info(
+    log.debug(
         "sequence %s: %s frames a second (%s)",
         name,
         f"{rate:.4g}" if rate else "?",

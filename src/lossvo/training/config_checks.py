@@ -9,18 +9,27 @@ The constructors check their own arguments (:class:`lossvo.data.datamodules.VODa
 
 from __future__ import annotations
 
+import difflib
 import math
-from collections.abc import Callable, Mapping
+import re
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, cast
 
 import torch
+from hydra import compose
+from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig, OmegaConf
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.errors import HydraException, InstantiationException
+from hydra.experimental.callback import Callback
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
+from lossvo import weighting
 from lossvo.checks import is_integer, is_number
-from lossvo.console import UserError, first_line
+from lossvo.console import UserError, exit_in_one_line, first_line, one_line
 
 _ABSENT = object()
 
@@ -82,13 +91,14 @@ def resolved_config(cfg: DictConfig) -> dict[str, Any]:
         raise UserError(f"{e.full_key}: {first_line(e.msg) or type(e).__name__}") from None
 
 
-def check_train_config(cfg: DictConfig) -> None:
+def check_train_config(cfg: DictConfig, machine: bool = True) -> None:
     """Raise :class:`~lossvo.console.UserError` (one line: key, value, what was expected) for a training
     config that would fail only once the run is under way: a value left missing (``???``), an
     interpolation that does not resolve, a bad scalar setting (:data:`SCALARS`), a cosine schedule without
     a length, a trainer asking for a CUDA GPU where there is none (:func:`check_accelerator`) or for
     several devices without a distributed strategy (:func:`check_devices`), a source ``root`` that is a
-    file, a ``ckpt_path`` that is no file."""
+    file, a ``ckpt_path`` that is no file. ``machine=False`` skips what depends on the machine that
+    trains (its GPU), for a config checked where it is submitted from."""
     resolved = resolved_config(cfg)
     missing = sorted(OmegaConf.missing_keys(cfg))
     if missing:
@@ -109,7 +119,7 @@ def check_train_config(cfg: DictConfig) -> None:
     check_source_roots(resolved.get("data"))
     check_devices(_select(resolved, "trainer.devices"), _select(resolved, "trainer.strategy"))
     accelerator = _select(resolved, "trainer.accelerator")
-    if accelerator in CUDA_ACCELERATORS:
+    if machine and accelerator in CUDA_ACCELERATORS:
         check_accelerator(accelerator, torch.cuda.is_available(), _trainer_choice())
     ckpt_path = resolved.get("ckpt_path")
     if ckpt_path is not None:
@@ -178,3 +188,111 @@ def _trainer_choice() -> str | None:
     if not HydraConfig.initialized():
         return None
     return HydraConfig.get().runtime.choices.get("trainer")
+
+
+ADDED_KEYS = ("evaluate",)
+"""Top-level keys lossvo reads that no shipped config sets: ``+evaluate=false``."""
+
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "conf"
+
+
+def _added_keys(overrides: Sequence[str]) -> list[tuple[str, str]]:
+    """(override, key) of each ``+key=...`` / ``++key=...`` that adds a top-level key other than
+    :data:`ADDED_KEYS` or a config group."""
+    added = []
+    for text in overrides:
+        match = re.match(r"\+\+?([A-Za-z_][\w-]*)=", text)
+        if match and match.group(1) not in ADDED_KEYS and not (CONFIG_DIR / match.group(1)).is_dir():
+            added.append((text, match.group(1)))
+    return added
+
+
+def _leaves(node: Any, prefix: str = "") -> dict[str, str]:
+    """Each key's last part -> its dotted key, in a plain config."""
+    found: dict[str, str] = {}
+    for key, value in node.items() if isinstance(node, Mapping) else ():
+        dotted = f"{prefix}{key}"
+        found.setdefault(str(key), dotted)
+        found.update({k: v for k, v in _leaves(value, f"{dotted}.").items() if k not in found})
+    return found
+
+
+def check_added_keys(cfg: DictConfig, overrides: Sequence[str], config_name: str = "train") -> None:
+    """A top-level key that a ``+key=value`` override adds and nothing reads (``+epochs=3``, which Hydra
+    itself suggests for ``epochs=3``, would be ignored): ``UserError`` naming the close keys there are and
+    the top-level ones. ``++key=value`` of a key the config has is an override like any other."""
+    added = _added_keys(overrides)
+    if not added:
+        return
+    rest = [o for o in overrides if o not in {text for text, _ in added}]
+    base = compose(config_name, rest)
+    for text, key in added:
+        if key in base:
+            continue
+        known = sorted(str(k) for k in base)
+        leaves = _leaves(OmegaConf.to_container(base, resolve=False))
+        close = [leaves[k] for k in difflib.get_close_matches(key, list(leaves), n=3)]
+        hint = f" (did you mean {' or '.join(close)}?)" if close else ""
+        raise UserError(
+            f"{text}: no key {key!r} is read{hint}; the top-level keys are {', '.join(known)} "
+            "(+evaluate=false is the one key lossvo reads that no config has)"
+        )
+
+
+def check_job(cfg: DictConfig, out_dir: Path, machine: bool = True) -> None:
+    """The checks a job runs on its composed config (Hydra's node included) before it reads data: the
+    loss weights (:func:`lossvo.weighting.check_config`), :func:`check_train_config` and the data module's
+    own (its constructor's: frames, windows, splits, flow), its ``${hydra:...}`` values resolved as in a job
+    writing to ``out_dir``: ``UserError`` (one line)."""
+    with open_dict(cfg):
+        cfg.hydra.runtime.output_dir = str(out_dir)
+    job = cfg.copy()
+    with open_dict(job):
+        del job.hydra
+    hydra, previous = HydraConfig.instance(), HydraConfig.instance().cfg
+    hydra.set_config(cfg)
+    try:
+        if job.get("weighting") is not None:
+            weighting.check_config(job.weighting, job.loss)
+        check_train_config(job, machine)
+        check_added_keys(job, list(cfg.hydra.overrides.task))
+        try:
+            instantiate(job.data, _convert_="all")
+        except InstantiationException as e:
+            raise e.__cause__ if isinstance(e.__cause__, UserError) else e from None
+    finally:
+        hydra.cfg = previous
+
+
+def sweep_jobs(overrides: list[str]) -> list[list[str]]:
+    """Each job's overrides in a basic sweep of the command line's ``overrides`` (Hydra's own expansion)."""
+    parsed = OverridesParser.create().parse_overrides(overrides)
+    return [job for batch in BasicSweeper.split_arguments(parsed, None) for job in batch]
+
+
+class SweepConfigCheck(Callback):
+    """Before a sweep creates its folder or any job's: where every job's config fails :func:`check_job`
+    (a setting all jobs share), the sweep ends in that one line, exit status 2, having created nothing. The
+    jobs are composed in the sweep's order until one passes (one, for a sweep that can run); a sweep whose
+    jobs fail on values of their own runs, each such job failing in its folder. Another sweeper (Optuna)
+    chooses its jobs' values as it goes: its base config is checked. The machine's GPU is left to
+    :class:`~lossvo.training.gpu_jobs.GpuJobsCheck` (a SLURM job's is the node's)."""
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        basic = str(config.hydra.sweeper.get("_target_", "")).endswith("BasicSweeper")
+        task = list(config.hydra.overrides.task)
+        jobs = sweep_jobs(task) if basic else [task]
+        out_dir = Path(str(config.hydra.sweep.dir)) / "check"
+        first: UserError | None = None
+        for overrides in jobs:
+            try:
+                cfg = compose(str(kwargs.get("config_name") or "train"), overrides, return_hydra_config=True)
+                check_job(cfg, out_dir, machine=False)  # the GPU: GpuJobsCheck, where jobs run
+                return
+            except UserError as e:
+                first = first or e
+            except HydraException:  # a job that does not compose: Hydra says so when it runs
+                return
+        if first is not None:
+            many = f" (every one of the sweep's {len(jobs)} jobs)" if len(jobs) > 1 else ""
+            exit_in_one_line(UserError(f"{one_line(first)}{many}; nothing was created"))

@@ -31,11 +31,19 @@ from omegaconf.errors import OmegaConfBaseException
 from lossvo import folder_lock, output_folders, weighting
 from lossvo.atomic import write_text_atomic
 from lossvo.code_version import code_version
-from lossvo.console import UserError, close_logs_in, full_error, one_line, user_message
+from lossvo.console import (
+    JobFailedError,
+    UserError,
+    close_logs_in,
+    full_error,
+    one_line,
+    user_error_line,
+    user_message,
+)
 from lossvo.evaluation import job_folder
 from lossvo.evaluation.job_folder import LAST_CHECKPOINT, METRICS, STATUS, Event, Status
 from lossvo.training import metrics_log
-from lossvo.training.config_checks import check_train_config
+from lossvo.training.config_checks import check_added_keys, check_train_config
 from lossvo.training.slurm import slurm_job
 from lossvo.training.stopping import SIGNALS, InterruptedRun
 
@@ -51,10 +59,6 @@ RUN_KEYS = ("data", "model", "loss", "weighting", "selection", "seed", "optimize
 NOT_DEFINING = ("data.frames.cache_dir", "data.loader.num_workers")
 """Keys under :data:`RUN_KEYS` that say where the data lies or how it is loaded, not what is trained; the
 sources' roots (``data.sources.<name>.root``) too."""
-
-
-class JobError(UserError):
-    """A user error in one job of a sweep: the job fails (Hydra reports it) and the others go on."""
 
 
 def _first_process() -> bool:
@@ -223,6 +227,7 @@ def _accept(run: Run) -> None:
     if cfg.get("weighting") is not None:
         weighting.check_config(cfg.weighting, cfg.loss)
     check_train_config(cfg)
+    check_added_keys(cfg, list(HydraConfig.get().overrides.task))
     recorded = out_dir / ".hydra" / "config.yaml"
     if run.fresh:
         return
@@ -245,11 +250,18 @@ def _accept(run: Run) -> None:
         run.resume_from = _resume_point(out_dir, status)
 
 
-def _user_error(message: str) -> BaseException:
-    """What ends a job after a user error's one line was logged: exit status 2, or in a sweep a
-    :class:`JobError` so that the sweep's other jobs (or a search's other trials) still run."""
-    if HydraConfig.get().mode == RunMode.MULTIRUN:
-        return JobError(message)
+def _sweeping() -> bool:
+    return HydraConfig.get().mode == RunMode.MULTIRUN
+
+
+def _user_error(run: Run, message: str) -> BaseException:
+    """Print a user error's one line (:func:`~lossvo.console.user_error_line`: stderr and the run's log;
+    a sweep's job names itself first) and return what ends the job: exit status 2, or in a sweep a
+    :class:`~lossvo.console.JobFailedError` so that the sweep's other jobs (or a search's other trials) still
+    run."""
+    user_error_line(log, f"{run.label}: {message}" if _sweeping() else message)
+    if _sweeping():
+        return JobFailedError(run.label, message, str(HydraConfig.get().sweep.dir))
     return SystemExit(2)
 
 
@@ -263,7 +275,7 @@ def _leave(run: Run) -> None:
     """An error before the run started: a single run's folder that this run created (holding at most its
     log) is removed, an empty one it was given emptied again; a sweep job's folder records the failure for
     the report."""
-    if HydraConfig.get().mode == RunMode.MULTIRUN:
+    if _sweeping():
         if run.fresh:
             run.start()
         return
@@ -282,6 +294,18 @@ def _leave(run: Run) -> None:
             (out / name).unlink(missing_ok=True)
     else:
         shutil.rmtree(out, ignore_errors=True)
+
+
+def _unlocked(run: Run) -> None:
+    """What a fresh run that could not write its lock (a full disk) made goes: the lock file, its log, and
+    the folder where this run created it and it is empty again."""
+    if not run.fresh:
+        return
+    close_logs_in(run.out_dir)
+    for name in (folder_lock.LOCK, f"{HydraConfig.get().job.name}.log"):
+        (run.out_dir / name).unlink(missing_ok=True)
+    if not output_folders.existed(run.out_dir) and not any(run.out_dir.iterdir()):
+        run.out_dir.rmdir()
 
 
 def _failed(run: Run, error: BaseException) -> None:
@@ -336,8 +360,14 @@ def _held(run: Run) -> Iterator[None]:
         except folder_lock.FolderInUseError as e:
             if full_error():
                 raise
-            log.error("%s", e)
-            raise _user_error(str(e)) from None
+            raise _user_error(run, str(e)) from None
+        except OSError as e:  # a full or read-only disk before the run starts
+            message = user_message(e, run.out_dir)
+            if message is None or full_error():
+                raise
+            error = _user_error(run, message)
+            _unlocked(run)
+            raise error from None
         run.guarded = held.guarded
         yield
 
@@ -380,12 +410,12 @@ def _run_in(run: Run) -> Iterator[Run]:
     try:
         _accept(run)
     except UserError as e:
-        if not full_error():
-            log.error("%s", one_line(e))  # before the folder goes: the log opens train.log in it
-        _failed(run, e)
         if full_error():
+            _failed(run, e)
             raise
-        raise _user_error(one_line(e)) from None
+        error = _user_error(run, one_line(e))  # before the folder goes: the log opens train.log in it
+        _failed(run, e)
+        raise error from None
     if run.completed is not None:
         log.info("%s: already completed (resume=true): %s%s", run.label, out_dir / STATUS, _longer(run))
         yield run
@@ -401,11 +431,11 @@ def _run_in(run: Run) -> Iterator[Run]:
         raise SystemExit(stop.exit_code) from None
     except Exception as e:
         message = user_message(e, out_dir)
-        if message is None:
-            log.error("%s failed: %s: %s", run.label, type(e).__name__, e)
-        elif not full_error():
-            log.error("%s", message)  # before the folder goes: the log opens train.log in it
-        _failed(run, e)
         if message is None or full_error():
+            if message is None:
+                log.error("%s failed: %s: %s", run.label, type(e).__name__, e)
+            _failed(run, e)
             raise
-        raise _user_error(message) from None
+        error = _user_error(run, message)  # before the folder goes: the log opens train.log in it
+        _failed(run, e)
+        raise error from None

@@ -138,6 +138,12 @@ def job_name(overrides: Sequence[str], swept: str = "", exclude: Sequence[str] =
     return path_safe(",".join(ordered))
 
 
+def sweep_group(mode: Any, sweep_dir: str) -> str | None:
+    """A logger's group of runs (W&B's ``group``): the sweep folder in a sweep (``mode``: Hydra's
+    ``${hydra:mode}``), none for a single run."""
+    return sweep_dir if str(mode).endswith("MULTIRUN") else None
+
+
 def sqlite_storage(path: str) -> str:
     """An SQLite URL for an Optuna study stored at ``path``, whose folder is created first (the sweep
     folder does not exist yet when the sweeper opens its study)."""
@@ -154,6 +160,7 @@ RESOLVERS: dict[str, Callable[..., Any]] = {
     "path_safe": path_safe,
     "job_name": job_name,
     "sqlite_storage": sqlite_storage,
+    "sweep_group": sweep_group,
 }
 
 

@@ -9,6 +9,7 @@ Bad values end in one line on stderr and exit status 2, before anything is writt
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 import time
 from collections.abc import Iterable
@@ -16,7 +17,7 @@ from pathlib import Path
 
 from lossvo.console import OneLineParser, UserError, one_line_main, raise_if_full_error
 from lossvo.data import kitti
-from lossvo.data.synthetic import layouts, routes
+from lossvo.data.synthetic import layouts, routes, writer
 from lossvo.data.synthetic.parameters import (
     DEFAULT_HEIGHT,
     DEFAULT_WIDTH,
@@ -133,6 +134,10 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as err:
         raise_if_full_error()
         parser.error(str(err))
+    if not args.quiet:  # the writer's line per sequence, on stderr as the final one
+        handler = logging.StreamHandler(sys.stderr)
+        logging.getLogger(writer.__name__).addHandler(handler)
+        logging.getLogger(writer.__name__).setLevel(logging.INFO)
     start = time.perf_counter()
     try:
         out = generate(

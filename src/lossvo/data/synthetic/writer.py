@@ -6,10 +6,10 @@ manifest last; :func:`generate` and :func:`ensure_dataset`.
 from __future__ import annotations
 
 import json
+import logging
 import multiprocessing
 import os
 import shutil
-import sys
 import time
 from collections.abc import Iterable, Mapping
 from concurrent.futures import ProcessPoolExecutor
@@ -34,6 +34,8 @@ from lossvo.data.synthetic.parameters import (
 from lossvo.data.synthetic.png import write_png
 from lossvo.data.synthetic.render import Renderer
 from lossvo.data.synthetic.world import scene
+
+log = logging.getLogger(__name__)
 
 FRAME_RATE = 10.0
 """Frames per second (KITTI's 10 Hz): the timestamps of times.txt."""
@@ -146,11 +148,10 @@ def _render_all(
         )
         for (_, s, n, *_), seconds in zip(jobs, results, strict=True):
             if progress:
-                print(
-                    f"synthetic: sequence {layouts.sequence_name(layout, s)}: {n} frames {height}x{width} "
-                    f"in {seconds:.1f} s",
-                    file=sys.stderr,
-                )
+                log.info(
+                    "synthetic: sequence %s: %d frames %dx%d in %.1f s",
+                    layouts.sequence_name(layout, s), n, height, width, seconds,
+                )  # fmt: skip
     finally:
         if pool:
             pool.shutdown(cancel_futures=True)
