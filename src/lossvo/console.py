@@ -332,7 +332,7 @@ def close_logs_in(folder: Path) -> None:
                 try:
                     handler.close()
                 except OSError:  # a full disk: the lines it holds cannot be written
-                    handler.stream = None  # type: ignore[assignment]
+                    handler.stream = None
                 logger.removeHandler(handler)
 
 
