@@ -15,6 +15,7 @@ from lossvo.console import UserError
 from lossvo.data import motion, synthetic
 from lossvo.data.synthetic import cli as synthetic_cli
 from lossvo.data.synthetic import routes
+from lossvo.table_render import Rows, markdown
 
 LONG = 4000  # frames: enough manoeuvres of every kind for statistics
 
@@ -153,10 +154,51 @@ def test_bad_mix_weights() -> None:
     assert routes.check_mix({"town": 2.0, "country": 2.0}) == {"town": 0.5, "country": 0.5}
 
 
+def families_markdown() -> str:
+    """The route families and the sequences' mixes as the Markdown table docs/data.md shows."""
+
+    def span(bounds: tuple[float, float], digits: int = 2) -> str:
+        return f"{bounds[0]:.{digits}f}-{bounds[1]:.{digits}f}"
+
+    head = [
+        "family",
+        "driving",
+        "cruise m/frame",
+        "straights m",
+        "turns",
+        "turn angle °",
+        "turn radius m",
+        "lane changes",
+        "stops (frames)",
+        "hills m",
+        "camber rad",
+        "sequences",
+    ]
+    rows = []
+    for f in routes.FAMILIES.values():
+        drives = [s for s, mix in routes.MIXES.items() if mix.get(f.name, 0) > 0]
+        row = [
+            f"`{f.name}`",
+            f.description,
+            span(f.cruise),
+            span(f.straight, 0),
+            f"{f.turn:.0%}",
+            span(f.turn_angle, 0),
+            span(f.turn_radius, 0),
+            f"{f.lane_change:.0%}",
+            f"{f.stop:.0%} ({f.stop_frames[0]}-{f.stop_frames[1]})" if f.stop else "-",
+            f"{f.hill:.2f}" if f.hill else "-",
+            f"{f.camber:.3f}" if f.camber else "-",
+            f"{drives[0]}-{drives[-1]}" if drives else "-",
+        ]
+        rows.append(row)
+    return markdown(Rows(head, rows))
+
+
 def test_docs_show_the_route_families_table() -> None:
     text = (Path(__file__).parents[1] / "docs" / "data.md").read_text()
     table = text.split("<!-- route-families:start -->\n", 1)[1].split("\n<!-- route-families:end -->", 1)[0]
-    assert table == routes.families_markdown()
+    assert table == families_markdown()
 
 
 def town_sequence(root: Path, frames: int) -> np.ndarray:

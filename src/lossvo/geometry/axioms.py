@@ -5,7 +5,8 @@ A distance ``d`` on rotations is a metric when, for all rotations x, y, z: (1) `
 is used; (3) ``d(x, y) = d(y, x)``; (4) ``d(x, z) <= d(x, y) + d(y, z)``. Each axiom is checked in float64
 on seeded random rotations and on the triples where a failure shows first (midpoints of short and long
 geodesics, midpoints in the representation's own coordinates), the worst case kept as evidence.
-``python -m lossvo.geometry`` prints the table (its copy and what it means: docs/losses.md).
+``python -m lossvo.geometry`` prints them as a table (:mod:`lossvo.geometry.__main__`; its copy and what it
+means: docs/losses.md).
 
 Closed forms in the relative angle ``theta`` in [0, pi]: ``min_b |q_a - b q_b| = 2 sin(theta / 4)``
 (from ``|q_a -+ q_b|^2 = 2 -+ 2 <q_a, q_b>``, ``|<q_a, q_b>| = cos(theta / 2)``) and
@@ -22,7 +23,6 @@ import torch
 from torch import Tensor
 
 from lossvo import geometry as g
-from lossvo.table_render import Rows, markdown
 
 TOLERANCE = 1e-9
 """Float64 slack: an axiom fails only if it is violated by more than this."""
@@ -294,7 +294,7 @@ def check_all(samples: Samples | None = None) -> dict[str, dict[str, Verdict]]:
 # --------------------------------------------------------------------------------------------------
 
 
-def _classify(verdicts: dict[str, Verdict]) -> str:
+def classify(verdicts: dict[str, Verdict]) -> str:
     """Metric, pseudo-/semi-metric or neither, by which axioms hold."""
     holds = {axiom: v.holds for axiom, v in verdicts.items()}
     if all(holds.values()):
@@ -304,25 +304,3 @@ def _classify(verdicts: dict[str, Verdict]) -> str:
             return "semimetric"
         return "not a function of rotations" if not holds["identity on rotations"] else "—"
     return "—"
-
-
-def markdown_table(results: dict[str, dict[str, Verdict]] | None = None) -> str:
-    """The axioms table in Markdown: ✓/✗ per axiom, then what the distance is, then the failures."""
-    results = check_all() if results is None else results
-    rows, failures = [], []
-    for d in DISTANCES:
-        verdicts = results[d.name]
-        marks = ["✓" if verdicts[a].holds else "✗" for a in AXIOMS]
-        rows.append([d.name, d.formula, *marks, _classify(verdicts), d.note])
-        failures += [f"- {d.name}, {a}: {verdicts[a].evidence}" for a in AXIOMS if not verdicts[a].holds]
-    table = markdown(Rows(["distance", "formula", *AXIOMS, "on SO(3)", "note"], rows))
-    legend = (
-        f"✓: holds on every sample (float64, slack {TOLERANCE:g}); ✗: violated, worst case found below. "
-        "θ is the angle of the relative rotation."
-    )
-    return "\n".join([table, "", legend, "", "Counterexamples found:", "", *failures]) + "\n"
-
-
-def main() -> None:
-    """Print the axioms table (``python -m lossvo.geometry``)."""
-    print(markdown_table(), end="")

@@ -27,7 +27,6 @@ from lossvo import geometry
 from lossvo.checks import is_number
 from lossvo.console import UserError
 from lossvo.data.sequence import sequence_name
-from lossvo.table_render import Rows, markdown
 
 STRETCH = 60
 """Frames (at least) driven in one family before the next family is drawn from the sequence's mix."""
@@ -456,44 +455,3 @@ def make_route(
 
 DEFAULT_SPEC = route_spec()
 """The families and mixes of the embedded dataset."""
-
-
-def families_markdown() -> str:
-    """The route families and the sequences' mixes as a Markdown table (docs/data.md shows it)."""
-
-    def span(bounds: tuple[float, float], digits: int = 2) -> str:
-        return f"{bounds[0]:.{digits}f}-{bounds[1]:.{digits}f}"
-
-    head = [
-        "family",
-        "driving",
-        "cruise m/frame",
-        "straights m",
-        "turns",
-        "turn angle °",
-        "turn radius m",
-        "lane changes",
-        "stops (frames)",
-        "hills m",
-        "camber rad",
-        "sequences",
-    ]
-    rows = []
-    for f in FAMILIES.values():
-        drives = [s for s, mix in MIXES.items() if mix.get(f.name, 0) > 0]
-        row = [
-            f"`{f.name}`",
-            f.description,
-            span(f.cruise),
-            span(f.straight, 0),
-            f"{f.turn:.0%}",
-            span(f.turn_angle, 0),
-            span(f.turn_radius, 0),
-            f"{f.lane_change:.0%}",
-            f"{f.stop:.0%} ({f.stop_frames[0]}-{f.stop_frames[1]})" if f.stop else "-",
-            f"{f.hill:.2f}" if f.hill else "-",
-            f"{f.camber:.3f}" if f.camber else "-",
-            f"{drives[0]}-{drives[-1]}" if drives else "-",
-        ]
-        rows.append(row)
-    return markdown(Rows(head, rows))
