@@ -41,7 +41,12 @@ from lossvo.evaluation import checkpoints
 from lossvo.evaluation.metrics import ALIGN_MODES, is_rpe_delta
 from lossvo.evaluation.results import Results, evaluate_run
 from lossvo.processes import restore_start_method
-from lossvo.training.config_checks import check_checkpoint_path, check_source_roots, resolved_config
+from lossvo.training.config_checks import (
+    check_added_keys,
+    check_checkpoint_path,
+    check_source_roots,
+    resolved_config,
+)
 
 log = logging.getLogger("lossvo")
 
@@ -63,6 +68,7 @@ def check_config(cfg: Any) -> None:
     if OmegaConf.is_missing(cfg, "ckpt_path"):
         raise UserError("ckpt_path is required: python -m lossvo.eval ckpt_path=PATH")
     resolved_config(cfg)  # an interpolation that does not resolve: one line naming its key
+    check_added_keys(cfg, list(HydraConfig.get().overrides.task), "eval")
     check_checkpoint_path(Path(str(cfg.ckpt_path)))
     check_source_roots(cfg.get("data"))
     missing = sorted(OmegaConf.missing_keys(cfg))

@@ -190,19 +190,19 @@ def _trainer_choice() -> str | None:
     return HydraConfig.get().runtime.choices.get("trainer")
 
 
-ADDED_KEYS = ("evaluate",)
-"""Top-level keys lossvo reads that no shipped config sets: ``+evaluate=false``."""
+ADDED_KEYS = {"train": ("evaluate",), "eval": ()}
+"""Top-level keys a command reads that its config does not set, by config: training's ``+evaluate=false``."""
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "conf"
 
 
-def _added_keys(overrides: Sequence[str]) -> list[tuple[str, str]]:
-    """(override, key) of each ``+key=...`` / ``++key=...`` that adds a top-level key other than
-    :data:`ADDED_KEYS` or a config group."""
+def _added_keys(overrides: Sequence[str], allowed: Sequence[str]) -> list[tuple[str, str]]:
+    """(override, key) of each ``+key=...`` / ``++key=...`` that adds a top-level key other than those
+    ``allowed`` or a config group."""
     added = []
     for text in overrides:
         match = re.match(r"\+\+?([A-Za-z_][\w-]*)=", text)
-        if match and match.group(1) not in ADDED_KEYS and not (CONFIG_DIR / match.group(1)).is_dir():
+        if match and match.group(1) not in allowed and not (CONFIG_DIR / match.group(1)).is_dir():
             added.append((text, match.group(1)))
     return added
 
@@ -221,7 +221,8 @@ def check_added_keys(cfg: DictConfig, overrides: Sequence[str], config_name: str
     """A top-level key that a ``+key=value`` override adds and nothing reads (``+epochs=3``, which Hydra
     itself suggests for ``epochs=3``, would be ignored): ``UserError`` naming the close keys there are and
     the top-level ones. ``++key=value`` of a key the config has is an override like any other."""
-    added = _added_keys(overrides)
+    allowed = ADDED_KEYS.get(config_name, ())
+    added = _added_keys(overrides, allowed)
     if not added:
         return
     rest = [o for o in overrides if o not in {text for text, _ in added}]
@@ -233,9 +234,9 @@ def check_added_keys(cfg: DictConfig, overrides: Sequence[str], config_name: str
         leaves = _leaves(OmegaConf.to_container(base, resolve=False))
         close = [leaves[k] for k in difflib.get_close_matches(key, list(leaves), n=3)]
         hint = f" (did you mean {' or '.join(close)}?)" if close else ""
+        extra = f" (and +{allowed[0]}=..., which no config sets)" if allowed else ""
         raise UserError(
-            f"{text}: no key {key!r} is read{hint}; the top-level keys are {', '.join(known)} "
-            "(+evaluate=false is the one key lossvo reads that no config has)"
+            f"{text}: no key {key!r} is read{hint}; the top-level keys are {', '.join(known)}{extra}"
         )
 
 
