@@ -184,8 +184,8 @@ def test_a_two_job_sweep_runs_through_slurm(cluster: None, tiny_kitti: Path, tmp
 RESUMABLE = (
     "loss=chordal",
     "trainer.deterministic=true",
-    "data.transforms=[{_target_:lossvo.data.transforms.Reverse,p:0.5},"
-    "{_target_:lossvo.data.transforms.Jitter}]",
+    "data.transforms=[{_target_:lossvo.data.transforms.Mirror,p:0.5},"
+    "{_target_:lossvo.data.transforms.Roll,p:0.5,max_rad:0.01}]",
 )
 REQUEUED_EPOCHS = 100
 """The requeued job's epochs: the test requeues it after its second, so the other 98 (seconds of training

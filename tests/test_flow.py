@@ -14,7 +14,7 @@ import torch
 from lossvo.console import UserError
 from lossvo.data import flow, synthetic
 from lossvo.data.flow import FlowSetting
-from lossvo.data.transforms import Mirror, Reverse
+from lossvo.data.transforms import Mirror
 from lossvo.geometry import camera
 
 H, W = 64, 208
@@ -240,12 +240,3 @@ def test_windows_carry_their_pairs_flow_and_k_and_mirror_them_together(tiny_kitt
     assert out["K"][0, 0, 2] == 96 - 1 - batch["K"][0, 0, 2] and out["K"][0, 1, 2] == batch["K"][0, 1, 2]
     whole = dm.sequence_inputs("02")
     assert whole["flow"].shape == (9, 2, 32, 96) and whole["K"].shape == (3, 3)
-
-
-def test_reversed_windows_need_no_flow(tiny_kitti, tmp_path) -> None:
-    from test_datamodules import make_dm
-
-    with pytest.raises(
-        UserError, match=r"^data\.transforms: Reverse is not possible with data\.flow\.method=dis "
-    ):
-        make_dm(tiny_kitti, tmp_path, flow="dis", transforms=[Reverse(0.5)])

@@ -12,9 +12,9 @@ import torch
 from helpers import data_module
 from lossvo.console import UserError
 from lossvo.data.datamodules import VODataModule
-from lossvo.data.transforms import Jitter, Mirror, Reverse, Standstill, Zoom
+from lossvo.data.transforms import Mirror, Roll
 
-AUGMENTED = [Standstill(0.3), Zoom(1.5), Mirror(0.5)]
+AUGMENTED = [Mirror(0.5), Roll(0.5, 0.01)]
 
 
 def make_dm(root: Path, cache: Path, **kwargs) -> VODataModule:
@@ -42,15 +42,15 @@ def epoch_batches(dm: VODataModule, split: str, epoch: int, seed: int) -> list[d
 @pytest.mark.parametrize(
     "settings",
     [
-        {"frame_steps": [1, 2], "transforms": [*AUGMENTED, Reverse(0.3), Jitter()]},
-        {"flow": "dis", "seq_len": 2, "frame_steps": [1, 2], "transforms": [*AUGMENTED, Jitter()]},
+        {"frame_steps": [1, 2], "transforms": AUGMENTED},
+        {"flow": "dis", "seq_len": 2, "frame_steps": [1, 2], "transforms": AUGMENTED},
     ],
     ids=["frames", "flow"],
 )
 def test_device_gathering_equals_the_host_loader_batch_for_batch(tiny_kitti: Path, tmp_path: Path,
                                                                  settings: dict) -> None:  # fmt: skip
-    """Same seed, same windows in the same order, same augmentation draws (mirror, standstill, zoom, reverse,
-    jitter): every entry of every batch equal, over two epochs and the validation split."""
+    """Same seed, same windows in the same order, same augmentation draws (mirror, roll): every entry of
+    every batch equal, over two epochs and the validation split."""
     host = make_dm(tiny_kitti, tmp_path, on_device=False, **settings)
     device = make_dm(tiny_kitti, tmp_path, on_device=True, **settings)
     for split, epoch in (("train", 0), ("train", 1), ("val", 0)):

@@ -44,15 +44,15 @@ def restore_sigint():
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
-REVERSE_AND_JITTER = (
-    "data.transforms=[{_target_:lossvo.data.transforms.Reverse,p:0.5},"
-    "{_target_:lossvo.data.transforms.Jitter}]"
+MIRROR_AND_ROLL = (
+    "data.transforms=[{_target_:lossvo.data.transforms.Mirror,p:0.5},"
+    "{_target_:lossvo.data.transforms.Roll,p:0.5,max_rad:0.01}]"
 )
 
 
 def _overrides(tiny_kitti: Path, cache: Path, *extra: str) -> list[str]:
     return [*tiny_overrides(tiny_kitti, cache), "loss=chordal", "trainer.deterministic=true",
-            REVERSE_AND_JITTER, *extra]  # fmt: skip
+            MIRROR_AND_ROLL, *extra]  # fmt: skip
 
 
 def _values(run: Path, key: str) -> list[tuple[str, str, float]]:

@@ -147,6 +147,16 @@ def test_flat_synthetic_and_several_dataset_descriptions_read_as_specs() -> None
     assert made["splits"] == {"train": ["kitti/00"], "val": [], "test": ["tum/x"], "unseen": []}
 
 
+def test_a_description_with_windows_shares_reads_without_it() -> None:
+    """``windows.shares`` (recorded by earlier versions, null or a mapping) is left out; the key itself is
+    refused in a config."""
+    recorded = {"sources": {"a": {"layout": "kitti"}}, "windows": {"seq_len": 3, "shares": {"a": 0.5}}}
+    assert specs.current(recorded) == {"sources": {"a": {"layout": "kitti"}}, "windows": {"seq_len": 3}}
+    assert recorded["windows"]["shares"] == {"a": 0.5}  # the checkpoint's own description as it was
+    with pytest.raises(UserError, match=r"^data\.windows\.shares: unknown key"):
+        specs.Windows.of({"seq_len": 3, "shares": None})
+
+
 @pytest.mark.parametrize("fixture", ["checkpoint_35d7877.ckpt", "checkpoint_805664b.ckpt"])
 def test_an_earlier_checkpoints_description_builds_a_data_module(fixture: str, tmp_path: Path) -> None:
     data = Description.of(torch.load(FIXTURES / fixture, weights_only=True)).data

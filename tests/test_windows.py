@@ -64,29 +64,3 @@ def test_validation_loader_sees_every_pair_once(tiny_kitti, tmp_path) -> None:
     np.testing.assert_allclose(
         targets[order], expected[np.lexsort(expected.reshape(len(expected), -1).T)], atol=1e-6
     )
-
-
-@pytest.mark.parametrize("count", [0, 1, 7, 100, 14883])
-def test_share_counts_sum_to_the_count_in_the_proportions(count: int) -> None:
-    fractions = np.array([0.35, 0.65 / 3, 0.65 / 3, 0.65 / 3])
-    counts = windows.share_counts(count, fractions)
-    assert counts.sum() == count and counts.dtype == np.int64
-    assert np.abs(counts - count * fractions).max() < 1  # largest remainder: each within one window
-
-
-def test_shared_epoch_shuffle_draws_each_groups_share_in_an_order_of_seed_and_epoch() -> None:
-    groups = np.repeat([0, 1, 2], [60, 10, 30])  # 100 windows of three sources
-    sampler = windows.SharedEpochShuffle(groups, np.array([0.2, 0.5, 0.3]), 100, seed=3)
-    drawn = np.array(list(sampler))
-    assert len(drawn) == len(sampler) == 100
-    np.testing.assert_array_equal(np.bincount(groups[drawn], minlength=3), [20, 50, 30])
-    assert len(set(drawn[groups[drawn] == 0].tolist())) == 20  # below its size: without replacement
-    assert np.all(np.bincount(drawn[groups[drawn] == 1], minlength=70)[60:70] == 5)  # 5x over: each 5 times
-    np.testing.assert_array_equal(np.sort(drawn[groups[drawn] == 2]), np.arange(70, 100))  # all, once
-    sampler.set_epoch(1)
-    other = np.array(list(sampler))
-    sampler.set_epoch(0)
-    np.testing.assert_array_equal(np.array(list(sampler)), drawn)
-    assert not np.array_equal(other, drawn)
-    again = windows.SharedEpochShuffle(groups, np.array([0.2, 0.5, 0.3]), 100, seed=4)
-    assert not np.array_equal(np.array(list(again)), drawn)

@@ -47,7 +47,7 @@ from lossvo.data import frame_cache, layouts, resident, specs, synthetic, window
 from lossvo.data import transforms as batch_transforms
 from lossvo.data.sequence import DatasetFormatError, Sequence
 from lossvo.data.synthetic import routes
-from lossvo.data.windows import EpochShuffle, SharedEpochShuffle, WindowDataset
+from lossvo.data.windows import EpochShuffle, WindowDataset
 from lossvo.geometry import camera
 
 log = logging.getLogger("lossvo")
@@ -135,13 +135,7 @@ class VODataModule(L.LightningDataModule):
         self.transforms = _transforms(transforms)
         if not self.splits["train"] and self.frames.statistics is None:
             raise UserError("data.splits.train: expected at least one training sequence")
-        if self.flow.enabled and any(isinstance(t, batch_transforms.Reverse) for t in self.transforms):
-            raise UserError(
-                f"data.transforms: Reverse is not possible with data.flow.method={self.flow.method} "
-                f"(the cache holds each pair's forward flow only)"
-            )
         self._check_names()
-        self._check_shares()
         self.resident: dict[str, resident.ResidentWindows] | None = None  # by split, once decided
         self.sequences: dict[str, Sequence] = {}
         self.mean: np.ndarray | None = None  # per-channel statistics, set by setup
@@ -172,24 +166,6 @@ class VODataModule(L.LightningDataModule):
                         f"data.splits.{split}: sequence {name!r} not found (available: "
                         f"{', '.join(sorted(counts))})"
                     )
-
-    def _check_shares(self) -> None:
-        """UserError naming the key for ``data.windows.shares`` that name no source, or that leave the
-        sources not named nothing (or, naming every source, do not sum to 1)."""
-        shares = self.windows.shares or {}
-        for name in shares:
-            if name not in self.sources:
-                raise UserError(
-                    f"data.windows.shares.{name}: not a source (expected some of {', '.join(self.sources)})"
-                )
-        total, rest = sum(shares.values()), [k for k in self.sources if k not in shares]
-        if shares and rest and total >= 1 - 1e-9:
-            raise UserError(
-                f"data.windows.shares: sum {total:g} leaves no windows for {', '.join(rest)} (expected < 1, "
-                f"or a share for every source)"
-            )
-        if shares and not rest and abs(total - 1) > 1e-9:
-            raise UserError(f"data.windows.shares: a share for every source must sum to 1, got {total:g}")
 
     # -- preparation: check everything, build the cache, compute statistics --------------------------
 
@@ -572,36 +548,10 @@ class VODataModule(L.LightningDataModule):
         sees the order an uninterrupted one would. Host loader and device gathering give the same batches."""
         dataset = self.datasets["train"]
         count = min(self.windows.per_epoch or len(dataset), len(dataset))
-        order = (
-            EpochShuffle(len(dataset), count, torch.initial_seed())
-            if self.windows.shares is None
-            else SharedEpochShuffle(*self._source_shares(dataset), count, torch.initial_seed())
-        )
+        order = EpochShuffle(len(dataset), count, torch.initial_seed())
         if self.resident_windows("train") is None:
             return self._loader("train", order)
         return self._batches("train", BatchSampler(order, self.windows.batch_size, drop_last=False))
-
-    def _source_shares(self, dataset: WindowDataset) -> tuple[np.ndarray, np.ndarray]:
-        """(M,) the source (its position in :attr:`sources`) of each training window and (S,) each
-        source's fraction of an epoch (:attr:`windows` ``shares``; the sources not named share the rest
-        in proportion to their windows)."""
-        names = list(self.sources)
-        labelled = [n for n in self.splits["train"] if self.sequences[n].poses is not None]
-        of_sequence = np.array([names.index(self._split_name(n)[0]) for n in labelled], dtype=np.int64)
-        groups = of_sequence[dataset.index[:, 0]]
-        sizes = np.bincount(groups, minlength=len(names)).astype(np.float64)
-        shares = self.windows.shares or {}
-        for name, share in shares.items():
-            if sizes[names.index(name)] == 0:
-                raise UserError(
-                    f"data.windows.shares.{name}: {share:g}, but the source has no training windows"
-                )
-        named = np.array([n in shares for n in names])
-        rest = sizes * ~named
-        fractions = np.where(named, [shares.get(n, 0.0) for n in names], 0.0)
-        if rest.sum() > 0:
-            fractions += (1 - fractions.sum()) * rest / rest.sum()
-        return groups, fractions / fractions.sum()
 
     def val_dataloader(self) -> DataLoader:
         return self._tiled_loader("val")

@@ -3,8 +3,8 @@ flow and loader settings, each a small frozen dataclass checked where it is made
 
 ``data.<spec>.<key>`` in a config is the field ``key`` of the spec (``data.windows.seq_len``); every
 ``of`` classmethod takes the mapping Hydra gives and raises :class:`~lossvo.console.UserError` naming the
-full key of the first entry it refuses. :func:`nested` turns the flat data description of earlier
-checkpoints into these specs' form.
+full key of the first entry it refuses. :func:`current` turns the data description of an earlier
+checkpoint into these specs' form (:func:`nested` the flat one).
 """
 
 from __future__ import annotations
@@ -304,17 +304,14 @@ def _statistics(value: Any) -> dict[str, list[float]] | None:
 class Windows:
     """Training windows: ``seq_len`` frames (``seq_len - 1`` pairs), a start every ``stride`` frames, at
     each of ``frame_steps`` (every s-th frame: faster motion); ``per_epoch`` windows drawn afresh each epoch
-    (None: all); ``batch_size`` windows a batch; ``shares``, source name -> the fraction of each epoch's
-    windows drawn from that source's (the sources not named split the rest in proportion to their window
-    counts; None: every source in proportion to its windows). Validation and evaluation tile consecutive
-    frames."""
+    (None: all); ``batch_size`` windows a batch. With several sources, each source's windows are drawn in
+    proportion to their number. Validation and evaluation tile consecutive frames."""
 
     seq_len: int = 7
     stride: int = 1
     frame_steps: tuple[int, ...] = (1,)
     per_epoch: int | None = None
     batch_size: int = 8
-    shares: dict[str, float] | None = None
 
     @classmethod
     def of(cls, value: Any) -> Windows:
@@ -341,24 +338,8 @@ class Windows:
             bool(listed) and all(is_integer(v, 1) for v in listed),
             "a list of integers >= 1 like [1, 2]",
         )
-        steps, shares = tuple(dict.fromkeys(listed)), _shares(f["shares"])
-        return cls(f["seq_len"], f["stride"], steps, per_epoch, f["batch_size"], shares)
-
-
-def _shares(value: Any) -> dict[str, float] | None:
-    """``data.windows.shares`` as ``{source: fraction}``, each in (0, 1] and together at most 1, or None;
-    UserError naming the key otherwise."""
-    if value is None:
-        return None
-    _check("data.windows", "shares", value, isinstance(value, Mapping), "{source: fraction of each epoch}")
-    shares = {str(k): v for k, v in value.items()}
-    for name, share in shares.items():
-        fits = is_number(share) and 0 < share <= 1
-        _check("data.windows.shares", name, share, fits, "a fraction of each epoch's windows in (0, 1]")
-    total = sum(shares.values())
-    expected = f"fractions that sum to at most 1 (sum {total:g})"
-    _check("data.windows", "shares", value, total <= 1 + 1e-9, expected)
-    return {k: float(v) for k, v in shares.items()}
+        steps = tuple(dict.fromkeys(listed))
+        return cls(f["seq_len"], f["stride"], steps, per_epoch, f["batch_size"])
 
 
 def flow_of(value: Any) -> FlowSetting:
@@ -486,6 +467,21 @@ def nested(flat: Mapping[str, Any]) -> dict[str, Any]:
         layout = source.get("layout", "kitti")
         out["sources"] = {layout: {"layout": layout, **source}}
     return {**out, **{k: v for k, v in specs.items() if v}}
+
+
+WITHDRAWN = {"windows": ("shares",)}
+"""Keys of earlier checkpoints' data descriptions that this version does not have, by spec: each set how
+training windows were drawn, which evaluation does not depend on."""
+
+
+def current(description: Mapping[str, Any]) -> dict[str, Any]:
+    """A checkpoint's data description as this version's specs take it: in their form (:func:`nested`),
+    without the keys this version does not have (:data:`WITHDRAWN`)."""
+    out = nested(description)
+    for spec, keys in WITHDRAWN.items():
+        if isinstance(out.get(spec), Mapping) and set(keys) & set(out[spec]):
+            out[spec] = {k: v for k, v in out[spec].items() if k not in keys}
+    return out
 
 
 def check_overrides(overrides: Seq[str]) -> None:

@@ -1,11 +1,11 @@
 """Batch transforms: the training augmentations, each a small class applied to a batch on its device.
 
 A transform maps ``(inputs, targets, generator) -> (inputs, targets)``, where ``inputs`` holds ``frames``
-(B, L, 3, H, W) uint8 (float in [0, 255] after :class:`Jitter`), ``K`` (B, 3, 3) pixels and optionally
-``flow`` (B, L-1, 2, H, W) pixels, and ``targets`` is (B, L-1, 4, 4), the relative poses
-``inv(T_w_k) @ T_w_{k+1}``. Random draws come from ``generator`` (a CPU generator; None: torch's global
-one), one draw per window, so that a window's pairs stay consistent. ``data.transforms`` lists them in the
-order they apply (:class:`lossvo.data.datamodules.VODataModule`).
+(B, L, 3, H, W) uint8, ``K`` (B, 3, 3) pixels and optionally ``flow`` (B, L-1, 2, H, W) pixels, and
+``targets`` is (B, L-1, 4, 4), the relative poses ``inv(T_w_k) @ T_w_{k+1}``. Random draws come from
+``generator`` (a CPU generator; None: torch's global one), one draw per window, so that a window's pairs
+stay consistent. ``data.transforms`` lists them in the order they apply
+(:class:`lossvo.data.datamodules.VODataModule`).
 
 The mirror of a world seen through a camera is the conjugation by the reflection of the camera's x axis,
 S = diag(-1, 1, 1, 1): :func:`mirror_poses` (targets, and predictions at inference), :func:`mirror_inputs`
@@ -21,16 +21,12 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from lossvo import geometry
 from lossvo.checks import is_number
 from lossvo.console import UserError
 from lossvo.data import flow as optical_flow
 from lossvo.geometry import camera
 
 Inputs = dict[str, torch.Tensor]
-
-STANDSTILL_NOISE = 1.5
-"""Standard deviation (grey levels) of the sensor noise added to each frame of a standing window."""
 
 
 def mirror_poses(poses: torch.Tensor) -> torch.Tensor:
@@ -77,102 +73,6 @@ def _draw(p: float, size: int, generator: torch.Generator | None) -> torch.Tenso
 def _check_probability(name: str, p: Any) -> None:
     if not (is_number(p) and 0.0 <= p <= 1.0):
         raise UserError(f"data.transforms: {name}.p: expected a probability in [0, 1], got {p!r}")
-
-
-@dataclass(frozen=True)
-class Standstill:
-    """Replace a window, with probability ``p``, by the car standing still at its first frame: every frame
-    the first plus fresh sensor noise (Gaussian, :data:`STANDSTILL_NOISE` grey levels, rounded to uint8),
-    every target the identity, the flow zero. Any scene may then show no motion."""
-
-    p: float
-
-    def __post_init__(self) -> None:
-        _check_probability("Standstill", self.p)
-
-    def __call__(
-        self, inputs: Inputs, targets: torch.Tensor, generator: torch.Generator | None = None
-    ) -> tuple[Inputs, torch.Tensor]:
-        frames = inputs["frames"]
-        which = _draw(self.p, frames.shape[0], generator)
-        chosen = which.nonzero().flatten()  # drawn on the host: counted there, no wait for the device
-        out = dict(inputs)
-        if len(chosen):
-            chosen = chosen.to(frames.device, non_blocking=True)
-            frames, targets = frames.clone(), targets.clone()
-            still = frames[chosen, :1].float().expand(-1, frames.shape[1], -1, -1, -1)
-            same_device = generator is not None and generator.device == frames.device
-            noise = torch.randn(
-                still.shape, device=frames.device, generator=generator if same_device else None
-            )
-            frames[chosen] = (still + STANDSTILL_NOISE * noise).round().clamp(0, 255).to(frames.dtype)
-            targets[chosen] = torch.eye(4, dtype=targets.dtype, device=targets.device)
-            out["frames"] = frames
-        if "flow" in inputs:
-            moving = ~which.to(frames.device, non_blocking=True)
-            out["flow"] = inputs["flow"] * moving.view(-1, 1, 1, 1, 1)
-        return out, targets
-
-
-@dataclass(frozen=True)
-class Zoom:
-    """See each window through a zoomed-in camera (TartanVO's intrinsics augmentation): a random window of
-    1/sx by 1/sy of the frame (sx, sy drawn apart from U[1, ``factor``]) resized to the whole frame
-    (bilinear); the flow resampled and scaled by (sx, sy), K turned into the window's K (fx sx, fy sy,
-    principal point moved). Targets are unchanged."""
-
-    factor: float
-
-    def __post_init__(self) -> None:
-        if not (is_number(self.factor) and 1.0 <= self.factor <= 4.0):
-            raise UserError(f"data.transforms: Zoom.factor: expected a number in [1, 4], got {self.factor!r}")
-
-    def __call__(
-        self, inputs: Inputs, targets: torch.Tensor, generator: torch.Generator | None = None
-    ) -> tuple[Inputs, torch.Tensor]:
-        return zoomed_windows(inputs, self.factor, generator), targets
-
-
-def zoomed_windows(inputs: Inputs, zoom: float, generator: torch.Generator | None = None) -> Inputs:
-    """Each window through a zoomed-in camera (:class:`Zoom`); four draws a window (sx, sy, x0, y0).
-
-    Args:
-        inputs: ``frames`` (B, L, C, H, W) uint8 or float, ``K`` (B, 3, 3) pixels, optionally ``flow``
-            (B, P, 2, H, W) pixels; zoom: the largest factor (>= 1).
-    Returns:
-        the same entries, zoomed (other entries as they are).
-    """
-    frames, K = inputs["frames"], inputs["K"]
-    B, H, W = frames.shape[0], frames.shape[-2], frames.shape[-1]
-    draw = torch.rand(4, B, generator=generator).to(K.device, torch.float32, non_blocking=True)
-    sx, sy = 1.0 + (zoom - 1.0) * draw[0], 1.0 + (zoom - 1.0) * draw[1]
-    x0, y0 = draw[2] * W * (1.0 - 1.0 / sx), draw[3] * H * (1.0 - 1.0 / sy)  # window's corner, pixels
-    theta = torch.zeros(B, 2, 3, device=K.device)
-    theta[:, 0, 0], theta[:, 0, 2] = 1.0 / sx, 1.0 / sx + 2.0 * x0 / W - 1.0
-    theta[:, 1, 1], theta[:, 1, 2] = 1.0 / sy, 1.0 / sy + 2.0 * y0 / H - 1.0
-
-    def resample(x: torch.Tensor) -> torch.Tensor:  # (B, T, C, H, W) -> the same, each window its theta
-        T, C = x.shape[1], x.shape[2]
-        grid = F.affine_grid(theta.repeat_interleave(T, 0), [B * T, C, H, W], align_corners=False)
-        out = F.grid_sample(
-            x.reshape(B * T, C, H, W).float(), grid, align_corners=False, padding_mode="border"
-        )
-        return out.reshape(x.shape)
-
-    out = dict(inputs)
-    zoomed = resample(frames)
-    out["frames"] = (
-        zoomed.round().clamp(0, 255).to(frames.dtype) if not frames.is_floating_point() else zoomed
-    )
-    if "flow" in inputs:
-        scale = torch.stack((sx, sy), 1).view(B, 1, 2, 1, 1)
-        out["flow"] = (resample(inputs["flow"]) * scale).to(inputs["flow"].dtype)
-    K_out = K.clone()
-    K_out[:, 0, 0], K_out[:, 1, 1] = K[:, 0, 0] * sx, K[:, 1, 1] * sy
-    K_out[:, 0, 2] = (K[:, 0, 2] - x0 + 0.5) * sx - 0.5
-    K_out[:, 1, 2] = (K[:, 1, 2] - y0 + 0.5) * sy - 0.5
-    out["K"] = K_out
-    return out
 
 
 @dataclass(frozen=True)
@@ -302,54 +202,10 @@ def rolled_windows(
     return out, roll_poses(targets, angles.to(targets.dtype))
 
 
-@dataclass(frozen=True)
-class Reverse:
-    """Play a window backwards with probability ``p``: frames in reverse order, targets the inverse
-    relative poses in reverse order (frame k seen from frame k+1), which is exact. Not with flow (the cache
-    holds each pair's forward flow only)."""
-
-    p: float
-
-    def __post_init__(self) -> None:
-        _check_probability("Reverse", self.p)
-
-    def __call__(
-        self, inputs: Inputs, targets: torch.Tensor, generator: torch.Generator | None = None
-    ) -> tuple[Inputs, torch.Tensor]:
-        frames = inputs["frames"]
-        which = _draw(self.p, frames.shape[0], generator).to(frames.device, non_blocking=True)
-        backwards = geometry.pose_inverse(targets).flip(1)
-        return {**inputs, "frames": _where(which, frames.flip(1), frames)}, _where(which, backwards, targets)
-
-
-@dataclass(frozen=True)
-class Jitter:
-    """Brightness and contrast jitter, one draw of each per window: ``(x - 127.5) (1 + 0.4 g) + 127.5 +
-    50 b`` with g, b ~ U[-0.5, 0.5], clamped to [0, 255] and rounded; frames become float."""
-
-    def __call__(
-        self, inputs: Inputs, targets: torch.Tensor, generator: torch.Generator | None = None
-    ) -> tuple[Inputs, torch.Tensor]:
-        return {**inputs, "frames": jitter(inputs["frames"].float(), generator).round()}, targets
-
-
-def jitter(frames: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
-    """Brightness and contrast jitter (:class:`Jitter`) before rounding.
-
-    Args:
-        frames: (B, L, 3, H, W) float in [0, 255].
-    Returns:
-        (B, L, 3, H, W) float in [0, 255].
-    """
-    draw = torch.rand(2, frames.shape[0], 1, 1, 1, 1, generator=generator) - 0.5
-    gain, bias = draw.to(frames.device, non_blocking=True)
-    return ((frames - 127.5) * (1.0 + 0.4 * gain) + 127.5 + 50.0 * bias).clamp(0.0, 255.0)
-
-
-TRANSFORMS = (Standstill, Zoom, Mirror, Roll, Reverse, Jitter)
+TRANSFORMS = (Mirror, Roll)
 """The batch transforms, in the order the configs list them."""
 
-Transform = Standstill | Zoom | Mirror | Roll | Reverse | Jitter
+Transform = Mirror | Roll
 
 
 def spec(transform: Any) -> dict[str, Any]:
@@ -358,24 +214,28 @@ def spec(transform: Any) -> dict[str, Any]:
 
 
 LEGACY_TRANSFORMS = ("standstill", "zoom", "mirror", "reverse", "augment")
-"""Augmentation arguments of earlier versions, in the order they applied; :func:`upgrade_description`
-turns them into ``transforms``."""
+"""Augmentation arguments of checkpoints written before batch transforms: ``mirror`` a probability, the
+others the settings of transforms this version does not have (:data:`WITHDRAWN`)."""
+
+WITHDRAWN = tuple(f"{__name__}.{name}" for name in ("Standstill", "Zoom", "Reverse", "Jitter"))
+"""The ``_target_`` of batch transforms that earlier checkpoints may list and this version does not have."""
 
 
 def upgrade_description(data: Any) -> Any:
     """A checkpoint's data description (:meth:`lossvo.data.datamodules.VODataModule.description`) as the
-    current datamodule takes it: the augmentation arguments of checkpoints written before batch transforms
-    (``standstill``, ``zoom``, ``mirror``, ``reverse`` probabilities or factors, ``augment`` true or
-    false) turned into the ``transforms`` list that applies them in the same order; the rest as it is."""
-    if not isinstance(data, Mapping) or not set(LEGACY_TRANSFORMS) & set(data):
+    current datamodule takes it: the ``mirror`` argument of checkpoints written before batch transforms
+    as the ``transforms`` list (a :class:`Mirror` where it is > 0), and the transforms this version does
+    not have left out (:data:`WITHDRAWN`, and the other :data:`LEGACY_TRANSFORMS` that set them). They
+    changed training batches only; evaluation applies no transform. The rest as it is (``data`` itself
+    where nothing changes)."""
+    if not isinstance(data, Mapping):
         return data
-    made = {
-        "standstill": lambda v: Standstill(v) if v > 0 else None,
-        "zoom": lambda v: Zoom(v) if v > 1 else None,
-        "mirror": lambda v: Mirror(v) if v > 0 else None,
-        "reverse": lambda v: Reverse(v) if v > 0 else None,
-        "augment": lambda v: Jitter() if v else None,
-    }
-    listed = [made[key](data[key]) for key in LEGACY_TRANSFORMS if key in data]
-    upgraded = {k: v for k, v in data.items() if k not in LEGACY_TRANSFORMS}
-    return {**upgraded, "transforms": [spec(t) for t in listed if t is not None]}
+    listed = data.get("transforms")
+    if any(key in data for key in LEGACY_TRANSFORMS):
+        mirror = data.get("mirror") or 0.0
+        listed = [spec(Mirror(mirror))] if mirror > 0 else []
+    elif isinstance(listed, list):
+        listed = [t for t in listed if not (isinstance(t, Mapping) and t.get("_target_") in WITHDRAWN)]
+    if listed == data.get("transforms"):
+        return data
+    return {**{k: v for k, v in data.items() if k not in LEGACY_TRANSFORMS}, "transforms": listed}

@@ -26,7 +26,7 @@ from torch import Tensor, nn
 from lossvo import models
 from lossvo.checks import is_integer
 from lossvo.console import UserError, first_line
-from lossvo.data.specs import nested
+from lossvo.data.specs import current
 from lossvo.data.transforms import upgrade_description
 from lossvo.losses import PoseLoss
 
@@ -59,8 +59,10 @@ class Description:
         model, loss: the configs the network and its loss were built from (``hyper_parameters``).
         data: :meth:`lossvo.data.datamodules.VODataModule.description` of the training data: the
             datamodule's ``_target_`` and specs (sources, splits, frames, windows, flow, loader,
-            transforms), ``dataset_root`` and the normalisation ``statistics``; an earlier version's flat
-            description in that form (:func:`lossvo.data.specs.nested`); None where none was recorded.
+            transforms), ``dataset_root`` and the normalisation ``statistics``; an earlier version's
+            description in that form, without the training settings this version does not have
+            (:func:`lossvo.data.transforms.upgrade_description`, :func:`lossvo.data.specs.current`); None
+            where none was recorded.
         threads: the CPU thread count (``torch.get_num_threads()``) it was trained with, or None.
         epoch: the epoch the checkpoint was saved in, counted from 0. global_step: its global step.
     """
@@ -77,7 +79,7 @@ class Description:
         """The description in a checkpoint's content (:func:`read`: it holds ``model`` and ``loss``)."""
         hparams, threads = content["hyper_parameters"], content.get("threads")
         data = upgrade_description(content.get("data"))  # a checkpoint of an earlier version too
-        data = nested(data) if isinstance(data, Mapping) else None
+        data = current(data) if isinstance(data, Mapping) else None
         return cls(hparams["model"], hparams["loss"], data if isinstance(data, dict) else None,
                    threads if is_integer(threads) else None, int(content.get("epoch", 0)),
                    int(content.get("global_step", 0)))  # fmt: skip
