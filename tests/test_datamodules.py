@@ -203,7 +203,9 @@ def test_test_sequences_may_lack_poses(kitti_copy: Path, tmp_path: Path) -> None
 
 
 def test_missing_sequence_is_named(tiny_kitti: Path, tmp_path: Path) -> None:
-    with pytest.raises(kitti.KittiFormatError, match=r"sequence '05' not found"):
+    with pytest.raises(
+        UserError, match=r"data\.splits\.val: no sequence '05' in .* \(kitti layout; it has 00, 01, 02\)"
+    ):
         make_dm(tiny_kitti, tmp_path, val=["05"])
 
 
