@@ -870,6 +870,25 @@ def contract_example(root: Path) -> Results:
     return replace(results, sequences=sequences, overall=Overall(["01", "02"], entry(0.15, 0.015)), threads=4)
 
 
+def test_results_csv_is_the_same_scores_as_a_tidy_table(tmp_path: Path) -> None:
+    """One row per scored sequence and overall × metric × part × statistic, equal to results.json's."""
+    results = contract_example(tmp_path)
+    results.write(tmp_path / "results.json")
+    content = json.loads((tmp_path / "results.json").read_text())
+    with (tmp_path / "results.csv").open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert list(rows[0]) == ["sequence", "metric", "part", "statistic", "value"]
+    assert {r["sequence"] for r in rows} == {"01", "02", "overall"}  # 11 has no ground truth
+    for r in rows:
+        where = content["overall"] if r["sequence"] == "overall" else content["sequences"][r["sequence"]]
+        scores = where[r["metric"]]
+        value = scores[r["part"]] if r["metric"] == "kitti" else scores[r["part"]][r["statistic"]]
+        assert (None if r["value"] == "" else float(r["value"])) == value, r
+    per_sequence = 2 * 2 * 6 + 2  # APE and RPE, trans and rot, six statistics; KITTI's two
+    assert len(rows) >= 3 * per_sequence
+    assert [r["value"] for r in rows if r["sequence"] == "02" and r["metric"] == "kitti"] == ["", ""]
+
+
 def test_results_json_round_trip(tmp_path: Path) -> None:
     results = contract_example(tmp_path)
     results.write(tmp_path / "results.json")

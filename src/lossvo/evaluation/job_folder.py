@@ -29,6 +29,7 @@ from lossvo.console import UserError
 STATUS = "status.json"
 METRICS = "metrics.csv"
 RESULTS = "results.json"
+RESULTS_TABLE = "results.csv"
 LAST_CHECKPOINT = Path("checkpoints") / "last.ckpt"
 """Paths of a job folder's files, relative to the folder."""
 

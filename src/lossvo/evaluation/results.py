@@ -15,6 +15,8 @@ where no 100 m segment exists.
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import logging
 import os
@@ -38,7 +40,7 @@ from lossvo.data.sequence import sequence_names
 from lossvo.data.windows import gaps
 from lossvo.evaluation import metrics
 from lossvo.evaluation.inference import predict_sequence
-from lossvo.evaluation.job_folder import RESULTS
+from lossvo.evaluation.job_folder import RESULTS, RESULTS_TABLE
 from lossvo.evaluation.plots import plot_birdseye
 from lossvo.evaluation.trajectories import integrate, scale_steps, write_tum
 
@@ -462,6 +464,10 @@ def _source_records(obj: Any, where: str) -> dict[str, SourceRecord]:
     }
 
 
+TIDY_COLUMNS = ("sequence", "metric", "part", "statistic", "value")
+"""The columns of ``results.csv`` (:meth:`Results.tidy_rows`)."""
+
+
 @dataclass(frozen=True)
 class Results:
     """The content of a run's ``results.json``.
@@ -545,9 +551,35 @@ class Results:
             overall=Overall.from_json(_field(obj, "overall", "")),
         )
 
+    def tidy_rows(self) -> list[tuple[str, str, str, str, float | None]]:
+        """The scores as a tidy table (:data:`TIDY_COLUMNS`): one row per scored sequence (then
+        ``overall``, the pooled scores) × metric (``ape``, ``rpe``, ``rpe_scaled``, ``kitti``) × part
+        (``trans`` m, ``rot_rad`` rad; KITTI's ``t_err_pct`` %, ``r_err_deg_per_100m``) × statistic."""
+        pooled = {"overall": self.overall.scores} if self.overall.scores is not None else {}
+        rows: list[tuple[str, str, str, str, float | None]] = []
+        for name, scores in {**self.scored(), **pooled}.items():
+            for metric, errors in (
+                ("ape", scores.ape),
+                ("rpe", scores.rpe),
+                ("rpe_scaled", scores.rpe_scaled),
+            ):
+                for part, stats in (("trans", errors.trans), ("rot_rad", errors.rot_rad)) if errors else ():
+                    rows += [(name, metric, part, f.name, getattr(stats, f.name)) for f in fields(stats)]
+            kitti = scores.kitti
+            rows += [(name, "kitti", "t_err_pct", "mean", kitti.t_err_pct),
+                     (name, "kitti", "r_err_deg_per_100m", "mean", kitti.r_err_deg_per_100m)]  # fmt: skip
+        return rows
+
     def write(self, path: str | os.PathLike) -> None:
-        """Write ``path`` (JSON, NaN allowed) atomically."""
+        """Write ``path`` (JSON, NaN allowed) atomically, and beside it the same scores as a tidy table
+        (``results.csv``, :meth:`tidy_rows`; an empty value where KITTI has no segment)."""
         write_text_atomic(Path(path), json.dumps(self.to_json(), indent=2, allow_nan=True) + "\n")
+        table = io.StringIO()
+        writer = csv.writer(table, lineterminator="\n")
+        writer.writerow(TIDY_COLUMNS)
+        for *keys, value in self.tidy_rows():
+            writer.writerow([*keys, "" if value is None else repr(value)])
+        write_text_atomic(Path(path).with_name(RESULTS_TABLE), table.getvalue())
 
     @classmethod
     def read(cls, path: str | os.PathLike) -> Results:
