@@ -67,7 +67,8 @@ NONE = "none"
 """``--models none`` / ``--experiments none``: no configuration of that kind."""
 
 CPU_JOBS = 2
-"""Jobs at once on a CPU, as ``make sweep`` runs them, single-threaded (why: docs/experiments.md)."""
+"""Jobs at once on a CPU, as ``make sweep`` runs them, single-threaded (why:
+experiments/2026-12-01-sweep-wall-time.md)."""
 
 JOB_OVERHEAD_S = 15.0
 """Seconds a job spends outside its training steps and inference passes, stated: the process's start

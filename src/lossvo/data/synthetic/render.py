@@ -26,7 +26,7 @@ from lossvo.data.synthetic.world import World
 
 SUPERSAMPLE = 1
 """Render at SUPERSAMPLE x the resolution and area-average down (anti-aliases silhouettes too); at 1,
-textures are anti-aliased by mip-mapping only (the choice: docs/experiments.md)."""
+textures are anti-aliased by mip-mapping only (the choice: experiments/README.md)."""
 NEAR = 0.05
 """Metres: nearest depth a surface is drawn at."""
 FAR = 2000.0
