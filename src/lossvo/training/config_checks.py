@@ -50,8 +50,6 @@ NO_LIMIT = "an integer >= 1, or -1 for no limit"
 
 SCALARS: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
     ("seed", lambda v: v is None or (is_integer(v, 0) and v < 2**32), "null or an integer in [0, 2**32)"),
-    ("data.windows.batch_size", lambda v: is_integer(v, 1), "an integer >= 1"),
-    ("data.loader.num_workers", lambda v: is_integer(v, 0), "an integer >= 0"),
     ("trainer.max_epochs", _limit, NO_LIMIT),
     ("trainer.max_steps", _limit, NO_LIMIT),
     ("trainer.log_every_n_steps", lambda v: is_integer(v, 1), "an integer >= 1"),
@@ -97,8 +95,9 @@ def check_train_config(cfg: DictConfig, machine: bool = True) -> None:
     interpolation that does not resolve, a bad scalar setting (:data:`SCALARS`), a cosine schedule without
     a length, a trainer asking for a CUDA GPU where there is none (:func:`check_accelerator`) or for
     several devices without a distributed strategy (:func:`check_devices`), a source ``root`` that is a
-    file, a ``ckpt_path`` that is no file. ``machine=False`` skips what depends on the machine that
-    trains (its GPU), for a config checked where it is submitted from."""
+    file, a ``ckpt_path`` that is no file, a data setting its module refuses (:func:`check_data`).
+    ``machine=False`` skips what depends on the machine that trains (its GPU), for a config checked where
+    it is submitted from."""
     resolved = resolved_config(cfg)
     missing = sorted(OmegaConf.missing_keys(cfg))
     if missing:
@@ -126,6 +125,18 @@ def check_train_config(cfg: DictConfig, machine: bool = True) -> None:
         check_checkpoint_path(Path(str(ckpt_path)).expanduser())
         if not Path(str(ckpt_path)).expanduser().is_file():
             raise UserError(f"ckpt_path: checkpoint not found: {ckpt_path}")
+    check_data(cfg)
+
+
+def check_data(cfg: DictConfig) -> None:
+    """The data module's own checks (its constructor's: frames, windows, splits, flow, loader), without
+    reading any data: ``UserError`` naming the key."""
+    if cfg.get("data") is None:
+        return
+    try:
+        instantiate(cfg.data, _convert_="all")
+    except InstantiationException as e:
+        raise e.__cause__ if isinstance(e.__cause__, UserError) else e from None
 
 
 def check_checkpoint_path(path: Path) -> None:
@@ -242,9 +253,9 @@ def check_added_keys(cfg: DictConfig, overrides: Sequence[str], config_name: str
 
 def check_job(cfg: DictConfig, out_dir: Path, machine: bool = True) -> None:
     """The checks a job runs on its composed config (Hydra's node included) before it reads data: the
-    loss weights (:func:`lossvo.weighting.check_config`), :func:`check_train_config` and the data module's
-    own (its constructor's: frames, windows, splits, flow), its ``${hydra:...}`` values resolved as in a job
-    writing to ``out_dir``: ``UserError`` (one line)."""
+    loss weights (:func:`lossvo.weighting.check_config`), :func:`check_train_config` and
+    :func:`check_added_keys`, its ``${hydra:...}`` values resolved as in a job writing to ``out_dir``:
+    ``UserError`` (one line)."""
     with open_dict(cfg):
         cfg.hydra.runtime.output_dir = str(out_dir)
     job = cfg.copy()
@@ -257,10 +268,6 @@ def check_job(cfg: DictConfig, out_dir: Path, machine: bool = True) -> None:
             weighting.check_config(job.weighting, job.loss)
         check_train_config(job, machine)
         check_added_keys(job, list(cfg.hydra.overrides.task))
-        try:
-            instantiate(job.data, _convert_="all")
-        except InstantiationException as e:
-            raise e.__cause__ if isinstance(e.__cause__, UserError) else e from None
     finally:
         hydra.cfg = previous
 
