@@ -57,6 +57,7 @@ def test_a_stale_cache_is_warned_once_and_its_rebuild_logged(
     fill = lambda out: out.fill(1.0) or {}  # noqa: E731
     array_cache.ensure_array(data, {"v": 1}, (3,), np.float32, fill)
     with caplog.at_level(logging.INFO, logger=array_cache.__name__):
+        caplog.clear()
         array_cache.ensure_array(data, {"v": 2}, (3,), np.float32, fill)
     stale = [r for r in caplog.records if "is stale or incomplete" in r.getMessage()]
     built = [r for r in caplog.records if r.getMessage().startswith(f"cache {data}: built in ")]

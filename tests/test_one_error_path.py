@@ -96,4 +96,12 @@ def test_a_full_disk_at_the_start_names_the_file_and_leaves_nothing(
     assert (done.returncode, done.stderr) == (2, f"error: {run}/run.lock: No space left on device\n")
     done = lossvo([*TRAIN, "-m", "seed=0,1", *base, f"hydra.sweep.dir={sweep}"], tmp_path)
     assert (done.returncode, done.stderr) == (2, f"error: {sweep}: No space left on device\n")
+    trained = tmp_path / "trained"
+    done = lossvo([*TRAIN, *base, f"hydra.run.dir={trained}", "trainer.max_epochs=1", "+evaluate=false",
+                   "+trainer.limit_train_batches=1", "+trainer.limit_val_batches=1"], tmp_path)  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    evaluation = full_disk / "eval"
+    done = lossvo([sys.executable, "-m", "lossvo.eval", f"ckpt_path={trained / 'checkpoints' / 'best.ckpt'}",
+                   f"hydra.run.dir={evaluation}"], tmp_path)  # fmt: skip
+    assert (done.returncode, done.stderr) == (2, f"error: {evaluation}: No space left on device\n")
     assert sorted(p.name for p in full_disk.iterdir()) == ["filler"]
