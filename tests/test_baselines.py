@@ -6,6 +6,7 @@ settings differ, are recomputed (the flow baseline itself: tests/test_flow_basel
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import cv2
@@ -87,7 +88,7 @@ def check_against_evo(scores: Scores, gt: np.ndarray, est: np.ndarray) -> None:
 def test_own_mean_motion_is_the_sequences_mean_motion_repeated(tmp_path: Path) -> None:
     gt = varied_poses(0)
     sequence = write_sequence(tmp_path, "00", gt, seed=0)
-    results = baselines.sequence_baselines(sequence, train_mean=np.eye(4), speed_scale=0.1)
+    results = baselines.sequence_baselines(sequence, baselines.Training(np.eye(4), 0.1))
     assert tuple(results) == baselines.NAMES and baselines.OWN in baselines.NAMES
     steps = np.linalg.inv(gt[:-1]) @ gt[1:]
     u, _, vt = np.linalg.svd(steps[:, :3, :3].mean(axis=0))  # chordal L2 mean, projected onto SO(3)
@@ -104,7 +105,9 @@ def test_own_mean_motion_is_the_sequences_mean_motion_repeated(tmp_path: Path) -
 def test_zero_and_training_mean_motion_scores_equal_evos(tmp_path: Path) -> None:
     gt = varied_poses(5)
     train_step = step(0.01, 0.7, -0.02)
-    results = baselines.sequence_baselines(write_sequence(tmp_path, "00", gt, seed=7), train_step, 0.1)
+    results = baselines.sequence_baselines(
+        write_sequence(tmp_path, "00", gt, seed=7), baselines.Training(train_step, 0.1)
+    )
     standing = np.repeat(gt[:1], len(gt), axis=0)  # zero motion: the first pose forever
     np.testing.assert_allclose(results[baselines.ZERO].trajectory, standing, atol=1e-12)
     check_against_evo(results[baselines.ZERO].scores, gt, standing)
@@ -116,7 +119,9 @@ def test_zero_and_training_mean_motion_scores_equal_evos(tmp_path: Path) -> None
 
 def test_own_mean_motion_is_exact_on_constant_velocity(tmp_path: Path) -> None:
     gt = chain([step(0.03, 0.8, 0.05)] * (FRAMES - 1))
-    results = baselines.sequence_baselines(write_sequence(tmp_path, "00", gt, seed=1), np.eye(4), 0.1)
+    results = baselines.sequence_baselines(
+        write_sequence(tmp_path, "00", gt, seed=1), baselines.Training(np.eye(4), 0.1)
+    )
     own = results[baselines.OWN]
     np.testing.assert_allclose(own.trajectory, gt, atol=1e-9)
     for kind in ("trans", "rot_rad"):
@@ -137,25 +142,21 @@ def recorded_data(root: Path, train: tuple[str, ...] = ("00",)) -> DataRecord:
     return data_record(root, root, train, test=("01",))
 
 
-def test_cache_files_without_a_baseline_are_recomputed(tmp_path: Path) -> None:
+def test_results_are_cached_and_recomputed_when_the_frames_change(tmp_path: Path) -> None:
     root = tmp_path / "kitti"
     write_sequence(root, "00", varied_poses(1), seed=2)
-    write_sequence(root, "01", varied_poses(2), seed=3)
+    sequence = write_sequence(root, "01", varied_poses(2), seed=3)
     data = recorded_data(root)
     cache = tmp_path / "cache"
     first = baselines.compute_baselines(data, ["01"], cache)["01"]
-    (path,) = cache.glob("*.npz")
-    assert baselines.load_cached(path) is not None
-    partial = {
-        name: r for name, r in first.items() if name != baselines.OWN
-    }  # a cache file without the oracle
-    baselines.save_cached(path, partial)
-    assert baselines.load_cached(path) is None
+    assert tuple(first) == baselines.NAMES and not any(r.cached for r in first.values())
     again = baselines.compute_baselines(data, ["01"], cache)["01"]
-    assert tuple(again) == baselines.NAMES and not any(r.cached for r in again.values())
-    np.testing.assert_allclose(again[baselines.OWN].trajectory, first[baselines.OWN].trajectory)
+    assert tuple(again) == baselines.NAMES and all(r.cached for r in again.values())
+    np.testing.assert_array_equal(again[baselines.ORB].trajectory, first[baselines.ORB].trajectory)
+    frame = sequence.images[3]
+    os.utime(frame, ns=(frame.stat().st_atime_ns, frame.stat().st_mtime_ns + 10**9))  # the frames changed
     third = baselines.compute_baselines(data, ["01"], cache)["01"]
-    assert tuple(third) == baselines.NAMES and all(r.cached for r in third.values())
+    assert not any(r.cached for r in third.values())
 
 
 def test_training_mean_motion_comes_from_the_recorded_training_data(tmp_path: Path) -> None:
@@ -174,27 +175,25 @@ def test_training_mean_motion_comes_from_the_recorded_training_data(tmp_path: Pa
         baselines.training_mean_motion(data_record(root, train_root, ()))
 
 
-def test_cache_key_changes_with_the_recorded_data_the_training_mean_and_flow(
+def test_the_cache_is_keyed_by_the_training_split_the_scoring_and_the_flow_settings(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    sequence = write_sequence(tmp_path / "kitti", "01", varied_poses(4), seed=6)
-    data = recorded_data(tmp_path / "kitti")
-    flow = ["00-0123"]
-    key = baselines.cache_key(data.identity(), sequence, np.eye(4), flow, "none", 1)
-    assert key.startswith("01-") and key == baselines.cache_key(
-        data.identity(), sequence, np.eye(4), flow, "none", 1
-    )
-    other_split = recorded_data(tmp_path / "kitti", ("00", "02")).identity()
-    moved = step(0.0, 1.0)
-    keys = {key, baselines.cache_key(other_split, sequence, np.eye(4), flow, "none", 1),
-            baselines.cache_key(data.identity(), sequence, moved, flow, "none", 1),
-            baselines.cache_key(data.identity(), sequence, np.eye(4), ["00-4567"], "none", 1),
-            baselines.cache_key(data.identity(), sequence, np.eye(4), flow, "se3", 1)}  # fmt: skip
-    flow_key = baselines.flow_key(sequence)
+    root = tmp_path / "kitti"
+    write_sequence(root, "00", varied_poses(1), seed=2)
+    write_sequence(root, "02", varied_poses(5), seed=8)
+    write_sequence(root, "01", varied_poses(4), seed=6)
+    cache = tmp_path / "cache"
+    baselines.compute_baselines(recorded_data(root), ["01"], cache)
+
+    def cached(data: DataRecord, delta: int = 1) -> bool:
+        found = baselines.compute_baselines(data, ["01"], cache, "none", delta)["01"]
+        return all(r.cached for r in found.values())
+
+    assert cached(recorded_data(root))
+    assert not cached(recorded_data(root, ("00", "02")))  # another training split
+    assert not cached(recorded_data(root), 2)  # another RPE delta
     monkeypatch.setattr(baselines, "ROAD_ROWS", (0.5, 1.0))  # another road region: other features
-    assert baselines.flow_key(sequence) != flow_key
-    keys.add(baselines.cache_key(data.identity(), sequence, np.eye(4), flow, "none", 1))
-    assert len(keys) == 6
+    assert not cached(recorded_data(root))
 
 
 def test_a_sequence_of_several_datasets_names_its_recorded_source(tmp_path: Path) -> None:

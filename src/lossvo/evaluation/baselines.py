@@ -2,26 +2,25 @@
 zero motion, the training split's mean motion, ORB + essential matrix with ground-truth scale, the
 sequence's own mean motion (an oracle) and flow yaw + road speed (one line on DIS flow). Relative poses
 are ``T_k = inv(T_w_k) @ T_w_{k+1}``; the sequences are read from the dataset a run's results.json
-records, with no datamodule; results and flow features are cached per sequence (docs/report.md).
+records, with no datamodule; :data:`ESTIMATORS` holds them by name; results and flow features are cached
+per sequence by ``joblib.Memory`` (docs/report.md).
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
 import logging
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 import cv2
+import joblib
 import numpy as np
 import roma
 import torch
 
 from lossvo import geometry
-from lossvo.atomic import atomic_path
 from lossvo.console import UserError
 from lossvo.data import layouts
 from lossvo.data.flow import FlowSetting, pair_flow
@@ -73,8 +72,6 @@ ROAD_ROWS, ROAD_COLUMNS = (0.75, 1.0), (1 / 3, 2 / 3)
 """The road just ahead (fractions of the height and width): the bottom quarter, the middle third."""
 FLOW_CHUNK = 32
 """Frame pairs whose flow fields are held at once (the features are computed a chunk at a time)."""
-FLOW_CACHE = "flow"
-"""Folder of the cached flow features, inside the baselines' cache folder."""
 
 
 @dataclass
@@ -416,42 +413,82 @@ def flow_features(
 # --------------------------------------------------------------------------------------------------
 
 
+@dataclass(frozen=True)
+class Training:
+    """What the baselines take from the training split: its mean relative pose ``mean`` (4, 4) float64
+    (:func:`mean_motion`) and the road-speed constant ``speed_scale`` (m/px, :func:`fit_speed_scale`)."""
+
+    mean: np.ndarray
+    speed_scale: float
+
+
+Estimator = Callable[[DatasetSequence, FlowFeatures, Training], tuple[np.ndarray, int]]
+"""A baseline: (a sequence with poses (its frames, K), its flow features, the training split) ->
+((N-1, 4, 4) float64 relative poses, the frame pairs where it failed and fell back)."""
+
+
+def _zero(sequence: DatasetSequence, features: FlowFeatures, training: Training) -> tuple[np.ndarray, int]:
+    return zero_motion(len(sequence.targets)), 0
+
+
+def _train_mean(
+    sequence: DatasetSequence, features: FlowFeatures, training: Training
+) -> tuple[np.ndarray, int]:
+    return repeat_motion(training.mean, len(sequence.targets)), 0
+
+
+def _orb_essential(
+    sequence: DatasetSequence, features: FlowFeatures, training: Training
+) -> tuple[np.ndarray, int]:
+    steps = np.linalg.norm(sequence.targets[:, :3, 3], axis=1)
+    relative, failed = orb_essential(sequence.images, sequence.K, steps, training.mean, sequence.distortion)
+    return relative, int(failed.sum())
+
+
+def _own_mean(
+    sequence: DatasetSequence, features: FlowFeatures, training: Training
+) -> tuple[np.ndarray, int]:
+    return repeat_motion(mean_motion([sequence.targets]), len(sequence.targets)), 0
+
+
+def _flow(sequence: DatasetSequence, features: FlowFeatures, training: Training) -> tuple[np.ndarray, int]:
+    return flow_motion(features.yaw, training.speed_scale * features.road), 0
+
+
+ESTIMATORS: dict[str, Estimator] = {
+    ZERO: _zero,
+    MEAN: _train_mean,
+    ORB: _orb_essential,
+    OWN: _own_mean,
+    FLOW: _flow,
+}
+"""The baselines by name, in the order of :data:`NAMES`."""
+
+
 def sequence_baselines(
     sequence: DatasetSequence,
-    train_mean: np.ndarray,
-    speed_scale: float,
+    training: Training,
     align: metrics.AlignMode = "none",
     delta: int = 1,
     features: FlowFeatures | None = None,
 ) -> dict[str, BaselineResult]:
-    """All baselines on one sequence with ground truth.
+    """Every baseline (:data:`ESTIMATORS`) on one sequence with ground truth, scored as a network's
+    trajectory is (``align``, ``delta`` as the runs' results.json).
 
     Args:
-        sequence: a KITTI-layout sequence with poses (images, poses (N, 4, 4), calib).
-        train_mean: (4, 4) mean relative pose of the training split (:func:`mean_motion`).
-        speed_scale: metres per pixel of road flow, fitted on the training split (:func:`fit_speed_scale`).
-        align, delta: as the runs' results.json.
+        sequence: a sequence with poses (images, poses (N, 4, 4), K).
+        training: the training split's mean motion and road-speed constant.
         features: the sequence's flow features (:func:`flow_features`, computed here if None).
     Returns:
         {baseline name: BaselineResult}, in the order of :data:`NAMES`.
     """
     gt = np.asarray(sequence.poses, dtype=np.float64)
-    targets = sequence.targets
-    steps = np.linalg.norm(targets[:, :3, 3], axis=1)
-    orb, failed = orb_essential(sequence.images, sequence.K, steps, train_mean, sequence.distortion)
     if features is None:
         features = flow_features(sequence.images, sequence.K, undistortion(sequence))
-    relatives = {
-        ZERO: zero_motion(len(targets)),
-        MEAN: repeat_motion(train_mean, len(targets)),
-        ORB: orb,
-        OWN: repeat_motion(mean_motion([targets]), len(targets)),
-        FLOW: flow_motion(features.yaw, speed_scale * features.road),
-    }
     out = {}
-    for name, relative in relatives.items():
+    for name, estimate in ESTIMATORS.items():
+        relative, failures = estimate(sequence, features, training)
         trajectory, scores = metrics.evaluate_relative(relative, gt, align, delta)
-        failures = int(failed.sum()) if name == ORB else 0
         out[name] = BaselineResult(trajectory.numpy(), Scores.from_json(scores), failures)
     return out
 
@@ -505,75 +542,24 @@ def training_mean_motion(data: DataRecord) -> np.ndarray:
 
 
 def _files(sequence: DatasetSequence) -> dict[str, Any]:
-    """What identifies a sequence's frames and camera: their count, total size, latest change, K."""
+    """What identifies a sequence's frames beyond their paths: their count, total size and latest change
+    (a cached result is recomputed when the files change)."""
     stats = [p.stat() for p in sequence.images]
     return {
         "frames": len(stats),
         "bytes": sum(s.st_size for s in stats),
         "mtime_ns": max(s.st_mtime_ns for s in stats) if stats else 0,
-        "K": np.asarray(sequence.K).tolist(),
-        "distortion": np.asarray(sequence.distortion).tolist(),
     }
 
 
-def _digest(value: object) -> str:
-    return hashlib.sha1(json.dumps(value, sort_keys=True, default=str).encode()).hexdigest()[:16]
+def flow_settings() -> tuple[Any, ...]:
+    """Everything the flow features depend on besides the frames: the flow method, size and regions."""
+    return (VERSION, FLOW_SETTING.key, FLOW_MAX_WIDTH, YAW_ROWS, YAW_COLUMNS, ROAD_ROWS, ROAD_COLUMNS)
 
 
-def flow_key(sequence: DatasetSequence) -> str:
-    """A file-name-safe key of one sequence's flow features: its frames' folder and files, K, the flow
-    settings and :data:`VERSION`."""
-    folder = str(sequence.images[0].parent.resolve()) if sequence.images else ""
-    settings = [VERSION, FLOW_SETTING.key, FLOW_MAX_WIDTH, YAW_ROWS, YAW_COLUMNS, ROAD_ROWS, ROAD_COLUMNS]
-    return f"{sequence.name.replace('/', '_')}-{_digest([settings, folder, _files(sequence)])}"
-
-
-def cached_flow_features(sequence: DatasetSequence, folder: Path) -> FlowFeatures:
-    """One sequence's flow features from ``folder/<flow_key>.npz``, computed (:func:`flow_features`) and
-    written there (atomically) where missing or unreadable."""
-    path = folder / f"{flow_key(sequence)}.npz"
-    try:
-        with np.load(path) as cached:
-            features = FlowFeatures(np.asarray(cached["yaw"]), np.asarray(cached["road"]))
-        if len(features.yaw) == len(features.road) == max(len(sequence.images) - 1, 0):
-            return features
-    except (OSError, ValueError, KeyError):
-        pass
-    features = flow_features(sequence.images, sequence.K, undistortion(sequence))
-    with atomic_path(path, suffix=".npz") as tmp:
-        np.savez(tmp, yaw=features.yaw, road=features.road)
-    return features
-
-
-def training_speed_scale(training: Sequence[DatasetSequence], folder: Path, n_jobs: int = 1) -> float:
-    """The road-speed constant (m/px, :func:`fit_speed_scale`) of the training sequences: their road
-    features (cached in ``folder``, computed ``n_jobs`` sequences at a time) against their ground-truth
-    step lengths."""
-    features = _parallel(lambda sequence: cached_flow_features(sequence, folder), training, n_jobs)
-    road = np.concatenate([f.road for f in features])
-    steps = np.concatenate([np.linalg.norm(s.targets[:, :3, 3], axis=1) for s in training])
-    return fit_speed_scale(road, steps)
-
-
-def cache_key(
-    identity: Mapping[str, Any],
-    sequence: DatasetSequence,
-    train_mean: np.ndarray,
-    train_flow: Sequence[str],
-    align: str,
-    delta: int,
-) -> str:
-    """A file-name-safe key of one sequence's baselines: the data's identity
-    (:meth:`lossvo.evaluation.results.DataRecord.identity`), the (4, 4) training mean motion, the
-    training sequences' flow keys (:func:`flow_key`: the speed fit's input), the sequence's files and
-    the settings."""
-    files = {
-        **_files(sequence),
-        "poses": hashlib.sha1(np.ascontiguousarray(sequence.poses).tobytes()).hexdigest(),
-        "train_mean": hashlib.sha1(np.ascontiguousarray(train_mean, dtype=np.float64).tobytes()).hexdigest(),
-        "train_flow": list(train_flow),
-    }
-    settings = [
+def orb_settings() -> tuple[Any, ...]:
+    """Everything ORB+E depends on besides the frames."""
+    return (
         VERSION,
         ORB_FEATURES,
         MIN_MATCHES,
@@ -581,39 +567,44 @@ def cache_key(
         MIN_PARALLAX_PX,
         MAX_HAMMING,
         RANSAC_THRESHOLD_PX,
-        flow_key(sequence),
-    ]
-    return f"{sequence.name}-{_digest([settings, dict(identity), files, align, delta])}"
+    )
 
 
-def save_cached(path: Path, results: Mapping[str, BaselineResult]) -> None:
-    """Write one sequence's baselines to ``path`` (.npz) atomically (temp file + rename)."""
-    meta = {name: {"metrics": r.scores.to_json(), "failures": r.failures} for name, r in results.items()}
-    # Any: mypy would match the unpacked arrays against savez's allow_pickle: bool as well.
-    arrays: dict[str, Any] = {f"trajectory_{i}": r.trajectory for i, r in enumerate(results.values())}
-    with atomic_path(path, suffix=".npz") as tmp:
-        np.savez(tmp, meta=np.array(json.dumps({"names": list(results), "results": meta})), **arrays)
+def _flow_features_of(
+    sequence: DatasetSequence, files: dict[str, Any], settings: tuple[Any, ...]
+) -> FlowFeatures:
+    """:func:`flow_features` of a sequence (``files`` and ``settings`` key the cache only)."""
+    return flow_features(sequence.images, sequence.K, undistortion(sequence))
 
 
-def load_cached(path: Path) -> dict[str, BaselineResult] | None:
-    """One sequence's baselines from ``path``, or None if it is missing, unreadable or lacks one of
-    :data:`NAMES`."""
-    try:
-        with np.load(path) as data:
-            meta = json.loads(str(data["meta"]))
-            if not set(NAMES) <= set(meta["names"]):
-                return None
-            return {
-                name: BaselineResult(
-                    np.asarray(data[f"trajectory_{i}"]),
-                    Scores.from_json(meta["results"][name]["metrics"]),
-                    int(meta["results"][name]["failures"]),
-                    cached=True,
-                )
-                for i, name in enumerate(meta["names"])
-            }
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
+def _baselines_of(
+    sequence: DatasetSequence,
+    files: dict[str, Any],
+    training: Training,
+    features: FlowFeatures,
+    align: str,
+    delta: int,
+    settings: tuple[Any, ...],
+) -> dict[str, BaselineResult]:
+    """:func:`sequence_baselines` (``files`` and ``settings`` key the cache only)."""
+    return sequence_baselines(sequence, training, cast("metrics.AlignMode", align), delta, features)
+
+
+def cached_flow_features(sequence: DatasetSequence, memory: joblib.Memory) -> FlowFeatures:
+    """One sequence's flow features, from ``memory`` (joblib's cache) where it holds them."""
+    return cast("FlowFeatures", memory.cache(_flow_features_of)(sequence, _files(sequence), flow_settings()))
+
+
+def training_speed_scale(
+    training: Sequence[DatasetSequence], memory: joblib.Memory, n_jobs: int = 1
+) -> float:
+    """The road-speed constant (m/px, :func:`fit_speed_scale`) of the training sequences: their road
+    features (cached in ``memory``, computed ``n_jobs`` sequences at a time) against their ground-truth
+    step lengths."""
+    features = _parallel(lambda sequence: cached_flow_features(sequence, memory), training, n_jobs)
+    road = np.concatenate([f.road for f in features])
+    steps = np.concatenate([np.linalg.norm(s.targets[:, :3, 3], axis=1) for s in training])
+    return fit_speed_scale(road, steps)
 
 
 def _torch_single_threaded(fn: Callable[..., T]) -> Callable[..., T]:
@@ -642,47 +633,51 @@ def compute_baselines(
     """The baselines of the given sequences of the recorded data, from the cache where possible.
 
     The sequences are read with their layout's reader (every ``keep_every``-th frame, undistorted as
-    the frame cache undistorts them), the mean motion from the recorded training data. Results are
-    cached in ``<cache_dir>/<key>.npz`` (:func:`cache_key`: the roots, the training split and its mean
-    motion, the sequence's files, alignment, delta, the ORB and flow settings, :data:`VERSION`), flow
-    features in ``<cache_dir>/flow/<key>.npz`` (:func:`flow_key`).
+    the frame cache undistorts them), the mean motion from the recorded training data. Flow features and
+    results are cached by ``joblib.Memory`` in ``cache_dir``, keyed by their inputs: the sequence (its
+    files, poses and camera), the training split's mean motion and road-speed constant, the alignment,
+    delta and the flow and ORB settings (:data:`VERSION` among them).
 
     Args:
         data: a run's record of its evaluated dataset and training data (its results.json's ``data``).
         sequences: names of sequences with ground truth under ``data.root`` (e.g. those of the runs'
             results.json).
-        cache_dir: folder of the cached ``.npz`` results (and of the flow features, under ``flow/``).
+        cache_dir: the cache's folder.
         align, delta: as the runs' results.json.
         n_jobs: sequences computed in parallel (threads: OpenCV releases the GIL).
     Returns:
-        {sequence: {baseline name: BaselineResult}}, in the order of ``sequences``.
+        {sequence: {baseline name: BaselineResult}}, in the order of ``sequences``; ``cached`` says which
+        came from the cache.
     Raises:
         UserError (KittiFormatError among them): a root, a sequence or a pose file that is not there.
     """
+    memory = joblib.Memory(cache_dir, verbose=0)
     training = training_sequences(data)
     train_mean = mean_motion([s.targets for s in training])
-    train_flow = [flow_key(s) for s in training]
     where = (data.layout, data.root, data.keep_every, data.sources)
     loaded = {n: read_sequence(*where, n) for n in sequences}
-    paths = {
-        n: cache_dir / f"{cache_key(data.identity(), loaded[n], train_mean, train_flow, align, delta)}.npz"
-        for n in sequences
+    baselines_of = memory.cache(_baselines_of, ignore=["features"])
+    scale: list[float] = []  # fitted once, where a sequence is not cached
+
+    def arguments(sequence: DatasetSequence, features: FlowFeatures | None) -> tuple[Any, ...]:
+        return (sequence, _files(sequence), Training(train_mean, scale[0]), features, align, delta, settings)
+
+    settings = (flow_settings(), orb_settings())
+    scale.append(training_speed_scale(training, memory, n_jobs))
+    found = {
+        n: {k: replace(r, cached=True) for k, r in baselines_of(*arguments(s, None)).items()}
+        for n, s in loaded.items()
+        if baselines_of.check_call_in_cache(*arguments(s, None))
     }
-    found = {n: r for n, p in paths.items() if (r := load_cached(p)) is not None}
     todo = [n for n in sequences if n not in found]
     if todo:
         log.info("baselines: computing %d sequence(s) (%s)", len(todo), ", ".join(todo))
-        flow_dir = cache_dir / FLOW_CACHE
-        speed_scale = training_speed_scale(training, flow_dir, n_jobs)
 
         def compute(sequence: DatasetSequence) -> dict[str, BaselineResult]:
-            features = cached_flow_features(sequence, flow_dir)
-            return sequence_baselines(sequence, train_mean, speed_scale, align, delta, features)
+            return baselines_of(*arguments(sequence, cached_flow_features(sequence, memory)))
 
         computed = _parallel(compute, [loaded[n] for n in todo], n_jobs)
-        for name, result in zip(todo, computed, strict=True):
-            save_cached(paths[name], result)
-            found[name] = result
+        found |= dict(zip(todo, computed, strict=True))
     return {n: found[n] for n in sequences}
 
 
