@@ -70,6 +70,14 @@ def test_evaluations_on_other_data_make_the_across_datasets_table(sweep: Path, t
     assert (tmp_path / "report" / "tables" / "across_datasets.csv").is_file()
 
 
+def test_a_moved_sweep_keeps_its_evaluations(sweep: Path, tmp_path: Path) -> None:
+    """An archive unpacked elsewhere: the evaluations' checkpoints name the old folder; they are matched to
+    the jobs by their folders' names (a checkpoint of no job of the sweep stays foreign)."""
+    moved = sweep.rename(tmp_path / "unpacked")
+    report = make_report(moved, tmp_path / "report", with_baselines=False, with_figures=False).read_text()
+    assert len(across_table(report)) - 2 == 4 and "foreign/results.json" in report
+
+
 def test_an_evaluation_on_other_sequences_of_the_training_data_is_a_row_not_a_seed(
     sweep: Path, tmp_path: Path
 ) -> None:

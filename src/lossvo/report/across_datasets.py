@@ -72,9 +72,12 @@ def dataset_name(layout: str, root: str | None) -> str:
 
 def find_evaluations(sweep: Path, jobs: Sequence[Job]) -> tuple[list[Evaluation], list[str]]:
     """The evaluations under ``sweep/evaluations`` of checkpoints of ``jobs``, and a note for each
-    results.json that could not be used (unreadable, or of a checkpoint of no job of this sweep)."""
+    results.json that could not be used (unreadable, or of a checkpoint of no job of this sweep). A
+    checkpoint is a job's by its folder, or, where the sweep folder has moved since (an archive unpacked
+    elsewhere), by the name of its job folder."""
     folder = sweep / EVALUATIONS
     by_folder = {job.path.resolve(): job for job in jobs if job.included}
+    by_name = {job.path.name: job for job in jobs if job.included}
     found, notes = [], []
     for path in sorted(folder.rglob("results.json")) if folder.is_dir() else []:
         try:
@@ -83,7 +86,10 @@ def find_evaluations(sweep: Path, jobs: Sequence[Job]) -> tuple[list[Evaluation]
             notes.append(str(e))
             continue
         checkpoint = Path(results.checkpoint) if results.checkpoint else None
-        job = by_folder.get(checkpoint.resolve().parent.parent) if checkpoint else None
+        job_folder = checkpoint.resolve().parent.parent if checkpoint else None
+        job = None if job_folder is None else by_folder.get(job_folder)
+        if job is None and job_folder is not None and not job_folder.exists():
+            job = by_name.get(job_folder.name)
         if job is None:
             notes.append(f"{path}: its checkpoint ({results.checkpoint}) is of no job of this sweep")
             continue
