@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import functools
 import os
-import shutil
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, ParamSpec, TypeVar
@@ -15,7 +14,7 @@ from typing import Any, ParamSpec, TypeVar
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
-from lossvo.console import UserError, close_logs_in, disk_error, exit_in_one_line
+from lossvo.console import UserError, disk_error, exit_in_one_line, remove_refused
 
 _P = ParamSpec("_P")
 _R = TypeVar("_R")
@@ -102,8 +101,9 @@ HYDRA_FILES = ("multirun.yaml", ".hydra", "run.lock")
 is ``<job name>.log``."""
 
 
-def _made_by_hydra(folder: Path) -> bool:
-    return all(p.name in HYDRA_FILES or p.suffix == ".log" for p in folder.iterdir())
+def _made_by_hydra(folder: Path) -> set[str]:
+    """The names in ``folder`` that Hydra (or a run's lock) may have written: :data:`HYDRA_FILES` and logs."""
+    return set(HYDRA_FILES) | {p.name for p in folder.glob("*.log")}
 
 
 def leaving_as_found(main: Callable[_P, _R]) -> Callable[_P, _R]:
@@ -119,10 +119,8 @@ def leaving_as_found(main: Callable[_P, _R]) -> Callable[_P, _R]:
             if disk_error(e) is not None and _CHECKED:
                 if e.filename is None:
                     e.filename = str(_CHECKED[-1])
-                for folder in (f for f in _CHECKED if f.is_dir() and was_empty(f) and _made_by_hydra(f)):
-                    close_logs_in(folder)
-                    for path in folder.iterdir() if existed(folder) else [folder]:
-                        shutil.rmtree(path) if path.is_dir() else path.unlink()
+                for folder in (f for f in _CHECKED if f.is_dir() and was_empty(f)):
+                    remove_refused(folder, _made_by_hydra(folder), keep_folder=existed(folder))
             raise
 
     return wrapped

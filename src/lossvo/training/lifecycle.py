@@ -37,6 +37,7 @@ from lossvo.console import (
     close_logs_in,
     full_error,
     one_line,
+    remove_refused,
     user_error_line,
     user_message,
 )
@@ -297,15 +298,11 @@ def _leave(run: Run) -> None:
 
 
 def _unlocked(run: Run) -> None:
-    """What a fresh run that could not write its lock (a full disk) made goes: the lock file, its log, and
-    the folder where this run created it and it is empty again."""
-    if not run.fresh:
-        return
-    close_logs_in(run.out_dir)
-    for name in (folder_lock.LOCK, f"{HydraConfig.get().job.name}.log"):
-        (run.out_dir / name).unlink(missing_ok=True)
-    if not output_folders.existed(run.out_dir) and not any(run.out_dir.iterdir()):
-        run.out_dir.rmdir()
+    """What a fresh run that could not write its lock (a full disk) made goes: the lock file and its log,
+    and the folder where this run created it (:func:`~lossvo.console.remove_refused`)."""
+    if run.fresh:
+        made = {folder_lock.LOCK, f"{HydraConfig.get().job.name}.log"}
+        remove_refused(run.out_dir, made, keep_folder=output_folders.existed(run.out_dir))
 
 
 def _failed(run: Run, error: BaseException) -> None:
