@@ -17,8 +17,8 @@ from hypothesis import Phase, find, given, settings
 from hypothesis import strategies as st
 
 from lossvo import geometry as g
+from lossvo.axioms import markdown_table
 from lossvo.geometry import axioms
-from lossvo.geometry.__main__ import markdown_table
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "losses.md"
 TOL = axioms.TOLERANCE
@@ -139,4 +139,4 @@ def test_readme_shows_the_generated_table() -> None:
     readme = DOC.read_text(encoding="utf-8")
     block = re.search(r"<!-- axioms:begin -->\n(.*?)<!-- axioms:end -->", readme, flags=re.S)
     assert block is not None, "docs/losses.md lacks the <!-- axioms:begin/end --> block"
-    assert block.group(1) == table, "docs/losses.md: axioms table stale, paste `python -m lossvo.geometry`"
+    assert block.group(1) == table, "docs/losses.md: axioms table stale, paste `python -m lossvo.axioms`"

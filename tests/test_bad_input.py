@@ -118,9 +118,13 @@ def places(tiny_kitti: Path, euler_checkpoint: Path, other_study: str, tmp_path:
     (tmp_path / "job_without_config" / "0_loss-euler").mkdir(parents=True)
     (tmp_path / "one_job_sweep" / "0_loss-euler" / ".hydra").mkdir(parents=True)
     (tmp_path / "one_job_sweep" / "0_loss-euler" / ".hydra" / "config.yaml").write_text("seed: 0\n")
+    torch.save({"hyper_parameters": {"model": {}, "loss": {}}, "state_dict": {}, "schema_version": 2},
+               tmp_path / "newer_checkpoint")  # fmt: skip
+    (tmp_path / "newer_run").mkdir()
+    (tmp_path / "newer_run" / "status.json").write_text('{"schema_version": 2, "status": "completed"}\n')
     names = ["<poses>", "<shorter poses>", "<malformed poses>", "<text file>", "<empty folder>",
              "<job without config>", "<one job sweep>", "<missing file>", "<missing folder>",
-             "<new folder>"]  # fmt: skip
+             "<new folder>", "<newer checkpoint>", "<newer run>"]  # fmt: skip
     paths = {name: str(tmp_path / name.strip("<>").replace(" ", "_")) for name in names}
     return {**paths, "<tiny KITTI>": str(tiny_kitti), "<euler checkpoint>": str(euler_checkpoint),
             "<study of another search>": other_study}  # fmt: skip

@@ -207,6 +207,22 @@ def test_a_flat_description_of_an_earlier_version_reads_as_specs() -> None:
     )
 
 
+def test_a_checkpoint_of_another_schema_version_is_one_line(tmp_path: Path) -> None:
+    """A checkpoint records its schema_version as it is saved; one without it reads as this version, one
+    of another version is refused in one line naming the file, its version and the supported one."""
+    saved: dict = {}
+    checkpoints.describe(saved, None)
+    assert saved["schema_version"] == checkpoints.SCHEMA_VERSION == 1
+    path = tmp_path / "newer.ckpt"
+    content = {"hyper_parameters": {"model": {}, "loss": {}}, "state_dict": {}}
+    torch.save(content, path)
+    assert checkpoints.read(path)["hyper_parameters"] == content["hyper_parameters"]
+    torch.save({**content, "schema_version": 2}, path)
+    with pytest.raises(checkpoints.CheckpointError) as caught:
+        checkpoints.read(path)
+    assert str(caught.value) == f"{path}: checkpoint schema_version 2 is not supported (supported: 1)"
+
+
 def test_foreign_files_are_one_line(tmp_path: Path) -> None:
     other = tmp_path / "other.ckpt"
     torch.save({"state_dict": {}, "epoch": 3}, other)  # a Lightning-like checkpoint of something else

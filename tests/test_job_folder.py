@@ -10,6 +10,7 @@ import pytest
 from lightning.pytorch.loggers.csv_logs import ExperimentWriter
 
 from lossvo.evaluation.job_folder import (
+    STATUS_SCHEMA_VERSION,
     Event,
     JobFolderError,
     MetricsTable,
@@ -32,14 +33,15 @@ def test_a_status_reads_back_as_written(tmp_path: Path) -> None:
     write_status(tmp_path, status)
     assert read_status(tmp_path) == status
     obj = json.loads((tmp_path / "status.json").read_text())
-    assert list(obj) == ["status", "threads", "signal", "epoch", "resume_from", "history"]
+    assert list(obj) == ["schema_version", "status", "threads", "signal", "epoch", "resume_from", "history"]
+    assert obj["schema_version"] == STATUS_SCHEMA_VERSION
     assert obj["resume_from"] is None and obj["history"][2]["from"] == "/x/last.ckpt"
     assert "signal" not in obj["history"][0] and status.stop == "SIGUSR2 during epoch 3"
     assert [p.name for p in tmp_path.iterdir()] == ["status.json"]  # no temporary file left
 
 
 def test_a_status_written_by_hand_reads(tmp_path: Path) -> None:
-    stop = {"status": "interrupted", "signal": "SIGTERM", "stage": "evaluation"}
+    stop = {"status": "interrupted", "signal": "SIGTERM", "stage": "evaluation"}  # no schema_version: 1
     (tmp_path / "status.json").write_text(json.dumps(stop))
     status = read_status(tmp_path)
     assert status is not None and status.history == () and status.stop == "SIGTERM during the evaluation"
@@ -61,6 +63,11 @@ NUMBERS = "an object of numbers"
         (
             '{"status": "running", "history": [{"event": "x", "epoch": true}]}',
             "history[0]: epoch: expected an integer, got True",
+        ),
+        ('{"schema_version": 2, "status": "running"}', "schema_version 2 is not supported (supported: 1)"),
+        (
+            '{"schema_version": "1", "status": "running"}',
+            "schema_version '1' is not supported (supported: 1)",
         ),
     ],
 )

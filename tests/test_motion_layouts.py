@@ -1,4 +1,4 @@
-"""``python -m lossvo.data.motion --layout ...``: the motion table of a dataset in its own layout."""
+"""``python -m lossvo.motion --layout ...``: the motion table of a dataset in its own layout."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from lossvo.data import motion
+from lossvo import motion
 
 
 def write_tartanair(root: Path, name: str, steps: np.ndarray, yaw_per_frame: float) -> None:

@@ -978,8 +978,10 @@ def damaged(content: dict, change: str) -> object:
      ("sequences a list", "sequences: expected an object"), ("no data", "data is missing"),
      ("train not names", "data.train: expected a list of sequence names"),
      ("neither scores nor note", "sequences.11: neither scores"),
-     ("another schema", f"schema_version {SCHEMA_VERSION + 1}, expected {SCHEMA_VERSION}"),
-     ("no schema", f"no schema_version, expected {SCHEMA_VERSION}")],
+     ("another schema", f"schema_version {SCHEMA_VERSION + 1} is not supported (supported: "
+                        f"{SCHEMA_VERSION}); evaluate the checkpoint again (python -m lossvo.eval "
+                        "ckpt_path=...)"),
+     ("no schema", f"no schema_version (supported: {SCHEMA_VERSION}); evaluate the checkpoint again")],
 )  # fmt: skip
 def test_each_bad_results_json_is_one_line_naming_the_file_and_the_problem(
     tmp_path: Path, damage: str, reason: str
@@ -1013,8 +1015,8 @@ def test_a_sweep_with_an_unreadable_results_json_lists_the_file_and_the_reason(t
     assert "2 job(s): 1 included, 1 skipped" in text
     _, listed = markdown_rows(text, "Jobs")
     assert listed["`1_loss-quat+seed-0`"][4] == (
-        f"no: results.json: schema_version {SCHEMA_VERSION + 1}, expected {SCHEMA_VERSION}: evaluate the "
-        "checkpoint again (python -m lossvo.eval ckpt_path=...)"
+        f"no: results.json: schema_version {SCHEMA_VERSION + 1} is not supported (supported: "
+        f"{SCHEMA_VERSION}); evaluate the checkpoint again (python -m lossvo.eval ckpt_path=...)"
     )
     assert listed["`0_loss-euler+seed-0`"][4] == "yes"
     _, table = markdown_rows(text, "Table I")

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lossvo import motion as motion_cli
 from lossvo.console import UserError
 from lossvo.data import motion, synthetic
 from lossvo.data.synthetic import cli as synthetic_cli
@@ -214,7 +215,7 @@ def test_motion_command_prints_a_row_per_split_and_sequence(
     tmp_path: Path, capsys: pytest.CaptureFixture
 ) -> None:
     poses = town_sequence(tmp_path, 200)
-    assert motion.main([str(tmp_path), "--train", "00", "--val", "", "--test", "00", "--unseen", ""]) == 0
+    assert motion_cli.main([str(tmp_path), "--train", "00", "--val", "", "--test", "00", "--unseen", ""]) == 0
     out = capsys.readouterr().out.splitlines()
     assert out[0].startswith("| split / sequence | pairs | speed mean")
     labels = [line.split("|")[1].strip() for line in out[2:]]
@@ -230,18 +231,18 @@ def test_motion_command_refuses_a_named_sequence_without_poses(
 ) -> None:
     town_sequence(tmp_path, 50)
     with pytest.raises(SystemExit) as exit_info:
-        motion.main([str(tmp_path), "--train", "00,99"])
+        motion_cli.main([str(tmp_path), "--train", "00,99"])
     assert exit_info.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [
-        f"python -m lossvo.data.motion: error: --train: {tmp_path} has no poses file for 99 (poses/NN.txt)"
+        f"python -m lossvo.motion: error: --train: {tmp_path} has no poses file for 99 (poses/NN.txt)"
     ]
-    assert motion.main([str(tmp_path)]) == 0  # the default splits' missing sequences (01-12) are left out
+    assert motion_cli.main([str(tmp_path)]) == 0  # the default splits' missing sequences (01-12) are left out
 
 
 def test_motion_command_bad_root_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     with pytest.raises(SystemExit) as exit_info:
-        motion.main([str(tmp_path / "missing")])
+        motion_cli.main([str(tmp_path / "missing")])
     assert exit_info.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "dataset root does not exist" in err[0]

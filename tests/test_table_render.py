@@ -3,12 +3,13 @@ and the axioms table render through it and read as the hand-built tables did."""
 
 from __future__ import annotations
 
+from lossvo import motion as motion_cli
 from lossvo.data import motion
 from lossvo.table_render import Rows, markdown
 
 
 def hand_built(head: list[str], rows: list[list[str]]) -> str:
-    """The markdown table as data/motion.py, synthetic/routes.py and geometry/axioms.py built it by hand."""
+    """The markdown table as the motion, route-family and axioms tables were built by hand."""
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     lines += ["| " + " | ".join(row) + " |" for row in rows]
     return "\n".join(lines)
@@ -30,4 +31,4 @@ def test_motion_table_is_unchanged() -> None:
         [["train", "0", "0.247", "0.370", "0.494", "0.617", "0.741", "0.864", "98.8 %", "1.1111", "1.2346",
           "1.3580", "1.4815", "1.6049"]],
     )  # fmt: skip
-    assert motion.markdown(rows) == expected
+    assert motion_cli.markdown(rows) == expected

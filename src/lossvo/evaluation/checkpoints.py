@@ -42,6 +42,11 @@ TRAINED_WITH = (
 """Data settings a trained network depends on (paths in the data config): evaluation takes them from its
 checkpoint."""
 
+SCHEMA_VERSION = 1
+"""The version of what a lossvo checkpoint holds beside Lightning's entries, written in it as
+``schema_version``; a checkpoint without one is read as this version (an earlier form of its ``data`` is
+upgraded: :func:`lossvo.data.transforms.upgrade_description`)."""
+
 RECORD_ONLY = ("statistics", "dataset_root", "intrinsics")
 """Entries of a checkpoint's ``data`` that describe the training data but are not datamodule arguments."""
 
@@ -86,8 +91,10 @@ class Description:
 
 
 def describe(checkpoint: dict[str, Any], data: dict[str, Any] | None) -> None:
-    """Record a :class:`Description`'s training data (``data``, where known) and this process's thread
-    count in a checkpoint being saved (Lightning records the configs, the epoch and the step)."""
+    """Record a :class:`Description`'s training data (``data``, where known), this process's thread
+    count and :data:`SCHEMA_VERSION` in a checkpoint being saved (Lightning records the configs, the
+    epoch and the step)."""
+    checkpoint["schema_version"] = SCHEMA_VERSION
     if data is not None:
         checkpoint["data"] = data
     checkpoint["threads"] = torch.get_num_threads()
@@ -122,7 +129,8 @@ def read(path: str | os.PathLike) -> dict[str, Any]:
     """The content of a lossvo checkpoint, loaded on the CPU with ``weights_only``.
 
     Raises:
-        CheckpointError: no such file, or not a (complete) lossvo checkpoint.
+        CheckpointError: no such file, not a (complete) lossvo checkpoint, or one of another
+            ``schema_version`` than :data:`SCHEMA_VERSION`.
     """
     path = Path(path).expanduser()
     if not path.is_file():
@@ -139,6 +147,10 @@ def read(path: str | os.PathLike) -> dict[str, Any]:
     if not complete:
         raise CheckpointError(f"{path}: cannot load as a lossvo checkpoint (no lossvo network, loss and "
                               f"weights in it)")  # fmt: skip
+    version = content.get("schema_version", SCHEMA_VERSION)
+    if version != SCHEMA_VERSION:
+        raise CheckpointError(f"{path}: checkpoint schema_version {version!r} is not supported "
+                              f"(supported: {SCHEMA_VERSION})")  # fmt: skip
     return content
 
 

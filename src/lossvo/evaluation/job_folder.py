@@ -36,6 +36,10 @@ LAST_CHECKPOINT = Path("checkpoints") / "last.ckpt"
 STATES = ("running", "completed", "failed", "interrupted")
 """What ``status.json`` says of a run."""
 
+STATUS_SCHEMA_VERSION = 1
+"""The version of ``status.json``'s fields, written in it as ``schema_version``; a file without one is read
+as this version."""
+
 
 class JobFolderError(UserError):
     """A ``status.json`` or ``metrics.csv`` that cannot be read; the message is one line,
@@ -160,18 +164,23 @@ class Status:
         return f"{self.signal or 'a signal'} during {where}"
 
     def to_json(self) -> dict[str, Any]:
-        """The file's object: ``status``, the fields that are set (``resume_from`` always for an
-        interrupted run), then ``history``."""
+        """The file's object: ``schema_version``, ``status``, the fields that are set (``resume_from``
+        always for an interrupted run), then ``history``."""
         obj = {_JSON_NAMES.get(f.name, f.name): getattr(self, f.name) for f in fields(self)}
         history = [e.to_json() for e in obj.pop("history")]
         kept = {k: v for k, v in obj.items() if v is not None}
         if self.state == "interrupted":
             kept["resume_from"] = self.resume_from
-        return {**kept, "history": history}
+        return {"schema_version": STATUS_SCHEMA_VERSION, **kept, "history": history}
 
     @classmethod
     def from_json(cls, obj: Any) -> Status:
         found = _from_json(cls, obj, "")
+        version = obj.get("schema_version", STATUS_SCHEMA_VERSION)
+        if version != STATUS_SCHEMA_VERSION:
+            raise UserError(
+                f"schema_version {version!r} is not supported (supported: {STATUS_SCHEMA_VERSION})"
+            )
         if found.get("state") not in STATES:
             raise UserError(f"expected 'status' to be one of {', '.join(STATES)}, got {obj.get('status')!r}")
         history = obj.get("history") or []

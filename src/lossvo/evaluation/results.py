@@ -530,9 +530,9 @@ class Results:
         obj = _object(obj, "")
         version = obj.get("schema_version")
         if version != SCHEMA_VERSION:
-            found = "no schema_version" if version is None else f"schema_version {version!r}"
+            found = "no schema_version" if version is None else f"schema_version {version!r} is not supported"
             raise _MalformedError(
-                f"{found}, expected {SCHEMA_VERSION}: evaluate the checkpoint again "
+                f"{found} (supported: {SCHEMA_VERSION}); evaluate the checkpoint again "
                 "(python -m lossvo.eval ckpt_path=...)"
             )
         sequences = _object(_field(obj, "sequences", ""), "sequences")

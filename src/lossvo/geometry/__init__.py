@@ -1,6 +1,6 @@
 """Batched SO(3) / SE(3) geometry: maps and conversions (:mod:`~lossvo.geometry.maps`), distances
-(:mod:`~lossvo.geometry.distances`) and the metric-axioms table (:mod:`~lossvo.geometry.axioms`,
-``python -m lossvo.geometry``). Conventions are stated in :mod:`lossvo.geometry.maps`.
+(:mod:`~lossvo.geometry.distances`) and the metric-axioms checks (:mod:`~lossvo.geometry.axioms`; their
+table: ``python -m lossvo.axioms``). Conventions are stated in :mod:`lossvo.geometry.maps`.
 """
 
 from lossvo.geometry.distances import (

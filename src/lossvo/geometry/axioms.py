@@ -5,8 +5,8 @@ A distance ``d`` on rotations is a metric when, for all rotations x, y, z: (1) `
 is used; (3) ``d(x, y) = d(y, x)``; (4) ``d(x, z) <= d(x, y) + d(y, z)``. Each axiom is checked in float64
 on seeded random rotations and on the triples where a failure shows first (midpoints of short and long
 geodesics, midpoints in the representation's own coordinates), the worst case kept as evidence.
-``python -m lossvo.geometry`` prints them as a table (:mod:`lossvo.geometry.__main__`; its copy and what it
-means: docs/losses.md).
+``python -m lossvo.axioms`` prints them as a table (:mod:`lossvo.axioms`; its copy and what it means:
+docs/losses.md).
 
 Closed forms in the relative angle ``theta`` in [0, pi]: ``min_b |q_a - b q_b| = 2 sin(theta / 4)``
 (from ``|q_a -+ q_b|^2 = 2 -+ 2 <q_a, q_b>``, ``|<q_a, q_b>| = cos(theta / 2)``) and

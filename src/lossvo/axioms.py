@@ -1,4 +1,4 @@
-"""``python -m lossvo.geometry``: which metric axioms each rotation distance satisfies, as the Markdown
+"""``python -m lossvo.axioms``: which metric axioms each rotation distance satisfies, as the Markdown
 table docs/losses.md shows (the checks: :mod:`lossvo.geometry.axioms`)."""
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ def markdown_table(results: dict[str, dict[str, Verdict]] | None = None) -> str:
 
 
 def main() -> None:
-    """Print the axioms table (``python -m lossvo.geometry``)."""
+    """Print the axioms table (``python -m lossvo.axioms``)."""
     print(markdown_table(), end="")
 
 
