@@ -24,8 +24,8 @@ import numpy as np
 from lossvo import table_render
 from lossvo.console import first_line
 from lossvo.evaluation import baselines
+from lossvo.evaluation.job_folder import Scores
 from lossvo.evaluation.metrics import AlignMode
-from lossvo.evaluation.results import Scores
 from lossvo.report.jobs import (
     RPE_ROT,
     RPE_TRANS,

@@ -26,8 +26,18 @@ from lossvo.checks import is_number
 from lossvo.console import UserError, first_line
 from lossvo.data.kitti import KittiFormatError, read_poses
 from lossvo.data.sequence import sequence_names
-from lossvo.evaluation.job_folder import METRICS, RESULTS, Curves, JobFolderError, read_metrics, read_status
-from lossvo.evaluation.results import TRANSLATION_METRIC, DataRecord, Results, ResultsError, Scores
+from lossvo.evaluation.job_folder import (
+    METRICS,
+    RESULTS,
+    TRANSLATION_METRIC,
+    Curves,
+    DataRecord,
+    JobFolderError,
+    Results,
+    Scores,
+    read_metrics,
+    read_status,
+)
 from lossvo.evaluation.trajectories import read_tum
 
 REPLICATE_KEY = "seed"
@@ -208,7 +218,7 @@ def load_job(path: Path) -> Job:
     if job.skip is None:
         try:
             job.results = Results.read(path / RESULTS)
-        except ResultsError as e:
+        except JobFolderError as e:
             job.skip = f"results.json: {e.reason}"
     if job.results is not None and job.results.translation != TRANSLATION_METRIC:
         job.notes.append(f"translation scored as {job.results.translation}: no metric scale, as ORB+E's")
