@@ -4,7 +4,7 @@ A Hydra multirun leaves one job folder per run, ``SWEEP_DIR/<num>_<overrides>/``
 into a :class:`Job` and never raises: what cannot be used is recorded in ``Job.skip`` (naming the file and
 why) or ``Job.notes``. ``status.json`` and ``metrics.csv`` are read through their contract
 (:mod:`lossvo.evaluation.job_folder`), ``results.json`` through its own
-(:class:`lossvo.evaluation.results.Results`); the data a job trained and was evaluated on comes from its
+(:class:`lossvo.evaluation.job_folder.Results`); the data a job trained and was evaluated on comes from its
 ``data`` record (:func:`trained_sequences`, :func:`unseen_sequences`, :func:`ground_truth`). The report never
 builds a datamodule.
 """
@@ -54,7 +54,7 @@ RPE_TRANS = ("rpe", "trans", "rmse")
 RPE_ROT = ("rpe", "rot_rad", "rmse")
 KITTI_T = ("kitti", "t_err_pct")
 KITTI_R = ("kitti", "r_err_deg_per_100m")
-"""Paths into a sequence's :class:`lossvo.evaluation.results.Scores` of the numbers the report reads:
+"""Paths into a sequence's :class:`lossvo.evaluation.job_folder.Scores` of the numbers the report reads:
 RMSEs in m and rad, the KITTI errors in % and deg/100 m (None where no 100 m segment exists)."""
 
 
