@@ -18,7 +18,6 @@ errors in % and deg per 100 m, null where no 100 m segment exists.
 from __future__ import annotations
 
 import csv
-import functools
 import io
 import json
 import math
@@ -133,11 +132,6 @@ def _value(kind: Any, value: Any, where: str, nullable: bool = False) -> Any:
     return float(value) if kind is float else value
 
 
-@functools.cache
-def _types(cls: type) -> dict[str, Any]:
-    return get_type_hints(cls)
-
-
 def _optional(f: Field) -> bool:
     """Whether a field's key may be missing from the file (it has a default, and is not ``required``)."""
     return not f.metadata.get("required") and (f.default is not MISSING or f.default_factory is not MISSING)
@@ -157,10 +151,10 @@ class Record:
         """The record in the JSON object ``obj`` at key path ``where`` (other keys are ignored); a missing
         key takes its field's default. ValueError, one line naming the key path, for a key that is missing
         or a value that does not fit its field's type."""
-        obj, values = _object(obj, where), {}
+        obj, values, types = _object(obj, where), {}, get_type_hints(cls)
         for f in fields(cls):  # type: ignore[arg-type]
             name, what, fits = f.metadata.get("key", f.name), f.metadata.get("what"), f.metadata.get("fits")
-            at, kind = _path(where, name), _types(cls)[f.name]
+            at, kind = _path(where, name), types[f.name]
             if "inline" in f.metadata:
                 values[f.name] = _value(kind, obj, where) if f.metadata["inline"] in obj else None
             elif name not in obj and not _optional(f):
@@ -173,7 +167,7 @@ class Record:
                         raise
                     raise _fail(at, what, obj[name]) from None
                 if fits is not None and obj[name] is not None and not fits(obj[name]):
-                    raise _fail(at, what, obj[name])
+                    raise _fail(at, str(what), obj[name])
         return cls(**values)
 
     def to_json(self) -> dict[str, Any]:
