@@ -18,7 +18,7 @@ from evo.core.trajectory import PosePath3D
 from lossvo.console import UserError
 from lossvo.data.sequence import Sequence
 from lossvo.evaluation import baselines
-from lossvo.evaluation.results import DataRecord, Scores
+from lossvo.evaluation.job_folder import DataRecord, Scores
 
 FRAMES, HEIGHT, WIDTH = 8, 64, 96
 P2 = np.array([[60.0, 0, WIDTH / 2, 0], [0, 60.0, HEIGHT / 2, 0], [0, 0, 1, 0]])
@@ -197,7 +197,7 @@ def test_the_cache_is_keyed_by_the_training_split_the_scoring_and_the_flow_setti
 
 
 def test_a_sequence_of_several_datasets_names_its_recorded_source(tmp_path: Path) -> None:
-    from lossvo.evaluation.results import MULTI_LAYOUT, SourceRecord
+    from lossvo.evaluation.job_folder import MULTI_LAYOUT, SourceRecord
 
     sources = {"car": SourceRecord("kitti", str(tmp_path), rendered=True)}
     for name in ("00", "drone/00"):  # no source named, or one not recorded

@@ -19,7 +19,7 @@ from scipy.stats import t as scipy_t
 from scipy.stats import wilcoxon
 
 from lossvo.console import UserError
-from lossvo.evaluation.results import (
+from lossvo.evaluation.job_folder import (
     DataRecord,
     KittiError,
     LossRecord,

@@ -14,7 +14,7 @@ import torch
 from helpers import check_ape_against_evo, eval_main, fit
 from lossvo.data import synthetic
 from lossvo.evaluation import baselines
-from lossvo.evaluation.results import DataRecord
+from lossvo.evaluation.job_folder import DataRecord
 from test_train import compose_train, tiny_overrides
 
 LAYOUTS = ("tum", "euroc", "tartanair", "mimir")
@@ -225,7 +225,7 @@ def test_baselines_read_other_layouts_at_the_networks_frame_rate(tmp_path: Path)
     rotation better than standing still, and worse when the distortion is ignored."""
     from lossvo.data import euroc
     from lossvo.evaluation import baselines
-    from lossvo.evaluation.results import DataRecord
+    from lossvo.evaluation.job_folder import DataRecord
 
     train, test = (synthetic.sequence_name("euroc", s) for s in ("00", "01"))
     root = str(

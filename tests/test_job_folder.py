@@ -62,7 +62,7 @@ NUMBERS = "an object of numbers"
         ('{"status": "running", "history": [{"time": "now"}]}', "history[0]: expected an 'event'"),
         (
             '{"status": "running", "history": [{"event": "x", "epoch": true}]}',
-            "history[0]: epoch: expected an integer, got True",
+            "history[0]: epoch: expected an integer or null, got True",
         ),
         ('{"schema_version": 2, "status": "running"}', "schema_version 2 is not supported (supported: 1)"),
         (

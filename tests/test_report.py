@@ -30,15 +30,15 @@ from scipy.stats import ttest_1samp, wilcoxon
 
 from conftest import STUDY_LOSSES, STUDY_SEEDS, STUDY_SEQUENCES
 from lossvo.console import UserError
-from lossvo.evaluation.results import (
+from lossvo.evaluation.job_folder import (
     SCHEMA_VERSION,
     DataRecord,
+    JobFolderError,
     KittiError,
     LossRecord,
     Overall,
     PoseErrors,
     Results,
-    ResultsError,
     Scores,
     SequenceResult,
     Statistics,
@@ -871,21 +871,35 @@ def contract_example(root: Path) -> Results:
 
 
 def test_results_csv_is_the_same_scores_as_a_tidy_table(tmp_path: Path) -> None:
-    """One row per scored sequence and overall × metric × part × statistic, equal to results.json's."""
+    """One row per scored sequence and overall × metric × part × statistic, each once, equal to
+    results.json's; both written atomically (no temporary file left)."""
     results = contract_example(tmp_path)
-    results.write(tmp_path / "results.json")
-    content = json.loads((tmp_path / "results.json").read_text())
-    with (tmp_path / "results.csv").open(newline="") as f:
+    scaled = replace(entry(0.1, 0.01), rpe_scaled=entry(0.4, 0.04).rpe)
+    results = replace(
+        results, sequences={**results.sequences, "01": replace(results.sequences["01"], scores=scaled)}
+    )
+    results.write(tmp_path / "run" / "results.json")
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["results.csv", "results.json"]
+    content = json.loads((tmp_path / "run" / "results.json").read_text())
+    with (tmp_path / "run" / "results.csv").open(newline="") as f:
         rows = list(csv.DictReader(f))
     assert list(rows[0]) == ["sequence", "metric", "part", "statistic", "value"]
-    assert {r["sequence"] for r in rows} == {"01", "02", "overall"}  # 11 has no ground truth
+    keys = [(r["sequence"], r["metric"], r["part"], r["statistic"]) for r in rows]
+    expected = []
+    for name, where in [*content["sequences"].items(), ("overall", content["overall"])]:
+        for metric in ("ape", "rpe", "rpe_scaled"):
+            expected += [
+                (name, metric, part, stat) for part, stats in where.get(metric, {}).items() for stat in stats
+            ]
+        if "kitti" in where:
+            expected += [(name, "kitti", part, "mean") for part in ("t_err_pct", "r_err_deg_per_100m")]
+    assert len(set(keys)) == len(keys) == 3 * 12 + 2 + 2 * (2 * 12 + 2) and sorted(keys) == sorted(expected)
+    assert {key[0] for key in keys} == {"01", "02", "overall"}  # 11 has no ground truth
     for r in rows:
         where = content["overall"] if r["sequence"] == "overall" else content["sequences"][r["sequence"]]
         scores = where[r["metric"]]
         value = scores[r["part"]] if r["metric"] == "kitti" else scores[r["part"]][r["statistic"]]
         assert (None if r["value"] == "" else float(r["value"])) == value, r
-    per_sequence = 2 * 2 * 6 + 2  # APE and RPE, trans and rot, six statistics; KITTI's two
-    assert len(rows) >= 3 * per_sequence
     assert [r["value"] for r in rows if r["sequence"] == "02" and r["metric"] == "kitti"] == ["", ""]
 
 
@@ -997,7 +1011,7 @@ def test_each_bad_results_json_is_one_line_naming_the_file_and_the_problem(
         path.write_text(json.dumps(content)[:-40])
     elif damage != "missing":
         path.write_text(json.dumps(damaged(content, damage)))
-    with pytest.raises(ResultsError) as caught:
+    with pytest.raises(JobFolderError) as caught:
         Results.read(path)
     message = str(caught.value)
     assert isinstance(caught.value, UserError) and len(message.splitlines()) == 1

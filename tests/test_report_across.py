@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from lossvo.evaluation import baselines
-from lossvo.evaluation.results import Overall
+from lossvo.evaluation.job_folder import Overall
 from lossvo.report.document import make_report
 from test_report import data_record, entry, results_json, write_job
 
@@ -151,7 +151,7 @@ def test_a_network_trained_on_several_datasets_gets_baselines_on_each_set_of_seq
     TUM-layout sequences one at a time: each set of sequences is followed by baselines computed on it, the
     mean motion that of every training sequence of both sources."""
     from lossvo.data.synthetic.writer import generate
-    from lossvo.evaluation.results import MULTI_LAYOUT, SourceRecord
+    from lossvo.evaluation.job_folder import MULTI_LAYOUT, SourceRecord
 
     car = generate(tmp_path / "car", ["00", "07"], frames=20, height=48, width=160, progress=False)
     hand = generate(

@@ -22,7 +22,7 @@ from omegaconf import OmegaConf
 from scipy.stats import permutation_test
 
 from lossvo.evaluation import baselines
-from lossvo.evaluation.results import (
+from lossvo.evaluation.job_folder import (
     DataRecord,
     KittiError,
     LossRecord,
@@ -32,7 +32,7 @@ from lossvo.evaluation.results import (
     Scores,
     SequenceResult,
 )
-from lossvo.evaluation.results import Statistics as ErrorStatistics
+from lossvo.evaluation.job_folder import Statistics as ErrorStatistics
 from lossvo.report import statistics
 from lossvo.report.across_datasets import Evaluation
 from lossvo.report.against_baselines import BaselineRun, learning_markdown, unseen_markdown

@@ -14,7 +14,8 @@ import torch
 from lossvo import geometry as g
 from lossvo.data.datamodules import VODataModule
 from lossvo.evaluation import metrics
-from lossvo.evaluation.results import PooledScores, Results, ResultsError, evaluate_run
+from lossvo.evaluation.job_folder import JobFolderError, Results
+from lossvo.evaluation.results import PooledScores, evaluate_run
 from lossvo.evaluation.trajectories import integrate
 from lossvo.losses import EulerLoss
 from test_eval import PairStub
@@ -107,7 +108,7 @@ def test_a_wrong_metric_scale_value_names_its_key(tmp_path: Path) -> None:
     name = next(iter(content["sequences"]))
     content["sequences"][name]["metric_scale"] = "yes"
     path.write_text(json.dumps(content))
-    with pytest.raises(ResultsError, match=f"sequences.{name}.metric_scale"):
+    with pytest.raises(JobFolderError, match=f"sequences.{name}.metric_scale"):
         Results.read(path)
 
 

@@ -15,7 +15,7 @@ import pytest
 from scipy.stats import norm, permutation_test, ttest_1samp, wilcoxon
 from scipy.stats import t as scipy_t
 
-from lossvo.evaluation.results import KittiError, PoseErrors, Scores, Statistics
+from lossvo.evaluation.job_folder import KittiError, PoseErrors, Scores, Statistics
 from lossvo.report import statistics
 from lossvo.report.claims import seeds_needed_text, undecidable
 from lossvo.report.comparison import compare, comparison_csv_rows

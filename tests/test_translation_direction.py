@@ -22,14 +22,8 @@ from lossvo import geometry as g
 from lossvo.console import UserError
 from lossvo.data.kitti import read_poses
 from lossvo.evaluation.checkpoints import load_network
-from lossvo.evaluation.results import (
-    TRANSLATION_METRIC,
-    TRANSLATION_SCALED,
-    PooledScores,
-    Results,
-    ResultsError,
-    predict_and_score,
-)
+from lossvo.evaluation.job_folder import TRANSLATION_METRIC, TRANSLATION_SCALED, JobFolderError, Results
+from lossvo.evaluation.results import PooledScores, predict_and_score
 from lossvo.evaluation.trajectories import integrate, scale_steps
 from lossvo.losses import DIRECTION_WEIGHT_M2, MIN_STEP_M, EulerLoss, PoseLoss
 from test_eval import PairStub, _float
@@ -297,11 +291,11 @@ def test_results_json_records_and_checks_the_translation(tmp_path: Path) -> None
     content = json.loads(path.read_text())
     content["translation"] = "direction"
     path.write_text(json.dumps(content))
-    with pytest.raises(ResultsError, match=r"translation: expected 'metric' or 'direction \(scaled"):
+    with pytest.raises(JobFolderError, match=r"translation: expected 'metric' or 'direction \(scaled"):
         Results.read(path)
     del content["translation"]
     path.write_text(json.dumps(content))
-    with pytest.raises(ResultsError, match="translation is missing"):
+    with pytest.raises(JobFolderError, match="translation is missing"):
         Results.read(path)
 
 

@@ -38,8 +38,9 @@ from lossvo.console import (
 from lossvo.data.sequence import sequence_names
 from lossvo.data.specs import refusing_flat_keys
 from lossvo.evaluation import checkpoints
+from lossvo.evaluation.job_folder import Results
 from lossvo.evaluation.metrics import ALIGN_MODES, is_rpe_delta
-from lossvo.evaluation.results import Results, evaluate_run
+from lossvo.evaluation.results import evaluate_run
 from lossvo.processes import restore_start_method
 from lossvo.training.config_checks import (
     check_added_keys,

@@ -30,7 +30,7 @@ from lossvo.data.sequence import Sequence as DatasetSequence
 from lossvo.data.sequence import png_size
 from lossvo.data.synthetic import layouts as synthetic_layouts
 from lossvo.evaluation import metrics
-from lossvo.evaluation.results import MULTI_LAYOUT, DataRecord, Scores, SourceRecord
+from lossvo.evaluation.job_folder import MULTI_LAYOUT, DataRecord, Scores, SourceRecord
 from lossvo.geometry import camera
 
 log = logging.getLogger("lossvo")

@@ -22,8 +22,8 @@ import numpy as np
 
 from lossvo.console import first_line
 from lossvo.evaluation import baselines
+from lossvo.evaluation.job_folder import MULTI_LAYOUT, DataRecord, JobFolderError, Results, Scores
 from lossvo.evaluation.metrics import AlignMode
-from lossvo.evaluation.results import MULTI_LAYOUT, DataRecord, Results, ResultsError, Scores
 from lossvo.report.jobs import Job
 from lossvo.table_render import Rows
 
@@ -82,7 +82,7 @@ def find_evaluations(sweep: Path, jobs: Sequence[Job]) -> tuple[list[Evaluation]
     for path in sorted(folder.rglob("results.json")) if folder.is_dir() else []:
         try:
             results = Results.read(path)
-        except ResultsError as e:
+        except JobFolderError as e:
             notes.append(str(e))
             continue
         checkpoint = Path(results.checkpoint) if results.checkpoint else None

@@ -4,10 +4,10 @@ sequences (:func:`learning_markdown`), below zero motion in rotation and below t
 motion in translation on the unseen-motion sequences (:func:`unseen_markdown`).
 
 The baselines of a sequence use the data that the results.json of a job which evaluated it records (its
-:class:`lossvo.evaluation.results.DataRecord`): the included jobs are grouped by their data, and each group's
-first job gives the baselines of the sequences its group evaluated (a sequence two groups evaluated takes the
-first group's, with a note). Where a group's data is no longer on disk, its sequences have no baseline and one
-note says why.
+:class:`lossvo.evaluation.job_folder.DataRecord`): the included jobs are grouped by their data, and each
+group's first job gives the baselines of the sequences its group evaluated (a sequence two groups evaluated
+takes the first group's, with a note). Where a group's data is no longer on disk, its sequences have no
+baseline and one note says why.
 """
 
 from __future__ import annotations
@@ -24,8 +24,8 @@ import numpy as np
 from lossvo import table_render
 from lossvo.console import first_line
 from lossvo.evaluation import baselines
+from lossvo.evaluation.job_folder import Scores
 from lossvo.evaluation.metrics import AlignMode
-from lossvo.evaluation.results import Scores
 from lossvo.report.jobs import (
     RPE_ROT,
     RPE_TRANS,

@@ -4,7 +4,7 @@ A Hydra multirun leaves one job folder per run, ``SWEEP_DIR/<num>_<overrides>/``
 into a :class:`Job` and never raises: what cannot be used is recorded in ``Job.skip`` (naming the file and
 why) or ``Job.notes``. ``status.json`` and ``metrics.csv`` are read through their contract
 (:mod:`lossvo.evaluation.job_folder`), ``results.json`` through its own
-(:class:`lossvo.evaluation.results.Results`); the data a job trained and was evaluated on comes from its
+(:class:`lossvo.evaluation.job_folder.Results`); the data a job trained and was evaluated on comes from its
 ``data`` record (:func:`trained_sequences`, :func:`unseen_sequences`, :func:`ground_truth`). The report never
 builds a datamodule.
 """
@@ -26,8 +26,18 @@ from lossvo.checks import is_number
 from lossvo.console import UserError, first_line
 from lossvo.data.kitti import KittiFormatError, read_poses
 from lossvo.data.sequence import sequence_names
-from lossvo.evaluation.job_folder import METRICS, RESULTS, Curves, JobFolderError, read_metrics, read_status
-from lossvo.evaluation.results import TRANSLATION_METRIC, DataRecord, Results, ResultsError, Scores
+from lossvo.evaluation.job_folder import (
+    METRICS,
+    RESULTS,
+    TRANSLATION_METRIC,
+    Curves,
+    DataRecord,
+    JobFolderError,
+    Results,
+    Scores,
+    read_metrics,
+    read_status,
+)
 from lossvo.evaluation.trajectories import read_tum
 
 REPLICATE_KEY = "seed"
@@ -44,7 +54,7 @@ RPE_TRANS = ("rpe", "trans", "rmse")
 RPE_ROT = ("rpe", "rot_rad", "rmse")
 KITTI_T = ("kitti", "t_err_pct")
 KITTI_R = ("kitti", "r_err_deg_per_100m")
-"""Paths into a sequence's :class:`lossvo.evaluation.results.Scores` of the numbers the report reads:
+"""Paths into a sequence's :class:`lossvo.evaluation.job_folder.Scores` of the numbers the report reads:
 RMSEs in m and rad, the KITTI errors in % and deg/100 m (None where no 100 m segment exists)."""
 
 
@@ -208,7 +218,7 @@ def load_job(path: Path) -> Job:
     if job.skip is None:
         try:
             job.results = Results.read(path / RESULTS)
-        except ResultsError as e:
+        except JobFolderError as e:
             job.skip = f"results.json: {e.reason}"
     if job.results is not None and job.results.translation != TRANSLATION_METRIC:
         job.notes.append(f"translation scored as {job.results.translation}: no metric scale, as ORB+E's")

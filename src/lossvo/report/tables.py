@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lossvo import table_render
-from lossvo.evaluation.results import Scores
+from lossvo.evaluation.job_folder import Scores
 from lossvo.report.jobs import APE_ROT, APE_TRANS, KITTI_R, KITTI_T, RPE_ROT, RPE_TRANS, Job, metric_value
 from lossvo.table_render import Rows
 
