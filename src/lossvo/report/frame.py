@@ -8,15 +8,14 @@ group-bys and pivots of it (:func:`metric_matrix`, :func:`lossvo.report.tables.b
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from lossvo.report.jobs import APE_ROT, APE_TRANS, KITTI_R, KITTI_T, RPE_ROT, RPE_TRANS, metric_value
-
-if TYPE_CHECKING:
-    from lossvo.report.tables import Column
+from lossvo.evaluation.results import Scores
+from lossvo.report.jobs import APE_ROT, APE_TRANS, KITTI_R, KITTI_T, RPE_ROT, RPE_TRANS, Job, metric_value
 
 METRICS = (APE_TRANS, APE_ROT, RPE_TRANS, RPE_ROT, KITTI_T, KITTI_R)
 """The metrics a results frame holds: paths into a sequence's scores (m, rad, %, deg/100 m)."""
@@ -24,6 +23,25 @@ CHOICE = "choice."
 """The prefix of a results frame's config-choice columns (``choice.loss``)."""
 FIELDS = ("column", "kind", "replicate", "position", "job", "seed", "architecture", "data")
 """The identifying columns of a results frame; ``position`` is the replicate's index in its column."""
+
+
+@dataclass
+class Column:
+    """One compared configuration (network) or baseline: its replicates' per-sequence metrics.
+
+    ``results[i]`` is ``{sequence: Scores}`` (results.json's scores) of replicate ``i`` (a seed),
+    ``replicates[i]`` its name; ``kind`` is :data:`lossvo.report.tables.NETWORK` or
+    :data:`~lossvo.report.tables.BASELINE`; ``jobs`` are a network's
+    job folders in replicate order (none for a baseline); ``architecture`` a network's architecture
+    (:attr:`lossvo.report.jobs.Job.architecture`; None for a baseline or where unknown).
+    """
+
+    label: str
+    kind: str
+    replicates: list[str]
+    results: list[dict[str, Scores]]
+    jobs: list[Job] = field(default_factory=list)
+    architecture: str | None = None
 
 
 def metric_name(path: Sequence[str]) -> str:

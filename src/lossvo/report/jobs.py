@@ -165,7 +165,7 @@ def parse_overrides(items: Sequence[str]) -> dict[str, str]:
     from hydra.core.override_parser.overrides_parser import OverridesParser
 
     parsed = OverridesParser.create().parse_overrides([str(item) for item in items])
-    return {o.get_key_element().lstrip("+"): o.input_line.partition("=")[2].strip() for o in parsed}
+    return {o.get_key_element().lstrip("+"): str(o.input_line).partition("=")[2].strip() for o in parsed}
 
 
 def read_overrides(path: Path) -> dict[str, str]:

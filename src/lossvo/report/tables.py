@@ -1,9 +1,9 @@
 """Tables of a sweep report: per-sequence metric tables and their text forms.
 
-A :class:`Column` is one compared configuration (its seeds) or one baseline; :func:`build_table` fills a
-:class:`Table` of :data:`TABLES` with mean ± sample std over seeds per sequence plus a mean row, and bolds
-the minimum of each row; :func:`table_markdown`, :func:`table_csv` and :func:`table_latex` give its text
-(:mod:`lossvo.table_render`).
+A :class:`~lossvo.report.frame.Column` is one compared configuration (its seeds) or one baseline;
+:func:`build_table` fills a :class:`Table` of :data:`TABLES` with mean ± sample std over seeds per sequence
+plus a mean row, and bolds the minimum of each row; :func:`table_markdown`, :func:`table_csv` and
+:func:`table_latex` give its text (:mod:`lossvo.table_render`).
 A row may carry a note (e.g. ``unseen motion``): in markdown and LaTeX it follows the sequence name in
 parentheses, in CSV it has its own last column, so the ``sequence`` column stays the bare name.
 Units are those of the metrics: m and rad for APE / RPE, % and deg/100 m for the KITTI errors.
@@ -19,31 +19,12 @@ import numpy as np
 import pandas as pd
 
 from lossvo import table_render
-from lossvo.evaluation.results import Scores
-from lossvo.report.frame import metric_matrix, results_frame
-from lossvo.report.jobs import APE_ROT, APE_TRANS, KITTI_R, KITTI_T, RPE_ROT, RPE_TRANS, Job
+from lossvo.report.frame import Column, metric_matrix, results_frame
+from lossvo.report.jobs import APE_ROT, APE_TRANS, KITTI_R, KITTI_T, RPE_ROT, RPE_TRANS
 from lossvo.table_render import Rows
 
 NETWORK, BASELINE = "network", "baseline"
 MEAN_ROW = "mean"
-
-
-@dataclass
-class Column:
-    """One compared configuration (network) or baseline: its replicates' per-sequence metrics.
-
-    ``results[i]`` is ``{sequence: Scores}`` (results.json's scores) of replicate ``i`` (a seed),
-    ``replicates[i]`` its name; ``kind`` is :data:`NETWORK` or :data:`BASELINE`; ``jobs`` are a network's
-    job folders in replicate order (none for a baseline); ``architecture`` a network's architecture
-    (:attr:`lossvo.report.jobs.Job.architecture`; None for a baseline or where unknown).
-    """
-
-    label: str
-    kind: str
-    replicates: list[str]
-    results: list[dict[str, Scores]]
-    jobs: list[Job] = field(default_factory=list)
-    architecture: str | None = None
 
 
 # --------------------------------------------------------------------------------------------------
