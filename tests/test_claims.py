@@ -448,6 +448,18 @@ def test_claims_cannot_be_tested_without_a_chordal_configuration() -> None:
     assert [r["verdict"] for r in rows] == ["cannot be tested"] * 2
 
 
+def test_the_claimed_loss_is_a_setting_named_in_the_rule() -> None:
+    columns = sweep_columns(-0.5, seeds=10)
+    a, b = study_claims(columns, convergence(columns), SEQUENCES, claimed_loss="EulerLoss")
+    assert (a.configuration, b.configuration) == ("loss=chordal", "loss=chordal")  # the EulerLoss one
+    assert a.verdict == statistics.REFUTED  # the ChordalLoss configuration is lower on every seed
+    assert "`loss._target_` class `EulerLoss`" in claims_markdown([a, b])
+    default = study_claims(columns, convergence(columns), SEQUENCES)
+    assert "`loss._target_` class `ChordalLoss`" in claims_markdown(default)
+    absent = study_claims(columns, convergence(columns), SEQUENCES, claimed_loss="QuatLoss")
+    assert all(c.untested and "loss._target_ QuatLoss" in c.untested for c in absent)
+
+
 def test_claims_csv_has_a_row_per_test_and_one_per_claim() -> None:
     columns = sweep_columns(-0.5)
     found = study_claims(columns, convergence(columns), SEQUENCES)

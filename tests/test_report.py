@@ -47,7 +47,7 @@ from lossvo.report.against_baselines import BaselineRun, data_groups
 from lossvo.report.cli import main
 from lossvo.report.configurations import label_jobs, varying_keys
 from lossvo.report.document import make_report
-from lossvo.report.jobs import Job, ground_truth, parse_override, read_curves
+from lossvo.report.jobs import Job, ground_truth, parse_overrides, read_curves
 from lossvo.report.tables import BASELINE, Column
 
 LOSSES = STUDY_LOSSES
@@ -322,7 +322,7 @@ def test_single_seed_says_no_seed_noise_estimate(sweep: Path, tmp_path: Path) ->
 
 def test_columns_are_named_by_the_overrides_that_differ() -> None:
     def job(*overrides: str) -> Job:
-        return Job(Path("job"), overrides=dict(parse_override(o) for o in overrides))
+        return Job(Path("job"), overrides=parse_overrides(overrides))
 
     jobs = [job("loss=chordal", "loss.k=50", "seed=0", "trainer.max_epochs=3"),
             job("loss=chordal", "loss.k=100", "seed=0", "trainer.max_epochs=3"),
@@ -337,7 +337,7 @@ def test_columns_are_named_by_the_overrides_that_differ() -> None:
 
 def test_settings_of_each_training_data_do_not_name_configurations() -> None:
     def job(*overrides: str) -> Job:
-        parsed = dict(parse_override(o) for o in overrides)
+        parsed = parse_overrides(overrides)
         return Job(Path("job"), overrides=parsed, data=parsed.get("data"))
 
     mix, car = ("data=mix", "data.sources.drone.root=/d"), ("data=synthetic",)

@@ -47,7 +47,8 @@ from lossvo.report.configurations import (
 )
 from lossvo.report.convergence import convergence
 from lossvo.report.document import make_report
-from lossvo.report.jobs import Job, read_architecture
+from lossvo.report.frame import METRICS, metric_matrix, results_frame
+from lossvo.report.jobs import APE_TRANS, KITTI_T, Job, read_architecture, read_choices
 from lossvo.report.tables import BASELINE, NETWORK, Column
 
 # --------------------------------------------------------------------------------------------------
@@ -144,11 +145,12 @@ def test_the_architecture_is_the_model_choice_else_the_override_else_the_class(t
         yaml.safe_dump({"hydra": {"runtime": {"choices": {"model": "flowvo", "loss": "euler"}}}})
     )
     config = OmegaConf.create({"model": {"_target_": "lossvo.models.DeepVO"}})
-    assert read_architecture(hydra, {"model": "deepvo_small"}, config) == "flowvo"
-    assert read_architecture(tmp_path / "none.yaml", {"model": "deepvo_small"}, config) == "deepvo_small"
+    assert read_architecture(read_choices(hydra, {"model": "deepvo_small"}), config) == "flowvo"
+    none = tmp_path / "none.yaml"
+    assert read_architecture(read_choices(none, {"model": "deepvo_small"}), config) == "deepvo_small"
     hydra.write_text("hydra: [unclosed")
-    assert read_architecture(hydra, {}, config) == "DeepVO"
-    assert read_architecture(hydra, {}, OmegaConf.create({})) is None
+    assert read_architecture(read_choices(hydra, {}), config) == "DeepVO"
+    assert read_architecture(read_choices(hydra, {}), OmegaConf.create({})) is None
     assert [architecture_file_name(a) for a in ("flowvo", "custom/net v2", "?")] == [
         "flowvo", "custom-net-v2", "unknown"]  # fmt: skip
 
@@ -228,6 +230,26 @@ def test_rankings_and_interaction_of_hand_made_configurations(flowvo_reversed: b
     assert re.search(r"F = \S+, p = 0\.0278 < 0\.05" if flowvo_reversed else r"p = \S+ ≥ 0\.05\.$", line), (
         line
     )
+
+
+def test_the_results_frame_holds_every_replicates_metrics_and_config_choices() -> None:
+    columns = hand_columns(flowvo_reversed=False)
+    for column in columns:
+        for job in column.jobs:
+            job.choices = {**job.overrides, "data": "synthetic"}
+    zero = Column(baselines.ZERO, BASELINE, ["deterministic"], [{"03": scores(10.0)}])
+    frame = results_frame([*columns, zero])
+    assert len(frame) == (len(columns) * 3 * 3 + 1) * len(METRICS)  # seeds × sequences, then the baseline
+    euler = frame[(frame["column"] == "model=flowvo,loss=euler") & (frame["metric"] == "ape.trans.rmse")]
+    assert set(euler["choice.model"]) == {"flowvo"} and set(euler["choice.data"]) == {"synthetic"}
+    assert list(euler["seed"].unique()) == [0, 1, 2] and set(euler["job"]) == {
+        f"flowvo-euler-{s}" for s in range(3)
+    }
+    assert frame.loc[frame["kind"] == BASELINE, "choice.loss"].isna().all()
+    matrix = metric_matrix(frame, columns[0], APE_TRANS, ["02", "03", "99"])  # (seeds, sequences)
+    expected = [[s.ape.trans.rmse for s in (r["02"], r["03"])] for r in columns[0].results]
+    assert np.array_equal(matrix[:, :2], expected) and np.isnan(matrix[:, 2]).all()
+    assert np.isnan(metric_matrix(frame, zero, KITTI_T, ["03"])).all()  # no 100 m segment: NaN
 
 
 def test_a_configuration_missing_in_one_architecture_is_left_out_and_one_in_common_cannot_be_tested() -> None:

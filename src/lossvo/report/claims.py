@@ -25,6 +25,8 @@ from lossvo.report.tables import NETWORK, Cell, Column, fmt, mean_std_text, seed
 from lossvo.table_render import Rows, prepend_column
 
 CLAIMED_LOSS = "ChordalLoss"
+"""The default claimed loss: the class name of ``loss._target_`` whose configurations the claims are
+about (``python -m lossvo.report --claimed-loss``)."""
 CLAIM_ERRORS = (
     ("RPE trans RMSE [m]", RPE_TRANS),
     ("RPE rot RMSE [rad]", RPE_ROT),
@@ -56,7 +58,7 @@ class Claim:
     measured numbers ``{label: {quantity: Cell over seeds}}``, the tests per quantity, the overall
     verdict, the sentences saying why its n cannot decide (``undecidable``; empty where it can) and
     notes. ``untested`` says why there are no tests (then ``verdict`` is empty); ``sequences``: claim (a)'s
-    held-out sequences, whose per-seed mean is a seed's value.
+    held-out sequences, whose per-seed mean is a seed's value; ``claimed_loss``: the loss class claimed.
     ``architecture``: the architecture it was tested within (:func:`claims_by_architecture`), else None."""
 
     statement: str
@@ -71,15 +73,16 @@ class Claim:
     untested: str | None = None
     architecture: str | None = None
     undecidable: list[str] = field(default_factory=list)
+    claimed_loss: str = CLAIMED_LOSS
 
 
-def is_claimed(column: Column) -> bool:
-    """Whether a network column is a chordal configuration: every job's ``loss._target_`` class is
-    :data:`CLAIMED_LOSS`."""
+def is_claimed(column: Column, claimed_loss: str = CLAIMED_LOSS) -> bool:
+    """Whether a network column is a claimed configuration: every job's ``loss._target_`` class is
+    ``claimed_loss``."""
     return (
         column.kind == NETWORK
         and bool(column.jobs)
-        and all(loss_class_name(j) == CLAIMED_LOSS for j in column.jobs)
+        and all(loss_class_name(j) == claimed_loss for j in column.jobs)
     )
 
 
@@ -232,15 +235,17 @@ def study_claims(
     items: Sequence[Convergence],
     sequences: Sequence[str],
     margin: float = statistics.MARGIN,
+    claimed_loss: str = CLAIMED_LOSS,
 ) -> list[Claim]:
-    """Claims (a) and (b) for every chordal configuration against all non-chordal ones (an untested
-    claim says why: no chordal configuration, nothing to compare with, no held-out sequence)."""
+    """Claims (a) and (b) for every configuration of ``claimed_loss`` (a ``loss._target_`` class name)
+    against all others (an untested claim says why: no claimed configuration, nothing to compare with,
+    no held-out sequence)."""
     networks = [c for c in columns if c.kind == NETWORK]
-    claimed = [c for c in networks if is_claimed(c)]
-    others = [c for c in networks if not is_claimed(c)]
+    claimed = [c for c in networks if is_claimed(c, claimed_loss)]
+    others = [c for c in networks if not is_claimed(c, claimed_loss)]
     if not claimed:
-        reason = f"the sweep has no chordal configuration (no job with loss._target_ {CLAIMED_LOSS})"
-        return [Claim(s, "", untested=reason) for s in (CLAIM_A, CLAIM_B)]
+        reason = f"the sweep has no chordal configuration (no job with loss._target_ {claimed_loss})"
+        return [Claim(s, "", untested=reason, claimed_loss=claimed_loss) for s in (CLAIM_A, CLAIM_B)]
     train = training_sequences(networks)
     heldout = [s for s in sequences if s not in train]
     by_label = {c.label: c for c in items}
@@ -255,6 +260,8 @@ def study_claims(
         else:
             a = Claim(CLAIM_A, column.label, untested="no evaluated sequence is outside the training split")
         out += [a, convergence_claim(by_label[column.label], [by_label[o.label] for o in others], margin)]
+    for claim in out:
+        claim.claimed_loss = claimed_loss
     return out
 
 
@@ -263,15 +270,17 @@ def claims_by_architecture(
     items: Sequence[Convergence],
     sequences: Sequence[str],
     margin: float = statistics.MARGIN,
+    claimed_loss: str = CLAIMED_LOSS,
 ) -> list[Claim]:
-    """:func:`study_claims` within each architecture (its chordal configurations against its other
+    """:func:`study_claims` within each architecture (its claimed configurations against its other
     configurations, on the sequences they evaluated), architecture by architecture, each claim naming its
     architecture."""
     out = []
     for architecture, group in architecture_groups(columns).items():
         labels = {c.label for c in group}
         own = evaluated_by(group, sequences)
-        for claim in study_claims(group, [i for i in items if i.label in labels], own, margin):
+        kept = [i for i in items if i.label in labels]
+        for claim in study_claims(group, kept, own, margin, claimed_loss):
             claim.architecture = architecture
             out.append(claim)
     return out
@@ -282,14 +291,15 @@ def claims_by_architecture(
 # --------------------------------------------------------------------------------------------------
 
 
-def claims_rule(margin: float = statistics.MARGIN) -> str:
-    """How a claim is decided, in the report's words, with the equivalence margin ``margin``."""
+def claims_rule(margin: float = statistics.MARGIN, claimed_loss: str = CLAIMED_LOSS) -> str:
+    """How a claim is decided, in the report's words, with the equivalence margin ``margin`` and the
+    claimed loss class ``claimed_loss``."""
     alpha, delta, level = statistics.ALPHA, f"{100 * margin:g} %", 1 - 2 * statistics.ALPHA
     parts = [
         "Rule (`lossvo.report.statistics`): seeds are the unit, since the sequences of one seed share one",
         "trained network. A seed's value is its mean over the evaluated sequences outside the training",
         "split (`data.splits.train`) for claim (a), its convergence epoch (*Convergence*) for claim (b); the",
-        f"chordal configuration (`loss._target_` class `{CLAIMED_LOSS}`) is paired by seed with every other",
+        f"chordal configuration (`loss._target_` class `{claimed_loss}`) is paired by seed with every other",
         "configuration, and each pair is judged on its n per-seed relative differences",
         f"r = (chordal − other) / other. **{statistics.EQUIVALENT} within ±{delta}**: the {100 * level:g} %",
         f"t-interval of the mean of r (`scipy.stats.ttest_1samp(r).confidence_interval({level:g})`) lies",
@@ -476,7 +486,7 @@ def answer_rows(items: Sequence[Claim]) -> Rows:
 def claims_markdown(items: Sequence[Claim], by_architecture: bool = False) -> str:
     """The rule and every claim; with ``by_architecture`` a subsection per architecture."""
     letters = {CLAIM_A: "a", CLAIM_B: "b"}
-    rule = claims_rule(items[0].margin if items else statistics.MARGIN)
+    rule = claims_rule(*((items[0].margin, items[0].claimed_loss) if items else ()))
     answer = answer_rows(items)
     head = (
         [rule, f"The answer, comparison by comparison:\n\n{table_render.markdown(answer)}"]

@@ -6,6 +6,7 @@ Command line::
     python -m lossvo.report --latest outputs/multirun          # the newest sweep under that folder
     python -m lossvo.report SWEEP_DIR --out DIR --no-baselines
     python -m lossvo.report SWEEP_DIR --margin 0.02        # equivalence within ±2 % (default 5 %)
+    python -m lossvo.report SWEEP_DIR --claimed-loss QuatLoss  # the claims about QuatLoss's configurations
 
 It prints the path of ``report.md``. A folder that is not a sweep, a bad option or an ``--out`` that is a
 file is a one-line error, exit status 2 (``LOSSVO_FULL_ERROR=1``: its traceback instead).
@@ -22,6 +23,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from lossvo.console import OneLineParser, UserError, emit, one_line_main
+from lossvo.report.claims import CLAIMED_LOSS
 from lossvo.report.document import make_report
 from lossvo.report.jobs import job_dirs, latest_sweep, load_job
 from lossvo.report.statistics import MARGIN
@@ -46,6 +48,13 @@ def parser() -> argparse.ArgumentParser:
         type=float,
         default=MARGIN,
         help=f"equivalence margin δ, a fraction in (0, 1) (default {MARGIN:g}: within ±{100 * MARGIN:g} %%)",
+    )
+    out.add_argument(
+        "--claimed-loss",
+        default=CLAIMED_LOSS,
+        metavar="CLASS",
+        help=f"the loss class (of loss._target_) whose configurations the claims are about "
+        f"(default {CLAIMED_LOSS})",
     )
     out.add_argument(
         "--jobs",
@@ -81,6 +90,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         command.error(f"--jobs: expected an integer >= 1, got {args.jobs}")
     if not 0 < args.margin < 1:
         command.error(f"--margin: expected a fraction between 0 and 1 (0.05: ±5 %), got {args.margin:g}")
+    if not args.claimed_loss.isidentifier():
+        command.error(f"--claimed-loss: expected a loss class name (ChordalLoss), got {args.claimed_loss!r}")
     if args.out is not None and args.out.exists() and not args.out.is_dir():
         command.error(f"--out: {args.out} is a file, expected a folder")
     logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)
@@ -88,7 +99,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     sweep = latest_sweep(args.sweep_dir) if args.latest else args.sweep_dir
     job_dirs(sweep)  # a folder that is no sweep is refused first
     check_writable(args.out if args.out is not None else sweep / "report", args.out is not None)
-    path = make_report(sweep, args.out, not args.no_baselines, not args.no_figures, args.jobs, args.margin)
+    path = make_report(
+        sweep, args.out, not args.no_baselines, not args.no_figures, args.jobs, args.margin, args.claimed_loss
+    )
     log.info("report written in %.1f s", time.perf_counter() - start)
     jobs = [load_job(p) for p in job_dirs(sweep)]
     for job in jobs:

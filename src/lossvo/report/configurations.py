@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from lossvo import weighting
 from lossvo.console import UserError
@@ -45,18 +46,28 @@ configurations that differ in loss or weighting."""
 # --------------------------------------------------------------------------------------------------
 
 
+def design(jobs: Sequence[Job]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The jobs' study design, one row per job: their overrides other than ``seed`` (a column per key, in
+    the order the keys first appear; None where a job has no such override), and their choice in each of
+    :data:`GROUPS` as it resolved (:func:`group_choice`)."""
+    index = pd.RangeIndex(len(jobs))
+    rows = [{k: v for k, v in job.overrides.items() if k != REPLICATE_KEY} for job in jobs]
+    overrides = pd.DataFrame(rows, index=index, dtype=object)
+    choices = pd.DataFrame(
+        {g: [group_choice(job, g) for job in jobs] for g in GROUPS}, index=index, dtype=object
+    )
+    return overrides, choices
+
+
 def varying_keys(jobs: Sequence[Job]) -> list[str]:
     """Override keys (other than ``seed``) whose value differs between jobs or is missing in some, in the
     order they first appear; the training data's and the architecture's only where the choice they
     resolve to differs (:func:`group_choice`: an ``experiment`` may make it), and without the settings
     that each choice fixes (:func:`_fixed_by_group`)."""
-    keys: list[str] = []
-    for job in jobs:
-        keys.extend(k for k in job.overrides if k not in keys and k != REPLICATE_KEY)
-    values = {k: {job.overrides.get(k) for job in jobs} for k in keys}
-    for group in GROUPS:
-        values[group] = {group_choice(job, group) for job in jobs}
-    return [k for k in keys if len(values[k]) > 1 and not _fixed_by_group(k, jobs)]
+    overrides, choices = design(jobs)
+    values = overrides.assign(**{g: choices[g] for g in GROUPS if g in overrides})
+    varies = values.nunique(dropna=False) > 1
+    return [k for k in overrides if varies[k] and not _fixed_by_group(k, overrides, choices)]
 
 
 GROUPS = (DATA_KEY, ARCHITECTURE_KEY)
@@ -70,18 +81,16 @@ def group_choice(job: Job, group: str) -> str | None:
     return resolved if resolved is not None else job.overrides.get(group)
 
 
-def _fixed_by_group(key: str, jobs: Sequence[Job]) -> bool:
+def _fixed_by_group(key: str, overrides: pd.DataFrame, choices: pd.DataFrame) -> bool:
     """Whether ``key`` sets part of one of :data:`GROUPS` whose choice differs between jobs
-    (``data.sources.car.root`` of ``data``) and takes one value (or none) among the jobs of each choice:
-    part of what the choice names (its data's folders), not a compared treatment."""
+    (``data.sources.car.root`` of ``data``) and takes one value (or none) among the jobs of each choice
+    (:func:`design`'s frames): part of what the choice names (its data's folders), not a compared
+    treatment."""
     for group in GROUPS:
-        if not key.startswith(f"{group}."):
-            continue
-        by_choice: dict[str | None, set[str | None]] = {}
-        for job in jobs:
-            by_choice.setdefault(group_choice(job, group), set()).add(job.overrides.get(key))
-        if len(by_choice) > 1 and all(len(values) == 1 for values in by_choice.values()):
-            return True
+        if key.startswith(f"{group}."):
+            values = overrides[key].groupby(choices[group], dropna=False).nunique(dropna=False)
+            if len(values) > 1 and (values == 1).all():
+                return True
     return False
 
 
@@ -161,15 +170,10 @@ def treatments(columns: Sequence[Column]) -> dict[str, str]:
     weights, ...) in every architecture and training data; ``defaults`` where nothing else varies."""
     networks = [c for c in columns if c.kind == NETWORK and c.jobs]
     jobs = [j for c in networks for j in c.jobs]
-    groups: dict[tuple[str | None, ...], list[Job]] = {}
-    for job in jobs:
-        groups.setdefault(tuple(group_choice(job, g) for g in GROUPS), []).append(job)
-
-    def names_group(key: str) -> bool:
-        within = [{j.overrides.get(key) for j in members} for members in groups.values()]
-        return key in GROUPS or (len(groups) > 1 and all(len(values) == 1 for values in within))
-
-    keys = [k for k in varying_keys(jobs) if not names_group(k)]
+    overrides, choices = design(jobs)
+    within = overrides.groupby([choices[g] for g in GROUPS], dropna=False).nunique(dropna=False)
+    one_per_group = set(within.columns[(within == 1).all()]) if len(within) > 1 else set()
+    keys = [k for k in varying_keys(jobs) if k not in {*GROUPS, *one_per_group}]
     out = {}
     for column in networks:
         overrides = column.jobs[0].overrides

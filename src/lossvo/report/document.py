@@ -43,7 +43,14 @@ from lossvo.report.architectures import (
     interaction_csv_rows,
     rankings_csv_rows,
 )
-from lossvo.report.claims import Claim, claims_by_architecture, claims_csv_rows, claims_markdown, study_claims
+from lossvo.report.claims import (
+    CLAIMED_LOSS,
+    Claim,
+    claims_by_architecture,
+    claims_csv_rows,
+    claims_markdown,
+    study_claims,
+)
 from lossvo.report.comparison import Comparison, compare, comparison_csv_rows, comparison_rows
 from lossvo.report.configurations import (
     UNKNOWN_ARCHITECTURE,
@@ -58,6 +65,7 @@ from lossvo.report.configurations import (
 )
 from lossvo.report.convergence import Convergence, convergence, convergence_csv_rows, convergence_markdown
 from lossvo.report.figures import plot_ape_bars, plot_curves, plot_forest, plot_trajectories
+from lossvo.report.frame import results_frame
 from lossvo.report.jobs import Job, code_versions_note, ground_truth, job_dirs, load_job, unseen_sequences
 from lossvo.report.speed import SPEED_TEXT, SPEED_TITLE, speed_rows
 from lossvo.report.statistics import ALPHA, MARGIN
@@ -120,16 +128,18 @@ def analyse(
     sequences: Sequence[str],
     margin: float = MARGIN,
     evaluations: Sequence[Evaluation] = (),
+    claimed_loss: str = CLAIMED_LOSS,
 ) -> Study:
-    """Convergence, claims (equivalence within ±``margin``) and unseen-motion sequences of the network
-    columns on the evaluated ``sequences``; where they span several architectures, the claims within each
-    and the agreement of the architectures' rankings (pairs trained on different data compared on their
-    ``evaluations`` on one another's)."""
+    """Convergence, claims (``claimed_loss``'s configurations, equivalence within ±``margin``) and
+    unseen-motion sequences of the network columns on the evaluated ``sequences``; where they span several
+    architectures, the claims within each and the agreement of the architectures' rankings (pairs trained
+    on different data compared on their ``evaluations`` on one another's)."""
     items = convergence(networks)
     unseen = unseen_of(networks, sequences)
     if not varies_architecture(networks):
-        return Study(list(networks), items, study_claims(networks, items, sequences, margin), unseen)
-    claimed = claims_by_architecture(networks, items, sequences, margin)
+        claims = study_claims(networks, items, sequences, margin, claimed_loss)
+        return Study(list(networks), items, claims, unseen)
+    claimed = claims_by_architecture(networks, items, sequences, margin, claimed_loss)
     agreement = architecture_agreement(networks, sequences, evaluations)
     return Study(list(networks), items, claimed, unseen, True, agreement)
 
@@ -148,11 +158,12 @@ def build_tables(
     each table per architecture (table by table, architectures in order); none without networks."""
     if not networks:
         return []
+    frame = results_frame([*networks, *baselines])
     if not varies_architecture(networks):
-        return [build_table(spec, [*networks, *baselines], sequences, notes) for spec in TABLES]
+        return [build_table(spec, [*networks, *baselines], sequences, notes, frame) for spec in TABLES]
     groups = architecture_groups(networks)
     return [
-        build_table(architecture_spec(spec, architecture), [*group, *baselines], sequences, notes)
+        build_table(architecture_spec(spec, architecture), [*group, *baselines], sequences, notes, frame)
         for spec in TABLES
         for architecture, group in groups.items()
     ]
@@ -490,9 +501,10 @@ def make_report(
     with_figures: bool = True,
     n_jobs: int | None = None,
     margin: float = MARGIN,
+    claimed_loss: str = CLAIMED_LOSS,
 ) -> Path:
-    """Write the report of a sweep folder, claims decided with the equivalence margin ``margin``; returns
-    the path of report.md.
+    """Write the report of a sweep folder, claims made for the loss class ``claimed_loss`` and decided
+    with the equivalence margin ``margin``; returns the path of report.md.
 
     Raises:
         SweepError: if ``sweep`` is not a sweep folder.
@@ -511,7 +523,7 @@ def make_report(
     if with_baselines and included and sequences:
         base = run_baselines(included, sequences, out / "cache", n_jobs or os.cpu_count() or 1)
     evaluations, unused = find_evaluations(sweep, included)
-    study = analyse(networks, sequences, margin, evaluations)
+    study = analyse(networks, sequences, margin, evaluations, claimed_loss)
     notes = dict.fromkeys(study.unseen, UNSEEN_NOTE)
     tables = build_tables(networks, base.columns, sequences, notes)
     comparisons = compare(networks, study.by_architecture)

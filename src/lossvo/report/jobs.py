@@ -133,8 +133,8 @@ def _started(path: Path) -> tuple[float, str]:
 
 @dataclass
 class Job:
-    """One job folder as read: what it is (overrides, seed, architecture, training data's config choice),
-    what happened (status), what it produced; ``code``: the code versions its processes ran
+    """One job folder as read: what it is (overrides, config choices, seed, architecture, training data's
+    config choice), what happened (status), what it produced; ``code``: the code versions its processes ran
     (:func:`lossvo.code_version.code_version`, from status.json's history; none where unrecorded)."""
 
     path: Path
@@ -151,6 +151,7 @@ class Job:
     architecture: str | None = None
     data: str | None = None
     code: tuple[str, ...] = ()
+    choices: dict[str, str] = field(default_factory=dict)
 
     @property
     def included(self) -> bool:
@@ -167,20 +168,25 @@ REQUIRED_CONFIG = ("selection.monitor", "selection.mode")
 """Keys of a job's ``.hydra/config.yaml`` that the report reads and that every job config has."""
 
 
-def parse_override(text: str) -> tuple[str, str]:
-    """``"loss=euler"`` -> ``("loss", "euler")``; a leading ``+``/``++`` is dropped, ``~key`` kept."""
-    key, _, value = str(text).partition("=")
-    return key.lstrip("+").strip(), value.strip()
+def parse_overrides(items: Sequence[str]) -> dict[str, str]:
+    """Hydra overrides (``["loss=euler", "+evaluate=false"]``) as an ordered ``{key: value}``, each parsed
+    by Hydra's :class:`OverridesParser`: the key without a leading ``+``/``++`` (``~key`` kept), the value
+    as written."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    parsed = OverridesParser.create().parse_overrides([str(item) for item in items])
+    return {o.get_key_element().lstrip("+"): str(o.input_line).partition("=")[2].strip() for o in parsed}
 
 
 def read_overrides(path: Path) -> dict[str, str]:
-    """``.hydra/overrides.yaml`` (a YAML list of ``key=value`` strings) as an ordered dict."""
+    """``.hydra/overrides.yaml`` (Hydra's record of the job's command-line overrides, a YAML list of
+    ``key=value`` strings) by :func:`parse_overrides`."""
     import yaml
 
     items = yaml.safe_load(path.read_text()) or []
     if not isinstance(items, list):
         raise UserError("expected a list of key=value strings")
-    return dict(parse_override(item) for item in items)
+    return parse_overrides(items)
 
 
 def read_curves(folder: Path) -> tuple[Curves, list[str]]:
@@ -232,8 +238,8 @@ def load_job(path: Path) -> Job:
 
 
 def _read_config(job: Job) -> None:
-    """``config``, ``overrides`` and ``seed`` of a job from ``.hydra/``; UserError naming a key of
-    :data:`REQUIRED_CONFIG` that the config lacks."""
+    """``config``, ``overrides``, ``choices``, ``seed``, ``architecture`` and ``data`` of a job from
+    ``.hydra/``; UserError naming a key of :data:`REQUIRED_CONFIG` that the config lacks."""
     from omegaconf import OmegaConf
 
     job.config = OmegaConf.load(job.path / ".hydra" / "config.yaml")
@@ -243,34 +249,31 @@ def _read_config(job: Job) -> None:
     overrides = job.path / ".hydra" / "overrides.yaml"
     job.overrides = read_overrides(overrides) if overrides.is_file() else {}
     job.seed = job.config.get(REPLICATE_KEY, job.overrides.get(REPLICATE_KEY))
-    hydra_yaml = job.path / ".hydra" / "hydra.yaml"
-    job.architecture = read_architecture(hydra_yaml, job.overrides, job.config)
-    job.data = read_choice(hydra_yaml, DATA_KEY, job.overrides)
+    job.choices = read_choices(job.path / ".hydra" / "hydra.yaml", job.overrides)
+    job.architecture = read_architecture(job.choices, job.config)
+    job.data = job.choices.get(DATA_KEY)
 
 
-def read_choice(hydra_yaml: Path, group: str, overrides: dict[str, str]) -> str | None:
-    """A job's choice in a config group: the one recorded in ``.hydra/hydra.yaml``
-    (``hydra.runtime.choices.<group>``, set on the command line or by an ``experiment``), else the
-    ``<group>=`` override; None without either. A missing or unreadable hydra.yaml falls back (it decides
-    nothing else)."""
+def read_choices(hydra_yaml: Path, overrides: dict[str, str]) -> dict[str, str]:
+    """A job's config choices: its ``overrides``, and over them the config-group choices Hydra recorded in
+    ``.hydra/hydra.yaml`` (``hydra.runtime.choices``, set on the command line or by an ``experiment``;
+    null choices left out). A missing or unreadable hydra.yaml leaves the overrides (it decides nothing
+    else)."""
     import yaml
 
-    choice: Any = None
     try:
-        if hydra_yaml.is_file():
-            choice = yaml.safe_load(hydra_yaml.read_text())["hydra"]["runtime"]["choices"][group]
-    except Exception:  # YAML errors of many classes, another shape: fall back
-        choice = None
-    if choice is None:
-        choice = overrides.get(group)
-    return str(choice) if choice is not None else None
+        recorded = yaml.safe_load(hydra_yaml.read_text())["hydra"]["runtime"]["choices"]
+        recorded = {str(k): str(v) for k, v in recorded.items() if v is not None}
+    except Exception:  # no file, YAML errors of many classes, another shape: the overrides alone
+        recorded = {}
+    return {**overrides, **recorded}
 
 
-def read_architecture(hydra_yaml: Path, overrides: dict[str, str], config: Any) -> str | None:
-    """A job's architecture as a short name: the :data:`ARCHITECTURE_KEY` config group's choice
-    (:func:`read_choice`: ``deepvo_small``, ``flowvo``), else the class name of ``model._target_``
-    (``DeepVO``); None without either."""
-    choice = read_choice(hydra_yaml, ARCHITECTURE_KEY, overrides)
+def read_architecture(choices: dict[str, str], config: Any) -> str | None:
+    """A job's architecture as a short name: its :data:`ARCHITECTURE_KEY` choice (:func:`read_choices`:
+    ``deepvo_small``, ``flowvo``), else the class name of ``model._target_`` (``DeepVO``); None without
+    either."""
+    choice = choices.get(ARCHITECTURE_KEY)
     if choice is None:
         target = config_value(config, f"{ARCHITECTURE_KEY}._target_")
         choice = str(target).rsplit(".", 1)[-1] if target is not None else None

@@ -1,9 +1,9 @@
 """Tables of a sweep report: per-sequence metric tables and their text forms.
 
-A :class:`Column` is one compared configuration (its seeds) or one baseline; :func:`build_table` fills a
-:class:`Table` of :data:`TABLES` with mean ± sample std over seeds per sequence plus a mean row, and bolds
-the minimum of each row; :func:`table_markdown`, :func:`table_csv` and :func:`table_latex` give its text
-(:mod:`lossvo.table_render`).
+A :class:`~lossvo.report.frame.Column` is one compared configuration (its seeds) or one baseline;
+:func:`build_table` fills a :class:`Table` of :data:`TABLES` with mean ± sample std over seeds per sequence
+plus a mean row, and bolds the minimum of each row; :func:`table_markdown`, :func:`table_csv` and
+:func:`table_latex` give its text (:mod:`lossvo.table_render`).
 A row may carry a note (e.g. ``unseen motion``): in markdown and LaTeX it follows the sequence name in
 parentheses, in CSV it has its own last column, so the ``sequence`` column stays the bare name.
 Units are those of the metrics: m and rad for APE / RPE, % and deg/100 m for the KITTI errors.
@@ -16,32 +16,15 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+import pandas as pd
 
 from lossvo import table_render
-from lossvo.evaluation.job_folder import Scores
-from lossvo.report.jobs import APE_ROT, APE_TRANS, KITTI_R, KITTI_T, RPE_ROT, RPE_TRANS, Job, metric_value
+from lossvo.report.frame import Column, metric_matrix, results_frame
+from lossvo.report.jobs import APE_ROT, APE_TRANS, KITTI_R, KITTI_T, RPE_ROT, RPE_TRANS
 from lossvo.table_render import Rows
 
 NETWORK, BASELINE = "network", "baseline"
 MEAN_ROW = "mean"
-
-
-@dataclass
-class Column:
-    """One compared configuration (network) or baseline: its replicates' per-sequence metrics.
-
-    ``results[i]`` is ``{sequence: Scores}`` (results.json's scores) of replicate ``i`` (a seed),
-    ``replicates[i]`` its name; ``kind`` is :data:`NETWORK` or :data:`BASELINE`; ``jobs`` are a network's
-    job folders in replicate order (none for a baseline); ``architecture`` a network's architecture
-    (:attr:`lossvo.report.jobs.Job.architecture`; None for a baseline or where unknown).
-    """
-
-    label: str
-    kind: str
-    replicates: list[str]
-    results: list[dict[str, Scores]]
-    jobs: list[Job] = field(default_factory=list)
-    architecture: str | None = None
 
 
 # --------------------------------------------------------------------------------------------------
@@ -79,12 +62,7 @@ TABLES = (
 
 def samples(column: Column, path: Sequence[str], sequences: Sequence[str]) -> np.ndarray:
     """(replicates, sequences) float64 values of one metric; NaN where missing (or no KITTI segment)."""
-    out = np.full((len(column.results), len(sequences)), np.nan)
-    for i, per_sequence in enumerate(column.results):
-        for j, name in enumerate(sequences):
-            value = metric_value(per_sequence.get(name), path)
-            out[i, j] = value if value is not None else np.nan
-    return out
+    return metric_matrix(results_frame([column]), column, path, sequences)
 
 
 def seed_scores(column: Column, path: Sequence[str], sequences: Sequence[str]) -> dict[str, float]:
@@ -135,13 +113,17 @@ def build_table(
     columns: Sequence[Column],
     sequences: Sequence[str],
     notes: Mapping[str, str] | None = None,
+    frame: pd.DataFrame | None = None,
 ) -> Table:
-    """Cells per sequence, a mean row and the bold marks; ``notes``: {sequence: note} (:attr:`Table.notes`).
+    """Cells per sequence, a mean row and the bold marks; ``notes``: {sequence: note} (:attr:`Table.notes`);
+    ``frame``: the columns' :func:`~lossvo.report.frame.results_frame` (made here if None), pivoted per
+    column and metric to (replicates, sequences).
 
     The mean row averages each replicate over the sequences where every column has a value (so all
     columns are averaged over the same sequences), then takes mean ± std over the replicates.
     """
-    data = [[samples(c, path, sequences) for _, path in spec.metrics] for c in columns]  # (rep, seq) each
+    frame = results_frame(columns) if frame is None else frame
+    data = [[metric_matrix(frame, c, path, sequences) for _, path in spec.metrics] for c in columns]
     cells = [
         [[Cell.of(data[c][m][:, s]) for m in range(len(spec.metrics))] for c in range(len(columns))]
         for s in range(len(sequences))

@@ -1,0 +1,93 @@
+"""The sweep's results as one tidy table: a :class:`pandas.DataFrame` with one row per column
+(configuration or baseline), replicate, sequence and metric, beside each network job's folder, seed,
+architecture, training data and config choices (the ``choice.<key>`` columns: the overrides Hydra recorded
+and its config-group choices, :attr:`lossvo.report.jobs.Job.choices`). The tables of the report are
+group-bys and pivots of it (:func:`metric_matrix`, :func:`lossvo.report.tables.build_table`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from lossvo.evaluation.job_folder import Scores
+from lossvo.report.jobs import APE_ROT, APE_TRANS, KITTI_R, KITTI_T, RPE_ROT, RPE_TRANS, Job, metric_value
+
+METRICS = (APE_TRANS, APE_ROT, RPE_TRANS, RPE_ROT, KITTI_T, KITTI_R)
+"""The metrics a results frame holds: paths into a sequence's scores (m, rad, %, deg/100 m)."""
+CHOICE = "choice."
+"""The prefix of a results frame's config-choice columns (``choice.loss``)."""
+FIELDS = ("column", "kind", "replicate", "position", "job", "seed", "architecture", "data")
+"""The identifying columns of a results frame; ``position`` is the replicate's index in its column."""
+
+
+@dataclass
+class Column:
+    """One compared configuration (network) or baseline: its replicates' per-sequence metrics.
+
+    ``results[i]`` is ``{sequence: Scores}`` (results.json's scores) of replicate ``i`` (a seed),
+    ``replicates[i]`` its name; ``kind`` is :data:`lossvo.report.tables.NETWORK` or
+    :data:`~lossvo.report.tables.BASELINE`; ``jobs`` are a network's
+    job folders in replicate order (none for a baseline); ``architecture`` a network's architecture
+    (:attr:`lossvo.report.jobs.Job.architecture`; None for a baseline or where unknown).
+    """
+
+    label: str
+    kind: str
+    replicates: list[str]
+    results: list[dict[str, Scores]]
+    jobs: list[Job] = field(default_factory=list)
+    architecture: str | None = None
+
+
+def metric_name(path: Sequence[str]) -> str:
+    """A metric's name in a results frame: its path joined by dots (``ape.trans.rmse``)."""
+    return ".".join(path)
+
+
+def column_rows(column: Column) -> list[dict[str, Any]]:
+    """The rows of one column: per replicate, sequence and metric of :data:`METRICS` its value (NaN where
+    missing, as a KITTI error without a 100 m segment), with the replicate's job and config choices."""
+    rows = []
+    for position, (replicate, per_sequence) in enumerate(zip(column.replicates, column.results, strict=True)):
+        job = column.jobs[position] if position < len(column.jobs) else None
+        head: dict[str, Any] = {
+            "column": column.label,
+            "kind": column.kind,
+            "replicate": replicate,
+            "position": position,
+            "job": job.path.name if job else None,
+            "seed": job.seed if job else None,
+            "architecture": column.architecture,
+            "data": job.data if job else None,
+        }
+        head.update({f"{CHOICE}{k}": v for k, v in (job.choices if job else {}).items()})
+        for sequence, scores in per_sequence.items():
+            for path in METRICS:
+                value = metric_value(scores, path)
+                rows.append(head | {"sequence": sequence, "metric": metric_name(path), "value": value})
+    return rows
+
+
+def results_frame(columns: Sequence[Column]) -> pd.DataFrame:
+    """Every column's results as one tidy table (:data:`FIELDS`, the ``choice.<key>`` columns,
+    ``sequence``, ``metric``, ``value`` float64), columns and their replicates in order."""
+    rows = [row for column in columns for row in column_rows(column)]
+    frame = pd.DataFrame(rows, columns=[*FIELDS, "sequence", "metric", "value"] if not rows else None)
+    frame["value"] = frame["value"].astype(np.float64)
+    return frame
+
+
+def metric_matrix(
+    frame: pd.DataFrame, column: Column, path: Sequence[str], sequences: Sequence[str]
+) -> np.ndarray:
+    """(replicates, sequences) float64 values of one metric of ``column`` in ``frame``, replicates in the
+    column's order; NaN where missing."""
+    rows = frame[(frame["column"] == column.label) & (frame["metric"] == metric_name(path))]
+    table = rows.pivot(index="position", columns="sequence", values="value")
+    table = table.reindex(index=range(len(column.results)), columns=list(sequences))
+    return table.to_numpy(dtype=np.float64)
