@@ -197,7 +197,9 @@ TYPE_NAMES = {"Integer": "an int", "int": "an int", "Float": "a float", "float":
 """OmegaConf's names of the types it converts to -> the expected type in a one-line error."""
 
 
-def typed_value_message(error: OmegaConfBaseException, key: str | None = None, given: str | None = None) -> str:
+def typed_value_message(
+    error: OmegaConfBaseException, key: str | None = None, given: str | None = None
+) -> str:
     """One line for OmegaConf's refusal of a value of the wrong type (:data:`TYPE_REFUSALS`):
     ``<key>: expected an int, got 'abc'`` (``key``: the full key where given, else the error's; ``given``:
     the value as typed, where OmegaConf's message lacks it); for any other OmegaConf error, its first line
@@ -209,7 +211,9 @@ def typed_value_message(error: OmegaConfBaseException, key: str | None = None, g
         if match:
             found = match.groupdict()
             kind = found["type"]
-            expected = TYPE_NAMES.get(kind, "a mapping" if kind.startswith(("Dict", "Optional[Dict")) else kind)
+            expected = TYPE_NAMES.get(
+                kind, "a mapping" if kind.startswith(("Dict", "Optional[Dict")) else kind
+            )
             value = found.get("value")
             text_value = found.get("given") == "str" or (value is None and given is not None)
             value = given if value is None else value

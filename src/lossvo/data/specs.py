@@ -293,8 +293,13 @@ class Frames:
 
     def __post_init__(self) -> None:
         for key in ("height", "width"):
-            _check("data.frames", key, getattr(self, key), is_integer(getattr(self, key), 16), "an integer >= 16 pixels")
-        _check("data.frames", "crop", self.crop, isinstance(self.crop, bool), "true or false")
+            _check(
+                "data.frames",
+                key,
+                getattr(self, key),
+                is_integer(getattr(self, key), 16),
+                "an integer >= 16 pixels",
+            )
         _check(
             "data.frames",
             "normalization",
@@ -331,7 +336,8 @@ class Windows:
     afresh each epoch (None: all); ``batch_size`` windows a batch. With several sources, each source's
     windows are drawn in proportion to their number. Validation and evaluation tile consecutive frames.
     ``seq_len``, ``per_epoch`` and ``batch_size`` default to the network's where its config declares them
-    (``reads:``, e.g. model=flowvo)."""
+    (``reads:``, e.g. model=flowvo): interpolations that a composed config resolves, so that a ``Windows``
+    made directly names all three."""
 
     seq_len: int = SI("${oc.select:reads.seq_len,6}")
     stride: int = 1
@@ -345,7 +351,9 @@ class Windows:
         per_epoch = self.per_epoch
         fits = per_epoch is None or is_integer(per_epoch, 1)
         _check("data.windows", "per_epoch", per_epoch, fits, "null or an integer >= 1")
-        _check("data.windows", "batch_size", self.batch_size, is_integer(self.batch_size, 1), "an integer >= 1")
+        _check(
+            "data.windows", "batch_size", self.batch_size, is_integer(self.batch_size, 1), "an integer >= 1"
+        )
         steps = list(self.frame_steps)
         fits = bool(steps) and all(is_integer(v, 1) for v in steps)
         _check("data.windows", "frame_steps", self.frame_steps, fits, "a list of integers >= 1 like [1, 2]")
@@ -389,8 +397,9 @@ class Loader:
     device_budget_gb: float = 8.0
 
     def __post_init__(self) -> None:
-        _check("data.loader", "num_workers", self.num_workers, is_integer(self.num_workers, 0), "an integer >= 0")
-        _check("data.loader", "pin_memory", self.pin_memory, isinstance(self.pin_memory, bool), "true or false")
+        _check(
+            "data.loader", "num_workers", self.num_workers, is_integer(self.num_workers, 0), "an integer >= 0"
+        )
         on_device = self.on_device
         fits = on_device == "auto" or isinstance(on_device, bool)
         _check("data.loader", "on_device", on_device, fits, "auto, true or false")
@@ -404,24 +413,20 @@ class Loader:
         return _built(cls, value, "data.loader", DESCRIBED["loader"])
 
 
-def _schema(cls: type) -> Any:
-    """A dataclass field holding the spec ``cls`` as OmegaConf's typed node of its defaults (built without
-    calling ``cls``, whose defaults may be interpolations)."""
-    return field(default_factory=lambda: OmegaConf.structured(cls))
-
-
 @dataclass
 class Data:
     """The ``data`` config group's schema: :class:`lossvo.data.datamodules.VODataModule`'s arguments.
     ``sources`` (name -> :class:`Source`'s config, whose keys depend on its layout) and ``transforms``
-    (batch transforms, each with its ``_target_``) are checked by the data module."""
+    (batch transforms, each with its ``_target_``) are checked by the data module. Each spec's default is
+    OmegaConf's typed node of its defaults, built without calling the dataclass (whose defaults may be
+    interpolations)."""
 
     _target_: str = "lossvo.data.datamodules.VODataModule"
-    splits: Splits = _schema(Splits)
-    frames: Frames = _schema(Frames)
-    windows: Windows = _schema(Windows)
-    flow: Flow = _schema(Flow)
-    loader: Loader = _schema(Loader)
+    splits: Splits = field(default_factory=functools.partial(OmegaConf.structured, Splits))
+    frames: Frames = field(default_factory=functools.partial(OmegaConf.structured, Frames))
+    windows: Windows = field(default_factory=functools.partial(OmegaConf.structured, Windows))
+    flow: Flow = field(default_factory=functools.partial(OmegaConf.structured, Flow))
+    loader: Loader = field(default_factory=functools.partial(OmegaConf.structured, Loader))
     transforms: list[Any] = field(default_factory=list)
     sources: dict[str, Any] = field(default_factory=dict)
 
@@ -537,32 +542,48 @@ def current(description: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-SPECS: dict[str, type] = {"splits": Splits, "frames": Frames, "windows": Windows, "flow": Flow, "loader": Loader}
+SPECS: dict[str, type] = {
+    "splits": Splits,
+    "frames": Frames,
+    "windows": Windows,
+    "flow": Flow,
+    "loader": Loader,
+}
 """The specs of :class:`Data` by key."""
 
 
 def check_overrides(overrides: Seq[str]) -> None:
     """UserError for a command-line override of a data key of the flat form (``data.root=...``), naming
-    the key that holds it now (``data.sources.<name>.root``), and for one giving a spec a value that is no
-    mapping (``data.flow=dis``), naming its keys."""
+    the key that holds it now (``data.sources.<name>.root``). ``data.frames`` and ``data.flow`` are
+    specs of both forms: :func:`check_spec_values` names their keys."""
     for line in overrides:
-        key, _, value = line.lstrip("+~").partition("=")
+        key = line.lstrip("+~").split("=", 1)[0]
         flat = key.removeprefix("data.")
-        if key.startswith("data.") and flat in SPECS and value not in ("", "null") and not value.startswith(("{", "$")):
-            _fields(SPECS[flat], value, key)
         if key.startswith("data.") and "." not in flat and flat not in SPECS:
             new = new_key(flat)
             if new is not None:
                 raise UserError(f"{key}: not a data key; the setting is data.{new} (docs/data.md lists them)")
 
 
+def check_spec_values(overrides: Seq[str]) -> None:
+    """UserError for a command-line override giving a spec a value that is no mapping (``data.flow=dis``),
+    naming the spec's keys (Hydra would name only the schema's type)."""
+    for line in overrides:
+        key, _, value = line.lstrip("+~").partition("=")
+        spec = SPECS.get(key.removeprefix("data.")) if key.startswith("data.") else None
+        if spec is not None and value not in ("", "null") and not value.startswith(("{", "$")):
+            _fields(spec, value, key)
+
+
 def refusing_flat_keys(main: Callable[[], _R]) -> Callable[[], _R]:
-    """A Hydra entry point that refuses a flat-form data override (:func:`check_overrides`) before Hydra
-    composes the config (which would call it a key the config lacks)."""
+    """A Hydra entry point that refuses a flat-form data override (:func:`check_overrides`) and a spec
+    given a value that is no mapping (:func:`check_spec_values`) before Hydra composes the config (which
+    would call it a key the config lacks, or name the schema's type)."""
 
     @functools.wraps(main)
     def wrapped() -> _R:
         check_overrides(sys.argv[1:])
+        check_spec_values(sys.argv[1:])
         return main()
 
     return wrapped

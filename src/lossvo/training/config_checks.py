@@ -4,7 +4,8 @@ The settings that Lightning, torch or the data loader would otherwise refuse dee
 misread without a word) are checked first, each failure a :class:`~lossvo.console.UserError` naming the
 key, the value and what was expected, e.g. ``data.windows.batch_size: expected an integer >= 1, got 0``.
 The types of the data settings are checked where Hydra composes the config (their schema:
-:class:`lossvo.data.specs.Data`); the constructors check the rest (:class:`lossvo.data.datamodules.VODataModule`),
+:class:`lossvo.data.specs.Data`); the constructors check the rest
+(:class:`lossvo.data.datamodules.VODataModule`),
 :func:`lossvo.weighting.check_config` the loss weights.
 """
 
