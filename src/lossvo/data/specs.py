@@ -71,6 +71,13 @@ def _check(where: str, key: str, value: Any, fits: bool, expected: str) -> None:
         raise UserError(f"{where}.{key}: expected {expected}, got {value!r}")
 
 
+def _require(spec: object, key: str, fits: Callable[[Any], bool], expected: str) -> None:
+    """:func:`_check` of the field ``key`` of ``spec`` (``data.<its class, lower case>.<key>``): what its
+    type cannot say (a range, a choice)."""
+    value = getattr(spec, key)
+    _check(f"data.{type(spec).__name__.lower()}", key, value, fits(value), expected)
+
+
 def _camera(value: Any, key: str) -> tuple[np.ndarray, np.ndarray] | None:
     """``{K: 3x3, distortion: [4, 5, 8, 12 or 14 numbers]}`` (distortion optional: zeros) as arrays, or None;
     UserError naming ``key`` otherwise."""
@@ -293,20 +300,9 @@ class Frames:
 
     def __post_init__(self) -> None:
         for key in ("height", "width"):
-            _check(
-                "data.frames",
-                key,
-                getattr(self, key),
-                is_integer(getattr(self, key), 16),
-                "an integer >= 16 pixels",
-            )
-        _check(
-            "data.frames",
-            "normalization",
-            self.normalization,
-            self.normalization in NORMALIZATIONS,
-            f"one of {', '.join(NORMALIZATIONS)}",
-        )
+            _require(self, key, lambda v: is_integer(v, 16), "an integer >= 16 pixels")
+        one_of = f"one of {', '.join(NORMALIZATIONS)}"
+        _require(self, "normalization", lambda v: v in NORMALIZATIONS, one_of)
         self.statistics = _statistics(self.statistics)
 
     @classmethod
@@ -346,18 +342,18 @@ class Windows:
     batch_size: int = SI("${oc.select:reads.batch_size,8}")
 
     def __post_init__(self) -> None:
-        _check("data.windows", "seq_len", self.seq_len, is_integer(self.seq_len, 2), "an integer >= 2 frames")
-        _check("data.windows", "stride", self.stride, is_integer(self.stride, 1), "an integer >= 1")
-        per_epoch = self.per_epoch
-        fits = per_epoch is None or is_integer(per_epoch, 1)
-        _check("data.windows", "per_epoch", per_epoch, fits, "null or an integer >= 1")
-        _check(
-            "data.windows", "batch_size", self.batch_size, is_integer(self.batch_size, 1), "an integer >= 1"
+        _require(self, "seq_len", lambda v: is_integer(v, 2), "an integer >= 2 frames")
+        for key in ("stride", "batch_size"):
+            _require(self, key, lambda v: is_integer(v, 1), "an integer >= 1")
+        _require(
+            self,
+            "per_epoch",
+            lambda v: v is None or is_integer(v, 1),
+            "null or an integer >= 1",
         )
-        steps = list(self.frame_steps)
-        fits = bool(steps) and all(is_integer(v, 1) for v in steps)
-        _check("data.windows", "frame_steps", self.frame_steps, fits, "a list of integers >= 1 like [1, 2]")
-        self.frame_steps = list(dict.fromkeys(steps))
+        steps = "a list of integers >= 1 like [1, 2]"
+        _require(self, "frame_steps", lambda v: bool(v) and all(is_integer(s, 1) for s in v), steps)
+        self.frame_steps = list(dict.fromkeys(self.frame_steps))
 
     @classmethod
     def of(cls, value: Any) -> Windows:
@@ -397,16 +393,10 @@ class Loader:
     device_budget_gb: float = 8.0
 
     def __post_init__(self) -> None:
-        _check(
-            "data.loader", "num_workers", self.num_workers, is_integer(self.num_workers, 0), "an integer >= 0"
-        )
-        on_device = self.on_device
-        fits = on_device == "auto" or isinstance(on_device, bool)
-        _check("data.loader", "on_device", on_device, fits, "auto, true or false")
-        budget = self.device_budget_gb
-        fits = is_number(budget) and budget >= 0
-        _check("data.loader", "device_budget_gb", budget, fits, "a number of GiB >= 0")
-        self.device_budget_gb = float(budget)
+        _require(self, "num_workers", lambda v: is_integer(v, 0), "an integer >= 0")
+        _require(self, "on_device", lambda v: v == "auto" or isinstance(v, bool), "auto, true or false")
+        _require(self, "device_budget_gb", lambda v: is_number(v) and v >= 0, "a number of GiB >= 0")
+        self.device_budget_gb = float(self.device_budget_gb)
 
     @classmethod
     def of(cls, value: Any) -> Loader:
