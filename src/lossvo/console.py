@@ -234,8 +234,9 @@ def _typed_override(error: HydraException) -> str | None:
 
 def hydra_message(error: HydraException) -> str:
     """One line for a Hydra error: an unknown config group option with the options there are, an
-    override of a key the config lacks, an override that does not parse, an object that cannot be
-    instantiated from its config (named by its key)."""
+    override of a key the config lacks, an override that does not parse, an override of the wrong type
+    for its key's schema (:func:`typed_value_message`), an object that cannot be instantiated from its
+    config (named by its key)."""
     text = str(error)
     typed = _typed_override(error)
     if typed is not None:
