@@ -295,7 +295,8 @@ def test_trainer_gpu_without_a_gpu_on_the_real_command_line(tiny_kitti: Path, tm
 @pytest.mark.parametrize(
     ("command", "args", "error"),
     [
-        ("train", "data.windows.batch_size=abc", UserError),
+        ("train", "data.windows.batch_size=0", UserError),
+        ("train", "data.windows.batch_size=abc", Exception),  # Hydra's ConfigCompositionException
         ("train", "loss=eular", Exception),  # Hydra's MissingConfigException
         ("eval", "device=cpu", UserError),
         ("report", "<missing folder>", UserError),

@@ -8,20 +8,24 @@ from typing import Any
 
 import pytest
 import torch
+from hydra import compose, initialize_config_dir
+from hydra.errors import HydraException
+from omegaconf import OmegaConf
 
-from lossvo.console import UserError
+from lossvo.console import UserError, user_message
 from lossvo.data import specs
 from lossvo.data.datamodules import VODataModule
 from lossvo.data.flow import FlowSetting
 from lossvo.evaluation.checkpoints import Description
+from lossvo.train import CONFIG_DIR
 
 FIXTURES = Path(__file__).resolve().parent / "data"
 
 
 def test_specs_take_defaults_and_freeze_lists() -> None:
     windows = specs.Windows.of({"seq_len": 3, "frame_steps": [1, 2, 1]})
-    assert windows == specs.Windows(seq_len=3, frame_steps=(1, 2))
-    assert specs.Frames.of(None) == specs.Frames()
+    assert windows == specs.Windows(seq_len=3, frame_steps=(1, 2), per_epoch=None, batch_size=8)
+    assert specs.Frames.of(None) == specs.Frames(**specs.DESCRIBED["frames"])
     assert specs.flow_of({"method": "dis"}) == FlowSetting("dis", "medium", 1.0)
     assert specs.Loader.of({"on_device": False}) == specs.Loader(on_device=False)
 
@@ -53,7 +57,10 @@ BAD: list[tuple[Any, Any, str]] = [
     (specs.Windows.of, {"windows_per_epoch": 8}, "data.windows.windows_per_epoch: unknown key"),
     (specs.Windows.of, [3], "data.windows: expected a mapping of seq_len, stride"),
     (specs.Frames.of, {"height": 8}, "data.frames.height: expected an integer >= 16 pixels, got 8"),
-    (specs.Frames.of, {"crop": "yes"}, "data.frames.crop: expected true or false, got 'yes'"),
+    (specs.Frames.of, {"crop": "maybe"}, "data.frames.crop: expected a bool, got 'maybe'"),
+    (specs.Frames.of, {"height": "abc"}, "data.frames.height: expected an int, got 'abc'"),
+    (specs.Windows.of, {"frame_steps": 2}, "data.windows.frame_steps: expected a list"),
+    (specs.Loader.of, {"device_budget_gb": "x"}, "data.loader.device_budget_gb: expected a float, got 'x'"),
     (specs.Frames.of, {"normalization": "x"}, "data.frames.normalization: expected one of dataset, flownet"),
     (specs.Frames.of, {"statistics": {"mean": [0.5]}}, "data.frames.statistics: expected {mean: [3 floats]"),
     (specs.flow_of, {"method": "raft"}, "data.flow.method: expected one of dis, farneback, none"),
@@ -186,3 +193,47 @@ def test_a_flat_override_is_refused_naming_its_new_key() -> None:
     specs.check_overrides(
         ["data.windows.seq_len=3", "data.flow=dis", "data.sources.kitti.root=/k", "seq_len=3"]
     )
+
+
+def test_a_mapping_without_a_key_takes_the_described_default_a_composed_config_the_schemas() -> None:
+    """A checkpoint's description without a key was trained with :data:`specs.DESCRIBED`'s value; a
+    composed config takes the dataclass's default, which the shipped configs run with."""
+    assert (specs.Frames.of({}).height, specs.Windows.of({}).seq_len, specs.flow_of({}).scale) == (
+        184,
+        7,
+        1.0,
+    )
+    frames, flow = specs.Frames(), OmegaConf.structured(specs.Data).flow
+    assert (frames.height, frames.width, flow.scale) == (160, 208, 1.5)
+    windows = OmegaConf.structured(specs.Data).windows
+    assert OmegaConf.to_container(windows)["seq_len"] == "${oc.select:reads.seq_len,6}"
+
+
+SCHEMA_TYPES = [
+    ("data.splits.train=7", None),
+    ("data.frames.height=abc", "data.frames.height: expected an int, got 'abc'"),
+    ("data.frames.width=1.5", "data.frames.width: expected an int, got 1.5"),
+    ("data.frames.crop=maybe", "data.frames.crop: expected a bool, got 'maybe'"),
+    ("data.frames.statistics=3", "data.frames.statistics: expected a mapping, got '3'"),
+    ("data.windows.seq_len=true", "data.windows.seq_len: expected an int, got True"),
+    ("data.windows.frame_steps=3", "data.windows.frame_steps: expected a list, got '3'"),
+    ("data.windows.frame_steps=[a]", "data.windows.frame_steps: expected an int, got 'a'"),
+    ("data.windows.per_epoch=all", "data.windows.per_epoch: expected an int, got 'all'"),
+    ("data.windows.batch_size=abc", "data.windows.batch_size: expected an int, got 'abc'"),
+    ("data.flow.scale=x", "data.flow.scale: expected a float, got 'x'"),
+    ("data.loader.num_workers=two", "data.loader.num_workers: expected an int, got 'two'"),
+    ("data.loader.pin_memory=maybe", "data.loader.pin_memory: expected a bool, got 'maybe'"),
+    ("data.loader.device_budget_gb=x", "data.loader.device_budget_gb: expected a float, got 'x'"),
+]
+"""An override of each typed data key with a value of the wrong type, and its one line (None: it composes)."""
+
+
+@pytest.mark.parametrize(("override", "message"), SCHEMA_TYPES, ids=[o for o, _ in SCHEMA_TYPES])
+def test_the_schema_refuses_a_wrong_type_naming_the_key(override: str, message: str | None) -> None:
+    with initialize_config_dir(CONFIG_DIR, version_base="1.3"):
+        if message is None:
+            assert compose("train", [override]).data.splits.train == 7
+            return
+        with pytest.raises(HydraException) as caught:
+            compose("train", [override])
+    assert user_message(caught.value) == message

@@ -413,8 +413,8 @@ def test_an_experiment_on_other_data_is_evaluated_on_the_architectures_held_out_
         ),
         (
             "data.windows.batch_size=abc",
-            "data.windows.batch_size: expected an integer >= 1, got 'abc'",
-        ),  # a job's own checks
+            "data.windows.batch_size: expected an int, got 'abc'",
+        ),  # the schema's type, at composition
         (
             "data=kitti",
             "data.sources.kitti.root: a value is required: "

@@ -28,11 +28,13 @@ from typing import NoReturn, ParamSpec, TypeVar
 
 from hydra.errors import (
     CompactHydraException,
+    ConfigCompositionException,
     HydraException,
     InstantiationException,
     MissingConfigException,
     OverrideParseException,
 )
+from omegaconf.errors import OmegaConfBaseException, ValidationError
 
 HYDRA_FLAGS = frozenset({
     "--help", "-h", "--hydra-help", "--version", "--cfg", "-c", "--resolve", "--package", "-p", "--run", "-r",
@@ -179,11 +181,66 @@ def disk_error(error: BaseException, folder: object = None) -> str | None:
     return f"{where}: {cause}" if where else cause
 
 
+TYPE_REFUSALS = (
+    r"Value '(?P<value>.*)' of type '(?P<given>\w+)' could not be converted to (?P<type>\w+)",
+    r"Value '(?P<value>.*)' is not a valid (?P<type>bool) \(type (?P<given>\w+)\)",
+    r"Value '(?P<value>.*)' \((?P<given>\w+)\) is incompatible with type hint '(?P<type>[^']+)'",
+    r"Cannot assign (?P<given>\w+) to (?P<type>.+)",
+    r"Invalid value assigned: \w+ is not a (?P<type>ListConfig), list or tuple",
+    r"Merge error: (?P<given>\w+) is not a subclass of (?P<type>\w+)\. value: (?P<value>.*)",
+)
+"""OmegaConf's refusals of a value whose type a structured config states (first lines of its messages)."""
+
+TYPE_NAMES = {"Integer": "an int", "int": "an int", "Float": "a float", "float": "a float",
+              "Boolean": "a bool", "bool": "a bool", "String": "a string", "str": "a string",
+              "ListConfig": "a list"}  # fmt: skip
+"""OmegaConf's names of the types it converts to -> the expected type in a one-line error."""
+
+
+def typed_value_message(
+    error: OmegaConfBaseException, key: str | None = None, given: str | None = None
+) -> str:
+    """One line for OmegaConf's refusal of a value of the wrong type (:data:`TYPE_REFUSALS`):
+    ``<key>: expected an int, got 'abc'`` (``key``: the full key where given, else the error's; ``given``:
+    the value as typed, where OmegaConf's message lacks it); for any other OmegaConf error, its first line
+    after the key."""
+    where = key or error.full_key
+    text = first_line(error.msg)
+    for pattern in TYPE_REFUSALS:
+        match = re.match(pattern, text)
+        if match:
+            found = match.groupdict()
+            kind = found["type"]
+            expected = TYPE_NAMES.get(
+                kind, "a mapping" if kind.startswith(("Dict", "Optional[Dict")) else kind
+            )
+            value = found.get("value")
+            text_value = found.get("given") == "str" or (value is None and given is not None)
+            value = given if value is None else value
+            got = "" if value is None else f", got {value!r}" if text_value else f", got {value}"
+            return f"{where}: expected {expected}{got}"
+    return f"{where}: {text}"
+
+
+def _typed_override(error: HydraException) -> str | None:
+    """One line for an override that a structured config's type refuses (``data.windows.batch_size=abc``):
+    :func:`typed_value_message` with the override's key; None for any other error."""
+    cause = error.__cause__
+    match = re.match(r"Error merging override (?P<key>[^=]+)=(?P<value>.*)", first_line(error))
+    if not (isinstance(error, ConfigCompositionException) and isinstance(cause, ValidationError) and match):
+        return None
+    return typed_value_message(cause, match.group("key").lstrip("+~"), match.group("value"))
+
+
 def hydra_message(error: HydraException) -> str:
     """One line for a Hydra error: an unknown config group option with the options there are, an
-    override of a key the config lacks, an override that does not parse, an object that cannot be
-    instantiated from its config (named by its key)."""
+    override of a key the config lacks, an override that does not parse, an override of the wrong type
+    for its key's schema (:func:`typed_value_message`), an object that cannot be instantiated from its
+    config (named by its key)."""
     text = str(error)
+    typed = _typed_override(error)
+    if typed is not None:
+        return typed
     if isinstance(error, MissingConfigException) and error.options:
         return f"{first_line(text)} (available: {', '.join(error.options)})"
     if isinstance(error, OverrideParseException):

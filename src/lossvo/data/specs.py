@@ -1,9 +1,13 @@
 """What a data module is built from: the datasets it reads (:class:`Source`), its splits, frames, windows,
-flow and loader settings, each a small frozen dataclass checked where it is made.
+flow and loader settings, each a small dataclass checked where it is made.
 
-``data.<spec>.<key>`` in a config is the field ``key`` of the spec (``data.windows.seq_len``); every
-``of`` classmethod takes the mapping Hydra gives and raises :class:`~lossvo.console.UserError` naming the
-full key of the first entry it refuses. :func:`current` turns the data description of an earlier
+The dataclasses are also the ``data`` config group's schema (:class:`Data`, stored in Hydra's ConfigStore
+as ``data/shared/schema``): they hold every default, the YAML files only what differs, and Hydra checks
+the types when it composes a config. ``data.<spec>.<key>`` in a config is the field ``key`` of the spec
+(``data.windows.seq_len``); every ``of`` classmethod takes a mapping (Hydra's, or a checkpoint's data
+description, whose missing keys take :data:`DESCRIBED`'s values) and raises
+:class:`~lossvo.console.UserError` naming the full key of the first entry it refuses; ``__post_init__``
+checks what a type cannot say (ranges, choices). :func:`current` turns the data description of an earlier
 checkpoint into these specs' form (:func:`nested` the flat one).
 """
 
@@ -14,14 +18,17 @@ import functools
 import sys
 from collections.abc import Callable, Mapping
 from collections.abc import Sequence as Seq
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
+from hydra.core.config_store import ConfigStore
+from omegaconf import SI, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
 from lossvo.checks import is_integer, is_number
-from lossvo.console import UserError
+from lossvo.console import UserError, typed_value_message
 from lossvo.data import layouts
 from lossvo.data.flow import FlowSetting
 from lossvo.data.sequence import split_names
@@ -33,6 +40,7 @@ SYNTHETIC = "synthetic"
 NORMALIZATIONS = ("dataset", "flownet")
 SPLITS = ("train", "val", "test", "unseen")
 _R = TypeVar("_R")
+_S = TypeVar("_S")
 
 
 def _fields(cls: type, value: Any, where: str) -> dict[str, Any]:
@@ -61,6 +69,13 @@ def _check(where: str, key: str, value: Any, fits: bool, expected: str) -> None:
     """UserError ``<where>.<key>: expected <expected>, got <value>`` unless ``fits``."""
     if not fits:
         raise UserError(f"{where}.{key}: expected {expected}, got {value!r}")
+
+
+def _require(spec: object, key: str, fits: Callable[[Any], bool], expected: str) -> None:
+    """:func:`_check` of the field ``key`` of ``spec`` (``data.<its class, lower case>.<key>``): what its
+    type cannot say (a range, a choice)."""
+    value = getattr(spec, key)
+    _check(f"data.{type(spec).__name__.lower()}", key, value, fits(value), expected)
 
 
 def _camera(value: Any, key: str) -> tuple[np.ndarray, np.ndarray] | None:
@@ -225,34 +240,50 @@ def sources_of(value: Any, cache_dir: Path) -> dict[str, Source]:
     return sources
 
 
-@dataclass(frozen=True)
+def _built(cls: type[_S], value: Any, where: str, described: Mapping[str, Any]) -> _S:
+    """The spec ``cls`` from its mapping: the keys it lacks take ``described``'s values, OmegaConf checks
+    the types against the dataclass and ``__post_init__`` the rest; UserError naming the full key (under
+    ``where``) otherwise."""
+    if isinstance(value, cls):
+        return value
+    given = _fields(cls, value, where)
+    try:
+        merged = OmegaConf.merge(OmegaConf.structured(cls), described, given)
+        return cls(**OmegaConf.to_container(merged, resolve=True))  # type: ignore[arg-type]
+    except OmegaConfBaseException as e:
+        raise UserError(f"{where}.{typed_value_message(e)}") from None
+
+
+@dataclass
 class Splits:
     """Sequence names of each split, as the run names them: a sequence's own name with one source,
     ``<source>/<sequence>`` with several. ``unseen``: sequences of motion unlike the training split's,
-    evaluated beside the test ones."""
+    evaluated beside the test ones. A value may be ``["00", "07"]``, ``"00,07"``, ``[0, 7]`` or ``7``
+    (typed ``Any`` for that); each becomes a tuple of names (``7`` is ``"07"``)."""
 
-    train: tuple[str, ...] = ()
-    val: tuple[str, ...] = ()
-    test: tuple[str, ...] = ()
-    unseen: tuple[str, ...] = ()
+    train: Any = field(default_factory=list)
+    val: Any = field(default_factory=list)
+    test: Any = field(default_factory=list)
+    unseen: Any = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        for key in SPLITS:
+            given = getattr(self, key)
+            names = tuple(split_names(given or []))
+            if "" in names:
+                raise UserError(f"data.splits.{key}: empty sequence name in {given!r}")
+            setattr(self, key, names)
 
     @classmethod
     def of(cls, value: Any) -> Splits:
-        """From ``{train: [...], ...}``; a value may be ``["00", "07"]``, ``"00,07"``, ``[0, 7]`` or ``7``."""
-        fields = _fields(cls, value, "data.splits")
-        made = {}
-        for key in SPLITS:
-            names = tuple(split_names(fields.get(key) or []))
-            if "" in names:
-                raise UserError(f"data.splits.{key}: empty sequence name in {fields[key]!r}")
-            made[key] = names
-        return cls(**made)
+        """From ``{train: [...], ...}``."""
+        return cls(**_fields(cls, value, "data.splits"))
 
     def as_dict(self) -> dict[str, tuple[str, ...]]:
         return {key: getattr(self, key) for key in SPLITS}
 
 
-@dataclass(frozen=True)
+@dataclass
 class Frames:
     """The cached frames: (height, width) pixels the network sees (area interpolation); ``crop`` cuts each
     frame's centred window of that aspect ratio first (K follows); ``normalization`` ``dataset`` (per-channel
@@ -260,29 +291,23 @@ class Frames:
     given instead of computed (a trained network's); ``cache_dir`` None: ``$LOSSVO_CACHE`` or
     ``~/.cache/lossvo``."""
 
-    height: int = 184
-    width: int = 608
+    height: int = 160
+    width: int = 208
     crop: bool = False
     normalization: str = "dataset"
     statistics: dict[str, list[float]] | None = None
     cache_dir: str | None = None
 
+    def __post_init__(self) -> None:
+        for key in ("height", "width"):
+            _require(self, key, lambda v: is_integer(v, 16), "an integer >= 16 pixels")
+        one_of = f"one of {', '.join(NORMALIZATIONS)}"
+        _require(self, "normalization", lambda v: v in NORMALIZATIONS, one_of)
+        self.statistics = _statistics(self.statistics)
+
     @classmethod
     def of(cls, value: Any) -> Frames:
-        f = {**dataclasses.asdict(cls()), **_fields(cls, value, "data.frames")}
-        for key in ("height", "width"):
-            _check("data.frames", key, f[key], is_integer(f[key], 16), "an integer >= 16 pixels")
-        _check("data.frames", "crop", f["crop"], isinstance(f["crop"], bool), "true or false")
-        normalization = f["normalization"]
-        _check(
-            "data.frames",
-            "normalization",
-            normalization,
-            normalization in NORMALIZATIONS,
-            f"one of {', '.join(NORMALIZATIONS)}",
-        )
-        f["statistics"] = _statistics(f["statistics"])
-        return cls(**f)
+        return _built(cls, value, "data.frames", DESCRIBED["frames"])
 
 
 def _statistics(value: Any) -> dict[str, list[float]] | None:
@@ -300,91 +325,114 @@ def _statistics(value: Any) -> dict[str, list[float]] | None:
     return {"mean": mean.tolist(), "std": std.tolist()}
 
 
-@dataclass(frozen=True)
+@dataclass
 class Windows:
     """Training windows: ``seq_len`` frames (``seq_len - 1`` pairs), a start every ``stride`` frames, at
-    each of ``frame_steps`` (every s-th frame: faster motion); ``per_epoch`` windows drawn afresh each epoch
-    (None: all); ``batch_size`` windows a batch. With several sources, each source's windows are drawn in
-    proportion to their number. Validation and evaluation tile consecutive frames."""
+    each of ``frame_steps`` (every s-th frame: faster motion; repeats dropped); ``per_epoch`` windows drawn
+    afresh each epoch (None: all); ``batch_size`` windows a batch. With several sources, each source's
+    windows are drawn in proportion to their number. Validation and evaluation tile consecutive frames.
+    ``seq_len``, ``per_epoch`` and ``batch_size`` default to the network's where its config declares them
+    (``reads:``, e.g. model=flowvo): interpolations that a composed config resolves, so that a ``Windows``
+    made directly names all three."""
 
-    seq_len: int = 7
+    seq_len: int = SI("${oc.select:reads.seq_len,6}")
     stride: int = 1
-    frame_steps: tuple[int, ...] = (1,)
-    per_epoch: int | None = None
-    batch_size: int = 8
+    frame_steps: list[int] = field(default_factory=lambda: [1])
+    per_epoch: int | None = SI("${oc.select:reads.windows_per_epoch,null}")
+    batch_size: int = SI("${oc.select:reads.batch_size,8}")
+
+    def __post_init__(self) -> None:
+        _require(self, "seq_len", lambda v: is_integer(v, 2), "an integer >= 2 frames")
+        for key in ("stride", "batch_size"):
+            _require(self, key, lambda v: is_integer(v, 1), "an integer >= 1")
+        _require(
+            self,
+            "per_epoch",
+            lambda v: v is None or is_integer(v, 1),
+            "null or an integer >= 1",
+        )
+        steps = "a list of integers >= 1 like [1, 2]"
+        _require(self, "frame_steps", lambda v: bool(v) and all(is_integer(s, 1) for s in v), steps)
+        self.frame_steps = list(dict.fromkeys(self.frame_steps))
 
     @classmethod
     def of(cls, value: Any) -> Windows:
-        f = {**dataclasses.asdict(cls()), **_fields(cls, value, "data.windows")}
-        _check("data.windows", "seq_len", f["seq_len"], is_integer(f["seq_len"], 2), "an integer >= 2 frames")
-        _check("data.windows", "stride", f["stride"], is_integer(f["stride"], 1), "an integer >= 1")
-        per_epoch = f["per_epoch"]
-        _check(
-            "data.windows",
-            "per_epoch",
-            per_epoch,
-            per_epoch is None or is_integer(per_epoch, 1),
-            "null or an integer >= 1",
-        )
-        _check(
-            "data.windows", "batch_size", f["batch_size"], is_integer(f["batch_size"], 1), "an integer >= 1"
-        )
-        steps = f["frame_steps"]
-        listed = list(steps) if isinstance(steps, Seq) and not isinstance(steps, str) else []
-        _check(
-            "data.windows",
-            "frame_steps",
-            steps,
-            bool(listed) and all(is_integer(v, 1) for v in listed),
-            "a list of integers >= 1 like [1, 2]",
-        )
-        steps = tuple(dict.fromkeys(listed))
-        return cls(f["seq_len"], f["stride"], steps, per_epoch, f["batch_size"])
+        return _built(cls, value, "data.windows", DESCRIBED["windows"])
+
+
+@dataclass
+class Flow:
+    """``data.flow``: the optical flow cached beside the frames (:class:`lossvo.data.flow.FlowSetting`,
+    which checks the values): ``method`` dis | farneback | none (the network's where its config declares
+    one), DIS's ``preset``, and ``scale``: the flow is computed on the source images at ``scale`` times
+    (height, width), then resized."""
+
+    method: str = SI("${oc.select:reads.flow,none}")
+    preset: str = "medium"
+    scale: float = 1.5
 
 
 def flow_of(value: Any) -> FlowSetting:
     """``data.flow`` ``{method, preset, scale}`` as a :class:`lossvo.data.flow.FlowSetting`."""
-    f = {"method": "none", "preset": "medium", "scale": 1.0, **_fields(FlowSetting, value, "data.flow")}
-    return FlowSetting(f["method"], f["preset"], f["scale"])
+    if isinstance(value, FlowSetting):
+        return value
+    flow = _built(Flow, value, "data.flow", DESCRIBED["flow"])
+    return FlowSetting(flow.method, flow.preset, flow.scale)
 
 
-@dataclass(frozen=True)
+@dataclass
 class Loader:
     """Where batches are assembled: ``num_workers`` and ``pin_memory`` of the host loader; ``on_device``
     ``auto`` (gathered on an accelerator where the splits' arrays fit ``device_budget_gb`` GiB), ``true``
-    (on the training device whenever they fit, a CPU included) or ``false`` (the host loader)."""
+    (on the training device whenever they fit, a CPU included) or ``false`` (the host loader); typed
+    ``Any`` (a bool or ``auto``)."""
 
     num_workers: int = 2
     pin_memory: bool = False
-    on_device: bool | str = "auto"
+    on_device: Any = "auto"
     device_budget_gb: float = 8.0
+
+    def __post_init__(self) -> None:
+        _require(self, "num_workers", lambda v: is_integer(v, 0), "an integer >= 0")
+        _require(self, "on_device", lambda v: v == "auto" or isinstance(v, bool), "auto, true or false")
+        _require(self, "device_budget_gb", lambda v: is_number(v) and v >= 0, "a number of GiB >= 0")
+        self.device_budget_gb = float(self.device_budget_gb)
 
     @classmethod
     def of(cls, value: Any) -> Loader:
-        f = {**dataclasses.asdict(cls()), **_fields(cls, value, "data.loader")}
-        _check(
-            "data.loader", "num_workers", f["num_workers"], is_integer(f["num_workers"], 0), "an integer >= 0"
-        )
-        _check(
-            "data.loader", "pin_memory", f["pin_memory"], isinstance(f["pin_memory"], bool), "true or false"
-        )
-        on_device = f["on_device"]
-        _check(
-            "data.loader",
-            "on_device",
-            on_device,
-            on_device == "auto" or isinstance(on_device, bool),
-            "auto, true or false",
-        )
-        budget = f["device_budget_gb"]
-        _check(
-            "data.loader",
-            "device_budget_gb",
-            budget,
-            is_number(budget) and budget >= 0,
-            "a number of GiB >= 0",
-        )
-        return cls(f["num_workers"], f["pin_memory"], on_device, float(budget))
+        return _built(cls, value, "data.loader", DESCRIBED["loader"])
+
+
+@dataclass
+class Data:
+    """The ``data`` config group's schema: :class:`lossvo.data.datamodules.VODataModule`'s arguments.
+    ``sources`` (name -> :class:`Source`'s config, whose keys depend on its layout) and ``transforms``
+    (batch transforms, each with its ``_target_``) are checked by the data module. Each spec's default is
+    OmegaConf's typed node of its defaults, built without calling the dataclass (whose defaults may be
+    interpolations)."""
+
+    _target_: str = "lossvo.data.datamodules.VODataModule"
+    splits: Splits = field(default_factory=functools.partial(OmegaConf.structured, Splits))
+    frames: Frames = field(default_factory=functools.partial(OmegaConf.structured, Frames))
+    windows: Windows = field(default_factory=functools.partial(OmegaConf.structured, Windows))
+    flow: Flow = field(default_factory=functools.partial(OmegaConf.structured, Flow))
+    loader: Loader = field(default_factory=functools.partial(OmegaConf.structured, Loader))
+    transforms: list[Any] = field(default_factory=list)
+    sources: dict[str, Any] = field(default_factory=dict)
+
+
+ConfigStore.instance().store(group="data/shared", name="schema", node=Data)
+
+DESCRIBED: dict[str, dict[str, Any]] = {
+    "frames": {"height": 184, "width": 608, "crop": False, "normalization": "dataset", "statistics": None,
+               "cache_dir": None},
+    "windows": {"seq_len": 7, "stride": 1, "frame_steps": [1], "per_epoch": None, "batch_size": 8},
+    "flow": {"method": "none", "preset": "medium", "scale": 1.0},
+    "loader": {"num_workers": 2, "pin_memory": False, "on_device": "auto", "device_budget_gb": 8.0},
+}  # fmt: skip
+"""The values a spec built from a mapping (:meth:`Frames.of`, ...) takes for a key the mapping lacks: the
+ones a checkpoint whose data description lacks the key was trained with. A composed config has every key
+(the dataclasses' defaults where its files set none)."""
 
 
 FLAT_KEYS = {
@@ -484,26 +532,48 @@ def current(description: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
+SPECS: dict[str, type] = {
+    "splits": Splits,
+    "frames": Frames,
+    "windows": Windows,
+    "flow": Flow,
+    "loader": Loader,
+}
+"""The specs of :class:`Data` by key."""
+
+
 def check_overrides(overrides: Seq[str]) -> None:
     """UserError for a command-line override of a data key of the flat form (``data.root=...``), naming
     the key that holds it now (``data.sources.<name>.root``). ``data.frames`` and ``data.flow`` are
-    specs of both forms: their own checks name them."""
+    specs of both forms: :func:`check_spec_values` names their keys."""
     for line in overrides:
         key = line.lstrip("+~").split("=", 1)[0]
         flat = key.removeprefix("data.")
-        if key.startswith("data.") and "." not in flat and flat not in ("frames", "flow"):
+        if key.startswith("data.") and "." not in flat and flat not in SPECS:
             new = new_key(flat)
             if new is not None:
                 raise UserError(f"{key}: not a data key; the setting is data.{new} (docs/data.md lists them)")
 
 
+def check_spec_values(overrides: Seq[str]) -> None:
+    """UserError for a command-line override giving a spec a value that is no mapping (``data.flow=dis``),
+    naming the spec's keys (Hydra would name only the schema's type)."""
+    for line in overrides:
+        key, _, value = line.lstrip("+~").partition("=")
+        spec = SPECS.get(key.removeprefix("data.")) if key.startswith("data.") else None
+        if spec is not None and value not in ("", "null") and not value.startswith(("{", "$")):
+            _fields(spec, value, key)
+
+
 def refusing_flat_keys(main: Callable[[], _R]) -> Callable[[], _R]:
-    """A Hydra entry point that refuses a flat-form data override (:func:`check_overrides`) before Hydra
-    composes the config (which would call it a key the config lacks)."""
+    """A Hydra entry point that refuses a flat-form data override (:func:`check_overrides`) and a spec
+    given a value that is no mapping (:func:`check_spec_values`) before Hydra composes the config (which
+    would call it a key the config lacks, or name the schema's type)."""
 
     @functools.wraps(main)
     def wrapped() -> _R:
         check_overrides(sys.argv[1:])
+        check_spec_values(sys.argv[1:])
         return main()
 
     return wrapped

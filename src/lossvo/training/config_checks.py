@@ -2,8 +2,10 @@
 
 The settings that Lightning, torch or the data loader would otherwise refuse deep inside a run (or
 misread without a word) are checked first, each failure a :class:`~lossvo.console.UserError` naming the
-key, the value and what was expected, e.g. ``data.windows.batch_size: expected an integer >= 1, got 'abc'``.
-The constructors check their own arguments (:class:`lossvo.data.datamodules.VODataModule`),
+key, the value and what was expected, e.g. ``data.windows.batch_size: expected an integer >= 1, got 0``.
+The types of the data settings are checked where Hydra composes the config (their schema:
+:class:`lossvo.data.specs.Data`); the constructors check the rest
+(:class:`lossvo.data.datamodules.VODataModule`),
 :func:`lossvo.weighting.check_config` the loss weights.
 """
 
@@ -29,7 +31,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from lossvo import weighting
 from lossvo.checks import is_integer, is_number
-from lossvo.console import UserError, exit_in_one_line, first_line, one_line
+from lossvo.console import UserError, exit_in_one_line, one_line, typed_value_message
 
 _ABSENT = object()
 
@@ -85,8 +87,8 @@ def resolved_config(cfg: DictConfig) -> dict[str, Any]:
     naming the key of one that does not resolve (OmegaConf's errors are ``ValueError``)."""
     try:
         return cast("dict[str, Any]", OmegaConf.to_container(cfg, resolve=True))
-    except OmegaConfBaseException as e:  # an interpolation that does not resolve
-        raise UserError(f"{e.full_key}: {first_line(e.msg) or type(e).__name__}") from None
+    except OmegaConfBaseException as e:  # an interpolation that does not resolve, or to a wrong type
+        raise UserError(typed_value_message(e)) from None
 
 
 def check_train_config(cfg: DictConfig, machine: bool = True) -> None:
