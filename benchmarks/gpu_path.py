@@ -67,7 +67,7 @@ from torch.utils.data import DataLoader, Dataset
 import lossvo
 from lossvo import geometry as g
 from lossvo import losses, models
-from lossvo.data import windows
+from lossvo.data import specs, windows
 
 CONF = Path(lossvo.__file__).parent / "conf"
 
@@ -138,14 +138,14 @@ class Network:
 def study_settings() -> dict[str, Any]:
     """What the study runs (``experiment=paper``, ``trainer=gpu``, ``data=kitti``), read from the configs."""
     paper, kitti, gpu = config("experiment/paper.yaml"), config("data/kitti.yaml"), config("trainer/gpu.yaml")
-    base, flowvo = config("data/shared/base.yaml"), config("model/flowvo.yaml")
+    base, flowvo = OmegaConf.structured(specs.Windows), config("model/flowvo.yaml")  # the schema's defaults
     return {
         "size": [kitti.frames.height, kitti.frames.width],
         "networks": {
             "deepvo": {
                 "model": plain(config("model/deepvo.yaml")),
                 "seq_len": kitti.windows.seq_len,
-                "batch_size": base.windows.batch_size,
+                "batch_size": base.batch_size,
             },
             "flowvo": {
                 "model": plain(flowvo.model),
@@ -153,7 +153,7 @@ def study_settings() -> dict[str, Any]:
                 "batch_size": flowvo.reads.batch_size,
             },
         },
-        "stride": base.windows.stride,
+        "stride": base.stride,
         "num_workers": paper.data.loader.num_workers,
         "pin_memory": paper.data.loader.pin_memory,
         "lr": paper.optimizer.lr,
