@@ -18,6 +18,7 @@ import torch
 import yaml
 
 from helpers import metrics_rows, scores_of, status_of, train_main
+from lossvo.machine import machine
 from lossvo.training import fitting
 from lossvo.training.callbacks import EpochProgressBar
 from lossvo.training.resolvers import MAX_NAME, path_safe
@@ -88,6 +89,7 @@ def test_a_stop_during_the_final_evaluation_resumes_the_evaluation(
     stopped, resumed = history[1], history[2]  # training had completed: the evaluation resumed
     assert (stopped["stage"], resumed["stage"]) == ("evaluation", "evaluation") and "epoch" not in resumed
     assert resumed["from"] == status["resume_from"]
+    assert history[0]["machine"] == resumed["machine"] == machine()
     assert [e["event"] for e in theirs.pop("history")] == ["started", "completed"]
     assert ours == theirs and ours["metrics"]["val/score"] > 0
     assert scores_of(run) == scores_of(uninterrupted)

@@ -5,6 +5,7 @@ pretended."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -275,6 +276,15 @@ def test_on_a_gpu_as_many_jobs_as_fit_run_with_trainer_gpu(monkeypatch: pytest.M
     assert plan_of(few, cuda=True).at_once == 2  # no more than its jobs
     with pytest.raises(gpu_jobs.GpuMemoryError, match=r"hydra\.launcher\.n_jobs=8: 8 jobs at once"):
         plan_of(["--jobs", "8"], cuda=True)
+
+
+def test_jobs_on_a_cpu_keep_freed_memory_unless_the_environment_says_otherwise() -> None:
+    cpu = plan_of([])
+    gpu = dataclasses.replace(cpu, gpu=True)
+    assert study.job_environment(cpu, {"PATH": "/bin"}) == {**study.KEPT_MEMORY, "PATH": "/bin"}
+    own = {"MALLOC_TRIM_THRESHOLD_": "0"}
+    assert study.job_environment(cpu, own)["MALLOC_TRIM_THRESHOLD_"] == "0"
+    assert study.job_environment(gpu, {"PATH": "/bin"}) == {"PATH": "/bin"}
 
 
 @pytest.mark.parametrize(

@@ -43,6 +43,7 @@ from lossvo.console import (
 )
 from lossvo.evaluation import job_folder
 from lossvo.evaluation.job_folder import LAST_CHECKPOINT, METRICS, STATUS, Event, Status
+from lossvo.machine import machine
 from lossvo.training import metrics_log
 from lossvo.training.config_checks import check_added_keys, check_train_config
 from lossvo.training.slurm import slurm_job
@@ -192,9 +193,9 @@ class Run:
         in its history. A checkpoint of an earlier stop (:data:`UNREAD_CHECKPOINT`) goes."""
         self.threads = threads
         self.history.append(
-            event("resumed", code=code_version(), **resumed)
+            event("resumed", code=code_version(), machine=machine(), **resumed)
             if resumed is not None
-            else event("started", code=code_version())
+            else event("started", code=code_version(), machine=machine())
         )
         if _first_process():
             save_config(self.out_dir, self.cfg)
