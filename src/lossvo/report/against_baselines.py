@@ -35,8 +35,8 @@ from lossvo.report.jobs import (
     finite_number,
     metric_value,
 )
-from lossvo.report.tables import BASELINE, Column, fmt
-from lossvo.table_render import Rows, prepend_column
+from lossvo.report.tables import BASELINE, UNKNOWN_ARCHITECTURE, Column, fmt, with_architecture
+from lossvo.table_render import Rows
 
 UNSEEN_KEY = "data.splits.unseen"
 UNSEEN_ROTATION_BAR = 0.30
@@ -196,10 +196,6 @@ def _baseline(base: BaselineRun, name: str) -> Column | None:
     return next((c for c in base.columns if c.label == name), None)
 
 
-def _architecture(column: Column) -> str:
-    return column.architecture or "?"
-
-
 def learning_markdown(networks: Sequence[Column], base: BaselineRun, by_architecture: bool = False) -> str:
     """Per job and validation sequence (the configs' ``data.splits.val``): how far below the mean-motion
     baseline its RPE lies (with ``by_architecture`` the job's architecture first)."""
@@ -223,9 +219,9 @@ def learning_markdown(networks: Sequence[Column], base: BaselineRun, by_architec
         "How far each job's RPE RMSE lies below the mean-motion baseline's on the validation sequences "
         "(1 − network / baseline; negative: worse than predicting the training set's mean motion)."
     )
-    table = Rows(header, rows)
-    if by_architecture:
-        table = prepend_column(table, "architecture", [_architecture(c) for c in networks for _ in c.jobs])
+    table = with_architecture(
+        Rows(header, rows), [c.architecture for c in networks for _ in c.jobs], by_architecture
+    )
     return "\n".join([text, "", table_render.markdown(table)])
 
 
@@ -293,7 +289,7 @@ def unseen_markdown(
     if zero is None or own is None:
         return "No zero-motion or own-mean-motion baseline: nothing to compare."
     rows: list[list[object]] = []
-    architectures: list[str] = []
+    architectures: list[str | None] = []
     passed: dict[str, list[bool]] = {}
     for column in networks:
         for job, results in zip(column.jobs, column.results, strict=True):
@@ -303,11 +299,14 @@ def unseen_markdown(
             rows += [
                 [column.label, job.seed, s, *_check_cells(c)] for s, c in zip(unseen, checks, strict=True)
             ]
-            architectures += [_architecture(column)] * len(unseen)
-            passed.setdefault(_architecture(column), []).append(all(c.met for c in checks))
-    table = Rows(["configuration", "seed", "sequence", *UNSEEN_HEADER], rows)
+            architectures += [column.architecture] * len(unseen)
+            passed.setdefault(column.architecture or UNKNOWN_ARCHITECTURE, []).append(
+                all(c.met for c in checks)
+            )
+    table = with_architecture(
+        Rows(["configuration", "seed", "sequence", *UNSEEN_HEADER], rows), architectures, by_architecture
+    )
     if by_architecture:
-        table = prepend_column(table, "architecture", architectures)
         counts = "; ".join(f"{a}: {sum(met)} of {len(met)}" for a, met in passed.items())
         summary = f"Jobs that meet both on every unseen sequence, per architecture: {counts}."
     else:

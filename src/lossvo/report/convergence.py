@@ -10,10 +10,10 @@ import numpy as np
 
 from lossvo import table_render
 from lossvo.report import statistics
-from lossvo.report.configurations import SCORE, UNKNOWN_ARCHITECTURE, job_selection
+from lossvo.report.configurations import SCORE, job_selection
 from lossvo.report.jobs import Job
-from lossvo.report.tables import NETWORK, Cell, Column
-from lossvo.table_render import Rows, prepend_column
+from lossvo.report.tables import NETWORK, Cell, Column, with_architecture
+from lossvo.table_render import Rows
 
 
 def convergence_metric(job: Job) -> tuple[str, str]:
@@ -101,10 +101,6 @@ def convergence_markdown(items: Sequence[Convergence], by_architecture: bool = F
     return "\n".join([*lines, "", table_render.markdown(convergence_rows(items, by_architecture))])
 
 
-def _architectures(items: Sequence[Convergence]) -> list[str]:
-    return [c.architecture or UNKNOWN_ARCHITECTURE for c in items]
-
-
 def convergence_rows(items: Sequence[Convergence], by_architecture: bool = False) -> Rows:
     """Per configuration: the metric, seeds with a curve, the epoch (mean ± std), per seed, epochs logged;
     with ``by_architecture`` the configuration's architecture first."""
@@ -131,8 +127,7 @@ def convergence_rows(items: Sequence[Convergence], by_architecture: bool = False
                 ", ".join(map(str, sorted(set(c.logged)))),
             ]
         )
-    table = Rows(header, rows)
-    return prepend_column(table, "architecture", _architectures(items)) if by_architecture else table
+    return with_architecture(Rows(header, rows), [c.architecture for c in items], by_architecture)
 
 
 def convergence_csv_rows(items: Sequence[Convergence], by_architecture: bool = False) -> Rows:
@@ -140,13 +135,13 @@ def convergence_csv_rows(items: Sequence[Convergence], by_architecture: bool = F
     none), ``epochs_logged``; then per configuration a row with seed ``mean`` (mean epoch) and one with
     seed ``std`` (sample std); with ``by_architecture`` the configuration's architecture first."""
     rows: list[list[object]] = []
-    architectures: list[str] = []
-    for c, architecture in zip(items, _architectures(items), strict=True):
+    architectures: list[str | None] = []
+    for c in items:
         for r, m, e, n in zip(c.replicates, c.metrics, c.epochs, c.logged, strict=True):
             rows.append([c.label, r, m, "" if e is None else e, n])
         cell, metric = c.cell(), ",".join(sorted(set(c.metrics)))
         rows.append([c.label, "mean", metric, repr(cell.mean) if cell.n else "", ""])
         rows.append([c.label, "std", metric, repr(cell.std) if cell.n > 1 else "", ""])
-        architectures += [architecture] * (len(c.replicates) + 2)
+        architectures += [c.architecture] * (len(c.replicates) + 2)
     table = Rows(["configuration", "seed", "metric", "epoch", "epochs_logged"], rows)
-    return prepend_column(table, "architecture", architectures) if by_architecture else table
+    return with_architecture(table, architectures, by_architecture)

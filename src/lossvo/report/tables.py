@@ -21,10 +21,20 @@ import pandas as pd
 from lossvo import table_render
 from lossvo.report.frame import Column, metric_matrix, results_frame
 from lossvo.report.jobs import APE_ROT, APE_TRANS, KITTI_R, KITTI_T, RPE_ROT, RPE_TRANS
-from lossvo.table_render import Rows
+from lossvo.table_render import Rows, prepend_column
 
 NETWORK, BASELINE = "network", "baseline"
 MEAN_ROW = "mean"
+UNKNOWN_ARCHITECTURE = "?"
+"""The architecture of a job whose folder names none (:func:`lossvo.report.jobs.read_architecture`)."""
+
+
+def with_architecture(table: Rows, architectures: Sequence[str | None], by_architecture: bool) -> Rows:
+    """``table`` with an ``architecture`` column first (one per row; None: :data:`UNKNOWN_ARCHITECTURE`)
+    where ``by_architecture``, else ``table``."""
+    if not by_architecture:
+        return table
+    return prepend_column(table, "architecture", [a or UNKNOWN_ARCHITECTURE for a in architectures])
 
 
 # --------------------------------------------------------------------------------------------------
@@ -63,6 +73,15 @@ TABLES = (
 def samples(column: Column, path: Sequence[str], sequences: Sequence[str]) -> np.ndarray:
     """(replicates, sequences) float64 values of one metric; NaN where missing (or no KITTI segment)."""
     return metric_matrix(results_frame([column]), column, path, sequences)
+
+
+def paired_samples(
+    a: Column, b: Column, path: Sequence[str], sequences: Sequence[str]
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`samples` of A and B on the seeds both have, paired by seed: (S, sequences) each."""
+    seeds = [s for s in a.replicates if s in b.replicates]
+    x = samples(a, path, sequences)[[a.replicates.index(s) for s in seeds]]
+    return x, samples(b, path, sequences)[[b.replicates.index(s) for s in seeds]]
 
 
 def seed_scores(column: Column, path: Sequence[str], sequences: Sequence[str]) -> dict[str, float]:
