@@ -25,6 +25,7 @@ from lossvo.report.tables import (
     UNKNOWN_ARCHITECTURE,
     Cell,
     Column,
+    evaluated_sequences,
     fmt,
     mean_std_text,
     paired_samples,
@@ -112,22 +113,16 @@ def training_sequences(columns: Sequence[Column]) -> set[str]:
     return {s for c in columns for j in c.jobs for s in trained_sequences(j)}
 
 
-def evaluated_by(columns: Sequence[Column], sequences: Sequence[str]) -> list[str]:
-    """The ``sequences`` that some job of ``columns`` has results for, in order."""
-    evaluated = {name for c in columns for per_sequence in c.results for name in per_sequence}
-    return [s for s in sequences if s in evaluated]
-
-
 def heldout_sequences(columns: Sequence[Column], sequences: Sequence[str]) -> list[str]:
     """The ``sequences`` that some job of ``columns`` evaluated and none of them trained on, in order."""
     train = training_sequences(columns)
-    return [s for s in evaluated_by(columns, sequences) if s not in train]
+    return [s for s in evaluated_sequences(columns, sequences) if s not in train]
 
 
 def seed_means(column: Column, path: Sequence[str], sequences: Sequence[str]) -> Cell:
     """Mean ± std over seeds of each seed's mean of one metric over ``sequences`` (a seed missing one
     sequence is left out)."""
-    return Cell.of(np.array(list(seed_scores(column, path, sequences).values()), dtype=np.float64))
+    return Cell.of(list(seed_scores(column, path, sequences).values()))
 
 
 def seed_test(
@@ -300,7 +295,7 @@ def claims_by_architecture(
     out = []
     for architecture, group in architecture_groups(columns).items():
         labels = {c.label for c in group}
-        own = evaluated_by(group, sequences)
+        own = evaluated_sequences(group, sequences)
         kept = [i for i in items if i.label in labels]
         for claim in study_claims(group, kept, own, margin, claimed_loss):
             claim.architecture = architecture
@@ -388,20 +383,9 @@ def seeds_needed_text(n: float, infinite: str = "no effect observed") -> str:
 
 
 def _tests_rows(claim: Claim) -> Rows:
-    header = [
-        "quantity",
-        "versus",
-        "n seeds",
-        f"mean difference ({claim.configuration} − other)",
-        "95 % CI",
-        "relative, 90 % CI",
-        "p",
-        "Holm p",
-        "TOST p",
-        "seeds to detect",
-        "seeds for equivalence",
-        "verdict",
-    ]
+    header = ["quantity", "versus", "n seeds", f"mean difference ({claim.configuration} − other)",
+              "95 % CI", "relative, 90 % CI", "p", "Holm p", "TOST p", "seeds to detect",
+              "seeds for equivalence", "verdict"]  # fmt: skip
     rows: list[list[object]] = []
     for q in claim.quantities:
         number = _number(q.quantity)
@@ -531,36 +515,11 @@ def claims_markdown(items: Sequence[Claim], by_architecture: bool = False) -> st
     return "\n\n".join(parts)
 
 
-CLAIMS_HEADER = [
-    "claim",
-    "configuration",
-    "versus",
-    "quantity",
-    "n_seeds",
-    "mean",
-    "versus_mean",
-    "mean_difference",
-    "relative",
-    "ci_low",
-    "ci_high",
-    "relative_ci_low",
-    "relative_ci_high",
-    "relative_mean",
-    "relative_low_90",
-    "relative_high_90",
-    "p_value",
-    "p_method",
-    "holm_p",
-    "smallest_p",
-    "seeds_needed",
-    "tost_p",
-    "margin",
-    "seeds_for_equivalence",
-    "secondary_cells",
-    "secondary_p",
-    "verdict",
-    "note",
-]
+CLAIMS_HEADER = ["claim", "configuration", "versus", "quantity", "n_seeds", "mean", "versus_mean",
+                 "mean_difference", "relative", "ci_low", "ci_high", "relative_ci_low",
+                 "relative_ci_high", "relative_mean", "relative_low_90", "relative_high_90", "p_value",
+                 "p_method", "holm_p", "smallest_p", "seeds_needed", "tost_p", "margin",
+                 "seeds_for_equivalence", "secondary_cells", "secondary_p", "verdict", "note"]  # fmt: skip
 """``tables/claims.csv``: a test's numbers over seeds in the claim's unit (``relative``: over |versus_mean|;
 ``ci_*``: the 95 % t-interval of the mean difference), the mean of the per-seed relative differences and
 their 90 % t-interval, p (on those), its method and Holm's, ``smallest_p`` at n, ``seeds_needed`` to detect

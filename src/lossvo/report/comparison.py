@@ -100,17 +100,8 @@ def compare(columns: Sequence[Column], by_architecture: bool = False) -> list[Co
 
 def comparison_rows(comparisons: Sequence[Comparison], by_architecture: bool = False) -> Rows:
     """The section's table (with ``by_architecture`` an ``architecture`` column first)."""
-    header = [
-        "A",
-        "B",
-        "metric",
-        "seeds",
-        "mean A − B",
-        "A lower",
-        "p",
-        "Holm p",
-        f"distinguishable at {ALPHA}",
-    ]
+    header = ["A", "B", "metric", "seeds", "mean A − B", "A lower", "p", "Holm p",
+              f"distinguishable at {ALPHA}"]  # fmt: skip
     rows: list[list[object]] = [
         [
             c.a,
@@ -131,21 +122,8 @@ def comparison_rows(comparisons: Sequence[Comparison], by_architecture: bool = F
 def comparison_csv_rows(comparisons: Sequence[Comparison], by_architecture: bool = False) -> Rows:
     """``tables/pairwise.csv``: full precision (with ``by_architecture`` an ``architecture`` column first);
     ``sequences``: those each seed's value averages, ``;``-separated."""
-    header = [
-        "a",
-        "b",
-        "metric",
-        "seeds",
-        "sequences",
-        "mean_diff",
-        "ci_low",
-        "ci_high",
-        "a_lower",
-        "p_value",
-        "method",
-        "holm_p",
-        "verdict",
-    ]
+    header = ["a", "b", "metric", "seeds", "sequences", "mean_diff", "ci_low", "ci_high", "a_lower",
+              "p_value", "method", "holm_p", "verdict"]  # fmt: skip
     rows: list[list[object]] = [
         [
             c.a,

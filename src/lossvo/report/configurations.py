@@ -291,7 +291,7 @@ def weight_text(weightings: Sequence[Weighting]) -> str:
     if not weightings:
         return "?"
     if any(w.learned for w in weightings):
-        cell = Cell.of(np.array([w.weight if w.weight is not None else np.nan for w in weightings]))
+        cell = Cell.of([w.weight for w in weightings])
         if cell.n == 0:
             return "learned: ? (no train/s_t, train/s_r in metrics.csv)"
         return f"learned: {mean_std_text(cell)}"

@@ -6,8 +6,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import numpy as np
-
 from lossvo import table_render
 from lossvo.report import statistics
 from lossvo.report.configurations import SCORE, job_selection
@@ -39,7 +37,7 @@ class Convergence:
     architecture: str | None = None
 
     def cell(self) -> Cell:
-        return Cell.of(np.array([e if e is not None else np.nan for e in self.epochs], dtype=np.float64))
+        return Cell.of(self.epochs)
 
     def epoch_of(self, replicate: str) -> int | None:
         return self.epochs[self.replicates.index(replicate)] if replicate in self.replicates else None
@@ -104,14 +102,8 @@ def convergence_markdown(items: Sequence[Convergence], by_architecture: bool = F
 def convergence_rows(items: Sequence[Convergence], by_architecture: bool = False) -> Rows:
     """Per configuration: the metric, seeds with a curve, the epoch (mean ± std), per seed, epochs logged;
     with ``by_architecture`` the configuration's architecture first."""
-    header = [
-        "configuration",
-        "metric",
-        "seeds with a curve",
-        "epoch (mean ± std)",
-        "per seed",
-        "epochs logged",
-    ]
+    header = ["configuration", "metric", "seeds with a curve", "epoch (mean ± std)", "per seed",
+              "epochs logged"]  # fmt: skip
     rows: list[list[object]] = []
     for c in items:
         pairs = zip(c.replicates, c.epochs, strict=True)

@@ -74,6 +74,7 @@ from lossvo.report.tables import (
     Table,
     TableSpec,
     build_table,
+    evaluated_sequences,
     table_csv,
     table_latex,
     table_markdown,
@@ -108,11 +109,6 @@ class Study:
     unseen: list[str] = field(default_factory=list)
     by_architecture: bool = False
     agreement: Agreement | None = None
-
-
-def evaluated_sequences(columns: Sequence[Column]) -> list[str]:
-    """Sequences with metrics in any included job, sorted."""
-    return sorted({name for c in columns for per_sequence in c.results for name in per_sequence})
 
 
 def unseen_of(networks: Sequence[Column], sequences: Sequence[str]) -> list[str]:

@@ -77,7 +77,7 @@ def _cells(column: Column, sequence: str, gt: np.ndarray) -> list[str]:
     ratios = [speed_ratios(t, gt) for t in _trajectories(column, sequence, len(gt))]
     cells: list[str] = []
     for name in STRETCHES:
-        cell = Cell.of(np.array([r[name] for r in ratios]))
+        cell = Cell.of([r[name] for r in ratios])
         cells += [fmt(float(true[masks[name]].mean()), 3), mean_std_text(cell, 3)]
     return cells
 

@@ -84,6 +84,13 @@ def paired_samples(
     return x, samples(b, path, sequences)[[b.replicates.index(s) for s in seeds]]
 
 
+def evaluated_sequences(columns: Sequence[Column], among: Sequence[str] | None = None) -> list[str]:
+    """The sequences some replicate of ``columns`` has results for: sorted, or those of ``among`` in
+    order."""
+    evaluated = {name for c in columns for per_sequence in c.results for name in per_sequence}
+    return sorted(evaluated) if among is None else [s for s in among if s in evaluated]
+
+
 def seed_scores(column: Column, path: Sequence[str], sequences: Sequence[str]) -> dict[str, float]:
     """``{replicate: mean over sequences}`` of one metric (its unit) of a configuration: each seed's value
     as one number; a seed missing a sequence is left out."""
@@ -102,7 +109,9 @@ class Cell:
     best: bool = False
 
     @classmethod
-    def of(cls, values: np.ndarray) -> Cell:
+    def of(cls, values: Sequence[float | None] | np.ndarray) -> Cell:
+        """The cell of ``values`` (None or NaN: missing)."""
+        values = np.asarray(values, dtype=np.float64)
         finite = values[np.isfinite(values)]
         if finite.size == 0:
             return cls(math.nan, math.nan, 0)
