@@ -75,10 +75,9 @@ GROUPS = (DATA_KEY, ARCHITECTURE_KEY)
 
 
 def group_choice(job: Job, group: str) -> str | None:
-    """A job's choice in one of :data:`GROUPS`: as it resolved (``job.data``, ``job.architecture``), else
-    its override."""
-    resolved = job.data if group == DATA_KEY else job.architecture
-    return resolved if resolved is not None else job.overrides.get(group)
+    """A job's choice in one of :data:`GROUPS` as Hydra recorded it (``job.data``, ``job.architecture``:
+    :func:`lossvo.report.jobs.read_choices`)."""
+    return job.data if group == DATA_KEY else job.architecture
 
 
 def _fixed_by_group(key: str, overrides: pd.DataFrame, choices: pd.DataFrame) -> bool:
