@@ -53,10 +53,8 @@ from lossvo.report.claims import (
 )
 from lossvo.report.comparison import Comparison, compare, comparison_csv_rows, comparison_rows
 from lossvo.report.configurations import (
-    UNKNOWN_ARCHITECTURE,
     architecture_file_name,
     architecture_groups,
-    configuration_csv_rows,
     configuration_rows,
     label_jobs,
     network_columns,
@@ -76,11 +74,13 @@ from lossvo.report.tables import (
     Table,
     TableSpec,
     build_table,
+    evaluated_sequences,
     table_csv,
     table_latex,
     table_markdown,
+    with_architecture,
 )
-from lossvo.table_render import Rows, prepend_column
+from lossvo.table_render import Rows
 
 log = logging.getLogger("lossvo")
 
@@ -109,11 +109,6 @@ class Study:
     unseen: list[str] = field(default_factory=list)
     by_architecture: bool = False
     agreement: Agreement | None = None
-
-
-def evaluated_sequences(columns: Sequence[Column]) -> list[str]:
-    """Sequences with metrics in any included job, sorted."""
-    return sorted({name for c in columns for per_sequence in c.results for name in per_sequence})
 
 
 def unseen_of(networks: Sequence[Column], sequences: Sequence[str]) -> list[str]:
@@ -197,9 +192,7 @@ def jobs_rows(jobs: Sequence[Job], by_architecture: bool = False) -> Rows:
         for job in jobs
     ]
     table = Rows(["job", "configuration", "seed", "status", "in tables", "notes"], rows)
-    if not by_architecture:
-        return table
-    return prepend_column(table, "architecture", [job.architecture or UNKNOWN_ARCHITECTURE for job in jobs])
+    return with_architecture(table, [job.architecture for job in jobs], by_architecture)
 
 
 def seeds_text(columns: Sequence[Column]) -> str:
@@ -437,7 +430,7 @@ def write_tables(
     by = study.by_architecture
     rows = (
         comparison_csv_rows(comparisons, by),
-        configuration_csv_rows(study.networks, by),
+        configuration_rows(study.networks, by, csv=True),
         convergence_csv_rows(study.convergence, by),
         claims_csv_rows(study.claims, by),
     )

@@ -313,20 +313,14 @@ UNRECORDED = "unrecorded"
 """The code version of a job whose status.json records none."""
 
 
-def code_versions(jobs: Iterable[Job]) -> dict[str, list[str]]:
-    """``{code version: [job folder names]}`` of ``jobs``, versions in order of first appearance; a job
-    resumed under another version is listed under each, one without a record under :data:`UNRECORDED`."""
-    found: dict[str, list[str]] = {}
-    for job in jobs:
-        for version in job.code or (UNRECORDED,):
-            found.setdefault(version, []).append(job.path.name)
-    return found
-
-
 def code_versions_note(jobs: Sequence[Job]) -> str | None:
     """The report's note where the included jobs ran more than one code version (None where they ran
-    one): each version with its jobs, and that they are pooled."""
-    found = code_versions(j for j in jobs if j.included)
+    one): each version with its jobs (a job resumed under another version under each, one without a
+    record under :data:`UNRECORDED`), and that they are pooled."""
+    found: dict[str, list[str]] = {}
+    for job in (j for j in jobs if j.included):
+        for version in job.code or (UNRECORDED,):
+            found.setdefault(version, []).append(job.path.name)
     if len(found) < 2:
         return None
     listed = "; ".join(f"`{version}`: {', '.join(names)}" for version, names in found.items())
