@@ -151,7 +151,7 @@ KITTI = {
     "splits": {"test": ["10"]},
     "frames": {"height": 184, "width": 608, "normalization": "dataset"},
     "windows": {"seq_len": 7},
-    "flow": {"method": "none", "preset": "medium"},
+    "flow": {"method": "none"},
 }
 
 
@@ -182,11 +182,11 @@ def test_evaluation_data_keeps_the_flow_the_network_read() -> None:
     """eval.yaml composes no network, so a chosen dataset's ``data.flow.method`` (which follows the
     network's ``reads``) reads none: the checkpoint's flow setting wins, and an override that contradicts it
     is refused."""
-    flowvo = {**RECORDED, "flow": {"method": "dis", "preset": "fast", "scale": 1.5}}
+    flowvo = {**RECORDED, "flow": {"method": "dis", "scale": 1.5}}
     chosen = checkpoints.evaluation_data(flowvo, KITTI, {"sources.kitti.root": "/kitti"})
-    assert chosen["flow"] == {"method": "dis", "preset": "fast", "scale": 1.5}
-    with pytest.raises(checkpoints.CheckpointError, match=r"data\.flow\.method='farneback' contradicts"):
-        checkpoints.evaluation_data(flowvo, KITTI, {"flow.method": "farneback"})
+    assert chosen["flow"] == {"method": "dis", "scale": 1.5}
+    with pytest.raises(checkpoints.CheckpointError, match=r"data\.flow\.method='none' contradicts"):
+        checkpoints.evaluation_data(flowvo, KITTI, {"flow.method": "none"})
     assert "flow" not in checkpoints.evaluation_data(RECORDED, None, {})  # a network from before flow existed
 
 
