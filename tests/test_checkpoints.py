@@ -207,6 +207,25 @@ def test_a_flat_description_of_an_earlier_version_reads_as_specs() -> None:
     )
 
 
+def test_a_network_argument_withdrawn_since_reads_at_the_value_this_version_builds(tmp_path: Path) -> None:
+    """An earlier FlowVO's ``intrinsics_layer: true`` is left out of its config; ``false`` (a network this
+    version cannot build) is refused in one line naming the file and the key."""
+    model = {"_target_": "lossvo.models.FlowVO", "out_dim": 6, "intrinsics_layer": True}
+    content = {"hyper_parameters": {"model": model, "loss": {}}}
+    assert checkpoints.Description.of(content).model == {"_target_": "lossvo.models.FlowVO", "out_dim": 6}
+    assert model["intrinsics_layer"] is True  # the checkpoint's own config as it was
+    saved: dict = {
+        "hyper_parameters": {"model": {**model, "intrinsics_layer": False}, "loss": {}},
+        "state_dict": {},
+    }
+    torch.save(saved, tmp_path / "flow-alone.ckpt")
+    with pytest.raises(
+        checkpoints.CheckpointError,
+        match=r"flow-alone\.ckpt: model\.intrinsics_layer=False: this version has True only$",
+    ):
+        checkpoints.load_network(tmp_path / "flow-alone.ckpt")
+
+
 def test_a_checkpoint_of_another_schema_version_is_one_line(tmp_path: Path) -> None:
     """A checkpoint records its schema_version as it is saved; one without it reads as this version, one
     of another version is refused in one line naming the file, its version and the supported one."""
