@@ -16,10 +16,11 @@ from types import SimpleNamespace
 import pytest
 import torch
 import yaml
+from omegaconf import OmegaConf
 
 from helpers import metrics_rows, scores_of, status_of, train_main
 from lossvo.machine import machine
-from lossvo.training import fitting
+from lossvo.training import fitting, lifecycle
 from lossvo.training.callbacks import EpochProgressBar
 from lossvo.training.resolvers import MAX_NAME, path_safe
 from test_train import tiny_overrides
@@ -118,6 +119,21 @@ def test_a_changed_config_in_a_completed_folder_is_refused(
     assert train_main(same, monkeypatch) == 0  # extending a finished run
     assert [r["epoch"] for r in metrics_rows(run) if r.get("val/score")] == ["0", "1", "2"]
     assert status_of(run)["status"] == "completed"
+
+
+def test_a_key_withdrawn_since_is_no_drift_at_the_value_this_version_runs() -> None:
+    """A config recorded by an earlier version holds keys this one does not have: at the value this one
+    runs (any value of ``data.windows.shares``) they are no drift, at another they are."""
+    ours = OmegaConf.create(
+        {"data": {"windows": {"seq_len": 2}, "flow": {"scale": 1.5}}, "model": {"hidden": 8}}
+    )
+    withdrawn = {"windows": {"stride": 1, "shares": None}, "flow": {"preset": "medium"}}
+    earlier = OmegaConf.merge(ours, {"data": withdrawn, "model": {"intrinsics_layer": True}})
+    assert lifecycle.config_drift(earlier, ours) == []
+    other = OmegaConf.merge(
+        earlier, {"data": {"flow": {"preset": "fast"}}, "model": {"intrinsics_layer": False}}
+    )
+    assert lifecycle.config_drift(other, ours) == ["data.flow.preset", "model.intrinsics_layer"]
 
 
 @pytest.mark.slow

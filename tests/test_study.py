@@ -312,8 +312,8 @@ def test_the_study_time_shares_the_jobs_out_but_is_no_shorter_than_its_longest()
 
 
 def test_job_size_from_the_composed_config(tiny_kitti: Path, tmp_path: Path) -> None:
-    """Two training sequences of 10 frames, windows of 3 frames a stride 1: 8 each, 4 a batch: 4 steps an
-    epoch; 9 pairs validated (02) and evaluated (02), twice for trajectories (mirror averaging)."""
+    """Two training sequences of 10 frames, windows of 3 frames, one at every frame: 8 each, 4 a batch: 4
+    steps an epoch; 9 pairs validated (02) and evaluated (02), twice for trajectories (mirror averaging)."""
     cfg = study.compose_job("model=deepvo_small", "euler", tiny_overrides(tiny_kitti, tmp_path / "cache"))
     assert study.job_size(cfg) == study.JobSize(epochs=10, steps=40, val_pairs=9, evaluated_pairs=9, passes=2)
     tiny = [o for o in tiny_overrides(tiny_kitti, tmp_path / "cache") if not o.startswith("model.")]

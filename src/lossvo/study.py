@@ -230,7 +230,7 @@ def job_size(cfg: DictConfig) -> JobSize:
     datamodule.load_metadata()
     sequences, spec = datamodule.sequences, datamodule.windows
     train = sum(
-        len(windows.training_starts(len(seq.times), spec.seq_len, spec.stride, step, windows.gaps(seq.times)))
+        len(windows.training_starts(len(seq.times), spec.seq_len, step, windows.gaps(seq.times)))
         for seq in (sequences[name] for name in datamodule.splits["train"])
         for step in spec.frame_steps
     )
