@@ -64,7 +64,15 @@ from lossvo.report.configurations import (
 from lossvo.report.convergence import Convergence, convergence, convergence_csv_rows, convergence_markdown
 from lossvo.report.figures import plot_ape_bars, plot_curves, plot_forest, plot_trajectories
 from lossvo.report.frame import results_frame
-from lossvo.report.jobs import Job, code_versions_note, ground_truth, job_dirs, load_job, unseen_sequences
+from lossvo.report.jobs import (
+    Job,
+    code_versions_note,
+    ground_truth,
+    job_dirs,
+    load_job,
+    machines_note,
+    unseen_sequences,
+)
 from lossvo.report.speed import SPEED_TEXT, SPEED_TITLE, speed_rows
 from lossvo.report.statistics import ALPHA, MARGIN
 from lossvo.report.tables import (
@@ -232,7 +240,7 @@ def header_lines(sweep: Path, jobs: Sequence[Job], study: Study) -> list[str]:
         groups = architecture_groups(study.networks)
         names = ", ".join(f"`{a}` ({sum(len(c.jobs) for c in g)} jobs)" for a, g in groups.items())
         lines += ["", ARCHITECTURES_TEXT.format(names=names)]
-    warnings = [selection_warning(study.networks), code_versions_note(jobs)]
+    warnings = [selection_warning(study.networks), code_versions_note(jobs), machines_note(jobs)]
     return lines + [x for w in warnings if w for x in ("", w)]
 
 
@@ -505,9 +513,9 @@ def make_report(
     sweep = Path(sweep)
     out = Path(out) if out is not None else sweep / "report"
     jobs = [load_job(p) for p in job_dirs(sweep)]
-    versions = code_versions_note(jobs)
-    if versions:
-        log.warning("%s", versions.replace("**", ""))
+    for note in (code_versions_note(jobs), machines_note(jobs)):
+        if note:
+            log.warning("%s", note.replace("**", ""))
     label_jobs([j for j in jobs if j.config is not None])
     networks = network_columns(jobs)
     sequences = evaluated_sequences(networks)
