@@ -5,9 +5,9 @@ Run: ``.venv/bin/python benchmarks/allocator.py [--rounds 3 --batches 150 --expe
 Each measurement is ``python -m lossvo.train experiment=<experiment> loss=chordal threads=1`` for one
 epoch of ``--batches`` training batches (5 validation batches), the epoch's time read from its log and
 the process's minor page faults from ``getrusage``. Four sides in interleaved rounds (the order rotates
-each round): ``default`` and ``kept`` (``MALLOC_MMAP_THRESHOLD_``, ``MALLOC_TRIM_THRESHOLD_``,
-``MALLOC_TOP_PAD_`` as in :data:`KEPT`) alone, and both again as two processes at once (``x2``: the
-mean of the two epochs). Prints each side's median epoch time and faults, and the median ratio to
+each round): ``default`` and ``kept`` (glibc's settings as the study sets them for its jobs,
+:data:`lossvo.study.KEPT_MEMORY`) alone, and both again as two processes at once (``x2``: the mean of the
+two epochs). Prints each side's median epoch time and faults, and the median ratio to
 ``default`` with its spread over rounds. Wants an otherwise idle machine.
 """
 
@@ -24,12 +24,8 @@ import tempfile
 import time
 from pathlib import Path
 
-KEPT = {
-    "MALLOC_MMAP_THRESHOLD_": str(32 << 20),
-    "MALLOC_TRIM_THRESHOLD_": str(16 << 30),
-    "MALLOC_TOP_PAD_": str(256 << 20),
-}
-"""Allocations below 32 MiB from the heap, freed memory kept (no trim below 16 GiB), 256 MiB of headroom."""
+from lossvo.study import KEPT_MEMORY
+
 EPOCH = re.compile(r"epoch 1/1 \(([0-9.]+) s\)")
 
 
@@ -43,7 +39,7 @@ def command(args: argparse.Namespace, out: Path) -> list[str]:
 
 def run(args: argparse.Namespace, kept: bool, copies: int) -> tuple[float, float]:
     """The mean epoch time (s) and minor page faults of ``copies`` runs at once."""
-    env = {**os.environ, **(KEPT if kept else {})}
+    env = {**os.environ, **(KEPT_MEMORY if kept else {})}
     with tempfile.TemporaryDirectory() as tmp:
         outs = [Path(tmp) / f"run{i}" for i in range(copies)]
         before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_minflt

@@ -33,8 +33,8 @@ size:
   device and normalised there; then training at the best setting fed by that loader. Both are reported
   against the resident-batch rate.
 - The study projected: ``len(losses) x max_epochs`` epochs of every training window of
-  ``data/kitti.yaml``'s training sequences (stride 1, ``lossvo.data.windows``) plus its validation
-  sequences' tiled windows, at the measured rates, in GPU-hours.
+  ``data/kitti.yaml``'s training sequences (one starting at every frame, ``lossvo.data.windows``) plus its
+  validation sequences' tiled windows, at the measured rates, in GPU-hours.
 
 Prints one table per network and size and writes every number, with the device, the versions and the date,
 to ``--out`` (JSON, rewritten after each network and size, so an interrupted run keeps what it measured).
@@ -153,7 +153,6 @@ def study_settings() -> dict[str, Any]:
                 "batch_size": flowvo.reads.batch_size,
             },
         },
-        "stride": base.stride,
         "num_workers": paper.data.loader.num_workers,
         "pin_memory": paper.data.loader.pin_memory,
         "lr": paper.optimizer.lr,
@@ -463,10 +462,8 @@ def loader_pin(settings: dict[str, Any], device: torch.device) -> bool:
 
 
 def study_windows(settings: dict[str, Any], seq_len: int) -> dict[str, int]:
-    """Training windows (every start, the experiment's stride) and tiled validation windows per epoch."""
-    train = sum(
-        len(windows.training_starts(KITTI_FRAMES[s], seq_len, settings["stride"])) for s in settings["train"]
-    )
+    """Training windows (one at every frame) and tiled validation windows per epoch."""
+    train = sum(len(windows.training_starts(KITTI_FRAMES[s], seq_len)) for s in settings["train"])
     val = sum(len(windows.tile(KITTI_FRAMES[s], seq_len)) for s in settings["val"])
     return {"train": train, "val": val}
 

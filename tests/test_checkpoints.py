@@ -151,7 +151,7 @@ KITTI = {
     "splits": {"test": ["10"]},
     "frames": {"height": 184, "width": 608, "normalization": "dataset"},
     "windows": {"seq_len": 7},
-    "flow": {"method": "none", "preset": "medium"},
+    "flow": {"method": "none"},
 }
 
 
@@ -182,11 +182,11 @@ def test_evaluation_data_keeps_the_flow_the_network_read() -> None:
     """eval.yaml composes no network, so a chosen dataset's ``data.flow.method`` (which follows the
     network's ``reads``) reads none: the checkpoint's flow setting wins, and an override that contradicts it
     is refused."""
-    flowvo = {**RECORDED, "flow": {"method": "dis", "preset": "fast", "scale": 1.5}}
+    flowvo = {**RECORDED, "flow": {"method": "dis", "scale": 1.5}}
     chosen = checkpoints.evaluation_data(flowvo, KITTI, {"sources.kitti.root": "/kitti"})
-    assert chosen["flow"] == {"method": "dis", "preset": "fast", "scale": 1.5}
-    with pytest.raises(checkpoints.CheckpointError, match=r"data\.flow\.method='farneback' contradicts"):
-        checkpoints.evaluation_data(flowvo, KITTI, {"flow.method": "farneback"})
+    assert chosen["flow"] == {"method": "dis", "scale": 1.5}
+    with pytest.raises(checkpoints.CheckpointError, match=r"data\.flow\.method='none' contradicts"):
+        checkpoints.evaluation_data(flowvo, KITTI, {"flow.method": "none"})
     assert "flow" not in checkpoints.evaluation_data(RECORDED, None, {})  # a network from before flow existed
 
 
@@ -205,6 +205,25 @@ def test_a_flat_description_of_an_earlier_version_reads_as_specs() -> None:
     assert (
         checkpoints.lookup(data, "windows.seq_len") == 3 and checkpoints.lookup(data, "frames.height") is None
     )
+
+
+def test_a_network_argument_withdrawn_since_reads_at_the_value_this_version_builds(tmp_path: Path) -> None:
+    """An earlier FlowVO's ``intrinsics_layer: true`` is left out of its config; ``false`` (a network this
+    version cannot build) is refused in one line naming the file and the key."""
+    model = {"_target_": "lossvo.models.FlowVO", "out_dim": 6, "intrinsics_layer": True}
+    content = {"hyper_parameters": {"model": model, "loss": {}}}
+    assert checkpoints.Description.of(content).model == {"_target_": "lossvo.models.FlowVO", "out_dim": 6}
+    assert model["intrinsics_layer"] is True  # the checkpoint's own config as it was
+    saved: dict = {
+        "hyper_parameters": {"model": {**model, "intrinsics_layer": False}, "loss": {}},
+        "state_dict": {},
+    }
+    torch.save(saved, tmp_path / "flow-alone.ckpt")
+    with pytest.raises(
+        checkpoints.CheckpointError,
+        match=r"flow-alone\.ckpt: model\.intrinsics_layer=False: this version has True only$",
+    ):
+        checkpoints.load_network(tmp_path / "flow-alone.ckpt")
 
 
 def test_a_checkpoint_of_another_schema_version_is_one_line(tmp_path: Path) -> None:

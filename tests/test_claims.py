@@ -453,11 +453,17 @@ def test_the_claimed_loss_is_a_setting_named_in_the_rule() -> None:
     a, b = study_claims(columns, convergence(columns), SEQUENCES, claimed_loss="EulerLoss")
     assert (a.configuration, b.configuration) == ("loss=chordal", "loss=chordal")  # the EulerLoss one
     assert a.verdict == statistics.REFUTED  # the ChordalLoss configuration is lower on every seed
-    assert "`loss._target_` class `EulerLoss`" in claims_markdown([a, b])
+    text = claims_markdown([a, b])
+    assert "`loss._target_` class `EulerLoss`" in text
+    assert a.statement == "the euler loss gives the lowest errors"
+    assert "chordal" not in text.replace("loss=chordal", "")  # named by the claimed loss, not the study's
+    assert answer_rows([a, b], "EulerLoss").header[2] == "euler"  # the claimed configuration's column
     default = study_claims(columns, convergence(columns), SEQUENCES)
     assert "`loss._target_` class `ChordalLoss`" in claims_markdown(default)
+    assert default[0].statement == "the chordal loss gives the lowest errors"
     absent = study_claims(columns, convergence(columns), SEQUENCES, claimed_loss="QuatLoss")
     assert all(c.untested and "loss._target_ QuatLoss" in c.untested for c in absent)
+    assert all("the sweep has no quat configuration" in c.untested for c in absent if c.untested)
 
 
 def test_claims_csv_has_a_row_per_test_and_one_per_claim() -> None:

@@ -37,7 +37,7 @@ def test_windows_and_targets(tiny_kitti: Path, tmp_path: Path) -> None:
     assert prepared["K"].shape == (3, 3, 3) and "flow" not in prepared
     assert frames.shape == (3, 4, 3, 32, 96) and frames.dtype == torch.float32
     assert targets.shape == (3, 3, 4, 4) and targets.dtype == torch.float32
-    # stride 1: 10 - 4 + 1 windows per training sequence
+    # a window at every frame: 10 - 4 + 1 per training sequence
     assert len(dm.datasets["train"]) == 2 * 7
     y = dm.datasets["train"][8]["targets"]  # sequence 01, window starting at frame 1
     poses = kitti.read_poses(tiny_kitti / "poses" / "01.txt")
@@ -214,7 +214,7 @@ def test_missing_sequence_is_named(tiny_kitti: Path, tmp_path: Path) -> None:
     [
         ({"seq_len": 1}, r"data\.windows\.seq_len: expected an integer >= 2"),
         ({"height": 8}, r"data\.frames\.height: expected an integer >= 16"),
-        ({"stride": 0}, r"data\.windows\.stride: expected an integer >= 1"),
+        ({"batch_size": 0}, r"data\.windows\.batch_size: expected an integer >= 1"),
         ({"normalization": "imagenet"}, r"data\.frames\.normalization: expected one of"),
         ({"train": []}, r"data\.splits\.train: expected at least one"),
         ({"transforms": [{"p": 0.5}]}, r"data\.transforms: expected a list of batch transforms"),

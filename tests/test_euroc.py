@@ -180,7 +180,8 @@ def test_nanosecond_stamps_keep_sub_microsecond_order(tmp_path: Path) -> None:
     stamps = [T0_NS + 300 * k for k in range(40)]  # 0.3 µs apart, near 1.4e18 ns
     path = tmp_path / "data.csv"
     path.write_text("#timestamp [ns],filename\n" + "".join(f"{ns},{ns}.png\n" for ns in stamps))
-    times, names = euroc.read_camera_list(path)
+    ns, names = euroc.read_camera_stamps(path)
+    times = euroc.ns_to_seconds(ns)
     assert names == [f"{ns}.png" for ns in stamps]
     assert times.dtype == np.float64
     assert np.all(np.diff(times) > 0)
@@ -320,7 +321,7 @@ def test_bad_camera_list(tmp_path: Path, body: str, match: str) -> None:
     path = tmp_path / "data.csv"
     path.write_text("#timestamp [ns],filename\n" + body)
     with raises(match) as e:
-        euroc.read_camera_list(path)
+        euroc.read_camera_stamps(path)
     one_line(e)
 
 

@@ -94,7 +94,7 @@ def test_the_flow_is_computed_once_per_cache_and_rebuilt_when_stale(tmp_path, mo
     frames, _ = _frames(np.stack([_yaw(0.01 * k) for k in range(4)]))
     calls = _counted(monkeypatch)
     source = {"frames": ["0", "1", "2", "3"], "bytes": 1, "mtime_ns": 1}
-    setting = FlowSetting("dis", "fast")
+    setting = FlowSetting("dis")
     first = flow.ensure_flow(tmp_path, "00", frames, source, 2, setting, progress=False)
     assert first.shape == (2, 2, H, W) and first.dtype == np.float16 and len(calls) == 2
     again = flow.ensure_flow(tmp_path, "00", frames, source, 2, setting, progress=False)
@@ -108,19 +108,15 @@ def test_the_flow_is_computed_once_per_cache_and_rebuilt_when_stale(tmp_path, mo
     path.write_bytes(path.read_bytes()[:-100])  # truncated
     flow.ensure_flow(tmp_path, "00", frames, {**source, "bytes": 2}, 2, setting, progress=False)
     assert len(calls) == 4
-    assert json.loads(path.with_suffix(".json").read_text())["flow"] == "dis-fast"
+    assert json.loads(path.with_suffix(".json").read_text())["flow"] == "dis-medium"
     flow.ensure_flow(tmp_path, "00", frames, {**source, "bytes": 2}, 1, setting, progress=False)
     assert len(calls) == 7 and flow.flow_file(tmp_path, "00", 1, setting).is_file()  # another step
 
 
-@pytest.mark.parametrize(
-    ("method", "preset", "message"),
-    [("dense", "medium", "data.flow.method: expected one of dis, farneback, none, got 'dense'"),
-     ("dis", "slow", "data.flow.preset: expected one of ultrafast, fast, medium, got 'slow'")],
-)  # fmt: skip
-def test_unknown_flow_settings_list_the_choices(method: str, preset: str, message: str) -> None:
-    with pytest.raises(UserError, match=f"^{message}$"):
-        FlowSetting(method, preset)
+@pytest.mark.parametrize("method", ["dense", "farneback"])
+def test_unknown_flow_methods_list_the_choices(method: str) -> None:
+    with pytest.raises(UserError, match=f"^data.flow.method: expected one of dis, none, got '{method}'$"):
+        FlowSetting(method)
 
 
 @pytest.mark.parametrize("scale", [0.5, 5, "1.5", None])
@@ -128,7 +124,7 @@ def test_a_flow_scale_outside_one_to_four_is_refused(scale) -> None:
     with pytest.raises(
         UserError, match=rf"^data\.flow\.scale: expected a number in \[1, 4\], got {scale!r}$"
     ):
-        FlowSetting("dis", "medium", scale)
+        FlowSetting("dis", scale)
 
 
 def test_a_resized_flow_keeps_each_pixels_displacement_in_the_new_pixels() -> None:
@@ -156,7 +152,7 @@ def test_a_flow_scale_computes_on_the_source_images_at_that_scale(tiny_kitti, tm
     monkeypatch.setattr(
         flow._Estimator, "__call__", lambda self, a, b: sizes.append(a.shape) or compute(self, a, b)
     )
-    fine = make_dm(tiny_kitti, tmp_path, flow="dis", flow_preset="ultrafast", flow_scale=2)
+    fine = make_dm(tiny_kitti, tmp_path, flow="dis", flow_scale=2)
     assert set(sizes) == {(64, 192)} and len(sizes) == 27  # the tiny dataset caches 32x96 frames
     images = fine.sequences["00"].images
     first, second = (flow.frame_cache.read_frame(p, 64, 192)[0] for p in images[3:5])
@@ -165,11 +161,11 @@ def test_a_flow_scale_computes_on_the_source_images_at_that_scale(tiny_kitti, tm
     np.testing.assert_allclose(cached[3], expected, atol=0.01)
     assert fine.description()["flow"]["scale"] == 2
     sizes.clear()
-    coarse = make_dm(tiny_kitti, tmp_path, flow="dis", flow_preset="ultrafast")
+    coarse = make_dm(tiny_kitti, tmp_path, flow="dis")
     assert set(sizes) == {(32, 96)} and len(sizes) == 27
     assert not np.array_equal(np.load(flow.flow_file(coarse.cache_path(), "00", 1, coarse.flow)), cached)
     sizes.clear()
-    make_dm(tiny_kitti, tmp_path, flow="dis", flow_preset="ultrafast", flow_scale=2)
+    make_dm(tiny_kitti, tmp_path, flow="dis", flow_scale=2)
     assert sizes == []
 
 
@@ -195,16 +191,16 @@ def test_a_datamodule_caches_the_flow_of_every_pair_it_uses_once(tiny_kitti, tmp
     from test_datamodules import make_dm  # the datamodule of those tests (the tiny dataset at 32x96)
 
     calls = _counted(monkeypatch)
-    dm = make_dm(tiny_kitti, tmp_path, flow="dis", flow_preset="ultrafast", frame_steps=[1, 2])
+    dm = make_dm(tiny_kitti, tmp_path, flow="dis", frame_steps=[1, 2])
     assert dm.flow_steps() == {"00": (1, 2), "01": (1, 2), "02": (1,)}
     assert len(calls) == 9 + 8 + 9 + 8 + 9  # 10 frames each: 9 pairs at step 1, 8 at step 2
     folder = dm.cache_path()
     assert sorted(p.name for p in folder.glob("*.flow-*.npy")) == [
-        "00.flow-dis-ultrafast-s1.npy", "00.flow-dis-ultrafast-s2.npy", "01.flow-dis-ultrafast-s1.npy",
-        "01.flow-dis-ultrafast-s2.npy", "02.flow-dis-ultrafast-s1.npy",
+        "00.flow-dis-medium-s1.npy", "00.flow-dis-medium-s2.npy", "01.flow-dis-medium-s1.npy",
+        "01.flow-dis-medium-s2.npy", "02.flow-dis-medium-s1.npy",
     ]  # fmt: skip
-    assert dm.description()["flow"] == {"method": "dis", "preset": "ultrafast", "scale": 1.0}
-    make_dm(tiny_kitti, tmp_path, flow="dis", flow_preset="ultrafast", frame_steps=[1, 2])
+    assert dm.description()["flow"] == {"method": "dis", "scale": 1.0}
+    make_dm(tiny_kitti, tmp_path, flow="dis", frame_steps=[1, 2])
     assert len(calls) == 43  # another job of the sweep: read, not computed
     make_dm(tiny_kitti, tmp_path)  # data.flow.method=none (the default): no flow
     assert len(calls) == 43
@@ -221,7 +217,6 @@ def test_windows_carry_their_pairs_flow_and_k_and_mirror_them_together(tiny_kitt
         tiny_kitti,
         tmp_path,
         flow="dis",
-        flow_preset="ultrafast",
         frame_steps=[1, 2],
         transforms=[Mirror(1.0)],
     )

@@ -50,21 +50,6 @@ def test_inputs_are_the_scaled_flow_and_the_intrinsics_layer() -> None:
     assert pooled(flow, K).shape == (2, 3, 6)
 
 
-def test_without_the_intrinsics_layer_the_flow_alone_goes_in_and_K_is_unused() -> None:
-    torch.manual_seed(0)
-    net = FlowVO(6, H, W, flow_gain=20.0, pool=2, intrinsics_layer=False).eval()
-    flow, K = _batch(B=2, P=3)
-    with_layer = FlowVO(6, H, W, flow_gain=20.0, pool=2)
-    x = net.encoder_input(flow, K)
-    assert x.shape == (6, 2, H // 2, W // 2) and net.stem[0].in_channels == 2
-    torch.testing.assert_close(x, with_layer.encoder_input(flow, K)[:, :2])
-    other_K = K.clone()
-    other_K[:, 0, 0] *= 2
-    torch.testing.assert_close(net(flow, K), net(flow, other_K))
-    with_layer.eval()
-    assert not torch.allclose(with_layer(flow, K), with_layer(flow, other_K))
-
-
 def test_every_loss_starts_from_the_same_encoder_and_translation_head() -> None:
     """The same seed, heads of every loss's size: one encoder, one translation head."""
     nets, after = [], []
@@ -139,8 +124,7 @@ def test_leaky_heads_pass_gradient_through_units_below_zero() -> None:
      ({"head_dropout": 1.5}, "model.head_dropout: expected a probability in [0, 1), got 1.5"),
      ({"head_negative_slope": 1}, "model.head_negative_slope: expected a slope in [0, 1), got 1"),
      ({"head_negative_slope": -0.1}, "model.head_negative_slope: expected a slope in [0, 1), got -0.1"),
-     ({"channels_last": "yes"}, "model.channels_last: expected true or false, got 'yes'"),
-     ({"intrinsics_layer": 1}, "model.intrinsics_layer: expected true or false, got 1")],
+     ({"channels_last": "yes"}, "model.channels_last: expected true or false, got 'yes'")],
 )  # fmt: skip
 def test_bad_arguments_name_the_key(kwargs: dict, message: str) -> None:
     with pytest.raises(UserError, match=f"^{re.escape(message)}"):

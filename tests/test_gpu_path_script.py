@@ -38,7 +38,6 @@ def test_settings_are_what_the_study_runs() -> None:
     settings = gpu_path.study_settings()
     paper = composed("experiment=paper", "loss=chordal")
     assert settings["size"] == [paper.data.frames.height, paper.data.frames.width]
-    assert settings["stride"] == paper.data.windows.stride
     for key in ("num_workers", "pin_memory"):
         assert settings[key] == paper.data.loader[key]
     assert (settings["lr"], settings["max_epochs"]) == (paper.optimizer.lr, paper.trainer.max_epochs)

@@ -119,6 +119,7 @@ LAYERS = (
         "folder_lock",
         "output_folders",
         "code_version",
+        "machine",
         "table_render",
     ),
 )

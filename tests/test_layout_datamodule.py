@@ -35,11 +35,11 @@ def test_gaps_are_intervals_beyond_one_and_a_half_medians() -> None:
 def test_training_windows_never_span_a_gap() -> None:
     gap = np.zeros(19, dtype=bool)
     gap[9] = True  # frames 9 -> 10 span a gap
-    starts = windows.training_starts(20, 4, 1, gap=gap)
+    starts = windows.training_starts(20, 4, gap=gap)
     np.testing.assert_array_equal(starts, [0, 1, 2, 3, 4, 5, 6, 10, 11, 12, 13, 14, 15, 16])
-    starts = windows.training_starts(20, 3, 1, step=2, gap=gap)  # windows span 5 frames
+    starts = windows.training_starts(20, 3, step=2, gap=gap)  # windows span 5 frames
     np.testing.assert_array_equal(starts, [0, 1, 2, 3, 4, 5, 10, 11, 12, 13, 14, 15])
-    np.testing.assert_array_equal(windows.training_starts(20, 4, 1, gap=~gap & False), np.arange(17))
+    np.testing.assert_array_equal(windows.training_starts(20, 4, gap=~gap & False), np.arange(17))
 
 
 # --------------------------------------------------------------------------------------------------

@@ -16,9 +16,11 @@ from types import SimpleNamespace
 import pytest
 import torch
 import yaml
+from omegaconf import OmegaConf
 
 from helpers import metrics_rows, scores_of, status_of, train_main
-from lossvo.training import fitting
+from lossvo.machine import machine
+from lossvo.training import fitting, lifecycle
 from lossvo.training.callbacks import EpochProgressBar
 from lossvo.training.resolvers import MAX_NAME, path_safe
 from test_train import tiny_overrides
@@ -88,6 +90,7 @@ def test_a_stop_during_the_final_evaluation_resumes_the_evaluation(
     stopped, resumed = history[1], history[2]  # training had completed: the evaluation resumed
     assert (stopped["stage"], resumed["stage"]) == ("evaluation", "evaluation") and "epoch" not in resumed
     assert resumed["from"] == status["resume_from"]
+    assert history[0]["machine"] == resumed["machine"] == machine()
     assert [e["event"] for e in theirs.pop("history")] == ["started", "completed"]
     assert ours == theirs and ours["metrics"]["val/score"] > 0
     assert scores_of(run) == scores_of(uninterrupted)
@@ -116,6 +119,21 @@ def test_a_changed_config_in_a_completed_folder_is_refused(
     assert train_main(same, monkeypatch) == 0  # extending a finished run
     assert [r["epoch"] for r in metrics_rows(run) if r.get("val/score")] == ["0", "1", "2"]
     assert status_of(run)["status"] == "completed"
+
+
+def test_a_key_withdrawn_since_is_no_drift_at_the_value_this_version_runs() -> None:
+    """A config recorded by an earlier version holds keys this one does not have: at the value this one
+    runs (any value of ``data.windows.shares``) they are no drift, at another they are."""
+    ours = OmegaConf.create(
+        {"data": {"windows": {"seq_len": 2}, "flow": {"scale": 1.5}}, "model": {"hidden": 8}}
+    )
+    withdrawn = {"windows": {"stride": 1, "shares": None}, "flow": {"preset": "medium"}}
+    earlier = OmegaConf.merge(ours, {"data": withdrawn, "model": {"intrinsics_layer": True}})
+    assert lifecycle.config_drift(earlier, ours) == []
+    other = OmegaConf.merge(
+        earlier, {"data": {"flow": {"preset": "fast"}}, "model": {"intrinsics_layer": False}}
+    )
+    assert lifecycle.config_drift(other, ours) == ["data.flow.preset", "model.intrinsics_layer"]
 
 
 @pytest.mark.slow

@@ -461,7 +461,7 @@ def test_different_selection_metrics_give_a_bold_warning_at_the_top(sweep: Path,
     assert "loss=quat: `val/loss` (min)" in warning and "loss=euler: `val/score` (min)" in warning
 
 
-def test_jobs_of_different_code_versions_are_named_and_pooled(
+def test_jobs_of_different_code_versions_and_machines_are_named_and_pooled(
     sweep: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     copy = copy_sweep(sweep, tmp_path)
@@ -482,6 +482,13 @@ def test_jobs_of_different_code_versions_are_named_and_pooled(
     assert note.startswith("**The included jobs ran 2 code versions**, pooled in every table and test")
     assert f"`0.0.9+000000000000`: {names[0]}" in note and f"`{versions[names[1]]}`: {names[1]}" in note
     assert any("ran 2 code versions" in r.message for r in caplog.records)
+    assert "machines" not in top  # one machine trained them all
+    status["history"][0]["machine"] = "Other CPU, AVX2, flags 00000000"
+    (copy / names[0] / "status.json").write_text(json.dumps(status))
+    top = make_report(copy, with_baselines=False, with_figures=False).read_text().split("\n## ", 1)[0]
+    note = next(line for line in top.splitlines() if "machines" in line)
+    assert note.startswith("**The included jobs ran on 2 machines**, pooled in every table and test")
+    assert f"`Other CPU, AVX2, flags 00000000`: {names[0]}" in note and names[1] in note
 
 
 def first_within_ten_percent(path: Path, column: str = "val/score") -> int:

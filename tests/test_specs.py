@@ -26,7 +26,7 @@ def test_specs_take_defaults_and_freeze_lists() -> None:
     windows = specs.Windows.of({"seq_len": 3, "frame_steps": [1, 2, 1]})
     assert windows == specs.Windows(seq_len=3, frame_steps=(1, 2), per_epoch=None, batch_size=8)
     assert specs.Frames.of(None) == specs.Frames(**specs.DESCRIBED["frames"])
-    assert specs.flow_of({"method": "dis"}) == FlowSetting("dis", "medium", 1.0)
+    assert specs.flow_of({"method": "dis"}) == FlowSetting("dis", 1.0)
     assert specs.Loader.of({"on_device": False}) == specs.Loader(on_device=False)
 
 
@@ -55,7 +55,7 @@ BAD: list[tuple[Any, Any, str]] = [
     (specs.Windows.of, {"frame_steps": []}, "data.windows.frame_steps: expected a list of integers >= 1"),
     (specs.Windows.of, {"per_epoch": 0}, "data.windows.per_epoch: expected null or an integer >= 1, got 0"),
     (specs.Windows.of, {"windows_per_epoch": 8}, "data.windows.windows_per_epoch: unknown key"),
-    (specs.Windows.of, [3], "data.windows: expected a mapping of seq_len, stride"),
+    (specs.Windows.of, [3], "data.windows: expected a mapping of seq_len, frame_steps"),
     (specs.Frames.of, {"height": 8}, "data.frames.height: expected an integer >= 16 pixels, got 8"),
     (specs.Frames.of, {"crop": "maybe"}, "data.frames.crop: expected a bool, got 'maybe'"),
     (specs.Frames.of, {"height": "abc"}, "data.frames.height: expected an int, got 'abc'"),
@@ -63,8 +63,8 @@ BAD: list[tuple[Any, Any, str]] = [
     (specs.Loader.of, {"device_budget_gb": "x"}, "data.loader.device_budget_gb: expected a float, got 'x'"),
     (specs.Frames.of, {"normalization": "x"}, "data.frames.normalization: expected one of dataset, flownet"),
     (specs.Frames.of, {"statistics": {"mean": [0.5]}}, "data.frames.statistics: expected {mean: [3 floats]"),
-    (specs.flow_of, {"method": "raft"}, "data.flow.method: expected one of dis, farneback, none"),
-    (specs.flow_of, {"methods": "dis"}, "data.flow.methods: unknown key (expected some of method, preset"),
+    (specs.flow_of, {"method": "raft"}, "data.flow.method: expected one of dis, none"),
+    (specs.flow_of, {"methods": "dis"}, "data.flow.methods: unknown key (expected some of method, scale"),
     (specs.Loader.of, {"on_device": "gpu"}, "data.loader.on_device: expected auto, true or false, got 'gpu'"),
     (specs.Loader.of, {"num_workers": -1}, "data.loader.num_workers: expected an integer >= 0, got -1"),
     (
@@ -154,14 +154,27 @@ def test_flat_synthetic_and_several_dataset_descriptions_read_as_specs() -> None
     assert made["splits"] == {"train": ["kitti/00"], "val": [], "test": ["tum/x"], "unseen": []}
 
 
-def test_a_description_with_windows_shares_reads_without_it() -> None:
-    """``windows.shares`` (recorded by earlier versions, null or a mapping) is left out; the key itself is
-    refused in a config."""
-    recorded = {"sources": {"a": {"layout": "kitti"}}, "windows": {"seq_len": 3, "shares": {"a": 0.5}}}
-    assert specs.current(recorded) == {"sources": {"a": {"layout": "kitti"}}, "windows": {"seq_len": 3}}
+def test_a_description_with_withdrawn_keys_reads_without_them() -> None:
+    """``windows.shares`` and ``windows.stride`` (how earlier versions drew training windows) are left out
+    whatever their value, ``flow.preset`` where it is the medium one this version computes; the keys
+    themselves are refused in a config."""
+    recorded = {
+        "sources": {"a": {"layout": "kitti"}},
+        "windows": {"seq_len": 3, "stride": 2, "shares": {"a": 0.5}},
+        "flow": {"method": "dis", "preset": "medium", "scale": 1.5},
+    }
+    assert specs.current(recorded) == {
+        "sources": {"a": {"layout": "kitti"}},
+        "windows": {"seq_len": 3},
+        "flow": {"method": "dis", "scale": 1.5},
+    }
     assert recorded["windows"]["shares"] == {"a": 0.5}  # the checkpoint's own description as it was
-    with pytest.raises(UserError, match=r"^data\.windows\.shares: unknown key"):
-        specs.Windows.of({"seq_len": 3, "shares": None})
+    for key in ("shares", "stride"):
+        with pytest.raises(UserError, match=rf"^data\.windows\.{key}: unknown key"):
+            specs.Windows.of({"seq_len": 3, key: 1})
+    fast = {**recorded, "flow": {"method": "dis", "preset": "fast"}}
+    with pytest.raises(UserError, match=r"^data\.flow\.preset='fast': this version has medium only$"):
+        specs.current(fast)
 
 
 @pytest.mark.parametrize("fixture", ["checkpoint_35d7877.ckpt", "checkpoint_805664b.ckpt"])
@@ -175,7 +188,7 @@ def test_an_earlier_checkpoints_description_builds_a_data_module(fixture: str, t
 
 @pytest.mark.parametrize(
     ("flat", "new"),
-    [("root", "sources.NAME.root"), ("seq_len", "windows.seq_len"), ("flow_preset", "flow.preset"),
+    [("root", "sources.NAME.root"), ("seq_len", "windows.seq_len"), ("flow_preset", None), ("stride", None),
      ("windows_per_epoch", "windows.per_epoch"), ("route_mixes", "sources.synthetic.route_mixes"),
      ("datasets", "sources"), ("test", "splits.test"), ("nope", None)],
 )  # fmt: skip

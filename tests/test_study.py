@@ -5,6 +5,7 @@ pretended."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -277,6 +278,15 @@ def test_on_a_gpu_as_many_jobs_as_fit_run_with_trainer_gpu(monkeypatch: pytest.M
         plan_of(["--jobs", "8"], cuda=True)
 
 
+def test_jobs_on_a_cpu_keep_freed_memory_unless_the_environment_says_otherwise() -> None:
+    cpu = plan_of([])
+    gpu = dataclasses.replace(cpu, gpu=True)
+    assert study.job_environment(cpu, {"PATH": "/bin"}) == {**study.KEPT_MEMORY, "PATH": "/bin"}
+    own = {"MALLOC_TRIM_THRESHOLD_": "0"}
+    assert study.job_environment(cpu, own)["MALLOC_TRIM_THRESHOLD_"] == "0"
+    assert study.job_environment(gpu, {"PATH": "/bin"}) == {"PATH": "/bin"}
+
+
 @pytest.mark.parametrize(
     "argv", [["--seeds", "a"], ["--seeds", "0,0"], ["--seeds", "-1"], ["--seeds", "0"], ["--jobs", "0"]]
 )
@@ -302,8 +312,8 @@ def test_the_study_time_shares_the_jobs_out_but_is_no_shorter_than_its_longest()
 
 
 def test_job_size_from_the_composed_config(tiny_kitti: Path, tmp_path: Path) -> None:
-    """Two training sequences of 10 frames, windows of 3 frames a stride 1: 8 each, 4 a batch: 4 steps an
-    epoch; 9 pairs validated (02) and evaluated (02), twice for trajectories (mirror averaging)."""
+    """Two training sequences of 10 frames, windows of 3 frames, one at every frame: 8 each, 4 a batch: 4
+    steps an epoch; 9 pairs validated (02) and evaluated (02), twice for trajectories (mirror averaging)."""
     cfg = study.compose_job("model=deepvo_small", "euler", tiny_overrides(tiny_kitti, tmp_path / "cache"))
     assert study.job_size(cfg) == study.JobSize(epochs=10, steps=40, val_pairs=9, evaluated_pairs=9, passes=2)
     tiny = [o for o in tiny_overrides(tiny_kitti, tmp_path / "cache") if not o.startswith("model.")]

@@ -33,10 +33,9 @@ def test_tile_refuses_degenerate_input(n: int, seq_len: int) -> None:
 
 
 def test_training_starts() -> None:
-    np.testing.assert_array_equal(windows.training_starts(10, 4, 1), np.arange(7))
-    np.testing.assert_array_equal(windows.training_starts(10, 4, 3), [0, 3, 6])
-    np.testing.assert_array_equal(windows.training_starts(10, 3, 1, step=2), np.arange(6))  # spans 5 frames
-    assert len(windows.training_starts(3, 4, 1)) == 0
+    np.testing.assert_array_equal(windows.training_starts(10, 4), np.arange(7))
+    np.testing.assert_array_equal(windows.training_starts(10, 3, step=2), np.arange(6))  # spans 5 frames
+    assert len(windows.training_starts(3, 4)) == 0
 
 
 def test_same_length_batches_keep_order_and_lengths() -> None:

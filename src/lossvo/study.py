@@ -20,12 +20,13 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+import os
 import shlex
 import subprocess
 import sys
 import time
 import warnings
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import datetime
@@ -69,6 +70,15 @@ NONE = "none"
 CPU_JOBS = 2
 """Jobs at once on a CPU, as ``make sweep`` runs them, single-threaded (why:
 experiments/2026-12-01-sweep-wall-time.md)."""
+
+KEPT_MEMORY = {
+    "MALLOC_MMAP_THRESHOLD_": str(32 << 20),
+    "MALLOC_TRIM_THRESHOLD_": str(16 << 30),
+    "MALLOC_TOP_PAD_": str(256 << 20),
+}
+"""glibc's settings for the jobs on a CPU: buffers below 32 MiB from the heap, freed memory kept in the
+process (no trim below 16 GiB), 256 MiB of headroom. Fewer page faults, the same numbers; a mix epoch
+0.865x (experiments/2026-12-07-camera-arm-cost.md)."""
 
 JOB_OVERHEAD_S = 15.0
 """Seconds a job spends outside its training steps and inference passes, stated: the process's start
@@ -220,7 +230,7 @@ def job_size(cfg: DictConfig) -> JobSize:
     datamodule.load_metadata()
     sequences, spec = datamodule.sequences, datamodule.windows
     train = sum(
-        len(windows.training_starts(len(seq.times), spec.seq_len, spec.stride, step, windows.gaps(seq.times)))
+        len(windows.training_starts(len(seq.times), spec.seq_len, step, windows.gaps(seq.times)))
         for seq in (sequences[name] for name in datamodule.splits["train"])
         for step in spec.frame_steps
     )
@@ -643,13 +653,19 @@ def cross_evaluations(plan: Plan) -> list[list[str]]:
     return commands
 
 
+def job_environment(plan: Plan, environ: Mapping[str, str] = os.environ) -> dict[str, str]:
+    """The jobs' environment: ``environ`` with :data:`KEPT_MEMORY` on a CPU, where ``environ`` does not
+    set them already."""
+    return {**({} if plan.gpu else KEPT_MEMORY), **environ}
+
+
 def run(plan: Plan, floor: Floor | None = None) -> int:
     """The sweeps, the experiments' evaluations on the architectures' data (:func:`cross_evaluations`),
-    then the report (also after a failed job), then the wall time (:func:`wall_line`): the first failed
-    command's exit status, or the report's where the report fails."""
-    start = time.perf_counter()
-    statuses = [subprocess.run(command).returncode for command in plan.sweep_commands()]
-    statuses += [subprocess.run(command).returncode for command in cross_evaluations(plan)]
+    each in :func:`job_environment`, then the report (also after a failed job), then the wall time
+    (:func:`wall_line`): the first failed command's exit status, or the report's where the report fails."""
+    start, env = time.perf_counter(), job_environment(plan)
+    statuses = [subprocess.run(command, env=env).returncode for command in plan.sweep_commands()]
+    statuses += [subprocess.run(command, env=env).returncode for command in cross_evaluations(plan)]
     status = next((s for s in statuses if s != 0), 0)
     report = subprocess.run(plan.report_command()).returncode
     emit(wall_line(time.perf_counter() - start, floor))

@@ -13,7 +13,7 @@ a batch is a dict, as the model receives it::
 The loaders carry frames as uint8 (a window is one copy out of the memory map) and the DataModule
 normalises them on the training device in ``on_after_batch_transfer``, Lightning's hook for this.
 
-Training windows start every ``stride`` frames; validation and test windows tile each sequence
+Training windows start at every frame; validation and test windows tile each sequence
 (:mod:`lossvo.data.windows`), so that every consecutive pair of a sequence is seen exactly once. No window
 spans a gap in a sequence's timestamps (frames its reader dropped): tiles cut there, the pair across a gap a
 window of its own.
@@ -99,8 +99,8 @@ class VODataModule(L.LightningDataModule):
         splits: ``{train, val, test, unseen}`` sequence names (:class:`lossvo.data.specs.Splits`).
         frames: frame size, crop, normalisation and cache folder (:class:`lossvo.data.specs.Frames`).
         windows: training windows and batch size (:class:`lossvo.data.specs.Windows`).
-        flow: optical flow cached beside the frames for every pair a network sees (``{method, preset,
-            scale}``, :class:`lossvo.data.flow.FlowSetting`).
+        flow: optical flow cached beside the frames for every pair a network sees (``{method, scale}``,
+            :class:`lossvo.data.flow.FlowSetting`).
         loader: where batches are assembled (:class:`lossvo.data.specs.Loader`, :mod:`lossvo.data.resident`).
         transforms: batch transforms of training batches, applied in order on the training device
             (:mod:`lossvo.data.transforms`).
@@ -379,7 +379,6 @@ class VODataModule(L.LightningDataModule):
                 [self._frame_files(n)[0] for n, _ in labelled],
                 [p for _, p in labelled],
                 self.seq_len,
-                self.windows.stride,
                 self.windows.frame_steps,
                 tiled=split != "train",
                 intrinsics=[self.intrinsics(n) for n, _ in labelled],

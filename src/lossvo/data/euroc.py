@@ -129,26 +129,21 @@ def parse_stamps(path: Path, rows: list[tuple[int, list[str]]]) -> np.ndarray:
 
 
 def read_camera_stamps(path: str | os.PathLike) -> tuple[np.ndarray, list[str]]:
-    """:func:`read_camera_list` with the times as (N,) int64 nanoseconds, as the file writes them."""
+    """Read ``cam0/data.csv``: ``timestamp [ns],filename`` a line after a '#' header.
+
+    Returns:
+        (N,) int64 nanoseconds, strictly increasing as float64 seconds; N file names relative to
+        ``cam0/data``.
+    Raises:
+        DatasetFormatError: naming the file and line for a missing file, a line without 2 columns, a
+            timestamp that is not an integer, that repeats or goes backwards, or an empty file name.
+    """
     path = Path(path)
     rows = _csv_rows(path, "camera list", 2)
     for i, (_, name) in rows:
         if not name:
             raise DatasetFormatError(f"{where(path, i)}: empty file name (expected '<timestamp>.png')")
     return parse_stamps(path, rows), [fields[1] for _, fields in rows]
-
-
-def read_camera_list(path: str | os.PathLike) -> tuple[np.ndarray, list[str]]:
-    """Read ``cam0/data.csv``: ``timestamp [ns],filename`` a line after a '#' header.
-
-    Returns:
-        (N,) float64 times in seconds, strictly increasing; N file names relative to ``cam0/data``.
-    Raises:
-        DatasetFormatError: naming the file and line for a missing file, a line without 2 columns, a
-            timestamp that is not an integer, that repeats or goes backwards, or an empty file name.
-    """
-    ns, names = read_camera_stamps(path)
-    return ns_to_seconds(ns), names
 
 
 def read_groundtruth_stamps(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:

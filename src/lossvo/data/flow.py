@@ -1,4 +1,5 @@
-"""Optical flow between cached frames: OpenCV's DIS or Farneback, computed once per sequence and frame step.
+"""Optical flow between cached frames: OpenCV's DIS (its medium preset), computed once per sequence and frame
+step.
 
 A flow field is ``(2, H, W)``: ``(u, v)`` in pixels of the cached frames (the network's input size), the
 displacement that carries pixel ``(x, y)`` of frame ``k`` to ``(x + u, y + v)`` in frame ``k + s`` (s: the
@@ -26,37 +27,27 @@ from lossvo.console import UserError
 from lossvo.data import array_cache, frame_cache
 
 FLOW_VERSION = 1
-METHODS = ("dis", "farneback", "none")
+METHODS = ("dis", "none")
 MAX_SCALE = 4.0
 """Largest ``scale``: finer frames cost DIS time in proportion to their pixels."""
 CHUNK = 64
 """Pairs computed together: the frames a chunk needs are read once, then dropped."""
-DIS_PRESETS = {
-    "ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
-    "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
-    "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM,
-}
 
 
 @dataclass(frozen=True)
 class FlowSetting:
-    """Which flow a dataset caches: ``method`` one of METHODS (``"none"``: no flow), ``preset`` one of
-    DIS_PRESETS (DIS only), ``scale``: the flow is computed between frames resized from their source images
-    to ``scale`` times the cached size, then resized to the cached size (values scaled with it): DIS resolves
-    small motions (a slow car's road, a far wall) better on the finer frames. Raises UserError naming the
-    key (``data.flow.method``, ``data.flow.preset``, ``data.flow.scale``)."""
+    """Which flow a dataset caches: ``method`` one of METHODS (``"none"``: no flow), ``scale``: the flow is
+    computed between frames resized from their source images to ``scale`` times the cached size, then
+    resized to the cached size (values scaled with it): DIS resolves small motions (a slow car's road, a
+    far wall) better on the finer frames. Raises UserError naming the key (``data.flow.method``,
+    ``data.flow.scale``)."""
 
     method: str = "dis"
-    preset: str = "medium"
     scale: float = 1.0
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise UserError(f"data.flow.method: expected one of {', '.join(METHODS)}, got {self.method!r}")
-        if self.method == "dis" and self.preset not in DIS_PRESETS:
-            raise UserError(
-                f"data.flow.preset: expected one of {', '.join(DIS_PRESETS)}, got {self.preset!r}"
-            )
         if not is_number(self.scale) or not 1.0 <= self.scale <= MAX_SCALE:
             raise UserError(f"data.flow.scale: expected a number in [1, {MAX_SCALE:g}], got {self.scale!r}")
 
@@ -66,10 +57,8 @@ class FlowSetting:
 
     @property
     def key(self) -> str:
-        """The setting in file names and manifests: ``"dis-medium"``, ``"dis-medium-x1.5"``,
-        ``"farneback"``."""
-        name = f"dis-{self.preset}" if self.method == "dis" else self.method
-        return name if self.scale == 1 else f"{name}-x{self.scale:g}"
+        """The setting in file names and manifests: ``"dis-medium"``, ``"dis-medium-x1.5"``."""
+        return "dis-medium" if self.scale == 1 else f"dis-medium-x{self.scale:g}"
 
     def size(self, height: int, width: int) -> tuple[int, int]:
         """(h, w) of the frames the flow of a (height, width) cache is computed on."""
@@ -84,19 +73,15 @@ def _gray(frame: np.ndarray) -> np.ndarray:
 class _Estimator:
     """One flow estimator per thread (OpenCV's DIS object keeps state between calls)."""
 
-    def __init__(self, setting: FlowSetting) -> None:
-        self.setting = setting
+    def __init__(self) -> None:
         self.local = threading.local()
 
     def __call__(self, first: np.ndarray, second: np.ndarray) -> np.ndarray:
         """(2, H, W) float32 flow from ``first`` to ``second``, both (H, W) uint8 grey."""
-        if self.setting.method == "dis":
-            dis = getattr(self.local, "dis", None)
-            if dis is None:
-                dis = self.local.dis = cv2.DISOpticalFlow.create(DIS_PRESETS[self.setting.preset])
-            flow = dis.calc(first, second, None)  # type: ignore[call-overload]  # None: OpenCV allocates it
-        else:  # Farneback with OpenCV's documented example parameters
-            flow = cv2.calcOpticalFlowFarneback(first, second, None, 0.5, 3, 15, 3, 5, 1.2, 0)
+        dis = getattr(self.local, "dis", None)
+        if dis is None:
+            dis = self.local.dis = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+        flow = dis.calc(first, second, None)  # type: ignore[call-overload]  # None: OpenCV allocates it
         return flow.transpose(2, 0, 1)
 
 
@@ -110,7 +95,7 @@ def pair_flow(first: np.ndarray, second: np.ndarray, setting: FlowSetting = Flow
     """
     if not setting.enabled:
         raise UserError("data.flow.method: none computes no flow")
-    return _Estimator(setting)(_gray(first), _gray(second))
+    return _Estimator()(_gray(first), _gray(second))
 
 
 def resized_flow(field: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -136,7 +121,7 @@ def _computer(
     (OpenCV releases the GIL): ``read(k)`` is frame k, (h, w) uint8 grey, each read once a chunk."""
 
     def fill(out: np.ndarray) -> dict:
-        estimate = _Estimator(setting)
+        estimate = _Estimator()
         with (
             ThreadPoolExecutor(workers) as pool,
             tqdm(

@@ -116,13 +116,6 @@ def _expected(seq: Sequence, crop: bool = False) -> dict:
     return expected | {"crop": "centre"} if crop else expected
 
 
-def open_frames(folder: Path, seq: Sequence, height: int, width: int) -> np.ndarray | None:
-    """The cached (N, 3, H, W) uint8 RGB frames of ``seq`` as a read-only memory map, or None if the cache
-    is missing, incomplete or stale (it is then rebuilt by :func:`build_frames`)."""
-    shape = (len(seq.images), 3, height, width)
-    return array_cache.open_array(files(folder, seq.name)[0], _expected(seq), shape, np.uint8)
-
-
 def centre_crop(size_hw: tuple[int, int], target_hw: tuple[int, int]) -> tuple[int, int, int, int]:
     """The largest centred window of a frame of ``size_hw`` (H, W) with the aspect ratio of ``target_hw``:
     ``(y0, x0, h, w)`` in pixels (its top-left corner and size)."""
@@ -201,26 +194,6 @@ def _decoder(
         return {"source_size_hw": list(first_size)}
 
     return fill
-
-
-def build_frames(
-    folder: Path,
-    seq: Sequence,
-    height: int,
-    width: int,
-    workers: int = 4,
-    progress: bool = True,
-    crop: bool = False,
-) -> np.ndarray:
-    """Decode, resize and store every frame of ``seq``; return the memory map.
-
-    Raises:
-        KittiFormatError: an unreadable or truncated PNG, or frames of differing sizes (naming the file).
-    """
-    shape = (len(seq.images), 3, height, width)
-    fill = _decoder(seq, height, width, workers, progress, crop)
-    expected = _expected(seq, crop)
-    return array_cache.build_array(files(folder, seq.name)[0], expected, shape, np.uint8, fill)
 
 
 def ensure_frames(

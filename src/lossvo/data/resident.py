@@ -18,8 +18,6 @@ import torch
 from torch import Tensor
 from torch.utils.data import Dataset
 
-INDEX_KEYS = ("frame_index", "target_index", "flow_index", "camera")
-"""The entries of an index batch (:meth:`ResidentWindows.index_batch`)."""
 GIB = 1024**3
 
 

@@ -327,7 +327,7 @@ def _statistics(value: Any) -> dict[str, list[float]] | None:
 
 @dataclass
 class Windows:
-    """Training windows: ``seq_len`` frames (``seq_len - 1`` pairs), a start every ``stride`` frames, at
+    """Training windows: ``seq_len`` frames (``seq_len - 1`` pairs), a start at every frame, at
     each of ``frame_steps`` (every s-th frame: faster motion; repeats dropped); ``per_epoch`` windows drawn
     afresh each epoch (None: all); ``batch_size`` windows a batch. With several sources, each source's
     windows are drawn in proportion to their number. Validation and evaluation tile consecutive frames.
@@ -336,15 +336,13 @@ class Windows:
     made directly names all three."""
 
     seq_len: int = SI("${oc.select:reads.seq_len,6}")
-    stride: int = 1
     frame_steps: list[int] = field(default_factory=lambda: [1])
     per_epoch: int | None = SI("${oc.select:reads.windows_per_epoch,null}")
     batch_size: int = SI("${oc.select:reads.batch_size,8}")
 
     def __post_init__(self) -> None:
         _require(self, "seq_len", lambda v: is_integer(v, 2), "an integer >= 2 frames")
-        for key in ("stride", "batch_size"):
-            _require(self, key, lambda v: is_integer(v, 1), "an integer >= 1")
+        _require(self, "batch_size", lambda v: is_integer(v, 1), "an integer >= 1")
         _require(
             self,
             "per_epoch",
@@ -363,21 +361,19 @@ class Windows:
 @dataclass
 class Flow:
     """``data.flow``: the optical flow cached beside the frames (:class:`lossvo.data.flow.FlowSetting`,
-    which checks the values): ``method`` dis | farneback | none (the network's where its config declares
-    one), DIS's ``preset``, and ``scale``: the flow is computed on the source images at ``scale`` times
-    (height, width), then resized."""
+    which checks the values): ``method`` dis | none (the network's where its config declares one) and
+    ``scale``: the flow is computed on the source images at ``scale`` times (height, width), then resized."""
 
     method: str = SI("${oc.select:reads.flow,none}")
-    preset: str = "medium"
     scale: float = 1.5
 
 
 def flow_of(value: Any) -> FlowSetting:
-    """``data.flow`` ``{method, preset, scale}`` as a :class:`lossvo.data.flow.FlowSetting`."""
+    """``data.flow`` ``{method, scale}`` as a :class:`lossvo.data.flow.FlowSetting`."""
     if isinstance(value, FlowSetting):
         return value
     flow = _built(Flow, value, "data.flow", DESCRIBED["flow"])
-    return FlowSetting(flow.method, flow.preset, flow.scale)
+    return FlowSetting(flow.method, flow.scale)
 
 
 @dataclass
@@ -426,8 +422,8 @@ ConfigStore.instance().store(group="data/shared", name="schema", node=Data)
 DESCRIBED: dict[str, dict[str, Any]] = {
     "frames": {"height": 184, "width": 608, "crop": False, "normalization": "dataset", "statistics": None,
                "cache_dir": None},
-    "windows": {"seq_len": 7, "stride": 1, "frame_steps": [1], "per_epoch": None, "batch_size": 8},
-    "flow": {"method": "none", "preset": "medium", "scale": 1.0},
+    "windows": {"seq_len": 7, "frame_steps": [1], "per_epoch": None, "batch_size": 8},
+    "flow": {"method": "none", "scale": 1.0},
     "loader": {"num_workers": 2, "pin_memory": False, "on_device": "auto", "device_budget_gb": 8.0},
 }  # fmt: skip
 """The values a spec built from a mapping (:meth:`Frames.of`, ...) takes for a key the mapping lacks: the
@@ -435,53 +431,35 @@ ones a checkpoint whose data description lacks the key was trained with. A compo
 (the dataclasses' defaults where its files set none)."""
 
 
-FLAT_KEYS = {
-    "train": "splits",
-    "val": "splits",
-    "test": "splits",
-    "unseen": "splits",
-    "height": "frames",
-    "width": "frames",
-    "crop": "frames",
-    "normalization": "frames",
-    "cache_dir": "frames",
-    "seq_len": "windows",
-    "stride": "windows",
-    "frame_steps": "windows",
-    "windows_per_epoch": "windows",
-    "batch_size": "windows",
-    "flow": "flow",
-    "flow_preset": "flow",
-    "flow_scale": "flow",
-    "num_workers": "loader",
-    "pin_memory": "loader",
-    "on_device": "loader",
-    "device_budget_gb": "loader",
+FLAT = {
+    "splits": SPLITS,
+    "frames": ("height", "width", "crop", "normalization", "cache_dir"),
+    "windows": ("seq_len", "stride", "frame_steps", "windows_per_epoch", "batch_size"),
+    "flow": ("flow", "flow_preset", "flow_scale"),
+    "loader": ("num_workers", "pin_memory", "on_device", "device_budget_gb"),
 }
-"""The data keys of the flat form -> the spec that holds them."""
+"""The data keys of the flat form (every argument at the top) by the spec that holds them."""
+FLAT_KEYS = {key: spec for spec, keys in FLAT.items() for key in keys}
 RENAMED = {"windows_per_epoch": "per_epoch", "flow": "method", "flow_preset": "preset", "flow_scale": "scale"}
 SOURCE_KEYS = ("layout", "root", "keep_every", "camera")
-RENDER_KEYS = {
-    "frames": "frame_counts",
-    "render_height": "render_height",
-    "render_width": "render_width",
-    "seed": "seed",
-    "route_families": "route_families",
-    "route_mixes": "route_mixes",
+RENDER_KEYS = {"frames": "frame_counts"} | {
+    k: k for k in ("render_height", "render_width", "seed", "route_families", "route_mixes")
 }
+WITHDRAWN: dict[str, Any] = {"windows.shares": None, "windows.stride": None, "flow.preset": "medium"}
+"""Keys of earlier versions' data descriptions that this version does not have -> the one value it reads
+(another is refused), or None: any (how training windows were drawn, which evaluation does not use)."""
 
 
 def new_key(flat: str) -> str | None:
     """The key that replaced a flat data key (``test`` -> ``splits.test``), or None for none."""
     if flat in FLAT_KEYS:
-        return f"{FLAT_KEYS[flat]}.{RENAMED.get(flat, flat)}"
+        new = f"{FLAT_KEYS[flat]}.{RENAMED.get(flat, flat)}"
+        return None if new in WITHDRAWN else new
     if flat in SOURCE_KEYS:
         return f"sources.NAME.{flat}"
     if flat in RENDER_KEYS:
         return f"sources.synthetic.{RENDER_KEYS[flat]}"
-    if flat == "datasets":
-        return "sources"
-    return None
+    return "sources" if flat == "datasets" else None
 
 
 def nested(flat: Mapping[str, Any]) -> dict[str, Any]:
@@ -490,9 +468,8 @@ def nested(flat: Mapping[str, Any]) -> dict[str, Any]:
     description's ``statistics``, ``dataset_root``, ``intrinsics``) stay at the top."""
     if "sources" in flat:
         return dict(flat)
-    target = str(flat.get("_target_", ""))
     out: dict[str, Any] = {"_target_": "lossvo.data.datamodules.VODataModule"}
-    specs: dict[str, dict[str, Any]] = {"splits": {}, "frames": {}, "windows": {}, "flow": {}, "loader": {}}
+    specs: dict[str, dict[str, Any]] = {spec: {} for spec in FLAT}
     source: dict[str, Any] = {}
     for key, value in flat.items():
         if key in FLAT_KEYS:
@@ -501,14 +478,13 @@ def nested(flat: Mapping[str, Any]) -> dict[str, Any]:
             source[RENDER_KEYS.get(key, key)] = value
         elif key not in ("_target_", "datasets"):
             out[key] = value
+    datasets = flat.get("datasets") or {}
     if "datasets" in flat:
-        out["sources"] = {
-            k: {s: v for s, v in e.items() if s in SOURCE_KEYS} for k, e in flat["datasets"].items()
-        }
+        out["sources"] = {k: {s: v for s, v in e.items() if s in SOURCE_KEYS} for k, e in datasets.items()}
         for split in SPLITS:  # the datasets' own splits, as the run names them
-            named = [f"{k}/{n}" for k, e in flat["datasets"].items() for n in split_names(e.get(split) or [])]
+            named = [f"{k}/{n}" for k, e in datasets.items() for n in split_names(e.get(split) or [])]
             specs["splits"][split] = specs["splits"].get(split) or named
-    elif target.endswith("SyntheticDataModule"):
+    elif str(flat.get("_target_", "")).endswith("SyntheticDataModule"):
         source.pop("layout", None)
         out["sources"] = {SYNTHETIC: {"layout": SYNTHETIC, **source}}
     else:
@@ -517,18 +493,17 @@ def nested(flat: Mapping[str, Any]) -> dict[str, Any]:
     return {**out, **{k: v for k, v in specs.items() if v}}
 
 
-WITHDRAWN = {"windows": ("shares",)}
-"""Keys of earlier checkpoints' data descriptions that this version does not have, by spec: each set how
-training windows were drawn, which evaluation does not depend on."""
-
-
 def current(description: Mapping[str, Any]) -> dict[str, Any]:
     """A checkpoint's data description as this version's specs take it: in their form (:func:`nested`),
-    without the keys this version does not have (:data:`WITHDRAWN`)."""
+    without the keys this version does not have (:data:`WITHDRAWN`); UserError naming a key whose value
+    this version does not compute."""
     out = nested(description)
-    for spec, keys in WITHDRAWN.items():
-        if isinstance(out.get(spec), Mapping) and set(keys) & set(out[spec]):
-            out[spec] = {k: v for k, v in out[spec].items() if k not in keys}
+    for path, only in WITHDRAWN.items():
+        spec, key = path.split(".")
+        if isinstance(out.get(spec), Mapping) and key in out[spec]:
+            if only is not None and out[spec][key] != only:
+                raise UserError(f"data.{path}={out[spec][key]!r}: this version has {only} only")
+            out[spec] = {k: v for k, v in out[spec].items() if k != key}
     return out
 
 

@@ -214,20 +214,15 @@ def spec(transform: Any) -> dict[str, Any]:
 
 
 LEGACY_TRANSFORMS = ("standstill", "zoom", "mirror", "reverse", "augment")
-"""Augmentation arguments of checkpoints written before batch transforms: ``mirror`` a probability, the
-others the settings of transforms this version does not have (:data:`WITHDRAWN`)."""
-
+"""Augmentation arguments of checkpoints written before batch transforms (``mirror``: a Mirror's p)."""
 WITHDRAWN = tuple(f"{__name__}.{name}" for name in ("Standstill", "Zoom", "Reverse", "Jitter"))
 """The ``_target_`` of batch transforms that earlier checkpoints may list and this version does not have."""
 
 
 def upgrade_description(data: Any) -> Any:
-    """A checkpoint's data description (:meth:`lossvo.data.datamodules.VODataModule.description`) as the
-    current datamodule takes it: the ``mirror`` argument of checkpoints written before batch transforms
-    as the ``transforms`` list (a :class:`Mirror` where it is > 0), and the transforms this version does
-    not have left out (:data:`WITHDRAWN`, and the other :data:`LEGACY_TRANSFORMS` that set them). They
-    changed training batches only; evaluation applies no transform. The rest as it is (``data`` itself
-    where nothing changes)."""
+    """A checkpoint's data description with the transforms this version has: an earlier ``mirror``
+    argument as a :class:`Mirror` (where > 0), :data:`WITHDRAWN` ones left out (they changed training
+    batches only; evaluation applies none); ``data`` itself where nothing changes."""
     if not isinstance(data, Mapping):
         return data
     listed = data.get("transforms")

@@ -69,11 +69,9 @@ def gaps(times: np.ndarray) -> np.ndarray:
     return interval > GAP_FACTOR * np.median(interval)
 
 
-def training_starts(
-    n_frames: int, seq_len: int, stride: int, step: int = 1, gap: np.ndarray | None = None
-) -> np.ndarray:
-    """First frames of the full training windows of a sequence: every ``stride`` frames, each window
-    taking every ``step``-th frame (it spans ``step (seq_len - 1) + 1`` frames), none spanning a gap.
+def training_starts(n_frames: int, seq_len: int, step: int = 1, gap: np.ndarray | None = None) -> np.ndarray:
+    """First frames of the full training windows of a sequence: every frame, each window taking every
+    ``step``-th frame (it spans ``step (seq_len - 1) + 1`` frames), none spanning a gap.
 
     Args:
         gap: (n_frames - 1,) bool, the consecutive pairs that span a gap (:func:`gaps`); None: none does.
@@ -81,7 +79,7 @@ def training_starts(
         (M,) int64 start frames (empty when the sequence is shorter than one window).
     """
     span = step * (seq_len - 1) + 1
-    starts = np.arange(0, max(n_frames - span + 1, 0), stride, dtype=np.int64)
+    starts = np.arange(max(n_frames - span + 1, 0), dtype=np.int64)
     if gap is None or not np.any(gap):
         return starts
     crossed = np.concatenate(([0], np.cumsum(gap)))  # gaps among the pairs before frame k
@@ -128,8 +126,8 @@ class WindowDataset(Dataset):
     Items are dicts: ``frames`` (L, 3, H, W) uint8, ``targets`` (L - 1, 4, 4) float32, ``K`` (3, 3)
     float32, ``metric`` () bool (whether the sequence's platform gives metric scale a cue) and, with flow,
     ``flow`` (L - 1, 2, H, W) float16: a window costs one memory copy. Training
-    windows (:func:`lossvo.data.training_starts`) have ``seq_len`` frames, start every ``stride``
-    frames and exist at each frame step s of ``steps``: every s-th frame, with targets ``inv(T_w_k) @
+    windows (:func:`lossvo.data.training_starts`) have ``seq_len`` frames, start at every
+    frame and exist at each frame step s of ``steps``: every s-th frame, with targets ``inv(T_w_k) @
     T_w_{k+s}`` computed from the poses in float64 (s = 2 doubles the speeds and rotations the network
     sees). Tiled windows (``tiled=True``, validation and test) follow :func:`tile`:
     every consecutive pair exactly once, the last window of a sequence possibly shorter. Conversion to
@@ -140,8 +138,8 @@ class WindowDataset(Dataset):
 
     Args:
         cache_files: one cached frame array per sequence; poses: (N_i, 4, 4) T_w_c per sequence.
-        seq_len: frames per window; stride: frames between training window starts; steps: frame steps of
-            the training windows (1: consecutive); tiled: tile the sequences instead (stride, steps unused).
+        seq_len: frames per window; steps: frame steps of the training windows (1: consecutive); tiled:
+            tile the sequences instead (steps unused).
         intrinsics: (3, 3) K of each sequence's cached frames (None: the identity).
         flow_files: step -> one cached flow array per sequence (:mod:`lossvo.data.flow`), for every step
             used; None: no flow.
@@ -151,7 +149,7 @@ class WindowDataset(Dataset):
     """
 
     def __init__(
-        self, cache_files: list[Path], poses: list[np.ndarray], seq_len: int, stride: int = 1,
+        self, cache_files: list[Path], poses: list[np.ndarray], seq_len: int,
         steps: Sequence[int] = (1,), tiled: bool = False, intrinsics: list[np.ndarray] | None = None,
         flow_files: dict[int, list[Path]] | None = None, times: list[np.ndarray] | None = None,
         metric: Sequence[bool] | None = None,
@@ -170,7 +168,7 @@ class WindowDataset(Dataset):
         lengths = [len(p) for p in poses]
         gap = [gaps(t) for t in times] if times is not None else [None] * len(poses)
         rows = [
-            self._tiles(i, n, seq_len, gap[i]) if tiled else self._training(i, n, seq_len, stride, s, gap[i])
+            self._tiles(i, n, seq_len, gap[i]) if tiled else self._training(i, n, seq_len, s, gap[i])
             for s in steps for i, n in enumerate(lengths) if n >= 2
         ]  # fmt: skip
         self.index = np.concatenate(rows) if rows else np.zeros((0, 4), dtype=np.int64)
@@ -178,11 +176,9 @@ class WindowDataset(Dataset):
         self._flow: dict[int, list[np.ndarray]] | None = None
 
     @staticmethod
-    def _training(
-        seq: int, n: int, seq_len: int, stride: int, step: int, gap: np.ndarray | None
-    ) -> np.ndarray:
+    def _training(seq: int, n: int, seq_len: int, step: int, gap: np.ndarray | None) -> np.ndarray:
         """(M, 4) rows (sequence, start, stop, step) of a sequence's training windows at one step."""
-        starts = training_starts(n, seq_len, stride, step, gap)
+        starts = training_starts(n, seq_len, step, gap)
         stops = starts + step * (seq_len - 1) + 1
         return np.stack((np.full_like(starts, seq), starts, stops, np.full_like(starts, step)), axis=1)
 

@@ -58,8 +58,8 @@ RANSAC_THRESHOLD_PX = 0.5
 """RANSAC inlier threshold for frames narrower than 640 pixels (1 pixel for larger ones, e.g. KITTI's)."""
 ORB_FEATURES = 500
 
-FLOW_SETTING = FlowSetting("dis", "medium")
-"""The flow baseline's flow: OpenCV's DIS, preset medium (``data.flow.method=dis``, its default preset)."""
+FLOW_SETTING = FlowSetting("dis")
+"""The flow baseline's flow: the one ``data.flow.method=dis`` caches."""
 FLOW_MAX_WIDTH = 320
 """Frames wider than this (pixels) are downscaled to it (area interpolation, aspect ratio kept) before the
 flow: the synthetic 96x320 frames are used as stored (7-8 ms a pair on one core), KITTI's 376x1241 at

@@ -36,7 +36,6 @@ TRAINED_WITH = (
     "windows.seq_len",
     "frames.normalization",
     "flow.method",
-    "flow.preset",
     "flow.scale",
 )
 """Data settings a trained network depends on (paths in the data config): evaluation takes them from its
@@ -46,6 +45,10 @@ SCHEMA_VERSION = 1
 """The version of what a lossvo checkpoint holds beside Lightning's entries, written in it as
 ``schema_version``; a checkpoint without one is read as this version (an earlier form of its ``data`` is
 upgraded: :func:`lossvo.data.transforms.upgrade_description`)."""
+
+MODEL_WITHDRAWN = {"intrinsics_layer": True}
+"""Network arguments of earlier versions' checkpoints that this version does not have -> the one value it
+builds (another is refused)."""
 
 RECORD_ONLY = ("statistics", "dataset_root", "intrinsics")
 """Entries of a checkpoint's ``data`` that describe the training data but are not datamodule arguments."""
@@ -81,11 +84,17 @@ class Description:
 
     @classmethod
     def of(cls, content: Mapping[str, Any]) -> Description:
-        """The description in a checkpoint's content (:func:`read`: it holds ``model`` and ``loss``)."""
+        """The description in a checkpoint's content (:func:`read`: it holds ``model`` and ``loss``);
+        UserError naming a setting of an earlier version that this one does not have."""
         hparams, threads = content["hyper_parameters"], content.get("threads")
+        model = dict(hparams["model"])
+        for key, only in MODEL_WITHDRAWN.items():
+            if model.get(key, only) != only:
+                raise UserError(f"model.{key}={model[key]!r}: this version has {only} only")
+            model.pop(key, None)
         data = upgrade_description(content.get("data"))  # a checkpoint of an earlier version too
         data = current(data) if isinstance(data, Mapping) else None
-        return cls(hparams["model"], hparams["loss"], data if isinstance(data, dict) else None,
+        return cls(model, hparams["loss"], data if isinstance(data, dict) else None,
                    threads if is_integer(threads) else None, int(content.get("epoch", 0)),
                    int(content.get("global_step", 0)))  # fmt: skip
 
@@ -157,7 +166,10 @@ def read(path: str | os.PathLike) -> dict[str, Any]:
 def load_network(path: str | os.PathLike, device: str | torch.device = "cpu") -> TrainedNetwork:
     """The network of a checkpoint, with its loss and its training record, on ``device``."""
     content = read(path)
-    described = Description.of(content)
+    try:
+        described = Description.of(content)
+    except UserError as e:
+        raise CheckpointError(f"{path}: {e}") from None
     try:
         network = TrainedNetwork(instantiate(described.model), instantiate(described.loss),
                                  described.data, described.threads)  # fmt: skip

@@ -237,6 +237,7 @@ class Event(Record):
         error: the error of a failure: a user error's one line, any other ``"Type: message"``.
         slurm_job, slurm_restarts: the SLURM job and how often SLURM requeued it.
         code: the code version of a start or resume (:func:`lossvo.code_version.code_version`).
+        machine: the processor of a start or resume (:func:`lossvo.machine.machine`).
     """
 
     event: str
@@ -249,6 +250,7 @@ class Event(Record):
     slurm_job: str | None = None
     slurm_restarts: int | None = None
     code: str | None = None
+    machine: str | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The entry as a JSON object: ``event`` and ``time``, then the fields that are set."""

@@ -88,8 +88,6 @@ class FlowVO(nn.Module):
             quarter of the pixels at 2, where the flow field is smooth.
         channels_last: run the encoder in the channels-last memory layout (NHWC), which the oneDNN CPU
             kernels and GPU tensor cores prefer; the values are the same.
-        intrinsics_layer: read the intrinsics layer beside the flow (false: the flow alone, K unused;
-            what the layer adds across cameras is then measurable).
     """
 
     INPUTS = ("flow", "K")
@@ -112,12 +110,8 @@ class FlowVO(nn.Module):
         flow: str = "dis",
         pool: int = 1,
         channels_last: bool = False,
-        intrinsics_layer: bool = True,
     ) -> None:
         super().__init__()
-        if not isinstance(intrinsics_layer, bool):
-            raise UserError(f"model.intrinsics_layer: expected true or false, got {intrinsics_layer!r}")
-        self.intrinsics_layer = intrinsics_layer
         self.out_dim = check_int(
             "out_dim", out_dim, TRANSLATION_DIM + 1, " (3 translation outputs and a rotation)"
         )
@@ -150,9 +144,8 @@ class FlowVO(nn.Module):
 
     def _build(self, p: float) -> None:
         c0, c1, c2, c3 = self.channels
-        inputs = 4 if self.intrinsics_layer else 2
         self.stem = nn.Sequential(
-            nn.Conv2d(inputs, c0, 5, stride=2, padding=2, bias=False),
+            nn.Conv2d(4, c0, 5, stride=2, padding=2, bias=False),
             nn.BatchNorm2d(c0),
             nn.ReLU(inplace=True),
         )
@@ -204,7 +197,7 @@ class FlowVO(nn.Module):
 
     def encoder_input(self, flow: Tensor, K: Tensor) -> Tensor:
         """The encoder's input (B*P, 4, H/pool, W/pool): the scaled flow and the intrinsics layer of each
-        pair, average-pooled ((B*P, 2, H/pool, W/pool), the flow alone, without ``intrinsics_layer``).
+        pair, average-pooled.
 
         Args:
             flow: (B, P, 2, H, W) pixels; K: (B, 3, 3) pixels of frames of (H, W).
@@ -217,8 +210,6 @@ class FlowVO(nn.Module):
         B, P = flow.shape[:2]
         scaled = self._pooled(flow.float().reshape(B * P, 2, self.height, self.width))
         scaled = scaled * self._flow_scale
-        if not self.intrinsics_layer:
-            return scaled.contiguous(memory_format=self.memory_format)
         layer = self._pooled(intrinsics_channels(K.float(), self.height, self.width))  # once a window
         layer = layer[:, None].expand(B, P, *layer.shape[1:]).reshape(B * P, *layer.shape[1:])
         return torch.cat((scaled, layer), dim=1).contiguous(memory_format=self.memory_format)

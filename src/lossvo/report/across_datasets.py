@@ -42,19 +42,9 @@ ACROSS_TEXT = (
     "every training sequence of a network trained on several); *rot below zero motion* is how far the mean "
     "rotation RPE lies below zero motion's there."
 )
-HEADER = (
-    "network",
-    "trained on",
-    "evaluated on",
-    "sequences",
-    "n",
-    "APE trans RMSE (m)",
-    "RPE trans RMSE (m)",
-    "RPE trans RMSE, scale given (m)",
-    "RPE rot RMSE (rad)",
-    "rot below zero motion",
-    "translation read as",
-)
+HEADER = ("network", "trained on", "evaluated on", "sequences", "n", "APE trans RMSE (m)",
+          "RPE trans RMSE (m)", "RPE trans RMSE, scale given (m)", "RPE rot RMSE (rad)",
+          "rot below zero motion", "translation read as")  # fmt: skip
 
 
 @dataclass(frozen=True)

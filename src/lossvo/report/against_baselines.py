@@ -35,8 +35,8 @@ from lossvo.report.jobs import (
     finite_number,
     metric_value,
 )
-from lossvo.report.tables import BASELINE, Column, fmt
-from lossvo.table_render import Rows, prepend_column
+from lossvo.report.tables import BASELINE, UNKNOWN_ARCHITECTURE, Column, fmt, with_architecture
+from lossvo.table_render import Rows
 
 UNSEEN_KEY = "data.splits.unseen"
 UNSEEN_ROTATION_BAR = 0.30
@@ -196,10 +196,6 @@ def _baseline(base: BaselineRun, name: str) -> Column | None:
     return next((c for c in base.columns if c.label == name), None)
 
 
-def _architecture(column: Column) -> str:
-    return column.architecture or "?"
-
-
 def learning_markdown(networks: Sequence[Column], base: BaselineRun, by_architecture: bool = False) -> str:
     """Per job and validation sequence (the configs' ``data.splits.val``): how far below the mean-motion
     baseline its RPE lies (with ``by_architecture`` the job's architecture first)."""
@@ -223,55 +219,29 @@ def learning_markdown(networks: Sequence[Column], base: BaselineRun, by_architec
         "How far each job's RPE RMSE lies below the mean-motion baseline's on the validation sequences "
         "(1 − network / baseline; negative: worse than predicting the training set's mean motion)."
     )
-    table = Rows(header, rows)
-    if by_architecture:
-        table = prepend_column(table, "architecture", [_architecture(c) for c in networks for _ in c.jobs])
-    return "\n".join([text, "", table_render.markdown(table)])
-
-
-@dataclass(frozen=True)
-class UnseenCheck:
-    """One job on one unseen-motion sequence: RPE rotation RMSE (rad) and its reduction against zero
-    motion, RPE translation RMSE (m) and its reduction against the sequence's own mean motion (the
-    oracle), reductions as fractions (1 - network / baseline); None where a value is missing."""
-
-    rot: float | None
-    rot_reduction: float | None
-    trans: float | None
-    trans_reduction: float | None
-
-    @property
-    def met(self) -> bool:
-        """Rotation at least :data:`UNSEEN_ROTATION_BAR` below zero motion and translation below the
-        oracle; a missing value meets neither."""
-        rot_ok = self.rot_reduction is not None and self.rot_reduction >= UNSEEN_ROTATION_BAR
-        return rot_ok and self.trans_reduction is not None and self.trans_reduction > 0
-
-
-def unseen_check(entry: Scores | None, zero: Scores | None, own: Scores | None) -> UnseenCheck:
-    """The :class:`UnseenCheck` of a job's scores on one sequence against the zero-motion and
-    own-mean-motion baselines' scores on that sequence (None where missing)."""
-    rot, trans = finite_number(metric_value(entry, RPE_ROT)), finite_number(metric_value(entry, RPE_TRANS))
-    return UnseenCheck(
-        rot,
-        reduction(rot, metric_value(zero, RPE_ROT)),
-        trans,
-        reduction(trans, metric_value(own, RPE_TRANS)),
+    table = with_architecture(
+        Rows(header, rows), [c.architecture for c in networks for _ in c.jobs], by_architecture
     )
-
-
-def _percent(fraction: float | None) -> str:
-    return "–" if fraction is None else f"{100 * fraction:.1f} %"
+    return "\n".join([text, "", table_render.markdown(table)])
 
 
 UNSEEN_HEADER = ("RPE rot [rad]", "vs zero motion", "RPE trans [m]", "vs own mean motion", "both met")
 
 
-def _check_cells(check: UnseenCheck) -> list[str]:
-    """An :class:`UnseenCheck` as the cells of :data:`UNSEEN_HEADER`."""
-    rmse = ["–" if v is None else fmt(v) for v in (check.rot, check.trans)]
-    reductions = [_percent(check.rot_reduction), _percent(check.trans_reduction)]
-    return [rmse[0], reductions[0], rmse[1], reductions[1], "yes" if check.met else "no"]
+def unseen_cells(entry: Scores | None, zero: Scores | None, own: Scores | None) -> tuple[list[str], bool]:
+    """A job's cells of :data:`UNSEEN_HEADER` on one unseen-motion sequence, against the zero-motion and
+    own-mean-motion baselines' scores there (None where missing), and whether both are met: the RPE
+    rotation RMSE (rad) at least :data:`UNSEEN_ROTATION_BAR` below zero motion's and the RPE translation
+    RMSE (m) below the oracle's (reductions 1 - network / baseline; a missing value meets neither)."""
+    rot, trans = (finite_number(metric_value(entry, path)) for path in (RPE_ROT, RPE_TRANS))
+    rot_down = reduction(rot, metric_value(zero, RPE_ROT))
+    trans_down = reduction(trans, metric_value(own, RPE_TRANS))
+    met = (
+        rot_down is not None and rot_down >= UNSEEN_ROTATION_BAR and trans_down is not None and trans_down > 0
+    )
+    rmse = ["–" if v is None else fmt(v) for v in (rot, trans)]
+    down = ["–" if r is None else f"{100 * r:.1f} %" for r in (rot_down, trans_down)]
+    return [rmse[0], down[0], rmse[1], down[1], "yes" if met else "no"], met
 
 
 UNSEEN_TEXT = (
@@ -293,21 +263,24 @@ def unseen_markdown(
     if zero is None or own is None:
         return "No zero-motion or own-mean-motion baseline: nothing to compare."
     rows: list[list[object]] = []
-    architectures: list[str] = []
+    architectures: list[str | None] = []
     passed: dict[str, list[bool]] = {}
     for column in networks:
         for job, results in zip(column.jobs, column.results, strict=True):
             checks = [
-                unseen_check(results.get(s), zero.results[0].get(s), own.results[0].get(s)) for s in unseen
+                unseen_cells(results.get(s), zero.results[0].get(s), own.results[0].get(s)) for s in unseen
             ]
             rows += [
-                [column.label, job.seed, s, *_check_cells(c)] for s, c in zip(unseen, checks, strict=True)
+                [column.label, job.seed, s, *cells] for s, (cells, _) in zip(unseen, checks, strict=True)
             ]
-            architectures += [_architecture(column)] * len(unseen)
-            passed.setdefault(_architecture(column), []).append(all(c.met for c in checks))
-    table = Rows(["configuration", "seed", "sequence", *UNSEEN_HEADER], rows)
+            architectures += [column.architecture] * len(unseen)
+            passed.setdefault(column.architecture or UNKNOWN_ARCHITECTURE, []).append(
+                all(met for _, met in checks)
+            )
+    table = with_architecture(
+        Rows(["configuration", "seed", "sequence", *UNSEEN_HEADER], rows), architectures, by_architecture
+    )
     if by_architecture:
-        table = prepend_column(table, "architecture", architectures)
         counts = "; ".join(f"{a}: {sum(met)} of {len(met)}" for a, met in passed.items())
         summary = f"Jobs that meet both on every unseen sequence, per architecture: {counts}."
     else:

@@ -78,7 +78,7 @@ class Agreement:
 
 def rank(quantity: str, architecture: str, scores: dict[str, dict[str, float]]) -> Ranking:
     """``scores`` ({treatment: {seed: score}}) ranked by the mean over seeds, lowest first (none last)."""
-    cells = {t: Cell.of(np.array(list(v.values()), dtype=np.float64)) for t, v in scores.items()}
+    cells = {t: Cell.of(list(v.values())) for t, v in scores.items()}
     order = sorted(cells, key=lambda t: (cells[t].n == 0, cells[t].mean if cells[t].n else 0.0))
     return Ranking(quantity, architecture, [(t, cells[t]) for t in order])
 
@@ -244,18 +244,8 @@ def _test_cells(i: Interaction) -> list[object]:
 def interaction_rows(agreement: Agreement) -> Rows:
     """Per quantity and pair of architectures: the configurations, seeds, whether the rankings agree in
     order, F, p, the relabellings, the smallest p at this n and the verdict."""
-    header = [
-        "quantity",
-        "architectures",
-        "configurations",
-        "seeds",
-        "same order",
-        "F",
-        "p",
-        "relabellings",
-        "smallest p at this n",
-        "verdict",
-    ]
+    header = ["quantity", "architectures", "configurations", "seeds", "same order", "F", "p",
+              "relabellings", "smallest p at this n", "verdict"]  # fmt: skip
     rows: list[list[object]] = [
         [
             i.quantity,
@@ -328,22 +318,9 @@ def interaction_csv_rows(agreement: Agreement) -> Rows:
     """``tables/interaction.csv``: one row per quantity and pair of architectures, full precision; an
     untested pair has verdict ``cannot be tested`` and the reason in ``note`` (a section that cannot be
     tested at all: one such row)."""
-    header = [
-        "quantity",
-        "architecture_a",
-        "architecture_b",
-        "configurations",
-        "seeds",
-        "same_order",
-        "statistic",
-        "p_value",
-        "permutations",
-        "exact",
-        "smallest_p",
-        "verdict",
-        "note",
-        "sequences",
-    ]
+    header = ["quantity", "architecture_a", "architecture_b", "configurations", "seeds", "same_order",
+              "statistic", "p_value", "permutations", "exact", "smallest_p", "verdict", "note",
+              "sequences"]  # fmt: skip
     if agreement.untested:
         return Rows(header, [["", "", "", "", "", "", "", "", "", "", "", UNTESTED, agreement.untested, ""]])
     rows: list[list[object]] = []

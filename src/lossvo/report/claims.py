@@ -1,10 +1,10 @@
-"""The study's claims, tested on the numbers: (a) "the chordal loss gives the lowest errors" (on the
-sequences outside the training split) and (b) "it converges fastest", each for every chordal
-configuration against every other, seeds as the unit (a seed's mean error over those sequences, a seed's
-convergence epoch; paired by seed), with the paired test, Holm's correction, the effect with its interval,
-the seeds needed and the verdict of :mod:`lossvo.report.statistics` (the last section of report.md and the
-rows of ``tables/claims.csv``); where a sweep varies the architecture, within each architecture
-(:func:`claims_by_architecture`)."""
+"""The study's claims about a loss class (``--claimed-loss``, default :data:`CLAIMED_LOSS`), tested on
+the numbers: (a) "the chordal loss gives the lowest errors" (on the sequences outside the training split)
+and (b) "it converges fastest", each for every configuration of that loss against every other, seeds as
+the unit (a seed's mean error over those sequences, a seed's convergence epoch; paired by seed), with the
+paired test, Holm's correction, the effect with its interval, the seeds needed and the verdict of
+:mod:`lossvo.report.statistics` (the last section of report.md and the rows of ``tables/claims.csv``);
+where a sweep varies the architecture, within each architecture (:func:`claims_by_architecture`)."""
 
 from __future__ import annotations
 
@@ -16,13 +16,23 @@ import numpy as np
 
 from lossvo import table_render
 from lossvo.report import statistics
-from lossvo.report.comparison import paired_values
-from lossvo.report.configurations import SCORE, UNKNOWN_ARCHITECTURE, architecture_groups, loss_class_name
+from lossvo.report.configurations import SCORE, architecture_groups, loss_class_name
 from lossvo.report.convergence import Convergence, epoch_text
 from lossvo.report.jobs import APE_TRANS, RPE_ROT, RPE_TRANS, trained_sequences
 from lossvo.report.statistics import PairedTest
-from lossvo.report.tables import NETWORK, Cell, Column, fmt, mean_std_text, seed_scores
-from lossvo.table_render import Rows, prepend_column
+from lossvo.report.tables import (
+    NETWORK,
+    UNKNOWN_ARCHITECTURE,
+    Cell,
+    Column,
+    evaluated_sequences,
+    fmt,
+    mean_std_text,
+    paired_samples,
+    seed_scores,
+    with_architecture,
+)
+from lossvo.table_render import Rows
 
 CLAIMED_LOSS = "ChordalLoss"
 """The default claimed loss: the class name of ``loss._target_`` whose configurations the claims are
@@ -32,7 +42,8 @@ CLAIM_ERRORS = (
     ("RPE rot RMSE [rad]", RPE_ROT),
     ("APE trans RMSE [m]", APE_TRANS),
 )
-CLAIM_A = "the chordal loss gives the lowest errors"
+CLAIM_A = "the {loss} loss gives the lowest errors"
+"""Claim (a)'s statement, ``{loss}`` the claimed loss's :func:`loss_word`."""
 CLAIM_B = "it converges fastest"
 EPOCHS = "convergence epoch"
 SECONDARY = "secondary: (seed, sequence) cells share a network; indicative only"
@@ -75,6 +86,16 @@ class Claim:
     undecidable: list[str] = field(default_factory=list)
     claimed_loss: str = CLAIMED_LOSS
 
+    @property
+    def letter(self) -> str:
+        """``a`` (the errors) or ``b`` (convergence)."""
+        return "b" if self.statement == CLAIM_B else "a"
+
+
+def loss_word(claimed_loss: str) -> str:
+    """How the report's text names a loss class: ``ChordalLoss`` -> ``chordal``."""
+    return claimed_loss.removesuffix("Loss").lower()
+
 
 def is_claimed(column: Column, claimed_loss: str = CLAIMED_LOSS) -> bool:
     """Whether a network column is a claimed configuration: every job's ``loss._target_`` class is
@@ -92,28 +113,16 @@ def training_sequences(columns: Sequence[Column]) -> set[str]:
     return {s for c in columns for j in c.jobs for s in trained_sequences(j)}
 
 
-def evaluated_by(columns: Sequence[Column], sequences: Sequence[str]) -> list[str]:
-    """The ``sequences`` that some job of ``columns`` has results for, in order."""
-    evaluated = {name for c in columns for per_sequence in c.results for name in per_sequence}
-    return [s for s in sequences if s in evaluated]
-
-
 def heldout_sequences(columns: Sequence[Column], sequences: Sequence[str]) -> list[str]:
     """The ``sequences`` that some job of ``columns`` evaluated and none of them trained on, in order."""
     train = training_sequences(columns)
-    return [s for s in evaluated_by(columns, sequences) if s not in train]
-
-
-def restrict(column: Column, sequences: Sequence[str]) -> Column:
-    """A copy of a column whose results hold only ``sequences``."""
-    results = [{s: r[s] for s in sequences if s in r} for r in column.results]
-    return Column(column.label, column.kind, list(column.replicates), results, list(column.jobs))
+    return [s for s in evaluated_sequences(columns, sequences) if s not in train]
 
 
 def seed_means(column: Column, path: Sequence[str], sequences: Sequence[str]) -> Cell:
     """Mean ± std over seeds of each seed's mean of one metric over ``sequences`` (a seed missing one
     sequence is left out)."""
-    return Cell.of(np.array(list(seed_scores(column, path, sequences).values()), dtype=np.float64))
+    return Cell.of(list(seed_scores(column, path, sequences).values()))
 
 
 def seed_test(
@@ -133,8 +142,9 @@ def seed_test(
 
 def cells_test(claimed: Column, other: Column, path: Sequence[str], sequences: Sequence[str]) -> PairedTest:
     """The :data:`SECONDARY` test: paired over the (seed, sequence) cells of ``sequences`` both have."""
-    x, y, _ = paired_values(restrict(claimed, sequences), restrict(other, sequences), path)
-    return statistics.cells_test(other.label, x, y)
+    x, y = paired_samples(claimed, other, path, sequences)
+    both = np.isfinite(x) & np.isfinite(y)
+    return statistics.cells_test(other.label, x[both], y[both])
 
 
 def quantity_tests(
@@ -183,13 +193,17 @@ def undecidable_sentences(quantities: Sequence[QuantityTests]) -> list[str]:
 
 
 def error_claim(
-    claimed: Column, others: Sequence[Column], heldout: Sequence[str], margin: float = statistics.MARGIN
+    claimed: Column,
+    others: Sequence[Column],
+    heldout: Sequence[str],
+    margin: float = statistics.MARGIN,
+    claimed_loss: str = CLAIMED_LOSS,
 ) -> Claim:
     """Claim (a): the claimed configuration's errors against every other's, paired by seed (each seed's
     mean over the held-out sequences), one verdict per metric of :data:`CLAIM_ERRORS` (Holm over the
     other configurations), combined by :func:`lossvo.report.statistics.combine`."""
     scope = f"On the sequences outside the training split: {', '.join(heldout)}."
-    claim = Claim(CLAIM_A, claimed.label, scope, margin, list(heldout))
+    claim = Claim(CLAIM_A.format(loss=loss_word(claimed_loss)), claimed.label, scope, margin, list(heldout))
     for column in (claimed, *others):
         claim.measured[column.label] = {q: seed_means(column, p, heldout) for q, p in CLAIM_ERRORS}
     for quantity, path in CLAIM_ERRORS:
@@ -243,9 +257,11 @@ def study_claims(
     networks = [c for c in columns if c.kind == NETWORK]
     claimed = [c for c in networks if is_claimed(c, claimed_loss)]
     others = [c for c in networks if not is_claimed(c, claimed_loss)]
+    word = loss_word(claimed_loss)
+    statements = (CLAIM_A.format(loss=word), CLAIM_B)
     if not claimed:
-        reason = f"the sweep has no chordal configuration (no job with loss._target_ {claimed_loss})"
-        return [Claim(s, "", untested=reason, claimed_loss=claimed_loss) for s in (CLAIM_A, CLAIM_B)]
+        reason = f"the sweep has no {word} configuration (no job with loss._target_ {claimed_loss})"
+        return [Claim(s, "", untested=reason, claimed_loss=claimed_loss) for s in statements]
     train = training_sequences(networks)
     heldout = [s for s in sequences if s not in train]
     by_label = {c.label: c for c in items}
@@ -253,12 +269,13 @@ def study_claims(
     for column in claimed:
         if not others:
             reason = "no other configuration with results to compare with"
-            out += [Claim(s, column.label, untested=reason) for s in (CLAIM_A, CLAIM_B)]
+            out += [Claim(s, column.label, untested=reason) for s in statements]
             continue
         if heldout:
-            a = error_claim(column, others, heldout, margin)
+            a = error_claim(column, others, heldout, margin, claimed_loss)
         else:
-            a = Claim(CLAIM_A, column.label, untested="no evaluated sequence is outside the training split")
+            why = "no evaluated sequence is outside the training split"
+            a = Claim(statements[0], column.label, untested=why)
         out += [a, convergence_claim(by_label[column.label], [by_label[o.label] for o in others], margin)]
     for claim in out:
         claim.claimed_loss = claimed_loss
@@ -278,7 +295,7 @@ def claims_by_architecture(
     out = []
     for architecture, group in architecture_groups(columns).items():
         labels = {c.label for c in group}
-        own = evaluated_by(group, sequences)
+        own = evaluated_sequences(group, sequences)
         kept = [i for i in items if i.label in labels]
         for claim in study_claims(group, kept, own, margin, claimed_loss):
             claim.architecture = architecture
@@ -295,21 +312,22 @@ def claims_rule(margin: float = statistics.MARGIN, claimed_loss: str = CLAIMED_L
     """How a claim is decided, in the report's words, with the equivalence margin ``margin`` and the
     claimed loss class ``claimed_loss``."""
     alpha, delta, level = statistics.ALPHA, f"{100 * margin:g} %", 1 - 2 * statistics.ALPHA
+    word = loss_word(claimed_loss)
     parts = [
         "Rule (`lossvo.report.statistics`): seeds are the unit, since the sequences of one seed share one",
         "trained network. A seed's value is its mean over the evaluated sequences outside the training",
         "split (`data.splits.train`) for claim (a), its convergence epoch (*Convergence*) for claim (b); the",
-        f"chordal configuration (`loss._target_` class `{claimed_loss}`) is paired by seed with every other",
+        f"{word} configuration (`loss._target_` class `{claimed_loss}`) is paired by seed with every other",
         "configuration, and each pair is judged on its n per-seed relative differences",
-        f"r = (chordal − other) / other. **{statistics.EQUIVALENT} within ±{delta}**: the {100 * level:g} %",
+        f"r = ({word} − other) / other. **{statistics.EQUIVALENT} within ±{delta}**: the {100 * level:g} %",
         f"t-interval of the mean of r (`scipy.stats.ttest_1samp(r).confidence_interval({level:g})`) lies",
         f"inside ±{delta}, i.e. both one-sided t-tests of TOST reject at {alpha} (*TOST p*; no correction:",
         "equivalence to every other configuration is an intersection-union test). Otherwise the per-seed",
-        "differences d = chordal − other are tested with the two-sided exact Wilcoxon signed-rank test",
+        f"differences d = {word} − other are tested with the two-sided exact Wilcoxon signed-rank test",
         '(`scipy.stats.wilcoxon`, `method="exact"`; where d has ties or zeros, the exact sign-flip test',
         "of the mean, `scipy.stats.permutation_test`), and the p-values of one claim on one quantity",
-        "(the chordal configuration against each of the m others) are one family, corrected by Holm's",
-        f"step-down (*Holm p*): Holm p < {alpha} with the chordal mean lower: **{statistics.SUPPORTED}**,",
+        f"(the {word} configuration against each of the m others) are one family, corrected by Holm's",
+        f"step-down (*Holm p*): Holm p < {alpha} with the {word} mean lower: **{statistics.SUPPORTED}**,",
         f"higher: **{statistics.REFUTED}**; otherwise **{statistics.CANNOT_DECIDE}**,",
         "with the seeds needed for either outcome: *seeds to detect* is",
         "⌈((z_{1−α/(2m)} + z_{0.8}) · sd_d / |mean_d|)²⌉, the seeds at",
@@ -365,20 +383,9 @@ def seeds_needed_text(n: float, infinite: str = "no effect observed") -> str:
 
 
 def _tests_rows(claim: Claim) -> Rows:
-    header = [
-        "quantity",
-        "versus",
-        "n seeds",
-        f"mean difference ({claim.configuration} − other)",
-        "95 % CI",
-        "relative, 90 % CI",
-        "p",
-        "Holm p",
-        "TOST p",
-        "seeds to detect",
-        "seeds for equivalence",
-        "verdict",
-    ]
+    header = ["quantity", "versus", "n seeds", f"mean difference ({claim.configuration} − other)",
+              "95 % CI", "relative, 90 % CI", "p", "Holm p", "TOST p", "seeds to detect",
+              "seeds for equivalence", "verdict"]  # fmt: skip
     rows: list[list[object]] = []
     for q in claim.quantities:
         number = _number(q.quantity)
@@ -421,7 +428,7 @@ def claim_markdown(claim: Claim, letter: str, level: str = "###") -> str:
     head += f" ({claim.configuration})" if claim.configuration else ""
     if claim.untested:
         return f"{head}\n\nCannot be tested: {claim.untested}."
-    what = "each seed's mean over those sequences" if claim.statement == CLAIM_A else "epochs"
+    what = "each seed's mean over those sequences" if claim.letter == "a" else "epochs"
     lines = [head, "", claim.scope, "", f"Measured ({what}; mean ± sample std over seeds):", ""]
     lines += [
         table_render.markdown(_measured_rows(claim)),
@@ -442,12 +449,12 @@ def claim_markdown(claim: Claim, letter: str, level: str = "###") -> str:
 
 BY_ARCHITECTURE_TEXT = (
     "This sweep varies the architecture: each claim is tested within each architecture (and training "
-    "data, where the sweep varies `data`), its chordal configuration against that architecture's other "
+    "data, where the sweep varies `data`), its {loss} configuration against that architecture's other "
     "configurations on the sequences they evaluated, with a verdict per architecture."
 )
 
 
-def answer_rows(items: Sequence[Claim]) -> Rows:
+def answer_rows(items: Sequence[Claim], claimed_loss: str = CLAIMED_LOSS) -> Rows:
     """The study's answer in one table: per architecture, claim, quantity and comparison the claimed
     configuration's and the other's mean ± std over seeds, the relative difference with its 90 % interval,
     the comparison's verdict and, where it cannot decide, the seeds that would decide either way."""
@@ -478,64 +485,41 @@ def answer_rows(items: Sequence[Claim]) -> Rows:
                         needed,
                     ]
                 )
-    header = ["architecture", "quantity", "chordal", "versus", "other", "relative, 90 % CI", "n seeds",
-              "verdict", "seeds to detect / for equivalence"]  # fmt: skip
+    header = ["architecture", "quantity", loss_word(claimed_loss), "versus", "other", "relative, 90 % CI",
+              "n seeds", "verdict", "seeds to detect / for equivalence"]  # fmt: skip
     return Rows(header, rows)
 
 
 def claims_markdown(items: Sequence[Claim], by_architecture: bool = False) -> str:
     """The rule and every claim; with ``by_architecture`` a subsection per architecture."""
-    letters = {CLAIM_A: "a", CLAIM_B: "b"}
-    rule = claims_rule(*((items[0].margin, items[0].claimed_loss) if items else ()))
-    answer = answer_rows(items)
+    margin, claimed_loss = (
+        (items[0].margin, items[0].claimed_loss) if items else (statistics.MARGIN, CLAIMED_LOSS)
+    )
+    rule = claims_rule(margin, claimed_loss)
+    answer = answer_rows(items, claimed_loss)
     head = (
         [rule, f"The answer, comparison by comparison:\n\n{table_render.markdown(answer)}"]
         if answer.rows
         else [rule]
     )
     if not by_architecture:
-        return "\n\n".join([*head, *(claim_markdown(c, letters[c.statement]) for c in items)])
-    parts = [*head, BY_ARCHITECTURE_TEXT]
+        return "\n\n".join([*head, *(claim_markdown(c, c.letter) for c in items)])
+    parts = [*head, BY_ARCHITECTURE_TEXT.format(loss=loss_word(claimed_loss))]
     for architecture in dict.fromkeys(c.architecture or UNKNOWN_ARCHITECTURE for c in items):
         parts.append(f"### Architecture `{architecture}`")
         parts += [
-            claim_markdown(c, letters[c.statement], "####")
+            claim_markdown(c, c.letter, "####")
             for c in items
             if (c.architecture or UNKNOWN_ARCHITECTURE) == architecture
         ]
     return "\n\n".join(parts)
 
 
-CLAIMS_HEADER = [
-    "claim",
-    "configuration",
-    "versus",
-    "quantity",
-    "n_seeds",
-    "mean",
-    "versus_mean",
-    "mean_difference",
-    "relative",
-    "ci_low",
-    "ci_high",
-    "relative_ci_low",
-    "relative_ci_high",
-    "relative_mean",
-    "relative_low_90",
-    "relative_high_90",
-    "p_value",
-    "p_method",
-    "holm_p",
-    "smallest_p",
-    "seeds_needed",
-    "tost_p",
-    "margin",
-    "seeds_for_equivalence",
-    "secondary_cells",
-    "secondary_p",
-    "verdict",
-    "note",
-]
+CLAIMS_HEADER = ["claim", "configuration", "versus", "quantity", "n_seeds", "mean", "versus_mean",
+                 "mean_difference", "relative", "ci_low", "ci_high", "relative_ci_low",
+                 "relative_ci_high", "relative_mean", "relative_low_90", "relative_high_90", "p_value",
+                 "p_method", "holm_p", "smallest_p", "seeds_needed", "tost_p", "margin",
+                 "seeds_for_equivalence", "secondary_cells", "secondary_p", "verdict", "note"]  # fmt: skip
 """``tables/claims.csv``: a test's numbers over seeds in the claim's unit (``relative``: over |versus_mean|;
 ``ci_*``: the 95 % t-interval of the mean difference), the mean of the per-seed relative differences and
 their 90 % t-interval, p (on those), its method and Holm's, ``smallest_p`` at n, ``seeds_needed`` to detect
@@ -581,7 +565,7 @@ def claims_csv_rows(items: Sequence[Claim], by_architecture: bool = False) -> Ro
     and its notes; an untested claim is one row with verdict ``cannot be tested`` and the reason in
     ``note``; with ``by_architecture`` the claim's architecture first."""
     rows: list[list[object]] = []
-    architectures: list[str] = []
+    architectures: list[str | None] = []
     blank = [""] * (len(CLAIMS_HEADER) - 4)
     for c in items:
         start = len(rows)
@@ -595,9 +579,8 @@ def claims_csv_rows(items: Sequence[Claim], by_architecture: bool = False) -> Ro
                     rows.append([c.statement, c.configuration, t.versus, q.quantity, *numbers, decision, ""])
             note = " ".join([*c.undecidable, *c.notes])
             rows.append([c.statement, c.configuration, "all", "all", *blank[2:], c.verdict, note])
-        architectures += [c.architecture or UNKNOWN_ARCHITECTURE] * (len(rows) - start)
-    table = Rows(CLAIMS_HEADER, rows)
-    return prepend_column(table, "architecture", architectures) if by_architecture else table
+        architectures += [c.architecture] * (len(rows) - start)
+    return with_architecture(Rows(CLAIMS_HEADER, rows), architectures, by_architecture)
 
 
 def claims_csv(items: Sequence[Claim], by_architecture: bool = False) -> str:

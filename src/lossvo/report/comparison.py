@@ -12,11 +12,11 @@ from itertools import combinations
 
 import numpy as np
 
-from lossvo.report.configurations import UNKNOWN_ARCHITECTURE, architecture_groups
-from lossvo.report.jobs import APE_TRANS, RPE_ROT, RPE_TRANS, metric_value
+from lossvo.report.configurations import architecture_groups
+from lossvo.report.jobs import APE_TRANS, RPE_ROT, RPE_TRANS
 from lossvo.report.statistics import ALPHA, PairedTest, can_decide, corrected, paired_test
-from lossvo.report.tables import NETWORK, Column, fmt, samples
-from lossvo.table_render import Rows, prepend_column
+from lossvo.report.tables import NETWORK, Column, fmt, paired_samples, with_architecture
+from lossvo.table_render import Rows
 
 COMPARED = (
     ("APE trans RMSE [m]", APE_TRANS),
@@ -52,31 +52,15 @@ class Comparison:
         return "yes" if self.test.holm_p < ALPHA else "no"
 
 
-def paired_values(a: Column, b: Column, path: Sequence[str]) -> tuple[np.ndarray, np.ndarray, int]:
-    """Values of A and B on the (seed, sequence) cells both have: (P,), (P,) and the number of seeds."""
-    seeds = [s for s in a.replicates if s in b.replicates]
-    xs, ys = [], []
-    for seed in seeds:
-        ra, rb = a.results[a.replicates.index(seed)], b.results[b.replicates.index(seed)]
-        for name in ra:
-            x, y = metric_value(ra[name], path), metric_value(rb.get(name), path)
-            if x is not None and y is not None:
-                xs.append(x)
-                ys.append(y)
-    return np.array(xs), np.array(ys), len(seeds)
-
-
 def seed_pairs(
     a: Column, b: Column, path: Sequence[str], sequences: Sequence[str]
 ) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Per-seed values of A and B on the S seeds both have, paired by seed: (S,), (S,), each seed's mean
     over those of ``sequences`` that both configurations have on every one of the S seeds (so every seed
     averages the same sequences), and those sequences."""
-    seeds = [s for s in a.replicates if s in b.replicates]
-    x = samples(a, path, sequences)[[a.replicates.index(s) for s in seeds]]  # (S, sequences)
-    y = samples(b, path, sequences)[[b.replicates.index(s) for s in seeds]]
+    x, y = paired_samples(a, b, path, sequences)  # (S, sequences)
     common = np.isfinite(x).all(axis=0) & np.isfinite(y).all(axis=0)
-    if not seeds or not common.any():
+    if not len(x) or not common.any():
         return np.array([]), np.array([]), []
     used = [s for s, kept in zip(sequences, common, strict=True) if kept]
     return x[:, common].mean(axis=1), y[:, common].mean(axis=1), used
@@ -114,27 +98,10 @@ def compare(columns: Sequence[Column], by_architecture: bool = False) -> list[Co
     return out
 
 
-def _with_architecture(table: Rows, comparisons: Sequence[Comparison], by_architecture: bool) -> Rows:
-    if not by_architecture:
-        return table
-    return prepend_column(
-        table, "architecture", [c.architecture or UNKNOWN_ARCHITECTURE for c in comparisons]
-    )
-
-
 def comparison_rows(comparisons: Sequence[Comparison], by_architecture: bool = False) -> Rows:
     """The section's table (with ``by_architecture`` an ``architecture`` column first)."""
-    header = [
-        "A",
-        "B",
-        "metric",
-        "seeds",
-        "mean A − B",
-        "A lower",
-        "p",
-        "Holm p",
-        f"distinguishable at {ALPHA}",
-    ]
+    header = ["A", "B", "metric", "seeds", "mean A − B", "A lower", "p", "Holm p",
+              f"distinguishable at {ALPHA}"]  # fmt: skip
     rows: list[list[object]] = [
         [
             c.a,
@@ -149,27 +116,14 @@ def comparison_rows(comparisons: Sequence[Comparison], by_architecture: bool = F
         ]
         for c in comparisons
     ]
-    return _with_architecture(Rows(header, rows), comparisons, by_architecture)
+    return with_architecture(Rows(header, rows), [c.architecture for c in comparisons], by_architecture)
 
 
 def comparison_csv_rows(comparisons: Sequence[Comparison], by_architecture: bool = False) -> Rows:
     """``tables/pairwise.csv``: full precision (with ``by_architecture`` an ``architecture`` column first);
     ``sequences``: those each seed's value averages, ``;``-separated."""
-    header = [
-        "a",
-        "b",
-        "metric",
-        "seeds",
-        "sequences",
-        "mean_diff",
-        "ci_low",
-        "ci_high",
-        "a_lower",
-        "p_value",
-        "method",
-        "holm_p",
-        "verdict",
-    ]
+    header = ["a", "b", "metric", "seeds", "sequences", "mean_diff", "ci_low", "ci_high", "a_lower",
+              "p_value", "method", "holm_p", "verdict"]  # fmt: skip
     rows: list[list[object]] = [
         [
             c.a,
@@ -188,4 +142,4 @@ def comparison_csv_rows(comparisons: Sequence[Comparison], by_architecture: bool
         ]
         for c in comparisons
     ]
-    return _with_architecture(Rows(header, rows), comparisons, by_architecture)
+    return with_architecture(Rows(header, rows), [c.architecture for c in comparisons], by_architecture)

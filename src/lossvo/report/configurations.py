@@ -31,8 +31,8 @@ from lossvo.report.jobs import (
     finite_number,
     job_number,
 )
-from lossvo.report.tables import NETWORK, Cell, Column, mean_std_text
-from lossvo.table_render import Rows, prepend_column
+from lossvo.report.tables import NETWORK, UNKNOWN_ARCHITECTURE, Cell, Column, mean_std_text, with_architecture
+from lossvo.table_render import Rows
 
 SCORE = "val/score"
 """The loss-independent validation score (:mod:`lossvo.training.selection`)."""
@@ -75,10 +75,9 @@ GROUPS = (DATA_KEY, ARCHITECTURE_KEY)
 
 
 def group_choice(job: Job, group: str) -> str | None:
-    """A job's choice in one of :data:`GROUPS`: as it resolved (``job.data``, ``job.architecture``), else
-    its override."""
-    resolved = job.data if group == DATA_KEY else job.architecture
-    return resolved if resolved is not None else job.overrides.get(group)
+    """A job's choice in one of :data:`GROUPS` as Hydra recorded it (``job.data``, ``job.architecture``:
+    :func:`lossvo.report.jobs.read_choices`)."""
+    return job.data if group == DATA_KEY else job.architecture
 
 
 def _fixed_by_group(key: str, overrides: pd.DataFrame, choices: pd.DataFrame) -> bool:
@@ -132,9 +131,6 @@ def network_columns(jobs: Sequence[Job]) -> list[Column]:
 # Architectures
 # --------------------------------------------------------------------------------------------------
 
-UNKNOWN_ARCHITECTURE = "?"
-"""The architecture of a job whose folder names none (:func:`lossvo.report.jobs.read_architecture`)."""
-
 
 def column_architecture(jobs: Sequence[Job]) -> str:
     """The architecture of a configuration's jobs (``flowvo``); several, should its seeds differ, joined
@@ -179,11 +175,6 @@ def treatments(columns: Sequence[Column]) -> dict[str, str]:
         overrides = column.jobs[0].overrides
         out[column.label] = ",".join(f"{k}={overrides[k]}" for k in keys if k in overrides) or "defaults"
     return out
-
-
-def architecture_cells(columns: Sequence[Column]) -> list[str]:
-    """The architecture of each column, for a table's ``architecture`` column."""
-    return [c.architecture or UNKNOWN_ARCHITECTURE for c in columns]
 
 
 def _seed_order(seed: Any) -> tuple[int, float, str]:
@@ -299,7 +290,7 @@ def weight_text(weightings: Sequence[Weighting]) -> str:
     if not weightings:
         return "?"
     if any(w.learned for w in weightings):
-        cell = Cell.of(np.array([w.weight if w.weight is not None else np.nan for w in weightings]))
+        cell = Cell.of([w.weight for w in weightings])
         if cell.n == 0:
             return "learned: ? (no train/s_t, train/s_r in metrics.csv)"
         return f"learned: {mean_std_text(cell)}"
@@ -408,18 +399,12 @@ def configuration_row(column: Column) -> list[str]:
     ]
 
 
-def configuration_rows(columns: Sequence[Column], by_architecture: bool = False) -> Rows:
+def configuration_rows(columns: Sequence[Column], by_architecture: bool = False, csv: bool = False) -> Rows:
     """Per configuration: loss class, weighting preset, k, gain, k·gain and the selection metric; with
-    ``by_architecture`` an ``architecture`` column first."""
+    ``by_architecture`` an ``architecture`` column first; ``csv``: CSV headers, backticks dropped."""
     networks = [c for c in columns if c.kind == NETWORK]
-    table = Rows([h for h, _ in CONFIGURATION_FIELDS], [configuration_row(c) for c in networks])
-    return prepend_column(table, "architecture", architecture_cells(networks)) if by_architecture else table
-
-
-def configuration_csv_rows(columns: Sequence[Column], by_architecture: bool = False) -> Rows:
-    """:data:`CONFIGURATION_FIELDS` per configuration, as in report.md (backticks dropped); with
-    ``by_architecture`` an ``architecture`` column first."""
-    networks = [c for c in columns if c.kind == NETWORK]
-    rows: list[list[object]] = [[v.replace("`", "") for v in configuration_row(c)] for c in networks]
-    table = Rows([name for _, name in CONFIGURATION_FIELDS], rows)
-    return prepend_column(table, "architecture", architecture_cells(networks)) if by_architecture else table
+    rows: list[list[object]] = [
+        [v.replace("`", "") if csv else v for v in configuration_row(c)] for c in networks
+    ]
+    table = Rows([f[csv] for f in CONFIGURATION_FIELDS], rows)
+    return with_architecture(table, [c.architecture for c in networks], by_architecture)

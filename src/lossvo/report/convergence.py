@@ -6,14 +6,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import numpy as np
-
 from lossvo import table_render
 from lossvo.report import statistics
-from lossvo.report.configurations import SCORE, UNKNOWN_ARCHITECTURE, job_selection
+from lossvo.report.configurations import SCORE, job_selection
 from lossvo.report.jobs import Job
-from lossvo.report.tables import NETWORK, Cell, Column
-from lossvo.table_render import Rows, prepend_column
+from lossvo.report.tables import NETWORK, Cell, Column, with_architecture
+from lossvo.table_render import Rows
 
 
 def convergence_metric(job: Job) -> tuple[str, str]:
@@ -39,7 +37,7 @@ class Convergence:
     architecture: str | None = None
 
     def cell(self) -> Cell:
-        return Cell.of(np.array([e if e is not None else np.nan for e in self.epochs], dtype=np.float64))
+        return Cell.of(self.epochs)
 
     def epoch_of(self, replicate: str) -> int | None:
         return self.epochs[self.replicates.index(replicate)] if replicate in self.replicates else None
@@ -101,21 +99,11 @@ def convergence_markdown(items: Sequence[Convergence], by_architecture: bool = F
     return "\n".join([*lines, "", table_render.markdown(convergence_rows(items, by_architecture))])
 
 
-def _architectures(items: Sequence[Convergence]) -> list[str]:
-    return [c.architecture or UNKNOWN_ARCHITECTURE for c in items]
-
-
 def convergence_rows(items: Sequence[Convergence], by_architecture: bool = False) -> Rows:
     """Per configuration: the metric, seeds with a curve, the epoch (mean ± std), per seed, epochs logged;
     with ``by_architecture`` the configuration's architecture first."""
-    header = [
-        "configuration",
-        "metric",
-        "seeds with a curve",
-        "epoch (mean ± std)",
-        "per seed",
-        "epochs logged",
-    ]
+    header = ["configuration", "metric", "seeds with a curve", "epoch (mean ± std)", "per seed",
+              "epochs logged"]  # fmt: skip
     rows: list[list[object]] = []
     for c in items:
         pairs = zip(c.replicates, c.epochs, strict=True)
@@ -131,8 +119,7 @@ def convergence_rows(items: Sequence[Convergence], by_architecture: bool = False
                 ", ".join(map(str, sorted(set(c.logged)))),
             ]
         )
-    table = Rows(header, rows)
-    return prepend_column(table, "architecture", _architectures(items)) if by_architecture else table
+    return with_architecture(Rows(header, rows), [c.architecture for c in items], by_architecture)
 
 
 def convergence_csv_rows(items: Sequence[Convergence], by_architecture: bool = False) -> Rows:
@@ -140,13 +127,13 @@ def convergence_csv_rows(items: Sequence[Convergence], by_architecture: bool = F
     none), ``epochs_logged``; then per configuration a row with seed ``mean`` (mean epoch) and one with
     seed ``std`` (sample std); with ``by_architecture`` the configuration's architecture first."""
     rows: list[list[object]] = []
-    architectures: list[str] = []
-    for c, architecture in zip(items, _architectures(items), strict=True):
+    architectures: list[str | None] = []
+    for c in items:
         for r, m, e, n in zip(c.replicates, c.metrics, c.epochs, c.logged, strict=True):
             rows.append([c.label, r, m, "" if e is None else e, n])
         cell, metric = c.cell(), ",".join(sorted(set(c.metrics)))
         rows.append([c.label, "mean", metric, repr(cell.mean) if cell.n else "", ""])
         rows.append([c.label, "std", metric, repr(cell.std) if cell.n > 1 else "", ""])
-        architectures += [architecture] * (len(c.replicates) + 2)
+        architectures += [c.architecture] * (len(c.replicates) + 2)
     table = Rows(["configuration", "seed", "metric", "epoch", "epochs_logged"], rows)
-    return prepend_column(table, "architecture", architectures) if by_architecture else table
+    return with_architecture(table, architectures, by_architecture)

@@ -53,10 +53,8 @@ from lossvo.report.claims import (
 )
 from lossvo.report.comparison import Comparison, compare, comparison_csv_rows, comparison_rows
 from lossvo.report.configurations import (
-    UNKNOWN_ARCHITECTURE,
     architecture_file_name,
     architecture_groups,
-    configuration_csv_rows,
     configuration_rows,
     label_jobs,
     network_columns,
@@ -66,7 +64,15 @@ from lossvo.report.configurations import (
 from lossvo.report.convergence import Convergence, convergence, convergence_csv_rows, convergence_markdown
 from lossvo.report.figures import plot_ape_bars, plot_curves, plot_forest, plot_trajectories
 from lossvo.report.frame import results_frame
-from lossvo.report.jobs import Job, code_versions_note, ground_truth, job_dirs, load_job, unseen_sequences
+from lossvo.report.jobs import (
+    Job,
+    code_versions_note,
+    ground_truth,
+    job_dirs,
+    load_job,
+    machines_note,
+    unseen_sequences,
+)
 from lossvo.report.speed import SPEED_TEXT, SPEED_TITLE, speed_rows
 from lossvo.report.statistics import ALPHA, MARGIN
 from lossvo.report.tables import (
@@ -76,11 +82,13 @@ from lossvo.report.tables import (
     Table,
     TableSpec,
     build_table,
+    evaluated_sequences,
     table_csv,
     table_latex,
     table_markdown,
+    with_architecture,
 )
-from lossvo.table_render import Rows, prepend_column
+from lossvo.table_render import Rows
 
 log = logging.getLogger("lossvo")
 
@@ -109,11 +117,6 @@ class Study:
     unseen: list[str] = field(default_factory=list)
     by_architecture: bool = False
     agreement: Agreement | None = None
-
-
-def evaluated_sequences(columns: Sequence[Column]) -> list[str]:
-    """Sequences with metrics in any included job, sorted."""
-    return sorted({name for c in columns for per_sequence in c.results for name in per_sequence})
 
 
 def unseen_of(networks: Sequence[Column], sequences: Sequence[str]) -> list[str]:
@@ -197,9 +200,7 @@ def jobs_rows(jobs: Sequence[Job], by_architecture: bool = False) -> Rows:
         for job in jobs
     ]
     table = Rows(["job", "configuration", "seed", "status", "in tables", "notes"], rows)
-    if not by_architecture:
-        return table
-    return prepend_column(table, "architecture", [job.architecture or UNKNOWN_ARCHITECTURE for job in jobs])
+    return with_architecture(table, [job.architecture for job in jobs], by_architecture)
 
 
 def seeds_text(columns: Sequence[Column]) -> str:
@@ -239,7 +240,7 @@ def header_lines(sweep: Path, jobs: Sequence[Job], study: Study) -> list[str]:
         groups = architecture_groups(study.networks)
         names = ", ".join(f"`{a}` ({sum(len(c.jobs) for c in g)} jobs)" for a, g in groups.items())
         lines += ["", ARCHITECTURES_TEXT.format(names=names)]
-    warnings = [selection_warning(study.networks), code_versions_note(jobs)]
+    warnings = [selection_warning(study.networks), code_versions_note(jobs), machines_note(jobs)]
     return lines + [x for w in warnings if w for x in ("", w)]
 
 
@@ -437,7 +438,7 @@ def write_tables(
     by = study.by_architecture
     rows = (
         comparison_csv_rows(comparisons, by),
-        configuration_csv_rows(study.networks, by),
+        configuration_rows(study.networks, by, csv=True),
         convergence_csv_rows(study.convergence, by),
         claims_csv_rows(study.claims, by),
     )
@@ -512,9 +513,9 @@ def make_report(
     sweep = Path(sweep)
     out = Path(out) if out is not None else sweep / "report"
     jobs = [load_job(p) for p in job_dirs(sweep)]
-    versions = code_versions_note(jobs)
-    if versions:
-        log.warning("%s", versions.replace("**", ""))
+    for note in (code_versions_note(jobs), machines_note(jobs)):
+        if note:
+            log.warning("%s", note.replace("**", ""))
     label_jobs([j for j in jobs if j.config is not None])
     networks = network_columns(jobs)
     sequences = evaluated_sequences(networks)

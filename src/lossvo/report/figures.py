@@ -19,7 +19,7 @@ import numpy as np
 from lossvo.evaluation import baselines
 from lossvo.evaluation.plots import colors, new_figure, plot_birdseye, save_png
 from lossvo.report import statistics
-from lossvo.report.claims import CLAIM_A, CLAIM_ERRORS, Claim
+from lossvo.report.claims import CLAIM_ERRORS, Claim, loss_word
 from lossvo.report.jobs import Job, read_trajectory
 from lossvo.report.tables import BASELINE, Column, Table, seed_scores
 
@@ -211,7 +211,7 @@ def plot_forest(claims: Sequence[Claim], columns: Sequence[Column], path: Path) 
     other (%) against each other configuration as a dot, their mean with the 90 % t-interval that TOST
     reads, the ±margin band shaded and the comparison's verdict written at the right. Returns False (and
     writes nothing) when no claim (a) was tested."""
-    tested = [c for c in claims if c.statement == CLAIM_A and not c.untested and c.quantities]
+    tested = [c for c in claims if c.letter == "a" and not c.untested and c.quantities]
     if not tested:
         return False
     by_label = {c.label: c for c in columns}
@@ -226,7 +226,8 @@ def plot_forest(claims: Sequence[Claim], columns: Sequence[Column], path: Path) 
         _forest_relative(axes[1][col], blocks, quantity, show_labels=col == 0)
     margin = f"{100 * tested[0].margin:g} %"
     fig.suptitle(
-        "Held-out error per seed (dots) with the mean and its 95 % interval; below, (chordal − other) / "
+        "Held-out error per seed (dots) with the mean and its 95 % interval; below, "
+        f"({loss_word(tested[0].claimed_loss)} − other) / "
         f"other per seed with the mean and its 90 % interval, ±{margin} shaded, and each verdict",
         fontsize=9,
     )

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 import os
 import sys
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -134,8 +134,9 @@ def _started(path: Path) -> tuple[float, str]:
 @dataclass
 class Job:
     """One job folder as read: what it is (overrides, config choices, seed, architecture, training data's
-    config choice), what happened (status), what it produced; ``code``: the code versions its processes ran
-    (:func:`lossvo.code_version.code_version`, from status.json's history; none where unrecorded)."""
+    config choice), what happened (status), what it produced; ``code`` and ``machines``: the code versions
+    and machines its processes ran (:func:`lossvo.code_version.code_version`, :func:`lossvo.machine.machine`,
+    from status.json's history; none where unrecorded)."""
 
     path: Path
     overrides: dict[str, str] = field(default_factory=dict)
@@ -151,6 +152,7 @@ class Job:
     architecture: str | None = None
     data: str | None = None
     code: tuple[str, ...] = ()
+    machines: tuple[str, ...] = ()
     choices: dict[str, str] = field(default_factory=dict)
 
     @property
@@ -220,6 +222,7 @@ def load_job(path: Path) -> Job:
         job.status = status.state
         job.error = status.stop if status.state == "interrupted" else status.error
         job.code = tuple(dict.fromkeys(e.code for e in status.history if e.code))
+        job.machines = tuple(dict.fromkeys(e.machine for e in status.history if e.machine))
     job.skip = _skip_reason(job)
     if job.skip is None:
         try:
@@ -313,26 +316,42 @@ UNRECORDED = "unrecorded"
 """The code version of a job whose status.json records none."""
 
 
-def code_versions(jobs: Iterable[Job]) -> dict[str, list[str]]:
-    """``{code version: [job folder names]}`` of ``jobs``, versions in order of first appearance; a job
-    resumed under another version is listed under each, one without a record under :data:`UNRECORDED`."""
+def _jobs_by(jobs: Sequence[Job], values: Callable[[Job], tuple[str, ...]]) -> dict[str, list[str]]:
+    """The included jobs' folder names under each of their ``values``."""
     found: dict[str, list[str]] = {}
-    for job in jobs:
-        for version in job.code or (UNRECORDED,):
-            found.setdefault(version, []).append(job.path.name)
+    for job in (j for j in jobs if j.included):
+        for value in values(job):
+            found.setdefault(value, []).append(job.path.name)
     return found
+
+
+def _listed(found: dict[str, list[str]]) -> str:
+    return "; ".join(f"`{value}`: {', '.join(names)}" for value, names in found.items())
 
 
 def code_versions_note(jobs: Sequence[Job]) -> str | None:
     """The report's note where the included jobs ran more than one code version (None where they ran
-    one): each version with its jobs, and that they are pooled."""
-    found = code_versions(j for j in jobs if j.included)
+    one): each version with its jobs (a job resumed under another version under each, one without a
+    record under :data:`UNRECORDED`), and that they are pooled."""
+    found = _jobs_by(jobs, lambda job: job.code or (UNRECORDED,))
     if len(found) < 2:
         return None
-    listed = "; ".join(f"`{version}`: {', '.join(names)}" for version, names in found.items())
     return (
         f"**The included jobs ran {len(found)} code versions**, pooled in every table and test (a job "
-        f"resumed under another version counts under each): {listed}."
+        f"resumed under another version counts under each): {_listed(found)}."
+    )
+
+
+def machines_note(jobs: Sequence[Job]) -> str | None:
+    """The report's note where the included jobs recorded more than one machine (jobs without a record
+    are not counted): one code and seed give other numbers on another CPU, so jobs paired by seed across
+    machines are not one start."""
+    found = _jobs_by(jobs, lambda job: job.machines)
+    if len(found) < 2:
+        return None
+    return (
+        f"**The included jobs ran on {len(found)} machines**, pooled in every table and test; jobs paired "
+        f"by seed on different machines are not one start (their arithmetic differs): {_listed(found)}."
     )
 
 

@@ -19,8 +19,8 @@ import numpy as np
 from lossvo.report.claims import training_sequences
 from lossvo.report.configurations import varies_architecture
 from lossvo.report.jobs import read_trajectory
-from lossvo.report.tables import NETWORK, Cell, Column, fmt, mean_std_text
-from lossvo.table_render import Rows, prepend_column
+from lossvo.report.tables import NETWORK, Cell, Column, fmt, mean_std_text, with_architecture
+from lossvo.table_render import Rows
 
 SHARE = 0.2
 """Fraction of a sequence's frame pairs in each of its slow and fast stretches."""
@@ -66,9 +66,9 @@ def speed_rows(networks: Sequence[Column], gt: Mapping[str, np.ndarray], sequenc
     header += [f"{name}: {what}" for name in STRETCHES for what in ("true [m]", "predicted / true")]
     columns = [c for c in networks if c.kind == NETWORK]
     rows = Rows(header, [[c.label, s, *_cells(c, s, gt[s])] for c in columns for s in outside])
-    if not varies_architecture(networks):
-        return rows
-    return prepend_column(rows, "architecture", [c.architecture for c in columns for _ in outside])
+    return with_architecture(
+        rows, [c.architecture for c in columns for _ in outside], varies_architecture(networks)
+    )
 
 
 def _cells(column: Column, sequence: str, gt: np.ndarray) -> list[str]:
@@ -77,7 +77,7 @@ def _cells(column: Column, sequence: str, gt: np.ndarray) -> list[str]:
     ratios = [speed_ratios(t, gt) for t in _trajectories(column, sequence, len(gt))]
     cells: list[str] = []
     for name in STRETCHES:
-        cell = Cell.of(np.array([r[name] for r in ratios]))
+        cell = Cell.of([r[name] for r in ratios])
         cells += [fmt(float(true[masks[name]].mean()), 3), mean_std_text(cell, 3)]
     return cells
 

@@ -21,10 +21,20 @@ import pandas as pd
 from lossvo import table_render
 from lossvo.report.frame import Column, metric_matrix, results_frame
 from lossvo.report.jobs import APE_ROT, APE_TRANS, KITTI_R, KITTI_T, RPE_ROT, RPE_TRANS
-from lossvo.table_render import Rows
+from lossvo.table_render import Rows, prepend_column
 
 NETWORK, BASELINE = "network", "baseline"
 MEAN_ROW = "mean"
+UNKNOWN_ARCHITECTURE = "?"
+"""The architecture of a job whose folder names none (:func:`lossvo.report.jobs.read_architecture`)."""
+
+
+def with_architecture(table: Rows, architectures: Sequence[str | None], by_architecture: bool) -> Rows:
+    """``table`` with an ``architecture`` column first (one per row; None: :data:`UNKNOWN_ARCHITECTURE`)
+    where ``by_architecture``, else ``table``."""
+    if not by_architecture:
+        return table
+    return prepend_column(table, "architecture", [a or UNKNOWN_ARCHITECTURE for a in architectures])
 
 
 # --------------------------------------------------------------------------------------------------
@@ -65,6 +75,22 @@ def samples(column: Column, path: Sequence[str], sequences: Sequence[str]) -> np
     return metric_matrix(results_frame([column]), column, path, sequences)
 
 
+def paired_samples(
+    a: Column, b: Column, path: Sequence[str], sequences: Sequence[str]
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`samples` of A and B on the seeds both have, paired by seed: (S, sequences) each."""
+    seeds = [s for s in a.replicates if s in b.replicates]
+    x = samples(a, path, sequences)[[a.replicates.index(s) for s in seeds]]
+    return x, samples(b, path, sequences)[[b.replicates.index(s) for s in seeds]]
+
+
+def evaluated_sequences(columns: Sequence[Column], among: Sequence[str] | None = None) -> list[str]:
+    """The sequences some replicate of ``columns`` has results for: sorted, or those of ``among`` in
+    order."""
+    evaluated = {name for c in columns for per_sequence in c.results for name in per_sequence}
+    return sorted(evaluated) if among is None else [s for s in among if s in evaluated]
+
+
 def seed_scores(column: Column, path: Sequence[str], sequences: Sequence[str]) -> dict[str, float]:
     """``{replicate: mean over sequences}`` of one metric (its unit) of a configuration: each seed's value
     as one number; a seed missing a sequence is left out."""
@@ -83,7 +109,9 @@ class Cell:
     best: bool = False
 
     @classmethod
-    def of(cls, values: np.ndarray) -> Cell:
+    def of(cls, values: Sequence[float | None] | np.ndarray) -> Cell:
+        """The cell of ``values`` (None or NaN: missing)."""
+        values = np.asarray(values, dtype=np.float64)
         finite = values[np.isfinite(values)]
         if finite.size == 0:
             return cls(math.nan, math.nan, 0)

@@ -1,4 +1,4 @@
-"""Checkpoints of a fit: written atomically, reloaded as a LightningModule, checked before a resume.
+"""Checkpoints of a fit: written atomically, checked before a resume.
 
 What a checkpoint holds and how evaluation reads it: :mod:`lossvo.evaluation.checkpoints`.
 """
@@ -8,27 +8,14 @@ from __future__ import annotations
 import io
 import os
 from collections.abc import Mapping
-from pathlib import Path
 from typing import Any
 
 import torch
 from lightning.pytorch.plugins.io import TorchCheckpointIO
 
 from lossvo.atomic import atomic_path
-from lossvo.console import first_line
 from lossvo.evaluation.checkpoints import TRAINED_WITH, CheckpointError, Description, lookup, read
 from lossvo.training.module import VOModule
-
-
-def load_module(path: str | os.PathLike, device: str | torch.device = "cpu") -> VOModule:
-    """The :class:`VOModule` of a checkpoint on ``device``, with its training data's description in
-    ``module.data`` (None for a checkpoint that records none)."""
-    read(path)  # one clear line for a missing or foreign file
-    try:
-        return VOModule.load_from_checkpoint(Path(path), map_location=torch.device(device), weights_only=True)
-    except Exception as e:  # e.g. a loss or network class that no longer exists
-        raise CheckpointError(f"{path}: cannot rebuild its network ({type(e).__name__}: "
-                              f"{first_line(e)})") from None  # fmt: skip
 
 
 def check_resume(path: str | os.PathLike, module: VOModule, data: Mapping[str, Any]) -> tuple[int, int]:

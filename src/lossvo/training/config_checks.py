@@ -165,7 +165,7 @@ def _check_flow(resolved: Mapping[str, Any]) -> None:
     if needs is not _ABSENT and needs is not None and has in ("none", None):
         raise UserError(
             f"model.flow: the network reads optical flow ({needs}) but data.flow.method={has} caches "
-            f"none: expected data.flow.method=dis or farneback"
+            f"none: expected data.flow.method=dis"
         )
 
 

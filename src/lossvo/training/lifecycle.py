@@ -41,8 +41,11 @@ from lossvo.console import (
     user_error_line,
     user_message,
 )
+from lossvo.data.specs import WITHDRAWN
 from lossvo.evaluation import job_folder
+from lossvo.evaluation.checkpoints import MODEL_WITHDRAWN
 from lossvo.evaluation.job_folder import LAST_CHECKPOINT, METRICS, STATUS, Event, Status
+from lossvo.machine import machine
 from lossvo.training import metrics_log
 from lossvo.training.config_checks import check_added_keys, check_train_config
 from lossvo.training.slurm import slurm_job
@@ -60,6 +63,11 @@ RUN_KEYS = ("data", "model", "loss", "weighting", "selection", "seed", "optimize
 NOT_DEFINING = ("data.frames.cache_dir", "data.loader.num_workers")
 """Keys under :data:`RUN_KEYS` that say where the data lies or how it is loaded, not what is trained; the
 sources' roots (``data.sources.<name>.root``) too."""
+
+WITHDRAWN_KEYS = {f"data.{k}": v for k, v in WITHDRAWN.items()} | {
+    f"model.{k}": v for k, v in MODEL_WITHDRAWN.items()
+}
+"""Keys an earlier version recorded that this one does not have -> the value this one runs (None: any)."""
 
 
 def _first_process() -> bool:
@@ -108,8 +116,12 @@ def killed(out_dir: Path) -> Event:
 
 
 def config_drift(recorded: DictConfig | ListConfig, requested: DictConfig) -> list[str]:
-    """The run-defining keys (:data:`RUN_KEYS`) whose values differ between two configs."""
+    """The run-defining keys (:data:`RUN_KEYS`) whose values differ between two configs; a key recorded by
+    an earlier version and withdrawn since (:data:`WITHDRAWN_KEYS`) does not, at the value this one runs."""
     theirs, ours = _defining(recorded), _defining(requested)
+    for key, only in WITHDRAWN_KEYS.items():
+        if key not in ours and key in theirs and only in (None, theirs[key]):
+            del theirs[key]
     return sorted(k for k in theirs.keys() | ours.keys() if theirs.get(k) != ours.get(k))
 
 
@@ -192,9 +204,9 @@ class Run:
         in its history. A checkpoint of an earlier stop (:data:`UNREAD_CHECKPOINT`) goes."""
         self.threads = threads
         self.history.append(
-            event("resumed", code=code_version(), **resumed)
+            event("resumed", code=code_version(), machine=machine(), **resumed)
             if resumed is not None
-            else event("started", code=code_version())
+            else event("started", code=code_version(), machine=machine())
         )
         if _first_process():
             save_config(self.out_dir, self.cfg)
