@@ -82,7 +82,7 @@ def listed_frames(list_path: Path, folder: Path, names: list[str]) -> list[Path]
     if k is not None:
         line = text_lines(list_path, "frame list", comments=True)[k][0]
         raise DatasetFormatError(
-            f"{where(list_path, line)}: frame {names[k]!r} does not exist (expected under {folder})"
+            f"{where(list_path, line)}: frame {names[k]!r} not found: {paths[k]} does not exist"
         )
     return paths
 
