@@ -38,7 +38,7 @@ import lightning as L
 import numpy as np
 import torch
 from filelock import FileLock
-from torch.utils.data import BatchSampler, DataLoader, Sampler, SequentialSampler
+from torch.utils.data import BatchSampler, DataLoader, SequentialSampler
 
 from lossvo.atomic import write_text_atomic
 from lossvo.console import UserError
@@ -55,18 +55,6 @@ log = logging.getLogger("lossvo")
 PAPER_TRAIN = ("00", "02", "03", "04", "05", "06", "08")
 PAPER_VAL = ("07", "09")
 PAPER_TEST = ("00", "01", "02", "03", "04", "05", "06", "07", "08", "09", "10")
-
-
-def _primitive(value: Any) -> Any:
-    """A config value as plain Python (lists, dicts, scalars; a transform as its config): what a checkpoint
-    may hold."""
-    if isinstance(value, batch_transforms.TRANSFORMS):
-        return batch_transforms.spec(value)
-    if isinstance(value, Mapping):
-        return {str(k): _primitive(v) for k, v in value.items()}
-    if isinstance(value, Seq) and not isinstance(value, str):
-        return [_primitive(v) for v in value]
-    return value
 
 
 def _own_stream() -> torch.Generator:
@@ -217,10 +205,10 @@ class VODataModule(L.LightningDataModule):
                     cameras=render.cameras,
                 )
 
-    def _load_metadata(self) -> None:
-        """Read every sequence's metadata (every ``keep_every``-th frame), rendering synthetic sources first;
-        only test sequences may lack poses (KITTI 11-21). ``sequences`` is keyed by the names of
-        :attr:`splits`; each Sequence keeps the name its dataset gives it."""
+    def load_metadata(self) -> None:
+        """Read and check every sequence's metadata (every ``keep_every``-th frame; no frame cache),
+        rendering synthetic sources first; only test sequences may lack poses (KITTI 11-21).
+        ``sequences`` is keyed by the names of :attr:`splits`; each Sequence keeps its dataset's name."""
         self._render()
         labelled = set(self.splits["train"]) | set(self.splits["val"]) | set(self.splits["unseen"])
         self.sequences, self._cameras = {}, {}
@@ -249,11 +237,6 @@ class VODataModule(L.LightningDataModule):
             f"data.splits.{split}: no sequence {name!r} in {root} ({source.reader} layout; it has "
             f"{', '.join(found) or 'none'})"
         ) from error
-
-    def load_metadata(self) -> None:
-        """Read and check every sequence's poses, calibration and image list, without building the
-        frame cache (for tools that need the ground truth or the PNGs only)."""
-        self._load_metadata()
 
     def cache_path(self, name: str | None = None) -> Path:
         """The frame-cache folder of sequence ``name``'s dataset (None: of the only dataset)."""
@@ -286,13 +269,9 @@ class VODataModule(L.LightningDataModule):
         }
 
     def prepare_data(self) -> None:
-        """Check the dataset and build the frame cache, the normalisation statistics and the flow (once)."""
-        self._prepare()
-
-    def _prepare(self) -> None:
-        """Read the metadata, then build what is missing or stale: frames, statistics (:attr:`mean`,
-        :attr:`std`), flow."""
-        self._load_metadata()
+        """Check the dataset (its metadata), then build what is missing or stale: the frame cache, the
+        normalisation statistics (:attr:`mean`, :attr:`std`) and the flow."""
+        self.load_metadata()
         frames = self._ensure_frames()
         self.mean, self.std = self._stats(frames)
         self._ensure_flow(frames)
@@ -366,7 +345,7 @@ class VODataModule(L.LightningDataModule):
         """Open the cache (rebuilding anything missing or stale) and build the split datasets."""
         if self.datasets:
             return
-        self._prepare()
+        self.prepare_data()
         for split, names in self.splits.items():
             labelled = [(n, p) for n in names if (p := self.sequences[n].poses) is not None]  # labelled ones
             steps = (1,) if split != "train" else self.windows.frame_steps
@@ -410,8 +389,8 @@ class VODataModule(L.LightningDataModule):
             "_target_": f"{type(self).__module__}.{type(self).__qualname__}",
             "sources": sources,
             "splits": {k: list(v) for k, v in self.splits.items()},
-            "frames": _primitive(dataclasses.asdict(self.frames)),
-            "windows": _primitive(dataclasses.asdict(self.windows)),
+            "frames": specs.plain(dataclasses.asdict(self.frames)),
+            "windows": specs.plain(dataclasses.asdict(self.windows)),
             "flow": dataclasses.asdict(self.flow),
             "loader": dataclasses.asdict(self.loader),
             "transforms": [batch_transforms.spec(t) for t in self.transforms],
@@ -499,15 +478,16 @@ class VODataModule(L.LightningDataModule):
 
     # -- loaders --------------------------------------------------------------------------------------
 
-    def _loader(self, split: str, sampler: Sampler | None = None) -> DataLoader:
+    def _host_loader(self, split: str, **sampling: Any) -> DataLoader:
+        """The host loader of the split's windows, in the batches ``sampling`` names (DataLoader's
+        ``sampler`` and ``batch_size``, or ``batch_sampler``)."""
         return DataLoader(
             self.datasets[split],
-            batch_size=self.windows.batch_size,
-            sampler=sampler,
             num_workers=self.loader.num_workers,
             pin_memory=self.loader.pin_memory,
             persistent_workers=self.loader.num_workers > 0,
             generator=_own_stream(),
+            **sampling,
         )
 
     def _batches(self, split: str, batches: BatchSampler) -> DataLoader:
@@ -515,14 +495,7 @@ class VODataModule(L.LightningDataModule):
         :meth:`on_after_batch_transfer` gathers on the device (:mod:`lossvo.data.resident`)."""
         windows = self.resident_windows(split)
         if windows is None:
-            return DataLoader(
-                self.datasets[split],
-                batch_sampler=batches,
-                num_workers=self.loader.num_workers,
-                pin_memory=self.loader.pin_memory,
-                persistent_workers=self.loader.num_workers > 0,
-                generator=_own_stream(),
-            )
+            return self._host_loader(split, batch_sampler=batches)
         return DataLoader(
             resident.IndexBatches(windows, split),
             batch_sampler=batches,
@@ -549,7 +522,7 @@ class VODataModule(L.LightningDataModule):
         count = min(self.windows.per_epoch or len(dataset), len(dataset))
         order = EpochShuffle(len(dataset), count, torch.initial_seed())
         if self.resident_windows("train") is None:
-            return self._loader("train", order)
+            return self._host_loader("train", sampler=order, batch_size=self.windows.batch_size)
         return self._batches("train", BatchSampler(order, self.windows.batch_size, drop_last=False))
 
     def val_dataloader(self) -> DataLoader:

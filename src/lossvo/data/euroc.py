@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -30,15 +31,20 @@ from scipy.spatial.transform import Rotation
 from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
+    check_choices,
     check_resolution,
     check_rigid,
     existing_root,
     finite_numbers,
+    has_ground_truth,
+    listed_frames,
     load_mapping,
     pose_matrices,
     positive_resolution,
+    text_lines,
     unit_quaternions,
     where,
+    yaml_array,
 )
 
 CAMERA = "cam0"
@@ -52,6 +58,9 @@ apart at 200 Hz)."""
 
 QUATERNION_TOLERANCE = 1e-3
 """Largest | |q| − 1 | accepted in the ground truth (EuRoC writes 6 decimals)."""
+
+CHOICES = {"camera_model": "pinhole", "distortion_model": "radial-tangential"}
+"""The camera and distortion models a ``sensor.yaml`` may name (the ones its reader reads)."""
 
 _NS_PER_S = 1_000_000_000
 _DIGITS = re.compile(r"[0-9]+")
@@ -80,14 +89,8 @@ def ns_to_seconds(ns: np.ndarray) -> np.ndarray:
 def _csv_rows(path: Path, what: str, columns: int) -> list[tuple[int, list[str]]]:
     """The data lines of an ASL CSV file (lines starting with '#' and empty lines skipped), each with its
     1-based number and its ``columns`` stripped fields."""
-    try:
-        lines = path.read_text().splitlines()
-    except OSError as e:
-        raise DatasetFormatError(f"{path}: cannot read {what} ({e.strerror})") from None
     rows = []
-    for i, line in enumerate(lines, start=1):
-        if not line.strip() or line.lstrip().startswith("#"):
-            continue
+    for i, line in text_lines(path, what, comments=True):
         fields = [field.strip() for field in line.split(",")]
         if len(fields) != columns:
             raise DatasetFormatError(
@@ -181,26 +184,6 @@ def read_groundtruth(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------------------------------
 
 
-def _numbers(path: Path, data: dict[str, Any], key: str, count: int, meaning: str) -> np.ndarray:
-    """``data[key]`` as (count,) float64, or DatasetFormatError naming the file and key."""
-    if key not in data:
-        raise DatasetFormatError(f"{path}: key '{key}' missing (expected {meaning})")
-    value = data[key]
-    ok = (
-        isinstance(value, list)
-        and len(value) == count
-        and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
-    )
-    if not ok or not np.all(np.isfinite(np.asarray(value, dtype=np.float64))):
-        raise DatasetFormatError(f"{path}: key '{key}': expected {meaning}, got {value!r}")
-    return np.asarray(value, dtype=np.float64)
-
-
-def _check_choice(path: Path, data: dict[str, Any], key: str, expected: str) -> None:
-    if key in data and data[key] != expected:
-        raise DatasetFormatError(f"{path}: key '{key}': expected {expected!r}, got {data[key]!r}")
-
-
 def _read_T_BS(path: Path, data: dict[str, Any]) -> np.ndarray:
     block = data.get("T_BS")
     if not isinstance(block, dict):
@@ -211,7 +194,7 @@ def _read_T_BS(path: Path, data: dict[str, Any]) -> np.ndarray:
     for key in ("rows", "cols"):
         if key in block and block[key] != 4:
             raise DatasetFormatError(f"{path}: key 'T_BS.{key}': expected 4, got {block[key]!r}")
-    T = _numbers(path, block, "data", 16, "the 16 numbers of T_BS, row-major").reshape(4, 4)
+    T = yaml_array(path, block, "data", (16,), "the 16 numbers of T_BS, row-major").reshape(4, 4)
     check_rigid(path, T, "T_BS")
     return T
 
@@ -231,13 +214,12 @@ def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.nda
     """
     path = Path(path)
     data = load_mapping(path, "T_BS, resolution and intrinsics")
-    _check_choice(path, data, "camera_model", "pinhole")
-    _check_choice(path, data, "distortion_model", "radial-tangential")
-    fu, fv, cu, cv = _numbers(path, data, "intrinsics", 4, "[fu, fv, cu, cv] in pixels")
+    check_choices(path, data, CHOICES)
+    fu, fv, cu, cv = yaml_array(path, data, "intrinsics", (4,), "[fu, fv, cu, cv] in pixels")
     if fu <= 0 or fv <= 0:
         raise DatasetFormatError(f"{path}: key 'intrinsics': expected positive focal lengths, got {fu}, {fv}")
-    distortion = _numbers(path, data, "distortion_coefficients", 4, "[k1, k2, p1, p2]")
-    width, height = _numbers(path, data, "resolution", 2, "[width, height] in pixels")
+    distortion = yaml_array(path, data, "distortion_coefficients", (4,), "[k1, k2, p1, p2]")
+    width, height = yaml_array(path, data, "resolution", (2,), "[width, height] in pixels")
     size = positive_resolution(path, width, height, data["resolution"])
     K = np.array([[fu, 0.0, cu], [0.0, fv, cv], [0.0, 0.0, 1.0]])
     return K, distortion, _read_T_BS(path, data), size
@@ -308,27 +290,6 @@ def camera_poses(
     return T_w_b_t @ np.asarray(T_BS, dtype=np.float64), keep
 
 
-def kept_camera_poses(
-    gt_path: Path,
-    csv_path: Path,
-    gt_ns: np.ndarray,
-    T_w_b: np.ndarray,
-    T_BS: np.ndarray,
-    ns: np.ndarray,
-    max_gap: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`camera_poses`, with DatasetFormatError naming both files when no frame of ``csv_path`` is kept
-    (none within the ground truth's span of ``gt_path`` without gaps over ``max_gap`` s)."""
-    poses, keep = camera_poses(gt_ns, T_w_b, T_BS, ns, max_gap)
-    if not keep.any():
-        raise DatasetFormatError(
-            f"{gt_path}: no frame of {csv_path} within the ground truth's span "
-            f"[{gt_ns[0]}, {gt_ns[-1]}] ns without gaps over {max_gap} s "
-            f"(frames span [{ns[0]}, {ns[-1]}] ns)"
-        )
-    return poses, keep
-
-
 # --------------------------------------------------------------------------------------------------
 # Sequences
 # --------------------------------------------------------------------------------------------------
@@ -352,22 +313,6 @@ def sequence_dir(root: str | os.PathLike, name: str) -> Path:
     return path
 
 
-def frame_paths(csv_path: Path, folder: Path, names: list[str]) -> list[Path]:
-    """``folder/name`` for each name, each checked to exist (else the error names ``csv_path``'s line)."""
-    paths = [folder / name for name in names]
-    missing = next((k for k, p in enumerate(paths) if not p.is_file()), None)
-    if missing is not None:
-        line = _data_line(csv_path, missing)
-        raise DatasetFormatError(f"{where(csv_path, line)}: frame {paths[missing]} does not exist")
-    return paths
-
-
-def _data_line(path: Path, k: int) -> int:
-    """The 1-based line number of the k-th data line of an ASL CSV file."""
-    rows = _csv_rows(path, "camera list", 2)
-    return rows[k][0]
-
-
 def load_sequence(
     root: str | os.PathLike, name: str, require_poses: bool = True, max_gap: float = MAX_GAP_S
 ) -> Sequence:
@@ -386,22 +331,41 @@ def load_sequence(
             whose size differs from sensor.yaml's resolution, or no frame within the ground truth's span.
     """
     mav0 = sequence_dir(root, name)
-    camera = mav0 / CAMERA
+    gt_path = mav0 / GROUND_TRUTH / "data.csv"
+    return asl_sequence(
+        name, mav0 / CAMERA, gt_path, read_sensor, read_groundtruth_stamps, require_poses, max_gap
+    )
+
+
+def asl_sequence(
+    name: str,
+    camera: Path,
+    gt_path: Path,
+    read_sensor: Callable[[Path], tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]],
+    read_groundtruth: Callable[[Path], tuple[np.ndarray, np.ndarray]],
+    require_poses: bool,
+    max_gap: float,
+) -> Sequence:
+    """A sequence of an ASL camera folder (``data.csv``, ``data/``, ``sensor.yaml``: (K, distortion, T_BS,
+    size)) and a ground truth of body poses T_w_b (stamps in ns): T_w_c = ``T_w_b(t) @ T_BS`` at the frames'
+    stamps (:func:`camera_poses`), frames outside it dropped; DatasetFormatError naming both files where
+    none is kept."""
     csv_path = camera / "data.csv"
     ns, names = read_camera_stamps(csv_path)
     times = ns_to_seconds(ns)
-    images = frame_paths(csv_path, camera / "data", names)
+    images = listed_frames(csv_path, camera / "data", names)
     K, distortion, T_BS, size = read_sensor(camera / "sensor.yaml")
     check_resolution(images[0], size, camera / "sensor.yaml")
-    distortion5 = np.concatenate([distortion, [0.0]])
-    gt_path = mav0 / GROUND_TRUTH / "data.csv"
-    if not gt_path.is_file():
-        if require_poses:
-            raise DatasetFormatError(
-                f"{gt_path}: no ground truth for sequence {name} (needed for training/evaluation)"
-            )
-        return Sequence(name, images, times, None, K, distortion5, size)
-    gt_ns, T_w_b = read_groundtruth_stamps(gt_path)
-    poses, keep = kept_camera_poses(gt_path, csv_path, gt_ns, T_w_b, T_BS, ns, max_gap)
+    distortion = np.append(distortion, np.zeros(5 - len(distortion)))  # OpenCV's (k1, k2, p1, p2, k3)
+    if not has_ground_truth(gt_path, name, require_poses):
+        return Sequence(name, images, times, None, K, distortion, size)
+    gt_ns, T_w_b = read_groundtruth(gt_path)
+    poses, keep = camera_poses(gt_ns, T_w_b, T_BS, ns, max_gap)
+    if not keep.any():
+        raise DatasetFormatError(
+            f"{gt_path}: no frame of {csv_path} within the ground truth's span "
+            f"[{gt_ns[0]}, {gt_ns[-1]}] ns without gaps over {max_gap} s "
+            f"(frames span [{ns[0]}, {ns[-1]}] ns)"
+        )
     kept = [path for path, k in zip(images, keep, strict=True) if k]
-    return Sequence(name, kept, times[keep], poses, K, distortion5, size, dropped=int((~keep).sum()))
+    return Sequence(name, kept, times[keep], poses, K, distortion, size, dropped=int((~keep).sum()))

@@ -23,7 +23,15 @@ import numpy as np
 import torch
 
 from lossvo import geometry
-from lossvo.data.sequence import DatasetFormatError, Sequence, png_size
+from lossvo.data.sequence import (
+    DatasetFormatError,
+    Sequence,
+    finite_numbers,
+    has_ground_truth,
+    png_size,
+    text_lines,
+    where,
+)
 
 ORTHONORMAL_TOLERANCE = 1e-3
 """Largest |R^T R - I| entry accepted in a pose file (KITTI stores 7 to 9 significant digits)."""
@@ -33,10 +41,6 @@ _PNG_END = b"IEND\xaeB`\x82"
 
 class KittiFormatError(DatasetFormatError):
     """A file or folder that does not follow the KITTI odometry layout."""
-
-
-def _where(path: Path, line: int | None = None) -> str:
-    return f"{path}:{line}" if line is not None else str(path)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -111,38 +115,11 @@ def check_png(path: Path) -> None:
 # --------------------------------------------------------------------------------------------------
 
 
-def numbered_lines(path: Path, what: str) -> list[tuple[int, str]]:
-    """The non-empty lines of a text file with their numbers (from 1); ``KittiFormatError``
-    ``<path>: cannot read <what> (<reason>)`` when the file cannot be read."""
-    try:
-        lines = path.read_text().splitlines()
-    except OSError as e:
-        raise KittiFormatError(f"{path}: cannot read {what} ({e.strerror})") from None
-    except UnicodeDecodeError:
-        raise KittiFormatError(f"{path}: cannot read {what} (not a text file)") from None
-    return [(i, line) for i, line in enumerate(lines, start=1) if line.strip()]
-
-
 def _parse_numbers(path: Path, line_no: int, line: str, count: int) -> list[float]:
     fields = line.split()
     if len(fields) != count:
-        raise KittiFormatError(f"{_where(path, line_no)}: expected {count} numbers, got {len(fields)}")
-    try:
-        values = [float(v) for v in fields]
-    except ValueError:
-        bad = next(v for v in fields if not _is_float(v))
-        raise KittiFormatError(f"{_where(path, line_no)}: expected {count} numbers, got {bad!r}") from None
-    if not all(np.isfinite(values)):
-        raise KittiFormatError(f"{_where(path, line_no)}: expected finite numbers, got {line.strip()!r}")
-    return values
-
-
-def _is_float(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
+        raise KittiFormatError(f"{where(path, line_no)}: expected {count} numbers, got {len(fields)}")
+    return finite_numbers(path, line_no, fields, f"{count} numbers", "finite numbers", KittiFormatError)
 
 
 def read_poses(path: str | os.PathLike) -> np.ndarray:
@@ -157,13 +134,13 @@ def read_poses(path: str | os.PathLike) -> np.ndarray:
             rotation block far from orthonormal.
     """
     path = Path(path)
-    rows = numbered_lines(path, "pose file")
+    rows = text_lines(path, "pose file", error=KittiFormatError)
     if not rows:
         raise KittiFormatError(f"{path}: empty pose file (expected one line of 12 numbers per frame)")
     first = rows[0][1].split()
     if len(first) == 8 and not rows[0][1].lstrip().startswith("#"):
         raise KittiFormatError(
-            f"{_where(path, rows[0][0])}: expected 12 numbers (a KITTI pose file), got 8: a TUM trajectory "
+            f"{where(path, rows[0][0])}: expected 12 numbers (a KITTI pose file), got 8: a TUM trajectory "
             "('timestamp tx ty tz qx qy qz qw')? Name it .tum to read it as one"
         )
     values = np.array([_parse_numbers(path, i, line, 12) for i, line in rows], dtype=np.float64)
@@ -181,7 +158,7 @@ def _check_rotations(path: Path, R: np.ndarray, line_numbers: list[int]) -> None
     if bad.size:
         k = bad[0]
         raise KittiFormatError(
-            f"{_where(path, line_numbers[k])}: rotation block is not a rotation "
+            f"{where(path, line_numbers[k])}: rotation block is not a rotation "
             f"(max |RᵀR − I| = {error[k]:.2g}, det = {det[k]:.4g}; expected orthonormal, det +1)"
         )
 
@@ -224,10 +201,10 @@ def read_calib(path: str | os.PathLike) -> Calib:
     """
     path = Path(path)
     entries: dict[str, np.ndarray] = {}
-    for i, line in numbered_lines(path, "calibration"):
+    for i, line in text_lines(path, "calibration", error=KittiFormatError):
         key, sep, rest = line.partition(":")
         if not sep:
-            raise KittiFormatError(f"{_where(path, i)}: expected 'KEY: 12 numbers', got {line.strip()!r}")
+            raise KittiFormatError(f"{where(path, i)}: expected 'KEY: 12 numbers', got {line.strip()!r}")
         entries[key.strip()] = np.array(_parse_numbers(path, i, rest, 12)).reshape(3, 4)
     if "P2" not in entries:
         raise KittiFormatError(f"{path}: no P2 (expected a line 'P2: 12 numbers' for the image_2 camera)")
@@ -237,7 +214,7 @@ def read_calib(path: str | os.PathLike) -> Calib:
 def read_times(path: str | os.PathLike) -> np.ndarray:
     """Read ``times.txt``: (N,) float64 timestamps in seconds, one per line."""
     path = Path(path)
-    rows = numbered_lines(path, "timestamps")
+    rows = text_lines(path, "timestamps", error=KittiFormatError)
     return np.array([_parse_numbers(path, i, line, 1)[0] for i, line in rows], dtype=np.float64)
 
 
@@ -267,13 +244,11 @@ def load_sequence(root: str | os.PathLike, name: str, require_poses: bool = True
         )
     path = pose_path(root, name)
     poses = None
-    if path.is_file():
+    if has_ground_truth(path, name, require_poses, "pose file", KittiFormatError):
         poses = read_poses(path)
         if len(poses) != len(images):
             raise KittiFormatError(
                 f"{path}: {len(poses)} poses but {len(images)} frames in {images[0].parent} "
                 "(expected one pose per frame)"
             )
-    elif require_poses:
-        raise KittiFormatError(f"{path}: no pose file for sequence {name} (needed for training/evaluation)")
     return Sequence(name, images, times, poses, calib.K, np.zeros(5), png_size(images[0]))

@@ -20,8 +20,8 @@ file (and the 1-based line or the YAML key) and what was expected.
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -29,15 +29,17 @@ from lossvo.data import euroc
 from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
-    check_resolution,
+    check_choices,
     check_rigid,
     existing_root,
     finite_numbers,
     load_mapping,
     pose_matrices,
     positive_resolution,
+    text_lines,
     unit_quaternions,
     where,
+    yaml_array,
 )
 from lossvo.data.tartanair import ned_to_camera
 
@@ -63,14 +65,10 @@ def _groundtruth_rows(path: Path) -> list[tuple[int, list[str]]]:
     """The data lines of ``pose_groundtruth/data.csv`` with their 1-based numbers and stripped fields: '#'
     lines, empty lines and a first line starting with ``timestamp`` skipped; every line with the first line's
     count of columns, at least :data:`GROUND_TRUTH_COLUMNS`."""
-    try:
-        lines = path.read_text().splitlines()
-    except OSError as e:
-        raise DatasetFormatError(f"{path}: cannot read ground truth ({e.strerror})") from None
     rows: list[tuple[int, list[str]]] = []
-    for i, line in enumerate(lines, start=1):
+    for i, line in text_lines(path, "ground truth", comments=True):
         text = line.strip()
-        if not text or text.startswith("#") or (not rows and text.lower().startswith("timestamp")):
+        if not rows and text.lower().startswith("timestamp"):
             continue
         fields = [field.strip() for field in text.split(",")]
         count = len(rows[0][1]) if rows else GROUND_TRUTH_COLUMNS
@@ -125,28 +123,6 @@ def read_groundtruth(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------------------------------
 
 
-def _matrix(path: Path, data: dict[str, Any], key: str, shape: tuple[int, ...], meaning: str) -> np.ndarray:
-    """``data[key]`` as a finite float64 array of ``shape``, or DatasetFormatError naming the file and key."""
-    if key not in data:
-        raise DatasetFormatError(f"{path}: key '{key}' missing (expected {meaning})")
-    value = data[key]
-    try:
-        array = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        array = np.zeros(0)
-    if (
-        array.shape != shape
-        or not all(_is_number(v) for v in np.asarray(value, dtype=object).ravel())
-        or not np.all(np.isfinite(array))
-    ):
-        raise DatasetFormatError(f"{path}: key '{key}': expected {meaning}, got {value!r}")
-    return array
-
-
-def _is_number(value: object) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
-
-
 def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]:
     """Read a camera's ``sensor.yaml`` (the README's keys).
 
@@ -165,10 +141,8 @@ def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.nda
     """
     path = Path(path)
     data = load_mapping(path, "T_BS, resolution and intrinsics")
-    for key, expected in (("camera_model", "pinhole"), ("distortion_model", "radial-tangential")):
-        if key in data and data[key] != expected:
-            raise DatasetFormatError(f"{path}: key '{key}': expected {expected!r}, got {data[key]!r}")
-    K = _matrix(
+    check_choices(path, data, euroc.CHOICES)
+    K = yaml_array(
         path, data, "intrinsics", (3, 3), "a 3x3 list [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels"
     )
     if K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or not np.array_equal(K[2], [0.0, 0.0, 1.0]):
@@ -177,12 +151,14 @@ def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.nda
             f"got {data['intrinsics']!r}"
         )
     if len(data.get("distortion_coefficients") or []) == 4:
-        distortion = np.append(_matrix(path, data, "distortion_coefficients", (4,), "[k1, k2, p1, p2]"), 0.0)
+        distortion = np.append(
+            yaml_array(path, data, "distortion_coefficients", (4,), "[k1, k2, p1, p2]"), 0.0
+        )
     else:
-        distortion = _matrix(path, data, "distortion_coefficients", (5,), "[k1, k2, p1, p2, k3]")
-    width, height = _matrix(path, data, "resolution", (2,), "[width, height] in pixels")
+        distortion = yaml_array(path, data, "distortion_coefficients", (5,), "[k1, k2, p1, p2, k3]")
+    width, height = yaml_array(path, data, "resolution", (2,), "[width, height] in pixels")
     size = positive_resolution(path, width, height, data["resolution"])
-    T_BS = _matrix(path, data, "T_BS", (4, 4), "a 4x4 list, the camera's pose in the body frame")
+    T_BS = yaml_array(path, data, "T_BS", (4, 4), "a 4x4 list, the camera's pose in the body frame")
     check_rigid(path, T_BS, "T_BS")
     return K, distortion, T_BS, size
 
@@ -238,24 +214,8 @@ def load_sequence(
             whose size differs from ``resolution``, or no frame within the ground truth's span.
     """
     folder = sequence_dir(root, name, camera)
-    camera_dir = folder / "rgb" / camera
-    csv_path = camera_dir / "data.csv"
-    ns, names = euroc.read_camera_stamps(csv_path)
-    times = euroc.ns_to_seconds(ns)
-    images = euroc.frame_paths(csv_path, camera_dir / "data", names)
-    yaml_path = camera_dir / "sensor.yaml"
-    K, distortion, T_BS, size = read_sensor(yaml_path)
-    check_resolution(images[0], size, yaml_path)
     gt_path = folder / GROUND_TRUTH / "data.csv"
-    if not gt_path.is_file():
-        if require_poses:
-            raise DatasetFormatError(
-                f"{gt_path}: no ground truth for sequence {name!r} (needed for training/evaluation)"
-            )
-        return Sequence(name, images, times, None, K, distortion, size)
-    gt_ns, T_w_b = read_groundtruth(gt_path)
-    T_w_s, keep = euroc.kept_camera_poses(gt_path, csv_path, gt_ns, T_w_b, T_BS, ns, max_gap)
-    kept = [path for path, k in zip(images, keep, strict=True) if k]
-    return Sequence(
-        name, kept, times[keep], ned_to_camera(T_w_s), K, distortion, size, dropped=int((~keep).sum())
+    seq = euroc.asl_sequence(
+        name, folder / "rgb" / camera, gt_path, read_sensor, read_groundtruth, require_poses, max_gap
     )
+    return seq if seq.poses is None else replace(seq, poses=ned_to_camera(seq.poses))

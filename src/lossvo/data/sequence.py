@@ -19,7 +19,7 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from lossvo.checks import is_integer
+from lossvo.checks import is_integer, is_number
 from lossvo.console import UserError
 
 
@@ -34,25 +34,71 @@ def where(path: Path, line: int | None = None) -> str:
 
 
 def finite_numbers(
-    path: Path, line: int, fields: list[str], expected: str, finite: str | None = None
+    path: Path,
+    line: int,
+    fields: list[str],
+    expected: str,
+    finite: str | None = None,
+    error: type[DatasetFormatError] = DatasetFormatError,
 ) -> list[float]:
     """``fields`` (the text of line ``line`` of ``path``) as finite floats.
 
     Raises:
-        DatasetFormatError: ``<path>:<line>: expected <expected>, got '<field>'`` at the first field
-            that is no number, and the same with ``finite`` (default ``expected``) at the first that is not
-            finite.
+        error: ``<path>:<line>: expected <expected>, got '<field>'`` at the first field that is no number,
+            and the same with ``finite`` (default ``expected``) at the first that is not finite.
     """
     values = []
     for text in fields:
         try:
             value = float(text)
         except ValueError:
-            raise DatasetFormatError(f"{where(path, line)}: expected {expected}, got {text!r}") from None
+            raise error(f"{where(path, line)}: expected {expected}, got {text!r}") from None
         if not np.isfinite(value):
-            raise DatasetFormatError(f"{where(path, line)}: expected {finite or expected}, got {text!r}")
+            raise error(f"{where(path, line)}: expected {finite or expected}, got {text!r}")
         values.append(value)
     return values
+
+
+def text_lines(
+    path: Path, what: str, comments: bool = False, error: type[DatasetFormatError] = DatasetFormatError
+) -> list[tuple[int, str]]:
+    """The non-empty lines of a text file with their numbers (from 1), '#' comments left out where
+    ``comments``; ``error`` ``<path>: cannot read <what> (<reason>)`` when the file cannot be read."""
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as e:
+        raise error(f"{path}: cannot read {what} ({e.strerror})") from None
+    except UnicodeDecodeError:
+        raise error(f"{path}: cannot read {what} (not a text file)") from None
+    rows = [(i, line) for i, line in enumerate(lines, start=1) if line.strip()]
+    return [(i, line) for i, line in rows if not (comments and line.lstrip().startswith("#"))]
+
+
+def listed_frames(list_path: Path, folder: Path, names: list[str]) -> list[Path]:
+    """``folder / name`` for each name of a frame list; DatasetFormatError at the list's line (its data
+    lines: '#' comments left out) of the first that is no file."""
+    paths = [folder / name for name in names]
+    k = next((k for k, path in enumerate(paths) if not path.is_file()), None)
+    if k is not None:
+        line = text_lines(list_path, "frame list", comments=True)[k][0]
+        raise DatasetFormatError(
+            f"{where(list_path, line)}: frame {names[k]!r} not found: {paths[k]} does not exist"
+        )
+    return paths
+
+
+def has_ground_truth(
+    path: Path,
+    name: str,
+    require: bool,
+    what: str = "ground truth",
+    error: type[DatasetFormatError] = DatasetFormatError,
+) -> bool:
+    """Whether a sequence's ground-truth file exists; ``error`` naming it where it is missing and
+    ``require``."""
+    if require and not path.is_file():
+        raise error(f"{path}: no {what} for sequence {name} (needed for training/evaluation)")
+    return path.is_file()
 
 
 def existing_root(root: str | os.PathLike, layout: str) -> Path:
@@ -113,6 +159,32 @@ def load_mapping(path: Path, what: str) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise DatasetFormatError(f"{path}: expected a YAML mapping with {what}")
     return data
+
+
+def check_choices(path: Path, data: dict[str, Any], choices: dict[str, str]) -> None:
+    """DatasetFormatError naming ``path`` and the key where a calibration file gives another value than the
+    one of ``choices`` (key -> the value this reader reads)."""
+    for key, expected in choices.items():
+        if key in data and data[key] != expected:
+            raise DatasetFormatError(f"{path}: key '{key}': expected {expected!r}, got {data[key]!r}")
+
+
+def yaml_array(
+    path: Path, data: dict[str, Any], key: str, shape: tuple[int, ...], meaning: str
+) -> np.ndarray:
+    """``data[key]`` as a finite float64 array of ``shape`` (lists of numbers), or DatasetFormatError naming
+    the file and key."""
+    if key not in data:
+        raise DatasetFormatError(f"{path}: key '{key}' missing (expected {meaning})")
+    value = data[key]
+    try:
+        array = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        array = np.zeros(0)
+    numbers = all(is_number(v) for v in np.asarray(value, dtype=object).ravel())
+    if array.shape != shape or not numbers or not np.all(np.isfinite(array)):
+        raise DatasetFormatError(f"{path}: key '{key}': expected {meaning}, got {value!r}")
+    return array
 
 
 @dataclass(frozen=True)

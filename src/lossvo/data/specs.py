@@ -34,11 +34,13 @@ from lossvo.data.flow import FlowSetting
 from lossvo.data.sequence import split_names
 from lossvo.data.synthetic import layouts as synthetic_layouts
 from lossvo.data.synthetic.camera import CameraRange
+from lossvo.data.synthetic.writer import check_cameras
 
 SYNTHETIC = "synthetic"
 """The layout name of the embedded synthetic dataset: rendered in the KITTI layout on first use."""
 NORMALIZATIONS = ("dataset", "flownet")
 SPLITS = ("train", "val", "test", "unseen")
+SOURCE_KEYS = ("layout", "root", "keep_every", "camera")
 _R = TypeVar("_R")
 _S = TypeVar("_S")
 
@@ -48,21 +50,20 @@ def _fields(cls: type, value: Any, where: str) -> dict[str, Any]:
     unknown key."""
     if isinstance(value, cls):
         return {f.name: getattr(value, f.name) for f in dataclasses.fields(cls)}
-    if value is None:
-        return {}
-    if not isinstance(value, Mapping):
-        names = _names(cls)
+    names = [f.name for f in dataclasses.fields(cls)]
+    if value is not None and not isinstance(value, Mapping):
         one = isinstance(value, str | int | float)
         hint = f" (to set one of them: {where}.{names[0]}={value})" if one else ""
         raise UserError(f"{where}: expected a mapping of {', '.join(names)}, got {value!r}{hint}")
-    unknown = sorted(set(map(str, value)) - set(_names(cls)))
+    return _known(value or {}, names, where)
+
+
+def _known(value: Mapping[str, Any], names: Seq[str], where: str) -> dict[str, Any]:
+    """``value`` as a dict; UserError naming ``where`` and its first key not in ``names``."""
+    unknown = sorted(set(map(str, value)) - set(names))
     if unknown:
-        raise UserError(f"{where}.{unknown[0]}: unknown key (expected some of {', '.join(_names(cls))})")
+        raise UserError(f"{where}.{unknown[0]}: unknown key (expected some of {', '.join(names)})")
     return dict(value)
-
-
-def _names(cls: type) -> list[str]:
-    return [f.name for f in dataclasses.fields(cls)]
 
 
 def _check(where: str, key: str, value: Any, fits: bool, expected: str) -> None:
@@ -165,11 +166,8 @@ class Source:
         layout = value.get("layout")
         if layout != SYNTHETIC:
             layouts.check_layout(layout, f"{where}.layout")
-        render_keys = _names(Render) if layout == SYNTHETIC else []
-        allowed = ["layout", "root", "keep_every", "camera", *render_keys]
-        unknown = sorted(set(map(str, value)) - set(allowed))
-        if unknown:
-            raise UserError(f"{where}.{unknown[0]}: unknown key (expected some of {', '.join(allowed)})")
+        render_keys = [f.name for f in dataclasses.fields(Render)] if layout == SYNTHETIC else []
+        _known(value, [*SOURCE_KEYS, *render_keys], where)
         root = value.get("root")
         if root is None and layout != SYNTHETIC:
             raise UserError(f"{where}.root: a value is required (the dataset's folder)")
@@ -201,27 +199,24 @@ class Source:
 
 def _render(value: Mapping[str, Any], where: str) -> Render:
     """A synthetic source's :class:`Render` from its config; UserError naming the key otherwise."""
-    fields = {k: _plain(value[k]) for k in _names(Render) if k in value}
+    fields = {f.name: plain(value[f.name]) for f in dataclasses.fields(Render) if f.name in value}
     layout = fields.get("render_layout", "kitti")
     layouts.check_layout(layout, f"{where}.render_layout")
     scale = fields.get("render_scale", 1.0)
     _check(where, "render_scale", scale, is_number(scale) and scale > 0, "a number > 0")
     if fields.get("cameras") is not None:
-        if layout != "kitti":
-            raise UserError(
-                f"{where}.cameras: cameras drawn per sequence are rendered in the KITTI layout only (its "
-                f"calib.txt holds each sequence's K), not with render_layout={layout}"
-            )
+        check_cameras(layout, fields["cameras"], f"{where}.cameras")
         fields["cameras"] = CameraRange.of(fields["cameras"], f"{where}.cameras")
     return Render(**fields)
 
 
-def _plain(value: Any) -> Any:
-    """A config value as plain Python containers (OmegaConf's are converted by Hydra already)."""
+def plain(value: Any) -> Any:
+    """A config value as plain Python containers (dicts and lists; OmegaConf's are converted by Hydra
+    already): what a checkpoint may hold."""
     if isinstance(value, Mapping):
-        return {str(k): _plain(v) for k, v in value.items()}
+        return {str(k): plain(v) for k, v in value.items()}
     if isinstance(value, Seq) and not isinstance(value, str):
-        return [_plain(v) for v in value]
+        return [plain(v) for v in value]
     return value
 
 
@@ -431,20 +426,22 @@ ones a checkpoint whose data description lacks the key was trained with. A compo
 (the dataclasses' defaults where its files set none)."""
 
 
-FLAT = {
-    "splits": SPLITS,
-    "frames": ("height", "width", "crop", "normalization", "cache_dir"),
-    "windows": ("seq_len", "stride", "frame_steps", "windows_per_epoch", "batch_size"),
-    "flow": ("flow", "flow_preset", "flow_scale"),
-    "loader": ("num_workers", "pin_memory", "on_device", "device_budget_gb"),
+RENDER_KEYS = ("render_height", "render_width", "seed", "route_families", "route_mixes")
+MOVED: dict[str, str] = {
+    **{key: f"splits.{key}" for key in SPLITS},
+    **{key: f"frames.{key}" for key in ("height", "width", "crop", "normalization", "cache_dir")},
+    **{key: f"windows.{key}" for key in ("seq_len", "stride", "frame_steps", "batch_size")},
+    **{key: f"loader.{key}" for key in ("num_workers", "pin_memory", "on_device", "device_budget_gb")},
+    **{key: f"sources.NAME.{key}" for key in SOURCE_KEYS},
+    **{key: f"sources.synthetic.{key}" for key in RENDER_KEYS},
+    "windows_per_epoch": "windows.per_epoch",
+    "flow": "flow.method",
+    "flow_preset": "flow.preset",
+    "flow_scale": "flow.scale",
+    "frames": "sources.synthetic.frame_counts",
+    "datasets": "sources",
 }
-"""The data keys of the flat form (every argument at the top) by the spec that holds them."""
-FLAT_KEYS = {key: spec for spec, keys in FLAT.items() for key in keys}
-RENAMED = {"windows_per_epoch": "per_epoch", "flow": "method", "flow_preset": "preset", "flow_scale": "scale"}
-SOURCE_KEYS = ("layout", "root", "keep_every", "camera")
-RENDER_KEYS = {"frames": "frame_counts"} | {
-    k: k for k in ("render_height", "render_width", "seed", "route_families", "route_mixes")
-}
+"""Each data key of the flat form (every argument at the top) -> the key of the specs' form holding it."""
 WITHDRAWN: dict[str, Any] = {"windows.shares": None, "windows.stride": None, "flow.preset": "medium"}
 """Keys of earlier versions' data descriptions that this version does not have -> the one value it reads
 (another is refused), or None: any (how training windows were drawn, which evaluation does not use)."""
@@ -452,45 +449,37 @@ WITHDRAWN: dict[str, Any] = {"windows.shares": None, "windows.stride": None, "fl
 
 def new_key(flat: str) -> str | None:
     """The key that replaced a flat data key (``test`` -> ``splits.test``), or None for none."""
-    if flat in FLAT_KEYS:
-        new = f"{FLAT_KEYS[flat]}.{RENAMED.get(flat, flat)}"
-        return None if new in WITHDRAWN else new
-    if flat in SOURCE_KEYS:
-        return f"sources.NAME.{flat}"
-    if flat in RENDER_KEYS:
-        return f"sources.synthetic.{RENDER_KEYS[flat]}"
-    return "sources" if flat == "datasets" else None
+    new = MOVED.get(flat)
+    return None if new in WITHDRAWN else new
 
 
 def nested(flat: Mapping[str, Any]) -> dict[str, Any]:
-    """A data config or description in the flat form (every argument at the top, ``datasets`` for several)
-    in the specs' form; one already nested (it has ``sources``) as it is. Keys of neither form (the
-    description's ``statistics``, ``dataset_root``, ``intrinsics``) stay at the top."""
+    """A data config or description in the flat form (:data:`MOVED`; ``datasets`` for several) in the
+    specs' form; one already nested (it has ``sources``) as it is. Keys of neither form (the description's
+    ``statistics``, ``dataset_root``, ``intrinsics``) stay at the top."""
     if "sources" in flat:
         return dict(flat)
     out: dict[str, Any] = {"_target_": "lossvo.data.datamodules.VODataModule"}
-    specs: dict[str, dict[str, Any]] = {spec: {} for spec in FLAT}
     source: dict[str, Any] = {}
     for key, value in flat.items():
-        if key in FLAT_KEYS:
-            specs[FLAT_KEYS[key]][RENAMED.get(key, key)] = value
-        elif key in SOURCE_KEYS or key in RENDER_KEYS:
-            source[RENDER_KEYS.get(key, key)] = value
+        spec, _, name = MOVED.get(key, "").partition(".")
+        if spec == "sources" and name:
+            source[name.rpartition(".")[2]] = value
+        elif name:
+            out.setdefault(spec, {})[name] = value
         elif key not in ("_target_", "datasets"):
             out[key] = value
-    datasets = flat.get("datasets") or {}
     if "datasets" in flat:
+        datasets = flat["datasets"] or {}
         out["sources"] = {k: {s: v for s, v in e.items() if s in SOURCE_KEYS} for k, e in datasets.items()}
+        splits = out.setdefault("splits", {})
         for split in SPLITS:  # the datasets' own splits, as the run names them
             named = [f"{k}/{n}" for k, e in datasets.items() for n in split_names(e.get(split) or [])]
-            specs["splits"][split] = specs["splits"].get(split) or named
-    elif str(flat.get("_target_", "")).endswith("SyntheticDataModule"):
-        source.pop("layout", None)
-        out["sources"] = {SYNTHETIC: {"layout": SYNTHETIC, **source}}
-    else:
-        layout = source.get("layout", "kitti")
-        out["sources"] = {layout: {"layout": layout, **source}}
-    return {**out, **{k: v for k, v in specs.items() if v}}
+            splits[split] = splits.get(split) or named
+        return out
+    synthetic = str(flat.get("_target_", "")).endswith("SyntheticDataModule")
+    layout = SYNTHETIC if synthetic else source.get("layout", "kitti")
+    return out | {"sources": {layout: {**source, "layout": layout}}}
 
 
 def current(description: Mapping[str, Any]) -> dict[str, Any]:

@@ -27,8 +27,10 @@ from lossvo.data.sequence import (
     Sequence,
     existing_root,
     finite_numbers,
+    has_ground_truth,
     png_size,
     pose_matrices,
+    text_lines,
     unit_quaternions,
     where,
 )
@@ -102,11 +104,7 @@ def read_poses(path: str | os.PathLike) -> np.ndarray:
             numbers, or a quaternion's norm is more than :data:`QUATERNION_TOLERANCE` from 1.
     """
     path = Path(path)
-    try:
-        lines = path.read_text().splitlines()
-    except OSError as e:
-        raise DatasetFormatError(f"{path}: cannot read poses ({e.strerror})") from None
-    rows = [(i, line) for i, line in enumerate(lines, start=1) if line.strip()]
+    rows = text_lines(path, "poses")
     if not rows:
         raise DatasetFormatError(
             f"{path}: empty pose file (expected one line 'tx ty tz qx qy qz qw' a frame)"
@@ -196,11 +194,7 @@ def load_sequence(
     K_seq = resized_intrinsics(K, SIZE, size)
     times = np.arange(len(images), dtype=np.float64) / rate_hz
     path = folder / POSES
-    if not path.is_file():
-        if require_poses:
-            raise DatasetFormatError(
-                f"{path}: no pose file for sequence {name!r} (needed for training/evaluation)"
-            )
+    if not has_ground_truth(path, name, require_poses, "pose file"):
         return Sequence(name, images, times, None, K_seq, np.zeros(5), size)
     poses = read_poses(path)
     if len(poses) != len(images):

@@ -227,8 +227,7 @@ def upgrade_description(data: Any) -> Any:
         return data
     listed = data.get("transforms")
     if any(key in data for key in LEGACY_TRANSFORMS):
-        mirror = data.get("mirror") or 0.0
-        listed = [spec(Mirror(mirror))] if mirror > 0 else []
+        listed = [spec(Mirror(mirror))] if (mirror := data.get("mirror") or 0.0) > 0 else []
     elif isinstance(listed, list):
         listed = [t for t in listed if not (isinstance(t, Mapping) and t.get("_target_") in WITHDRAWN)]
     if listed == data.get("transforms"):

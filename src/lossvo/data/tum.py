@@ -27,8 +27,11 @@ from lossvo.data.sequence import (
     Sequence,
     existing_root,
     finite_numbers,
+    has_ground_truth,
+    listed_frames,
     png_size,
     pose_matrices,
+    text_lines,
     unit_quaternions,
     where,
 )
@@ -71,20 +74,9 @@ _CAMERA_IN_NAME = re.compile(r"(?:^|[^a-z0-9])(?:freiburg|fr)([123])(?![0-9])", 
 
 
 def _data_lines(path: Path, what: str) -> list[tuple[int, list[str]]]:
-    """The fields of every line of ``path`` that is neither empty nor a '#' comment, with its 1-based number.
-
-    Raises:
-        DatasetFormatError: ``<path>: cannot read <what> (<reason>)`` when the file cannot be read.
-    """
-    try:
-        lines = path.read_text().splitlines()
-    except OSError as e:
-        raise DatasetFormatError(f"{path}: cannot read {what} ({e.strerror})") from None
-    return [
-        (i, line.split())
-        for i, line in enumerate(lines, start=1)
-        if line.strip() and not line.lstrip().startswith("#")
-    ]
+    """The fields of every line of ``path`` that is neither empty nor a '#' comment, with its 1-based number
+    (:func:`lossvo.data.sequence.text_lines`)."""
+    return [(i, line.split()) for i, line in text_lines(path, what, comments=True)]
 
 
 def _check_increasing(path: Path, times: np.ndarray, line_numbers: list[int]) -> None:
@@ -308,26 +300,6 @@ def sequence_dir(root: str | os.PathLike, name: str) -> Path:
     return path
 
 
-def _frame_paths(folder: Path, names: list[str], rgb_path: Path) -> list[Path]:
-    """``folder / name`` for every name of ``rgb.txt``; ``DatasetFormatError`` at the line of the first
-    one that is not a file."""
-    paths = [folder / name for name in names]
-    missing = [k for k, p in enumerate(paths) if not p.is_file()]
-    if missing:
-        k = missing[0]
-        line = _line_of_entry(rgb_path, k)
-        raise DatasetFormatError(
-            f"{where(rgb_path, line)}: frame {names[k]!r} not found ({len(missing)} of {len(paths)} listed "
-            f"frames missing; expected them under {folder})"
-        )
-    return paths
-
-
-def _line_of_entry(path: Path, k: int) -> int:
-    """The 1-based line number of the k-th data line of a TUM text file."""
-    return _data_lines(path, "frame list")[k][0]
-
-
 def load_sequence(
     root: str | os.PathLike,
     name: str,
@@ -362,16 +334,11 @@ def load_sequence(
             f"{rgb_path}: no frame list for sequence {name!r} (expected lines 'timestamp rgb/<stamp>.png')"
         )
     times, names = read_rgb_list(rgb_path)
-    images = _frame_paths(folder, names, rgb_path)
+    images = listed_frames(rgb_path, folder, names)
     size = png_size(images[0])
     K_seq, d_seq = camera(name, K, distortion, size)
     gt_path = folder / GROUNDTRUTH
-    if not gt_path.is_file():
-        if require_poses:
-            raise DatasetFormatError(
-                f"{gt_path}: no ground truth for sequence {name!r} (needed for training/evaluation; expected "
-                "lines 'timestamp tx ty tz qx qy qz qw')"
-            )
+    if not has_ground_truth(gt_path, name, require_poses):
         return Sequence(name, images, times, None, K_seq, d_seq, size)
     gt_times, gt_poses = read_groundtruth(gt_path)
     frame_index, gt_index = associate(times, gt_times, max_difference)

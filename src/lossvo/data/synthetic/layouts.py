@@ -13,9 +13,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import shutil
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -412,28 +409,3 @@ def _euroc_bodies(motion: platforms.Trajectory, t: np.ndarray) -> tuple[np.ndarr
     T_w_b = motion.poses(t) @ T_SB
     ahead, behind = motion.poses(t + 5e-4) @ T_SB, motion.poses(t - 5e-4) @ T_SB
     return T_w_b, (ahead[:, :3, 3] - behind[:, :3, 3]) / 1e-3
-
-
-def write_sequence(
-    out: Path,
-    layout: str,
-    sequence: str,
-    n_frames: int,
-    size: tuple[int, int],
-    seed: int,
-    spec: routes.RouteSpec = routes.DEFAULT_SPEC,
-) -> float:
-    """Render one sequence into the dataset root out, atomically (a temporary folder inside out, moved
-    into place once complete, removed on failure); returns the seconds it took."""
-    start = time.perf_counter()
-    tmp = out / f".tmp-{layout}-{sequence}-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    target = out / sequence_name(layout, sequence)
-    try:
-        render_sequence(tmp / "sequence", layout, sequence, n_frames, size, seed, spec)
-        target.parent.mkdir(parents=True, exist_ok=True)
-        shutil.rmtree(target, ignore_errors=True)
-        os.replace(tmp / "sequence", target)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return time.perf_counter() - start

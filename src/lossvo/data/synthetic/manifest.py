@@ -8,6 +8,7 @@ header as a request is reused, sequence by sequence.
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 from lossvo.console import UserError
@@ -23,31 +24,37 @@ VERSION = 2
 """Bumped whenever the rendered content changes, so that ensure_dataset regenerates old datasets."""
 
 
-def header(
-    height: int,
-    width: int,
-    seed: int,
-    spec: routes.RouteSpec,
-    layout: str = "kitti",
-    cameras: CameraRange | None = None,
-) -> dict:
-    """The manifest entries that every sequence of one dataset shares (JSON-normalised, so that they
-    compare equal to the ones read back from a manifest); a "layout" entry for layouts other than kitti
-    (a manifest without one is a KITTI-layout dataset), a "cameras" entry for cameras drawn per sequence
-    (without one: KITTI's camera)."""
-    entries = {
-        "generator": "lossvo.data.synthetic",
-        "version": VERSION,
-        "height": height,
-        "width": width,
-        "seed": seed,
-        "routes": spec.manifest(),
-    }
-    if layout != "kitti":
-        entries["layout"] = layout
-    if cameras is not None:
-        entries["cameras"] = cameras.manifest()
-    return json.loads(json.dumps(entries))
+@dataclass(frozen=True)
+class Rendering:
+    """What every sequence of one dataset is rendered with: (height, width) pixels, the seed, the route
+    families and mixes, the layout and, in the KITTI layout, the ranges each sequence's camera is drawn from
+    (None: KITTI's camera)."""
+
+    height: int
+    width: int
+    seed: int
+    spec: routes.RouteSpec
+    layout: str = "kitti"
+    cameras: CameraRange | None = None
+
+    def header(self) -> dict:
+        """The manifest entries that every sequence of the dataset shares (JSON-normalised, so that they
+        compare equal to the ones read back from a manifest); a "layout" entry for layouts other than kitti
+        (a manifest without one is a KITTI-layout dataset), a "cameras" entry for cameras drawn per sequence
+        (without one: KITTI's camera)."""
+        entries = {
+            "generator": "lossvo.data.synthetic",
+            "version": VERSION,
+            "height": self.height,
+            "width": self.width,
+            "seed": self.seed,
+            "routes": self.spec.manifest(),
+        }
+        if self.layout != "kitti":
+            entries["layout"] = self.layout
+        if self.cameras is not None:
+            entries["cameras"] = self.cameras.manifest()
+        return json.loads(json.dumps(entries))
 
 
 def read_manifest(root: Path) -> dict | None:
@@ -68,9 +75,9 @@ def sequence_complete(root: Path, sequence: str, n_frames: int) -> bool:
 
 
 def complete_sequences(root: Path, shared: dict) -> dict[str, int]:
-    """{sequence: frames} of the dataset under root whose manifest has the entries shared (a
-    :func:`header`, the same layout), for the sequences it lists whose files are all present; {} for any
-    other root."""
+    """{sequence: frames} of the dataset under root whose manifest has the entries shared
+    (:meth:`Rendering.header`: the same layout), for the sequences it lists whose files are all present;
+    {} for any other root."""
     manifest = read_manifest(root)
     layout = shared.get("layout", "kitti")
     if (

@@ -22,6 +22,7 @@ from lossvo.console import UserError
 from lossvo.data import kitti, pose_files
 from lossvo.data.synthetic import layouts, manifest, routes
 from lossvo.data.synthetic.camera import CameraRange, calib_text, drawn_intrinsics, intrinsics
+from lossvo.data.synthetic.manifest import Rendering
 from lossvo.data.synthetic.parameters import (
     DEFAULT_HEIGHT,
     DEFAULT_WIDTH,
@@ -46,62 +47,50 @@ def times_text(n_frames: int) -> str:
     return "".join(f"{k / FRAME_RATE:e}\n" for k in range(n_frames))
 
 
-def render_sequence(
-    folder: Path,
-    sequence: str,
-    n_frames: int,
-    height: int,
-    width: int,
-    seed: int,
-    spec: routes.RouteSpec = routes.DEFAULT_SPEC,
-    cameras: CameraRange | None = None,
-) -> None:
+def render_sequence(folder: Path, sequence: str, n_frames: int, r: Rendering) -> None:
     """Render one sequence into folder: folder/NN/{image_2/*.png, calib.txt, times.txt} and folder/NN.txt,
-    seen by KITTI's camera or, with ``cameras``, by one drawn from those ranges."""
-    poses, world, noise = scene(sequence, n_frames, seed, spec)
+    seen by KITTI's camera or, with ``r.cameras``, by one drawn from those ranges."""
+    poses, world, noise = scene(sequence, n_frames, r.seed, r.spec)
     K = (
-        intrinsics(height, width)
-        if cameras is None
-        else drawn_intrinsics(cameras, height, width, seed, sequence)
+        intrinsics(r.height, r.width)
+        if r.cameras is None
+        else drawn_intrinsics(r.cameras, r.height, r.width, r.seed, sequence)
     )
     (folder / sequence / "image_2").mkdir(parents=True)
     (folder / sequence / "calib.txt").write_text(calib_text(K))
     (folder / sequence / "times.txt").write_text(times_text(n_frames))
-    renderer = Renderer(world, K, height, width)
+    renderer = Renderer(world, K, r.height, r.width)
     for k, T in enumerate(poses):
         write_png(folder / sequence / "image_2" / f"{k:06d}.png", renderer.render(T, noise))
     pose_files.write_poses(folder / f"{sequence}.txt", poses)
 
 
-def write_sequence(
-    out: Path,
-    sequence: str,
-    n_frames: int,
-    height: int,
-    width: int,
-    seed: int,
-    spec: routes.RouteSpec = routes.DEFAULT_SPEC,
-    layout: str = "kitti",
-    cameras: CameraRange | None = None,
-) -> float:
+def write_sequence(out: Path, sequence: str, n_frames: int, r: Rendering) -> float:
     """Render one sequence into the dataset root out, atomically; returns the seconds it took.
 
-    Layouts other than kitti: :func:`lossvo.data.synthetic.layouts.write_sequence`. Everything is
-    rendered into a temporary folder inside out first (removed on failure); the sequence folder and then
-    its poses file are moved into place only once complete.
+    Everything is rendered into a temporary folder inside out first (removed on failure; layouts other
+    than kitti: :func:`lossvo.data.synthetic.layouts.render_sequence`); the sequence's folder (and then
+    its poses file) are moved into place only once complete.
     """
-    if layout != "kitti":
-        return layouts.write_sequence(out, layout, sequence, n_frames, (height, width), seed, spec)
     start = time.perf_counter()
-    tmp = out / f".tmp-{sequence}-{os.getpid()}"
+    tmp = out / f".tmp-{r.layout}-{sequence}-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     try:
-        render_sequence(tmp, sequence, n_frames, height, width, seed, spec, cameras)
-        (out / "sequences").mkdir(exist_ok=True)
-        (out / "poses").mkdir(exist_ok=True)
-        shutil.rmtree(out / "sequences" / sequence, ignore_errors=True)
-        os.replace(tmp / sequence, out / "sequences" / sequence)
-        os.replace(tmp / f"{sequence}.txt", kitti.pose_path(out, sequence))
+        if r.layout == "kitti":
+            render_sequence(tmp, sequence, n_frames, r)
+            moves = {
+                tmp / sequence: out / "sequences" / sequence,
+                tmp / f"{sequence}.txt": kitti.pose_path(out, sequence),
+            }
+        else:
+            layouts.render_sequence(
+                tmp / "sequence", r.layout, sequence, n_frames, (r.height, r.width), r.seed, r.spec
+            )
+            moves = {tmp / "sequence": out / layouts.sequence_name(r.layout, sequence)}
+        for source, target in moves.items():
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.rmtree(target, ignore_errors=True)
+            os.replace(source, target)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return time.perf_counter() - start
@@ -122,35 +111,24 @@ def _worker_count(jobs: int, workers: int | None, pixels: int) -> int:
     return min(jobs, workers or os.cpu_count() or 1)
 
 
-def _render_all(
-    out: Path,
-    counts: dict[str, int],
-    height: int,
-    width: int,
-    seed: int,
-    progress: bool,
-    workers: int | None,
-    spec: routes.RouteSpec,
-    layout: str = "kitti",
-    cameras: CameraRange | None = None,
-) -> None:
+def _render_all(out: Path, counts: dict[str, int], r: Rendering, progress: bool, workers: int | None) -> None:
     """Render the sequences, in parallel spawned worker processes when there are several and cores to spare
     (so a calling script needs the usual ``if __name__ == "__main__":`` guard)."""
-    jobs = [(out, s, n, height, width, seed, spec, layout, cameras) for s, n in counts.items()]
-    workers = _worker_count(len(jobs), workers, sum(counts.values()) * height * width)
+    workers = _worker_count(len(counts), workers, sum(counts.values()) * r.height * r.width)
     pool = None
     if workers > 1:
         context = multiprocessing.get_context("spawn")  # fork is unsafe in threaded (torch) parents
         pool = ProcessPoolExecutor(workers, mp_context=context, initializer=cv2.setNumThreads, initargs=(1,))
     try:
+        jobs = [(out, s, n, r) for s, n in counts.items()]
         results = (
             pool.map(write_sequence, *zip(*jobs, strict=True)) if pool else (write_sequence(*j) for j in jobs)
         )
-        for (_, s, n, *_), seconds in zip(jobs, results, strict=True):
+        for (s, n), seconds in zip(counts.items(), results, strict=True):
             if progress:
                 log.info(
                     "synthetic: sequence %s: %d frames %dx%d in %.1f s",
-                    layouts.sequence_name(layout, s), n, height, width, seconds,
+                    layouts.sequence_name(r.layout, s), n, r.height, r.width, seconds,
                 )  # fmt: skip
     finally:
         if pool:
@@ -222,17 +200,22 @@ def generate(
     so an interrupted run never looks complete; out must be new, empty or a render of lossvo's
     (:func:`lossvo.data.synthetic.manifest.check_ours`: ``UserError`` otherwise).
     """
-    out = Path(out)
     counts = resolve_frames(sequences, frames)
     height, width = frame_size(layout, height, width, scale)
     check_cameras(layout, cameras)
+    r = Rendering(height, width, seed, spec, layout, cameras)
+    return _generate(Path(out), counts, r, progress, workers)
+
+
+def _generate(out: Path, counts: dict[str, int], r: Rendering, progress: bool, workers: int | None) -> Path:
+    """:func:`generate` of checked arguments."""
     manifest.check_ours(out)
     out.mkdir(parents=True, exist_ok=True)
     (out / manifest.RENDERING).touch()
-    shared = manifest.header(height, width, seed, spec, layout, cameras)
+    shared = r.header()
     kept = {s: n for s, n in manifest.complete_sequences(out, shared).items() if s not in counts}
     (out / manifest.MANIFEST).unlink(missing_ok=True)
-    _render_all(out, counts, height, width, seed, progress, workers, spec, layout, cameras)
+    _render_all(out, counts, r, progress, workers)
     entries = {**shared, "frames": dict(sorted({**kept, **counts}.items()))}
     write_text_atomic(out / manifest.MANIFEST, json.dumps(entries, indent=2) + "\n")
     (out / manifest.RENDERING).unlink()
@@ -263,9 +246,8 @@ def ensure_dataset(
     counts = resolve_frames(sequences, frames)
     height, width = frame_size(layout, height, width, scale)
     check_cameras(layout, cameras)
-    present = manifest.complete_sequences(root, manifest.header(height, width, seed, spec, layout, cameras))
+    r = Rendering(height, width, seed, spec, layout, cameras)
+    present = manifest.complete_sequences(root, r.header())
     if all(present.get(s) == n for s, n in counts.items()):
         return root
-    return generate(
-        root, counts, counts, height, width, seed, progress, workers, spec, layout, scale, cameras
-    )
+    return _generate(root, counts, r, progress, workers)
