@@ -37,15 +37,11 @@ def predict_sequence(
 
     The sequence is cut into windows as in validation: ``seq_len`` frames overlapping by one, none across
     a gap (:func:`lossvo.data.windows.tile` with ``gap``, (N - 1,) bool), each with its pairs' flow and the
-    sequence's K. By default the LSTM
-    starts from zeros in every window, which is what the network saw in training (one window per sample);
+    sequence's K. By default the LSTM starts from zeros in every window, as in training, and
     ``batch_windows`` windows go through the network in one forward pass. With ``carry_state=True`` the
-    LSTM state is carried from one window to the next (``model.forward_with_state``, DeepVO's; the windows
-    then run one after the other): an option for networks trained on longer sequences, not what training
-    does.
-
-    The module is put in eval mode (dropout off, BatchNorm running statistics) under ``torch.no_grad``,
-    and its previous mode is restored afterwards.
+    LSTM state is carried from one window to the next (DeepVO's ``model.forward_with_state``, one window
+    after the other): an option for networks trained on longer sequences, not what training does. The
+    module runs in eval mode under ``torch.no_grad``; its previous mode is restored afterwards.
 
     Args:
         module: a :class:`lossvo.training.module.VOModule` (or anything with ``forward(batch) ->
@@ -53,9 +49,6 @@ def predict_sequence(
         inputs: the sequence's :data:`Inputs` (memory maps are read window batch by window batch).
         prepare: loaded inputs -> what the network reads, e.g. the datamodule's ``prepare`` (normalised
             frames, float flow).
-        seq_len: frames per window.
-        batch_windows: windows per forward pass.
-        carry_state: carry the LSTM state across windows.
         mirror_average: also predict the mirrored sequence (:func:`lossvo.data.transforms.mirror_inputs`,
             the mirroring training uses), mirror those poses back and return each pair's average of the
             two (:func:`average_with_mirror`): twice the inference, a prediction symmetric under mirroring.
