@@ -305,6 +305,11 @@ def statistics(errors: Tensor) -> dict[str, float]:
     }
 
 
+def pose_statistics(trans: Tensor, rot: Tensor) -> dict[str, dict[str, float]]:
+    """``{"trans": statistics (m), "rot_rad": statistics (rad)}`` of (M,) translation and rotation errors."""
+    return {"trans": statistics(trans), "rot_rad": statistics(rot)}
+
+
 # --------------------------------------------------------------------------------------------------
 # KITTI odometry error
 # --------------------------------------------------------------------------------------------------
@@ -438,11 +443,8 @@ class _PoseErrorMetric(Metric):
         self.rot.append(rot)
 
     def compute(self) -> dict[str, dict[str, float]]:
-        """``{"trans": statistics (m), "rot_rad": statistics (rad)}`` over all updates."""
-        return {
-            "trans": statistics(dim_zero_cat(self.trans)),
-            "rot_rad": statistics(dim_zero_cat(self.rot)),
-        }
+        """:func:`pose_statistics` over all updates."""
+        return pose_statistics(dim_zero_cat(self.trans), dim_zero_cat(self.rot))
 
 
 class APE(_PoseErrorMetric):
@@ -543,12 +545,12 @@ def evaluate(
         ``{"ape": {"trans": {...}, "rot_rad": {...}}, "rpe": {...}, "kitti": {"t_err_pct": x,
         "r_err_deg_per_100m": y}}`` (kitti values None when the sequence is too short).
     """
-    ape_t, ape_r = ape_errors(est, gt, align)
-    rpe_t, rpe_r = rpe_errors(est, gt, delta, align, delta_unit, pairs_from)
+    ape = ape_errors(est, gt, align)
+    rpe = rpe_errors(est, gt, delta, align, delta_unit, pairs_from)
     t, r = kitti_segment_errors(est, gt)
     return {
-        "ape": {"trans": statistics(ape_t), "rot_rad": statistics(ape_r)},
-        "rpe": {"trans": statistics(rpe_t), "rot_rad": statistics(rpe_r)},
+        "ape": pose_statistics(*ape),
+        "rpe": pose_statistics(*rpe),
         "kitti": _kitti_summary(float(t.sum()), float(r.sum()), t.numel()),
     }
 
@@ -584,6 +586,5 @@ def evaluate_relative(
     scaled = integrate(scale_steps(relative_t, geometry.consecutive_relative_poses(gt_t)), start=gt_t[0])
     for metric in pooled_scaled:
         metric.update(scaled, gt_t)
-    trans, rot = rpe_errors(scaled, gt_t, delta, align)
-    rpe_scaled = {"trans": statistics(trans), "rot_rad": statistics(rot)}
+    rpe_scaled = pose_statistics(*rpe_errors(scaled, gt_t, delta, align))
     return est, evaluate(gt_t, est, align, delta) | {"rpe_scaled": rpe_scaled}
