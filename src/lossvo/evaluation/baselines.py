@@ -2,7 +2,7 @@
 zero motion, the training split's mean motion, ORB + essential matrix with ground-truth scale, the
 sequence's own mean motion (an oracle) and flow yaw + road speed (one line on DIS flow). Relative poses
 are ``T_k = inv(T_w_k) @ T_w_{k+1}``; the sequences are read from the dataset a run's results.json
-records, with no datamodule; :data:`ESTIMATORS` holds them by name; results and flow features are cached
+records, with no datamodule; :func:`estimates` computes them; results and flow features are cached
 per sequence by ``joblib.Memory`` (docs/report.md).
 """
 
@@ -89,11 +89,6 @@ class BaselineResult:
 # --------------------------------------------------------------------------------------------------
 # Estimators: (N-1, 4, 4) float64 relative poses
 # --------------------------------------------------------------------------------------------------
-
-
-def zero_motion(n_pairs: int) -> np.ndarray:
-    """(n_pairs, 4, 4) identity relative poses."""
-    return np.broadcast_to(np.eye(4), (n_pairs, 4, 4)).copy()
 
 
 def mean_motion(targets: Sequence[np.ndarray]) -> np.ndarray:
@@ -422,47 +417,26 @@ class Training:
     speed_scale: float
 
 
-Estimator = Callable[[DatasetSequence, FlowFeatures, Training], tuple[np.ndarray, int]]
-"""A baseline: (a sequence with poses (its frames, K), its flow features, the training split) ->
-((N-1, 4, 4) float64 relative poses, the frame pairs where it failed and fell back)."""
-
-
-def _zero(sequence: DatasetSequence, features: FlowFeatures, training: Training) -> tuple[np.ndarray, int]:
-    return zero_motion(len(sequence.targets)), 0
-
-
-def _train_mean(
+def estimates(
     sequence: DatasetSequence, features: FlowFeatures, training: Training
-) -> tuple[np.ndarray, int]:
-    return repeat_motion(training.mean, len(sequence.targets)), 0
+) -> dict[str, tuple[np.ndarray, int]]:
+    """Every baseline on a sequence with poses (its frames, K), by name in the order of :data:`NAMES`:
+    (N-1, 4, 4) float64 relative poses and the frame pairs where it failed and fell back (ORB+E only).
 
-
-def _orb_essential(
-    sequence: DatasetSequence, features: FlowFeatures, training: Training
-) -> tuple[np.ndarray, int]:
+    Args:
+        features: the sequence's flow features; training: the training split's mean motion and
+            road-speed constant.
+    """
+    n_pairs = len(sequence.targets)
     steps = np.linalg.norm(sequence.targets[:, :3, 3], axis=1)
-    relative, failed = orb_essential(sequence.images, sequence.K, steps, training.mean, sequence.distortion)
-    return relative, int(failed.sum())
-
-
-def _own_mean(
-    sequence: DatasetSequence, features: FlowFeatures, training: Training
-) -> tuple[np.ndarray, int]:
-    return repeat_motion(mean_motion([sequence.targets]), len(sequence.targets)), 0
-
-
-def _flow(sequence: DatasetSequence, features: FlowFeatures, training: Training) -> tuple[np.ndarray, int]:
-    return flow_motion(features.yaw, training.speed_scale * features.road), 0
-
-
-ESTIMATORS: dict[str, Estimator] = {
-    ZERO: _zero,
-    MEAN: _train_mean,
-    ORB: _orb_essential,
-    OWN: _own_mean,
-    FLOW: _flow,
-}
-"""The baselines by name, in the order of :data:`NAMES`."""
+    orb, failed = orb_essential(sequence.images, sequence.K, steps, training.mean, sequence.distortion)
+    return {
+        ZERO: (repeat_motion(np.eye(4), n_pairs), 0),
+        MEAN: (repeat_motion(training.mean, n_pairs), 0),
+        ORB: (orb, int(failed.sum())),
+        OWN: (repeat_motion(mean_motion([sequence.targets]), n_pairs), 0),
+        FLOW: (flow_motion(features.yaw, training.speed_scale * features.road), 0),
+    }
 
 
 def sequence_baselines(
@@ -472,7 +446,7 @@ def sequence_baselines(
     delta: int = 1,
     features: FlowFeatures | None = None,
 ) -> dict[str, BaselineResult]:
-    """Every baseline (:data:`ESTIMATORS`) on one sequence with ground truth, scored as a network's
+    """Every baseline (:func:`estimates`) on one sequence with ground truth, scored as a network's
     trajectory is (``align``, ``delta`` as the runs' results.json).
 
     Args:
@@ -486,8 +460,7 @@ def sequence_baselines(
     if features is None:
         features = flow_features(sequence.images, sequence.K, undistortion(sequence))
     out = {}
-    for name, estimate in ESTIMATORS.items():
-        relative, failures = estimate(sequence, features, training)
+    for name, (relative, failures) in estimates(sequence, features, training).items():
         trajectory, scores = metrics.evaluate_relative(relative, gt, align, delta)
         out[name] = BaselineResult(trajectory.numpy(), Scores.from_json(scores), failures)
     return out
@@ -607,21 +580,6 @@ def training_speed_scale(
     return fit_speed_scale(road, steps)
 
 
-def _torch_single_threaded(fn: Callable[..., T]) -> Callable[..., T]:
-    """``fn`` run with torch on one thread (restored after). torch's thread count is a per-thread
-    (OpenMP) setting, so this wraps the function that runs in each worker thread."""
-
-    def run(*args: Any, **kwargs: Any) -> T:
-        threads = torch.get_num_threads()
-        torch.set_num_threads(1)
-        try:
-            return fn(*args, **kwargs)
-        finally:
-            torch.set_num_threads(threads)
-
-    return run
-
-
 def compute_baselines(
     data: DataRecord,
     sequences: Sequence[str],
@@ -653,30 +611,29 @@ def compute_baselines(
     """
     memory = joblib.Memory(cache_dir, verbose=0)
     training = training_sequences(data)
-    train_mean = mean_motion([s.targets for s in training])
     where = (data.layout, data.root, data.keep_every, data.sources)
     loaded = {n: read_sequence(*where, n) for n in sequences}
+    train = Training(
+        mean_motion([s.targets for s in training]), training_speed_scale(training, memory, n_jobs)
+    )
     baselines_of = memory.cache(_baselines_of, ignore=["features"])
-    scale: list[float] = []  # fitted once, where a sequence is not cached
-
-    def arguments(sequence: DatasetSequence, features: FlowFeatures | None) -> tuple[Any, ...]:
-        return (sequence, _files(sequence), Training(train_mean, scale[0]), features, align, delta, settings)
-
     settings = (flow_settings(), orb_settings())
-    scale.append(training_speed_scale(training, memory, n_jobs))
+
+    def arguments(sequence: DatasetSequence, features: FlowFeatures | None = None) -> tuple[Any, ...]:
+        return (sequence, _files(sequence), train, features, align, delta, settings)
+
     found = {
-        n: {k: replace(r, cached=True) for k, r in baselines_of(*arguments(s, None)).items()}
+        n: {k: replace(r, cached=True) for k, r in baselines_of(*arguments(s)).items()}
         for n, s in loaded.items()
-        if baselines_of.check_call_in_cache(*arguments(s, None))
+        if baselines_of.check_call_in_cache(*arguments(s))
     }
-    todo = [n for n in sequences if n not in found]
-    if todo:
+    if todo := [n for n in sequences if n not in found]:
         log.info("baselines: computing %d sequence(s) (%s)", len(todo), ", ".join(todo))
-
-        def compute(sequence: DatasetSequence) -> dict[str, BaselineResult]:
-            return baselines_of(*arguments(sequence, cached_flow_features(sequence, memory)))
-
-        computed = _parallel(compute, [loaded[n] for n in todo], n_jobs)
+        computed = _parallel(
+            lambda s: baselines_of(*arguments(s, cached_flow_features(s, memory))),
+            [loaded[n] for n in todo],
+            n_jobs,
+        )
         found |= dict(zip(todo, computed, strict=True))
     return {n: found[n] for n in sequences}
 
@@ -687,19 +644,25 @@ def _parallel(
     """``fn`` of each sequence, in order, ``n_jobs`` sequences at a time (threads).
 
     One sequence per thread, each with single-threaded torch and OpenCV: nested thread pools on a few
-    cores are many times slower. OpenCV's setting is global, so it is made around the pool; the longest
+    cores are many times slower. torch's thread count is the calling thread's (OpenMP), so it is set in
+    each call and restored after; OpenCV's is global, so it is set around the pool. The longest
     sequences start first, which balances the threads.
     """
-    from joblib import Parallel, delayed
 
-    if not sequences:
-        return []
+    def single_threaded(sequence: DatasetSequence) -> T:
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            return fn(sequence)
+        finally:
+            torch.set_num_threads(threads)
+
     order = sorted(range(len(sequences)), key=lambda i: -len(sequences[i].images))
     cv2_threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
-        computed = Parallel(n_jobs=max(1, min(n_jobs, len(sequences))), prefer="threads")(
-            delayed(_torch_single_threaded(fn))(sequences[i]) for i in order
+        computed = joblib.Parallel(n_jobs=max(1, min(n_jobs, len(sequences))), prefer="threads")(
+            joblib.delayed(single_threaded)(sequences[i]) for i in order
         )
     finally:
         cv2.setNumThreads(cv2_threads)

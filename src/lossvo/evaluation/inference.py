@@ -18,14 +18,6 @@ if TYPE_CHECKING:
     from lossvo.models import DeepVO, LSTMState
 
 
-def _device_of(module: nn.Module) -> torch.device:
-    device = getattr(module, "device", None)
-    if isinstance(device, torch.device):
-        return device
-    param = next(module.parameters(), None)
-    return param.device if param is not None else torch.device("cpu")
-
-
 Inputs = Mapping[str, "np.ndarray | Tensor"]
 """A whole sequence's inputs (:meth:`lossvo.data.datamodules.VODataModule.sequence_inputs`): ``frames``
 (N, 3, H, W) uint8, optionally ``flow`` (N - 1, 2, H, W) of each consecutive pair and ``K`` (3, 3)."""
@@ -45,15 +37,11 @@ def predict_sequence(
 
     The sequence is cut into windows as in validation: ``seq_len`` frames overlapping by one, none across
     a gap (:func:`lossvo.data.windows.tile` with ``gap``, (N - 1,) bool), each with its pairs' flow and the
-    sequence's K. By default the LSTM
-    starts from zeros in every window, which is what the network saw in training (one window per sample);
+    sequence's K. By default the LSTM starts from zeros in every window, as in training, and
     ``batch_windows`` windows go through the network in one forward pass. With ``carry_state=True`` the
-    LSTM state is carried from one window to the next (``model.forward_with_state``, DeepVO's; the windows
-    then run one after the other): an option for networks trained on longer sequences, not what training
-    does.
-
-    The module is put in eval mode (dropout off, BatchNorm running statistics) under ``torch.no_grad``,
-    and its previous mode is restored afterwards.
+    LSTM state is carried from one window to the next (DeepVO's ``model.forward_with_state``, one window
+    after the other): an option for networks trained on longer sequences, not what training does. The
+    module runs in eval mode under ``torch.no_grad``; its previous mode is restored afterwards.
 
     Args:
         module: a :class:`lossvo.training.module.VOModule` (or anything with ``forward(batch) ->
@@ -61,9 +49,6 @@ def predict_sequence(
         inputs: the sequence's :data:`Inputs` (memory maps are read window batch by window batch).
         prepare: loaded inputs -> what the network reads, e.g. the datamodule's ``prepare`` (normalised
             frames, float flow).
-        seq_len: frames per window.
-        batch_windows: windows per forward pass.
-        carry_state: carry the LSTM state across windows.
         mirror_average: also predict the mirrored sequence (:func:`lossvo.data.transforms.mirror_inputs`,
             the mirroring training uses), mirror those poses back and return each pair's average of the
             two (:func:`average_with_mirror`): twice the inference, a prediction symmetric under mirroring.
@@ -110,11 +95,10 @@ def _predict(
 ) -> np.ndarray:
     """:func:`predict_sequence` without mirror averaging, over the given ``[start, stop)`` windows."""
     n = len(inputs["frames"])
-    seq_len = max(stop - start for start, stop in windows)
-    device = _device_of(module)
+    device = next(module.parameters()).device
     was_training = module.training
     module.eval()
-    outputs: dict[int, Tensor] = {}
+    outputs: list[Tensor] = []  # per window, (stop - start - 1, 4, 4), in order
     try:
         with torch.no_grad():
             # Duck-typed (a VOModule's): nn.Module's __getattr__ would type these Tensor | Module.
@@ -122,41 +106,38 @@ def _predict(
             if carry_state:
                 model = cast("DeepVO", module.model)
                 state: LSTMState | None = None
-                for i, (start, stop) in enumerate(windows):
+                for start, stop in windows:
                     x = prepare(_load(inputs, start, stop, device))["frames"][None]
                     pred, state = model.forward_with_state(x, state)
-                    outputs[i] = decode(pred)[0].double().cpu()
+                    outputs.append(decode(pred)[0].double().cpu())
             else:
-                full = [i for i, (start, stop) in enumerate(windows) if stop - start == seq_len]
-                for group in _contiguous_groups(full, windows, batch_windows):
-                    first, last = windows[group[0]][0], windows[group[-1]][1]  # one contiguous read
+                for group in _batches(windows, batch_windows):
+                    first, last = group[0][0], group[-1][1]  # one contiguous read
                     chunk = prepare(_load(inputs, first, last, device))
-                    batch = _windows(chunk, [windows[i][0] - first for i in group], seq_len)
-                    pred = decode(module(batch)).double().cpu()  # (B, seq_len - 1, 4, 4)
-                    outputs.update(zip(group, pred, strict=True))
-                for i in sorted(set(range(len(windows))) - set(full)):  # the shorter ones (ends, gaps)
-                    start, stop = windows[i]
-                    batch = _windows(prepare(_load(inputs, start, stop, device)), [0], stop - start)
-                    outputs[i] = decode(module(batch))[0].double().cpu()
+                    batch = _windows(chunk, [start - first for start, _ in group], group[0][1] - first)
+                    outputs.extend(decode(module(batch)).double().cpu())  # (B, length - 1, 4, 4)
     finally:
         module.train(was_training)
-    relative = torch.cat([outputs[i] for i in range(len(windows))])
+    relative = torch.cat(outputs)
     if len(relative) != n - 1:  # a bug here would silently shift the whole trajectory
         raise RuntimeError(f"predicted {len(relative)} relative poses for {n} frames (expected {n - 1})")
     return relative.numpy()
 
 
-def _contiguous_groups(chosen: list[int], windows: list[tuple[int, int]], size: int) -> list[list[int]]:
-    """The ``chosen`` window indices in groups of at most ``size`` consecutive windows that overlap by one
-    frame (so that a group's frames are one contiguous read)."""
-    groups: list[list[int]] = []
-    for i in chosen:
-        group = groups[-1] if groups else None
-        if group and len(group) < size and windows[group[-1]][1] - 1 == windows[i][0]:
-            group.append(i)
+def _batches(windows: list[tuple[int, int]], size: int) -> list[list[tuple[int, int]]]:
+    """The windows, in order, in batches: up to ``size`` windows of the longest length that each overlap
+    the one before by one frame (so that a batch's frames are one contiguous read); any other window
+    alone."""
+    longest = max(stop - start for start, stop in windows)
+    batches: list[list[tuple[int, int]]] = []
+    for start, stop in windows:
+        batch = batches[-1] if batches else []
+        joins = 0 < len(batch) < size and batch[-1][1] - 1 == start
+        if joins and stop - start == longest == batch[-1][1] - batch[-1][0]:
+            batch.append((start, stop))
         else:
-            groups.append([i])
-    return groups
+            batches.append([(start, stop)])
+    return batches
 
 
 def _tensor(array: np.ndarray | Tensor) -> Tensor:

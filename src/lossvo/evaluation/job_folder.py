@@ -88,6 +88,7 @@ def _read_text(path: Path) -> str:
 # --------------------------------------------------------------------------------------------------
 
 R = TypeVar("R", bound="Record")
+S = TypeVar("S", bound="_ScoredOrNoted")
 
 
 def _path(where: str, name: str) -> str:
@@ -383,9 +384,18 @@ class Scores(Record):
     rpe_scaled: PoseErrors | None = None
 
 
-def _scored_or_noted(entry: SequenceResult | Overall, where: str) -> None:
-    if entry.scores is None and entry.note is None:
-        raise _MalformedError(f"{where}: neither scores (ape, rpe, kitti) nor a note")
+class _ScoredOrNoted(Record):
+    """A record with its scores (the object's own keys) or, without them, a ``note`` saying why."""
+
+    scores: Scores | None
+    note: str | None
+
+    @classmethod
+    def from_json(cls: type[S], obj: Any, where: str = "") -> S:
+        entry = super().from_json(obj, where)
+        if entry.scores is None and entry.note is None:
+            raise _MalformedError(f"{where}: neither scores (ape, rpe, kitti) nor a note")
+        return entry
 
 
 def _is_3x3(value: Any) -> bool:
@@ -393,7 +403,7 @@ def _is_3x3(value: Any) -> bool:
 
 
 @dataclass(frozen=True)
-class SequenceResult(Record):
+class SequenceResult(_ScoredOrNoted):
     """One evaluated sequence: its frame count, trajectory and plot files (relative to the run folder),
     the ground-truth pose file it was scored against (absolute; None without one), whether it is of a
     route family never trained on, its :class:`Scores` (None, with a ``note``, without ground
@@ -419,12 +429,6 @@ class SequenceResult(Record):
     rate_from: str | None = None
     metric_scale: bool | None = None
 
-    @classmethod
-    def from_json(cls, obj: Any, where: str = "") -> SequenceResult:
-        entry = super().from_json(obj, where)
-        _scored_or_noted(entry, where)
-        return entry
-
     def to_json(self) -> dict[str, Any]:
         out = super().to_json()
         last = {key: out.pop(key) for key in ("ground_truth", "unseen")}
@@ -432,19 +436,13 @@ class SequenceResult(Record):
 
 
 @dataclass(frozen=True)
-class Overall(Record):
+class Overall(_ScoredOrNoted):
     """Scores pooled over the evaluated ``sequences`` that have ground truth (None, with a ``note``,
     when none has); in the file the scores' keys are the object's own."""
 
     sequences: list[str] = field(metadata=NAMES)
     scores: Scores | None = field(default=None, metadata={"inline": "ape"})
     note: str | None = None
-
-    @classmethod
-    def from_json(cls, obj: Any, where: str = "") -> Overall:
-        entry = super().from_json(obj, where)
-        _scored_or_noted(entry, where)
-        return entry
 
 
 @dataclass(frozen=True)

@@ -113,6 +113,12 @@ def umeyama(x: Tensor, y: Tensor, with_scale: bool) -> tuple[Tensor, Tensor, Ten
     return r, t, c
 
 
+def check_align(mode: str) -> None:
+    """One line naming an alignment that is not one of :data:`ALIGN_MODES`."""
+    if mode not in ALIGN_MODES:
+        raise UserError(f"unknown alignment {mode!r}; expected one of {', '.join(ALIGN_MODES)}")
+
+
 def align(est: Tensor, ref: Tensor, mode: AlignMode = "none") -> Tensor:
     """The estimate aligned onto the reference as evo's ``traj_est.align(traj_ref, ...)``.
 
@@ -127,8 +133,7 @@ def align(est: Tensor, ref: Tensor, mode: AlignMode = "none") -> Tensor:
         UserError: unknown mode, different lengths, non-finite poses, N < 3 for an alignment, degenerate
             positions.
     """
-    if mode not in ALIGN_MODES:
-        raise UserError(f"unknown alignment {mode!r}; expected one of {', '.join(ALIGN_MODES)}")
+    check_align(mode)
     est, ref = _check_pair(est, ref, 1 if mode == "none" else 3)
     if mode == "none":
         return est
@@ -169,16 +174,6 @@ def _align(est: Tensor, ref: Tensor, mode: AlignMode) -> Tensor:
 
 PairsFrom = Literal["estimate", "reference"]
 PAIRS_FROM: tuple[PairsFrom, ...] = ("estimate", "reference")
-
-
-def rpe_pairs(n: int, delta: int = 1) -> tuple[Tensor, Tensor]:
-    """Index pairs ``(0, d), (d, 2d), ...`` of evo's RPE with ``all_pairs=False`` (delta in frames).
-
-    Returns:
-        i (M,), j (M,) int64 indices with M = (n - 1) // delta.
-    """
-    starts = torch.arange(0, n, delta)
-    return starts[:-1], starts[1:]
 
 
 def rpe_pairs_by_path(poses: Tensor, delta_m: float) -> tuple[Tensor, Tensor]:
@@ -265,11 +260,14 @@ def check_rpe_settings(delta: float, delta_unit: str, pairs_from: str) -> None:
 def _rpe_pairs(
     est: Tensor, ref: Tensor, delta: float, delta_unit: str, pairs_from: PairsFrom
 ) -> tuple[Tensor, Tensor]:
+    """Index pairs i (M,), j (M,) int64 of evo's RPE with ``all_pairs=False``: ``(0, d), (d, 2d), ...``
+    for d frames, :func:`rpe_pairs_by_path` for metres."""
     check_rpe_settings(delta, delta_unit, pairs_from)
     if delta_unit == "f":
         if len(est) <= delta:
             raise UserError(f"delta = {delta} frames needs more than {delta} poses, got {len(est)}")
-        return rpe_pairs(len(est), int(delta))
+        starts = torch.arange(0, len(est), int(delta))
+        return starts[:-1], starts[1:]
     i, j = rpe_pairs_by_path(ref if pairs_from == "reference" else est, float(delta))
     if len(i) == 0:
         raise UserError(f"delta = {delta} m: the {pairs_from}'s path is too short for one pair")
@@ -305,6 +303,11 @@ def statistics(errors: Tensor) -> dict[str, float]:
         "min": float(s[0]),
         "max": float(s[-1]),
     }
+
+
+def pose_statistics(trans: Tensor, rot: Tensor) -> dict[str, dict[str, float]]:
+    """``{"trans": statistics (m), "rot_rad": statistics (rad)}`` of (M,) translation and rotation errors."""
+    return {"trans": statistics(trans), "rot_rad": statistics(rot)}
 
 
 # --------------------------------------------------------------------------------------------------
@@ -440,11 +443,8 @@ class _PoseErrorMetric(Metric):
         self.rot.append(rot)
 
     def compute(self) -> dict[str, dict[str, float]]:
-        """``{"trans": statistics (m), "rot_rad": statistics (rad)}`` over all updates."""
-        return {
-            "trans": statistics(dim_zero_cat(self.trans)),
-            "rot_rad": statistics(dim_zero_cat(self.rot)),
-        }
+        """:func:`pose_statistics` over all updates."""
+        return pose_statistics(dim_zero_cat(self.trans), dim_zero_cat(self.rot))
 
 
 class APE(_PoseErrorMetric):
@@ -455,8 +455,7 @@ class APE(_PoseErrorMetric):
     """
 
     def __init__(self, align: AlignMode = "none", **kwargs: Any) -> None:
-        if align not in ALIGN_MODES:
-            raise UserError(f"unknown alignment {align!r}; expected one of {', '.join(ALIGN_MODES)}")
+        check_align(align)
         super().__init__(**kwargs)
         self.align = align
 
@@ -481,8 +480,7 @@ class RPE(_PoseErrorMetric):
         **kwargs: Any,
     ) -> None:
         check_rpe_settings(delta, delta_unit, pairs_from)
-        if align not in ALIGN_MODES:
-            raise UserError(f"unknown alignment {align!r}; expected one of {', '.join(ALIGN_MODES)}")
+        check_align(align)
         super().__init__(**kwargs)
         self.delta, self.align, self.delta_unit, self.pairs_from = delta, align, delta_unit, pairs_from
 
@@ -547,12 +545,12 @@ def evaluate(
         ``{"ape": {"trans": {...}, "rot_rad": {...}}, "rpe": {...}, "kitti": {"t_err_pct": x,
         "r_err_deg_per_100m": y}}`` (kitti values None when the sequence is too short).
     """
-    ape_t, ape_r = ape_errors(est, gt, align)
-    rpe_t, rpe_r = rpe_errors(est, gt, delta, align, delta_unit, pairs_from)
+    ape = ape_errors(est, gt, align)
+    rpe = rpe_errors(est, gt, delta, align, delta_unit, pairs_from)
     t, r = kitti_segment_errors(est, gt)
     return {
-        "ape": {"trans": statistics(ape_t), "rot_rad": statistics(ape_r)},
-        "rpe": {"trans": statistics(rpe_t), "rot_rad": statistics(rpe_r)},
+        "ape": pose_statistics(*ape),
+        "rpe": pose_statistics(*rpe),
         "kitti": _kitti_summary(float(t.sum()), float(r.sum()), t.numel()),
     }
 
@@ -588,6 +586,5 @@ def evaluate_relative(
     scaled = integrate(scale_steps(relative_t, geometry.consecutive_relative_poses(gt_t)), start=gt_t[0])
     for metric in pooled_scaled:
         metric.update(scaled, gt_t)
-    trans, rot = rpe_errors(scaled, gt_t, delta, align)
-    rpe_scaled = {"trans": statistics(trans), "rot_rad": statistics(rot)}
+    rpe_scaled = pose_statistics(*rpe_errors(scaled, gt_t, delta, align))
     return est, evaluate(gt_t, est, align, delta) | {"rpe_scaled": rpe_scaled}

@@ -32,7 +32,6 @@ from lossvo.evaluation.inference import predict_sequence
 from lossvo.evaluation.job_folder import (
     MULTI_LAYOUT,
     RESULTS,
-    TRANSLATION_METRIC,
     TRANSLATION_SCALED,
     TRANSLATIONS,
     DataRecord,
@@ -72,8 +71,6 @@ def data_record(
     trained = trained or evaluated
     stats = trained.get("statistics") or {}
     frames = trained.get("frames") or {}
-    layout, keep_every = _reading(evaluated)
-    train_layout, train_keep_every = _reading(trained)
     return DataRecord(
         kind=evaluated.get("_target_"),
         root=str(evaluated["dataset_root"]),
@@ -87,36 +84,27 @@ def data_record(
         normalization=frames.get("normalization"),
         mean=stats.get("mean"),
         std=stats.get("std"),
-        layout=layout,
-        train_layout=train_layout,
-        keep_every=keep_every,
-        train_keep_every=train_keep_every,
-        sources=_sources(evaluated) if layout == MULTI_LAYOUT else {},
-        train_sources=_sources(trained) if train_layout == MULTI_LAYOUT else {},
+        **_reading(evaluated, ""),
+        **_reading(trained, "train_"),
     )
 
 
-def _sources(description: Mapping[str, Any]) -> dict[str, SourceRecord]:
-    """Each source of a data description with several: its reading layout (:func:`_reading`), root
-    folder and every how-many-th frame kept."""
-    out = {}
+def _reading(description: Mapping[str, Any], prefix: str) -> dict[str, Any]:
+    """How a data description's sequences are read, as :class:`DataRecord`'s fields named with ``prefix``
+    (``layout``, ``keep_every``, ``sources``): its one source's layout and kept frames; for several,
+    :data:`MULTI_LAYOUT`, 1 and each source (its sequences are named ``<source>/<sequence>``)."""
+    sources = {}
     for name, source in (description.get("sources") or {}).items():
-        layout, keep_every = _reading({"sources": {name: source}})
         rendered = source.get("layout") == "synthetic"
-        out[name] = SourceRecord(layout, str(source.get("root")), keep_every, rendered)
-    return out
-
-
-def _reading(description: Mapping[str, Any]) -> tuple[str, int]:
-    """The layout a data description's sequences are read in and every how-many-th frame it keeps: its
-    one source's; ``multi`` and 1 for several sources (each sequence is named ``<source>/<sequence>``)."""
-    sources = list((description.get("sources") or {}).values())
-    if len(sources) != 1:
-        return MULTI_LAYOUT, 1
-    layout = str(sources[0].get("layout"))
-    if layout == "synthetic":
-        layout = str(sources[0].get("render_layout") or "kitti")
-    return layout, int(sources[0].get("keep_every") or 1)
+        layout = str(source.get("render_layout") or "kitti") if rendered else str(source.get("layout"))
+        keep_every = int(source.get("keep_every") or 1)
+        sources[name] = SourceRecord(layout, str(source.get("root")), keep_every, rendered)
+    one = next(iter(sources.values())) if len(sources) == 1 else None
+    return {
+        f"{prefix}layout": one.layout if one else MULTI_LAYOUT,
+        f"{prefix}keep_every": one.keep_every if one else 1,
+        f"{prefix}sources": {} if one else sources,
+    }
 
 
 class PooledScores:
@@ -246,28 +234,32 @@ def evaluate_run(
     pooled = PooledScores(align, delta, sync=False)
     loss = cast("PoseLoss", module.loss)
     record = LossRecord(type(loss).__name__, loss.k)
+    label = f"estimate ({record.name}, k={record.k:g})" if record.k is not None else "estimate"
     translation = translation_record(module)
-    unseen = set(datamodule.splits["unseen"])
     per_sequence: dict[str, SequenceResult] = {}
     for name in sequences:
         gt = _ground_truth(datamodule, name)
         est, scores = predict_and_score(
             module, datamodule, name, gt, pooled, carry_state, mirror_average=mirror_average
         )
-        times = datamodule.sequence_times(name)
-        entry = _sequence_result(
-            name,
-            est,
-            gt,
-            scores,
-            out_dir,
-            record,
-            times,
-            name in unseen,
-            translation,
-            _pose_file(datamodule, name, gt),
+        scaled = translation == TRANSLATION_SCALED and gt is not None
+        legend = f"{label}, steps scaled to the ground truth's" if scaled else label
+        files = _write_sequence(out_dir, name, est, gt, datamodule.sequence_times(name), legend)
+        if scores is None:
+            log.info("sequence %s: %s", name, NO_GT_NOTE)
+        else:
+            ape, rpe = scores["ape"]["trans"]["rmse"], scores["rpe"]["trans"]["rmse"]
+            log.info("sequence %s: APE trans RMSE %.4g m, RPE trans RMSE %.4g m", name, ape, rpe)
+        per_sequence[name] = SequenceResult(
+            len(est),
+            *files[:2],
+            ground_truth=_pose_file(datamodule, name, gt) or files[2],
+            unseen=name in datamodule.splits["unseen"],
+            scores=None if scores is None else _scores(scores),
+            note=NO_GT_NOTE if scores is None else None,
+            K=datamodule.intrinsics(name).tolist(),
+            **_rate(datamodule, name),
         )
-        per_sequence[name] = replace(entry, K=datamodule.intrinsics(name).tolist(), **_rate(datamodule, name))
     evaluated = [name for name, entry in per_sequence.items() if entry.scores is not None]
     computed = pooled.compute()
     overall = Overall([], note=NO_METRICS_NOTE) if computed is None else Overall(evaluated, _scores(computed))
@@ -333,43 +325,20 @@ def _pose_file(datamodule: VODataModule, name: str, gt: np.ndarray | None) -> st
     return str(pose_path(datamodule.dataset_root(), name))
 
 
-def _sequence_result(
-    name: str,
-    est: Tensor,
-    gt: np.ndarray | None,
-    scores: dict[str, Any] | None,
-    out_dir: Path,
-    loss: LossRecord,
-    times: np.ndarray,
-    unseen: bool,
-    translation: str = TRANSLATION_METRIC,
-    pose_file: str | None = None,
-) -> SequenceResult:
-    """One sequence's trajectory files, plot and entry in ``results.json``, from :func:`predict_and_score`'s
-    trajectory and scores; ``times`` (N,) s of its frames. The entry's ground truth is ``pose_file`` (the
-    dataset's KITTI pose file) where given, else the ``_gt.tum`` written here."""
+def _write_sequence(
+    out_dir: Path, name: str, est: Tensor, gt: np.ndarray | None, times: np.ndarray, label: str
+) -> tuple[str, str, str | None]:
+    """One sequence's files in ``out_dir``: the estimate (N, 4, 4) in KITTI and TUM format, the ground truth
+    in TUM format (``_gt.tum``, where there is one), a plot of both (``label``: the estimate's legend);
+    ``times`` (N,) s of its frames. Returns the trajectory's and the plot's paths relative to ``out_dir``
+    and the ``_gt.tum``'s absolute path (None without ground truth)."""
     stem = file_stem(name)
     trajectory, plot = f"trajectories/{stem}.txt", f"plots/{stem}.png"
     write_tum(out_dir / f"trajectories/{stem}.tum", times, est)
     gt_file = None
     if gt is not None:
         write_tum(out_dir / f"trajectories/{stem}_gt.tum", times, gt)
-        gt_file = pose_file or str((out_dir / f"trajectories/{stem}_gt.tum").resolve())
-    if scores is None:
-        entry = SequenceResult(len(est), trajectory, plot, gt_file, unseen, note=NO_GT_NOTE)
-        log.info("sequence %s: %s", name, NO_GT_NOTE)
-    else:
-        typed = _scores(scores)
-        entry = SequenceResult(len(est), trajectory, plot, gt_file, unseen, typed)
-        log.info(
-            "sequence %s: APE trans RMSE %.4g m, RPE trans RMSE %.4g m",
-            name,
-            typed.ape.trans.rmse,
-            typed.rpe.trans.rmse,
-        )
+        gt_file = str((out_dir / f"trajectories/{stem}_gt.tum").resolve())
     write_poses(out_dir / trajectory, est)
-    label = f"estimate ({loss.name}, k={loss.k:g})" if loss.k is not None else "estimate"
-    if translation == TRANSLATION_SCALED and gt is not None:
-        label += ", steps scaled to the ground truth's"
     plot_birdseye(out_dir / plot, gt, {label: est.numpy()}, f"sequence {name}")
-    return entry
+    return trajectory, plot, gt_file
