@@ -143,17 +143,12 @@ class Plan:
         return [sys.executable, "-m", "lossvo.report", str(self.sweep_dir)]
 
 
-def claim_comparisons(losses: Sequence[str]) -> int:
-    """The comparisons in a claim's family: the claimed loss against each other loss (at least one)."""
-    return max(len(losses) - 1, 1)
-
-
 def seed_warning(seeds: Sequence[int], losses: Sequence[str] = LOSSES, alpha: float = ALPHA) -> str | None:
     """The warning for too few seeds to decide a claim about ``losses``, else None. A claim's p-values come
     from exact tests over seeds, whose smallest two-sided p with n seeds is ``2 / 2**n``, Holm-corrected
-    over the claim's comparisons (:func:`claim_comparisons`; :mod:`lossvo.report.statistics`): 6 seeds
-    decide one comparison at 0.05, 7 the two of a claim about three losses."""
-    n, m = len(seeds), claim_comparisons(losses)
+    over the claim's comparisons (the claimed loss against each other one; :mod:`lossvo.report.statistics`):
+    6 seeds decide one comparison at 0.05, 7 the two of a claim about three losses."""
+    n, m = len(seeds), max(len(losses) - 1, 1)
     if statistics.can_decide(n, m, alpha):
         return None
     needed = statistics.min_seeds(m, alpha)
@@ -672,11 +667,6 @@ def run(plan: Plan, floor: Floor | None = None) -> int:
     return report if report != 0 else status
 
 
-def estimate(plan: Plan, job_gib: float) -> tuple[str, Floor | None]:
-    """The plan's one line: :func:`gpu_line` on a GPU (no floor), :func:`cpu_estimate` on the CPU."""
-    return (gpu_line(plan, job_gib), None) if plan.gpu else cpu_estimate(plan)
-
-
 @one_line_main
 def main(argv: list[str] | None = None) -> int:
     """Warn about too few seeds, plan, print the estimate and the sweep's command; unless ``--dry-run``,
@@ -691,7 +681,7 @@ def main(argv: list[str] | None = None) -> int:
         plan = plan_study(args, torch.cuda.is_available(), job_gib, sweep_dir)
     except OmegaConfBaseException as e:  # a study's override that does not resolve
         raise UserError(one_line(e)) from None
-    line, floor = estimate(plan, job_gib)
+    line, floor = (gpu_line(plan, job_gib), None) if plan.gpu else cpu_estimate(plan)
     emit(line)
     for command in plan.sweep_commands():
         emit(shlex.join(["python", *command[1:]]))

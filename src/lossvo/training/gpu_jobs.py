@@ -21,13 +21,12 @@ from typing import Any
 
 import joblib
 import torch
-from hydra.core.override_parser.overrides_parser import OverridesParser
-from hydra.core.override_parser.types import Override
 from hydra.errors import HydraException
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from lossvo.console import UserError, exit_in_one_line, first_line
+from lossvo.training import config_checks
 from lossvo.training.config_checks import CUDA_ACCELERATORS, check_accelerator
 from lossvo.training.slurm import SLURM_LAUNCHER
 
@@ -95,18 +94,9 @@ def sweep_jobs(overrides: Sequence[str], params: Mapping[str, Any] | None = None
     ``hydra.sweeper.params``; None where it cannot tell (a sweep the basic sweeper does not expand)."""
     given = [f"{key}={value}" for key, value in (params or {}).items()] + list(overrides)
     try:
-        parsed = OverridesParser.create().parse_overrides(given)
-        if any(o.is_sweep_override() and not o.is_discrete_sweep() for o in parsed):
-            return None
-        sizes = {o.get_key_element(): _values_of(o) for o in parsed}  # a key given twice: the last counts
-    except HydraException:  # a sweep that needs the config to expand (glob)
+        return len(config_checks.sweep_jobs(given))
+    except HydraException:  # a sweep the basic sweeper refuses (interval), or one needing the config (glob)
         return None
-    return math.prod(sizes.values())
-
-
-def _values_of(override: Override) -> int:
-    """The values one override takes in a sweep: one, or each value of its discrete sweep."""
-    return len(list(override.sweep_string_iterator())) if override.is_sweep_override() else 1
 
 
 def trains_on_cuda(accelerator: str, cuda_available: bool) -> bool:

@@ -27,22 +27,7 @@ from omegaconf import ListConfig, OmegaConf
 from lossvo import weighting
 from lossvo.losses import PoseLoss
 
-PATH_SAFE = str.maketrans(
-    {
-        "/": "_",
-        "=": "-",
-        ",": "+",
-        " ": None,
-        "'": None,
-        '"': None,
-        "[": None,
-        "]": None,
-        "{": None,
-        "}": None,
-        "(": None,
-        ")": None,
-    }
-)
+PATH_SAFE = str.maketrans("/=,", "_-+", " '\"[]{}()")
 """Characters of overrides that Hydra's override grammar does not take unquoted (or that would nest
 folders), and what they become in a job folder's name."""
 
