@@ -1,12 +1,8 @@
-"""Checks of a composed training config before anything is built.
-
-The settings that Lightning, torch or the data loader would otherwise refuse deep inside a run (or
-misread without a word) are checked first, each failure a :class:`~lossvo.console.UserError` naming the
-key, the value and what was expected, e.g. ``data.windows.batch_size: expected an integer >= 1, got 0``.
-The types of the data settings are checked where Hydra composes the config (their schema:
-:class:`lossvo.data.specs.Data`); the constructors check the rest
-(:class:`lossvo.data.datamodules.VODataModule`),
-:func:`lossvo.weighting.check_config` the loss weights.
+"""Checks of a composed training config before anything is built: the settings that Lightning, torch or
+the data loader would otherwise refuse deep inside a run (or misread without a word), each failure a
+:class:`~lossvo.console.UserError` naming the key, the value and what was expected, e.g.
+``trainer.max_epochs: expected an integer >= 1, or -1 for no limit, got 0``. The data settings are
+checked by their schema (:class:`lossvo.data.specs.Data`) and the data module's constructor.
 """
 
 from __future__ import annotations
