@@ -1,14 +1,7 @@
-"""Several training jobs at once on one GPU: how many fit, and the check before a sweep starts.
-
-A sweep on a GPU runs its jobs side by side, each in a process of its own (Hydra's joblib launcher), all on
-the one GPU. :func:`jobs_that_fit` is ``min(cpus, free // job)``: each job's Python loop needs a core, and
-the memory one job needs is ``hydra.callbacks.gpu_jobs.job_memory_gib`` in ``conf/train.yaml`` (GiB; what it
+"""Several training jobs at once on one GPU (each a process of Hydra's joblib launcher): how many fit,
+and the check before a sweep starts (:class:`GpuJobsCheck`, the Hydra callback ``hydra.callbacks.gpu_jobs``).
+The memory one job needs is ``hydra.callbacks.gpu_jobs.job_memory_gib`` in ``conf/train.yaml`` (what it
 covers and how to measure it: docs/sweep.md).
-
-:class:`GpuJobsCheck` is a Hydra callback (``hydra.callbacks.gpu_jobs``). Before a sweep trains on a local
-CUDA GPU it refuses, in one line with exit status 2, a trainer that asks for a GPU where there is none, and
-jobs at once (``hydra.launcher.n_jobs``) that do not fit the GPU's free memory. Hydra turns a callback's
-exceptions into warnings, so the callback ends the command itself.
 """
 
 from __future__ import annotations
@@ -47,12 +40,8 @@ class GpuMemoryError(UserError):
 
 
 def jobs_that_fit(free_bytes: int, job_bytes: int, cpus: int) -> int:
-    """How many jobs run at once on one GPU: ``min(cpus, free_bytes // job_bytes)`` (0 when not one fits).
-
-    Args:
-        free_bytes: the GPU's free memory, bytes; job_bytes: the memory one job needs, bytes (> 0);
-        cpus: the CPU cores the jobs may use (one a job).
-    """
+    """How many jobs run at once on one GPU: ``min(cpus, free_bytes // job_bytes)`` (0 when not one fits):
+    each job's Python loop needs a core, and its memory (``job_bytes`` > 0) of the GPU's free bytes."""
     return max(0, min(cpus, free_bytes // job_bytes))
 
 
@@ -118,12 +107,9 @@ class GpuJobsCheck(Callback):
     """Before a sweep on this machine trains: a trainer asking for a CUDA GPU where there is none
     (:func:`~lossvo.training.config_checks.check_accelerator`), and, on a GPU with the joblib launcher,
     the jobs at once fitting its free memory (:func:`check_jobs_fit`). Either refusal ends the command in
-    one line (``error: ...``) with exit status 2 (:func:`~lossvo.console.exit_in_one_line`). Nothing is
-    checked under SLURM, whose nodes are not this machine.
-
-    Args:
-        job_memory_gib: the GPU memory one job needs, GiB (> 0).
-    """
+    one line with exit status 2 (:func:`~lossvo.console.exit_in_one_line`: Hydra turns a callback's
+    exceptions into warnings). Nothing is checked under SLURM, whose nodes are not this machine.
+    ``job_memory_gib``: the GPU memory one job needs, GiB (> 0)."""
 
     def __init__(self, job_memory_gib: float) -> None:
         self.job_memory_gib = job_memory_gib

@@ -13,12 +13,12 @@ contract, case by case: docs/training.md.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
@@ -261,6 +261,19 @@ def _user_error(run: Run, message: str) -> BaseException:
     return SystemExit(2)
 
 
+def _end(run: Run, error: Exception, cleanup: Callable[[Run, Exception], None]) -> NoReturn:
+    """Called in an ``except`` block: a user error (:func:`~lossvo.console.user_message`) ends the job in
+    one line (:func:`_user_error`), printed before ``cleanup(run, error)`` may remove the folder its log is
+    in; any other error, or any with ``LOSSVO_FULL_ERROR=1``, is raised as it is after ``cleanup``."""
+    message = user_message(error, run.out_dir)
+    if message is None or full_error():
+        cleanup(run, error)
+        raise error
+    ending = _user_error(run, message)
+    cleanup(run, error)
+    raise ending from None
+
+
 def _leave(run: Run) -> None:
     """An error before the run started: a sweep job's folder records the failure for the report; a single
     run's folder goes as :func:`_remove_made` says."""
@@ -328,17 +341,10 @@ def _held(run: Run) -> Iterator[None]:
     with ExitStack() as stack:
         try:
             held = stack.enter_context(folder_lock.held(run.out_dir, details))
-        except folder_lock.FolderInUseError as e:
-            if full_error():
-                raise
-            raise _user_error(run, str(e)) from None
+        except folder_lock.FolderInUseError as e:  # another process's folder: nothing of it goes
+            _end(run, e, lambda *_: None)
         except OSError as e:  # a full or read-only disk before the run starts
-            message = user_message(e, run.out_dir)
-            if message is None or full_error():
-                raise
-            error = _user_error(run, message)
-            _remove_made(run)
-            raise error from None
+            _end(run, e, lambda run, _: _remove_made(run))
         run.guarded = held.guarded
         yield
 
@@ -381,12 +387,7 @@ def _run_in(run: Run) -> Iterator[Run]:
     try:
         _accept(run)
     except UserError as e:
-        if full_error():
-            _failed(run, e)
-            raise
-        error = _user_error(run, one_line(e))  # before the folder goes: the log opens train.log in it
-        _failed(run, e)
-        raise error from None
+        _end(run, e, _failed)
     if run.completed is not None:
         log.info("%s: already completed (resume=true): %s%s", run.label, out_dir / STATUS, _longer(run))
         yield run
@@ -401,12 +402,6 @@ def _run_in(run: Run) -> Iterator[Run]:
         _interrupted(run, stop)
         raise SystemExit(stop.exit_code) from None
     except Exception as e:
-        message = user_message(e, out_dir)
-        if message is None or full_error():
-            if message is None:
-                log.error("%s failed: %s: %s", run.label, type(e).__name__, e)
-            _failed(run, e)
-            raise
-        error = _user_error(run, message)  # before the folder goes: the log opens train.log in it
-        _failed(run, e)
-        raise error from None
+        if user_message(e, out_dir) is None:
+            log.error("%s failed: %s: %s", run.label, type(e).__name__, e)
+        _end(run, e, _failed)
