@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import torch
 from hydra.utils import get_class
@@ -25,6 +25,9 @@ from torch import Tensor, nn
 
 from lossvo.checks import is_number
 from lossvo.console import UserError
+
+if TYPE_CHECKING:
+    from lossvo.losses import PoseLoss
 
 DEFAULT_C = 100.0
 """The matched preset's small-angle rotation weight: the study's Euler k1, whose gain is 1."""
@@ -39,29 +42,26 @@ def check_c(c: Any) -> float:
     return float(c)
 
 
-def matched_k(gain: float, c: float = DEFAULT_C) -> float:
-    """The k that makes a rotation term of small-angle gain ``gain`` equal to ``c * theta^2``."""
-    return check_c(c) / gain
-
-
-def _loss_class(target: str) -> Any:
+def loss_class(target: str) -> type[PoseLoss]:
+    """The pose loss class a loss config's ``_target_`` names; UserError for any other class."""
     cls = get_class(target)
     if not hasattr(cls, "small_angle_gain"):
         raise UserError(f"loss._target_: {target} is not a lossvo pose loss (no small_angle_gain)")
-    return cls
+    return cast("type[PoseLoss]", cls)
 
 
 def preset_k(target: str, preset: str, c: float = DEFAULT_C, squared: bool = True) -> float | None:
     """The k of a weighting preset for the loss class named ``target`` (None for ``learned``, and for
-    a rotation term without a theta^2 gain under ``matched``: the loss then asks for an explicit k)."""
+    a rotation term without a theta^2 gain under ``matched``: the loss then asks for an explicit k); the
+    matched k makes the rotation term ``c * theta^2`` at small errors."""
     if preset not in PRESETS:
         raise UserError(f"weighting.preset: expected one of {PRESETS}, got {preset!r}")
-    cls = _loss_class(target)
+    cls = loss_class(target)
     if preset == "learned":
         return None
     if preset == "paper":
         return float(cls.paper_k)
-    return matched_k(cls.small_angle_gain, c) if squared else None
+    return check_c(c) / cls.small_angle_gain if squared else None
 
 
 def check_k(k: Any, learned: bool) -> None:
