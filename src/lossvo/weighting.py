@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any, cast
+from typing import Any
 
 import torch
 from hydra.utils import get_class
@@ -25,9 +25,6 @@ from torch import Tensor, nn
 
 from lossvo.checks import is_number
 from lossvo.console import UserError
-
-if TYPE_CHECKING:
-    from lossvo.losses import PoseLoss
 
 DEFAULT_C = 100.0
 """The matched preset's small-angle rotation weight: the study's Euler k1, whose gain is 1."""
@@ -42,12 +39,13 @@ def check_c(c: Any) -> float:
     return float(c)
 
 
-def loss_class(target: str) -> type[PoseLoss]:
-    """The pose loss class a loss config's ``_target_`` names; UserError for any other class."""
+def loss_class(target: str) -> Any:
+    """The pose loss class (a :class:`lossvo.losses.PoseLoss`) a loss config's ``_target_`` names;
+    UserError for any other class."""
     cls = get_class(target)
     if not hasattr(cls, "small_angle_gain"):
         raise UserError(f"loss._target_: {target} is not a lossvo pose loss (no small_angle_gain)")
-    return cast("type[PoseLoss]", cls)
+    return cls
 
 
 def preset_k(target: str, preset: str, c: float = DEFAULT_C, squared: bool = True) -> float | None:
