@@ -27,8 +27,6 @@ GIB = 2**30
 """Bytes in a GiB."""
 
 JOBLIB_LAUNCHER = "hydra_plugins.hydra_joblib_launcher.joblib_launcher.JoblibLauncher"
-BASIC_SWEEPER = "BasicSweeper"
-"""The class name of Hydra's basic sweeper (the last part of its ``hydra.sweeper._target_``)."""
 JOB_MEMORY_KEY = "hydra.callbacks.gpu_jobs.job_memory_gib"
 """The config key of the GPU memory one job needs (GiB)."""
 
@@ -98,7 +96,7 @@ def at_once_of(config: DictConfig) -> int:
     where the sweeper is Hydra's basic one."""
     hydra = config.hydra
     size = None
-    if str(hydra.sweeper.get("_target_", "")).rsplit(".", 1)[-1] == BASIC_SWEEPER:
+    if str(hydra.sweeper.get("_target_", "")).endswith(".BasicSweeper"):
         size = sweep_jobs([str(o) for o in hydra.overrides.task], hydra.sweeper.get("params"))
     return jobs_at_once(int(hydra.launcher.n_jobs), size)
 
