@@ -72,11 +72,6 @@ class JobFailedError(UserError):
         )
 
 
-USER_ERRORS = (UserError,)
-"""Errors that are the user's by their type: :class:`UserError` only. ``ValueError``, ``TypeError`` and
-``ImportError`` are not: they keep their traceback (a library's refusal of a user's value is turned into
-a :class:`UserError` naming the key or file where lossvo calls it)."""
-
 DISK_ERRORS = (
     errno.ENOSPC,
     errno.EDQUOT,
@@ -235,8 +230,7 @@ def _typed_override(error: HydraException) -> str | None:
 def hydra_message(error: HydraException) -> str:
     """One line for a Hydra error: an unknown config group option with the options there are, an
     override of a key the config lacks, an override that does not parse, an override of the wrong type
-    for its key's schema (:func:`typed_value_message`), an object that cannot be instantiated from its
-    config (named by its key)."""
+    for its key's schema (:func:`typed_value_message`)."""
     text = str(error)
     typed = _typed_override(error)
     if typed is not None:
@@ -245,16 +239,6 @@ def hydra_message(error: HydraException) -> str:
         return f"{first_line(text)} (available: {', '.join(error.options)})"
     if isinstance(error, OverrideParseException):
         return f"override {error.override!r}: {first_line(error.message)}"
-    if isinstance(error, InstantiationException):
-        key = next(
-            (line.split(":", 1)[1].strip() for line in text.splitlines() if line.startswith("full_key:")), ""
-        )
-        cause = error.__cause__
-        if isinstance(cause, ImportError):  # the _target_ does not import
-            target = match.group(1) if (match := re.search(r"target '([^']*)'", text)) else "?"
-            return f"{key}._target_: cannot import {target!r} ({first_line(cause.__cause__ or cause)})"
-        reason = one_line(cause) if cause is not None else first_line(text)
-        return reason if not key or reason.startswith(key) else f"{key}: {reason}"
     lines = [line.strip() for line in text.splitlines() if line.strip()]
     head = lines[0].rstrip(".") if lines else type(error).__name__
     if error.__cause__ is not None:
@@ -282,28 +266,39 @@ def _config_mismatch(error: InstantiationException, cause: TypeError) -> bool:
     return re.match(rf"{name}(\.__init__)?\(\) {mismatch}", str(cause)) is not None
 
 
+def _instantiation_message(error: InstantiationException, folder: object) -> str | None:
+    """One line, named by its key, for an object Hydra cannot instantiate from its config: its
+    ``_target_`` does not import, it is called with keys its signature lacks, or it refuses a value with a
+    user error (:func:`user_message`); None where it fails otherwise (an import inside it, a bug)."""
+    text, cause = str(error), error.__cause__
+    if isinstance(cause, OSError):
+        return user_message(cause, folder)
+    key = found.group(1).strip() if (found := re.search(r"^full_key:(.*)$", text, re.MULTILINE)) else ""
+    if isinstance(cause, ImportError) and "Error locating target" in text:
+        target = match.group(1) if (match := re.search(r"target '([^']*)'", text)) else "?"
+        return f"{key}._target_: cannot import {target!r} ({first_line(cause.__cause__ or cause)})"
+    mismatch = isinstance(cause, TypeError) and _config_mismatch(error, cause)
+    if cause is None or not (mismatch or user_message(cause, folder)):
+        return None
+    reason = one_line(cause)
+    return reason if not key or reason.startswith(key) else f"{key}: {reason}"
+
+
 def user_message(error: BaseException, folder: object = None) -> str | None:
     """The one line of a user error, or None for an error that keeps its traceback.
 
-    User errors: :data:`USER_ERRORS`, Lightning's ``MisconfigurationException``, a disk error
+    User errors: :class:`UserError`, Lightning's ``MisconfigurationException``, a disk error
     (:func:`disk_error`, naming ``folder`` where the error names no file), a config that Hydra cannot
     compose or an override that does not parse, and an object Hydra cannot instantiate because its
     ``_target_`` does not import or its constructor refuses a value with one of these errors.
     """
     if isinstance(error, InstantiationException):
-        cause = error.__cause__
-        if isinstance(cause, ImportError) and "Error locating target" in str(error):
-            return hydra_message(error)  # a _target_ that does not import, not an import inside it
-        if isinstance(cause, OSError):
-            return user_message(cause, folder)
-        if isinstance(cause, TypeError) and _config_mismatch(error, cause):
-            return hydra_message(error)
-        return hydra_message(error) if cause is not None and user_message(cause, folder) else None
+        return _instantiation_message(error, folder)
     if isinstance(error, CompactHydraException):  # before OSError: MissingConfigException is an IOError
         return hydra_message(error)
     if isinstance(error, OSError):
         return disk_error(error, folder)
-    if isinstance(error, USER_ERRORS) or _lightning_misconfiguration(error):
+    if isinstance(error, UserError) or _lightning_misconfiguration(error):
         return one_line(error)
     return None
 
@@ -425,12 +420,9 @@ _RANK_ZERO_LOGGERS = ("lightning.pytorch.utilities.rank_zero", "lightning.fabric
 """The loggers of Lightning's ``rank_zero_info``."""
 
 
-class _NoTips(logging.Filter):
-    """Drops log records that are one of :data:`LIGHTNING_TIPS`."""
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        message = str(record.msg)
-        return not any(tip in message for tip in LIGHTNING_TIPS)
+def _no_tips(record: logging.LogRecord) -> bool:
+    """A log filter dropping the records that are one of :data:`LIGHTNING_TIPS`."""
+    return not any(tip in str(record.msg) for tip in LIGHTNING_TIPS)
 
 
 def quiet_lightning() -> None:
@@ -440,5 +432,5 @@ def quiet_lightning() -> None:
         warnings.filterwarnings("ignore", message=hint)
     for name in _RANK_ZERO_LOGGERS:
         logger = logging.getLogger(name)
-        if not any(isinstance(f, _NoTips) for f in logger.filters):
-            logger.addFilter(_NoTips())
+        if _no_tips not in logger.filters:
+            logger.addFilter(_no_tips)

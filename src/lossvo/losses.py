@@ -56,12 +56,9 @@ class PoseLoss(nn.Module):
         k: rotation weight; None: the matched weighting ``100 / small_angle_gain``.
         learned: initial log-variances ``{"s_t": .., "s_r": ..}`` for the learned (homoscedastic)
             weighting instead of k (then k must be None).
-        translation: ``"metric"`` (``|t - t^|^2``, the study's); ``"direction"``: the direction only,
-            ``DIRECTION_WEIGHT_M2 * |t / |t| - t^ / |t^||^2`` (:meth:`translation_term`), metric scale
-            then coming from evaluation, which scales each step to the ground-truth length; or ``"cue"``:
-            metric on the windows whose platform gives metric scale a cue (the batch's ``metric`` flag), on
-            the others the step scaled to the target's length, ``|t |t^| / |t| - t^|^2``, as their
-            translation is scored (the scale-given RPE).
+        translation: one of :data:`TRANSLATIONS` (:meth:`translation_term`): ``"metric"`` is the
+            study's; with ``"direction"`` metric scale comes from evaluation, which scales each step to
+            the ground-truth length; ``"cue"`` scores as the scale-given RPE where there is no cue.
     """
 
     dim: int
@@ -116,25 +113,12 @@ class PoseLoss(nn.Module):
         raise NotImplementedError
 
     def rotation_term(self, pred: Tensor, R: Tensor, R_target: Tensor) -> Tensor:
-        """Unweighted rotation term per pair.
-
-        Args:
-            pred: (..., dim) raw network output.
-            R: (..., 3, 3) rotations decoded from ``pred``.
-            R_target: (..., 3, 3) target rotations.
-        Returns:
-            (...) non-negative values.
-        """
+        """Unweighted rotation term per pair (...), >= 0, of the raw output ``pred`` (..., dim), the
+        rotations decoded from it ``R`` (..., 3, 3) and the targets ``R_target`` (..., 3, 3)."""
         raise NotImplementedError
 
     def decode(self, pred: Tensor) -> Tensor:
-        """Relative poses encoded by the network output.
-
-        Args:
-            pred: (..., dim) network output.
-        Returns:
-            (..., 4, 4) relative poses ``T_k`` (frame k+1 seen from frame k).
-        """
+        """Relative poses (..., 4, 4) ``T_k`` (frame k+1 seen from frame k) of network outputs (..., dim)."""
         self._check_pred(pred)
         return g.make_pose(*self.decode_rt(pred))
 
@@ -185,24 +169,19 @@ class PoseLoss(nn.Module):
     ) -> tuple[Tensor, Tensor]:
         """The translation term per pair and the yardstick ``trans_err_m`` (its mean, no gradient).
 
-        For a direction error alpha, ``|u - u^|^2 = 2 - 2 cos(alpha) = alpha^2 + O(alpha^4)``: the
-        direction term equals the metric term of a 1 m step of the right length. ``|t|`` is floored at
-        :data:`MIN_STEP_M` (finite value and gradient at ``t = 0``); a ground-truth step shorter than it
-        has no direction and no term, and the mean still divides by all pairs.
-
-        ``cue``: the metric term where ``metric`` is true, elsewhere the scale-given term
-        ``|t |t^| / |t| - t^|^2``, in m^2 as the metric term is (a step's direction error alpha costs
-        ``|t^|^2 alpha^2``: short steps, whose direction is least observable, weigh least), with ``|t|``
-        floored as above; one kernel path for both (no host synchronisation).
+        ``direction``: ``DIRECTION_WEIGHT_M2 * |u - u^|^2`` of the unit steps; for a direction error alpha
+        ``|u - u^|^2 = 2 - 2 cos(alpha) = alpha^2 + O(alpha^4)``, the metric term of a 1 m step of the right
+        length. A ground-truth step shorter than :data:`MIN_STEP_M` has no term (the mean still divides by
+        all pairs). ``cue``: the metric term where ``metric`` is true, elsewhere the scale-given term
+        ``|t |t^| / |t| - t^|^2`` in m^2 (a direction error alpha costs ``|t^|^2 alpha^2``: short steps,
+        whose direction is least observable, weigh least), one kernel path for both.
 
         Args:
-            t: (B, ..., 3) decoded translations (metres).
-            t_target: (B, ..., 3) target translations (metres).
+            t, t_target: (B, ..., 3) decoded and target translations (metres).
             metric: (B,) bool for ``cue`` (None: every window metric).
         Returns:
-            (B, ...) terms: ``|t - t^|^2`` (``metric``), the direction term (``direction``, 0 where
-            ``|t^| < MIN_STEP_M``) or either (``cue``); and the scalar mean of ``|t - t^|`` on metric
-            pairs and of ``|t / |t| * |t^| - t^|`` on the others.
+            (B, ...) terms, and the scalar mean of ``|t - t^|`` on metric pairs and of
+            ``|t / |t| * |t^| - t^|`` on the others (metres).
         """
         if self.translation == "cue" and metric is not None:
             return self._cue_term(t, t_target, metric)

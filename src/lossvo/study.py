@@ -81,10 +81,9 @@ process (no trim below 16 GiB), 256 MiB of headroom. Fewer page faults, the same
 0.865x (experiments/2026-12-07-camera-arm-cost.md)."""
 
 JOB_OVERHEAD_S = 15.0
-"""Seconds a job spends outside its training steps and inference passes, stated: the process's start
-(Python, torch and Lightning imports and composing the config: ~6 s on 2 CPU cores, measured as a
-refused ``python -m lossvo.train``), opening the data cache, writing checkpoints, and the evaluation's
-metrics, trajectories and plots."""
+"""Seconds a job spends outside its training steps and inference passes: the process's start (~6 s on 2
+CPU cores, measured as a refused ``python -m lossvo.train``), opening the data cache, writing checkpoints,
+and the evaluation's metrics, trajectories and plots."""
 
 CALIBRATION_STEPS = 8
 """Training steps timed for each architecture; the first two warm up and are not counted."""
@@ -143,17 +142,12 @@ class Plan:
         return [sys.executable, "-m", "lossvo.report", str(self.sweep_dir)]
 
 
-def claim_comparisons(losses: Sequence[str]) -> int:
-    """The comparisons in a claim's family: the claimed loss against each other loss (at least one)."""
-    return max(len(losses) - 1, 1)
-
-
 def seed_warning(seeds: Sequence[int], losses: Sequence[str] = LOSSES, alpha: float = ALPHA) -> str | None:
     """The warning for too few seeds to decide a claim about ``losses``, else None. A claim's p-values come
     from exact tests over seeds, whose smallest two-sided p with n seeds is ``2 / 2**n``, Holm-corrected
-    over the claim's comparisons (:func:`claim_comparisons`; :mod:`lossvo.report.statistics`): 6 seeds
-    decide one comparison at 0.05, 7 the two of a claim about three losses."""
-    n, m = len(seeds), claim_comparisons(losses)
+    over the claim's comparisons (the claimed loss against each other one; :mod:`lossvo.report.statistics`):
+    6 seeds decide one comparison at 0.05, 7 the two of a claim about three losses."""
+    n, m = len(seeds), max(len(losses) - 1, 1)
     if statistics.can_decide(n, m, alpha):
         return None
     needed = statistics.min_seeds(m, alpha)
@@ -271,8 +265,8 @@ class Calibration:
 
 
 class _StepTimes(Callback):
-    """Wall time of each training batch (its forward, loss, backward and optimiser step), seconds, and
-    the FLOPs of the first (a warm-up step, not timed: counting slows it)."""
+    """Wall time of each training batch, seconds, and the FLOPs of the first (a warm-up step, not timed:
+    counting slows it)."""
 
     def __init__(self) -> None:
         self.seconds: list[float] = []
@@ -339,9 +333,8 @@ def _quiet() -> Iterator[None]:
 
 
 def time_training_step(cfg: DictConfig) -> tuple[float, float]:
-    """Median seconds of a training step of the job's network, loss and optimiser on the CPU, through
-    Lightning, on batches of the config's shape (:data:`CALIBRATION_STEPS`, the first two not counted),
-    and the FLOPs of one step."""
+    """Median seconds of a training step on the CPU, through Lightning, on batches of the config's shape
+    (:data:`CALIBRATION_STEPS`, the first two not counted), and the FLOPs of one step."""
     windows = cfg.data.windows
     batches = [_batch(cfg, int(windows.batch_size), int(windows.seq_len)) for _ in range(CALIBRATION_STEPS)]
     timer = _StepTimes()
@@ -363,10 +356,9 @@ def time_training_step(cfg: DictConfig) -> tuple[float, float]:
 
 
 def time_inference_pair(cfg: DictConfig, windows_per_pass: int = 32) -> tuple[float, float]:
-    """Seconds a frame pair takes in one inference pass over a sequence (eval mode, no gradient), as
-    validation's trajectories and the evaluation run it
-    (:func:`lossvo.evaluation.inference.predict_sequence`), on ``windows_per_pass`` windows of random
-    inputs after one warm-up pass (whose FLOPs are counted); and a pair's FLOPs."""
+    """Seconds and FLOPs of a frame pair in one inference pass over a sequence, as validation and the
+    evaluation run it (:func:`lossvo.evaluation.inference.predict_sequence`), on ``windows_per_pass``
+    windows of random inputs; the FLOPs counted in a warm-up pass."""
     seq_len = int(cfg.data.windows.seq_len)
     frames = windows_per_pass * (seq_len - 1) + 1
     batch = _batch(cfg, 1, frames)
@@ -381,8 +373,7 @@ def time_inference_pair(cfg: DictConfig, windows_per_pass: int = 32) -> tuple[fl
 
 
 def calibrate(cfg: DictConfig, threads: int) -> Calibration:
-    """:class:`Calibration` of the job's architecture on ``threads`` CPU threads, seeded (its networks'
-    initial weights do not matter, only their time)."""
+    """:class:`Calibration` of the job's architecture on ``threads`` CPU threads."""
     previous = torch.get_num_threads()
     torch.set_num_threads(threads)
     L.seed_everything(0, verbose=False)
@@ -587,33 +578,6 @@ def plan_study(args: argparse.Namespace, cuda: bool, job_gib: float, sweep_dir: 
 # -- the experiments on the architectures' data ----------------------------------------------------
 
 
-@dataclass(frozen=True)
-class HeldOut:
-    """The data the architectures train on (``data=`` choice and the study's ``data.sources`` overrides) and
-    the sequences they evaluate outside their training split (``test`` and ``unseen``)."""
-
-    choice: str
-    overrides: tuple[str, ...]
-    test: tuple[str, ...]
-    unseen: tuple[str, ...]
-
-
-def held_out(plan: Plan) -> HeldOut:
-    """The architectures' :class:`HeldOut` (the train config's defaults where the study has none)."""
-    first = plan.configurations[0] if plan.models else f"model={MODELS[0]}"
-    cfg = compose_job(first, plan.losses[0], [o for o in plan.overrides if not o.startswith("experiment=")])
-    splits, train = cfg.data.splits, set(cfg.data.splits.train)
-    data_overrides = tuple(
-        o for o in plan.overrides if o.split("=")[0] == "data" or o.startswith("data.sources.")
-    )
-    return HeldOut(
-        str(cfg.hydra.runtime.choices.data),
-        data_overrides,
-        tuple(str(s) for s in splits.test if s not in train),
-        tuple(str(s) for s in splits.get("unseen") or () if s not in train),
-    )
-
-
 def _job_of(folder: Path, experiment: str) -> bool:
     """Whether a job folder is a completed job of ``experiment`` with a best checkpoint."""
     overrides = folder / ".hydra" / "overrides.yaml"
@@ -626,13 +590,21 @@ def _job_of(folder: Path, experiment: str) -> bool:
 
 def cross_evaluations(plan: Plan) -> list[list[str]]:
     """``python -m lossvo.eval`` of each completed job of an experiment trained on other data than the
-    architectures (``experiment=mix``), on the architectures' held-out sequences (:func:`held_out`), into
+    architectures (``experiment=mix``), on the sequences the architectures evaluate outside their training
+    split (``test`` and ``unseen``; the train config's defaults where the study has no architecture), into
     ``<sweep>/evaluations/<data>/<job>`` (those already there are not repeated): the report then compares
     the two on the same frames (the interaction of training data and loss)."""
-    base, commands = held_out(plan), []
+    first = plan.configurations[0] if plan.models else f"model={MODELS[0]}"
+    base = compose_job(first, plan.losses[0], [o for o in plan.overrides if not o.startswith("experiment=")])
+    choice, splits = str(base.hydra.runtime.choices.data), base.data.splits
+    train = set(splits.train)
+    data = [o for o in plan.overrides if o.split("=")[0] == "data" or o.startswith("data.sources.")]
+    test = ",".join(str(s) for s in splits.test if s not in train)
+    unseen = ",".join(str(s) for s in splits.get("unseen") or () if s not in train)
+    commands = []
     for experiment in plan.experiments:
         cfg = compose_job(f"experiment={experiment}", plan.losses[0], plan.overrides)
-        if str(cfg.hydra.runtime.choices.data) == base.choice:
+        if str(cfg.hydra.runtime.choices.data) == choice:
             continue
         crop = bool(cfg.data.frames.get("crop", False))
         jobs = (
@@ -641,14 +613,13 @@ def cross_evaluations(plan: Plan) -> list[list[str]]:
             else []
         )
         for job in jobs:
-            out = plan.sweep_dir / EVALUATIONS / base.choice / job.name
+            out = plan.sweep_dir / EVALUATIONS / choice / job.name
             if (out / "results.json").is_file():
                 continue
             commands.append([
                 sys.executable, "-m", "lossvo.eval", f"ckpt_path={job / 'checkpoints' / 'best.ckpt'}",
-                f"data={base.choice}", *base.overrides, f"data.frames.crop={str(crop).lower()}",
-                f"data.splits.test=[{','.join(base.test)}]", f"data.splits.unseen=[{','.join(base.unseen)}]",
-                f"hydra.run.dir={out}",
+                f"data={choice}", *data, f"data.frames.crop={str(crop).lower()}",
+                f"data.splits.test=[{test}]", f"data.splits.unseen=[{unseen}]", f"hydra.run.dir={out}",
             ])  # fmt: skip
     return commands
 
@@ -672,11 +643,6 @@ def run(plan: Plan, floor: Floor | None = None) -> int:
     return report if report != 0 else status
 
 
-def estimate(plan: Plan, job_gib: float) -> tuple[str, Floor | None]:
-    """The plan's one line: :func:`gpu_line` on a GPU (no floor), :func:`cpu_estimate` on the CPU."""
-    return (gpu_line(plan, job_gib), None) if plan.gpu else cpu_estimate(plan)
-
-
 @one_line_main
 def main(argv: list[str] | None = None) -> int:
     """Warn about too few seeds, plan, print the estimate and the sweep's command; unless ``--dry-run``,
@@ -691,7 +657,7 @@ def main(argv: list[str] | None = None) -> int:
         plan = plan_study(args, torch.cuda.is_available(), job_gib, sweep_dir)
     except OmegaConfBaseException as e:  # a study's override that does not resolve
         raise UserError(one_line(e)) from None
-    line, floor = estimate(plan, job_gib)
+    line, floor = (gpu_line(plan, job_gib), None) if plan.gpu else cpu_estimate(plan)
     emit(line)
     for command in plan.sweep_commands():
         emit(shlex.join(["python", *command[1:]]))

@@ -39,12 +39,9 @@ def check_c(c: Any) -> float:
     return float(c)
 
 
-def matched_k(gain: float, c: float = DEFAULT_C) -> float:
-    """The k that makes a rotation term of small-angle gain ``gain`` equal to ``c * theta^2``."""
-    return check_c(c) / gain
-
-
-def _loss_class(target: str) -> Any:
+def loss_class(target: str) -> Any:
+    """The pose loss class (a :class:`lossvo.losses.PoseLoss`) a loss config's ``_target_`` names;
+    UserError for any other class."""
     cls = get_class(target)
     if not hasattr(cls, "small_angle_gain"):
         raise UserError(f"loss._target_: {target} is not a lossvo pose loss (no small_angle_gain)")
@@ -53,15 +50,16 @@ def _loss_class(target: str) -> Any:
 
 def preset_k(target: str, preset: str, c: float = DEFAULT_C, squared: bool = True) -> float | None:
     """The k of a weighting preset for the loss class named ``target`` (None for ``learned``, and for
-    a rotation term without a theta^2 gain under ``matched``: the loss then asks for an explicit k)."""
+    a rotation term without a theta^2 gain under ``matched``: the loss then asks for an explicit k); the
+    matched k makes the rotation term ``c * theta^2`` at small errors."""
     if preset not in PRESETS:
         raise UserError(f"weighting.preset: expected one of {PRESETS}, got {preset!r}")
-    cls = _loss_class(target)
+    cls = loss_class(target)
     if preset == "learned":
         return None
     if preset == "paper":
         return float(cls.paper_k)
-    return matched_k(cls.small_angle_gain, c) if squared else None
+    return check_c(c) / cls.small_angle_gain if squared else None
 
 
 def check_k(k: Any, learned: bool) -> None:

@@ -25,7 +25,7 @@ from hydra.plugins.sweeper import Sweeper
 from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from lossvo.console import UserError
+from lossvo.console import UserError, exit_in_one_line
 
 log = logging.getLogger(__name__)
 
@@ -109,7 +109,6 @@ class LossvoOptunaSweeper(Sweeper):
         )
 
     def sweep(self, arguments: list[str]) -> None:
-        from lossvo.console import UserError, exit_in_one_line
         from lossvo.training import search_space, shared_study
 
         try:
@@ -152,7 +151,6 @@ class LossvoOptunaSweeper(Sweeper):
         """The study, its search checked against the one recorded under its name (UserError)."""
         import optuna
 
-        from lossvo.console import UserError
         from lossvo.training import shared_study
 
         wrong = [d for d in self.directions if d not in ("minimize", "maximize")]

@@ -20,7 +20,6 @@ from lightning.pytorch.callbacks import Callback, RichProgressBar
 
 from lossvo.checks import is_integer
 from lossvo.console import UserError
-from lossvo.evaluation import metrics
 from lossvo.evaluation.results import PooledScores, predict_and_score
 
 log = logging.getLogger("lossvo")
@@ -68,39 +67,23 @@ def progress(rich_on_tty: bool = True) -> Callback | None:
 class TrajectoryValidation(Callback):
     """Every ``every_n_epochs`` epochs, integrate the validation sequences and log trajectory errors.
 
-    Each validation sequence goes through :func:`lossvo.evaluation.results.predict_and_score` (eval mode, the
-    validation windows) and is chained from its first ground-truth pose; the errors are pooled over all
-    validation sequences and logged (so they land in ``metrics.csv``) as ``val/ape_trans_rmse``,
-    ``val/rpe_trans_rmse``, ``val/rpe_rot_rmse`` and, where the sequences hold at least one 100 m segment,
-    ``val/kitti_t_err`` (%) and ``val/kitti_r_err`` (deg / 100 m); without a segment those two are not logged
-    (never 0).
-
-    It uses ``trainer.datamodule`` and does nothing for a datamodule without ``sequence_inputs``,
-    ``sequence_poses`` and ``prepare`` (e.g. a benchmark's dummy data), and nothing during the sanity
-    check.
+    Each validation sequence goes through :func:`lossvo.evaluation.results.predict_and_score`; the errors
+    are pooled over them (APE unaligned, RPE over one frame) and logged into ``metrics.csv`` as
+    ``val/ape_trans_rmse``, ``val/rpe_trans_rmse``, ``val/rpe_rot_rmse`` and, where the sequences hold a
+    100 m segment, ``val/kitti_t_err`` (%) and ``val/kitti_r_err`` (deg / 100 m), else neither (never 0).
+    Nothing happens during the sanity check or for a datamodule without whole sequences (a benchmark's).
 
     Args:
         every_n_epochs: run after the validation of every n-th epoch (>= 1).
-        align: APE alignment (:func:`lossvo.evaluation.metrics.align`).
-        delta: RPE delta in frames.
         mirror_average: see :func:`lossvo.evaluation.inference.predict_sequence`.
     """
 
-    def __init__(
-        self,
-        every_n_epochs: int = 1,
-        align: metrics.AlignMode = "none",
-        delta: int = 1,
-        mirror_average: bool = False,
-    ) -> None:
+    def __init__(self, every_n_epochs: int = 1, mirror_average: bool = False) -> None:
         if not is_integer(every_n_epochs, 1):
             raise UserError(f"every_n_epochs: expected an integer >= 1, got {every_n_epochs!r}")
-        if not metrics.is_rpe_delta(delta):
-            raise UserError(f"delta: expected an integer >= 1 (frames), got {delta!r}")
         if not isinstance(mirror_average, bool):
             raise UserError(f"mirror_average: expected true or false, got {mirror_average!r}")
-        self.every_n_epochs, self.align, self.delta = every_n_epochs, align, delta
-        self.mirror_average = mirror_average
+        self.every_n_epochs, self.mirror_average = every_n_epochs, mirror_average
 
     @staticmethod
     def _usable(datamodule: object) -> bool:
@@ -126,7 +109,7 @@ class TrajectoryValidation(Callback):
         datamodule = trainer.datamodule  # type: ignore[attr-defined]
         if not self._usable(datamodule) or not datamodule.splits.get("val"):
             return
-        pooled = PooledScores(self.align, self.delta)
+        pooled = PooledScores()  # no alignment, RPE over 1 frame
         names, device = self._share(list(datamodule.splits["val"]), trainer, pl_module)
         for name in names:
             gt = datamodule.sequence_poses(name)

@@ -1,12 +1,8 @@
-"""Checks of a composed training config before anything is built.
-
-The settings that Lightning, torch or the data loader would otherwise refuse deep inside a run (or
-misread without a word) are checked first, each failure a :class:`~lossvo.console.UserError` naming the
-key, the value and what was expected, e.g. ``data.windows.batch_size: expected an integer >= 1, got 0``.
-The types of the data settings are checked where Hydra composes the config (their schema:
-:class:`lossvo.data.specs.Data`); the constructors check the rest
-(:class:`lossvo.data.datamodules.VODataModule`),
-:func:`lossvo.weighting.check_config` the loss weights.
+"""Checks of a composed training config before anything is built: the settings that Lightning, torch or
+the data loader would otherwise refuse deep inside a run (or misread without a word), each failure a
+:class:`~lossvo.console.UserError` naming the key, the value and what was expected, e.g.
+``trainer.max_epochs: expected an integer >= 1, or -1 for no limit, got 0``. The data settings are
+checked by their schema (:class:`lossvo.data.specs.Data`) and the data module's constructor.
 """
 
 from __future__ import annotations
@@ -93,13 +89,15 @@ def resolved_config(cfg: DictConfig) -> dict[str, Any]:
 
 def check_train_config(cfg: DictConfig, machine: bool = True) -> None:
     """Raise :class:`~lossvo.console.UserError` (one line: key, value, what was expected) for a training
-    config that would fail only once the run is under way: a value left missing (``???``), an
-    interpolation that does not resolve, a bad scalar setting (:data:`SCALARS`), a cosine schedule without
-    a length, a trainer asking for a CUDA GPU where there is none (:func:`check_accelerator`) or for
-    several devices without a distributed strategy (:func:`check_devices`), a source ``root`` that is a
-    file, a ``ckpt_path`` that is no file, a data setting its module refuses (:func:`check_data`).
-    ``machine=False`` skips what depends on the machine that trains (its GPU), for a config checked where
-    it is submitted from."""
+    config that would fail only once the run is under way: its loss weights
+    (:func:`lossvo.weighting.check_config`), a value left missing (``???``), an interpolation that does
+    not resolve, a bad scalar setting (:data:`SCALARS`), a cosine schedule without a length, a trainer
+    asking for a CUDA GPU where there is none (:func:`check_accelerator`) or for several devices without
+    a distributed strategy (:func:`check_devices`), a source ``root`` that is a file, a ``ckpt_path``
+    that is no file, a data setting its module refuses (:func:`check_data`). ``machine=False`` skips what
+    depends on the machine that trains (its GPU), for a config checked where it is submitted from."""
+    if cfg.get("weighting") is not None:
+        weighting.check_config(cfg.weighting, cfg.loss)
     resolved = resolved_config(cfg)
     missing = sorted(OmegaConf.missing_keys(cfg))
     if missing:
@@ -121,7 +119,8 @@ def check_train_config(cfg: DictConfig, machine: bool = True) -> None:
     check_devices(_select(resolved, "trainer.devices"), _select(resolved, "trainer.strategy"))
     accelerator = _select(resolved, "trainer.accelerator")
     if machine and accelerator in CUDA_ACCELERATORS:
-        check_accelerator(accelerator, torch.cuda.is_available(), _trainer_choice())
+        choice = HydraConfig.get().runtime.choices.get("trainer") if HydraConfig.initialized() else None
+        check_accelerator(accelerator, torch.cuda.is_available(), choice)
     ckpt_path = resolved.get("ckpt_path")
     if ckpt_path is not None:
         check_checkpoint_path(Path(str(ckpt_path)).expanduser())
@@ -195,14 +194,6 @@ def check_accelerator(accelerator: Any, cuda_available: bool, trainer_choice: st
     )
 
 
-def _trainer_choice() -> str | None:
-    """The trainer config of the Hydra job this process runs (``gpu`` for ``trainer=gpu``); None outside
-    one."""
-    if not HydraConfig.initialized():
-        return None
-    return HydraConfig.get().runtime.choices.get("trainer")
-
-
 ADDED_KEYS = {"train": ("evaluate",), "eval": ()}
 """Top-level keys a command reads that its config does not set, by config: training's ``+evaluate=false``."""
 
@@ -254,10 +245,9 @@ def check_added_keys(cfg: DictConfig, overrides: Sequence[str], config_name: str
 
 
 def check_job(cfg: DictConfig, out_dir: Path, machine: bool = True) -> None:
-    """The checks a job runs on its composed config (Hydra's node included) before it reads data: the
-    loss weights (:func:`lossvo.weighting.check_config`), :func:`check_train_config` and
-    :func:`check_added_keys`, its ``${hydra:...}`` values resolved as in a job writing to ``out_dir``:
-    ``UserError`` (one line)."""
+    """The checks a job runs on its composed config (Hydra's node included) before it reads data,
+    :func:`check_train_config` and :func:`check_added_keys`, its ``${hydra:...}`` values resolved as in a
+    job writing to ``out_dir``: ``UserError`` (one line)."""
     with open_dict(cfg):
         cfg.hydra.runtime.output_dir = str(out_dir)
     job = cfg.copy()
@@ -266,8 +256,6 @@ def check_job(cfg: DictConfig, out_dir: Path, machine: bool = True) -> None:
     hydra, previous = HydraConfig.instance(), HydraConfig.instance().cfg
     hydra.set_config(cfg)
     try:
-        if job.get("weighting") is not None:
-            weighting.check_config(job.weighting, job.loss)
         check_train_config(job, machine)
         check_added_keys(job, list(cfg.hydra.overrides.task))
     finally:

@@ -1,14 +1,7 @@
-"""Several training jobs at once on one GPU: how many fit, and the check before a sweep starts.
-
-A sweep on a GPU runs its jobs side by side, each in a process of its own (Hydra's joblib launcher), all on
-the one GPU. :func:`jobs_that_fit` is ``min(cpus, free // job)``: each job's Python loop needs a core, and
-the memory one job needs is ``hydra.callbacks.gpu_jobs.job_memory_gib`` in ``conf/train.yaml`` (GiB; what it
+"""Several training jobs at once on one GPU (each a process of Hydra's joblib launcher): how many fit,
+and the check before a sweep starts (:class:`GpuJobsCheck`, the Hydra callback ``hydra.callbacks.gpu_jobs``).
+The memory one job needs is ``hydra.callbacks.gpu_jobs.job_memory_gib`` in ``conf/train.yaml`` (what it
 covers and how to measure it: docs/sweep.md).
-
-:class:`GpuJobsCheck` is a Hydra callback (``hydra.callbacks.gpu_jobs``). Before a sweep trains on a local
-CUDA GPU it refuses, in one line with exit status 2, a trainer that asks for a GPU where there is none, and
-jobs at once (``hydra.launcher.n_jobs``) that do not fit the GPU's free memory. Hydra turns a callback's
-exceptions into warnings, so the callback ends the command itself.
 """
 
 from __future__ import annotations
@@ -21,13 +14,12 @@ from typing import Any
 
 import joblib
 import torch
-from hydra.core.override_parser.overrides_parser import OverridesParser
-from hydra.core.override_parser.types import Override
 from hydra.errors import HydraException
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from lossvo.console import UserError, exit_in_one_line, first_line
+from lossvo.training import config_checks
 from lossvo.training.config_checks import CUDA_ACCELERATORS, check_accelerator
 from lossvo.training.slurm import SLURM_LAUNCHER
 
@@ -35,8 +27,6 @@ GIB = 2**30
 """Bytes in a GiB."""
 
 JOBLIB_LAUNCHER = "hydra_plugins.hydra_joblib_launcher.joblib_launcher.JoblibLauncher"
-BASIC_SWEEPER = "BasicSweeper"
-"""The class name of Hydra's basic sweeper (the last part of its ``hydra.sweeper._target_``)."""
 JOB_MEMORY_KEY = "hydra.callbacks.gpu_jobs.job_memory_gib"
 """The config key of the GPU memory one job needs (GiB)."""
 
@@ -48,12 +38,8 @@ class GpuMemoryError(UserError):
 
 
 def jobs_that_fit(free_bytes: int, job_bytes: int, cpus: int) -> int:
-    """How many jobs run at once on one GPU: ``min(cpus, free_bytes // job_bytes)`` (0 when not one fits).
-
-    Args:
-        free_bytes: the GPU's free memory, bytes; job_bytes: the memory one job needs, bytes (> 0);
-        cpus: the CPU cores the jobs may use (one a job).
-    """
+    """How many jobs run at once on one GPU: ``min(cpus, free_bytes // job_bytes)`` (0 when not one fits):
+    each job's Python loop needs a core, and its memory (``job_bytes`` > 0) of the GPU's free bytes."""
     return max(0, min(cpus, free_bytes // job_bytes))
 
 
@@ -95,18 +81,9 @@ def sweep_jobs(overrides: Sequence[str], params: Mapping[str, Any] | None = None
     ``hydra.sweeper.params``; None where it cannot tell (a sweep the basic sweeper does not expand)."""
     given = [f"{key}={value}" for key, value in (params or {}).items()] + list(overrides)
     try:
-        parsed = OverridesParser.create().parse_overrides(given)
-        if any(o.is_sweep_override() and not o.is_discrete_sweep() for o in parsed):
-            return None
-        sizes = {o.get_key_element(): _values_of(o) for o in parsed}  # a key given twice: the last counts
-    except HydraException:  # a sweep that needs the config to expand (glob)
+        return len(config_checks.sweep_jobs(given))
+    except HydraException:  # a sweep the basic sweeper refuses (interval), or one needing the config (glob)
         return None
-    return math.prod(sizes.values())
-
-
-def _values_of(override: Override) -> int:
-    """The values one override takes in a sweep: one, or each value of its discrete sweep."""
-    return len(list(override.sweep_string_iterator())) if override.is_sweep_override() else 1
 
 
 def trains_on_cuda(accelerator: str, cuda_available: bool) -> bool:
@@ -119,7 +96,7 @@ def at_once_of(config: DictConfig) -> int:
     where the sweeper is Hydra's basic one."""
     hydra = config.hydra
     size = None
-    if str(hydra.sweeper.get("_target_", "")).rsplit(".", 1)[-1] == BASIC_SWEEPER:
+    if str(hydra.sweeper.get("_target_", "")).endswith(".BasicSweeper"):
         size = sweep_jobs([str(o) for o in hydra.overrides.task], hydra.sweeper.get("params"))
     return jobs_at_once(int(hydra.launcher.n_jobs), size)
 
@@ -128,12 +105,9 @@ class GpuJobsCheck(Callback):
     """Before a sweep on this machine trains: a trainer asking for a CUDA GPU where there is none
     (:func:`~lossvo.training.config_checks.check_accelerator`), and, on a GPU with the joblib launcher,
     the jobs at once fitting its free memory (:func:`check_jobs_fit`). Either refusal ends the command in
-    one line (``error: ...``) with exit status 2 (:func:`~lossvo.console.exit_in_one_line`). Nothing is
-    checked under SLURM, whose nodes are not this machine.
-
-    Args:
-        job_memory_gib: the GPU memory one job needs, GiB (> 0).
-    """
+    one line with exit status 2 (:func:`~lossvo.console.exit_in_one_line`: Hydra turns a callback's
+    exceptions into warnings). Nothing is checked under SLURM, whose nodes are not this machine.
+    ``job_memory_gib``: the GPU memory one job needs, GiB (> 0)."""
 
     def __init__(self, job_memory_gib: float) -> None:
         self.job_memory_gib = job_memory_gib

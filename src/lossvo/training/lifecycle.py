@@ -13,28 +13,25 @@ contract, case by case: docs/training.md.
 from __future__ import annotations
 
 import logging
-import shutil
-from collections.abc import Iterator, Mapping
-from contextlib import AbstractContextManager, ExitStack, contextmanager
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from hydra.core.hydra_config import HydraConfig
-from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.types import RunMode
 from lightning.pytorch.utilities import rank_zero_only
 from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from lossvo import folder_lock, output_folders, weighting
+from lossvo import folder_lock, output_folders
 from lossvo.atomic import write_text_atomic
 from lossvo.code_version import code_version
 from lossvo.console import (
     JobFailedError,
     UserError,
-    close_logs_in,
     full_error,
     one_line,
     remove_refused,
@@ -46,7 +43,7 @@ from lossvo.evaluation import job_folder
 from lossvo.evaluation.checkpoints import MODEL_WITHDRAWN
 from lossvo.evaluation.job_folder import LAST_CHECKPOINT, METRICS, STATUS, Event, Status
 from lossvo.machine import machine
-from lossvo.training import metrics_log
+from lossvo.training import gpu_jobs
 from lossvo.training.config_checks import check_added_keys, check_train_config
 from lossvo.training.slurm import slurm_job
 from lossvo.training.stopping import SIGNALS, InterruptedRun
@@ -126,22 +123,18 @@ def config_drift(recorded: DictConfig | ListConfig, requested: DictConfig) -> li
 
 
 def sweep_size() -> int | None:
-    """How many jobs this sweep runs: the product of the sweep's value lists (Hydra's basic sweeper, read
-    from the sweep folder's ``multirun.yaml``) or the Optuna sweeper's ``n_trials``; None when unknown."""
+    """How many jobs this sweep runs: the Optuna sweeper's ``n_trials``, or what Hydra's basic sweeper
+    expands the sweep folder's ``multirun.yaml`` into (:func:`~lossvo.training.gpu_jobs.sweep_jobs`); None
+    when unknown."""
     hydra_cfg = HydraConfig.get()
     trials = hydra_cfg.sweeper.get("n_trials")
     if isinstance(trials, int):
         return trials
     try:
         sweep = OmegaConf.load(Path(hydra_cfg.sweep.dir) / "multirun.yaml")
-        overrides = OverridesParser.create().parse_overrides(list(sweep.hydra.overrides.task))
-    except Exception:  # no multirun.yaml (another launcher): the job number alone
+    except OSError:  # no multirun.yaml (another launcher): the job number alone
         return None
-    size = 1
-    for override in overrides:
-        if override.is_sweep_override():
-            size *= len(list(override.sweep_iterator()))
-    return size
+    return gpu_jobs.sweep_jobs(list(sweep.hydra.overrides.task), hydra_cfg.sweeper.get("params"))
 
 
 def job_label() -> str:
@@ -194,10 +187,6 @@ class Run:
     threads: int | None = None
     history: list[Event] = field(default_factory=list)
 
-    @property
-    def metrics_csv(self) -> Path:
-        return self.out_dir / METRICS
-
     def start(self, resumed: Mapping[str, Any] | None = None, threads: int | None = None) -> None:
         """Claim the folder: ``.hydra/`` and ``status.json`` "running"; ``resumed``: where a resumed run
         continues (``{"epoch": N, "source": checkpoint}`` or ``{"stage": "evaluation", ...}``), recorded
@@ -229,16 +218,9 @@ class Run:
         return None if value is None else float(value)
 
 
-def _resume_point(out_dir: Path, status: str | None) -> Path | None:
-    last = out_dir / LAST_CHECKPOINT
-    return last if status in ("interrupted", "running", "failed") and last.is_file() else None
-
-
 def _accept(run: Run) -> None:
     """Check the config and the folder, and set what the run does. Raises UserError (one line)."""
     cfg, out_dir = run.cfg, run.out_dir
-    if cfg.get("weighting") is not None:
-        weighting.check_config(cfg.weighting, cfg.loss)
     check_train_config(cfg)
     check_added_keys(cfg, list(HydraConfig.get().overrides.task))
     recorded = out_dir / ".hydra" / "config.yaml"
@@ -257,10 +239,11 @@ def _accept(run: Run) -> None:
     run.history = list(recorded_status.history) if recorded_status else []
     if status == "running" and run.guarded:  # the lock was free: the process that said so is gone
         run.history.append(killed(out_dir))
+    last = out_dir / LAST_CHECKPOINT
     if status == "completed" and not cfg.get("ckpt_path"):
         run.completed = recorded_status
-    elif not cfg.get("ckpt_path"):
-        run.resume_from = _resume_point(out_dir, status)
+    elif not cfg.get("ckpt_path") and status in ("interrupted", "running", "failed") and last.is_file():
+        run.resume_from = last
 
 
 def _sweeping() -> bool:
@@ -278,41 +261,33 @@ def _user_error(run: Run, message: str) -> BaseException:
     return SystemExit(2)
 
 
-def _signals_stop_the_run() -> AbstractContextManager[None]:
-    """SIGINT, SIGTERM and submitit's requeue signal stop the run while it runs
-    (:data:`lossvo.training.stopping.SIGNALS`)."""
-    return SIGNALS.installed()
+def _end(run: Run, error: Exception, cleanup: Callable[[Run, Exception], None]) -> NoReturn:
+    """Called in an ``except`` block: a user error (:func:`~lossvo.console.user_message`) ends the job in
+    one line (:func:`_user_error`), printed before ``cleanup(run, error)`` may remove the folder its log is
+    in; any other error, or any with ``LOSSVO_FULL_ERROR=1``, is raised as it is after ``cleanup``."""
+    message = user_message(error, run.out_dir)
+    if message is None or full_error():
+        cleanup(run, error)
+        raise error
+    ending = _user_error(run, message)
+    cleanup(run, error)
+    raise ending from None
 
 
 def _leave(run: Run) -> None:
-    """An error before the run started: a single run's folder that this run created (holding at most its
-    log) is removed, an empty one it was given emptied again; a sweep job's folder records the failure for
-    the report."""
+    """An error before the run started: a sweep job's folder records the failure for the report; a single
+    run's folder goes as :func:`_remove_made` says."""
     if _sweeping():
         if run.fresh:
             run.start()
         return
-    ours = {f"{HydraConfig.get().job.name}.log", folder_lock.LOCK}
-    out = run.out_dir
-    if not (
-        run.fresh
-        and output_folders.was_empty(out)
-        and out.is_dir()
-        and {p.name for p in out.iterdir()} <= ours
-    ):
-        return
-    close_logs_in(out)
-    if output_folders.existed(out):  # the user's empty folder: as it was found
-        for name in ours:
-            (out / name).unlink(missing_ok=True)
-    else:
-        shutil.rmtree(out, ignore_errors=True)
+    _remove_made(run)
 
 
-def _unlocked(run: Run) -> None:
-    """What a fresh run that could not write its lock (a full disk) made goes: the lock file and its log,
-    and the folder where this run created it (:func:`~lossvo.console.remove_refused`)."""
-    if run.fresh:
+def _remove_made(run: Run) -> None:
+    """What a fresh run made before it was refused (its lock and log) goes: the folder too where this run
+    created it, only those files where it was given empty (:func:`~lossvo.console.remove_refused`)."""
+    if run.fresh and output_folders.was_empty(run.out_dir):
         made = {folder_lock.LOCK, f"{HydraConfig.get().job.name}.log"}
         remove_refused(run.out_dir, made, keep_folder=output_folders.existed(run.out_dir))
 
@@ -366,17 +341,10 @@ def _held(run: Run) -> Iterator[None]:
     with ExitStack() as stack:
         try:
             held = stack.enter_context(folder_lock.held(run.out_dir, details))
-        except folder_lock.FolderInUseError as e:
-            if full_error():
-                raise
-            raise _user_error(run, str(e)) from None
+        except folder_lock.FolderInUseError as e:  # another process's folder: nothing of it goes
+            _end(run, e, lambda *_: None)
         except OSError as e:  # a full or read-only disk before the run starts
-            message = user_message(e, run.out_dir)
-            if message is None or full_error():
-                raise
-            error = _user_error(run, message)
-            _unlocked(run)
-            raise error from None
+            _end(run, e, lambda run, _: _remove_made(run))
         run.guarded = held.guarded
         yield
 
@@ -419,32 +387,21 @@ def _run_in(run: Run) -> Iterator[Run]:
     try:
         _accept(run)
     except UserError as e:
-        if full_error():
-            _failed(run, e)
-            raise
-        error = _user_error(run, one_line(e))  # before the folder goes: the log opens train.log in it
-        _failed(run, e)
-        raise error from None
+        _end(run, e, _failed)
     if run.completed is not None:
         log.info("%s: already completed (resume=true): %s%s", run.label, out_dir / STATUS, _longer(run))
         yield run
         return
     try:
-        with _signals_stop_the_run():
+        with SIGNALS.installed():
             yield run
             run.history.append(event("completed"))
-            run.write("completed", metrics=metrics_log.final_metrics(run.metrics_csv))
+            run.write("completed", metrics=job_folder.read_metrics(run.out_dir).final())
     except (InterruptedRun, KeyboardInterrupt) as e:
         stop = e if isinstance(e, InterruptedRun) else InterruptedRun("SIGINT")
         _interrupted(run, stop)
         raise SystemExit(stop.exit_code) from None
     except Exception as e:
-        message = user_message(e, out_dir)
-        if message is None or full_error():
-            if message is None:
-                log.error("%s failed: %s: %s", run.label, type(e).__name__, e)
-            _failed(run, e)
-            raise
-        error = _user_error(run, message)  # before the folder goes: the log opens train.log in it
-        _failed(run, e)
-        raise error from None
+        if user_message(e, out_dir) is None:
+            log.error("%s failed: %s: %s", run.label, type(e).__name__, e)
+        _end(run, e, _failed)

@@ -70,9 +70,3 @@ def continue_history(folder: Path, source: Path, last_epoch: int, global_step: i
     changed = len(kept) < len(table.rows) or table.damage is not None
     if table.header and (changed if same else not path.exists()):
         job_folder.write_metrics(folder, MetricsTable(table.header, kept))
-
-
-def final_metrics(path: Path) -> dict[str, float]:
-    """The last value of every metric column of a job folder's ``metrics.csv`` at ``path``
-    (:meth:`~lossvo.evaluation.job_folder.MetricsTable.final`)."""
-    return job_folder.read_metrics(path.parent).final()

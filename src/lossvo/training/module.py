@@ -1,15 +1,12 @@
 """The LightningModule: a VO network trained with one pose loss.
 
-The module is built from plain config dictionaries (Hydra ``_target_`` style), and those dictionaries
-are its hyperparameters: a checkpoint holds only primitives and reloads with torch's default
-``weights_only`` loading, and ``VOModule.load_from_checkpoint(path)`` rebuilds the same network and
-loss without Hydra. Every key the loss returns is logged per epoch as ``train/<key>`` and
-``val/<key>`` (``loss``, ``trans_loss``, ``rot_loss``, ``trans_err_m``, ``rot_err_rad``; ``s_t``, ``s_r``
-under the learned weighting), and validation also logs the loss-independent selection score
-``val/score`` (:mod:`lossvo.training.selection`; for a loss with ``translation="direction"`` on the
-predicted steps scaled to the target step lengths, as evaluation scores them, and with
-``translation="cue"`` so on the windows whose platform gives metric scale no cue). Checkpoints also record
-the training data (:mod:`lossvo.evaluation.checkpoints`).
+Built from plain config dictionaries (Hydra ``_target_`` style), which are its hyperparameters: a
+checkpoint holds only primitives, reloads with torch's default ``weights_only`` and
+``VOModule.load_from_checkpoint(path)`` rebuilds the network and loss without Hydra. Every key the loss
+returns is logged per epoch as ``train/<key>`` and ``val/<key>``; validation also logs the selection
+score ``val/score`` (:mod:`lossvo.training.selection`), on steps scaled as evaluation scores them where
+the loss has no metric scale. Checkpoints also record the training data
+(:mod:`lossvo.evaluation.checkpoints`).
 """
 
 from __future__ import annotations
@@ -60,14 +57,10 @@ class VOModule(L.LightningModule):
             epoch and given the ``monitor`` metric when it needs one (ReduceLROnPlateau).
         monitor: the selection metric (``selection.monitor``): ``val/score`` or ``val/loss``.
         compile: how the training step's forward pass and loss run
-            (:func:`lossvo.training.step.compile_mode`): false (eagerly), ``auto`` (compiled with CUDA
-            graphs on a CUDA device, eagerly elsewhere), true or a ``torch.compile`` mode. An execution
-            setting, not a hyperparameter: checkpoints omit it.
+            (:func:`lossvo.training.step.compile_mode`); an execution setting that checkpoints omit.
 
-    A training step synchronises nothing with the host: its loss terms are recorded on the device
-    (:class:`lossvo.training.step.StepRecord`) and read at the end of the epoch, where their means are logged
-    as ``train/<key>`` and a non-finite loss stops the run, naming the first step, batch and term it
-    happened at.
+    A training step synchronises nothing with the host (:mod:`lossvo.training.step`): the epoch's record
+    is read at its end, its means logged, and a non-finite loss stops the run naming its step and term.
     """
 
     def __init__(

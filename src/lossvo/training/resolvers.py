@@ -17,32 +17,15 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.errors import HydraException
-from hydra.utils import get_class
 from omegaconf import ListConfig, OmegaConf
 
 from lossvo import weighting
-from lossvo.losses import PoseLoss
 
-PATH_SAFE = str.maketrans(
-    {
-        "/": "_",
-        "=": "-",
-        ",": "+",
-        " ": None,
-        "'": None,
-        '"': None,
-        "[": None,
-        "]": None,
-        "{": None,
-        "}": None,
-        "(": None,
-        ")": None,
-    }
-)
+PATH_SAFE = str.maketrans("/=,", "_-+", " '\"[]{}()")
 """Characters of overrides that Hydra's override grammar does not take unquoted (or that would nest
 folders), and what they become in a job folder's name."""
 
@@ -50,19 +33,14 @@ MAX_NAME = 64
 """Longest folder name :func:`path_safe` returns (file systems allow 255 bytes a name)."""
 
 
-def _loss_class(target: str) -> type[PoseLoss]:
-    """The loss class a loss config's ``_target_`` names (get_class types any class as ``type``)."""
-    return cast("type[PoseLoss]", get_class(target))
-
-
 def dim_of(target: str) -> int:
     """Head size of a loss class given its ``_target_``."""
-    return int(_loss_class(target).dim)
+    return int(weighting.loss_class(target).dim)
 
 
 def identity_of(target: str) -> ListConfig:
     """The output of a loss class that decodes to no motion."""
-    return ListConfig(_loss_class(target)(k=1.0).identity_output().tolist())
+    return ListConfig(weighting.loss_class(target)(k=1.0).identity_output().tolist())
 
 
 def matched_k(target: str, c: Any, squared: bool = True) -> float | None:

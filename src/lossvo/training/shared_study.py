@@ -75,12 +75,6 @@ def open_storage(url: str) -> BaseStorage:
         raise UserError(f"hydra.sweeper.storage.url: cannot open {shown_url(url)}: {first_line(e)}") from e
 
 
-def close_storage(storage: BaseStorage) -> None:
-    """Close an RDB storage's connections (a journal holds none open)."""
-    if isinstance(storage, RDBStorage):
-        storage.engine.dispose()
-
-
 # -- heartbeats and stale trials -------------------------------------------------------------------
 
 
@@ -257,8 +251,8 @@ def check_study(url: str, name: str, wanted: dict[str, Any], storage: BaseStorag
         if why is None:
             study.set_user_attr(SEARCH_ATTR, wanted)
     finally:
-        if storage is None:
-            close_storage(opened)
+        if storage is None and isinstance(opened, RDBStorage):  # a journal holds no connection open
+            opened.engine.dispose()
     if why is not None:
         raise UserError(f"hydra.sweeper.study_name: the study {name!r} in {shown_url(url)} was created for "
                         f"another search: {why} (choose another study_name or storage)")  # fmt: skip

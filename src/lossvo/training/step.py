@@ -27,14 +27,10 @@ AUTO_CUDA_MODE = "reduce-overhead"
 
 
 def compile_mode(setting: bool | str | None, device: torch.device) -> str | None:
-    """The ``torch.compile`` mode of the training losses on ``device``, or None for eager execution.
-
-    Args:
-        setting: the ``compile`` config value: false/null (eager), true (``"default"``), ``"auto"``
-            (:data:`AUTO_CUDA_MODE` on CUDA, eager elsewhere: on a CPU the first compilation costs more
-            than it saves in a sweep's jobs), or one of :data:`COMPILE_MODES`.
-        device: the training device.
-    """
+    """The ``torch.compile`` mode of the training losses on ``device``, or None for eager execution, for
+    the ``compile`` setting: false/null (eager), true (``"default"``), ``"auto"`` (:data:`AUTO_CUDA_MODE`
+    on CUDA, eager elsewhere: on a CPU the first compilation costs more than it saves in a sweep's jobs),
+    or one of :data:`COMPILE_MODES`."""
     check_compile(setting)
     if setting is None or setting is False:
         return None
@@ -64,12 +60,8 @@ def optimizer_options(factory: Callable[..., Any], device: torch.device, config:
     """Keyword arguments that pick an optimiser's fastest kernels where the config chooses none: ``fused``
     on CUDA (one kernel for every parameter), ``foreach`` elsewhere (one call for all parameters; on a CPU
     it gives the same numbers as the per-parameter loop, which ``fused`` does not). Empty when the config
-    sets ``fused`` or ``foreach`` itself, or the optimiser has neither.
-
-    Args:
-        factory: the optimiser class or a partial of it; device: where its parameters live;
-        config: the optimiser's config (its keys are the ones the user set).
-    """
+    sets ``fused`` or ``foreach`` itself (``config``: the optimiser's), or the optimiser (``factory``:
+    its class or a partial of it) has neither."""
     if "fused" in config or "foreach" in config:
         return {}
     target = getattr(factory, "func", factory)  # a functools.partial's class
@@ -85,16 +77,10 @@ def optimizer_options(factory: Callable[..., Any], device: torch.device, config:
 
 
 class StepRecord:
-    """Each training step's loss terms, written on the training device and read once an epoch.
-
-    A step writes its row with two kernels and no host synchronisation; :meth:`rows` copies the epoch's
-    rows to the host. Row layout: the loss's scalars in :attr:`keys` order, then whether the network's
-    output was finite (1.0 or 0.0), then the number of frame pairs of the step.
-
-    Args:
-        capacity: the most steps an epoch can have (its number of training batches).
-        width: the number of loss scalars; device: the training device.
-    """
+    """Each training step's loss terms, written on the training device (two kernels, no host
+    synchronisation) and copied to the host once an epoch (:meth:`rows`). A row: the loss's scalars in
+    :attr:`keys` order, whether the network's output was finite (1.0 or 0.0), the step's frame pairs.
+    ``capacity``: the most steps an epoch can have (its training batches)."""
 
     def __init__(self, capacity: int, keys: tuple[str, ...], device: torch.device) -> None:
         self.keys = keys
