@@ -2,7 +2,7 @@
 zero motion, the training split's mean motion, ORB + essential matrix with ground-truth scale, the
 sequence's own mean motion (an oracle) and flow yaw + road speed (one line on DIS flow). Relative poses
 are ``T_k = inv(T_w_k) @ T_w_{k+1}``; the sequences are read from the dataset a run's results.json
-records, with no datamodule; :func:`estimates` computes them; results and flow features are cached
+records, with no datamodule; :data:`ESTIMATORS` holds them by name; results and flow features are cached
 per sequence by ``joblib.Memory`` (docs/report.md).
 """
 
@@ -417,26 +417,27 @@ class Training:
     speed_scale: float
 
 
-def estimates(
-    sequence: DatasetSequence, features: FlowFeatures, training: Training
-) -> dict[str, tuple[np.ndarray, int]]:
-    """Every baseline on a sequence with poses (its frames, K), by name in the order of :data:`NAMES`:
-    (N-1, 4, 4) float64 relative poses and the frame pairs where it failed and fell back (ORB+E only).
+Estimator = Callable[[DatasetSequence, FlowFeatures, Training], tuple[np.ndarray, int]]
+"""A baseline: (a sequence with poses (its frames, K), its flow features, the training split) ->
+((N-1, 4, 4) float64 relative poses, the frame pairs where it failed and fell back)."""
 
-    Args:
-        features: the sequence's flow features; training: the training split's mean motion and
-            road-speed constant.
-    """
-    n_pairs = len(sequence.targets)
+
+def _orb_essential(
+    sequence: DatasetSequence, features: FlowFeatures, training: Training
+) -> tuple[np.ndarray, int]:
     steps = np.linalg.norm(sequence.targets[:, :3, 3], axis=1)
-    orb, failed = orb_essential(sequence.images, sequence.K, steps, training.mean, sequence.distortion)
-    return {
-        ZERO: (repeat_motion(np.eye(4), n_pairs), 0),
-        MEAN: (repeat_motion(training.mean, n_pairs), 0),
-        ORB: (orb, int(failed.sum())),
-        OWN: (repeat_motion(mean_motion([sequence.targets]), n_pairs), 0),
-        FLOW: (flow_motion(features.yaw, training.speed_scale * features.road), 0),
-    }
+    relative, failed = orb_essential(sequence.images, sequence.K, steps, training.mean, sequence.distortion)
+    return relative, int(failed.sum())
+
+
+ESTIMATORS: dict[str, Estimator] = {
+    ZERO: lambda sequence, _, __: (repeat_motion(np.eye(4), len(sequence.targets)), 0),
+    MEAN: lambda sequence, _, training: (repeat_motion(training.mean, len(sequence.targets)), 0),
+    ORB: _orb_essential,
+    OWN: lambda sequence, _, __: (repeat_motion(mean_motion([sequence.targets]), len(sequence.targets)), 0),
+    FLOW: lambda _, features, training: (flow_motion(features.yaw, training.speed_scale * features.road), 0),
+}
+"""The baselines by name, in the order of :data:`NAMES`: pure functions of a sequence."""
 
 
 def sequence_baselines(
@@ -446,7 +447,7 @@ def sequence_baselines(
     delta: int = 1,
     features: FlowFeatures | None = None,
 ) -> dict[str, BaselineResult]:
-    """Every baseline (:func:`estimates`) on one sequence with ground truth, scored as a network's
+    """Every baseline (:data:`ESTIMATORS`) on one sequence with ground truth, scored as a network's
     trajectory is (``align``, ``delta`` as the runs' results.json).
 
     Args:
@@ -460,7 +461,8 @@ def sequence_baselines(
     if features is None:
         features = flow_features(sequence.images, sequence.K, undistortion(sequence))
     out = {}
-    for name, (relative, failures) in estimates(sequence, features, training).items():
+    for name, estimate in ESTIMATORS.items():
+        relative, failures = estimate(sequence, features, training)
         trajectory, scores = metrics.evaluate_relative(relative, gt, align, delta)
         out[name] = BaselineResult(trajectory.numpy(), Scores.from_json(scores), failures)
     return out
