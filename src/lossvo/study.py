@@ -462,10 +462,18 @@ def cpu_estimate(plan: Plan) -> tuple[str, Floor]:
     return line, floor
 
 
-def wall_line(seconds: float, floor: Floor | None) -> str:
-    """The study's last line: its wall time and, on the CPU, that time's ratio to its compute floor."""
-    ratio = f", {seconds / floor.seconds:.2f}x its compute floor of {_hours(floor.seconds)}" if floor else ""
-    return f"study: wall time {_hours(seconds)}{ratio}"
+def wall_line(seconds: float, floors: Sequence[Floor] = ()) -> str:
+    """The study's last line: its wall time and, on the CPU, that time's ratio to its compute floor, the
+    lowest of ``floors`` (measured before and after the jobs: a calibration that other work on the machine
+    slowed would flatter the ratio)."""
+    if not floors:
+        return f"study: wall time {_hours(seconds)}"
+    low = min(floor.seconds for floor in floors)
+    measured = " and ".join(_hours(floor.seconds) for floor in floors)
+    return (
+        f"study: wall time {_hours(seconds)}, {seconds / low:.2f}x its compute floor of {_hours(low)} "
+        f"(the lower of {measured}, measured before and after the jobs)"
+    )
 
 
 def gpu_line(plan: Plan, job_gib: float) -> str:
@@ -633,13 +641,15 @@ def job_environment(plan: Plan, environ: Mapping[str, str] = os.environ) -> dict
 def run(plan: Plan, floor: Floor | None = None) -> int:
     """The sweeps, the experiments' evaluations on the architectures' data (:func:`cross_evaluations`),
     each in :func:`job_environment`, then the report (also after a failed job), then the wall time
-    (:func:`wall_line`): the first failed command's exit status, or the report's where the report fails."""
+    (:func:`wall_line`, against the floor measured again on the CPU): the first failed command's exit
+    status, or the report's where the report fails."""
     start, env = time.perf_counter(), job_environment(plan)
     statuses = [subprocess.run(command, env=env).returncode for command in plan.sweep_commands()]
     statuses += [subprocess.run(command, env=env).returncode for command in cross_evaluations(plan)]
     status = next((s for s in statuses if s != 0), 0)
     report = subprocess.run(plan.report_command()).returncode
-    emit(wall_line(time.perf_counter() - start, floor))
+    seconds = time.perf_counter() - start
+    emit(wall_line(seconds, (floor, cpu_estimate(plan)[1]) if floor else ()))
     return report if report != 0 else status
 
 
