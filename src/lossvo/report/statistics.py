@@ -65,6 +65,11 @@ def convergence_epoch(
     return int(epochs[np.argmax(close)])
 
 
+# --------------------------------------------------------------------------------------------------
+# p-values
+# --------------------------------------------------------------------------------------------------
+
+
 def wilcoxon_p(differences: np.ndarray) -> float:
     """Two-sided Wilcoxon signed-rank p-value of paired differences (P,) by scipy's default method
     (exact for small P without ties, else a normal approximation); 1.0 if all are zero."""
@@ -154,6 +159,11 @@ def holm(p_values: Sequence[float]) -> np.ndarray:
     return np.where(np.isnan(p), math.nan, adjusted)
 
 
+# --------------------------------------------------------------------------------------------------
+# The effect and the seeds needed
+# --------------------------------------------------------------------------------------------------
+
+
 def t_interval(differences: np.ndarray, confidence: float = CONFIDENCE) -> tuple[float, float]:
     """The two-sided t-interval of the mean of paired differences (n,), in their unit
     (``scipy.stats.ttest_1samp(d).confidence_interval(confidence)``); (NaN, NaN) for n < 2, (mean, mean)
@@ -231,6 +241,11 @@ def _normal_seeds(z_alpha: float, power: float, sd: float, room: float, fewest: 
         return math.inf
     z = z_alpha + float(norm.ppf(power))
     return float(max(math.ceil((z * sd / room) ** 2), fewest))
+
+
+# --------------------------------------------------------------------------------------------------
+# The paired test and the verdict
+# --------------------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -372,6 +387,10 @@ def verdict_text(verdict_: str, margin: float = MARGIN) -> str:
     :data:`PARTLY`), else the verdict itself."""
     return f"{verdict_} within ±{100 * margin:g} %" if verdict_ in (EQUIVALENT, PARTLY) else verdict_
 
+
+# --------------------------------------------------------------------------------------------------
+# Architecture x loss interaction
+# --------------------------------------------------------------------------------------------------
 
 INTERACTION = "the losses' effects differ between the architectures (interaction)"
 NO_INTERACTION = "no interaction detected at this n"
