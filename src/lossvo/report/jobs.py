@@ -105,14 +105,9 @@ def job_number(path: Path) -> tuple[int, str]:
 
 
 def latest_sweep(parent: Path) -> Path:
-    """The newest sweep folder directly under ``parent`` (e.g. ``outputs/multirun``).
-
-    Newest by the modification time of its ``multirun.yaml`` (written once, when the sweep starts; a
-    report written later into the folder does not make it newer), else of the folder itself.
-
-    Raises:
-        SweepError: if ``parent`` is missing or holds no sweep folder.
-    """
+    """The newest sweep folder directly under ``parent`` (e.g. ``outputs/multirun``), by the modification
+    time of its ``multirun.yaml`` (written once, when the sweep starts), else of the folder itself;
+    SweepError if there is none."""
     if not parent.is_dir():
         raise SweepError(f"{parent}: no such folder (expected a folder of sweeps, e.g. outputs/multirun)")
     sweeps = [p for p in parent.iterdir() if p.is_dir() and any(p.glob("*/.hydra/config.yaml"))]
