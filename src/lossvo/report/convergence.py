@@ -58,7 +58,9 @@ def convergence(columns: Sequence[Column]) -> list[Convergence]:
     out = []
     for c in (c for c in columns if c.kind == NETWORK):
         per_job = [job_convergence(j) for j in c.jobs]
-        metrics, epochs, logged = ([x[i] for x in per_job] for i in range(3))
+        metrics = [m for m, _, _ in per_job]
+        epochs = [e for _, e, _ in per_job]
+        logged = [n for _, _, n in per_job]
         out.append(Convergence(c.label, list(c.replicates), metrics, epochs, logged, c.architecture))
     return out
 

@@ -320,12 +320,30 @@ def paired_test(
     sd = float(d.std(ddof=1)) if d.size > 1 else math.nan
     rel_mean = float(r.mean()) if r.size else math.nan
     rel_sd = float(r.std(ddof=1)) if r.size > 1 else math.nan
+    low, high = t_interval(d)
+    rel_low, rel_high = t_interval(r, 1 - 2 * alpha)
     means = float(claimed.mean()), float(other.mean())
-    spread = (float(np.median(d)), int((d < 0).sum()), method, sd, *t_interval(d))
-    family = (p, seeds_needed(means[0] - means[1], sd, 1, alpha))
-    relative = (rel_mean, rel_sd, *t_interval(r, 1 - 2 * alpha), tost_p(r, margin), margin)
-    equivalence = seeds_for_equivalence(rel_mean, rel_sd, margin, alpha)
-    return PairedTest(versus, int(d.size), *means, p, *spread, *family, *relative, equivalence)
+    return PairedTest(
+        versus,
+        int(d.size),
+        *means,
+        p,
+        float(np.median(d)),
+        int((d < 0).sum()),
+        method,
+        sd,
+        low,
+        high,
+        p,
+        seeds_needed(means[0] - means[1], sd, 1, alpha),
+        rel_mean,
+        rel_sd,
+        rel_low,
+        rel_high,
+        tost_p(r, margin),
+        margin,
+        seeds_for_equivalence(rel_mean, rel_sd, margin, alpha),
+    )
 
 
 def cells_test(versus: str, claimed: np.ndarray, other: np.ndarray) -> PairedTest:
@@ -336,8 +354,8 @@ def cells_test(versus: str, claimed: np.ndarray, other: np.ndarray) -> PairedTes
         return PairedTest(versus, 0, math.nan, math.nan, math.nan, method="Wilcoxon over cells")
     d = claimed - other
     means = float(claimed.mean()), float(other.mean())
-    test = (wilcoxon_p(d), float(np.median(d)), int((d < 0).sum()), "Wilcoxon over cells")
-    return PairedTest(versus, int(d.size), *means, *test)
+    median, lower = float(np.median(d)), int((d < 0).sum())
+    return PairedTest(versus, int(d.size), *means, wilcoxon_p(d), median, lower, "Wilcoxon over cells")
 
 
 def corrected(tests: Sequence[PairedTest], alpha: float = ALPHA) -> list[PairedTest]:
