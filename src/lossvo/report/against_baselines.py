@@ -61,15 +61,9 @@ class BaselineRun:
 
 def evaluation_settings(jobs: Sequence[Job]) -> tuple[str, int, list[str]]:
     """(align, delta) of the included jobs' results.json (the first job's) and notes if they differ."""
-    results = [j.included_results for j in jobs]
-    settings = {(r.align, r.delta) for r in results}
-    first = (results[0].align, results[0].delta)
-    notes = (
-        []
-        if len(settings) == 1
-        else [f"jobs differ in align/delta {sorted(settings)}: baselines use {first}"]
-    )
-    return first[0], first[1], notes
+    settings = [(j.included_results.align, j.included_results.delta) for j in jobs]
+    differ = f"jobs differ in align/delta {sorted(set(settings))}: baselines use {settings[0]}"
+    return *settings[0], [differ] if len(set(settings)) > 1 else []
 
 
 def data_groups(
@@ -90,12 +84,10 @@ def data_groups(
         shared |= evaluated & taken
         result.append((first, [s for s in sequences if s in evaluated and s not in taken]))
         taken |= evaluated
-    notes = (
-        [f"jobs of different data evaluated {', '.join(sorted(shared))}: their baselines use the first one's"]
-        if shared
-        else []
+    note = (
+        f"jobs of different data evaluated {', '.join(sorted(shared))}: their baselines use the first one's"
     )
-    return [(job, own) for job, own in result if own], notes
+    return [(job, own) for job, own in result if own], [note] if shared else []
 
 
 def run_baselines(jobs: Sequence[Job], sequences: Sequence[str], cache_dir: Path, n_jobs: int) -> BaselineRun:
@@ -192,6 +184,12 @@ def reduction(value: object, reference: object) -> float | None:
     return 1.0 - value / reference
 
 
+def _below(value: Scores | None, baseline: Scores | None, path: Sequence[str]) -> str:
+    """How far below ``baseline``'s a value at ``path`` lies, as text (``"12 %"``; ``"–"`` where unknown)."""
+    r = reduction(metric_value(value, path), metric_value(baseline, path))
+    return "–" if r is None else f"{100 * r:.0f} %"
+
+
 def _baseline(base: BaselineRun, name: str) -> Column | None:
     return next((c for c in base.columns if c.label == name), None)
 
@@ -207,13 +205,8 @@ def learning_markdown(networks: Sequence[Column], base: BaselineRun, by_architec
     rows: list[list[object]] = []
     for column in networks:
         for job, results in zip(column.jobs, column.results, strict=True):
-            cells = []
-            for s in sequences:
-                for _, path in LEARNING_METRICS:
-                    r = reduction(
-                        metric_value(results.get(s), path), metric_value(mean_motion.results[0].get(s), path)
-                    )
-                    cells.append("–" if r is None else f"{100 * r:.0f} %")
+            mean = mean_motion.results[0]
+            cells = [_below(results.get(s), mean.get(s), p) for s in sequences for _, p in LEARNING_METRICS]
             rows.append([column.label, str(job.seed), *cells])
     text = (
         "How far each job's RPE RMSE lies below the mean-motion baseline's on the validation sequences "

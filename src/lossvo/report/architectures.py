@@ -246,18 +246,12 @@ def interaction_rows(agreement: Agreement) -> Rows:
     order, F, p, the relabellings, the smallest p at this n and the verdict."""
     header = ["quantity", "architectures", "configurations", "seeds", "same order", "F", "p",
               "relabellings", "smallest p at this n", "verdict"]  # fmt: skip
-    rows: list[list[object]] = [
-        [
-            i.quantity,
-            " vs ".join(i.architectures),
-            ", ".join(i.treatments),
-            len(i.seeds),
-            "yes" if i.same_order else "no",
-            *_test_cells(i),
-            i.verdict,
-        ]
-        for i in agreement.interactions
-    ]
+    rows: list[list[object]] = []
+    for i in agreement.interactions:
+        pair, order = " vs ".join(i.architectures), "yes" if i.same_order else "no"
+        rows.append(
+            [i.quantity, pair, ", ".join(i.treatments), len(i.seeds), order, *_test_cells(i), i.verdict]
+        )
     return Rows(header, rows)
 
 
@@ -322,26 +316,14 @@ def interaction_csv_rows(agreement: Agreement) -> Rows:
               "statistic", "p_value", "permutations", "exact", "smallest_p", "verdict", "note",
               "sequences"]  # fmt: skip
     if agreement.untested:
-        return Rows(header, [["", "", "", "", "", "", "", "", "", "", "", UNTESTED, agreement.untested, ""]])
+        return Rows(header, [[*[""] * 11, UNTESTED, agreement.untested, ""]])
     rows: list[list[object]] = []
-    for i in agreement.interactions:
-        t = i.test
+    for i, t in ((i, i.test) for i in agreement.interactions):
         numbers = (
             [repr(t.statistic), repr(t.p_value), t.permutations, t.exact, repr(t.smallest_p)]
-            if t is not None
+            if t
             else [""] * 5
         )
-        rows.append(
-            [
-                i.quantity,
-                *i.architectures,
-                ";".join(i.treatments),
-                ";".join(i.seeds),
-                i.same_order,
-                *numbers,
-                i.verdict,
-                i.untested or "",
-                ";".join(i.sequences),
-            ]
-        )
+        what = [i.quantity, *i.architectures, ";".join(i.treatments), ";".join(i.seeds), i.same_order]
+        rows.append([*what, *numbers, i.verdict, i.untested or "", ";".join(i.sequences)])
     return Rows(header, rows)

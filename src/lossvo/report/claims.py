@@ -9,7 +9,7 @@ where a sweep varies the architecture, within each architecture (:func:`claims_b
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -19,7 +19,7 @@ from lossvo.report import statistics
 from lossvo.report.configurations import SCORE, architecture_groups, loss_class_name
 from lossvo.report.convergence import Convergence, epoch_text
 from lossvo.report.jobs import APE_TRANS, RPE_ROT, RPE_TRANS, trained_sequences
-from lossvo.report.statistics import PairedTest
+from lossvo.report.statistics import CANNOT_DECIDE, PairedTest
 from lossvo.report.tables import (
     NETWORK,
     UNKNOWN_ARCHITECTURE,
@@ -65,12 +65,10 @@ class QuantityTests:
 
 @dataclass
 class Claim:
-    """One claim about one claimed configuration: what was paired (``scope``), per configuration the
-    measured numbers ``{label: {quantity: Cell over seeds}}``, the tests per quantity, the overall
-    verdict, the sentences saying why its n cannot decide (``undecidable``; empty where it can) and
-    notes. ``untested`` says why there are no tests (then ``verdict`` is empty); ``sequences``: claim (a)'s
-    held-out sequences, whose per-seed mean is a seed's value; ``claimed_loss``: the loss class claimed.
-    ``architecture``: the architecture it was tested within (:func:`claims_by_architecture`), else None."""
+    """One claim about one claimed configuration: what was paired (``scope``), the measured numbers
+    ``{label: {quantity: Cell over seeds}}``, the tests per quantity, the verdict, why its n cannot decide
+    (``undecidable``), notes; ``untested``: why there are no tests; ``sequences``: claim (a)'s held-out
+    sequences; ``architecture``: the one it was tested within (:func:`claims_by_architecture`)."""
 
     statement: str
     configuration: str
@@ -119,12 +117,6 @@ def heldout_sequences(columns: Sequence[Column], sequences: Sequence[str]) -> li
     return [s for s in evaluated_sequences(columns, sequences) if s not in train]
 
 
-def seed_means(column: Column, path: Sequence[str], sequences: Sequence[str]) -> Cell:
-    """Mean ± std over seeds of each seed's mean of one metric over ``sequences`` (a seed missing one
-    sequence is left out)."""
-    return Cell.of(list(seed_scores(column, path, sequences).values()))
-
-
 def seed_test(
     claimed: Column,
     other: Column,
@@ -152,13 +144,8 @@ def quantity_tests(
 ) -> QuantityTests:
     """One quantity's tests as one family: Holm-corrected, each with its verdict, and theirs combined."""
     family = statistics.corrected(tests)
-    return QuantityTests(
-        quantity,
-        family,
-        statistics.verdict(tests),
-        list(secondary),
-        [statistics.decide(t) for t in family],
-    )
+    decisions = [statistics.decide(t) for t in family]
+    return QuantityTests(quantity, family, statistics.verdict(tests), list(secondary), decisions)
 
 
 def undecidable(n: int, comparisons: int) -> str | None:
@@ -181,15 +168,10 @@ def undecidable(n: int, comparisons: int) -> str | None:
     )
 
 
-def undecidable_sentences(quantities: Sequence[QuantityTests]) -> list[str]:
-    """:func:`undecidable` for every n among the undecided tests, each sentence once."""
-    found = (
-        undecidable(t.n, len(q.tests))
-        for q in quantities
-        for t, d in zip(q.tests, q.decisions, strict=True)
-        if d == statistics.CANNOT_DECIDE
-    )
-    return list(dict.fromkeys(x for x in found if x))
+def undecidable_sentences(claim: Claim) -> list[str]:
+    """:func:`undecidable` for every n among the claim's undecided tests, each sentence once."""
+    undecided = (undecidable(t.n, len(q.tests)) for q, t, d in _comparisons(claim) if d == CANNOT_DECIDE)
+    return list(dict.fromkeys(x for x in undecided if x))
 
 
 def error_claim(
@@ -205,13 +187,15 @@ def error_claim(
     scope = f"On the sequences outside the training split: {', '.join(heldout)}."
     claim = Claim(CLAIM_A.format(loss=loss_word(claimed_loss)), claimed.label, scope, margin, list(heldout))
     for column in (claimed, *others):
-        claim.measured[column.label] = {q: seed_means(column, p, heldout) for q, p in CLAIM_ERRORS}
+        claim.measured[column.label] = {
+            q: Cell.of(list(seed_scores(column, p, heldout).values())) for q, p in CLAIM_ERRORS
+        }
     for quantity, path in CLAIM_ERRORS:
         tests = [seed_test(claimed, other, path, heldout, margin) for other in others]
         cells = [cells_test(claimed, other, path, heldout) for other in others]
         claim.quantities.append(quantity_tests(quantity, tests, cells))
     claim.verdict = statistics.combine([q.verdict for q in claim.quantities])
-    claim.undecidable = undecidable_sentences(claim.quantities)
+    claim.undecidable = undecidable_sentences(claim)
     return claim
 
 
@@ -234,7 +218,7 @@ def convergence_claim(
     tests = [epoch_test(claimed, other, margin) for other in others]
     claim.quantities.append(quantity_tests(EPOCHS, tests))
     claim.verdict = claim.quantities[0].verdict
-    claim.undecidable = undecidable_sentences(claim.quantities)
+    claim.undecidable = undecidable_sentences(claim)
     metrics = {m for c in (claimed, *others) for m in c.metrics}
     if metrics != {SCORE}:
         claim.notes.append(
@@ -355,31 +339,35 @@ def _measured_rows(claim: Claim) -> Rows:
     return Rows(["configuration", *quantities], rows)
 
 
-def _epochs_number(x: float) -> str:
-    return f"{x:.2f}" if math.isfinite(x) else "n/a"
-
-
 def _number(quantity: str) -> Callable[[float], str]:
-    return _epochs_number if quantity == EPOCHS else fmt
-
-
-def _relative_text(x: float) -> str:
-    return f"{100 * x:+.1f} %" if math.isfinite(x) else "n/a"
+    return (lambda x: f"{x:.2f}" if math.isfinite(x) else "n/a") if quantity == EPOCHS else fmt
 
 
 def relative_interval_text(t: PairedTest) -> str:
     """A test's relative difference with its 90 % interval: ``-10.2 % [-11.4, -9.0]``."""
+    text = f"{100 * t.rel_mean:+.1f} %" if math.isfinite(t.rel_mean) else "n/a"
     if t.n < 2 or not math.isfinite(t.rel_low):
-        return _relative_text(t.rel_mean)
-    return f"{_relative_text(t.rel_mean)} [{100 * t.rel_low:+.1f}, {100 * t.rel_high:+.1f}]"
+        return text
+    return f"{text} [{100 * t.rel_low:+.1f}, {100 * t.rel_high:+.1f}]"
 
 
-def seeds_needed_text(n: float, infinite: str = "no effect observed") -> str:
-    """:func:`lossvo.report.statistics.seeds_needed` as text: the count, ``infinite`` (inf) or ``n/a``
-    (fewer than two seeds)."""
+def seeds_needed_text(n: float, infinite: str = "no effect observed", missing: str = "n/a") -> str:
+    """:func:`lossvo.report.statistics.seeds_needed` as text: the count, ``infinite`` (inf) or
+    ``missing`` (NaN: fewer than two seeds)."""
     if math.isinf(n):
         return infinite
-    return str(int(n)) if math.isfinite(n) else "n/a"
+    return str(int(n)) if math.isfinite(n) else missing
+
+
+def _comparisons(claim: Claim) -> Iterator[tuple[QuantityTests, PairedTest, str]]:
+    """Each quantity, test and decision of a claim (none where untested)."""
+    for q in claim.quantities:
+        yield from ((q, t, decision) for t, decision in zip(q.tests, q.decisions, strict=True))
+
+
+def _needed(t: PairedTest) -> list[str]:
+    """Seeds to detect and seeds for equivalence of a test as text."""
+    return [seeds_needed_text(t.seeds_needed), seeds_needed_text(t.seeds_equivalence, "outside the margin")]
 
 
 def _tests_rows(claim: Claim) -> Rows:
@@ -387,26 +375,12 @@ def _tests_rows(claim: Claim) -> Rows:
               "95 % CI", "relative, 90 % CI", "p", "Holm p", "TOST p", "seeds to detect",
               "seeds for equivalence", "verdict"]  # fmt: skip
     rows: list[list[object]] = []
-    for q in claim.quantities:
+    for q, t, decision in _comparisons(claim):
         number = _number(q.quantity)
-        for t, decision in zip(q.tests, q.decisions, strict=True):
-            ci = f"[{number(t.ci_low)}, {number(t.ci_high)}]" if t.n > 1 else "n/a"
-            rows.append(
-                [
-                    q.quantity,
-                    t.versus,
-                    t.n,
-                    number(t.mean_diff),
-                    ci,
-                    relative_interval_text(t),
-                    fmt(t.p_value, 3),
-                    fmt(t.holm_p, 3),
-                    fmt(t.tost_p, 3),
-                    seeds_needed_text(t.seeds_needed),
-                    seeds_needed_text(t.seeds_equivalence, "outside the margin"),
-                    statistics.verdict_text(decision, claim.margin),
-                ]
-            )
+        ci = f"[{number(t.ci_low)}, {number(t.ci_high)}]" if t.n > 1 else "n/a"
+        ps = [fmt(x, 3) for x in (t.p_value, t.holm_p, t.tost_p)]
+        numbers = [number(t.mean_diff), ci, relative_interval_text(t), *ps, *_needed(t)]
+        rows.append([q.quantity, t.versus, t.n, *numbers, statistics.verdict_text(decision, claim.margin)])
     return Rows(header, rows)
 
 
@@ -460,31 +434,13 @@ def answer_rows(items: Sequence[Claim], claimed_loss: str = CLAIMED_LOSS) -> Row
     the comparison's verdict and, where it cannot decide, the seeds that would decide either way."""
     rows: list[list[object]] = []
     for c in items:
-        if c.untested:
-            continue
-        for q in c.quantities:
+        for q, t, decision in _comparisons(c):
             text = epoch_text if q.quantity == EPOCHS else mean_std_text
-            for t, decision in zip(q.tests, q.decisions, strict=True):
-                undecided = decision == statistics.CANNOT_DECIDE
-                needed = (
-                    f"{seeds_needed_text(t.seeds_needed)} / "
-                    f"{seeds_needed_text(t.seeds_equivalence, 'outside the margin')}"
-                    if undecided
-                    else ""
-                )
-                rows.append(
-                    [
-                        c.architecture or "",
-                        q.quantity,
-                        f"{text(c.measured[c.configuration][q.quantity])}",
-                        t.versus,
-                        f"{text(c.measured[t.versus][q.quantity])}",
-                        relative_interval_text(t),
-                        t.n,
-                        statistics.verdict_text(decision, c.margin),
-                        needed,
-                    ]
-                )
+            ours, theirs = (text(c.measured[label][q.quantity]) for label in (c.configuration, t.versus))
+            needed = " / ".join(_needed(t)) if decision == statistics.CANNOT_DECIDE else ""
+            verdict = statistics.verdict_text(decision, c.margin)
+            row = [q.quantity, ours, t.versus, theirs, relative_interval_text(t), t.n, verdict, needed]
+            rows.append([c.architecture or "", *row])
     header = ["architecture", "quantity", loss_word(claimed_loss), "versus", "other", "relative, 90 % CI",
               "n seeds", "verdict", "seeds to detect / for equivalence"]  # fmt: skip
     return Rows(header, rows)
@@ -492,19 +448,14 @@ def answer_rows(items: Sequence[Claim], claimed_loss: str = CLAIMED_LOSS) -> Row
 
 def claims_markdown(items: Sequence[Claim], by_architecture: bool = False) -> str:
     """The rule and every claim; with ``by_architecture`` a subsection per architecture."""
-    margin, claimed_loss = (
-        (items[0].margin, items[0].claimed_loss) if items else (statistics.MARGIN, CLAIMED_LOSS)
-    )
-    rule = claims_rule(margin, claimed_loss)
-    answer = answer_rows(items, claimed_loss)
-    head = (
-        [rule, f"The answer, comparison by comparison:\n\n{table_render.markdown(answer)}"]
-        if answer.rows
-        else [rule]
-    )
+    first = items[0] if items else Claim("", "")
+    answer = answer_rows(items, first.claimed_loss)
+    head = [claims_rule(first.margin, first.claimed_loss)]
+    if answer.rows:
+        head.append(f"The answer, comparison by comparison:\n\n{table_render.markdown(answer)}")
     if not by_architecture:
         return "\n\n".join([*head, *(claim_markdown(c, c.letter) for c in items)])
-    parts = [*head, BY_ARCHITECTURE_TEXT.format(loss=loss_word(claimed_loss))]
+    parts = [*head, BY_ARCHITECTURE_TEXT.format(loss=loss_word(first.claimed_loss))]
     for architecture in dict.fromkeys(c.architecture or UNKNOWN_ARCHITECTURE for c in items):
         parts.append(f"### Architecture `{architecture}`")
         parts += [
@@ -528,35 +479,14 @@ the difference (``inf``: no effect observed), TOST's p at ``margin`` and the see
 (a test row's: that comparison's; an ``all`` row's: the claim's)."""
 
 
-def _seeds_needed_cell(n: float) -> str:
-    return "inf" if math.isinf(n) else str(int(n)) if math.isfinite(n) else ""
-
-
 def _test_numbers(t: PairedTest, cells: PairedTest | None) -> list[object]:
     """A paired test's cells from ``n_seeds`` to ``secondary_p``, full precision."""
-    return [
-        t.n,
-        repr(t.mean),
-        repr(t.versus_mean),
-        repr(t.mean_diff),
-        repr(t.relative),
-        repr(t.ci_low),
-        repr(t.ci_high),
-        *map(repr, t.relative_ci),
-        repr(t.rel_mean),
-        repr(t.rel_low),
-        repr(t.rel_high),
-        repr(t.p_value),
-        t.method,
-        repr(t.holm_p),
-        repr(statistics.smallest_p(t.n)),
-        _seeds_needed_cell(t.seeds_needed),
-        repr(t.tost_p),
-        repr(t.margin),
-        _seeds_needed_cell(t.seeds_equivalence),
-        cells.n if cells else "",
-        repr(cells.p_value) if cells else "",
-    ]
+    effect = (t.mean, t.versus_mean, t.mean_diff, t.relative, t.ci_low, t.ci_high, *t.relative_ci)
+    p = (t.rel_mean, t.rel_low, t.rel_high, t.p_value)
+    needed = [seeds_needed_text(n, "inf", "") for n in (t.seeds_needed, t.seeds_equivalence)]
+    secondary = [cells.n, repr(cells.p_value)] if cells else ["", ""]
+    holm = (t.method, repr(t.holm_p), repr(statistics.smallest_p(t.n)), needed[0])
+    return [t.n, *map(repr, (*effect, *p)), *holm, repr(t.tost_p), repr(t.margin), needed[1], *secondary]
 
 
 def claims_csv_rows(items: Sequence[Claim], by_architecture: bool = False) -> Rows:
@@ -572,11 +502,9 @@ def claims_csv_rows(items: Sequence[Claim], by_architecture: bool = False) -> Ro
         if c.untested:
             rows.append([c.statement, c.configuration, *blank, "cannot be tested", c.untested])
         else:
-            for q in c.quantities:
-                secondary = {s.versus: s for s in q.secondary}
-                for t, decision in zip(q.tests, q.decisions, strict=True):
-                    numbers = _test_numbers(t, secondary.get(t.versus))
-                    rows.append([c.statement, c.configuration, t.versus, q.quantity, *numbers, decision, ""])
+            for q, t, decision in _comparisons(c):
+                numbers = _test_numbers(t, next((s for s in q.secondary if s.versus == t.versus), None))
+                rows.append([c.statement, c.configuration, t.versus, q.quantity, *numbers, decision, ""])
             note = " ".join([*c.undecidable, *c.notes])
             rows.append([c.statement, c.configuration, "all", "all", *blank[2:], c.verdict, note])
         architectures += [c.architecture] * (len(rows) - start)

@@ -79,16 +79,8 @@ def compare(columns: Sequence[Column], by_architecture: bool = False) -> list[Co
         for a, b in combinations(group, 2):
             for metric, path in COMPARED:
                 x, y, used = seed_pairs(a, b, path, sequences)
-                found.append(
-                    Comparison(
-                        a.label,
-                        b.label,
-                        metric,
-                        paired_test(b.label, x, y),
-                        used,
-                        architecture=a.architecture,
-                    )
-                )
+                test = paired_test(b.label, x, y)
+                found.append(Comparison(a.label, b.label, metric, test, used, architecture=a.architecture))
         for metric, _ in COMPARED:
             family = [i for i, c in enumerate(found) if c.metric == metric]
             tests = corrected([found[i].test for i in family])
@@ -102,20 +94,11 @@ def comparison_rows(comparisons: Sequence[Comparison], by_architecture: bool = F
     """The section's table (with ``by_architecture`` an ``architecture`` column first)."""
     header = ["A", "B", "metric", "seeds", "mean A − B", "A lower", "p", "Holm p",
               f"distinguishable at {ALPHA}"]  # fmt: skip
-    rows: list[list[object]] = [
-        [
-            c.a,
-            c.b,
-            c.metric,
-            c.test.n,
-            fmt(c.test.mean_diff),
-            f"{c.test.lower}/{c.test.n}",
-            fmt(c.test.p_value, 3),
-            fmt(c.test.holm_p, 3),
-            c.verdict,
-        ]
-        for c in comparisons
-    ]
+    rows: list[list[object]] = []
+    for c in comparisons:
+        t = c.test
+        numbers = [fmt(t.mean_diff), f"{t.lower}/{t.n}", fmt(t.p_value, 3), fmt(t.holm_p, 3)]
+        rows.append([c.a, c.b, c.metric, t.n, *numbers, c.verdict])
     return with_architecture(Rows(header, rows), [c.architecture for c in comparisons], by_architecture)
 
 
@@ -124,22 +107,9 @@ def comparison_csv_rows(comparisons: Sequence[Comparison], by_architecture: bool
     ``sequences``: those each seed's value averages, ``;``-separated."""
     header = ["a", "b", "metric", "seeds", "sequences", "mean_diff", "ci_low", "ci_high", "a_lower",
               "p_value", "method", "holm_p", "verdict"]  # fmt: skip
-    rows: list[list[object]] = [
-        [
-            c.a,
-            c.b,
-            c.metric,
-            c.test.n,
-            ";".join(c.sequences),
-            repr(c.test.mean_diff),
-            repr(c.test.ci_low),
-            repr(c.test.ci_high),
-            c.test.lower,
-            repr(c.test.p_value),
-            c.test.method,
-            repr(c.test.holm_p),
-            c.verdict,
-        ]
-        for c in comparisons
-    ]
+    rows: list[list[object]] = []
+    for c in comparisons:
+        t = c.test
+        effect = [*map(repr, (t.mean_diff, t.ci_low, t.ci_high)), t.lower, repr(t.p_value), t.method]
+        rows.append([c.a, c.b, c.metric, t.n, ";".join(c.sequences), *effect, repr(t.holm_p), c.verdict])
     return with_architecture(Rows(header, rows), [c.architecture for c in comparisons], by_architecture)

@@ -117,12 +117,9 @@ def network_columns(jobs: Sequence[Job]) -> list[Column]:
         column.replicates = [f"{REPLICATE_KEY}={j.seed}" for j in column.jobs]
         column.results = [j.included_results.scored() for j in column.jobs]
         column.architecture = column_architecture(column.jobs)
-    included = [j for c in columns.values() for j in c.jobs]
-    if (
-        len({group_choice(j, DATA_KEY) for j in included}) > 1
-    ):  # trained on different data: compared within each
+    if len({j.data for c in columns.values() for j in c.jobs}) > 1:  # different data: compared within each
         for column in columns.values():
-            data = " + ".join(sorted({str(group_choice(j, DATA_KEY)) for j in column.jobs}))
+            data = " + ".join(sorted({str(j.data) for j in column.jobs}))
             column.architecture = f"{column.architecture} on {DATA_KEY}={data}"
     return list(columns.values())
 
@@ -217,10 +214,9 @@ def loss_attribute(target: str | None, name: str) -> float | None:
 
 @dataclass(frozen=True)
 class Weighting:
-    """A job's rotation weighting: the loss class, ``weighting.preset`` (None if not in the config), the
-    k used, the loss's small-angle gain (rotation term ~ gain·theta², theta in rad) and the effective
-    small-angle rotation weight relative to the translation term (k·gain, or gain·exp(s_t − s_r) at the
-    last epoch under learned weighting); None where unknown."""
+    """A job's rotation weighting: loss class, ``weighting.preset``, k, the loss's small-angle gain (rotation
+    term ~ gain·theta², theta in rad) and the rotation weight relative to the translation term (k·gain, or
+    gain·exp(s_t − s_r) at the last epoch under learned weighting); None where unknown."""
 
     loss: str | None
     preset: str | None
@@ -247,11 +243,7 @@ def learned_ratio(curves: Curves | None) -> float | None:
 
 
 def job_weighting(job: Job) -> Weighting:
-    """How the job weighted its rotation term, from ``.hydra/config.yaml`` (and metrics.csv for learned).
-
-    k is ``loss.k`` if it is a number; otherwise the preset's (``weighting.c / gain`` for matched, the
-    class's ``paper_k`` for paper).
-    """
+    """How the job weighted its rotation term, from ``.hydra/config.yaml`` (and metrics.csv for learned)."""
     target = loss_target(job)
     preset = config_value(job.config, "weighting.preset")
     preset = str(preset) if preset is not None else None
@@ -321,7 +313,7 @@ def job_selection(config: Any) -> Selection:
             skips such a job).
     """
     monitor, mode = (config_value(config, f"selection.{key}") for key in ("monitor", "mode"))
-    if monitor is None or mode is None:
+    if None in (monitor, mode):
         raise UserError("the job's config has no selection.monitor and selection.mode")
     return Selection(str(monitor), str(mode))
 

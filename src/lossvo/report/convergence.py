@@ -56,9 +56,7 @@ def job_convergence(job: Job) -> tuple[str, int | None, int]:
 def convergence(columns: Sequence[Column]) -> list[Convergence]:
     """One :class:`Convergence` per network column, replicates in the column's order."""
     out = []
-    for c in columns:
-        if c.kind != NETWORK:
-            continue
+    for c in (c for c in columns if c.kind == NETWORK):
         per_job = [job_convergence(j) for j in c.jobs]
         metrics = [m for m, _, _ in per_job]
         epochs = [e for _, e, _ in per_job]
@@ -108,16 +106,9 @@ def convergence_rows(items: Sequence[Convergence], by_architecture: bool = False
     for c in items:
         pairs = zip(c.replicates, c.epochs, strict=True)
         per_seed = ", ".join(f"{r}: {e if e is not None else 'n/a'}" for r, e in pairs)
-        cell = c.cell()
+        logged = ", ".join(map(str, sorted(set(c.logged))))
         rows.append(
-            [
-                c.label,
-                ", ".join(sorted(set(c.metrics))),
-                cell.n,
-                epoch_text(cell),
-                per_seed,
-                ", ".join(map(str, sorted(set(c.logged)))),
-            ]
+            [c.label, ", ".join(sorted(set(c.metrics))), c.cell().n, epoch_text(c.cell()), per_seed, logged]
         )
     return with_architecture(Rows(header, rows), [c.architecture for c in items], by_architecture)
 

@@ -18,40 +18,10 @@ import numpy as np
 from lossvo import table_render
 from lossvo.atomic import write_text_atomic
 from lossvo.evaluation.results import file_stem
-from lossvo.report.across_datasets import (
-    ACROSS_TEXT,
-    ACROSS_TITLE,
-    Evaluation,
-    Rmses,
-    across_baselines,
-    across_rows,
-    find_evaluations,
-)
-from lossvo.report.against_baselines import (
-    UNSEEN_KEY,
-    BaselineRun,
-    baselines_markdown,
-    evaluation_settings,
-    learning_markdown,
-    run_baselines,
-    unseen_markdown,
-)
-from lossvo.report.architectures import (
-    Agreement,
-    agreement_markdown,
-    architecture_agreement,
-    interaction_csv_rows,
-    rankings_csv_rows,
-)
-from lossvo.report.claims import (
-    CLAIMED_LOSS,
-    Claim,
-    claims_by_architecture,
-    claims_csv_rows,
-    claims_markdown,
-    study_claims,
-)
-from lossvo.report.comparison import Comparison, compare, comparison_csv_rows, comparison_rows
+from lossvo.report import across_datasets, against_baselines, architectures, claims, comparison
+from lossvo.report.against_baselines import BaselineRun, run_baselines
+from lossvo.report.claims import CLAIMED_LOSS, Claim
+from lossvo.report.comparison import Comparison
 from lossvo.report.configurations import (
     architecture_file_name,
     architecture_groups,
@@ -64,15 +34,7 @@ from lossvo.report.configurations import (
 from lossvo.report.convergence import Convergence, convergence, convergence_csv_rows, convergence_markdown
 from lossvo.report.figures import plot_ape_bars, plot_curves, plot_forest, plot_trajectories
 from lossvo.report.frame import results_frame
-from lossvo.report.jobs import (
-    Job,
-    code_versions_note,
-    ground_truth,
-    job_dirs,
-    load_job,
-    machines_note,
-    unseen_sequences,
-)
+from lossvo.report.jobs import Job, code_versions_note, ground_truth, job_dirs, load_job, machines_note
 from lossvo.report.speed import SPEED_TEXT, SPEED_TITLE, speed_rows
 from lossvo.report.statistics import ALPHA, MARGIN
 from lossvo.report.tables import (
@@ -116,60 +78,52 @@ class Study:
     claims: list[Claim]
     unseen: list[str] = field(default_factory=list)
     by_architecture: bool = False
-    agreement: Agreement | None = None
-
-
-def unseen_of(networks: Sequence[Column], sequences: Sequence[str]) -> list[str]:
-    """The evaluated ``sequences`` that some network job marks as unseen motion
-    (:func:`lossvo.report.jobs.unseen_sequences`), in the order of ``sequences``."""
-    unseen = {s for c in networks for j in c.jobs for s in unseen_sequences(j)}
-    return [s for s in sequences if s in unseen]
+    agreement: architectures.Agreement | None = None
 
 
 def analyse(
     networks: Sequence[Column],
     sequences: Sequence[str],
     margin: float = MARGIN,
-    evaluations: Sequence[Evaluation] = (),
+    evaluations: Sequence[across_datasets.Evaluation] = (),
     claimed_loss: str = CLAIMED_LOSS,
 ) -> Study:
     """Convergence, claims (``claimed_loss``'s configurations, equivalence within ±``margin``) and
-    unseen-motion sequences of the network columns on the evaluated ``sequences``; where they span several
-    architectures, the claims within each and the agreement of the architectures' rankings (pairs trained
-    on different data compared on their ``evaluations`` on one another's)."""
+    unseen-motion sequences (those some network job's results.json marks) of the network columns on the
+    evaluated ``sequences``; where they span several architectures, the claims within each and the
+    agreement of the architectures' rankings (on their ``evaluations`` on one another's data)."""
     items = convergence(networks)
-    unseen = unseen_of(networks, sequences)
+    marked = {s for c in networks for j in c.jobs for s in j.included_results.unseen()}
+    unseen = [s for s in sequences if s in marked]
     if not varies_architecture(networks):
-        claims = study_claims(networks, items, sequences, margin, claimed_loss)
-        return Study(list(networks), items, claims, unseen)
-    claimed = claims_by_architecture(networks, items, sequences, margin, claimed_loss)
-    agreement = architecture_agreement(networks, sequences, evaluations)
-    return Study(list(networks), items, claimed, unseen, True, agreement)
-
-
-def architecture_spec(spec: TableSpec, architecture: str) -> TableSpec:
-    """A table of ``spec`` for one architecture's configurations: its key (the file name) and title name
-    the architecture."""
-    key = f"{spec.key}_{architecture_file_name(architecture)}"
-    return replace(spec, key=key, title=f"{spec.title}, architecture {architecture}")
+        found = claims.study_claims(networks, items, sequences, margin, claimed_loss)
+        return Study(list(networks), items, found, unseen)
+    found = claims.claims_by_architecture(networks, items, sequences, margin, claimed_loss)
+    agreement = architectures.architecture_agreement(networks, sequences, evaluations)
+    return Study(list(networks), items, found, unseen, True, agreement)
 
 
 def build_tables(
     networks: Sequence[Column], baselines: Sequence[Column], sequences: Sequence[str], notes: dict[str, str]
 ) -> list[Table]:
     """Tables I-III of the networks beside the baselines; where the networks span several architectures,
-    each table per architecture (table by table, architectures in order); none without networks."""
+    each table per architecture (table by table, architectures in order, the key and title naming it);
+    none without networks."""
     if not networks:
         return []
     frame = results_frame([*networks, *baselines])
     if not varies_architecture(networks):
         return [build_table(spec, [*networks, *baselines], sequences, notes, frame) for spec in TABLES]
-    groups = architecture_groups(networks)
     return [
-        build_table(architecture_spec(spec, architecture), [*group, *baselines], sequences, notes, frame)
+        build_table(_architecture_spec(spec, architecture), [*group, *baselines], sequences, notes, frame)
         for spec in TABLES
-        for architecture, group in groups.items()
+        for architecture, group in architecture_groups(networks).items()
     ]
+
+
+def _architecture_spec(spec: TableSpec, architecture: str) -> TableSpec:
+    key = f"{spec.key}_{architecture_file_name(architecture)}"
+    return replace(spec, key=key, title=f"{spec.title}, architecture {architecture}")
 
 
 @dataclass
@@ -189,15 +143,8 @@ def jobs_rows(jobs: Sequence[Job], by_architecture: bool = False) -> Rows:
     """Every job: its folder, configuration, seed, status, whether it is in the tables (or why not: the
     file it could not use and why) and notes; with ``by_architecture`` its architecture first."""
     rows: list[list[object]] = [
-        [
-            f"`{job.path.name}`",
-            job.label or "?",
-            job.seed,
-            job.status,
-            "yes" if job.skip is None else f"no: {job.skip}",
-            "; ".join(job.notes),
-        ]
-        for job in jobs
+        [f"`{job.path.name}`", job.label or "?", job.seed, job.status, used, "; ".join(job.notes)]
+        for job, used in zip(jobs, ("yes" if j.skip is None else f"no: {j.skip}" for j in jobs), strict=True)
     ]
     table = Rows(["job", "configuration", "seed", "status", "in tables", "notes"], rows)
     return with_architecture(table, [job.architecture for job in jobs], by_architecture)
@@ -269,31 +216,30 @@ def configurations_lines(study: Study) -> list[str]:
     return ["", "## Configurations", "", CONFIGURATIONS_TEXT, "", table]
 
 
-def tables_lines(
-    included: Sequence[Job], tables: Sequence[Table], sequences: Sequence[str], study: Study
-) -> list[str]:
+def tables_lines(c: Contents) -> list[str]:
     """What the tables show (sequences, alignment, delta, bold, unseen marks, seeds), then Tables I-III."""
+    included = [j for j in c.jobs if j.included]
     if not included:
         return ["", "No job has usable results yet: no tables."]
-    align, delta, _ = evaluation_settings(included)
+    align, delta, _ = against_baselines.evaluation_settings(included)
     unseen = (
         f" Rows marked ({UNSEEN_NOTE}) are sequences of route families never used for training "
-        f"(`{UNSEEN_KEY}`): {', '.join(study.unseen)}."
-        if study.unseen
+        f"(`{against_baselines.UNSEEN_KEY}`): {', '.join(c.study.unseen)}."
+        if c.study.unseen
         else ""
     )
     lines = [
         "",
-        f"Test sequences: {', '.join(sequences)}. APE alignment: `{align}`; RPE delta: {delta} "
+        f"Test sequences: {', '.join(c.sequences)}. APE alignment: `{align}`; RPE delta: {delta} "
         "frame(s) (as in the jobs' results.json). Columns are named by the overrides that differ "
         "between jobs; **bold**: the lowest value of the row over all columns, baselines "
         "included, so a winning baseline shows."
         + unseen
-        + (PER_ARCHITECTURE_TEXT if study.by_architecture else ""),
+        + (PER_ARCHITECTURE_TEXT if c.study.by_architecture else ""),
         "",
-        seeds_text(study.networks),
+        seeds_text(c.study.networks),
     ]
-    for table in tables:
+    for table in c.tables:
         lines += ["", f"## {table.spec.title}", "", table_markdown(table)]
         if table.mean_over != table.rows[:-1]:
             mean_over = ", ".join(table.mean_over) or "none"
@@ -315,8 +261,6 @@ PAIRWISE_TEXT = (
     "and Holm multiplies the smallest p by the number of pairs m: where m · 2/2^n ≥ "
     f"{ALPHA} the row says the seeds cannot decide (one pair needs 6 seeds)."
 )
-
-
 PAIRWISE_BY_ARCHITECTURE_TEXT = (
     " Pairs of one architecture (the architectures are compared in *Architectures*)."
 )
@@ -330,23 +274,21 @@ def pairwise_lines(comparisons: Sequence[Comparison], by_architecture: bool = Fa
             "",
             "Fewer than two configurations with results: nothing to compare.",
         ]
-    table = table_render.markdown(comparison_rows(comparisons, by_architecture))
+    table = table_render.markdown(comparison.comparison_rows(comparisons, by_architecture))
     text = PAIRWISE_TEXT + (PAIRWISE_BY_ARCHITECTURE_TEXT if by_architecture else "")
     return ["", "## Pairwise comparison", "", text, "", table]
 
 
-def baseline_lines(
-    base: BaselineRun, baselines_on: bool, tables: Sequence[Table], study: Study, any_included: bool
-) -> list[str]:
+def baseline_lines(c: Contents) -> list[str]:
     """The *Baselines* section, and each job against the mean motion and on unseen motion."""
-    lines = ["", "## Baselines", "", baselines_markdown(base, baselines_on)]
-    if not (baselines_on and any_included):
+    lines = ["", "## Baselines", "", against_baselines.baselines_markdown(c.base, c.baselines_on)]
+    if not (c.baselines_on and any(j.included for j in c.jobs)):
         return lines
-    networks = [c for c in study.networks if c.kind == NETWORK] if tables else []
-    by = study.by_architecture
-    lines += ["", "## Against the mean motion, per job", "", learning_markdown(networks, base, by)]
-    if study.unseen:
-        lines += ["", "## Unseen motion", "", unseen_markdown(networks, base, study.unseen, by)]
+    networks, by, unseen = c.study.networks, c.study.by_architecture, c.study.unseen
+    learning = against_baselines.learning_markdown(networks, c.base, by)
+    lines += ["", "## Against the mean motion, per job", "", learning]
+    if unseen:
+        lines += ["", "## Unseen motion", "", against_baselines.unseen_markdown(networks, c.base, unseen, by)]
     return lines
 
 
@@ -380,46 +322,38 @@ class Contents:
     across_notes: list[str] = field(default_factory=list)
 
 
-def render_report(sweep: Path, out: Path, contents: Contents) -> str:
-    """The text of report.md (``contents.figures`` None: not drawn), in this order: a bold warning when
-    the configurations were selected by different metrics; the configurations; Tables I-III; the pairwise
+def render_report(sweep: Path, out: Path, c: Contents) -> str:
+    """The text of report.md (``c.figures`` None: not drawn), in this order: a bold warning when the
+    configurations were selected by different metrics; the configurations; Tables I-III; the pairwise
     comparison; convergence; the baselines and each job against them; the jobs, included or skipped and
     why; the files; the figures; where the sweep varies the architecture, whether the architectures rank
     the losses alike; and last the study's claims."""
-    c = contents
-    included = [j for j in c.jobs if j.included]
-    lines = header_lines(sweep, c.jobs, c.study)
-    lines += configurations_lines(c.study)
     by = c.study.by_architecture
-    lines += tables_lines(included, c.tables, c.sequences, c.study)
+    lines = header_lines(sweep, c.jobs, c.study) + configurations_lines(c.study) + tables_lines(c)
     lines += pairwise_lines(c.comparisons, by)
     if c.study.convergence:
         lines += ["", "## Convergence", "", convergence_markdown(c.study.convergence, by)]
-    lines += baseline_lines(c.base, c.baselines_on, c.tables, c.study, bool(included))
+    lines += baseline_lines(c)
     lines += ["", "## Jobs", "", table_render.markdown(jobs_rows(c.jobs, by)), "", DAMAGED_CURVES_TEXT]
     lines += files_lines(c.tables, by)
     lines += ["", "## Figures", "", figures_markdown(c.figures, out)]
     if c.study.agreement is not None:
-        lines += [
-            "",
-            "## Architectures: does the loss ranking agree?",
-            "",
-            agreement_markdown(c.study.agreement),
-        ]
+        agreement = architectures.agreement_markdown(c.study.agreement)
+        lines += ["", "## Architectures: does the loss ranking agree?", "", agreement]
     if c.speed is not None and c.speed.rows:
         lines += ["", f"## {SPEED_TITLE}", "", SPEED_TEXT, "", table_render.markdown(c.speed)]
     lines += across_lines(c.across, c.across_notes)
-    lines += ["", "## The study's claims", "", claims_markdown(c.study.claims, by)]
+    lines += ["", "## The study's claims", "", claims.claims_markdown(c.study.claims, by)]
     return "\n".join(lines) + "\n"
 
 
 def across_lines(table: Rows | None, notes: Sequence[str]) -> list[str]:
     """The section "Across datasets" where the sweep's checkpoints were evaluated on other data."""
-    unused = [f"- {note}" for note in notes]
+    unused = ["", *(f"- {note}" for note in notes)] if notes else []
     if table is None or not any(row[1] != row[2] for row in table.rows):
-        return ["", *unused] if unused else []
-    lines = ["", f"## {ACROSS_TITLE}", "", ACROSS_TEXT, "", table_render.markdown(table)]
-    return lines + (["", *unused] if unused else [])
+        return unused
+    title = across_datasets.ACROSS_TITLE
+    return ["", f"## {title}", "", across_datasets.ACROSS_TEXT, "", table_render.markdown(table), *unused]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -436,18 +370,17 @@ def write_tables(
         write_text_atomic(folder / f"{table.spec.key}.csv", table_csv(table))
         write_text_atomic(folder / f"{table.spec.key}.tex", table_latex(table))
     by = study.by_architecture
-    rows = (
-        comparison_csv_rows(comparisons, by),
-        configuration_rows(study.networks, by, csv=True),
-        convergence_csv_rows(study.convergence, by),
-        claims_csv_rows(study.claims, by),
-    )
-    for name, content in zip(TABLE_FILES, rows, strict=True):
-        write_text_atomic(folder / name, table_render.csv_text(content))
+    files = {
+        "pairwise.csv": comparison.comparison_csv_rows(comparisons, by),
+        "configurations.csv": configuration_rows(study.networks, by, csv=True),
+        "convergence.csv": convergence_csv_rows(study.convergence, by),
+        "claims.csv": claims.claims_csv_rows(study.claims, by),
+    }
     if study.agreement is not None:
-        extra = (rankings_csv_rows(study.agreement), interaction_csv_rows(study.agreement))
-        for name, content in zip(ARCHITECTURE_FILES, extra, strict=True):
-            write_text_atomic(folder / name, table_render.csv_text(content))
+        files["rankings.csv"] = architectures.rankings_csv_rows(study.agreement)
+        files["interaction.csv"] = architectures.interaction_csv_rows(study.agreement)
+    for name, content in files.items():
+        write_text_atomic(folder / name, table_render.csv_text(content))
 
 
 def ground_truth_note(missing: dict[str, str]) -> list[str]:
@@ -469,12 +402,13 @@ def write_figures(
     folder: Path,
     gt: dict[str, np.ndarray],
     missing: dict[str, str],
-    claims: Sequence[Claim] = (),
+    found: Sequence[Claim] = (),
 ) -> Figures:
     """Every figure, with the ground truth ``gt`` and the reasons it is ``missing`` for the other sequences
     (:func:`lossvo.report.jobs.ground_truth`); the curves and the APE bars per architecture where the
     networks span several (``curves_<architecture>.png``). Returns the paths written and a note if some
-    trajectory figure lacks ground truth; the forest plot of the claims where claim (a) was tested."""
+    trajectory figure lacks ground truth; the forest plot of the claims ``found`` where claim (a) was
+    tested."""
     figures = Figures()
     groups = architecture_groups(networks) if varies_architecture(networks) else {"": list(networks)}
     for (architecture, group), table in zip(groups.items(), tables, strict=False):  # Table I's first
@@ -484,7 +418,7 @@ def write_figures(
         if table.columns:
             plot_ape_bars(table, folder / f"ape_trans_rmse{suffix}.png")
             figures.paths.append(folder / f"ape_trans_rmse{suffix}.png")
-    if plot_forest(claims, networks, folder / "forest.png"):
+    if plot_forest(found, networks, folder / "forest.png"):
         figures.paths.append(folder / "forest.png")
     figures.notes += ground_truth_note(missing)
     for s in sequences:
@@ -505,11 +439,8 @@ def make_report(
     claimed_loss: str = CLAIMED_LOSS,
 ) -> Path:
     """Write the report of a sweep folder, claims made for the loss class ``claimed_loss`` and decided
-    with the equivalence margin ``margin``; returns the path of report.md.
-
-    Raises:
-        SweepError: if ``sweep`` is not a sweep folder.
-    """
+    with the equivalence margin ``margin``; returns the path of report.md. SweepError if ``sweep`` is not
+    a sweep folder."""
     sweep = Path(sweep)
     out = Path(out) if out is not None else sweep / "report"
     jobs = [load_job(p) for p in job_dirs(sweep)]
@@ -520,42 +451,30 @@ def make_report(
     networks = network_columns(jobs)
     sequences = evaluated_sequences(networks)
     included = [j for j in jobs if j.included]
+    cores = n_jobs or os.cpu_count() or 1
     base = BaselineRun()
     if with_baselines and included and sequences:
-        base = run_baselines(included, sequences, out / "cache", n_jobs or os.cpu_count() or 1)
-    evaluations, unused = find_evaluations(sweep, included)
+        base = run_baselines(included, sequences, out / "cache", cores)
+    evaluations, unused = across_datasets.find_evaluations(sweep, included)
     study = analyse(networks, sequences, margin, evaluations, claimed_loss)
-    notes = dict.fromkeys(study.unseen, UNSEEN_NOTE)
-    tables = build_tables(networks, base.columns, sequences, notes)
-    comparisons = compare(networks, study.by_architecture)
+    tables = build_tables(networks, base.columns, sequences, dict.fromkeys(study.unseen, UNSEEN_NOTE))
+    comparisons = comparison.compare(networks, study.by_architecture)
     write_tables(tables, comparisons, study, out / "tables")
-    figures = None
     gt, missing = ground_truth(included, sequences)
+    figures = None
     if with_figures:
         figures = write_figures(networks, tables, base, sequences, out / "figures", gt, missing, study.claims)
     speed = speed_rows(networks, gt, sequences) if included else None
     if speed is not None:
         write_text_atomic(out / "tables" / "speed.csv", table_render.csv_text(speed))
     across_notes = [f"evaluation not used: {note}" for note in unused]
-    across_base: dict[tuple[str, str], dict[str, Rmses]] = {}
+    across_base: dict[tuple[str, str], dict[str, across_datasets.Rmses]] = {}
     if with_baselines and evaluations:
-        across_base, base_notes = across_baselines(evaluations, out / "cache", n_jobs or os.cpu_count() or 1)
+        across_base, base_notes = across_datasets.across_baselines(evaluations, out / "cache", cores)
         across_notes += base_notes
-    across = across_rows(included, evaluations, across_base) if evaluations else None
+    across = across_datasets.across_rows(included, evaluations, across_base) if evaluations else None
     if across is not None:
         write_text_atomic(out / "tables" / "across_datasets.csv", table_render.csv_text(across))
-    contents = Contents(
-        jobs,
-        sequences,
-        tables,
-        comparisons,
-        base,
-        with_baselines,
-        figures,
-        study,
-        speed,
-        across,
-        across_notes,
-    )
-    write_text_atomic(out / "report.md", render_report(sweep, out, contents))
+    found = (tables, comparisons, base, with_baselines, figures, study, speed, across, across_notes)
+    write_text_atomic(out / "report.md", render_report(sweep, out, Contents(jobs, sequences, *found)))
     return out / "report.md"

@@ -168,16 +168,8 @@ def plot_ape_bars(table: Table, path: Path) -> None:
         cells = [row[c][0] for row in table.cells]
         means = np.array([cell.mean for cell in cells])
         stds = np.array([cell.std if cell.n > 1 else 0.0 for cell in cells])
-        ax.bar(
-            x + (c - (len(table.columns) - 1) / 2) * width,
-            means,
-            width,
-            yerr=stds,
-            color=color,
-            hatch="//" if column.kind == BASELINE else None,
-            label=column.label,
-            capsize=2,
-        )
+        style = {"color": color, "hatch": "//" if column.kind == BASELINE else None, "label": column.label}
+        ax.bar(x + (c - (len(table.columns) - 1) / 2) * width, means, width, yerr=stds, capsize=2, **style)
     ax.set_xticks(x, table.rows)
     ax.set_xlabel("sequence")
     ax.set_ylabel("APE translation RMSE (m)")

@@ -55,16 +55,9 @@ def column_rows(column: Column) -> list[dict[str, Any]]:
     rows = []
     for position, (replicate, per_sequence) in enumerate(zip(column.replicates, column.results, strict=True)):
         job = column.jobs[position] if position < len(column.jobs) else None
-        head: dict[str, Any] = {
-            "column": column.label,
-            "kind": column.kind,
-            "replicate": replicate,
-            "position": position,
-            "job": job.path.name if job else None,
-            "seed": job.seed if job else None,
-            "architecture": column.architecture,
-            "data": job.data if job else None,
-        }
+        name, seed, data = (job.path.name, job.seed, job.data) if job else (None, None, None)
+        values = (column.label, column.kind, replicate, position, name, seed, column.architecture, data)
+        head: dict[str, Any] = dict(zip(FIELDS, values, strict=True))
         head.update({f"{CHOICE}{k}": v for k, v in (job.choices if job else {}).items()})
         for sequence, scores in per_sequence.items():
             for path in METRICS:

@@ -5,7 +5,7 @@ into a :class:`Job` and never raises: what cannot be used is recorded in ``Job.s
 why) or ``Job.notes``. ``status.json`` and ``metrics.csv`` are read through their contract
 (:mod:`lossvo.evaluation.job_folder`), ``results.json`` through its own
 (:class:`lossvo.evaluation.job_folder.Results`); the data a job trained and was evaluated on comes from its
-``data`` record (:func:`trained_sequences`, :func:`unseen_sequences`, :func:`ground_truth`). The report never
+``data`` record (:func:`trained_sequences`, :func:`ground_truth`). The report never
 builds a datamodule.
 """
 
@@ -105,14 +105,9 @@ def job_number(path: Path) -> tuple[int, str]:
 
 
 def latest_sweep(parent: Path) -> Path:
-    """The newest sweep folder directly under ``parent`` (e.g. ``outputs/multirun``).
-
-    Newest by the modification time of its ``multirun.yaml`` (written once, when the sweep starts; a
-    report written later into the folder does not make it newer), else of the folder itself.
-
-    Raises:
-        SweepError: if ``parent`` is missing or holds no sweep folder.
-    """
+    """The newest sweep folder directly under ``parent`` (e.g. ``outputs/multirun``), by the modification
+    time of its ``multirun.yaml`` (written once, when the sweep starts), else of the folder itself;
+    SweepError if there is none."""
     if not parent.is_dir():
         raise SweepError(f"{parent}: no such folder (expected a folder of sweeps, e.g. outputs/multirun)")
     sweeps = [p for p in parent.iterdir() if p.is_dir() and any(p.glob("*/.hydra/config.yaml"))]
@@ -316,43 +311,35 @@ UNRECORDED = "unrecorded"
 """The code version of a job whose status.json records none."""
 
 
-def _jobs_by(jobs: Sequence[Job], values: Callable[[Job], tuple[str, ...]]) -> dict[str, list[str]]:
-    """The included jobs' folder names under each of their ``values``."""
+def _pooled_note(
+    jobs: Sequence[Job], values: Callable[[Job], tuple[str, ...]], ran: str, why: str
+) -> str | None:
+    """The report's note where the included jobs' ``values`` (code versions, machines) are more than one:
+    each value with its jobs' folders; None where there is one."""
     found: dict[str, list[str]] = {}
     for job in (j for j in jobs if j.included):
         for value in values(job):
             found.setdefault(value, []).append(job.path.name)
-    return found
-
-
-def _listed(found: dict[str, list[str]]) -> str:
-    return "; ".join(f"`{value}`: {', '.join(names)}" for value, names in found.items())
+    if len(found) < 2:
+        return None
+    listed = "; ".join(f"`{value}`: {', '.join(names)}" for value, names in found.items())
+    return (
+        f"**The included jobs ran {ran.format(len(found))}**, pooled in every table and test{why}: {listed}."
+    )
 
 
 def code_versions_note(jobs: Sequence[Job]) -> str | None:
-    """The report's note where the included jobs ran more than one code version (None where they ran
-    one): each version with its jobs (a job resumed under another version under each, one without a
-    record under :data:`UNRECORDED`), and that they are pooled."""
-    found = _jobs_by(jobs, lambda job: job.code or (UNRECORDED,))
-    if len(found) < 2:
-        return None
-    return (
-        f"**The included jobs ran {len(found)} code versions**, pooled in every table and test (a job "
-        f"resumed under another version counts under each): {_listed(found)}."
-    )
+    """:func:`_pooled_note` of the code versions (a job resumed under another version under each, one
+    without a record under :data:`UNRECORDED`)."""
+    why = " (a job resumed under another version counts under each)"
+    return _pooled_note(jobs, lambda job: job.code or (UNRECORDED,), "{} code versions", why)
 
 
 def machines_note(jobs: Sequence[Job]) -> str | None:
-    """The report's note where the included jobs recorded more than one machine (jobs without a record
-    are not counted): one code and seed give other numbers on another CPU, so jobs paired by seed across
-    machines are not one start."""
-    found = _jobs_by(jobs, lambda job: job.machines)
-    if len(found) < 2:
-        return None
-    return (
-        f"**The included jobs ran on {len(found)} machines**, pooled in every table and test; jobs paired "
-        f"by seed on different machines are not one start (their arithmetic differs): {_listed(found)}."
-    )
+    """:func:`_pooled_note` of the machines recorded (jobs without a record are not counted): one code
+    and seed give other numbers on another CPU, so jobs paired by seed across machines are not one start."""
+    why = "; jobs paired by seed on different machines are not one start (their arithmetic differs)"
+    return _pooled_note(jobs, lambda job: job.machines, "on {} machines", why)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -402,12 +389,6 @@ def trained_sequences(job: Job) -> set[str]:
     return set(data.train) if same else set()
 
 
-def unseen_sequences(job: Job) -> set[str]:
-    """The sequences of route families an included job's network never trained on: those its
-    results.json flags (``sequences[s].unseen``) and lists (``data.splits.unseen``)."""
-    return job.included_results.unseen()
-
-
 # --------------------------------------------------------------------------------------------------
 # Trajectories and ground truth
 # --------------------------------------------------------------------------------------------------
@@ -426,14 +407,9 @@ def read_trajectory(job: Job, sequence: str) -> np.ndarray | None:
 def ground_truth(
     jobs: Sequence[Job], sequences: Sequence[str]
 ) -> tuple[dict[str, np.ndarray], dict[str, str]]:
-    """Ground-truth poses (N, 4, 4), translation in m, of the sequences, each read from the pose file that
-    the results.json of the first of ``jobs`` to evaluate it names (``sequences[s].ground_truth``: a KITTI
-    pose file, or a TUM file ``.tum``).
-
-    Returns:
-        ``{sequence: poses}`` of the sequences whose file could be read, and ``{sequence: reason}`` of the
-        others (evaluated by no job, no file named, a file that no longer exists or cannot be read).
-    """
+    """``{sequence: ground-truth poses (N, 4, 4), m}`` read from the pose file (KITTI, or TUM ``.tum``)
+    that the results.json of the first of ``jobs`` to evaluate it names, and ``{sequence: reason}`` of the
+    sequences without."""
     found, missing = {}, {}
     for s in sequences:
         job = next((j for j in jobs if j.results and s in j.results.sequences), None)

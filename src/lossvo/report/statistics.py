@@ -49,21 +49,9 @@ SIGN_FLIP_DRAWN = "sign-flip, random"
 def convergence_epoch(
     epochs: np.ndarray, values: np.ndarray, tolerance: float = CONVERGENCE_TOLERANCE, mode: str = "min"
 ) -> int | None:
-    """The first epoch whose value comes within ``tolerance`` (relative) of the best value of the curve.
-
-    For ``mode="min"`` that is the first ``value <= best + tolerance * |best|`` (``best * 1.1`` for a
-    positive best and the default 10 %); for ``"max"`` the first ``value >= best - tolerance * |best|``.
-    Non-finite values are ignored.
-
-    Args:
-        epochs: (E,) epoch numbers, in any counting (returned as given), in increasing order.
-        values: (E,) the curve (e.g. ``val/score``, unitless).
-        tolerance: relative distance to the best value (0.1: 10 %).
-        mode: ``"min"`` (lower is better) or ``"max"``.
-
-    Returns:
-        The epoch number, or None if the curve has no finite value.
-    """
+    """The first of ``epochs`` (E,), as given, whose finite value of the curve ``values`` (E,) comes within
+    ``tolerance`` (relative) of its best: ``value <= best + tolerance * |best|`` for ``mode="min"``,
+    ``>= best - tolerance * |best|`` for ``"max"``; None if no value is finite."""
     if mode not in ("min", "max"):
         raise UserError(f"mode: expected 'min' or 'max', got {mode!r}")
     epochs, values = np.asarray(epochs), np.asarray(values, dtype=np.float64)
@@ -99,11 +87,9 @@ def has_ties(differences: np.ndarray) -> bool:
 
 
 def sign_flip_p(differences: np.ndarray, max_enumerated: int = MAX_ENUMERATED) -> tuple[float, bool]:
-    """Two-sided sign-flip permutation p-value of the mean of paired differences (n,) and whether it is
-    exact: ``scipy.stats.permutation_test`` with ``permutation_type="samples"`` on one sample (each of the
-    2^n sign patterns equally likely under the null that the differences are symmetric about 0), exact
-    with ties and zeros. Above ``max_enumerated`` patterns p is estimated from :data:`DRAWS` random
-    patterns (fixed seed) as (1 + hits) / (1 + DRAWS). 1.0 for n = 0 or all zeros."""
+    """Two-sided sign-flip p-value of the mean of paired differences (n,) (``scipy.stats.permutation_test``,
+    ``permutation_type="samples"``) and whether it is exact: above ``max_enumerated`` of the 2^n patterns,
+    :data:`DRAWS` random ones (fixed seed). 1.0 for n < 2 or all zeros."""
     d = np.asarray(differences, dtype=np.float64)
     if d.size < 2 or not np.any(d != 0):  # one difference: both patterns' |sum| are equal
         return 1.0, True
@@ -141,8 +127,7 @@ def smallest_p(n: int) -> float:
 
 
 def smallest_holm_p(n: int, comparisons: int = 1) -> float:
-    """The smallest Holm-corrected p of a family of ``comparisons`` tests on n paired seeds each:
-    ``min(1, comparisons * 2 / 2**n)``."""
+    """The smallest Holm-corrected p of a family of ``comparisons`` tests on n paired seeds each."""
     return min(1.0, max(1, comparisons) * smallest_p(n))
 
 
@@ -162,12 +147,9 @@ def min_seeds(comparisons: int = 1, alpha: float = ALPHA) -> int:
 
 
 def holm(p_values: Sequence[float]) -> np.ndarray:
-    """Holm's step-down adjusted p-values (m,) of a family of m p-values (in the given order).
-
-    With the p-values sorted ascending, p_(1) <= ... <= p_(m), the adjusted
-    q_(i) = min(1, max_{j <= i} (m - j + 1) p_(j)); a claim rejects where q < alpha. A NaN p (a
-    comparison without pairs) counts in m as 1.0 and stays NaN.
-    """
+    """Holm's step-down adjusted p-values (m,) of a family of m p-values, in the given order:
+    q_(i) = min(1, max_{j <= i} (m - j + 1) p_(j)) over the ascending p_(j). A NaN p counts in m as 1.0
+    and stays NaN."""
     p = np.asarray(p_values, dtype=np.float64)
     m = p.size
     filled = np.where(np.isnan(p), 1.0, p)
@@ -183,9 +165,8 @@ def holm(p_values: Sequence[float]) -> np.ndarray:
 
 
 def t_interval(differences: np.ndarray, confidence: float = CONFIDENCE) -> tuple[float, float]:
-    """The two-sided t-interval of the mean of paired differences (n,), in their unit:
-    mean ± t_{(1+confidence)/2, n-1} · sd / sqrt(n) (sd with ddof = 1), as
-    ``scipy.stats.ttest_1samp(d).confidence_interval(confidence)``; (NaN, NaN) for n < 2, (mean, mean)
+    """The two-sided t-interval of the mean of paired differences (n,), in their unit
+    (``scipy.stats.ttest_1samp(d).confidence_interval(confidence)``); (NaN, NaN) for n < 2, (mean, mean)
     where every difference is the same (scipy gives NaN there)."""
     d = np.asarray(differences, dtype=np.float64)
     if d.size < 2:
@@ -207,10 +188,9 @@ def relative_differences(claimed: np.ndarray, other: np.ndarray) -> np.ndarray:
 
 
 def tost_p(relative: np.ndarray, margin: float = MARGIN) -> float:
-    """The p-value of the two one-sided t-tests (TOST) of equivalence within ±``margin``: the larger p of
-    H0: mean <= -margin (``ttest_1samp(r, -margin, alternative="greater")``) and H0: mean >= margin
-    (``alternative="less"``). p < alpha exactly where the (1 - 2 alpha) t-interval lies inside
-    (-margin, margin). NaN for n < 2; where every value is the same, 0 inside the margin and 1 outside."""
+    """The p-value of the two one-sided t-tests (TOST) of equivalence of the mean of ``relative`` (n,) within
+    ±``margin``: the larger p of ``ttest_1samp`` against -margin (greater) and +margin (less). NaN for
+    n < 2; where every value is the same, 0 inside the margin and 1 outside."""
     r = np.asarray(relative, dtype=np.float64)
     if r.size < 2:
         return math.nan
@@ -234,13 +214,8 @@ def seeds_needed(
     :func:`min_seeds` (m, alpha). inf where ``mean`` is 0 (no effect observed); NaN where ``mean`` or
     ``sd`` is not finite (fewer than two seeds).
     """
-    if not (math.isfinite(mean) and math.isfinite(sd)):
-        return math.nan
-    if mean == 0:
-        return math.inf
     m = max(1, comparisons)
-    z = float(norm.ppf(1 - alpha / (2 * m))) + float(norm.ppf(power))
-    return float(max(math.ceil((z * sd / abs(mean)) ** 2), min_seeds(m, alpha)))
+    return _normal_seeds(float(norm.ppf(1 - alpha / (2 * m))), power, sd, abs(mean), min_seeds(m, alpha))
 
 
 def seeds_for_equivalence(
@@ -254,13 +229,18 @@ def seeds_for_equivalence(
     test), at least 2. inf where |mean| >= margin (the observed difference is itself outside the margin);
     NaN where ``mean`` or ``sd`` is not finite.
     """
-    if not (math.isfinite(mean) and math.isfinite(sd)):
+    return _normal_seeds(float(norm.ppf(1 - alpha)), power, sd, margin - abs(mean), 2)
+
+
+def _normal_seeds(z_alpha: float, power: float, sd: float, room: float, fewest: int) -> float:
+    """ceil(((z_alpha + z_power) · sd / room)²), at least ``fewest``; inf where ``room`` <= 0 (and finite),
+    NaN where ``sd`` or ``room`` is not finite."""
+    if not (math.isfinite(room) and math.isfinite(sd)):
         return math.nan
-    room = margin - abs(mean)
     if room <= 0:
         return math.inf
-    z = float(norm.ppf(1 - alpha)) + float(norm.ppf(power))
-    return float(max(math.ceil((z * sd / room) ** 2), 2))
+    z = z_alpha + float(norm.ppf(power))
+    return float(max(math.ceil((z * sd / room) ** 2), fewest))
 
 
 # --------------------------------------------------------------------------------------------------
@@ -270,16 +250,12 @@ def seeds_for_equivalence(
 
 @dataclass(frozen=True)
 class PairedTest:
-    """One configuration against another (``versus``) on n paired values (seeds, or (seed, sequence)
-    cells for :func:`cells_test`), in the quantity's unit: the means over those pairs, the two-sided
-    p-value (NaN for n = 0) and its ``method``, the median and sample SD (ddof = 1; NaN for n < 2) of
-    the differences (this - versus), the pairs where this one is lower, the 95 % interval of the mean
-    difference (``ci_low``, ``ci_high``), the Holm-corrected p and the :func:`seeds_needed` of its family
-    (:func:`corrected`; a family of one as built).
-
-    On the per-seed relative differences r = (this - versus) / |versus| (unitless): their mean
-    ``rel_mean`` and SD ``rel_sd``, the (1 - 2 alpha) t-interval ``rel_low``, ``rel_high`` (90 %), the TOST
-    p of equivalence within ±``margin`` (:func:`tost_p`) and :func:`seeds_for_equivalence`."""
+    """One configuration against another (``versus``) on n paired values (seeds, or (seed, sequence) cells
+    for :func:`cells_test`), in the quantity's unit: means, two-sided p and its method, the differences'
+    (this - versus) median and SD (ddof = 1), the pairs where this one is lower, the 95 % t-interval of the
+    mean difference, Holm's p and :func:`seeds_needed` of its family (:func:`corrected`); on the relative
+    differences r = (this - versus) / |versus| (unitless): mean, SD, 90 % t-interval, TOST p within
+    ±``margin`` and :func:`seeds_for_equivalence`."""
 
     versus: str
     n: int
@@ -377,16 +353,9 @@ def cells_test(versus: str, claimed: np.ndarray, other: np.ndarray) -> PairedTes
     if claimed.size == 0:
         return PairedTest(versus, 0, math.nan, math.nan, math.nan, method="Wilcoxon over cells")
     d = claimed - other
-    return PairedTest(
-        versus,
-        int(d.size),
-        float(claimed.mean()),
-        float(other.mean()),
-        wilcoxon_p(d),
-        float(np.median(d)),
-        int((d < 0).sum()),
-        "Wilcoxon over cells",
-    )
+    means = float(claimed.mean()), float(other.mean())
+    median, lower = float(np.median(d)), int((d < 0).sum())
+    return PairedTest(versus, int(d.size), *means, wilcoxon_p(d), median, lower, "Wilcoxon over cells")
 
 
 def corrected(tests: Sequence[PairedTest], alpha: float = ALPHA) -> list[PairedTest]:
@@ -434,12 +403,7 @@ def verdict(tests: Sequence[PairedTest], alpha: float = ALPHA) -> str:
 def verdict_text(verdict_: str, margin: float = MARGIN) -> str:
     """A verdict as the report words it: ``equivalent within ±5 %`` for :data:`EQUIVALENT` (and in
     :data:`PARTLY`), else the verdict itself."""
-    within = f"within ±{100 * margin:g} %"
-    if verdict_ == EQUIVALENT:
-        return f"{EQUIVALENT} {within}"
-    if verdict_ == PARTLY:
-        return f"{PARTLY} {within}"
-    return verdict_
+    return f"{verdict_} within ±{100 * margin:g} %" if verdict_ in (EQUIVALENT, PARTLY) else verdict_
 
 
 # --------------------------------------------------------------------------------------------------

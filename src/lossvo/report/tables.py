@@ -151,50 +151,23 @@ def build_table(
     columns are averaged over the same sequences), then takes mean ± std over the replicates.
     """
     frame = results_frame(columns) if frame is None else frame
-    data = [[metric_matrix(frame, c, path, sequences) for _, path in spec.metrics] for c in columns]
-    cells = [
-        [[Cell.of(data[c][m][:, s]) for m in range(len(spec.metrics))] for c in range(len(columns))]
-        for s in range(len(sequences))
-    ]
-    common = [
-        j
-        for j in range(len(sequences))
-        if all(
-            np.isfinite(data[c][m][:, j]).any() for c in range(len(columns)) for m in range(len(spec.metrics))
-        )
-    ]
-    mean_row = [
-        [Cell.of(_replicate_means(data[c][m], common)) for m in range(len(spec.metrics))]
-        for c in range(len(columns))
-    ]
-    table = Table(
-        spec,
-        list(columns),
-        [*sequences, MEAN_ROW],
-        [*cells, mean_row],
-        [sequences[j] for j in common],
-        {s: n for s, n in (notes or {}).items() if s in sequences},
-    )
-    mark_best(table)
-    return table
+    k = len(spec.metrics)
+    data = [metric_matrix(frame, c, path, sequences) for c in columns for _, path in spec.metrics]
+    common = [j for j in range(len(sequences)) if all(np.isfinite(d[:, j]).any() for d in data)]
+    means = [d[:, common].mean(axis=1) if common else np.full(len(d), np.nan) for d in data]
 
+    def by_column(cells: list[Cell]) -> list[list[Cell]]:
+        return [cells[c * k : (c + 1) * k] for c in range(len(columns))]
 
-def _replicate_means(values: np.ndarray, common: Sequence[int]) -> np.ndarray:
-    """(replicates,) mean of each replicate over the ``common`` sequences (NaN if one is missing)."""
-    if not common:
-        return np.full(len(values), np.nan)
-    return values[:, list(common)].mean(axis=1)
-
-
-def mark_best(table: Table) -> None:
-    """Bold the minimum mean of each row and metric, over all columns (networks and baselines)."""
-    for row in table.cells:
-        for m in range(len(table.spec.metrics)):
-            means = np.array([row[c][m].mean for c in range(len(table.columns))])
-            if np.isfinite(means).any():
-                best = np.nanmin(means)
-                for c in range(len(table.columns)):
-                    row[c][m].best = bool(means[c] == best)
+    cells = [by_column([Cell.of(d[:, s]) for d in data]) for s in range(len(sequences))]
+    cells.append(by_column([Cell.of(m) for m in means]))
+    for row in cells:  # bold: the minimum mean of each row and metric, over all columns
+        for m in range(k):
+            row_means = np.array([column[m].mean for column in row])
+            for column, mean in zip(row, row_means, strict=True):
+                column[m].best = bool(np.isfinite(row_means).any() and mean == np.nanmin(row_means))
+    notes = {s: n for s, n in (notes or {}).items() if s in sequences}
+    return Table(spec, list(columns), [*sequences, MEAN_ROW], cells, [sequences[j] for j in common], notes)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -214,37 +187,24 @@ def fmt(x: float, digits: int = 4) -> str:
     return f"{x:.{decimals}f}"
 
 
-def cell_text(cell: Cell, replicated: bool) -> str:
-    """A table cell as text: ``"**mean** ± std"`` (bold where best; the std only for n > 1 when the
-    table has replicates), ``"n/a"`` for n = 0."""
+def mean_std_text(cell: Cell, digits: int = 4, replicated: bool = True) -> str:
+    """``"mean ± std"`` of a cell, the mean ``**bold**`` where best (``"mean"`` for n = 1 or where not
+    ``replicated``, ``"n/a"`` for n = 0)."""
     if cell.n == 0:
         return "n/a"
-    text = f"**{fmt(cell.mean)}**" if cell.best else fmt(cell.mean)
-    if replicated and cell.n > 1:
-        text += f" ± {fmt(cell.std, 2)}"
-    return text
-
-
-def mean_std_text(cell: Cell, digits: int = 4) -> str:
-    """``"mean ± std"`` of a cell (``"mean"`` for n = 1, ``"n/a"`` for n = 0), no bold."""
-    if cell.n == 0:
-        return "n/a"
-    return fmt(cell.mean, digits) + (f" ± {fmt(cell.std, 2)}" if cell.n > 1 else "")
-
-
-def _replicated(table: Table) -> bool:
-    return any(len(c.replicates) > 1 for c in table.columns)
+    text = f"**{fmt(cell.mean, digits)}**" if cell.best else fmt(cell.mean, digits)
+    return text + (f" ± {fmt(cell.std, 2)}" if replicated and cell.n > 1 else "")
 
 
 def table_rows(table: Table, mean_name: str = "**mean**") -> Rows:
     """The table as text: ``sequence``, then per column and metric ``"<label>: <metric>"``; cells by
-    :func:`cell_text`; rows named with their note, the mean row ``mean_name``."""
-    replicated = _replicated(table)
+    :func:`mean_std_text`; rows named with their note, the mean row ``mean_name``."""
+    replicated = any(len(c.replicates) > 1 for c in table.columns)
     header = ["sequence"] + [f"{c.label}: {name}" for c in table.columns for name, _ in table.spec.metrics]
     rows: list[list[object]] = []
     for row, cells in zip(table.rows, table.cells, strict=True):
         name = mean_name if row == MEAN_ROW else table.label(row)
-        rows.append([name, *(cell_text(cell, replicated) for col in cells for cell in col)])
+        rows.append([name, *(mean_std_text(cell, replicated=replicated) for col in cells for cell in col)])
     return Rows(header, rows)
 
 
