@@ -335,6 +335,18 @@ def test_columns_are_named_by_the_overrides_that_differ() -> None:
     assert {j.label for j in jobs} == {"evaluate=false,loss=euler"}
 
 
+def test_a_label_names_its_configuration_first_whatever_order_the_jobs_are_read_in() -> None:
+    def job(*overrides: str) -> Job:
+        parsed = parse_overrides(overrides)
+        return Job(Path("job"), overrides=parsed, architecture=parsed.get("model"))
+
+    jobs = [job("loss=euler", "experiment=mix", "seed=0"), job("model=flowvo", "loss=quat", "seed=0")]
+    for ordered in (jobs, jobs[::-1]):
+        assert varying_keys(ordered) == ["experiment", "model", "loss"]
+        label_jobs(ordered)
+        assert [j.label for j in jobs] == ["experiment=mix,loss=euler", "model=flowvo,loss=quat"]
+
+
 def test_settings_of_each_training_data_do_not_name_configurations() -> None:
     def job(*overrides: str) -> Job:
         parsed = parse_overrides(overrides)
