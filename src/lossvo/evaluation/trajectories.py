@@ -21,6 +21,7 @@ from torch import Tensor
 from lossvo import geometry
 from lossvo.atomic import write_text_atomic
 from lossvo.data.kitti import KittiFormatError
+from lossvo.data.sequence import text_lines
 
 
 def integrate(relative: Tensor, start: Tensor | None = None) -> Tensor:
@@ -87,17 +88,9 @@ def read_tum(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
         KittiFormatError: naming the file and line for a line without 8 numbers or a zero quaternion.
     """
     path = Path(path)
-    try:
-        lines = path.read_text().splitlines()
-    except OSError as e:
-        raise KittiFormatError(f"{path}: cannot read TUM file ({e.strerror})") from None
-    except UnicodeDecodeError:
-        raise KittiFormatError(f"{path}: cannot read TUM file (not a text file)") from None
-    rows, numbers = [], []
-    for i, line in enumerate(lines, start=1):
-        if line.strip() and not line.lstrip().startswith("#"):
-            rows.append(i)
-            numbers.append(_tum_numbers(path, i, line))
+    lines = text_lines(path, "TUM file", comments=True, error=KittiFormatError)
+    rows = [i for i, _ in lines]
+    numbers = [_tum_numbers(path, i, line) for i, line in lines]
     if not rows:
         raise KittiFormatError(f"{path}: no poses (expected lines 'timestamp tx ty tz qx qy qz qw')")
     values = np.array(numbers)
