@@ -59,6 +59,11 @@ def design(jobs: Sequence[Job]) -> tuple[pd.DataFrame, pd.DataFrame]:
     return overrides, choices
 
 
+CONFIGURATION_KEYS = ("experiment", ARCHITECTURE_KEY, DATA_KEY)
+"""The keys that name a configuration, first in a label (``model=flowvo,loss=euler``) whatever order the
+jobs' folders are read in."""
+
+
 def varying_keys(jobs: Sequence[Job]) -> list[str]:
     """Override keys (other than ``seed``) whose value differs between jobs or is missing in some:
     :data:`CONFIGURATION_KEYS` first, then the others in the order they first appear; the training
@@ -69,12 +74,10 @@ def varying_keys(jobs: Sequence[Job]) -> list[str]:
     values = overrides.assign(**{g: choices[g] for g in GROUPS if g in overrides})
     varies = values.nunique(dropna=False) > 1
     keys = [k for k in overrides if varies[k] and not _fixed_by_group(k, overrides, choices)]
-    return sorted(keys, key=lambda k: CONFIGURATION_KEYS.index(k) if k in CONFIGURATION_KEYS else 3)
-
-
-CONFIGURATION_KEYS = ("experiment", ARCHITECTURE_KEY, DATA_KEY)
-"""The keys that name a configuration, first in a label (``model=flowvo,loss=euler``) whatever order the
-jobs' folders are read in."""
+    return sorted(
+        keys,
+        key=lambda k: CONFIGURATION_KEYS.index(k) if k in CONFIGURATION_KEYS else len(CONFIGURATION_KEYS),
+    )
 
 
 GROUPS = (DATA_KEY, ARCHITECTURE_KEY)
