@@ -1,16 +1,7 @@
-"""Which metric axioms each rotation distance satisfies, checked numerically.
-
-A distance ``d`` on rotations is a metric when, for all rotations x, y, z: (1) ``d(x, y) >= 0``; (2)
-``d(x, y) = 0`` iff x and y are the same rotation, whichever representation (Euler triple, quaternion sign)
-is used; (3) ``d(x, y) = d(y, x)``; (4) ``d(x, z) <= d(x, y) + d(y, z)``. Each axiom is checked in float64
-on seeded random rotations and on the triples where a failure shows first (midpoints of short and long
-geodesics, midpoints in the representation's own coordinates), the worst case kept as evidence.
-``python -m lossvo.axioms`` prints them as a table (:mod:`lossvo.axioms`; its copy and what it means:
-docs/losses.md).
-
-Closed forms in the relative angle ``theta`` in [0, pi]: ``min_b |q_a - b q_b| = 2 sin(theta / 4)``
-(from ``|q_a -+ q_b|^2 = 2 -+ 2 <q_a, q_b>``, ``|<q_a, q_b>| = cos(theta / 2)``) and
-``|R_a - R_b|_F^2 = 4 (1 - cos theta) = 8 sin^2(theta / 2)``.
+"""Which metric axioms each rotation distance satisfies, checked numerically in float64 on seeded random
+rotations and on the triples where a failure shows first, the worst case kept as evidence: non-negativity,
+identity on rotations (whichever Euler triple or quaternion sign writes them), symmetry, the triangle
+inequality. ``python -m lossvo.axioms`` prints the table; docs/losses.md explains it.
 """
 
 from __future__ import annotations
@@ -152,15 +143,7 @@ DISTANCES: tuple[Distance, ...] = (
 
 
 def random_rotations(n: int, generator: torch.Generator, max_angle: float = math.pi) -> Tensor:
-    """Random rotations in float64: uniform axes, angles uniform in [0, max_angle].
-
-    Args:
-        n: number of rotations.
-        generator: source of randomness (seeded by the caller).
-        max_angle: largest rotation angle, radians.
-    Returns:
-        (n, 3, 3) rotation matrices.
-    """
+    """(n, 3, 3) float64 rotations: uniform axes, angles uniform in [0, max_angle] radians."""
     axis = torch.randn(n, 3, generator=generator, dtype=torch.float64)
     axis = axis / torch.linalg.vector_norm(axis, dim=-1, keepdim=True)
     angle = max_angle * torch.rand(n, 1, generator=generator, dtype=torch.float64)
@@ -168,34 +151,22 @@ def random_rotations(n: int, generator: torch.Generator, max_angle: float = math
 
 
 def geodesic_midpoint(R_a: Tensor, R_b: Tensor) -> Tensor:
-    """Midpoint of the shortest geodesic from ``R_a`` to ``R_b``: ``R_a exp(log(R_aᵀ R_b) / 2)``.
-
-    Args:
-        R_a, R_b: (..., 3, 3) rotation matrices.
-    Returns:
-        (..., 3, 3) rotation matrices.
-    """
+    """Midpoints ``R_a exp(log(R_aᵀ R_b) / 2)`` (..., 3, 3) of the shortest geodesics from R_a to R_b."""
     return R_a @ g.so3_exp(0.5 * g.so3_log(R_a.transpose(-1, -2) @ R_b))
 
 
 @dataclass(frozen=True)
 class Samples:
-    """Rotation matrices the axioms are checked on (float64).
-
-    ``pairs``: (2, N, 3, 3) random pairs; ``triples``: (3, M, 3, 3) with the middle rotation
-    on the geodesic between the outer two or random.
-    """
+    """Float64 rotations: ``pairs`` (2, N, 3, 3) random; ``triples`` (3, M, 3, 3) whose middle rotation is
+    on the geodesic between the outer two, or random."""
 
     pairs: Tensor
     triples: Tensor
 
 
 def make_samples(n: int = 4096, seed: int = 0) -> Samples:
-    """Random pairs and the triples on which the triangle inequality is hardest to meet.
-
-    Triples: fully random; geodesic midpoints of short (<= 0.2 rad), medium and long (up to pi)
-    geodesics, where squared distances fail first.
-    """
+    """Random pairs, and triples: random, and midpoints of short (<= 0.2 rad), medium and long (up to pi)
+    geodesics, where squared distances fail the triangle inequality first."""
     gen = torch.Generator().manual_seed(seed)
     pairs = torch.stack((random_rotations(n, gen), random_rotations(n, gen)))
     outer = []
@@ -251,11 +222,7 @@ def check_symmetry(d: Distance, s: Samples) -> Verdict:
 
 
 def _coordinate_midpoints(d: Distance, s: Samples) -> tuple[Tensor, Tensor, Tensor]:
-    """Triples whose middle is the midpoint in the representation's coordinates (x, (x+z)/2, z).
-
-    Only for Euler angles, where the coordinates are a vector space in which the Euclidean
-    distance is exact; the midpoint triple is where a squared Euclidean distance fails.
-    """
+    """Triples (x, (x+z)/2, z) in Euler coordinates, where a squared Euclidean distance fails."""
     x = d.representation.from_matrix(s.triples[0])
     z = d.representation.from_matrix(s.triples[2])
     return x, 0.5 * (x + z), z

@@ -1,10 +1,6 @@
 """Batched SO(3) / SE(3) maps and conversions: exp / log, the SE(3) V matrix, Euler angles, quaternions,
-6-D rotations, poses.
-
-Every function takes tensors with any leading (batch) dimensions, in float32 or float64 on any device, with
-finite gradients at the identity and near 180 degrees. Conventions (poses and camera axes from the KITTI
-odometry benchmark, Geiger et al., CVPR 2012; the SE(3) exponential from Barfoot, *State Estimation for
-Robotics*, 2017):
+6-D rotations, poses. Any leading dimensions, float32 or float64, any device; finite gradients at the
+identity and near 180 degrees. Conventions (KITTI odometry; Barfoot, *State Estimation for Robotics*):
 
 - A pose is a 4x4 camera-to-world matrix ``T_w_c``; camera axes x right, y down, z forward.
 - se(3) vectors are ``xi = (rho, omega)``: ``Exp(xi) = [[exp(omega^), V(omega) rho], [0, 1]]``.
@@ -13,8 +9,7 @@ Robotics*, 2017):
 - 6-D rotations are the first two columns of the matrix, ``(c1, c2)``, mapped back by Gram-Schmidt.
 
 RoMa does the rotation maths; written here is what it lacks: the SE(3) exp / log (the V matrix and its
-inverse) and a geodesic angle accurate with finite gradients at 0 and at pi (``roma.rotmat_geodesic_distance``
-uses an arcsine). Distances: :mod:`lossvo.geometry.distances`.
+inverse).
 """
 
 from __future__ import annotations
@@ -40,13 +35,7 @@ def check_shape(x: Tensor, tail: tuple[int, ...], name: str) -> None:
 
 
 def hat(v: Tensor) -> Tensor:
-    """Skew-symmetric matrix of a vector: ``hat(v) @ u == cross(v, u)``.
-
-    Args:
-        v: (..., 3) vectors.
-    Returns:
-        (..., 3, 3) skew-symmetric matrices.
-    """
+    """Skew-symmetric matrices, (..., 3) -> (..., 3, 3): ``hat(v) @ u == cross(v, u)``."""
     check_shape(v, (3,), "v")
     x, y, z = v.unbind(-1)
     zero = torch.zeros_like(x)
@@ -55,13 +44,7 @@ def hat(v: Tensor) -> Tensor:
 
 
 def vee(W: Tensor) -> Tensor:
-    """Vector of a skew-symmetric matrix (inverse of :func:`hat`); uses the skew part of ``W``.
-
-    Args:
-        W: (..., 3, 3) matrices.
-    Returns:
-        (..., 3) vectors.
-    """
+    """The vector of ``W``'s skew part, (..., 3, 3) -> (..., 3); the inverse of :func:`hat`."""
     check_shape(W, (3, 3), "W")
     return 0.5 * torch.stack(
         (W[..., 2, 1] - W[..., 1, 2], W[..., 0, 2] - W[..., 2, 0], W[..., 1, 0] - W[..., 0, 1]), dim=-1
@@ -69,27 +52,13 @@ def vee(W: Tensor) -> Tensor:
 
 
 def so3_exp(omega: Tensor) -> Tensor:
-    """Exponential map so(3) -> SO(3) (Rodrigues), ``R = exp(hat(omega))``.
-
-    Args:
-        omega: (..., 3) rotation vectors (axis times angle, radians).
-    Returns:
-        (..., 3, 3) rotation matrices.
-    """
+    """Rotation vectors (radians) to rotation matrices, (..., 3) -> (..., 3, 3) (Rodrigues)."""
     check_shape(omega, (3,), "omega")
     return roma.rotvec_to_rotmat(omega)
 
 
 def so3_log(R: Tensor) -> Tensor:
-    """Logarithm map SO(3) -> so(3), the rotation vector with angle in [0, pi].
-
-    Robust near 0 and pi (RoMa goes through Markley's quaternion extraction and an atan2).
-
-    Args:
-        R: (..., 3, 3) rotation matrices.
-    Returns:
-        (..., 3) rotation vectors.
-    """
+    """Rotation matrices to rotation vectors with angle in [0, pi], (..., 3, 3) -> (..., 3)."""
     check_shape(R, (3, 3), "R")
     return roma.rotmat_to_rotvec(R)
 
@@ -106,13 +75,8 @@ _D_SERIES = (1 / 12, 1 / 720, 1 / 30240, 1 / 1209600, 1 / 47900160)
 
 
 _SERIES_BELOW = 0.28
-"""Angle (radians) below which b, c, d use their series; they are always evaluated in float64.
-
-The closed forms of c and d lose about ``6 eps / t^2`` to cancellation; the five-term series drop
-about ``t^10 / 1.6e8`` (d converges slowest). Both are about 2e-14 at t = 0.28 in float64, far below
-float32's epsilon, which is why float32 inputs get float64 coefficients too (it costs one scalar
-per pose).
-"""
+"""Angle (radians) below which b, c, d use their series, always in float64: there the closed forms lose
+about ``6 eps / t^2`` to cancellation and the series drop ``t^10 / 1.6e8``, both about 2e-14."""
 
 
 def _polyval(coefficients: tuple[float, ...], s: Tensor) -> Tensor:
@@ -124,17 +88,10 @@ def _polyval(coefficients: tuple[float, ...], s: Tensor) -> Tensor:
 
 
 def _v_coefficients(theta2: Tensor) -> tuple[Tensor, Tensor]:
-    """Coefficients of ``V = I + b W + c W^2`` for ``W = hat(omega)``.
+    """``b = (1 - cos t) / t^2`` and ``c = (t - sin t) / t^3`` of ``V = I + b W + c W^2``, (...) -> (...).
 
-    ``b = (1 - cos t) / t^2`` and ``c = (t - sin t) / t^3`` with ``t = |omega|``: a Taylor series in ``t^2``
-    near zero (also keeps gradients finite at zero, where ``t = sqrt(t^2)`` is not differentiable), the
-    closed form elsewhere. The closed-form branch is fed a dummy ``t = 1`` where the series is used, so it
-    never divides by zero.
-
-    Args:
-        theta2: (...) squared rotation angles ``|omega|^2``.
-    Returns:
-        b, c: (...) tensors.
+    ``theta2`` is ``t^2 = |omega|^2``. Near zero a series in ``t^2`` (finite gradients where ``sqrt`` has
+    none); elsewhere the closed form, fed a dummy ``t = 1`` where the series is used.
     """
     dtype, small, theta2, t2 = _series_split(theta2)
     t = torch.sqrt(t2)
@@ -148,14 +105,8 @@ def _v_coefficients(theta2: Tensor) -> tuple[Tensor, Tensor]:
 
 
 def _v_inverse_coefficient(theta2: Tensor) -> Tensor:
-    """Coefficient of ``V^-1 = I - W/2 + d W^2``, ``d = (1 - (t/2) cot(t/2)) / t^2`` with ``t = |omega|``,
-    by the rule of :func:`_v_coefficients` (series near zero, closed form elsewhere).
-
-    Args:
-        theta2: (...) squared rotation angles ``|omega|^2``.
-    Returns:
-        d: (...) tensor.
-    """
+    """``d = (1 - (t/2) cot(t/2)) / t^2`` of ``V^-1 = I - W/2 + d W^2``, by the rule of
+    :func:`_v_coefficients`, (...) -> (...)."""
     dtype, small, theta2, t2 = _series_split(theta2)
     half = 0.5 * torch.sqrt(t2)
     d_closed = (1.0 - half * torch.cos(half) / torch.sin(half)) / t2
@@ -172,13 +123,7 @@ def _series_split(theta2: Tensor) -> tuple[torch.dtype, Tensor, Tensor, Tensor]:
 
 
 def so3_left_jacobian(omega: Tensor) -> Tensor:
-    """The V matrix of the SE(3) exponential (left Jacobian of SO(3)): ``t = V(omega) rho``.
-
-    Args:
-        omega: (..., 3) rotation vectors.
-    Returns:
-        (..., 3, 3) matrices.
-    """
+    """The V matrix of the SE(3) exponential (SO(3)'s left Jacobian), (..., 3) -> (..., 3, 3)."""
     check_shape(omega, (3,), "omega")
     b, c = _v_coefficients((omega * omega).sum(-1))
     W = hat(omega)
@@ -187,13 +132,7 @@ def so3_left_jacobian(omega: Tensor) -> Tensor:
 
 
 def so3_left_jacobian_inv(omega: Tensor) -> Tensor:
-    """Inverse of :func:`so3_left_jacobian`, valid for rotation angles below 2 pi.
-
-    Args:
-        omega: (..., 3) rotation vectors.
-    Returns:
-        (..., 3, 3) matrices.
-    """
+    """Inverse of :func:`so3_left_jacobian` for angles below 2 pi, (..., 3) -> (..., 3, 3)."""
     check_shape(omega, (3,), "omega")
     d = _v_inverse_coefficient((omega * omega).sum(-1))
     W = hat(omega)
@@ -202,26 +141,13 @@ def so3_left_jacobian_inv(omega: Tensor) -> Tensor:
 
 
 def se3_exp(xi: Tensor) -> Tensor:
-    """True exponential map se(3) -> SE(3): ``R = exp(hat(omega))``, ``t = V(omega) rho``.
-
-    Equal to ``torch.linalg.matrix_exp`` of the 4x4 twist ``[[hat(omega), rho], [0, 0]]``.
-
-    Args:
-        xi: (..., 6) twists ``(rho, omega)``; rho in metres, omega in radians.
-    Returns:
-        (..., 4, 4) poses.
-    """
+    """Exponential map se(3) -> SE(3), (..., 6) twists ``(rho [m], omega [rad])`` -> (..., 4, 4) poses;
+    equal to ``torch.linalg.matrix_exp`` of the twist ``[[hat(omega), rho], [0, 0]]``."""
     return make_pose(*se3_exp_rt(xi))
 
 
 def se3_exp_rt(xi: Tensor) -> tuple[Tensor, Tensor]:
-    """The rotation and translation of :func:`se3_exp`, without assembling the 4x4 pose.
-
-    Args:
-        xi: (..., 6) twists ``(rho, omega)``; rho in metres, omega in radians.
-    Returns:
-        R (..., 3, 3) and t (..., 3) metres.
-    """
+    """:func:`se3_exp` as R (..., 3, 3) and t (..., 3) in metres, without assembling the pose."""
     check_shape(xi, (6,), "xi")
     rho, omega = xi[..., :3], xi[..., 3:]
     t = (so3_left_jacobian(omega) @ rho[..., None])[..., 0]
@@ -229,13 +155,7 @@ def se3_exp_rt(xi: Tensor) -> tuple[Tensor, Tensor]:
 
 
 def se3_log(T: Tensor) -> Tensor:
-    """Logarithm map SE(3) -> se(3), inverse of :func:`se3_exp` (rotation angle in [0, pi]).
-
-    Args:
-        T: (..., 4, 4) poses.
-    Returns:
-        (..., 6) twists ``(rho, omega)``.
-    """
+    """Logarithm map SE(3) -> se(3), (..., 4, 4) -> (..., 6) ``(rho, omega)``, angle in [0, pi]."""
     check_shape(T, (4, 4), "T")
     omega = so3_log(T[..., :3, :3])
     rho = (so3_left_jacobian_inv(omega) @ T[..., :3, 3:])[..., 0]
@@ -248,54 +168,27 @@ def se3_log(T: Tensor) -> Tensor:
 
 
 def euler_to_matrix(angles: Tensor) -> Tensor:
-    """Euler angles to rotation matrices, ``R = Ry(yaw) @ Rx(pitch) @ Rz(roll)``.
-
-    Args:
-        angles: (..., 3) ``(yaw, pitch, roll)`` in radians (any real values).
-    Returns:
-        (..., 3, 3) rotation matrices.
-    """
+    """``(yaw, pitch, roll)`` radians (any real values) to rotation matrices, (..., 3) -> (..., 3, 3)."""
     check_shape(angles, (3,), "angles")
     return roma.euler_to_rotmat(EULER_CONVENTION, angles)
 
 
 def matrix_to_euler(R: Tensor) -> Tensor:
-    """Rotation matrices to Euler angles, the inverse of :func:`euler_to_matrix`.
-
-    Args:
-        R: (..., 3, 3) rotation matrices.
-    Returns:
-        (..., 3) ``(yaw, pitch, roll)`` with yaw, roll in [-pi, pi] and pitch in [-pi/2, pi/2]
-        (at pitch = +-pi/2, gimbal lock, roll is set to 0).
-    """
+    """Rotation matrices to ``(yaw, pitch, roll)``, (..., 3, 3) -> (..., 3): yaw, roll in [-pi, pi],
+    pitch in [-pi/2, pi/2] (at gimbal lock, roll is 0)."""
     check_shape(R, (3, 3), "R")
     return roma.rotmat_to_euler(EULER_CONVENTION, R)
 
 
 def quat_canonical(q: Tensor) -> Tensor:
-    """The sign of each quaternion that has ``w >= 0`` (q and -q are the same rotation).
-
-    Args:
-        q: (..., 4) quaternions ``(w, x, y, z)``.
-    Returns:
-        (..., 4) quaternions with non-negative w.
-    """
+    """The sign of each quaternion ``(w, x, y, z)`` that has ``w >= 0``, (..., 4) -> (..., 4)."""
     check_shape(q, (4,), "q")
     return torch.where(q[..., :1] < 0, -q, q)
 
 
 def quat_normalize(q: Tensor, eps: float = 1e-8) -> Tensor:
-    """Unit quaternions from raw network outputs; the identity where ``|q| < eps``.
-
-    A zero output carries no rotation, so it decodes to no rotation; its gradient is then zero
-    instead of the ``1/eps``-sized one a clamped division would give. NaN inputs stay NaN.
-
-    Args:
-        q: (..., 4) quaternions ``(w, x, y, z)``, any norm.
-        eps: norm below which the identity is returned.
-    Returns:
-        (..., 4) unit quaternions.
-    """
+    """Unit quaternions from raw outputs of any norm, (..., 4) -> (..., 4); the identity (with zero
+    gradient) where ``|q| < eps``: a zero output carries no rotation. NaN stays NaN."""
     check_shape(q, (4,), "q")
     norm = torch.linalg.vector_norm(q, dim=-1, keepdim=True)
     identity = torch.zeros_like(q)
@@ -304,62 +197,32 @@ def quat_normalize(q: Tensor, eps: float = 1e-8) -> Tensor:
 
 
 def quat_to_matrix(q: Tensor) -> Tensor:
-    """Unit quaternions to rotation matrices (no normalisation; see :func:`quat_normalize`).
-
-    Args:
-        q: (..., 4) unit quaternions ``(w, x, y, z)``.
-    Returns:
-        (..., 3, 3) rotation matrices.
-    """
+    """Unit quaternions ``(w, x, y, z)`` to rotation matrices, (..., 4) -> (..., 3, 3), not normalised."""
     check_shape(q, (4,), "q")
     return roma.unitquat_to_rotmat(roma.quat_wxyz_to_xyzw(q))
 
 
 def matrix_to_quat(R: Tensor) -> Tensor:
-    """Rotation matrices to canonical unit quaternions (``w >= 0``).
-
-    Args:
-        R: (..., 3, 3) rotation matrices.
-    Returns:
-        (..., 4) unit quaternions ``(w, x, y, z)``.
-    """
+    """Rotation matrices to canonical unit quaternions ``(w, x, y, z)``, (..., 3, 3) -> (..., 4)."""
     check_shape(R, (3, 3), "R")
     return quat_canonical(roma.quat_xyzw_to_wxyz(roma.rotmat_to_unitquat(R)))
 
 
 def sixd_to_matrix(x: Tensor, eps: float = 1e-12) -> Tensor:
-    """6-D representation (two columns) to rotation matrices by Gram-Schmidt (Zhou et al. 2019).
-
-    Args:
-        x: (..., 6) the first and second column ``(c1, c2)``, any norms, not parallel.
-        eps: norm clamp that keeps gradients finite for degenerate (zero or parallel) columns.
-    Returns:
-        (..., 3, 3) rotation matrices whose first column is ``c1 / |c1|``.
-    """
+    """Two columns ``(c1, c2)`` of any norms to rotation matrices by Gram-Schmidt (Zhou et al. 2019),
+    (..., 6) -> (..., 3, 3); ``eps`` keeps gradients finite for zero or parallel columns."""
     check_shape(x, (6,), "x")
     return roma.special_gramschmidt(torch.stack((x[..., :3], x[..., 3:]), dim=-1), epsilon=eps)
 
 
 def matrix_to_sixd(R: Tensor) -> Tensor:
-    """Rotation matrices to their 6-D representation (first two columns).
-
-    Args:
-        R: (..., 3, 3) rotation matrices.
-    Returns:
-        (..., 6) ``(c1, c2)``.
-    """
+    """Rotation matrices to their first two columns ``(c1, c2)``, (..., 3, 3) -> (..., 6)."""
     check_shape(R, (3, 3), "R")
     return torch.cat((R[..., :, 0], R[..., :, 1]), dim=-1)
 
 
 def orthonormalize(R: Tensor) -> Tensor:
-    """Nearest rotation matrix in the Frobenius sense (SVD / special Procrustes).
-
-    Args:
-        R: (..., 3, 3) approximately orthonormal matrices (e.g. after chaining many poses).
-    Returns:
-        (..., 3, 3) rotation matrices.
-    """
+    """The nearest rotation matrices (special Procrustes), (..., 3, 3) -> (..., 3, 3)."""
     check_shape(R, (3, 3), "R")
     return roma.special_procrustes(R)
 
@@ -370,17 +233,10 @@ def orthonormalize(R: Tensor) -> Tensor:
 
 
 def scale_to_length(t: Tensor, length: Tensor) -> Tensor:
-    """Translations rescaled to given lengths, ``t / |t| * length``, their directions kept.
+    """Translations (..., 3) rescaled to lengths (...), ``t / |t| * length``, in the promoted dtype.
 
-    A zero vector has no direction: it becomes ``length`` straight ahead (+z, the camera's forward
-    axis), the rule of the ORB+E baseline (:mod:`lossvo.evaluation.baselines`). Values and gradients
-    are finite everywhere (at ``t = 0`` the gradient with respect to ``t`` is 0).
-
-    Args:
-        t: (..., 3) translations.
-        length: (...) lengths (broadcast against ``t``'s leading dims), e.g. ground-truth step lengths.
-    Returns:
-        (..., 3) translations of norm ``|length|``, in the promoted dtype.
+    A zero vector becomes ``length`` straight ahead (+z), the ORB+E baseline's rule; values and
+    gradients are finite everywhere (zero gradient at ``t = 0``).
     """
     check_shape(t, (3,), "t")
     dtype = torch.promote_types(t.dtype, length.dtype)
@@ -399,14 +255,7 @@ def scale_to_length(t: Tensor, length: Tensor) -> Tensor:
 
 
 def make_pose(R: Tensor, t: Tensor) -> Tensor:
-    """Assemble homogeneous poses ``[[R, t], [0, 1]]``.
-
-    Args:
-        R: (..., 3, 3) rotations.
-        t: (..., 3) translations.
-    Returns:
-        (..., 4, 4) poses.
-    """
+    """Poses ``[[R, t], [0, 1]]`` (..., 4, 4) from R (..., 3, 3) and t (..., 3)."""
     check_shape(R, (3, 3), "R")
     check_shape(t, (3,), "t")
     top = torch.cat((R, t[..., None]), dim=-1)
@@ -416,39 +265,22 @@ def make_pose(R: Tensor, t: Tensor) -> Tensor:
 
 
 def pose_inverse(T: Tensor) -> Tensor:
-    """Inverse of rigid poses, ``[[R^T, -R^T t], [0, 1]]`` (exact, no general matrix inverse).
-
-    Args:
-        T: (..., 4, 4) poses.
-    Returns:
-        (..., 4, 4) inverse poses.
-    """
+    """Rigid inverses ``[[R^T, -R^T t], [0, 1]]``, (..., 4, 4) -> (..., 4, 4)."""
     check_shape(T, (4, 4), "T")
     Rt = T[..., :3, :3].transpose(-1, -2)
     return make_pose(Rt, -(Rt @ T[..., :3, 3:])[..., 0])
 
 
 def compose(T_a: Tensor, T_b: Tensor) -> Tensor:
-    """Composition ``T_a @ T_b`` (apply T_b, then T_a), broadcasting leading dimensions.
-
-    Args:
-        T_a, T_b: (..., 4, 4) poses.
-    Returns:
-        (..., 4, 4) poses.
-    """
+    """``T_a @ T_b`` (apply T_b, then T_a) of (..., 4, 4) poses, broadcasting leading dimensions."""
     check_shape(T_a, (4, 4), "T_a")
     check_shape(T_b, (4, 4), "T_b")
     return T_a @ T_b
 
 
 def relative_pose(T_a: Tensor, T_b: Tensor) -> Tensor:
-    """Pose of frame b seen from frame a, ``inv(T_a) @ T_b``, computed in float64.
-
-    Args:
-        T_a, T_b: (..., 4, 4) camera-to-world poses.
-    Returns:
-        (..., 4, 4) relative poses in the promoted dtype of the inputs.
-    """
+    """Frame b seen from frame a, ``inv(T_a) @ T_b``, of (..., 4, 4) poses; computed in float64,
+    returned in the inputs' promoted dtype."""
     check_shape(T_a, (4, 4), "T_a")
     check_shape(T_b, (4, 4), "T_b")
     out_dtype = torch.promote_types(T_a.dtype, T_b.dtype)
@@ -456,13 +288,8 @@ def relative_pose(T_a: Tensor, T_b: Tensor) -> Tensor:
 
 
 def consecutive_relative_poses(T_w: Tensor) -> Tensor:
-    """Relative poses between consecutive frames, ``inv(T_w[k]) @ T_w[k+1]``, in float64.
-
-    Args:
-        T_w: (..., N, 4, 4) camera-to-world poses of a sequence, N >= 1.
-    Returns:
-        (..., N-1, 4, 4) relative poses in the dtype of ``T_w``.
-    """
+    """``inv(T_w[k]) @ T_w[k+1]`` of a sequence's poses, (..., N, 4, 4) -> (..., N-1, 4, 4), in float64
+    and returned in ``T_w``'s dtype."""
     check_shape(T_w, (4, 4), "T_w")
     if T_w.dim() < 3:
         raise ValueError(f"T_w must have shape (..., N, 4, 4), got {tuple(T_w.shape)}")

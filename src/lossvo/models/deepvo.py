@@ -57,31 +57,13 @@ class DeepVO(nn.Module):
                                 ->  LSTM (B, L-1, hidden_size)       over the L-1 pairs of each window
                                 ->  head (B, L-1, out_dim)           [t (3), r (D)]
 
-    with ``H6 = ceil(H / 64)``, ``W6 = ceil(W / 64)``, ``C6 = round(1024 * width_mult)``; the LSTM input is
-    the conv6 features flattened in (C, H, W) order. The encoder is FlowNetS's contracting part
-    (Dosovitskiy et al. 2015): ``conv -> BatchNorm -> LeakyReLU(0.1) -> Dropout`` blocks named as in
-    FlowNetPytorch (``encoder.conv1.0.weight``), so :func:`lossvo.models.flownet.load_flownet` loads
-    ``flownets_bn_*.pth.tar`` (``flownets_*.pth.tar`` with ``batch_norm=False``); FlowNetS was trained on
-    ``img / 255 - 0.5`` input.
-    Training resets the LSTM state for every window; :meth:`forward_with_state` carries it across chunks.
-
-    Args:
-        out_dim: head size, one vector per frame pair (the loss's ``dim``: 6, 7 or 9).
-        height, width: input image size in pixels (sizes the LSTM input); each >= 64.
-        width_mult: multiplier of the encoder's channel counts (1 = FlowNetS; needed for its weights).
-        hidden_size: LSTM hidden units per layer (DeepVO: 1000).
-        lstm_layers: stacked LSTM layers (DeepVO: 2).
-        conv_dropout: dropout after conv1 .. conv5_1 (DeepVO-pytorch: 0.2).
-        conv6_dropout: dropout after conv6 (DeepVO-pytorch: 0.5).
-        lstm_dropout: dropout between LSTM layers (ignored with one layer).
-        head_dropout: dropout on the LSTM output, before the head (DeepVO-pytorch: 0.5).
-        batch_norm: BatchNorm after each conv (FlowNetS-BN; the convs then have no bias).
-        flownet: optional path to a FlowNetPytorch checkpoint loaded into the encoder (:func:`load_flownet`);
-            needs ``width_mult=1`` and ``normalization: flownet`` input.
-        head_bias: the head's initial bias (out_dim,), the loss's identity output; null: zeros.
-        channels_last: run the encoder in the channels-last memory layout (NHWC), which the oneDNN CPU
-            kernels and GPU tensor cores prefer; the values are the same (dropout masks are drawn in
-            memory order, so with conv dropout a run differs from a contiguous-layout run).
+    with ``H6 = ceil(H / 64)``, ``W6 = ceil(W / 64)``, ``C6 = round(1024 * width_mult)``. The encoder is
+    FlowNetS's contracting part (Dosovitskiy et al. 2015), named as in FlowNetPytorch so that
+    :func:`~lossvo.models.flownet.load_flownet` loads its weights (``flownet``: a checkpoint path; needs
+    ``width_mult=1``, ``batch_norm`` as in the file and ``normalization: flownet`` input). Training resets
+    the LSTM state for every window; :meth:`forward_with_state` carries it across chunks. The dropouts are
+    DeepVO-pytorch's defaults; ``head_bias`` (out_dim,) is the loss's identity output (null: zeros);
+    ``channels_last`` runs the encoder in NHWC, the same values (with conv dropout, other masks).
     """
 
     INPUTS = ("frames",)
@@ -165,15 +147,12 @@ class DeepVO(nn.Module):
 
     @torch.no_grad()
     def reset_parameters(self, seed: int | None = None) -> None:
-        """Initialise every layer: the backbone (encoder and LSTM) from a generator seeded with ``seed``,
-        the head from one seeded with ``seed + 1`` (None: one draw from the global stream), so every head
-        size gets the same backbone for one seed and the caller's stream is not touched.
+        """Initialise every layer: encoder and LSTM from a generator seeded with ``seed``, the head from
+        ``seed + 1`` (None: one draw from the global stream), so every head size gets the same backbone.
 
-        Convs: Kaiming normal for LeakyReLU(0.1), fan-in; BatchNorm weight 1, bias 0. LSTM: Xavier-uniform
-        input and orthogonal recurrent weights per gate, biases 0 but the forget gate's ``bias_hh`` 1. Head:
-        weights normal with std 1e-3 (gradients reach the backbone from the first step), bias ``head_bias``,
-        the loss's identity output (an all-zero output is degenerate for the quaternion's normalisation and
-        the 6-D Gram-Schmidt).
+        Convs Kaiming normal (LeakyReLU(0.1), fan-in); LSTM Xavier-uniform input and orthogonal recurrent
+        weights per gate, forget-gate ``bias_hh`` 1; head weights normal with std 1e-3 and bias
+        ``head_bias`` (an all-zero output is degenerate for the quaternion and 6-D decodings).
         """
         if seed is None:
             seed = int(torch.randint(0, 2**62, ()))
@@ -241,16 +220,9 @@ class DeepVO(nn.Module):
         return feats.reshape(B, L - 1, self.lstm_input_size)
 
     def forward_with_state(self, frames: Tensor, state: LSTMState | None = None) -> tuple[Tensor, LSTMState]:
-        """Outputs and the final LSTM state, starting from ``state`` (zeros when None). A full sequence
-        runs in chunks that overlap by one frame (``[0, k]`` then ``[k, L-1]``), in ``eval()`` mode.
-
-        Args:
-            frames: (B, L, 3, H, W) normalised images, L >= 2.
-            state: (h, c), each (lstm_layers, B, hidden_size), e.g. from the previous chunk.
-
-        Returns:
-            (B, L-1, out_dim) outputs, one per pair (k, k+1), and the state after the last pair.
-        """
+        """Outputs (B, L-1, out_dim) for frames (B, L, 3, H, W) and the final LSTM state, starting from
+        ``state`` ((h, c), each (lstm_layers, B, hidden_size); None: zeros). A full sequence runs in chunks
+        that overlap by one frame (``[0, k]`` then ``[k, L-1]``), in ``eval()`` mode."""
         hidden, state = self.lstm(self.features(frames), state)
         return self.head(self.head_dropout(hidden)), state
 

@@ -72,22 +72,10 @@ class FlowVO(nn.Module):
     SE(3) loss the first three are rho). The rotation follows from the flow and K alone (a rotation's flow
     does not depend on depth), the translation's length only through what the scene implies.
 
-    Args:
-        out_dim: head size per frame pair (the loss's ``dim``): 3 translation outputs, then the rotation's.
-        height, width: input size in pixels; each >= 16.
-        channels: output channels of the stem and of the three residual stages (4 numbers).
-        hidden: hidden units of each head.
-        flow_gain: the flow enters as ``flow * flow_gain / (W, H)``: a fraction of the image, of order 1.
-        head_dropout: dropout on the features before each head.
-        head_bias: the heads' initial output (out_dim,), the loss's identity output; null: zeros.
-        head_negative_slope: the slope of the heads' hidden units below zero (a leaky ReLU; 0: ReLU). With
-            0, a unit whose input stays below zero passes no gradient and never recovers; a head that keeps
-            too few units cannot express every rotation axis.
-        flow: the optical flow the network reads (``data.flow.method``), recorded with it.
-        pool: the encoder's input (flow and intrinsics layer) is average-pooled by this factor: a
-            quarter of the pixels at 2, where the flow field is smooth.
-        channels_last: run the encoder in the channels-last memory layout (NHWC), which the oneDNN CPU
-            kernels and GPU tensor cores prefer; the values are the same.
+    ``flow_gain`` scales the flow to a fraction of the image of order 1; ``head_bias`` (out_dim,) is the
+    loss's identity output (null: zeros); ``head_negative_slope`` > 0 gives leaky heads, whose units below
+    zero still pass gradients; ``flow`` names the flow the network reads (``data.flow.method``), recorded
+    with it; ``pool`` average-pools the encoder's input; ``channels_last`` runs it in NHWC, same values.
     """
 
     INPUTS = ("flow", "K")
@@ -196,12 +184,8 @@ class FlowVO(nn.Module):
         )
 
     def encoder_input(self, flow: Tensor, K: Tensor) -> Tensor:
-        """The encoder's input (B*P, 4, H/pool, W/pool): the scaled flow and the intrinsics layer of each
-        pair, average-pooled.
-
-        Args:
-            flow: (B, P, 2, H, W) pixels; K: (B, 3, 3) pixels of frames of (H, W).
-        """
+        """The encoder's input (B*P, 4, H/pool, W/pool) from flow (B, P, 2, H, W) and K (B, 3, 3) in pixels:
+        the scaled flow and the intrinsics layer of each pair, average-pooled."""
         expected = f"(B, P, 2, {self.height}, {self.width})"
         if flow.dim() != 5 or flow.shape[2] != 2 or tuple(flow.shape[3:]) != (self.height, self.width):
             raise ValueError(f"FlowVO expects flow of shape {expected}, got {tuple(flow.shape)}")
