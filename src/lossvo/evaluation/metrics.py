@@ -221,9 +221,7 @@ def trajectory_distances(poses: Tensor) -> Tensor:
     return torch.cat((steps.new_zeros(1), torch.cumsum(steps, dim=0)))
 
 
-def kitti_segment_errors(
-    est: Tensor, ref: Tensor, lengths: Sequence[float] = KITTI_LENGTHS, step: int = KITTI_STEP
-) -> tuple[Tensor, Tensor]:
+def kitti_segment_errors(est: Tensor, ref: Tensor) -> tuple[Tensor, Tensor]:
     """The KITTI devkit's per-segment errors (``calcSequenceErrors``) of (N, 4, 4) poses.
 
     Returns t_err (S,) m/m and r_err (S,) rad/m, ordered by first frame, then length (S may be 0). The
@@ -231,8 +229,8 @@ def kitti_segment_errors(
     """
     est, ref = _check_pair(est, ref, 2)
     dist = trajectory_distances(ref)
-    lens = torch.as_tensor(lengths, dtype=torch.float64, device=est.device)
-    first = torch.arange(0, len(ref), step, device=est.device)
+    lens = torch.as_tensor(KITTI_LENGTHS, dtype=torch.float64, device=est.device)
+    first = torch.arange(0, len(ref), KITTI_STEP, device=est.device)
     last = torch.searchsorted(dist, dist[first][:, None] + lens[None, :], right=True)
     valid = last < len(ref)
     f = first[:, None].expand_as(last)[valid]
@@ -335,12 +333,8 @@ class KittiOdometryError(Metric):
     r_sum: Tensor
     count: Tensor
 
-    def __init__(
-        self, lengths: Sequence[float] = KITTI_LENGTHS, step: int = KITTI_STEP, **kwargs: Any
-    ) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
-        self.lengths = tuple(float(x) for x in lengths)
-        self.step = step
         zero = torch.zeros((), dtype=torch.float64)
         self.add_state("t_sum", default=zero.clone(), dist_reduce_fx="sum")
         self.add_state("r_sum", default=zero.clone(), dist_reduce_fx="sum")
@@ -348,7 +342,7 @@ class KittiOdometryError(Metric):
 
     def update(self, est: Tensor, ref: Tensor) -> None:
         """Add one sequence: est, ref (N, 4, 4) whole trajectories."""
-        t, r = kitti_segment_errors(est, ref, self.lengths, self.step)
+        t, r = kitti_segment_errors(est, ref)
         self.t_sum = self.t_sum + t.sum().to(self.t_sum)
         self.r_sum = self.r_sum + r.sum().to(self.r_sum)
         self.count = self.count + t.numel()
