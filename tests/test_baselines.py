@@ -165,14 +165,15 @@ def test_training_mean_motion_comes_from_the_recorded_training_data(tmp_path: Pa
     write_sequence(train_root, "00", chain([constant] * (FRAMES - 1)), seed=4)
     write_sequence(root, "01", varied_poses(3), seed=5)
     data = data_record(root, train_root, ("00",), test=("01",))
-    np.testing.assert_allclose(baselines.training_mean_motion(data), constant, atol=1e-9)
+    training = baselines.training_sequences(data)
+    np.testing.assert_allclose(baselines.mean_motion([s.targets for s in training]), constant, atol=1e-9)
     results = baselines.compute_baselines(data, ["01"], tmp_path / "cache")["01"]
     gt = varied_poses(3)
     np.testing.assert_allclose(
         results[baselines.MEAN].trajectory, gt[0] @ chain([constant] * (FRAMES - 1)), atol=1e-9
     )
     with pytest.raises(UserError, match=r"data\.train"):
-        baselines.training_mean_motion(data_record(root, train_root, ()))
+        baselines.training_sequences(data_record(root, train_root, ()))
 
 
 def test_the_cache_is_keyed_by_the_training_split_the_scoring_and_the_flow_settings(

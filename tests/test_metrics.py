@@ -295,7 +295,7 @@ def test_nan_pose_names_first_bad_index():
         with pytest.raises(UserError, match="est pose 7 is not finite"):
             call()
     with pytest.raises(UserError, match="ref pose 7 is not finite"):
-        metrics.kitti_odometry_error(ref, est)
+        metrics.kitti_segment_errors(ref, est)
 
 
 @pytest.mark.parametrize("mode", ["se3", "sim3", "scale"])
@@ -342,7 +342,8 @@ def test_kitti_equals_devkit_loops():
     assert len(t_ref) > 100
     np.testing.assert_allclose(t.numpy(), t_ref, rtol=1e-9)
     np.testing.assert_allclose(r.numpy(), r_ref, rtol=1e-9, atol=1e-15)
-    t_pct, r_deg = metrics.kitti_odometry_error(est, ref)
+    kitti = metrics.evaluate(ref, est)["kitti"]
+    t_pct, r_deg = kitti["t_err_pct"], kitti["r_err_deg_per_100m"]
     assert t_pct == pytest.approx(100 * np.mean(t_ref), rel=1e-9)
     assert r_deg == pytest.approx(100 * math.degrees(np.mean(r_ref)), rel=1e-9)
 
@@ -362,7 +363,8 @@ def test_kitti_equals_devkit_loops_on_7_digit_files_that_are_not_orthonormal(tmp
     t, r = metrics.kitti_segment_errors(est7, ref7)
     np.testing.assert_allclose(t.numpy(), t_ref, rtol=1e-9)
     np.testing.assert_allclose(r.numpy(), r_ref, rtol=1e-9, atol=1e-15)
-    t_pct, r_deg = metrics.kitti_odometry_error(est7, ref7)
+    kitti = metrics.evaluate(ref7, est7)["kitti"]
+    t_pct, r_deg = kitti["t_err_pct"], kitti["r_err_deg_per_100m"]
     assert t_pct == pytest.approx(100 * np.mean(t_ref), rel=1e-9)
     assert r_deg == pytest.approx(100 * math.degrees(np.mean(r_ref)), rel=1e-9)
 
@@ -370,7 +372,7 @@ def test_kitti_equals_devkit_loops_on_7_digit_files_that_are_not_orthonormal(tmp
 def test_kitti_short_sequence_is_none():
     ref = make_reference(50)  # about 60 m: shorter than the shortest segment
     est = make_estimate(ref)
-    assert metrics.kitti_odometry_error(est, ref) is None
+    assert metrics.evaluate(ref, est)["kitti"] == {"t_err_pct": None, "r_err_deg_per_100m": None}
     t, r = metrics.kitti_segment_errors(est, ref)
     assert t.numel() == r.numel() == 0
     metric = metrics.KittiOdometryError()

@@ -1,9 +1,6 @@
-"""Non-learned baselines, scored as the networks are (:func:`lossvo.evaluation.metrics.evaluate_relative`):
-zero motion, the training split's mean motion, ORB + essential matrix with ground-truth scale, the
-sequence's own mean motion (an oracle) and flow yaw + road speed (one line on DIS flow). Relative poses
-are ``T_k = inv(T_w_k) @ T_w_{k+1}``; the sequences are read from the dataset a run's results.json
-records, with no datamodule; :data:`ESTIMATORS` holds them by name; results and flow features are cached
-per sequence by ``joblib.Memory`` (docs/report.md).
+"""Non-learned baselines (:data:`ESTIMATORS`), scored as the networks are
+(:func:`lossvo.evaluation.metrics.evaluate_relative`) on the data a run's results.json records; results
+and flow features cached per sequence by ``joblib.Memory``. What each one is: docs/report.md.
 """
 
 from __future__ import annotations
@@ -45,7 +42,7 @@ VERSION = 5
 MIN_MATCHES = 8
 """Fewest cross-checked ORB matches for which an essential matrix is attempted."""
 MIN_INLIERS = 12
-"""Fewest points that ``recoverPose`` must accept (in front of both cameras) for a pair to count."""
+"""Fewest points that ``recoverPose`` must accept for a pair to count."""
 MIN_PARALLAX_PX = 0.5
 """Median displacement of the matches (pixels) below which a pair is taken as standing still."""
 STRAIGHT_AHEAD = np.array([[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]])
@@ -53,7 +50,7 @@ STRAIGHT_AHEAD = np.array([[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1], [0, 0, 0,
 MAX_HAMMING = 64
 """Largest Hamming distance (of 256 bits) of an accepted ORB match."""
 RATIO = 0.9
-"""Lowe's ratio test: a match's distance must be below this fraction of the second-nearest one's."""
+"""Lowe's ratio test: a match's distance is below this fraction of the second-nearest one's."""
 RANSAC_THRESHOLD_PX = 0.5
 """RANSAC inlier threshold for frames narrower than 640 pixels (1 pixel for larger ones, e.g. KITTI's)."""
 ORB_FEATURES = 500
@@ -61,24 +58,20 @@ ORB_FEATURES = 500
 FLOW_SETTING = FlowSetting("dis")
 """The flow baseline's flow: the one ``data.flow.method=dis`` caches."""
 FLOW_MAX_WIDTH = 320
-"""Frames wider than this (pixels) are downscaled to it (area interpolation, aspect ratio kept) before the
-flow: the synthetic 96x320 frames are used as stored (7-8 ms a pair on one core), KITTI's 376x1241 at
-97x320."""
+"""Frames wider than this (pixels) are downscaled to it (aspect ratio kept) before the flow."""
 YAW_ROWS, YAW_COLUMNS = (0.0, 0.5), (0.0, 1.0)
-"""Rows and columns (fractions of the height and width, from the top left) whose median horizontal flow is
-the yaw: the upper half, mostly far away, where the translation moves pixels least and symmetrically
-about the centre; the whole width."""
+"""Rows and columns (fractions of the height and width) whose median horizontal flow is the yaw: the upper
+half, mostly far away, where the translation moves pixels least."""
 ROAD_ROWS, ROAD_COLUMNS = (0.75, 1.0), (1 / 3, 2 / 3)
 """The road just ahead (fractions of the height and width): the bottom quarter, the middle third."""
 FLOW_CHUNK = 32
-"""Frame pairs whose flow fields are held at once (the features are computed a chunk at a time)."""
+"""Frame pairs whose flow fields are held at once."""
 
 
 @dataclass
 class BaselineResult:
-    """One baseline on one sequence: trajectory (N, 4, 4) float64, scores as a network's in results.json,
-    the number of frame pairs for which the estimator failed and fell back (ORB only; 0 otherwise), and
-    whether it came from the cache."""
+    """One baseline on one sequence: trajectory (N, 4, 4) float64, its scores, the frame pairs where the
+    estimator failed and fell back, and whether it came from the cache."""
 
     trajectory: np.ndarray
     scores: Scores
@@ -86,21 +79,9 @@ class BaselineResult:
     cached: bool = False
 
 
-# --------------------------------------------------------------------------------------------------
-# Estimators: (N-1, 4, 4) float64 relative poses
-# --------------------------------------------------------------------------------------------------
-
-
 def mean_motion(targets: Sequence[np.ndarray]) -> np.ndarray:
-    """The mean relative pose of all consecutive pairs of the given sequences.
-
-    Args:
-        targets: per sequence, (N_i - 1, 4, 4) relative poses (e.g. ``Sequence.targets`` of the training
-            split).
-    Returns:
-        (4, 4) float64 pose: mean translation (metres) and chordal L2 mean rotation (the arithmetic mean
-        of the rotation matrices projected onto SO(3), roma's special Procrustes).
-    """
+    """(4, 4) float64 mean of per-sequence (N_i - 1, 4, 4) relative poses: the mean translation and the
+    chordal L2 mean rotation (the mean matrix projected onto SO(3))."""
     pairs = np.concatenate([np.asarray(t, dtype=np.float64) for t in targets])
     rotation = roma.special_procrustes(torch.from_numpy(pairs[:, :3, :3].mean(axis=0))).numpy()
     out = np.eye(4)
@@ -114,9 +95,8 @@ def repeat_motion(motion: np.ndarray, n_pairs: int) -> np.ndarray:
 
 
 def _orb(shape: tuple[int, ...]) -> cv2.ORB:
-    """An ORB detector for frames of ``shape``. Small frames (the synthetic 96x320) get a 15-pixel border
-    and patch instead of 31, which keeps most of the image usable, and 3 pyramid levels instead of 8
-    (the coarser levels of a 96-pixel image hold almost no features)."""
+    """An ORB detector for frames of ``shape``; small frames (96x320) get a 15-pixel border and patch and 3
+    pyramid levels, keeping most of the image usable."""
     small = min(shape[:2]) < 300
     patch = 15 if small else 31
     return cv2.ORB.create(
@@ -124,18 +104,8 @@ def _orb(shape: tuple[int, ...]) -> cv2.ORB:
     )
 
 
-@dataclass
-class Features:
-    """ORB features of a sequence's N frames: per frame, points (M_i, 2) float64 pixel coordinates and
-    descriptors (M_i, 32) uint8; shape (H, W) of the frames."""
-
-    points: list[np.ndarray]
-    descriptors: list[np.ndarray]
-    shape: tuple[int, int]
-
-
-def orb_features(images: Sequence[Path]) -> Features:
-    """ORB keypoints and descriptors of each image, decoded as grayscale from the original PNGs."""
+def orb_features(images: Sequence[Path]) -> tuple[list[np.ndarray], list[np.ndarray], tuple[int, int]]:
+    """Per grayscale frame, ORB points (M_i, 2) float64 pixels and descriptors (M_i, 32) uint8; (H, W)."""
     points, descriptors, orb, shape = [], [], None, (0, 0)
     for path in images:
         image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
@@ -145,7 +115,7 @@ def orb_features(images: Sequence[Path]) -> Features:
         keypoints, desc = orb.detectAndCompute(image, None)
         points.append(np.asarray(cv2.KeyPoint.convert(keypoints), dtype=np.float64).reshape(-1, 2))
         descriptors.append(np.zeros((0, 32), np.uint8) if desc is None else desc)
-    return Features(points, descriptors, shape)
+    return points, descriptors, shape
 
 
 def signed_bits(descriptors: np.ndarray) -> torch.Tensor:
@@ -154,18 +124,8 @@ def signed_bits(descriptors: np.ndarray) -> torch.Tensor:
 
 
 def mutual_matches(a: torch.Tensor, b: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
-    """Cross-checked nearest-neighbour matches in Hamming distance, as one matrix product.
-
-    With bits mapped to ±1, the Hamming distance of 256-bit descriptors is ``(256 - a·b) / 2``. A match
-    (i, j) is mutual (j is i's nearest in ``b`` and i is j's nearest in ``a``), at most
-    :data:`MAX_HAMMING` bits apart, and passes Lowe's ratio test (nearest < :data:`RATIO` x second
-    nearest): fewer outliers, so RANSAC needs fewer iterations.
-
-    Args:
-        a: (M1, 256), b: (M2, 256) ±1 descriptors (:func:`signed_bits`).
-    Returns:
-        i (P,), j (P,) int64 indices into a and b.
-    """
+    """Mutual nearest-neighbour matches i (P,), j (P,) of (M1, 256) and (M2, 256) ±1 descriptors, at most
+    :data:`MAX_HAMMING` bits apart, passing the :data:`RATIO` test; Hamming distance ``(256 - a·b) / 2``."""
     if len(a) == 0 or len(b) < 2:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     similarity = a @ b.T  # (M1, M2) = 256 - 2 hamming
@@ -179,19 +139,9 @@ def mutual_matches(a: torch.Tensor, b: torch.Tensor) -> tuple[np.ndarray, np.nda
 
 
 def pair_motion(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, threshold: float) -> np.ndarray | None:
-    """Relative pose (frame 2 seen from frame 1) with a unit translation from matched points, or None.
-
-    ``recoverPose`` returns ``[R | t]`` mapping frame-1 points into frame 2 (``x2 = R x1 + t``); lossvo's
-    ``T_k`` is its inverse, ``[R^T | -R^T t]``.
-
-    Args:
-        p1, p2: (P, 2) float64 matched pixel coordinates in frames 1 and 2.
-        K: (3, 3) intrinsics.
-        threshold: RANSAC inlier threshold in pixels.
-    Returns:
-        (4, 4) float64 pose with ``|t| = 1`` (:data:`STRAIGHT_AHEAD` where the matches do not move), or
-        None (too few matches or inliers, degenerate geometry).
-    """
+    """(4, 4) relative pose with ``|t| = 1`` (frame 2 seen from frame 1) from (P, 2) matched pixels, or
+    None where too few matches or inliers; ``threshold``: RANSAC's, in pixels. ``recoverPose``'s
+    ``[R | t]`` maps frame 1 into frame 2: ``T_k`` is its inverse."""
     if len(p1) < MIN_MATCHES:
         return None
     if np.median(np.linalg.norm(p2 - p1, axis=1)) < MIN_PARALLAX_PX:  # no parallax: E is meaningless
@@ -215,32 +165,19 @@ def orb_essential(
     fallback: np.ndarray,
     distortion: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Monocular ORB + essential-matrix VO with ground-truth step lengths.
+    """Monocular ORB + essential-matrix VO of N frames, each step scaled to its (N-1,) ground-truth length.
 
-    ORB features matched between consecutive frames (mutual nearest neighbours in Hamming distance with a
-    ratio test), ``cv2.findEssentialMat`` with ``cv2.USAC_DEFAULT`` and ``cv2.recoverPose``; each
-    translation scaled to the ground-truth step length (an optimistic baseline). A pair whose matches
-    move less than :data:`MIN_PARALLAX_PX` (median) gets no rotation and a step straight ahead; a pair
-    with too few matches or inliers takes the previous pair's motion (``fallback`` for the first).
-
-    Args:
-        images: the sequence's N frame paths, in order.
-        K: (3, 3) intrinsics of those frames; distortion: their OpenCV distortion (the keypoints are
-            undistorted onto K), None or zeros for undistorted frames.
-        step_lengths: (N-1,) ground-truth translation norms |t_k| in metres.
-        fallback: (4, 4) motion used where the first pairs fail (e.g. :func:`mean_motion`).
-    Returns:
-        relative (N-1, 4, 4) float64 poses and failed (N-1,) bool, True where the pair fell back to the
-        previous pair's motion.
+    A pair that fails takes the previous pair's motion (``fallback`` (4, 4) for the first). Returns
+    relative (N-1, 4, 4) float64 poses and failed (N-1,) bool.
     """
-    features = orb_features(images)
-    threshold = RANSAC_THRESHOLD_PX if features.shape[1] < 640 else 1.0
-    points, estimates = features.points, []
+    points, descriptors, shape = orb_features(images)
+    threshold = RANSAC_THRESHOLD_PX if shape[1] < 640 else 1.0
+    estimates = []
     if distortion is not None and np.any(distortion):
         points = [cv2.undistortPoints(p.reshape(-1, 1, 2), K, distortion, P=K).reshape(-1, 2) for p in points]
-    following = signed_bits(features.descriptors[0])
+    following = signed_bits(descriptors[0])
     for k in range(len(points) - 1):  # OpenCV's solvers take one pair at a time
-        previous, following = following, signed_bits(features.descriptors[k + 1])
+        previous, following = following, signed_bits(descriptors[k + 1])
         i, j = mutual_matches(previous, following)
         estimates.append(pair_motion(points[k][i], points[k + 1][j], K, threshold))
     failed = np.array([e is None for e in estimates], dtype=bool)
@@ -259,11 +196,6 @@ def _fill_forward(poses: np.ndarray, failed: np.ndarray, first: np.ndarray) -> n
     return table[last_good + 1]
 
 
-# --------------------------------------------------------------------------------------------------
-# Flow yaw + road speed: one line each on DIS flow
-# --------------------------------------------------------------------------------------------------
-
-
 def _band(size: int, fractions: tuple[float, float]) -> slice:
     """The pixels from ``fractions[0] * size`` to ``fractions[1] * size`` (rounded)."""
     return slice(round(fractions[0] * size), round(fractions[1] * size))
@@ -276,64 +208,29 @@ def _median_per_pair(values: np.ndarray) -> np.ndarray:
 
 
 def flow_yaw(flow: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Each pair's yaw from its flow: ``atan(-median(u) / fx)``, the median over the rows
-    :data:`YAW_ROWS` (the upper half) and columns :data:`YAW_COLUMNS`.
-
-    A yaw (``R = Ry(yaw)``, about the camera's y axis, down; positive turns the camera to its right, as
-    lossvo's Euler convention) moves the image centre by ``u = -fx tan(yaw)``: turning right, the world
-    moves left. Far away, translation moves pixels little, and its sideways flow on either side of the
-    centre cancels in the median. Off the centre a yaw moves pixels by ``1 + ((x - cx) / fx)^2`` times
-    more, so over the whole width a pure yaw reads about 1.2x too large at the synthetic camera's 80°
-    field of view.
-
-    Args:
-        flow: (N, 2, H, W) flow fields ``(u, v)`` in pixels (:func:`lossvo.data.flow.pair_flow`).
-        K: (3, 3) intrinsics of the flow's frames (H x W), in pixels.
-    Returns:
-        (N,) float64 yaw in radians.
-    """
+    """(N,) yaw (rad) of (N, 2, H, W) flow fields (pixels): ``atan(-median(u) / fx)`` over
+    :data:`YAW_ROWS` x :data:`YAW_COLUMNS`; a yaw moves the image centre by ``u = -fx tan(yaw)``."""
     u = flow[:, 0, _band(flow.shape[-2], YAW_ROWS), _band(flow.shape[-1], YAW_COLUMNS)]
     return np.arctan(-_median_per_pair(u) / float(K[0, 0]))
 
 
 def road_speed_feature(flow: np.ndarray) -> np.ndarray:
-    """Each pair's median vertical flow of the road just ahead (rows :data:`ROAD_ROWS`, columns
-    :data:`ROAD_COLUMNS`): a feature proportional to the step length.
-
-    Driving a step d forward, a road point at image row y (camera height h above the road) moves down by
-    ``v ≈ (y - cy)^2 d / (fy h)``: at fixed pixels, proportional to d (:func:`fit_speed_scale` fits the
-    constant).
-
-    Args:
-        flow: (N, 2, H, W) flow fields ``(u, v)`` in pixels.
-    Returns:
-        (N,) float64 in pixels (positive: the road moves down the image, driving forward).
-    """
+    """(N,) median vertical flow (pixels) of the road just ahead in (N, 2, H, W) flow fields: proportional
+    to the step length (``v ≈ (y - cy)^2 d / (fy h)`` at row y, camera height h)."""
     v = flow[:, 1, _band(flow.shape[-2], ROAD_ROWS), _band(flow.shape[-1], ROAD_COLUMNS)]
     return _median_per_pair(v)
 
 
 def fit_speed_scale(features: np.ndarray, steps: np.ndarray) -> float:
-    """The least-squares constant s (m/px) of ``|t_k| ≈ s f_k``: ``s = Σ f_k |t_k| / Σ f_k^2`` (0 where
-    every feature is 0).
-
-    Args:
-        features: (M,) road-speed features in pixels (:func:`road_speed_feature`).
-        steps: (M,) ground-truth step lengths ``|t_k|`` in metres.
-    """
+    """The least-squares s (m/px) of ``|t_k| ≈ s f_k`` for (M,) features (px) and step lengths (m); 0 where
+    every feature is 0."""
     f, t = np.asarray(features, dtype=np.float64), np.asarray(steps, dtype=np.float64)
     energy = float(f @ f)
     return float(f @ t) / energy if energy > 0 else 0.0
 
 
 def flow_motion(yaw: np.ndarray, speed: np.ndarray) -> np.ndarray:
-    """The flow baseline's relative poses: ``R = Ry(yaw)`` (no pitch or roll), ``t = (0, 0, speed)``.
-
-    Args:
-        yaw: (N,) radians; speed: (N,) metres per frame pair.
-    Returns:
-        (N, 4, 4) float64.
-    """
+    """(N, 4, 4) float64 poses ``R = Ry(yaw)``, ``t = (0, 0, speed)`` of (N,) yaw (rad) and speed (m)."""
     yaw_t = torch.as_tensor(np.asarray(yaw, dtype=np.float64))
     angles = torch.stack((yaw_t, torch.zeros_like(yaw_t), torch.zeros_like(yaw_t)), dim=-1)
     t = torch.zeros_like(angles)
@@ -343,16 +240,15 @@ def flow_motion(yaw: np.ndarray, speed: np.ndarray) -> np.ndarray:
 
 @dataclass
 class FlowFeatures:
-    """A sequence's flow features, one per frame pair: yaw (N-1,) float64 radians (:func:`flow_yaw`) and
-    road (N-1,) float64 pixels (:func:`road_speed_feature`)."""
+    """A sequence's flow features: yaw (N-1,) rad (:func:`flow_yaw`), road (N-1,) px
+    (:func:`road_speed_feature`)."""
 
     yaw: np.ndarray
     road: np.ndarray
 
 
 def flow_size(source_hw: tuple[int, int]) -> tuple[int, int]:
-    """(H, W) at which the flow of frames of ``source_hw`` is computed: as stored, or downscaled to
-    :data:`FLOW_MAX_WIDTH` pixels wide (aspect ratio kept) where wider."""
+    """(H, W) at which the flow of frames of ``source_hw`` is computed (:data:`FLOW_MAX_WIDTH`)."""
     height, width = source_hw
     if width <= FLOW_MAX_WIDTH:
         return height, width
@@ -362,20 +258,8 @@ def flow_size(source_hw: tuple[int, int]) -> tuple[int, int]:
 def flow_features(
     images: Sequence[Path], K: np.ndarray, undistort: Undistortion | None = None
 ) -> FlowFeatures:
-    """The flow features of a sequence's consecutive frames.
-
-    The frames are decoded one at a time (:func:`lossvo.data.frame_cache.read_frame`, at
-    :func:`flow_size`), the flow (:data:`FLOW_SETTING`) held for :data:`FLOW_CHUNK` pairs at a time: the
-    memory stays small at any sequence length.
-
-    Args:
-        images: the sequence's N frame paths (PNG), in order.
-        K: (3, 3) intrinsics of those frames (calib.txt's), scaled here to the flow's size.
-        undistort: the frames' undistortion (:func:`lossvo.data.frame_cache.undistortion`; its K replaces
-            ``K``), None for undistorted frames.
-    Raises:
-        KittiFormatError: an unreadable frame, or one of another size than the first.
-    """
+    """The flow features of N frames with (3, 3) intrinsics ``K`` (``undistort``'s where given), their flow
+    held :data:`FLOW_CHUNK` pairs at a time; KittiFormatError for a frame unreadable or of another size."""
     if len(images) < 2:
         return FlowFeatures(np.zeros(0), np.zeros(0))
     check_png(images[0])
@@ -403,23 +287,18 @@ def flow_features(
     return FlowFeatures(np.concatenate(yaw), np.concatenate(road))
 
 
-# --------------------------------------------------------------------------------------------------
-# Evaluation of one sequence
-# --------------------------------------------------------------------------------------------------
-
-
 @dataclass(frozen=True)
 class Training:
-    """What the baselines take from the training split: its mean relative pose ``mean`` (4, 4) float64
-    (:func:`mean_motion`) and the road-speed constant ``speed_scale`` (m/px, :func:`fit_speed_scale`)."""
+    """What the baselines take from the training split: ``mean`` (4, 4) (:func:`mean_motion`) and
+    ``speed_scale`` m/px (:func:`fit_speed_scale`)."""
 
     mean: np.ndarray
     speed_scale: float
 
 
 Estimator = Callable[[DatasetSequence, FlowFeatures, Training], tuple[np.ndarray, int]]
-"""A baseline: (a sequence with poses (its frames, K), its flow features, the training split) ->
-((N-1, 4, 4) float64 relative poses, the frame pairs where it failed and fell back)."""
+"""A baseline: (a sequence with poses, its flow features, the training split) -> ((N-1, 4, 4) float64
+relative poses, the frame pairs where it failed and fell back)."""
 
 
 def _orb_essential(
@@ -447,16 +326,8 @@ def sequence_baselines(
     delta: int = 1,
     features: FlowFeatures | None = None,
 ) -> dict[str, BaselineResult]:
-    """Every baseline (:data:`ESTIMATORS`) on one sequence with ground truth, scored as a network's
-    trajectory is (``align``, ``delta`` as the runs' results.json).
-
-    Args:
-        sequence: a sequence with poses (images, poses (N, 4, 4), K).
-        training: the training split's mean motion and road-speed constant.
-        features: the sequence's flow features (:func:`flow_features`, computed here if None).
-    Returns:
-        {baseline name: BaselineResult}, in the order of :data:`NAMES`.
-    """
+    """Every baseline on one sequence with poses, scored as a network's trajectory is; ``features``:
+    :func:`flow_features`, computed here if None."""
     gt = np.asarray(sequence.poses, dtype=np.float64)
     if features is None:
         features = flow_features(sequence.images, sequence.K, undistortion(sequence))
@@ -468,19 +339,8 @@ def sequence_baselines(
     return out
 
 
-# --------------------------------------------------------------------------------------------------
-# The recorded data -> sequences, and the cache
-# --------------------------------------------------------------------------------------------------
-
-
 def training_sequences(data: DataRecord) -> list[DatasetSequence]:
-    """The training split recorded in ``data``: its sequences under ``data.train_root``, read in
-    ``data.train_layout`` (poses required; each of several datasets' from its source, :func:`read_sequence`).
-
-    Raises:
-        UserError: no training data or sequence recorded, or a source of several not recorded;
-            KittiFormatError for a sequence that is not there.
-    """
+    """The training split's sequences recorded in ``data`` (:func:`read_sequence`)."""
     if not data.train or data.train_root is None:
         raise UserError("the recorded training split (data.train) is empty: no training mean motion")
     where = (data.train_layout, data.train_root, data.train_keep_every, data.train_sources)
@@ -491,11 +351,7 @@ def read_sequence(
     layout: str, root: str, keep_every: int, sources: Mapping[str, SourceRecord], name: str
 ) -> DatasetSequence:
     """Sequence ``name`` of the dataset at ``root`` read in ``layout``, every ``keep_every``-th frame; of
-    data of several datasets (:data:`MULTI_LAYOUT`), ``<source>/<sequence>`` read from its source.
-
-    Raises:
-        UserError: a source not in ``sources``; KittiFormatError for a sequence that is not there.
-    """
+    data of several datasets (:data:`MULTI_LAYOUT`), ``<source>/<sequence>`` read from its source."""
     if layout == MULTI_LAYOUT:
         source_name, _, inner = name.partition("/")
         source = sources.get(source_name) if inner else None
@@ -510,15 +366,8 @@ def read_sequence(
     return layouts.load_sequence(layout, layouts.dataset_root(layout, root), name).every(keep_every)
 
 
-def training_mean_motion(data: DataRecord) -> np.ndarray:
-    """(4, 4) mean relative pose (:func:`mean_motion`) of the training split recorded in ``data``, read
-    from the pose files under ``data.train_root`` (:func:`training_sequences`)."""
-    return mean_motion([sequence.targets for sequence in training_sequences(data)])
-
-
 def _files(sequence: DatasetSequence) -> dict[str, Any]:
-    """What identifies a sequence's frames beyond their paths: their count, total size and latest change
-    (a cached result is recomputed when the files change)."""
+    """What identifies a sequence's frames beyond their paths (a cache key): count, size, latest change."""
     stats = [p.stat() for p in sequence.images]
     return {
         "frames": len(stats),
@@ -566,16 +415,14 @@ def _baselines_of(
 
 
 def cached_flow_features(sequence: DatasetSequence, memory: joblib.Memory) -> FlowFeatures:
-    """One sequence's flow features, from ``memory`` (joblib's cache) where it holds them."""
+    """One sequence's flow features, from joblib's cache ``memory`` where it holds them."""
     return cast("FlowFeatures", memory.cache(_flow_features_of)(sequence, _files(sequence), flow_settings()))
 
 
 def training_speed_scale(
     training: Sequence[DatasetSequence], memory: joblib.Memory, n_jobs: int = 1
 ) -> float:
-    """The road-speed constant (m/px, :func:`fit_speed_scale`) of the training sequences: their road
-    features (cached in ``memory``, computed ``n_jobs`` sequences at a time) against their ground-truth
-    step lengths."""
+    """The road-speed constant (m/px, :func:`fit_speed_scale`) of the training sequences."""
     features = _parallel(lambda sequence: cached_flow_features(sequence, memory), training, n_jobs)
     road = np.concatenate([f.road for f in features])
     steps = np.concatenate([np.linalg.norm(s.targets[:, :3, 3], axis=1) for s in training])
@@ -590,27 +437,9 @@ def compute_baselines(
     delta: int = 1,
     n_jobs: int = 1,
 ) -> dict[str, dict[str, BaselineResult]]:
-    """The baselines of the given sequences of the recorded data, from the cache where possible.
-
-    The sequences are read with their layout's reader (every ``keep_every``-th frame, undistorted as
-    the frame cache undistorts them), the mean motion from the recorded training data. Flow features and
-    results are cached by ``joblib.Memory`` in ``cache_dir``, keyed by their inputs: the sequence (its
-    files, poses and camera), the training split's mean motion and road-speed constant, the alignment,
-    delta and the flow and ORB settings (:data:`VERSION` among them).
-
-    Args:
-        data: a run's record of its evaluated dataset and training data (its results.json's ``data``).
-        sequences: names of sequences with ground truth under ``data.root`` (e.g. those of the runs'
-            results.json).
-        cache_dir: the cache's folder.
-        align, delta: as the runs' results.json.
-        n_jobs: sequences computed in parallel (threads: OpenCV releases the GIL).
-    Returns:
-        {sequence: {baseline name: BaselineResult}}, in the order of ``sequences``; ``cached`` says which
-        came from the cache.
-    Raises:
-        UserError (KittiFormatError among them): a root, a sequence or a pose file that is not there.
-    """
+    """``{sequence: {baseline: result}}`` of the named sequences of a run's recorded ``data``, cached in
+    ``cache_dir`` keyed by every input (the files, training split, ``align``, ``delta``, the flow and ORB
+    settings); ``n_jobs`` sequences at a time (threads: OpenCV releases the GIL)."""
     memory = joblib.Memory(cache_dir, verbose=0)
     training = training_sequences(data)
     where = (data.layout, data.root, data.keep_every, data.sources)
@@ -643,12 +472,10 @@ def compute_baselines(
 def _parallel(
     fn: Callable[[DatasetSequence], T], sequences: Sequence[DatasetSequence], n_jobs: int
 ) -> list[T]:
-    """``fn`` of each sequence, in order, ``n_jobs`` sequences at a time (threads).
+    """``fn`` of each sequence, in order, ``n_jobs`` sequences at a time (threads), longest first.
 
-    One sequence per thread, each with single-threaded torch and OpenCV: nested thread pools on a few
-    cores are many times slower. torch's thread count is the calling thread's (OpenMP), so it is set in
-    each call and restored after; OpenCV's is global, so it is set around the pool. The longest
-    sequences start first, which balances the threads.
+    Each thread runs single-threaded torch (a per-thread setting) and OpenCV (a global one): nested thread
+    pools on a few cores are many times slower.
     """
 
     def single_threaded(sequence: DatasetSequence) -> T:

@@ -1,14 +1,6 @@
-"""lossvo checkpoints: the trained network, and the description of how it was trained, read and
-written here only.
-
-A lossvo checkpoint is a Lightning checkpoint of :class:`lossvo.training.module.VOModule` that holds only
-primitives (it loads with torch's default ``weights_only``): the weights (``state_dict``: ``model.*`` and
-``loss.*``), Lightning's loop state, and the :class:`Description` (:func:`describe` records it as the
-module saves, :meth:`Description.of` reads it).
-
-:func:`load_network` rebuilds the network and its loss from the description alone (no
-LightningModule), which is all evaluation needs; :func:`evaluation_data` builds the data config that
-evaluates it.
+"""lossvo checkpoints, read and written here only: a Lightning checkpoint of primitives (``weights_only``)
+holding the weights and the :class:`Description` of how they were trained. :func:`load_network` rebuilds
+the network from it alone; :func:`evaluation_data` builds the data config that evaluates it.
 """
 
 from __future__ import annotations
@@ -38,20 +30,17 @@ TRAINED_WITH = (
     "flow.method",
     "flow.scale",
 )
-"""Data settings a trained network depends on (paths in the data config): evaluation takes them from its
-checkpoint."""
+"""Data settings a trained network depends on: evaluation takes them from its checkpoint."""
 
 SCHEMA_VERSION = 1
-"""The version of what a lossvo checkpoint holds beside Lightning's entries, written in it as
-``schema_version``; a checkpoint without one is read as this version (an earlier form of its ``data`` is
-upgraded: :func:`lossvo.data.transforms.upgrade_description`)."""
+"""The version of a lossvo checkpoint's own entries (a checkpoint without ``schema_version`` is read as
+this one, its ``data`` upgraded: :func:`lossvo.data.transforms.upgrade_description`)."""
 
 MODEL_WITHDRAWN = {"intrinsics_layer": True}
-"""Network arguments of earlier versions' checkpoints that this version does not have -> the one value it
-builds (another is refused)."""
+"""Network arguments of earlier versions that this one does not have -> the one value it builds."""
 
 RECORD_ONLY = ("statistics", "dataset_root", "intrinsics")
-"""Entries of a checkpoint's ``data`` that describe the training data but are not datamodule arguments."""
+"""Entries of a checkpoint's ``data`` that are not datamodule arguments."""
 
 
 class CheckpointError(UserError):
@@ -61,19 +50,9 @@ class CheckpointError(UserError):
 
 @dataclass(frozen=True)
 class Description:
-    """How a checkpoint's network was trained.
-
-    Attributes:
-        model, loss: the configs the network and its loss were built from (``hyper_parameters``).
-        data: :meth:`lossvo.data.datamodules.VODataModule.description` of the training data: the
-            datamodule's ``_target_`` and specs (sources, splits, frames, windows, flow, loader,
-            transforms), ``dataset_root`` and the normalisation ``statistics``; an earlier version's
-            description in that form, without the training settings this version does not have
-            (:func:`lossvo.data.transforms.upgrade_description`, :func:`lossvo.data.specs.current`); None
-            where none was recorded.
-        threads: the CPU thread count (``torch.get_num_threads()``) it was trained with, or None.
-        epoch: the epoch the checkpoint was saved in, counted from 0. global_step: its global step.
-    """
+    """How a checkpoint's network was trained: the ``model`` and ``loss`` configs, the training ``data``'s
+    :meth:`lossvo.data.datamodules.VODataModule.description` (an earlier version's upgraded; None where
+    none was recorded), the CPU ``threads`` (None: not recorded), the ``epoch`` (from 0) and step."""
 
     model: dict[str, Any]
     loss: dict[str, Any]
@@ -84,8 +63,7 @@ class Description:
 
     @classmethod
     def of(cls, content: Mapping[str, Any]) -> Description:
-        """The description in a checkpoint's content (:func:`read`: it holds ``model`` and ``loss``);
-        UserError naming a setting of an earlier version that this one does not have."""
+        """The description in a checkpoint's content (:func:`read`); UserError naming a withdrawn setting."""
         hparams, threads = content["hyper_parameters"], content.get("threads")
         model = dict(hparams["model"])
         for key, only in MODEL_WITHDRAWN.items():
@@ -100,9 +78,8 @@ class Description:
 
 
 def describe(checkpoint: dict[str, Any], data: dict[str, Any] | None) -> None:
-    """Record a :class:`Description`'s training data (``data``, where known), this process's thread
-    count and :data:`SCHEMA_VERSION` in a checkpoint being saved (Lightning records the configs, the
-    epoch and the step)."""
+    """Record the training ``data`` (where known), the thread count and :data:`SCHEMA_VERSION` in a
+    checkpoint being saved (Lightning records the rest of its :class:`Description`)."""
     checkpoint["schema_version"] = SCHEMA_VERSION
     if data is not None:
         checkpoint["data"] = data
@@ -110,14 +87,8 @@ def describe(checkpoint: dict[str, Any], data: dict[str, Any] | None) -> None:
 
 
 class TrainedNetwork(nn.Module):
-    """A network and the loss that owns its parameterisation, as a checkpoint describes them.
-
-    Attributes:
-        model: the network, a batch's entries it reads -> outputs (B, L-1, loss.dim).
-        loss: the :class:`lossvo.losses.PoseLoss` that decodes those outputs.
-        data: the training data's description (the checkpoint's ``data``), or None.
-        threads: the CPU thread count it was trained with, or None where the checkpoint records none.
-    """
+    """A network, the :class:`lossvo.losses.PoseLoss` that decodes its outputs, and the checkpoint's
+    ``data`` and ``threads`` (each None where not recorded)."""
 
     def __init__(self, model: nn.Module, loss: PoseLoss, data: dict[str, Any] | None = None,
                  threads: int | None = None) -> None:  # fmt: skip
@@ -135,12 +106,8 @@ class TrainedNetwork(nn.Module):
 
 
 def read(path: str | os.PathLike) -> dict[str, Any]:
-    """The content of a lossvo checkpoint, loaded on the CPU with ``weights_only``.
-
-    Raises:
-        CheckpointError: no such file, not a (complete) lossvo checkpoint, or one of another
-            ``schema_version`` than :data:`SCHEMA_VERSION`.
-    """
+    """The content of a lossvo checkpoint, loaded on the CPU with ``weights_only``; CheckpointError, one
+    line, for a file that is not one of :data:`SCHEMA_VERSION`."""
     path = Path(path).expanduser()
     if not path.is_file():
         raise CheckpointError(f"checkpoint not found: {path}")
@@ -209,21 +176,10 @@ def _with(data: Mapping[str, Any], path: str, value: Any) -> dict[str, Any]:
 def evaluation_data(
     recorded: Mapping[str, Any], selected: Mapping[str, Any] | None, explicit: Mapping[str, Any]
 ) -> dict[str, Any]:
-    """The data config that evaluates a checkpoint.
-
-    Args:
-        recorded: the checkpoint's ``data`` (:func:`recorded_data`).
-        selected: the composed data config when another dataset was chosen (``data=kitti``), else None:
-            the recorded one is used.
-        explicit: the ``data.KEY=VALUE`` overrides given on the command line, by dotted key
-            (``frames.cache_dir``, ``sources.kitti.root``).
-    Returns:
-        A datamodule config: the chosen (or recorded) one with the explicit overrides, the frame size,
-        ``seq_len``, normalisation and flow of the checkpoint, its ``statistics``, and no training or
-        validation sequences (the data need not hold any).
-    Raises:
-        CheckpointError: an explicit override contradicts what the network was trained with.
-    """
+    """The data config that evaluates a checkpoint: the ``selected`` one (None: the ``recorded`` one) with
+    the command line's ``explicit`` overrides by dotted key, the settings :data:`TRAINED_WITH` and the
+    statistics recorded, and no training or validation sequences; CheckpointError for an override that
+    contradicts the recorded settings."""
     for key in TRAINED_WITH:
         if key in explicit and explicit[key] != lookup(recorded, key):
             raise CheckpointError(

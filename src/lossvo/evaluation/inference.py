@@ -33,27 +33,12 @@ def predict_sequence(
     mirror_average: bool = False,
     gap: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Relative poses of a whole sequence, every consecutive pair predicted exactly once.
+    """(N-1, 4, 4) float64 relative poses of a whole sequence, every consecutive pair predicted once.
 
-    The sequence is cut into windows as in validation: ``seq_len`` frames overlapping by one, none across
-    a gap (:func:`lossvo.data.windows.tile` with ``gap``, (N - 1,) bool), each with its pairs' flow and the
-    sequence's K. By default the LSTM starts from zeros in every window, as in training, and
-    ``batch_windows`` windows go through the network in one forward pass. With ``carry_state=True`` the
-    LSTM state is carried from one window to the next (DeepVO's ``model.forward_with_state``, one window
-    after the other): an option for networks trained on longer sequences, not what training does. The
-    module runs in eval mode under ``torch.no_grad``; its previous mode is restored afterwards.
-
-    Args:
-        module: a :class:`lossvo.training.module.VOModule` (or anything with ``forward(batch) ->
-            (B, L-1, dim)`` for a batch of windows and ``decode(outputs) -> (..., 4, 4)``).
-        inputs: the sequence's :data:`Inputs` (memory maps are read window batch by window batch).
-        prepare: loaded inputs -> what the network reads, e.g. the datamodule's ``prepare`` (normalised
-            frames, float flow).
-        mirror_average: also predict the mirrored sequence (:func:`lossvo.data.transforms.mirror_inputs`,
-            the mirroring training uses), mirror those poses back and return each pair's average of the
-            two (:func:`average_with_mirror`): twice the inference, a prediction symmetric under mirroring.
-    Returns:
-        (N-1, 4, 4) float64 relative poses ``T_k`` (frame k+1 seen from frame k).
+    Windows of ``seq_len`` frames overlap by one, none across a ``gap`` ((N - 1,) bool), ``batch_windows``
+    a forward pass; ``carry_state`` carries the LSTM state from one window to the next instead (DeepVO's
+    ``forward_with_state``); ``mirror_average`` averages with the mirrored inputs' prediction
+    (:func:`average_with_mirror`). ``prepare``: loaded inputs -> what the network reads.
     """
     windows = [(int(a), int(b)) for a, b in tile(len(inputs["frames"]), seq_len, gap)]
     plain = _predict(module, inputs, prepare, windows, batch_windows, carry_state)
@@ -66,16 +51,8 @@ def predict_sequence(
 
 
 def average_with_mirror(plain: Tensor, mirrored: Tensor) -> Tensor:
-    """The average of relative poses and those predicted on the mirrored inputs: the mirrored poses are
-    conjugated back by the reflection S = diag(-1, 1, 1, 1) (``S T S``), then each pair's two rotations are
-    averaged along their geodesic (the midpoint ``R_a exp(log(R_a^T R_b) / 2)``) and the translations
-    arithmetically.
-
-    Args:
-        plain, mirrored: (..., 4, 4) float64 relative poses.
-    Returns:
-        (..., 4, 4) float64.
-    """
+    """(..., 4, 4) average of relative poses and those predicted on mirrored inputs, mirrored back: the
+    geodesic midpoint of the rotations, the mean of the translations."""
     back = mirror_poses(mirrored)
     Ra, Rb = plain[..., :3, :3], back[..., :3, :3]
     half = roma.rotvec_to_rotmat(roma.rotmat_to_rotvec(Ra.transpose(-1, -2) @ Rb) / 2)
@@ -125,9 +102,8 @@ def _predict(
 
 
 def _batches(windows: list[tuple[int, int]], size: int) -> list[list[tuple[int, int]]]:
-    """The windows, in order, in batches: up to ``size`` windows of the longest length that each overlap
-    the one before by one frame (so that a batch's frames are one contiguous read); any other window
-    alone."""
+    """The windows in batches of up to ``size`` of the longest length, each overlapping the one before by
+    one frame (one contiguous read); any other window alone."""
     longest = max(stop - start for start, stop in windows)
     batches: list[list[tuple[int, int]]] = []
     for start, stop in windows:

@@ -1,18 +1,8 @@
-"""A job folder's files, typed: ``status.json``, ``results.json`` (with ``results.csv`` beside it) and
-``metrics.csv``, read and written here only.
+"""A job folder's files, typed and read and written here only: ``status.json`` (:class:`Status`),
+``results.json`` with ``results.csv`` (:class:`Results`) and ``metrics.csv`` (:class:`MetricsTable`).
 
-A job folder holds ``.hydra/``, ``status.json`` (:class:`Status`), ``metrics.csv`` (:class:`MetricsTable`),
-``checkpoints/`` (:mod:`lossvo.evaluation.checkpoints`), ``results.json`` (:class:`Results`, the contract
-between evaluation and everything that reads a run: the report, the baselines, users; written by
-:func:`lossvo.evaluation.results.evaluate_run`), ``results.csv`` (the same scores as a tidy table),
-``trajectories/`` and ``plots/``. Every write is atomic (:mod:`lossvo.atomic`), apart from the rows
-Lightning's logger appends to ``metrics.csv`` (:func:`append_metrics`).
-
-Each JSON file is a tree of frozen dataclasses (:class:`Record`) read through one path,
-:meth:`Record.from_json`: every field is checked against its type annotation, and a file that cannot be
-read raises :class:`JobFolderError`, one line naming the file and the key that does not fit. The fields of
-``results.json``: docs/training.md. Units: APE / RPE translation in m, rotation in rad (``rot_rad``); KITTI
-errors in % and deg per 100 m, null where no 100 m segment exists.
+Each JSON file is a tree of frozen dataclasses (:class:`Record`) checked against their type annotations;
+a file that does not fit raises :class:`JobFolderError` naming the key. Fields and units: docs/training.md.
 """
 
 from __future__ import annotations
@@ -44,21 +34,15 @@ STATES = ("running", "completed", "failed", "interrupted")
 """What ``status.json`` says of a run."""
 
 STATUS_SCHEMA_VERSION = 1
-"""The version of ``status.json``'s fields, written in it as ``schema_version``; a file without one is read
-as this version."""
-
+"""The version of ``status.json`` (a file without ``schema_version`` is read as this one)."""
 SCHEMA_VERSION = 2
 """The version of :class:`Results` that this code writes and reads."""
 TRANSLATION_METRIC = "metric"
 TRANSLATION_SCALED = "direction (scaled to the ground-truth step length)"
 TRANSLATIONS = {"metric": TRANSLATION_METRIC, "direction": TRANSLATION_SCALED, "cue": TRANSLATION_METRIC}
-"""``Results.translation`` for each ``loss.translation`` (:data:`lossvo.losses.TRANSLATIONS`): a network
-trained on the direction only is scored with each predicted step scaled to the ground-truth step length;
-one trained on metric steps where a platform gives scale a cue chains its steps as predicted, and each
-sequence's ``metric_scale`` says whether its metric or its scale-given RPE is the one to read."""
+"""``Results.translation`` for each ``loss.translation`` (:data:`lossvo.losses.TRANSLATIONS`)."""
 MULTI_LAYOUT = "multi"
-"""The training layout recorded for a network trained on several datasets (their sources:
-:attr:`DataRecord.train_sources`)."""
+"""The layout recorded for data of several datasets (each in :attr:`DataRecord.sources`)."""
 
 
 class JobFolderError(UserError):
@@ -82,10 +66,6 @@ def _read_text(path: Path) -> str:
         reason = e.strerror if isinstance(e, OSError) and e.strerror else type(e).__name__
         raise JobFolderError(path, f"unreadable ({reason})") from None
 
-
-# --------------------------------------------------------------------------------------------------
-# Records: JSON objects read into dataclasses
-# --------------------------------------------------------------------------------------------------
 
 R = TypeVar("R", bound="Record")
 S = TypeVar("S", bound="_ScoredOrNoted")
@@ -145,17 +125,15 @@ def _optional(f: Field) -> bool:
 class Record:
     """A frozen dataclass read from and written to a JSON object (:meth:`from_json`, :meth:`to_json`).
 
-    A field's metadata may give ``key``, its JSON key (default: the field's name); ``what`` it must be, in
-    an error message (default: its type's words), and ``fits``, a check beyond its type; ``required``,
-    whether the key must be in the file although the field has a default; ``inline``, a record whose keys
-    are the enclosing object's own, present where that holds the key given.
+    A field's metadata may give ``key`` (its JSON key), ``what`` it must be (for the error message),
+    ``fits`` (a check beyond its type), ``required`` (the key must be there despite a default) and
+    ``inline`` (a record whose keys are the enclosing object's own, present where that holds this key).
     """
 
     @classmethod
     def from_json(cls: type[R], obj: Any, where: str = "") -> R:
-        """The record in the JSON object ``obj`` at key path ``where`` (other keys are ignored); a missing
-        key takes its field's default. ValueError, one line naming the key path, for a key that is missing
-        or a value that does not fit its field's type."""
+        """The record in the JSON object ``obj`` at key path ``where`` (other keys ignored); ValueError
+        naming the key path of a key missing or a value that does not fit."""
         obj, values, types = _object(obj, where), {}, get_type_hints(cls)
         for f in fields(cls):  # type: ignore[arg-type]
             name, what, fits = f.metadata.get("key", f.name), f.metadata.get("what"), f.metadata.get("fits")
@@ -176,8 +154,7 @@ class Record:
         return cls(**values)
 
     def to_json(self) -> dict[str, Any]:
-        """The record as a JSON object, in field order: a key that may be missing is left out where its
-        value is None, an inline record's keys are the object's own."""
+        """The record as a JSON object, in field order, without the optional keys that are None."""
         out: dict[str, Any] = {}
         for f in fields(self):  # type: ignore[arg-type]
             value = getattr(self, f.name)
@@ -204,11 +181,7 @@ def _json(value: Any) -> Any:
 
 
 def _read(path: Path, cls: type[R]) -> R:
-    """``path`` read as the record ``cls``.
-
-    Raises:
-        JobFolderError: missing, unreadable, not JSON, or a key that does not fit (naming it).
-    """
+    """``path`` read as the record ``cls``; JobFolderError where it cannot be."""
     try:
         obj = json.loads(_read_text(path))
     except json.JSONDecodeError as e:
@@ -219,27 +192,12 @@ def _read(path: Path, cls: type[R]) -> R:
         raise JobFolderError(path, str(e)) from None
 
 
-# --------------------------------------------------------------------------------------------------
-# status.json
-# --------------------------------------------------------------------------------------------------
-
-
 @dataclass(frozen=True)
 class Event(Record):
-    """One entry of a run's history.
-
-    Attributes:
-        event: ``"started"``, ``"resumed"``, ``"stopped"``, ``"killed"``, ``"failed"`` or ``"completed"``.
-        time: when, in UTC, ISO 8601 to the second; None where unknown (a kill that left no file).
-        signal: the signal of a stop (``"SIGTERM"``, ``"SIGINT"``, ``"SIGUSR2"``).
-        epoch: the epoch a stop interrupted, or a resume continues with, counted from 1.
-        stage: ``"evaluation"`` where a stop interrupted, or a resume continues with, the evaluation.
-        source: the checkpoint a resume continues from (``"from"`` in the file).
-        error: the error of a failure: a user error's one line, any other ``"Type: message"``.
-        slurm_job, slurm_restarts: the SLURM job and how often SLURM requeued it.
-        code: the code version of a start or resume (:func:`lossvo.code_version.code_version`).
-        machine: the processor of a start or resume (:func:`lossvo.machine.machine`).
-    """
+    """One entry of a run's history: ``event`` (``"started"``, ``"resumed"``, ``"stopped"``, ``"killed"``,
+    ``"failed"``, ``"completed"``) at ``time`` (UTC, ISO 8601; None where unknown), an ``epoch`` counted
+    from 1, ``source`` the checkpoint a resume continues from; ``code`` and ``machine``: see
+    :mod:`lossvo.code_version`, :mod:`lossvo.machine`."""
 
     event: str
     time: str | None = None
@@ -254,12 +212,10 @@ class Event(Record):
     machine: str | None = None
 
     def to_json(self) -> dict[str, Any]:
-        """The entry as a JSON object: ``event`` and ``time``, then the fields that are set."""
         return {"event": self.event, "time": self.time} | super().to_json()
 
     @classmethod
     def from_json(cls, obj: Any, where: str = "") -> Event:
-        """The entry ``where`` (``history[i]``), each problem prefixed with it: ``history[0]: epoch: ...``."""
         if isinstance(obj, dict) and obj.get("event") is None:
             raise _MalformedError(f"{where}: expected an 'event'")
         try:
@@ -270,17 +226,9 @@ class Event(Record):
 
 @dataclass(frozen=True)
 class Status(Record):
-    """A job folder's ``status.json``: what the run is doing, or how it ended, always true.
-
-    Attributes:
-        state: one of :data:`STATES` (``"status"`` in the file).
-        history: the folder's events, oldest first, across every process that ran in it.
-        threads: the CPU thread count the run trains with.
-        metrics: a completed run's last value of each column of ``metrics.csv``.
-        error: a failed run's error: a user error's one line, any other ``"Type: message"``.
-        signal, epoch, stage: what stopped an interrupted run, during which epoch (from 1) or stage.
-        resume_from: the ``last.ckpt`` an interrupted run resumes from; None where there is none.
-    """
+    """A job folder's ``status.json``: ``state`` (:data:`STATES`, ``"status"`` in the file), the folder's
+    ``history`` (oldest first), a completed run's last ``metrics``, and what stopped a failed or
+    interrupted run (``resume_from``: its ``last.ckpt``, None where there is none)."""
 
     state: str = field(metadata={"key": "status"})
     history: tuple[Event, ...] = ()
@@ -294,14 +242,11 @@ class Status(Record):
 
     @property
     def stop(self) -> str:
-        """What stopped an interrupted run: ``"SIGTERM during epoch 3"``, ``"SIGINT during the
-        evaluation"``."""
+        """What stopped an interrupted run: ``"SIGTERM during epoch 3"``."""
         where = "the evaluation" if self.stage == "evaluation" else f"epoch {self.epoch or '?'}"
         return f"{self.signal or 'a signal'} during {where}"
 
     def to_json(self) -> dict[str, Any]:
-        """The file's object: ``schema_version``, ``status``, the fields that are set (``resume_from``
-        always for an interrupted run), then ``history``."""
         out = super().to_json()
         history = out.pop("history")
         if self.state == "interrupted":
@@ -322,11 +267,7 @@ class Status(Record):
 
 
 def read_status(folder: Path) -> Status | None:
-    """The folder's ``status.json``; None where there is none.
-
-    Raises:
-        JobFolderError: unreadable, not JSON, or not a status (naming the key that does not fit).
-    """
+    """The folder's ``status.json``; None where there is none."""
     path = folder / STATUS
     return _read(path, Status) if path.is_file() else None
 
@@ -334,11 +275,6 @@ def read_status(folder: Path) -> Status | None:
 def write_status(folder: Path, status: Status) -> None:
     """Write the folder's ``status.json`` atomically."""
     write_text_atomic(folder / STATUS, json.dumps(status.to_json(), indent=2) + "\n")
-
-
-# --------------------------------------------------------------------------------------------------
-# results.json and results.csv
-# --------------------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -363,8 +299,7 @@ class PoseErrors(Record):
 
 @dataclass(frozen=True)
 class KittiError(Record):
-    """The KITTI odometry error (mean over 100-800 m segments): translation in %, rotation in deg per
-    100 m; both None with a ``note`` where no segment exists."""
+    """The KITTI odometry error in % and deg per 100 m; None, with a ``note``, where no segment exists."""
 
     t_err_pct: float | None
     r_err_deg_per_100m: float | None
@@ -373,10 +308,8 @@ class KittiError(Record):
 
 @dataclass(frozen=True)
 class Scores(Record):
-    """One trajectory (or several pooled) against its ground truth: APE, RPE and the KITTI error, as
-    :func:`lossvo.evaluation.metrics.evaluate` computes them (its dict is read with :meth:`from_json`), and
-    the scale-given RPE ``rpe_scaled`` (each step scaled to the ground-truth step length; None: not
-    recorded)."""
+    """One trajectory (or several pooled) against its ground truth, as
+    :func:`lossvo.evaluation.metrics.evaluate_relative` computes them (``rpe_scaled`` None: not recorded)."""
 
     ape: PoseErrors
     rpe: PoseErrors
@@ -404,16 +337,8 @@ def _is_3x3(value: Any) -> bool:
 
 @dataclass(frozen=True)
 class SequenceResult(_ScoredOrNoted):
-    """One evaluated sequence: its frame count, trajectory and plot files (relative to the run folder),
-    the ground-truth pose file it was scored against (absolute; None without one), whether it is of a
-    route family never trained on, its :class:`Scores` (None, with a ``note``, without ground
-    truth) and ``K``, the (3, 3) intrinsics of the frames the network saw (pixels; None: not recorded);
-    ``rate_hz``, the frames a second it was given (of the frames kept); ``rate_from``, ``"timestamps"``
-    or ``"assumed"`` (a layout without timestamps: its reader's rate,
-    :data:`lossvo.data.layouts.ASSUMED_RATE_HZ`); ``metric_scale``, whether the sequence's platform gives
-    metric scale a cue (:data:`lossvo.data.layouts.METRIC_SCALE_LAYOUTS`): its translation is read as the
-    metric RPE where true, as the scale-given RPE where false (each None: not recorded). In the file the
-    scores' keys are the entry's own."""
+    """One evaluated sequence: files relative to the run folder (``ground_truth`` absolute, None without
+    one), ``K`` (3, 3) in pixels, ``rate_from`` ``"timestamps"`` or ``"assumed"``; None: not recorded."""
 
     frames: int
     trajectory: str
@@ -437,8 +362,7 @@ class SequenceResult(_ScoredOrNoted):
 
 @dataclass(frozen=True)
 class Overall(_ScoredOrNoted):
-    """Scores pooled over the evaluated ``sequences`` that have ground truth (None, with a ``note``,
-    when none has); in the file the scores' keys are the object's own."""
+    """Scores pooled over the evaluated ``sequences`` with ground truth (None, with a ``note``, without)."""
 
     sequences: list[str] = field(metadata=NAMES)
     scores: Scores | None = field(default=None, metadata={"inline": "ape"})
@@ -455,10 +379,8 @@ class LossRecord(Record):
 
 @dataclass(frozen=True)
 class SourceRecord(Record):
-    """One dataset of several: the ``layout`` its sequences are read in
-    (:data:`lossvo.data.layouts.LAYOUTS`), its ``root`` folder, every how-many-th frame it kept, and whether
-    it is the synthetic town ``rendered`` in that layout (its sequences' two digits are then named as the
-    layout names them, :func:`lossvo.data.synthetic.layouts.sequence_name`)."""
+    """One dataset of several: its ``layout`` (:data:`lossvo.data.layouts.LAYOUTS`), ``root``, frames kept,
+    and whether it is the synthetic town ``rendered`` in that layout."""
 
     layout: str
     root: str
@@ -472,16 +394,11 @@ SOURCE_FIELDS = ("sources", "train_sources")
 
 @dataclass(frozen=True)
 class DataRecord(Record):
-    """The data of an evaluation: the evaluated dataset (``kind``: its datamodule's class path;
-    ``root``: its absolute KITTI-layout folder, ``sequences/NN/...`` and ``poses/NN.txt``; its ``test``
-    and ``unseen`` sequences) and the data the network was trained on (``train_root``, the training
-    split ``train``) with its input settings (``height``, ``width`` in pixels, ``seq_len`` in frames,
-    ``normalization``, per-channel ``mean`` and ``std`` of pixel values in [0, 1]), and both datasets'
-    layouts (``layout``, ``train_layout``: :data:`lossvo.data.layouts.LAYOUTS`) and every how-many-th frame of
-    each was kept (``keep_every``, ``train_keep_every``); where absent, read as KITTI's, every
-    frame. Data of several datasets has the layout :data:`MULTI_LAYOUT`, sequences named
-    ``<source>/<sequence>`` and each source in ``sources`` (evaluated) or ``train_sources`` (trained on);
-    both are left out of the file for one dataset. Roots are as recorded; they may no longer exist."""
+    """The data evaluated and the data trained on (``train_*``), with the network's input settings.
+
+    Data of several datasets has the layout :data:`MULTI_LAYOUT`, sequences named ``<source>/<sequence>``
+    and its ``sources``, left out of the file for one dataset. Roots are as recorded; they may be gone.
+    """
 
     kind: str | None
     root: str
@@ -526,20 +443,7 @@ RESULTS_KEYS = ("schema_version", "checkpoint", "loss", "align", "delta", "seq_l
 
 @dataclass(frozen=True)
 class Results(Record):
-    """The content of a run's ``results.json``.
-
-    ``checkpoint``: the weights evaluated (None: the last weights of a fit); ``loss``; ``align`` and
-    ``delta``: the APE alignment and RPE delta (frames) of every score; ``seq_len``: the window length
-    (frames) inferred with; ``carry_state``: whether the recurrent state was carried between windows;
-    ``mirror_average``: whether each pose is the average with the mirrored inputs' (absent:
-    False);
-    ``threads``: the CPU thread count the network was trained with (None: not recorded); ``data``;
-    ``sequences``: per evaluated sequence; ``overall``: pooled over the sequences with ground truth;
-    ``translation``: :data:`TRANSLATION_METRIC`, the predicted steps as the network gave them, or
-    :data:`TRANSLATION_SCALED`, each predicted step scaled to the ground-truth step length before
-    chaining and scoring (a network trained with ``loss.translation=direction``; optimistic, as the ORB+E
-    baseline with ground-truth scale).
-    """
+    """The content of a run's ``results.json`` (``checkpoint`` None: the last weights of a fit)."""
 
     checkpoint: str | None
     loss: LossRecord
@@ -569,8 +473,6 @@ class Results(Record):
 
     @classmethod
     def from_json(cls, obj: Any, where: str = "") -> Results:
-        """From parsed JSON of this :data:`SCHEMA_VERSION`; ValueError naming the key path of the first
-        field that does not fit."""
         version = _object(obj, where).get("schema_version")
         if version != SCHEMA_VERSION:
             found = "no schema_version" if version is None else f"schema_version {version!r} is not supported"
@@ -581,10 +483,8 @@ class Results(Record):
         return super().from_json(obj, where)
 
     def tidy_rows(self) -> list[tuple[str, str, str, str, float | None]]:
-        """The scores as a tidy table (:data:`TIDY_COLUMNS`): one row per scored sequence (then
-        ``overall``, the pooled scores) × metric (``ape``, ``rpe``, ``rpe_scaled``, ``kitti``) × part
-        (``trans`` m, ``rot_rad`` rad; KITTI's ``t_err_pct`` %, ``r_err_deg_per_100m``) × statistic
-        (KITTI's: ``mean``)."""
+        """The scores as ``results.csv``'s tidy rows (:data:`TIDY_COLUMNS`): each scored sequence, then
+        ``overall``."""
         pooled = {"overall": self.overall.scores} if self.overall.scores is not None else {}
         rows: list[tuple[str, str, str, str, float | None]] = []
         for name, scores in {**self.scored(), **pooled}.items():
@@ -601,8 +501,7 @@ class Results(Record):
         return rows
 
     def write(self, path: str | os.PathLike) -> None:
-        """Write ``path`` (JSON, NaN allowed) atomically, and beside it, atomically too, the same scores as
-        a tidy table (``results.csv``, :meth:`tidy_rows`; an empty value where KITTI has no segment)."""
+        """Write ``path`` (JSON, NaN allowed) and ``results.csv`` beside it (:meth:`tidy_rows`) atomically."""
         write_text_atomic(Path(path), json.dumps(self.to_json(), indent=2, allow_nan=True) + "\n")
         table = io.StringIO()
         writer = csv.writer(table, lineterminator="\n")
@@ -613,18 +512,8 @@ class Results(Record):
 
     @classmethod
     def read(cls, path: str | os.PathLike) -> Results:
-        """Read ``path``.
-
-        Raises:
-            JobFolderError: one line naming the file and what is wrong: missing, unreadable, not JSON,
-                another schema version, or a field missing or of another type.
-        """
+        """Read ``path``; JobFolderError, one line, where it cannot be."""
         return _read(Path(path), cls)
-
-
-# --------------------------------------------------------------------------------------------------
-# metrics.csv
-# --------------------------------------------------------------------------------------------------
 
 
 @dataclass
@@ -636,17 +525,9 @@ class Curves:
 
 @dataclass(frozen=True)
 class MetricsTable:
-    """A ``metrics.csv`` as Lightning's CSV logger writes it: one row per logging call, its values as
-    written (strings, ``""`` where the row does not log a column).
-
-    The ``epoch`` column is Lightning's, counted from 0; ``step`` is the global step. Training and
-    validation values of an epoch sit on different rows; rows without an epoch (the learning rate's
-    first) exist.
-
-    Attributes:
-        header: the column names. rows: the complete rows, in file order.
-        damage: where reading stopped, for a file whose later rows are cut or corrupt; else None.
-    """
+    """A ``metrics.csv`` as Lightning's CSV logger writes it: one row per logging call, values as written
+    (``""`` where a row does not log a column; ``epoch`` from 0); ``damage``: where reading stopped, for a
+    file whose later rows are cut or corrupt."""
 
     header: tuple[str, ...] = ()
     rows: tuple[dict[str, str], ...] = ()
@@ -688,12 +569,8 @@ def _complete(row: Sequence[str], header: Sequence[str]) -> dict[str, str]:
 
 
 def read_metrics(folder: Path) -> MetricsTable:
-    """The folder's ``metrics.csv``; an empty table where there is none. Reading stops at a row cut
-    short or holding something other than numbers (a process killed mid-write), said in ``damage``.
-
-    Raises:
-        JobFolderError: the file cannot be read, or is not CSV.
-    """
+    """The folder's ``metrics.csv`` (empty where there is none), up to a row cut short or corrupt (a process
+    killed mid-write); JobFolderError where the file cannot be read or is not CSV."""
     path = folder / METRICS
     if not path.is_file():
         return MetricsTable()
@@ -720,9 +597,8 @@ def write_metrics(folder: Path, table: MetricsTable) -> None:
 
 
 def append_metrics(folder: Path, header: Sequence[str], rows: Sequence[Mapping[str, Any]]) -> None:
-    """Append logged rows to the folder's ``metrics.csv`` under ``header`` (CSV as :class:`csv.DictWriter`
-    writes it). A header with new columns first rewrites the file whole, atomically, with every row it
-    held; a missing file is created with its header."""
+    """Append logged rows to the folder's ``metrics.csv`` under ``header``; new columns first rewrite the
+    file whole, atomically."""
     path = folder / METRICS
     if path.is_file():
         with path.open(newline="") as f:

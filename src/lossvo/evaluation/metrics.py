@@ -1,19 +1,7 @@
-"""Trajectory metrics equal to evo's APE / RPE and the KITTI odometry error, as torchmetrics.
+"""Trajectory metrics equal to evo's APE / RPE and the KITTI odometry error: functions and torchmetrics.
 
-Computed in float64, vectorised over poses and pairs, on the input's device. Poses are (N, 4, 4)
-camera-to-world matrices ``T_w_c`` (KITTI). Definitions (checked against evo 1.x, ``evo/core/metrics.py``):
-
-- APE: error pose ``E_i = inv(P_est_i) @ P_ref_i``; translation error ``|p_est_i - p_ref_i|`` (evo's
-  ``translation_part``; equal to ``|t(E_i)|`` for rigid poses), rotation error the angle of
-  ``R_est_i^T R_ref_i`` (:func:`lossvo.geometry.rotation_angle`).
-- RPE (delta d frames, ``all_pairs=False``): pairs ``(0, d), (d, 2d), ...``,
-  ``E = inv(inv(Q_i) Q_j) @ (inv(P_i) P_j)`` with Q the reference and P the estimate; errors ``|t(E)|`` and
-  the angle of ``R(E)``.
-- Alignment (evo ``PosePath3D.align``): Umeyama on positions, estimate onto reference; ``se3`` applies
-  ``[r | t]``, ``sim3`` scales the estimate's translations by ``s`` first, ``scale`` only scales.
-- KITTI (devkit ``evaluate_odometry.cpp``): :func:`kitti_segment_errors`.
-
-Units: m and rad (KITTI: per metre). The command line over two KITTI pose files is :mod:`lossvo.metrics`.
+Float64, vectorised, on the input's device. Poses are (N, 4, 4) camera-to-world ``T_w_c``; units m and rad
+(KITTI: per metre). The definitions, and how they are checked against evo and the devkit: docs/metrics.md.
 """
 
 from __future__ import annotations
@@ -36,16 +24,11 @@ from lossvo.evaluation.trajectories import integrate, scale_steps
 AlignMode = Literal["none", "se3", "sim3", "scale"]
 ALIGN_MODES: tuple[str, ...] = ("none", "se3", "sim3", "scale")
 KITTI_LENGTHS: tuple[float, ...] = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
-"""Segment lengths (metres) of the KITTI odometry benchmark."""
+"""Segment lengths (m) of the KITTI odometry benchmark."""
 KITTI_STEP = 10
-"""Frames between the first frames of KITTI segments (the devkit's ``step_size``, one second at 10 Hz)."""
+"""Frames between the first frames of KITTI segments (the devkit's ``step_size``)."""
 
 STATISTICS: tuple[str, ...] = ("rmse", "mean", "median", "std", "min", "max")
-
-
-# --------------------------------------------------------------------------------------------------
-# Input checks
-# --------------------------------------------------------------------------------------------------
 
 
 def _as_poses(x: Tensor | np.ndarray | Sequence, name: str, device: torch.device | None = None) -> Tensor:
@@ -71,28 +54,12 @@ def _check_pair(est: Any, ref: Any, min_poses: int) -> tuple[Tensor, Tensor]:
     return est, ref
 
 
-# --------------------------------------------------------------------------------------------------
-# Alignment (Umeyama, as evo)
-# --------------------------------------------------------------------------------------------------
-
-
 def umeyama(x: Tensor, y: Tensor, with_scale: bool) -> tuple[Tensor, Tensor, Tensor]:
-    """Least-squares ``(r, t, c)`` minimising ``sum |y_i - (c r x_i + t)|^2`` (Umeyama 1991), as evo.
+    """Least-squares ``(r, t, c)`` minimising ``sum |y_i - (c r x_i + t)|^2`` (Umeyama 1991).
 
-    Written out instead of ``roma.rigid_points_registration`` so that every step is evo's
-    ``geometry.umeyama_alignment``: the same normalisation of the covariance and the variance (1/n), the
-    same SVD-based reflection fix (``det(u) det(v) < 0``), the same rank test, and ``c = tr(D S) / sigma_x``.
-    RoMa solves the same problem but through its own Procrustes routine and scale formula, so its rounding
-    (and its behaviour on degenerate input) is not evo's.
-
-    Args:
-        x: (N, 3) source points (metres), N >= 3.
-        y: (N, 3) target points.
-        with_scale: also estimate the scale c (else c = 1).
-    Returns:
-        r (3, 3) rotation, t (3,) translation (metres), c () scale; all float64.
-    Raises:
-        UserError: "degenerate alignment: ..." when the covariance has rank < 2.
+    x, y: (N, 3) points (m), N >= 3; returns r (3, 3), t (3,), c () (1 without ``with_scale``). Written out,
+    not ``roma.rigid_points_registration``, to round and fail on degenerate input step by step as evo's
+    ``geometry.umeyama_alignment``.
     """
     n = x.shape[0]
     mean_x, mean_y = x.mean(dim=0), y.mean(dim=0)
@@ -120,18 +87,9 @@ def check_align(mode: str) -> None:
 
 
 def align(est: Tensor, ref: Tensor, mode: AlignMode = "none") -> Tensor:
-    """The estimate aligned onto the reference as evo's ``traj_est.align(traj_ref, ...)``.
+    """(N, 4, 4) float64 estimate aligned onto the reference as evo's ``traj_est.align(traj_ref, ...)``.
 
-    Args:
-        est: (N, 4, 4) estimated poses.
-        ref: (N, 4, 4) reference poses.
-        mode: "none" (unchanged), "se3" (``--align``), "sim3" (``--align --correct_scale``) or "scale"
-            (``--correct_scale`` alone: translations times the Umeyama scale).
-    Returns:
-        (N, 4, 4) float64 aligned estimate.
-    Raises:
-        UserError: unknown mode, different lengths, non-finite poses, N < 3 for an alignment, degenerate
-            positions.
+    ``mode``: "se3" is evo's ``--align``, "sim3" ``--align --correct_scale``, "scale" ``--correct_scale``.
     """
     check_align(mode)
     est, ref = _check_pair(est, ref, 1 if mode == "none" else 3)
@@ -146,21 +104,8 @@ def align(est: Tensor, ref: Tensor, mode: AlignMode = "none") -> Tensor:
     return out
 
 
-# --------------------------------------------------------------------------------------------------
-# Per-pose / per-pair errors
-# --------------------------------------------------------------------------------------------------
-
-
 def ape_errors(est: Tensor, ref: Tensor, align: AlignMode = "none") -> tuple[Tensor, Tensor]:
-    """Absolute pose errors, evo's APE (``translation_part``, ``rotation_angle_rad``).
-
-    Args:
-        est: (N, 4, 4) estimated poses, N >= 2 (>= 3 with an alignment).
-        ref: (N, 4, 4) reference poses.
-        align: alignment of the estimate first, see :func:`align`.
-    Returns:
-        trans (N,) metres and rot (N,) radians in [0, pi], float64.
-    """
+    """evo's APE of (N, 4, 4) poses (N >= 2) after :func:`align`: trans (N,) m, rot (N,) rad."""
     est, ref = _check_pair(est, ref, 2)
     est = _align(est, ref, align)
     trans = torch.linalg.vector_norm(est[:, :3, 3] - ref[:, :3, 3], dim=-1)
@@ -177,19 +122,8 @@ PAIRS_FROM: tuple[PairsFrom, ...] = ("estimate", "reference")
 
 
 def rpe_pairs_by_path(poses: Tensor, delta_m: float) -> tuple[Tensor, Tensor]:
-    """Index pairs of evo's RPE with ``delta_unit=m`` and ``all_pairs=False`` (evo's
-    ``filters.filter_pairs_by_path``, evo >= 1.31): the first pose is taken, then, walking along the
-    path, each pose at which the distance travelled since the last taken one reaches ``delta_m``;
-    consecutive taken indices are the pairs.
-
-    Which trajectory's path decides the pairs is the caller's choice (evo's ``pairs_from_reference``).
-    The loop runs once per pair, each step a binary search over the cumulative path length.
-
-    Args:
-        poses: (N, 4, 4) poses; delta_m: path distance in metres (> 0).
-    Returns:
-        i (M,), j (M,) int64 indices.
-    """
+    """Index pairs i (M,), j (M,) int64 of evo's RPE in metres of ``poses``' path (evo >= 1.31's
+    ``filter_pairs_by_path``, ``all_pairs=False``)."""
     steps = torch.linalg.vector_norm(poses[1:, :3, 3] - poses[:-1, :3, 3], dim=-1).double().cpu().numpy()
     travelled = np.concatenate(([0.0], np.cumsum(steps)))
     taken, here = [0], 0
@@ -208,25 +142,11 @@ def rpe_errors(
     delta_unit: str = "f",
     pairs_from: PairsFrom = "estimate",
 ) -> tuple[Tensor, Tensor]:
-    """Relative pose errors, evo's RPE (consecutive pairs, ``all_pairs=False``).
+    """evo's RPE (consecutive pairs) of (N, 4, 4) poses after :func:`align`: trans (M,) m, rot (M,) rad.
 
-    ``E = inv(inv(Q_i) Q_j) @ (inv(P_i) P_j)``, Q the reference and P the estimate (evo's ``rpe_base``),
-    after aligning the estimate as ``evo_rpe --align [--correct_scale]`` does (:func:`align`): a rigid
-    alignment leaves relative poses unchanged, the Umeyama scale of ``sim3`` and ``scale`` scales their
-    translations.
-
-    Args:
-        est: (N, 4, 4) estimated poses.
-        ref: (N, 4, 4) reference poses, N > delta.
-        delta: frames (``delta_unit="f"``, an integer >= 1) or metres of path (``"m"``) between the two
-            poses of a pair.
-        align: alignment of the estimate first, see :func:`align`.
-        delta_unit: ``"f"`` (frames) or ``"m"`` (metres, :func:`rpe_pairs_by_path`).
-        pairs_from: the path that decides metre-based pairs: the (aligned) ``"estimate"``, evo's default,
-            or the ``"reference"``, evo's ``pairs_from_reference`` (the same pairs for every estimate
-            compared); frame-based pairs are the same either way.
-    Returns:
-        trans (M,) metres and rot (M,) radians, float64 (M = (N - 1) // delta for frames).
+    ``delta``: frames (``delta_unit="f"``) or metres of path (``"m"``) between a pair's poses;
+    ``pairs_from``: whose path decides metre-based pairs, the aligned estimate's (evo's default) or the
+    reference's (evo's ``pairs_from_reference``).
     """
     est, ref = _check_pair(est, ref, 2)
     est = _align(est, ref, align)
@@ -239,8 +159,8 @@ def rpe_errors(
 
 
 def is_rpe_delta(delta: object, delta_unit: str = "f") -> bool:
-    """Whether ``delta`` is an RPE delta in ``delta_unit``: an integer >= 1 in frames (``"f"``), a finite
-    distance > 0 in metres (``"m"``). The one rule for every caller; each names the setting its own way."""
+    """Whether ``delta`` is an RPE delta: an integer >= 1 in frames (``"f"``), a finite distance > 0 in
+    metres (``"m"``)."""
     if delta_unit == "f":
         return is_integer(delta, 1)
     return is_number(delta) and math.isfinite(delta) and delta > 0
@@ -260,8 +180,6 @@ def check_rpe_settings(delta: float, delta_unit: str, pairs_from: str) -> None:
 def _rpe_pairs(
     est: Tensor, ref: Tensor, delta: float, delta_unit: str, pairs_from: PairsFrom
 ) -> tuple[Tensor, Tensor]:
-    """Index pairs i (M,), j (M,) int64 of evo's RPE with ``all_pairs=False``: ``(0, d), (d, 2d), ...``
-    for d frames, :func:`rpe_pairs_by_path` for metres."""
     check_rpe_settings(delta, delta_unit, pairs_from)
     if delta_unit == "f":
         if len(est) <= delta:
@@ -274,21 +192,8 @@ def _rpe_pairs(
     return i, j
 
 
-# --------------------------------------------------------------------------------------------------
-# Statistics
-# --------------------------------------------------------------------------------------------------
-
-
 def statistics(errors: Tensor) -> dict[str, float]:
-    """evo's statistics of an error vector: rmse, mean, median, std, min, max.
-
-    The median of an even count is the mean of the middle two (numpy); std is the population std (ddof 0).
-
-    Args:
-        errors: (M,) errors, M >= 1.
-    Returns:
-        dict of Python floats in the errors' unit.
-    """
+    """evo's statistics of (M,) errors, M >= 1 (:data:`STATISTICS`; population std, numpy's median)."""
     e = torch.as_tensor(errors, dtype=torch.float64).flatten()
     if e.numel() == 0:
         raise UserError("no errors to summarise")
@@ -310,50 +215,22 @@ def pose_statistics(trans: Tensor, rot: Tensor) -> dict[str, dict[str, float]]:
     return {"trans": statistics(trans), "rot_rad": statistics(rot)}
 
 
-# --------------------------------------------------------------------------------------------------
-# KITTI odometry error
-# --------------------------------------------------------------------------------------------------
-
-
 def trajectory_distances(poses: Tensor) -> Tensor:
-    """Cumulative path length at each pose (devkit ``trajectoryDistances``), starting at 0.
-
-    Args:
-        poses: (N, 4, 4) poses.
-    Returns:
-        (N,) float64 metres.
-    """
+    """(N,) cumulative path length (m) at each of (N, 4, 4) poses, from 0 (devkit ``trajectoryDistances``)."""
     steps = torch.linalg.vector_norm(poses[1:, :3, 3] - poses[:-1, :3, 3], dim=-1)
     return torch.cat((steps.new_zeros(1), torch.cumsum(steps, dim=0)))
 
 
-def kitti_segment_errors(
-    est: Tensor, ref: Tensor, lengths: Sequence[float] = KITTI_LENGTHS, step: int = KITTI_STEP
-) -> tuple[Tensor, Tensor]:
-    """Per-segment errors of the KITTI odometry devkit (``calcSequenceErrors``).
+def kitti_segment_errors(est: Tensor, ref: Tensor) -> tuple[Tensor, Tensor]:
+    """The KITTI devkit's per-segment errors (``calcSequenceErrors``) of (N, 4, 4) poses.
 
-    For each first frame ``f`` in ``0, step, 2 step, ...`` and each length L, the last frame l is the first
-    frame with ``dist[l] > dist[f] + L`` (distances along the ground truth; no segment if none), and the
-    error pose is the devkit's ``inv(inv(E_f) E_l) @ (inv(G_f) G_l)`` (E estimate, G ground truth; inv
-    the general matrix inverse, as the devkit's), its
-    angle the devkit's ``acos(clamp((trace(R) - 1) / 2, -1, 1))`` (:func:`devkit_rotation_error`), so
-    that the numbers equal the devkit's formulas also on pose files that are not exactly orthonormal
-    (7-digit matrices). Everything is float64; the C++ devkit accumulates distances and errors in
-    single precision, so its figures differ from these by about 1e-4 relative.
-
-    Args:
-        est: (N, 4, 4) estimated poses.
-        ref: (N, 4, 4) ground-truth poses.
-        lengths: segment lengths in metres.
-        step: frames between first frames.
-    Returns:
-        t_err (S,) in metres per metre and r_err (S,) in radians per metre, segments ordered by first
-        frame, then length (the devkit's order); S may be 0.
+    Returns t_err (S,) m/m and r_err (S,) rad/m, ordered by first frame, then length (S may be 0). The
+    devkit's general inverse and arccos, so that 7-digit pose files score as the devkit's formulas.
     """
     est, ref = _check_pair(est, ref, 2)
     dist = trajectory_distances(ref)
-    lens = torch.as_tensor(lengths, dtype=torch.float64, device=est.device)
-    first = torch.arange(0, len(ref), step, device=est.device)
+    lens = torch.as_tensor(KITTI_LENGTHS, dtype=torch.float64, device=est.device)
+    first = torch.arange(0, len(ref), KITTI_STEP, device=est.device)
     last = torch.searchsorted(dist, dist[first][:, None] + lens[None, :], right=True)
     valid = last < len(ref)
     f = first[:, None].expand_as(last)[valid]
@@ -369,16 +246,8 @@ def kitti_segment_errors(
 
 
 def devkit_rotation_error(R: Tensor) -> Tensor:
-    """The KITTI devkit's ``rotationError``: ``acos(max(min((trace(R) - 1) / 2, 1), -1))``, radians.
-
-    Evaluation only: the clamp has no gradient beyond it and arccos loses precision near 0 (that is the
-    devkit's definition; training uses :func:`lossvo.geometry.rotation_angle`).
-
-    Args:
-        R: (..., 3, 3) (nearly) rotation matrices.
-    Returns:
-        (...,) float64 angles in [0, pi].
-    """
+    """The KITTI devkit's ``rotationError`` of (..., 3, 3) matrices: (...,) float64 rad (evaluation only:
+    arccos loses precision near 0; training uses :func:`lossvo.geometry.rotation_angle`)."""
     d = 0.5 * (R.to(torch.float64).diagonal(dim1=-2, dim2=-1).sum(-1) - 1.0)
     return torch.acos(d.clamp(-1.0, 1.0))
 
@@ -393,34 +262,9 @@ def _kitti_summary(t_sum: float, r_sum: float, count: int) -> dict[str, float | 
     }
 
 
-def kitti_odometry_error(
-    est: Tensor, ref: Tensor, lengths: Sequence[float] = KITTI_LENGTHS, step: int = KITTI_STEP
-) -> tuple[float, float] | None:
-    """KITTI odometry error of one sequence: the mean over its segments (:func:`kitti_segment_errors`).
-
-    Returns:
-        ``(t_err_pct, r_err_deg_per_100m)`` (translation error in %, rotation error in degrees per 100 m),
-        or None when the ground truth is too short for any segment (never 0: no segment is no measurement).
-    """
-    t, r = kitti_segment_errors(est, ref, lengths, step)
-    out = _kitti_summary(float(t.sum()), float(r.sum()), t.numel())
-    t_err, r_err = out["t_err_pct"], out["r_err_deg_per_100m"]
-    if t_err is None or r_err is None:  # both or neither: no segment
-        return None
-    return t_err, r_err
-
-
-# --------------------------------------------------------------------------------------------------
-# torchmetrics
-# --------------------------------------------------------------------------------------------------
-
-
 class _PoseErrorMetric(Metric):
-    """Collects per-pose (or per-pair) translation and rotation errors; ``compute`` pools all updates.
-
-    States are lists of float64 error vectors reduced by concatenation, so statistics over processes are
-    exactly those of all sequences together.
-    """
+    """Per-pose (or per-pair) translation and rotation errors of every update, concatenated across
+    processes; ``compute`` is :func:`pose_statistics` over them all."""
 
     is_differentiable = False
     higher_is_better = False
@@ -443,16 +287,11 @@ class _PoseErrorMetric(Metric):
         self.rot.append(rot)
 
     def compute(self) -> dict[str, dict[str, float]]:
-        """:func:`pose_statistics` over all updates."""
         return pose_statistics(dim_zero_cat(self.trans), dim_zero_cat(self.rot))
 
 
 class APE(_PoseErrorMetric):
-    """evo's absolute pose error, pooled over sequences (each sequence aligned on its own).
-
-    Args:
-        align: "none", "se3", "sim3" or "scale" (see :func:`align`).
-    """
+    """evo's absolute pose error pooled over sequences, each aligned on its own (:func:`ape_errors`)."""
 
     def __init__(self, align: AlignMode = "none", **kwargs: Any) -> None:
         check_align(align)
@@ -464,12 +303,7 @@ class APE(_PoseErrorMetric):
 
 
 class RPE(_PoseErrorMetric):
-    """evo's relative pose error (consecutive pairs), pooled over sequences.
-
-    Args:
-        delta, delta_unit, pairs_from: the pairs (:func:`rpe_errors`): frames by default.
-        align: alignment of each estimate first (:func:`rpe_errors`).
-    """
+    """evo's relative pose error pooled over sequences (:func:`rpe_errors`)."""
 
     def __init__(
         self,
@@ -489,12 +323,8 @@ class RPE(_PoseErrorMetric):
 
 
 class KittiOdometryError(Metric):
-    """KITTI odometry error pooled over all segments of all sequences (as the devkit's averages).
-
-    Sum states (sum of per-segment t and r errors, segment count) reduce by summation across processes.
-    ``compute`` returns ``{"t_err_pct": ..., "r_err_deg_per_100m": ...}``, both None when no sequence had
-    a segment.
-    """
+    """The KITTI odometry error pooled over every segment of every sequence (sum states);
+    ``compute`` gives ``{"t_err_pct", "r_err_deg_per_100m"}``, None without a segment."""
 
     is_differentiable = False
     higher_is_better = False
@@ -503,12 +333,8 @@ class KittiOdometryError(Metric):
     r_sum: Tensor
     count: Tensor
 
-    def __init__(
-        self, lengths: Sequence[float] = KITTI_LENGTHS, step: int = KITTI_STEP, **kwargs: Any
-    ) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
-        self.lengths = tuple(float(x) for x in lengths)
-        self.step = step
         zero = torch.zeros((), dtype=torch.float64)
         self.add_state("t_sum", default=zero.clone(), dist_reduce_fx="sum")
         self.add_state("r_sum", default=zero.clone(), dist_reduce_fx="sum")
@@ -516,18 +342,13 @@ class KittiOdometryError(Metric):
 
     def update(self, est: Tensor, ref: Tensor) -> None:
         """Add one sequence: est, ref (N, 4, 4) whole trajectories."""
-        t, r = kitti_segment_errors(est, ref, self.lengths, self.step)
+        t, r = kitti_segment_errors(est, ref)
         self.t_sum = self.t_sum + t.sum().to(self.t_sum)
         self.r_sum = self.r_sum + r.sum().to(self.r_sum)
         self.count = self.count + t.numel()
 
     def compute(self) -> dict[str, float | None]:
         return _kitti_summary(float(self.t_sum), float(self.r_sum), round(float(self.count)))
-
-
-# --------------------------------------------------------------------------------------------------
-# CLI
-# --------------------------------------------------------------------------------------------------
 
 
 def evaluate(
@@ -538,13 +359,9 @@ def evaluate(
     delta_unit: str = "f",
     pairs_from: PairsFrom = "estimate",
 ) -> dict[str, Any]:
-    """APE and RPE (both with ``align``; RPE pairs by ``delta``, ``delta_unit``, ``pairs_from``, see
-    :func:`rpe_errors`) and KITTI error of one estimate, JSON-ready.
-
-    Returns:
-        ``{"ape": {"trans": {...}, "rot_rad": {...}}, "rpe": {...}, "kitti": {"t_err_pct": x,
-        "r_err_deg_per_100m": y}}`` (kitti values None when the sequence is too short).
-    """
+    """APE, RPE (:func:`rpe_errors`' pairs) and the KITTI error of one estimate, JSON-ready:
+    ``{"ape": {"trans": {stat: m}, "rot_rad": {stat: rad}}, "rpe": ..., "kitti": {"t_err_pct": %,
+    "r_err_deg_per_100m": deg}}`` (KITTI's None when the sequence is too short)."""
     ape = ape_errors(est, gt, align)
     rpe = rpe_errors(est, gt, delta, align, delta_unit, pairs_from)
     t, r = kitti_segment_errors(est, gt)
@@ -563,20 +380,12 @@ def evaluate_relative(
     pooled: Sequence[Metric] = (),
     pooled_scaled: Sequence[Metric] = (),
 ) -> tuple[Tensor, dict[str, Any]]:
-    """Relative poses -> trajectory -> scores: the one path that validation, evaluation and the
-    baselines share.
+    """Relative poses -> trajectory -> scores: the one path of validation, evaluation and the baselines.
 
-    The (N-1, 4, 4) relative poses ``T_k`` are integrated from the first ground-truth pose
-    (:func:`lossvo.evaluation.trajectories.integrate`) and scored against ``gt`` (N, 4, 4) with
-    :func:`evaluate`; ``pooled`` metrics (:class:`APE`, :class:`RPE`, :class:`KittiOdometryError`) are updated
-    with the sequence, for scores over several sequences. The scale-given RPE (``rpe_scaled``) scores the
-    same steps each scaled to the ground-truth step length
-    (:func:`lossvo.evaluation.trajectories.scale_steps`, as the ORB+E baseline is scored): the translation's
-    direction where a camera gives no metric scale; ``pooled_scaled`` metrics are updated with that
-    trajectory.
-
-    Returns:
-        trajectory (N, 4, 4) float64 and :func:`evaluate`'s dict with ``rpe_scaled`` added.
+    The (N-1, 4, 4) steps are chained from ``gt[0]`` and scored against ``gt`` (N, 4, 4) with
+    :func:`evaluate`, updating ``pooled``; ``rpe_scaled`` scores them each scaled to the ground-truth step
+    length (:func:`lossvo.evaluation.trajectories.scale_steps`), updating ``pooled_scaled``. Returns the
+    trajectory (N, 4, 4) float64 and :func:`evaluate`'s dict with ``rpe_scaled``.
     """
     gt_t = torch.as_tensor(gt, dtype=torch.float64)
     relative_t = torch.as_tensor(relative, dtype=torch.float64)

@@ -1,8 +1,5 @@
-"""Plots of trajectories: the one bird's-eye view that the evaluation and the sweep report draw.
-
-A figure is made on matplotlib's Agg canvas without pyplot state (:func:`new_figure`), so plotting is
-safe in threads and never opens a window, and saved as PNG atomically (:func:`save_png`). matplotlib is
-imported inside the functions, so importing this module does not load it.
+"""The bird's-eye trajectory plot that the evaluation and the report draw, on Agg canvases without pyplot
+state (safe in threads); matplotlib is imported inside the functions, loaded only when plotting.
 """
 
 from __future__ import annotations
@@ -25,7 +22,7 @@ START_STYLE: Mapping[str, Any] = {"color": "tab:green", "ms": 5}
 
 
 def new_figure(width: float, height: float) -> Figure:
-    """An empty figure of ``width`` x ``height`` inches on an Agg canvas, laid out tightly when saved."""
+    """An empty figure of ``width`` x ``height`` inches on an Agg canvas, laid out tightly."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -35,7 +32,7 @@ def new_figure(width: float, height: float) -> Figure:
 
 
 def save_png(fig: Figure, path: str | Path) -> None:
-    """Save ``fig`` as a PNG at :data:`DPI` through a temporary file in the same folder and a rename."""
+    """Save ``fig`` as a PNG at :data:`DPI` atomically."""
     with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=DPI)
 
@@ -55,20 +52,8 @@ def plot_birdseye(
     title: str,
     styles: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> None:
-    """Bird's-eye view of trajectories as a PNG: x (m) to the right, z (m) forward, equal axes.
-
-    Args:
-        path: the PNG to write (atomically).
-        gt: (N, 4, 4) ground-truth camera-to-world poses, drawn in black; None without ground truth.
-        trajectories: {legend label: (M, 4, 4) poses}, drawn in that order, in the tab10 colours with
-            solid lines of width 1.2 unless ``styles`` says otherwise.
-        title: the axes' title (e.g. ``"sequence 07"``).
-        styles: {legend label: matplotlib line keyword arguments} replacing the defaults of those
-            trajectories (e.g. ``{"linestyle": "--", "color": "0.45"}``).
-
-    The start is marked by a green dot at the first ground-truth pose (the first trajectory's without
-    ground truth); the legend sits to the right of the axes.
-    """
+    """Bird's-eye view (x right, z forward, m) of (N, 4, 4) ground truth (None: none) and ``{label: (M, 4, 4)
+    poses}`` as a PNG; ``styles``: per label, matplotlib line arguments replacing the defaults."""
     fig = new_figure(6.5, 6.5)
     ax = fig.add_subplot()
     if gt is not None:

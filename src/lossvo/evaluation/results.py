@@ -1,11 +1,6 @@
-"""A trained network evaluated on whole sequences into its job folder's ``results.json``.
-
-:func:`evaluate_run` writes into a run's folder, per sequence, ``trajectories/<sequence>.txt`` (KITTI format,
-first pose the ground truth's), the estimate and its ground truth in TUM format (``<sequence>.tum``,
-``<sequence>_gt.tum``: ``evo_ape tum`` gives lossvo's APE), ``plots/<sequence>.png`` (a ``/`` in a name
-written ``_``, :func:`file_stem`), and ``results.json`` with ``results.csv`` beside it: a
-:class:`lossvo.evaluation.job_folder.Results` (scores per sequence and pooled, the data evaluated and trained
-on, the evaluation settings). :func:`predict_and_score` is the path that validation during training shares.
+"""A trained network evaluated on whole sequences into its job folder: per sequence its trajectory (KITTI
+and TUM, with the ground truth's TUM beside it) and plot, and ``results.json``
+(:class:`lossvo.evaluation.job_folder.Results`). Files: docs/training.md.
 """
 
 from __future__ import annotations
@@ -59,15 +54,9 @@ NO_METRICS_NOTE = "no sequence with ground truth: no metrics"
 def data_record(
     trained: Mapping[str, Any] | None, evaluated: Mapping[str, Any], splits: Mapping[str, Sequence[str]]
 ) -> DataRecord:
-    """The :class:`DataRecord` of an evaluation.
-
-    Args:
-        trained: the description of the data the network was trained on, as its checkpoint records it
-            (:meth:`lossvo.data.datamodules.VODataModule.description`, ``VOModule.data``); None for a
-            network that was not loaded from a checkpoint: then it is ``evaluated``.
-        evaluated: the evaluated datamodule's description.
-        splits: the evaluated datamodule's splits (``test``, ``unseen``).
-    """
+    """The :class:`DataRecord` of an evaluation from datamodule descriptions
+    (:meth:`lossvo.data.datamodules.VODataModule.description`): the ``trained`` one its checkpoint records
+    (None: the ``evaluated`` one) and the evaluated one with its ``splits``."""
     trained = trained or evaluated
     stats = trained.get("statistics") or {}
     frames = trained.get("frames") or {}
@@ -90,9 +79,8 @@ def data_record(
 
 
 def _reading(description: Mapping[str, Any], prefix: str) -> dict[str, Any]:
-    """How a data description's sequences are read, as :class:`DataRecord`'s fields named with ``prefix``
-    (``layout``, ``keep_every``, ``sources``): its one source's layout and kept frames; for several,
-    :data:`MULTI_LAYOUT`, 1 and each source (its sequences are named ``<source>/<sequence>``)."""
+    """How a data description's sequences are read: :class:`DataRecord`'s ``layout``, ``keep_every`` and
+    ``sources``, named with ``prefix``."""
     sources = {}
     for name, source in (description.get("sources") or {}).items():
         rendered = source.get("layout") == "synthetic"
@@ -108,14 +96,8 @@ def _reading(description: Mapping[str, Any], prefix: str) -> dict[str, Any]:
 
 
 class PooledScores:
-    """APE, RPE and the KITTI error pooled over several sequences (torchmetrics: list and sum states that
-    hold every sequence scored), with the alignment and RPE delta that every sequence is scored with.
-
-    Args:
-        align, delta: APE alignment and RPE delta in frames (:func:`lossvo.evaluation.metrics.evaluate`).
-        sync: whether ``compute`` gathers the states of every DDP process (torchmetrics'
-            ``sync_on_compute``); False where one process scores every sequence.
-    """
+    """APE, RPE and the KITTI error pooled over sequences scored with ``align`` and ``delta`` (frames);
+    ``sync``: torchmetrics' ``sync_on_compute`` (False where one process scores every sequence)."""
 
     def __init__(self, align: metrics.AlignMode = "none", delta: int = 1, sync: bool = True) -> None:
         self.align, self.delta = align, delta
@@ -125,8 +107,7 @@ class PooledScores:
         self.rpe_scaled = metrics.RPE(delta=delta, align=align, sync_on_compute=sync)
 
     def compute(self) -> dict[str, Any] | None:
-        """:func:`lossvo.evaluation.metrics.evaluate_relative`'s dict over every sequence scored; None
-        before the first."""
+        """:func:`lossvo.evaluation.metrics.evaluate_relative`'s dict pooled; None before a sequence."""
         if not self.ape.trans:
             return None
         computed = {"ape": self.ape.compute(), "rpe": self.rpe.compute(), "kitti": self.kitti.compute()}
@@ -143,28 +124,12 @@ def predict_and_score(
     device: torch.device | None = None,
     mirror_average: bool = False,
 ) -> tuple[Tensor, dict[str, Any] | None]:
-    """One sequence through the network, chained and scored: the path that validation during training
-    (:class:`lossvo.training.callbacks.TrajectoryValidation`) and :func:`evaluate_run` share.
+    """One sequence through the network, chained and scored into ``pooled``: the path validation during
+    training and :func:`evaluate_run` share.
 
-    The sequence's inputs go through :func:`lossvo.evaluation.inference.predict_sequence` (windows cut at
-    the gaps in its timestamps, :func:`lossvo.data.windows.gaps`); for a network
-    trained on the translation's direction only (its loss's ``translation == "direction"``) each step is
-    scaled to the ground-truth step length (:func:`lossvo.evaluation.trajectories.scale_steps`); the
-    relative poses are chained from the first ground-truth pose and scored against ``gt`` into ``pooled``
-    (:func:`lossvo.evaluation.metrics.evaluate_relative`). Without ground truth the trajectory starts at
-    the identity, its steps as predicted (there is no length to scale to), and nothing is scored.
-
-    Args:
-        module, carry_state, mirror_average: the network (with its ``loss``, a
-            :class:`lossvo.losses.PoseLoss`) and :func:`predict_sequence`'s options.
-        datamodule: gives the sequence's inputs, their preparation and ``seq_len``.
-        name: the sequence.
-        gt: (N, 4, 4) ground-truth poses, or None.
-        pooled: the metrics the sequence is added to.
-        device: where the trajectory is chained and scored (default: the CPU).
-    Returns:
-        the trajectory (N, 4, 4) float64 and the sequence's :func:`lossvo.evaluation.metrics.evaluate`
-        dict (None without ground truth).
+    A network trained on the translation's direction has each step scaled to the ground truth's length.
+    Without ground truth ``gt`` (N, 4, 4) the trajectory starts at the identity and nothing is scored.
+    Returns the trajectory (N, 4, 4) float64 and the sequence's scores (None without ground truth).
     """
     relative = predict_sequence(
         module,
@@ -211,23 +176,9 @@ def evaluate_run(
     threads: int | None = None,
     mirror_average: bool = False,
 ) -> Results:
-    """Integrate each sequence with ``module`` and write trajectories, plots and ``results.json``.
-
-    Args:
-        module: the trained :class:`lossvo.training.module.VOModule` (on the device to run on): its
-            ``loss`` (a :class:`lossvo.losses.PoseLoss`; its ``translation`` decides
-            :attr:`Results.translation`) and ``data`` (the training data's description from its
-            checkpoint, or None).
-        datamodule: the evaluated :class:`lossvo.data.datamodules.VODataModule` (set up here).
-        out_dir: folder receiving ``trajectories/NN.txt``, ``plots/NN.png`` and ``results.json``.
-        sequences: sequence names, e.g. ``datamodule.evaluated``.
-        checkpoint: the checkpoint the weights came from (recorded in ``results.json``).
-        align, delta: APE alignment and RPE delta (:func:`lossvo.evaluation.metrics.evaluate`).
-        carry_state, mirror_average: see :func:`predict_sequence`.
-        threads: the CPU thread count the network was trained with, recorded as given.
-    Returns:
-        The :class:`Results` written to ``out_dir/results.json``.
-    """
+    """Integrate each sequence with ``module`` (with its ``loss`` and training ``data``) and write its
+    trajectories, plots and ``results.json`` into ``out_dir``; ``checkpoint`` and ``threads`` are recorded
+    as given."""
     out_dir = Path(out_dir)
     datamodule.setup("test")
     # Evaluation runs in one process (rank 0 of a DDP run): nothing to gather from the others.
@@ -284,9 +235,7 @@ def evaluate_run(
 
 
 def _rate(datamodule: VODataModule, name: str) -> dict[str, Any]:
-    """A sequence's ``rate_hz``, ``rate_from`` and ``metric_scale`` (:class:`SequenceResult`): the frame rate
-    of its kept frames (1 / the median time step, s) and whether its layout's platform gives metric scale a
-    cue."""
+    """A sequence's ``rate_hz`` (1 / the median time step), ``rate_from`` and ``metric_scale``."""
     layout = datamodule.sequence_layout(name)
     steps = np.diff(datamodule.sequence_times(name))
     rate = float(1.0 / np.median(steps)) if len(steps) else None
@@ -305,8 +254,7 @@ def _rate(datamodule: VODataModule, name: str) -> dict[str, Any]:
 
 
 def _scores(computed: dict[str, Any]) -> Scores:
-    """:func:`lossvo.evaluation.metrics.evaluate`'s dict as :class:`Scores`, the KITTI error with a note
-    where no segment exists."""
+    """:func:`lossvo.evaluation.metrics.evaluate`'s dict as :class:`Scores`."""
     scores = Scores.from_json(computed)
     if scores.kitti.t_err_pct is None:
         return replace(scores, kitti=replace(scores.kitti, note=NO_SEGMENT_NOTE))
@@ -328,10 +276,8 @@ def _pose_file(datamodule: VODataModule, name: str, gt: np.ndarray | None) -> st
 def _write_sequence(
     out_dir: Path, name: str, est: Tensor, gt: np.ndarray | None, times: np.ndarray, label: str
 ) -> tuple[str, str, str | None]:
-    """One sequence's files in ``out_dir``: the estimate (N, 4, 4) in KITTI and TUM format, the ground truth
-    in TUM format (``_gt.tum``, where there is one), a plot of both (``label``: the estimate's legend);
-    ``times`` (N,) s of its frames. Returns the trajectory's and the plot's paths relative to ``out_dir``
-    and the ``_gt.tum``'s absolute path (None without ground truth)."""
+    """One sequence's trajectory files and plot (``label``: the estimate's legend) in ``out_dir``; returns
+    the trajectory's and the plot's paths relative to it and the ``_gt.tum``'s absolute one (or None)."""
     stem = file_stem(name)
     trajectory, plot = f"trajectories/{stem}.txt", f"plots/{stem}.png"
     write_tum(out_dir / f"trajectories/{stem}.tum", times, est)

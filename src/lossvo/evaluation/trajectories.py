@@ -1,12 +1,5 @@
-"""Trajectories: chaining relative poses into absolute ones, and TUM pose files.
-
-KITTI pose files are read and written by :mod:`lossvo.data.kitti` (``read_poses``, ``write_poses``).
-
-Chaining ``T_w_{k+1} = T_w_k @ T_k`` is a prefix product. Instead of a Python loop over N poses it is
-computed as a parallel (Hillis-Steele) scan: log2(N) batched matrix products, each over all poses at
-once, in float64, with the rotations re-orthonormalised after every level so that rounding never
-accumulates into non-rotations.
-"""
+"""Trajectories: chaining relative poses into absolute ones, and TUM pose files (KITTI's:
+:mod:`lossvo.data.kitti`)."""
 
 from __future__ import annotations
 
@@ -25,14 +18,9 @@ from lossvo.data.sequence import text_lines
 
 
 def integrate(relative: Tensor, start: Tensor | None = None) -> Tensor:
-    """Absolute poses from relative ones: ``T_w_0 = start``, ``T_w_{k+1} = T_w_k @ T_k``.
-
-    Args:
-        relative: (N-1, 4, 4) relative poses ``T_k`` (frame k+1 seen from frame k).
-        start: (4, 4) first camera-to-world pose (e.g. the ground truth's first); default identity.
-    Returns:
-        (N, 4, 4) float64 camera-to-world poses with orthonormal rotations.
-    """
+    """(N, 4, 4) float64 poses ``T_w_0 = start`` (default identity), ``T_w_{k+1} = T_w_k @ T_k`` of
+    (N-1, 4, 4) relative ones: a parallel (Hillis-Steele) scan of log2(N) batched products, the rotations
+    re-orthonormalised at every level."""
     geometry.check_shape(relative, (4, 4), "relative")
     if relative.dim() != 3:
         raise ValueError(f"relative must have shape (N-1, 4, 4), got {tuple(relative.shape)}")
@@ -48,18 +36,8 @@ def integrate(relative: Tensor, start: Tensor | None = None) -> Tensor:
 
 
 def scale_steps(relative: Tensor, reference: Tensor) -> Tensor:
-    """Relative poses with each step's translation scaled to the reference step's length.
-
-    ``t_k -> t_k / |t_k| * |t^_k|`` (:func:`lossvo.geometry.scale_to_length`: a zero translation
-    becomes a step straight ahead), rotations unchanged: how a network trained without metric scale
-    (``loss.translation=direction``) is evaluated, with ground-truth scale as the ORB+E baseline.
-
-    Args:
-        relative: (..., 4, 4) predicted relative poses ``T_k``.
-        reference: (..., 4, 4) the ground truth's relative poses (their translations' lengths are used).
-    Returns:
-        (..., 4, 4) poses in the promoted dtype.
-    """
+    """(..., 4, 4) relative poses with each translation scaled to the ``reference`` step's length
+    (:func:`lossvo.geometry.scale_to_length`), rotations unchanged."""
     geometry.check_shape(relative, (4, 4), "relative")
     geometry.check_shape(reference, (4, 4), "reference")
     if relative.shape != reference.shape:
@@ -70,23 +48,12 @@ def scale_steps(relative: Tensor, reference: Tensor) -> Tensor:
 
 
 def _reorthonormalize(T: Tensor) -> Tensor:
-    """(..., 4, 4) poses with their rotation blocks projected back onto SO(3)."""
     return geometry.make_pose(geometry.orthonormalize(T[..., :3, :3]), T[..., :3, 3])
 
 
-# --------------------------------------------------------------------------------------------------
-# TUM files: "timestamp tx ty tz qx qy qz qw" per line
-# --------------------------------------------------------------------------------------------------
-
-
 def read_tum(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """Read a TUM trajectory file (comment lines start with '#').
-
-    Returns:
-        times (N,) seconds and poses (N, 4, 4) float64 camera-to-world.
-    Raises:
-        KittiFormatError: naming the file and line for a line without 8 numbers or a zero quaternion.
-    """
+    """Times (N,) s and poses (N, 4, 4) float64 of a TUM file (``timestamp tx ty tz qx qy qz qw`` lines);
+    KittiFormatError naming the line that is not one."""
     path = Path(path)
     lines = text_lines(path, "TUM file", comments=True, error=KittiFormatError)
     rows = [i for i, _ in lines]
@@ -118,12 +85,7 @@ def _tum_numbers(path: Path, line_no: int, line: str) -> list[float]:
 
 
 def write_tum(path: str | os.PathLike, times: np.ndarray | Tensor, poses: np.ndarray | Tensor) -> None:
-    """Write a TUM trajectory file atomically.
-
-    Args:
-        times: (N,) seconds.
-        poses: (N, 4, 4) camera-to-world poses.
-    """
+    """Write a TUM trajectory file of times (N,) s and poses (N, 4, 4) atomically."""
     poses_t = torch.as_tensor(np.asarray(poses, dtype=np.float64))
     geometry.check_shape(poses_t, (4, 4), "poses")
     times = np.asarray(times, dtype=np.float64).reshape(-1)
