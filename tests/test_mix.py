@@ -97,7 +97,7 @@ def test_a_source_with_drawn_cameras_renders_each_sequence_with_its_own(tmp_path
     dm.prepare_data()
     dm.setup()
     root = tmp_path / "synthetic-car"
-    Ks = [kitti.read_calib(root / "sequences" / s / "calib.txt").K for s in ("00", "01")]
+    Ks = [kitti.read_calib(root / "sequences" / s / "calib.txt") for s in ("00", "01")]
     assert not np.allclose(Ks[0], Ks[1])
     for K in Ks:
         assert 0.5 * 160 <= K[0, 0] <= 0.8 * 160 and 0.4 * 48 <= K[1, 2] <= 0.6 * 48

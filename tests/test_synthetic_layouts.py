@@ -155,7 +155,7 @@ def test_groundtruth_at_its_own_rate_between_frames(roots: dict[str, Path]) -> N
     name = layouts.sequence_name("euroc", "00")
     cam_ns, _ = euroc.read_camera_stamps(roots["euroc"] / name / "mav0/cam0/data.csv")
     gt_path = roots["euroc"] / name / "mav0/state_groundtruth_estimate0/data.csv"
-    gt_ns, _ = euroc.read_groundtruth_stamps(gt_path)
+    gt_ns, _ = euroc.read_groundtruth(gt_path)
     assert np.all(np.diff(gt_ns) == 5_000_000) and not set(cam_ns.tolist()) & set(gt_ns.tolist())
     assert all(len(line.split(",")) == 17 for line in gt_path.read_text().splitlines())
     frame = cv2.imread(

@@ -1,20 +1,7 @@
-"""The EuRoC MAV dataset (Burri et al., IJRR 2016) in its own ASL layout.
-
-Layout (one folder per sequence, named as EuRoC names them: ``MH_01_easy``, ``V1_02_medium``)::
-
-    ROOT/<sequence>/mav0/cam0/data.csv              '#timestamp [ns],filename', then one frame a line
-    ROOT/<sequence>/mav0/cam0/data/<timestamp>.png  752x480 single-channel frames
-    ROOT/<sequence>/mav0/cam0/sensor.yaml           T_BS, resolution, intrinsics, distortion
-    ROOT/<sequence>/mav0/state_groundtruth_estimate0/data.csv   200 Hz: timestamp [ns], p_RS_R x y z [m],
-                                                    q_RS w x y z, velocity, gyroscope and accelerometer biases
-
-Timestamps are integer nanoseconds (float64 seconds through :func:`ns_to_seconds`). The ground truth is the
-body pose T_w_b, so the camera's pose is ``T_w_c(t) = T_w_b(t) @ T_BS``, interpolated at each frame's time
-(translation linearly, rotation by slerp); cam0's axes are lossvo's. Frames outside the ground truth or in a
-gap wider than ``max_gap`` s are dropped and counted in ``Sequence.dropped``. Distortion is radial-tangential,
-as OpenCV's five coefficients. Sources: docs/data.md. Bad input raises one
-:class:`~lossvo.data.sequence.DatasetFormatError` line naming the file (and line or YAML key) and what was
-expected.
+"""The EuRoC MAV layout, ASL's (``ROOT/<sequence>/mav0/`` with ``cam0/{data.csv, data/, sensor.yaml}`` and
+``state_groundtruth_estimate0/data.csv``; docs/data.md): integer-nanosecond stamps, ``sensor.yaml``, and the
+camera's poses ``T_w_b(t) @ T_BS`` interpolated at the frames' times. :mod:`lossvo.data.mimir` shares the
+ASL parts.
 """
 
 from __future__ import annotations
@@ -32,19 +19,19 @@ from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
     check_choices,
-    check_resolution,
     check_rigid,
-    existing_root,
+    find_sequences,
     finite_numbers,
     has_ground_truth,
     listed_frames,
     load_mapping,
-    pose_matrices,
-    positive_resolution,
+    png_size,
+    quaternion_poses,
+    sequence_folder,
     text_lines,
-    unit_quaternions,
     where,
     yaml_array,
+    yaml_resolution,
 )
 
 CAMERA = "cam0"
@@ -53,42 +40,27 @@ GROUND_TRUTH_COLUMNS = 17
 """timestamp, p_RS_R (3), q_RS (w, x, y, z), v_RS_R (3), b_w_RS_S (3), b_a_RS_S (3)."""
 
 MAX_GAP_S = 0.02
-"""Default largest spacing (s) of the two ground-truth rows a frame is interpolated between (rows are 5 ms
-apart at 200 Hz)."""
+"""Default largest spacing (s) of the two ground-truth rows a frame is interpolated between (200 Hz rows)."""
 
 QUATERNION_TOLERANCE = 1e-3
 """Largest | |q| − 1 | accepted in the ground truth (EuRoC writes 6 decimals)."""
 
 CHOICES = {"camera_model": "pinhole", "distortion_model": "radial-tangential"}
-"""The camera and distortion models a ``sensor.yaml`` may name (the ones its reader reads)."""
+"""The camera and distortion models a ``sensor.yaml`` may name (the ones read)."""
 
 _NS_PER_S = 1_000_000_000
 _DIGITS = re.compile(r"[0-9]+")
 
 
-# --------------------------------------------------------------------------------------------------
-# Timestamps and CSV files
-# --------------------------------------------------------------------------------------------------
-
-
 def ns_to_seconds(ns: np.ndarray) -> np.ndarray:
-    """Integer nanoseconds to float64 seconds with one rounding: whole seconds and the nanosecond remainder
-    are converted separately (both exactly), so a stamp near 1.4e18 ns is off by at most about one float64
-    spacing (2.4e-7 s) instead of the 256 ns lost by converting the integer to float64 first.
-
-    Args:
-        ns: (N,) int64 nanoseconds.
-    Returns:
-        (N,) float64 seconds.
-    """
-    ns = np.asarray(ns, dtype=np.int64)
-    whole, rest = np.divmod(ns, _NS_PER_S)
+    """(N,) int64 nanoseconds as float64 seconds, rounded once (whole seconds and the remainder are
+    converted apart: converting 1.4e18 ns to float64 first would lose 256 ns)."""
+    whole, rest = np.divmod(np.asarray(ns, dtype=np.int64), _NS_PER_S)
     return whole.astype(np.float64) + rest.astype(np.float64) / _NS_PER_S
 
 
 def _csv_rows(path: Path, what: str, columns: int) -> list[tuple[int, list[str]]]:
-    """The data lines of an ASL CSV file (lines starting with '#' and empty lines skipped), each with its
-    1-based number and its ``columns`` stripped fields."""
+    """The line numbers and ``columns`` stripped fields of an ASL CSV file's data lines ('#' lines out)."""
     rows = []
     for i, line in text_lines(path, what, comments=True):
         fields = [field.strip() for field in line.split(",")]
@@ -102,18 +74,14 @@ def _csv_rows(path: Path, what: str, columns: int) -> list[tuple[int, list[str]]
     return rows
 
 
-def _parse_ns(path: Path, line: int, text: str) -> int:
-    if not _DIGITS.fullmatch(text):
-        raise DatasetFormatError(
-            f"{where(path, line)}: expected a timestamp in integer nanoseconds, got {text!r}"
-        )
-    return int(text)
-
-
 def parse_stamps(path: Path, rows: list[tuple[int, list[str]]]) -> np.ndarray:
-    """(N,) int64 nanoseconds of the rows' first field, checked strictly increasing, and far enough apart
-    to stay distinct as float64 seconds."""
-    ns = np.array([_parse_ns(path, i, fields[0]) for i, fields in rows], dtype=np.int64)
+    """(N,) int64 nanoseconds of the rows' first fields, strictly increasing even as float64 seconds."""
+    for i, fields in rows:
+        if not _DIGITS.fullmatch(fields[0]):
+            raise DatasetFormatError(
+                f"{where(path, i)}: expected a timestamp in integer nanoseconds, got {fields[0]!r}"
+            )
+    ns = np.array([int(fields[0]) for _, fields in rows], dtype=np.int64)
     bad = np.flatnonzero(np.diff(ns) <= 0)
     if bad.size:
         k = bad[0] + 1
@@ -131,16 +99,19 @@ def parse_stamps(path: Path, rows: list[tuple[int, list[str]]]) -> np.ndarray:
     return ns
 
 
-def read_camera_stamps(path: str | os.PathLike) -> tuple[np.ndarray, list[str]]:
-    """Read ``cam0/data.csv``: ``timestamp [ns],filename`` a line after a '#' header.
+def body_poses(path: Path, rows: list[tuple[int, list[str]]], label: str) -> tuple[np.ndarray, np.ndarray]:
+    """(M,) int64 nanoseconds and (M, 4, 4) float64 body poses T_w_b of ground-truth rows
+    ``timestamp, tx, ty, tz, qw, qx, qy, qz, ...`` (``label``: the quaternion's name in an error)."""
+    ns = parse_stamps(path, rows)
+    values = np.array([finite_numbers(path, i, f[1:8], "a number", "a finite number") for i, f in rows])
+    lines = [i for i, _ in rows]
+    T_w_b = quaternion_poses(path, lines, values[:, :3], values[:, [4, 5, 6, 3]], label, QUATERNION_TOLERANCE)
+    return ns, T_w_b
 
-    Returns:
-        (N,) int64 nanoseconds, strictly increasing as float64 seconds; N file names relative to
-        ``cam0/data``.
-    Raises:
-        DatasetFormatError: naming the file and line for a missing file, a line without 2 columns, a
-            timestamp that is not an integer, that repeats or goes backwards, or an empty file name.
-    """
+
+def read_camera_stamps(path: str | os.PathLike) -> tuple[np.ndarray, list[str]]:
+    """``cam0/data.csv`` (``timestamp [ns],filename`` lines): (N,) int64 nanoseconds and the N file names
+    relative to ``cam0/data``."""
     path = Path(path)
     rows = _csv_rows(path, "camera list", 2)
     for i, (_, name) in rows:
@@ -149,39 +120,14 @@ def read_camera_stamps(path: str | os.PathLike) -> tuple[np.ndarray, list[str]]:
     return parse_stamps(path, rows), [fields[1] for _, fields in rows]
 
 
-def read_groundtruth_stamps(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`read_groundtruth` with the times as (M,) int64 nanoseconds, as the file writes them."""
+def read_groundtruth(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """``state_groundtruth_estimate0/data.csv`` (:data:`GROUND_TRUTH_COLUMNS`; velocity and biases
+    ignored): (M,) int64 nanoseconds, M >= 2, and (M, 4, 4) float64 body poses T_w_b."""
     path = Path(path)
     rows = _csv_rows(path, "ground truth", GROUND_TRUTH_COLUMNS)
     if len(rows) < 2:
         raise DatasetFormatError(f"{path}: one ground-truth row (expected at least 2 to interpolate between)")
-    ns = parse_stamps(path, rows)
-    values = np.array(
-        [finite_numbers(path, i, fields[1:8], "a number", "a finite number") for i, fields in rows],
-        dtype=np.float64,
-    )
-    q_wxyz = unit_quaternions(path, [i for i, _ in rows], values[:, 3:7], "q_RS", QUATERNION_TOLERANCE)
-    return ns, pose_matrices(values[:, :3], q_wxyz[:, [1, 2, 3, 0]])  # q_RS is w x y z
-
-
-def read_groundtruth(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """Read ``state_groundtruth_estimate0/data.csv``: 17 columns a line, timestamp [ns], p_RS_R (x, y, z) in
-    metres, q_RS (w, x, y, z), then velocity and IMU biases (ignored).
-
-    Returns:
-        (M,) float64 times in seconds, strictly increasing; (M, 4, 4) float64 body poses T_w_b.
-    Raises:
-        DatasetFormatError: naming the file and line for a missing file, a line without 17 columns, a
-            non-number, a timestamp that repeats or goes backwards, a quaternion far from unit norm, or
-            fewer than two rows (nothing to interpolate between).
-    """
-    ns, T_w_b = read_groundtruth_stamps(path)
-    return ns_to_seconds(ns), T_w_b
-
-
-# --------------------------------------------------------------------------------------------------
-# sensor.yaml
-# --------------------------------------------------------------------------------------------------
+    return body_poses(path, rows, "q_RS")
 
 
 def _read_T_BS(path: Path, data: dict[str, Any]) -> np.ndarray:
@@ -200,18 +146,8 @@ def _read_T_BS(path: Path, data: dict[str, Any]) -> np.ndarray:
 
 
 def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]:
-    """Read a camera's ``sensor.yaml``.
-
-    Returns:
-        K: (3, 3) float64 from ``intrinsics: [fu, fv, cu, cv]`` (pixels);
-        distortion: (4,) float64 ``distortion_coefficients`` (k1, k2, p1, p2), radial-tangential;
-        T_BS: (4, 4) float64 pose of the camera in the body (IMU) frame;
-        size: (H, W) in pixels, from ``resolution: [W, H]``.
-    Raises:
-        DatasetFormatError: naming the file and the key for a missing file, invalid YAML, a missing or
-            malformed key, a camera model other than pinhole / radial-tangential, or a T_BS that is not a
-            rigid transform (rotation not orthonormal, det != 1, last row not 0 0 0 1).
-    """
+    """A camera's ``sensor.yaml``: K (3, 3) from ``intrinsics: [fu, fv, cu, cv]`` (pixels), distortion (4,)
+    (k1, k2, p1, p2), T_BS (4, 4) the camera's pose in the body frame, size (H, W) from ``resolution``."""
     path = Path(path)
     data = load_mapping(path, "T_BS, resolution and intrinsics")
     check_choices(path, data, CHOICES)
@@ -219,49 +155,14 @@ def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.nda
     if fu <= 0 or fv <= 0:
         raise DatasetFormatError(f"{path}: key 'intrinsics': expected positive focal lengths, got {fu}, {fv}")
     distortion = yaml_array(path, data, "distortion_coefficients", (4,), "[k1, k2, p1, p2]")
-    width, height = yaml_array(path, data, "resolution", (2,), "[width, height] in pixels")
-    size = positive_resolution(path, width, height, data["resolution"])
+    size = yaml_resolution(path, data)
     K = np.array([[fu, 0.0, cu], [0.0, fv, cv], [0.0, 0.0, 1.0]])
     return K, distortion, _read_T_BS(path, data), size
 
 
-# --------------------------------------------------------------------------------------------------
-# Poses at the frames' times
-# --------------------------------------------------------------------------------------------------
-
-
-def bracket(
-    gt_ns: np.ndarray, ns: np.ndarray, max_gap: float = MAX_GAP_S
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The ground-truth rows each stamp lies between, computed in integer nanoseconds (as float64 seconds,
-    stamps near 1.4e9 s carry up to 0.24 µs of rounding: 5e-5 of a 5 ms interval).
-
-    Args:
-        gt_ns: (M,) int64 strictly increasing nanoseconds, M >= 2; ns: (N,) int64 nanoseconds;
-        max_gap: the largest spacing (s) of two bracketing rows.
-    Returns:
-        index: (N,) int, the row at or before each stamp (``index + 1`` is the row after);
-        fraction: (N,) float64 in [0, 1], where the stamp lies between the two rows;
-        keep: (N,) bool, False for stamps outside ``[gt_ns[0], gt_ns[-1]]`` or between rows more than
-            ``max_gap`` apart (index and fraction are then meaningless).
-    """
-    gt_ns, ns = np.asarray(gt_ns, dtype=np.int64), np.asarray(ns, dtype=np.int64)
-    index = np.clip(np.searchsorted(gt_ns, ns, side="right") - 1, 0, len(gt_ns) - 2)
-    spacing = gt_ns[index + 1] - gt_ns[index]
-    fraction = np.clip((ns - gt_ns[index]) / spacing, 0.0, 1.0)
-    keep = (ns >= gt_ns[0]) & (ns <= gt_ns[-1]) & (spacing <= max_gap * _NS_PER_S)
-    return index, fraction, keep
-
-
 def interpolate_poses(T0: np.ndarray, T1: np.ndarray, fraction: np.ndarray) -> np.ndarray:
-    """Poses between T0 and T1: translation linear, rotation along the shortest geodesic (slerp),
-    ``R = R0 exp(f log(R0ᵀ R1))``.
-
-    Args:
-        T0, T1: (N, 4, 4) float64 poses; fraction: (N,) in [0, 1] (0 gives T0, 1 gives T1).
-    Returns:
-        (N, 4, 4) float64.
-    """
+    """(N, 4, 4) poses ``fraction`` (N,) of the way from T0 to T1 (N, 4, 4): translation linear, rotation
+    along the geodesic (slerp), ``R = R0 exp(f log(R0ᵀ R1))``."""
     f = np.asarray(fraction, dtype=np.float64)[:, None]
     R0 = Rotation.from_matrix(T0[:, :3, :3])
     step = (R0.inv() * Rotation.from_matrix(T1[:, :3, :3])).as_rotvec()
@@ -275,66 +176,39 @@ def interpolate_poses(T0: np.ndarray, T1: np.ndarray, fraction: np.ndarray) -> n
 def camera_poses(
     gt_ns: np.ndarray, T_w_b: np.ndarray, T_BS: np.ndarray, ns: np.ndarray, max_gap: float = MAX_GAP_S
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Camera poses ``T_w_c(t) = T_w_b(t) @ T_BS`` at the frames' stamps, T_w_b interpolated (see
-    :func:`bracket`, :func:`interpolate_poses`).
+    """Camera poses ``T_w_b(t) @ T_BS`` at the frames' stamps, T_w_b interpolated between the rows around
+    each (found in integer nanoseconds).
 
     Args:
-        gt_ns: (M,) int64 ground-truth stamps in nanoseconds; T_w_b: (M, 4, 4) body poses; T_BS: (4, 4)
-            camera in body; ns: (N,) int64 frame stamps in nanoseconds; max_gap: see :func:`bracket`.
+        gt_ns: (M,) int64 strictly increasing, M >= 2; T_w_b: (M, 4, 4); T_BS: (4, 4); ns: (N,) int64.
     Returns:
-        (K, 4, 4) float64 T_w_c of the kept frames, and the (N,) bool mask of the kept frames (K of them).
+        (K, 4, 4) float64 T_w_c of the frames kept, and their (N,) bool mask: the frames within the ground
+        truth's span, between rows at most ``max_gap`` s apart.
     """
-    index, fraction, keep = bracket(gt_ns, ns, max_gap)
-    index, fraction = index[keep], fraction[keep]
+    gt_ns, ns = np.asarray(gt_ns, dtype=np.int64), np.asarray(ns, dtype=np.int64)
+    index = np.clip(np.searchsorted(gt_ns, ns, side="right") - 1, 0, len(gt_ns) - 2)
+    spacing = gt_ns[index + 1] - gt_ns[index]
+    keep = (ns >= gt_ns[0]) & (ns <= gt_ns[-1]) & (spacing <= max_gap * _NS_PER_S)
+    index = index[keep]
+    fraction = np.clip((ns[keep] - gt_ns[index]) / spacing[keep], 0.0, 1.0)
     T_w_b_t = interpolate_poses(T_w_b[index], T_w_b[index + 1], fraction)
     return T_w_b_t @ np.asarray(T_BS, dtype=np.float64), keep
 
 
-# --------------------------------------------------------------------------------------------------
-# Sequences
-# --------------------------------------------------------------------------------------------------
-
-
 def list_sequences(root: str | os.PathLike) -> list[str]:
     """Names of the sequences under ``root`` (folders holding ``mav0``), sorted."""
-    folder = existing_root(root, "ROOT/<sequence>/mav0")
-    return sorted(p.name for p in folder.iterdir() if (p / "mav0").is_dir())
-
-
-def sequence_dir(root: str | os.PathLike, name: str) -> Path:
-    """``root/name/mav0``; DatasetFormatError naming the missing folder and the sequences found."""
-    root = Path(root).expanduser()
-    path = root / name / "mav0"
-    if not path.is_dir():
-        found = ", ".join(list_sequences(root)) or "none"
-        raise DatasetFormatError(
-            f"{path}: sequence {name!r} not found (expected ROOT/<name>/mav0; found: {found})"
-        )
-    return path
+    return find_sequences(root, "mav0", "<sequence>")
 
 
 def load_sequence(
     root: str | os.PathLike, name: str, require_poses: bool = True, max_gap: float = MAX_GAP_S
 ) -> Sequence:
-    """Read and check one sequence's metadata (frame list, camera, ground truth); no image is decoded.
-
-    Frames outside the ground truth's span, or between ground-truth rows more than ``max_gap`` seconds
-    apart, are dropped and counted in ``dropped``; the datamodule cuts windows where frames were dropped.
-
-    Args:
-        root: the folder holding the sequences; name: a sequence as EuRoC names it (``"V1_02_medium"``);
-        require_poses: raise when the ground truth is missing (else the sequence has ``poses=None``).
-    Returns:
-        Sequence with T_w_c of cam0 (``T_w_b(t) @ T_BS``), K, distortion (k1, k2, p1, p2, 0), size (H, W).
-    Raises:
-        DatasetFormatError: an unknown sequence (naming those found), a missing or malformed file, a frame
-            whose size differs from sensor.yaml's resolution, or no frame within the ground truth's span.
-    """
-    mav0 = sequence_dir(root, name)
+    """One sequence's metadata, checked: cam0's frames, K and distortion (k1, k2, p1, p2, 0), T_w_c =
+    ``T_w_b(t) @ T_BS``; frames outside the ground truth or in a gap of it wider than ``max_gap`` s are
+    dropped and counted. No frame is decoded."""
+    mav0 = sequence_folder(root, name, "mav0", "<sequence>") / "mav0"
     gt_path = mav0 / GROUND_TRUTH / "data.csv"
-    return asl_sequence(
-        name, mav0 / CAMERA, gt_path, read_sensor, read_groundtruth_stamps, require_poses, max_gap
-    )
+    return asl_sequence(name, mav0 / CAMERA, gt_path, read_sensor, read_groundtruth, require_poses, max_gap)
 
 
 def asl_sequence(
@@ -346,16 +220,20 @@ def asl_sequence(
     require_poses: bool,
     max_gap: float,
 ) -> Sequence:
-    """A sequence of an ASL camera folder (``data.csv``, ``data/``, ``sensor.yaml``: (K, distortion, T_BS,
-    size)) and a ground truth of body poses T_w_b (stamps in ns): T_w_c = ``T_w_b(t) @ T_BS`` at the frames'
-    stamps (:func:`camera_poses`), frames outside it dropped; DatasetFormatError naming both files where
-    none is kept."""
-    csv_path = camera / "data.csv"
+    """A sequence of an ASL camera folder (``data.csv``, ``data/``, ``sensor.yaml``) and a ground truth of
+    body poses T_w_b (stamps in ns): T_w_c = ``T_w_b(t) @ T_BS`` at the frames' stamps
+    (:func:`camera_poses`), frames outside it dropped."""
+    csv_path, yaml_path = camera / "data.csv", camera / "sensor.yaml"
     ns, names = read_camera_stamps(csv_path)
     times = ns_to_seconds(ns)
     images = listed_frames(csv_path, camera / "data", names)
-    K, distortion, T_BS, size = read_sensor(camera / "sensor.yaml")
-    check_resolution(images[0], size, camera / "sensor.yaml")
+    K, distortion, T_BS, size = read_sensor(yaml_path)
+    found = png_size(images[0])
+    if found != size:
+        raise DatasetFormatError(
+            f"{images[0]}: frame of {found[1]}x{found[0]} pixels, but {yaml_path} key 'resolution' says "
+            f"{size[1]}x{size[0]}"
+        )
     distortion = np.append(distortion, np.zeros(5 - len(distortion)))  # OpenCV's (k1, k2, p1, p2, k3)
     if not has_ground_truth(gt_path, name, require_poses):
         return Sequence(name, images, times, None, K, distortion, size)

@@ -1,10 +1,5 @@
-"""The dataset layouts lossvo reads, by name (``data.sources.<name>.layout``): where a layout's name
-becomes its reader.
-
-Each reader module (:mod:`~lossvo.data.kitti`, :mod:`~lossvo.data.tum`, :mod:`~lossvo.data.euroc`,
-:mod:`~lossvo.data.tartanair`, :mod:`~lossvo.data.mimir`) reads its dataset in the dataset's own layout
-and returns :class:`lossvo.data.sequence.Sequence` (frames, timestamps, T_w_c in lossvo's convention, K,
-distortion).
+"""The dataset layouts lossvo reads, by name (``data.sources.<name>.layout``): where a layout's name becomes
+its reader, a module returning :class:`lossvo.data.sequence.Sequence` (docs/data.md).
 """
 
 from __future__ import annotations
@@ -24,13 +19,11 @@ READERS: dict[str, ModuleType] = {
     "tartanair": tartanair,
     "mimir": mimir,
 }
-"""Reader module of each layout; each has ``load_sequence(root, name, require_poses)`` and
-``list_sequences(root)``."""
+"""Each layout's reader: ``load_sequence(root, name, require_poses)``, ``list_sequences(root)``."""
 LAYOUTS = tuple(READERS)
 METRIC_SCALE_LAYOUTS = ("kitti",)
 """Layouts whose platform gives monocular metric scale a cue (a car's camera at a known height above a road):
-their translation is read as the metric RPE, the others' as the scale-given RPE (each step scaled to the
-ground truth's length)."""
+their translation is read as the metric RPE, the others' as the scale-given one."""
 ASSUMED_RATE_HZ = {"tartanair": tartanair.RATE_HZ}
 """Layouts without timestamps and the frame rate (Hz) their reader assumes."""
 
@@ -43,24 +36,14 @@ def check_layout(layout: object, key: str = "layout") -> str:
 
 
 def dataset_root(layout: str, root: str | os.PathLike) -> Path:
-    """The folder a layout's reader takes: for KITTI the one holding ``sequences/`` (``root`` or
-    ``root/dataset``, :func:`lossvo.data.kitti.find_root`), for the others ``root`` itself.
-
-    Raises:
-        DatasetFormatError: ``root`` is no such folder (naming it and the expected layout).
-    """
+    """The folder a layout's reader takes: ``root``, or for KITTI :func:`lossvo.data.kitti.find_root`'s."""
     if check_layout(layout) == "kitti":
         return kitti.find_root(root)
     return Path(root).expanduser()
 
 
 def load_sequence(layout: str, root: Path, name: str, require_poses: bool = True) -> Sequence:
-    """One sequence of the dataset at ``root`` (:func:`dataset_root`), read by its layout's reader.
-
-    Raises:
-        DatasetFormatError: a missing or malformed file (naming it), or an unknown sequence (naming
-            those found).
-    """
+    """One sequence of the dataset at ``root`` (:func:`dataset_root`), read by its layout's reader."""
     return READERS[check_layout(layout)].load_sequence(root, name, require_poses=require_poses)
 
 

@@ -1,11 +1,7 @@
 """Per-frame motion statistics of a dataset's ground truth, by split: how fast and how sharply it moves.
 
-For each consecutive pair the relative pose ``inv(T_w_k) @ T_w_{k+1}`` gives a speed (its translation's
-norm, m/frame) and a rotation (its angle, rad/frame). A split's row pools its sequences' pairs: mean, RMS,
-5th/50th/95th percentiles and maximum of each, and the fraction of pairs standing still (< 1 cm).
-
-Their table, one row per split, then one per sequence: ``python -m lossvo.motion`` (:mod:`lossvo.motion`).
-Per frame, so datasets recorded at different rates differ by that too (docs/data.md).
+Speed is the norm of ``inv(T_w_k) @ T_w_{k+1}``'s translation (m/frame), rotation its angle (rad/frame); a
+split's row pools its sequences' pairs. The table: ``python -m lossvo.motion`` (docs/data.md).
 """
 
 from __future__ import annotations
@@ -21,54 +17,31 @@ from lossvo.data import kitti, layouts
 
 STANDING = 0.01
 """Metres per frame below which a pair counts as standing still."""
-COLUMNS = (
-    "pairs",
-    "speed mean",
-    "speed RMS",
-    "speed p5",
-    "speed p50",
-    "speed p95",
-    "speed max",
-    "standing",
-    "rot mean",
-    "rot RMS",
-    "rot p50",
-    "rot p95",
-    "rot max",
-)
+_SPEED = ("mean", "RMS", "p5", "p50", "p95", "max")
+_ROTATION = ("mean", "RMS", "p50", "p95", "max")
+COLUMNS = ("pairs", *(f"speed {c}" for c in _SPEED), "standing", *(f"rot {c}" for c in _ROTATION))
 """Table columns: speeds in m/frame, rotations in rad/frame, standing as a fraction of the pairs."""
 
 
 def frame_motion(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Speed (N-1,) m/frame and rotation angle (N-1,) rad/frame between consecutive poses (N, 4, 4).
-
-    The angle is :func:`lossvo.geometry.rotation_angle` of the relative rotation (accurate at small and
-    large angles).
-    """
+    """Speed (N-1,) m/frame and rotation angle (N-1,) rad/frame between consecutive poses (N, 4, 4)."""
     rel = kitti.relative_targets(np.asarray(poses, dtype=np.float64))
     angle = geometry.rotation_angle(torch.from_numpy(rel[:, :3, :3])).numpy()
     return np.linalg.norm(rel[:, :3, 3], axis=1), angle
 
 
+def _spread(x: np.ndarray, percentiles: list[int]) -> list[float]:
+    return [x.mean(), np.sqrt((x**2).mean()), *np.percentile(x, percentiles), x.max()]
+
+
 def statistics(speed: np.ndarray, rotation: np.ndarray) -> dict[str, float]:
     """The :data:`COLUMNS` of pooled pairs: speed (P,) m/frame, rotation (P,) rad/frame."""
-    p5, p50, p95 = np.percentile(speed, [5, 50, 95])
-    r50, r95 = np.percentile(rotation, [50, 95])
-    values = (
+    values = [
         len(speed),
-        speed.mean(),
-        np.sqrt((speed**2).mean()),
-        p5,
-        p50,
-        p95,
-        speed.max(),
+        *_spread(speed, [5, 50, 95]),
         (speed < STANDING).mean(),
-        rotation.mean(),
-        np.sqrt((rotation**2).mean()),
-        r50,
-        r95,
-        rotation.max(),
-    )
+        *_spread(rotation, [50, 95]),
+    ]
     return dict(zip(COLUMNS, map(float, values), strict=True))
 
 

@@ -13,15 +13,10 @@ from lossvo.atomic import write_text_atomic
 
 
 def write_poses(path: str | os.PathLike, poses: np.ndarray | torch.Tensor) -> None:
-    """Write (N, 4, 4) or (N, 3, 4) poses as a KITTI pose file, atomically (temp file + rename)."""
+    """Write (N, 4, 4) or (N, 3, 4) poses as a KITTI pose file, atomically, with 17 significant digits (a
+    float64 reads back exactly)."""
     poses = np.asarray(poses.detach().cpu() if isinstance(poses, torch.Tensor) else poses, dtype=np.float64)
     if poses.ndim != 3 or poses.shape[1:] not in ((4, 4), (3, 4)):
         raise ValueError(f"poses must have shape (N, 4, 4) or (N, 3, 4), got {poses.shape}")
-    write_text_atomic(Path(path), poses_text(poses))
-
-
-def poses_text(poses: np.ndarray) -> str:
-    """A KITTI pose file's text for (N, 4, 4) or (N, 3, 4) float64 poses: the row-major 3x4 [R | t] of
-    each, one a line, with 17 significant digits (a float64 reads back exactly)."""
-    rows = np.asarray(poses, dtype=np.float64)[:, :3, :].reshape(-1, 12)
-    return "".join(" ".join(f"{v:.16e}" for v in row) + "\n" for row in rows)
+    rows = poses[:, :3, :].reshape(-1, 12)
+    write_text_atomic(Path(path), "".join(" ".join(f"{v:.16e}" for v in row) + "\n" for row in rows))

@@ -1,14 +1,12 @@
-"""The data contract every dataset reader returns: one sequence's frames, timestamps, camera poses and camera.
-
-Readers (``kitti``, ``tum``, ``euroc``, ``tartanair``, ``mimir``) read a dataset in its own layout and convert
-at the reader, so that everything after them sees one convention: poses are 4x4 camera-to-world matrices
-T_w_c in float64 with the camera's x right, y down, z forward (KITTI's and OpenCV's), timestamps are seconds,
-K and the distortion are those of the frames as stored on disk (before any resize).
+"""The data contract every dataset reader returns (:class:`Sequence`), sequence names, and the checks the
+readers share: each raises one :class:`DatasetFormatError` line naming the file (and line or key) and what
+was expected. The layouts and their conventions: docs/data.md.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import struct
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
@@ -24,8 +22,7 @@ from lossvo.console import UserError
 
 
 class DatasetFormatError(UserError):
-    """A file or folder that does not follow a dataset's layout: the message names the file (and line or key)
-    and what was expected."""
+    """A file or folder that does not follow a dataset's layout."""
 
 
 def where(path: Path, line: int | None = None) -> str:
@@ -41,12 +38,8 @@ def finite_numbers(
     finite: str | None = None,
     error: type[DatasetFormatError] = DatasetFormatError,
 ) -> list[float]:
-    """``fields`` (the text of line ``line`` of ``path``) as finite floats.
-
-    Raises:
-        error: ``<path>:<line>: expected <expected>, got '<field>'`` at the first field that is no number,
-            and the same with ``finite`` (default ``expected``) at the first that is not finite.
-    """
+    """``fields`` of line ``line`` as floats; ``error`` ``<path>:<line>: expected <expected>, got '<field>'``
+    at the first that is no number (``finite`` instead of ``expected`` at the first that is not finite)."""
     values = []
     for text in fields:
         try:
@@ -62,7 +55,7 @@ def finite_numbers(
 def text_lines(
     path: Path, what: str, comments: bool = False, error: type[DatasetFormatError] = DatasetFormatError
 ) -> list[tuple[int, str]]:
-    """The non-empty lines of a text file with their numbers (from 1), '#' comments left out where
+    """The non-empty lines of a text file with their 1-based numbers, '#' comments left out where
     ``comments``; ``error`` ``<path>: cannot read <what> (<reason>)`` when the file cannot be read."""
     try:
         lines = path.read_text().splitlines()
@@ -75,8 +68,7 @@ def text_lines(
 
 
 def listed_frames(list_path: Path, folder: Path, names: list[str]) -> list[Path]:
-    """``folder / name`` for each name of a frame list; DatasetFormatError at the list's line (its data
-    lines: '#' comments left out) of the first that is no file."""
+    """``folder / name`` for each name of a frame list; an error at the list's line of the first missing."""
     paths = [folder / name for name in names]
     k = next((k for k, path in enumerate(paths) if not path.is_file()), None)
     if k is not None:
@@ -94,31 +86,51 @@ def has_ground_truth(
     what: str = "ground truth",
     error: type[DatasetFormatError] = DatasetFormatError,
 ) -> bool:
-    """Whether a sequence's ground-truth file exists; ``error`` naming it where it is missing and
-    ``require``."""
+    """Whether a sequence's ground-truth file exists; an error naming it when missing and ``require``."""
     if require and not path.is_file():
         raise error(f"{path}: no {what} for sequence {name} (needed for training/evaluation)")
     return path.is_file()
 
 
 def existing_root(root: str | os.PathLike, layout: str) -> Path:
-    """``root`` as a Path (``~`` expanded); DatasetFormatError naming it and the expected ``layout`` (e.g.
-    ``"ROOT/<sequence>/mav0"``) when it is no folder."""
+    """``root`` (``~`` expanded); an error naming it and the expected ``layout`` when it is no folder."""
     path = Path(root).expanduser()
     if not path.is_dir():
         raise DatasetFormatError(f"{path}: dataset root does not exist (expected {layout})")
     return path
 
 
+def find_sequences(root: str | os.PathLike, marker: str, *shapes: str) -> list[str]:
+    """The sorted names (paths under ``root``) of the folders of a shape (``"<env>/auv0/<track>"``: each
+    ``<...>`` any name) that hold ``marker`` (a file or folder path); an error when ``root`` is no folder."""
+    base = existing_root(root, f"ROOT/{shapes[0]}/{marker}")
+    globs = [re.sub(r"<[^>]*>", "*", shape) for shape in shapes]
+    return sorted(
+        {p.relative_to(base).as_posix() for g in globs for p in base.glob(g) if (p / marker).exists()}
+    )
+
+
+def sequence_folder(root: str | os.PathLike, name: str, marker: str, *shapes: str) -> Path:
+    """``root/name``, checked to hold ``marker``; an error naming the sequences found otherwise."""
+    path = existing_root(root, f"ROOT/{shapes[0]}/{marker}") / name
+    if not (path / marker).exists():
+        found = ", ".join(find_sequences(root, marker, *shapes)) or "none"
+        raise DatasetFormatError(
+            f"{path / marker}: sequence {name!r} not found "
+            f"(expected ROOT/{shapes[0]}/{marker}; found: {found})"
+        )
+    return path
+
+
 def sequence_name(item: object) -> str:
-    """A sequence name as the KITTI layout writes it: ``7`` -> ``"07"``, ``" 07"`` -> ``"07"`` (a YAML
-    ``07`` arrives as the integer 7)."""
+    """A sequence name as the KITTI layout writes it: ``7`` -> ``"07"`` (a YAML ``07`` arrives as 7),
+    ``" 07"`` -> ``"07"``."""
     return f"{item:02d}" if is_integer(item) else str(item).strip()
 
 
 def split_names(value: str | int | Iterable[object] | None) -> list[str]:
-    """Every name of a list, a comma-separated string or one integer, in order, as :func:`sequence_name`
-    writes it, empties (``""``) and repeats kept: ``"00,,7"`` -> ``["00", "", "07"]``."""
+    """Every name of a list, a comma-separated string or one integer, as :func:`sequence_name` writes it,
+    empties and repeats kept: ``"00,,7"`` -> ``["00", "", "07"]``."""
     items: Iterable[object]
     if isinstance(value, str):
         items = value.split(",")
@@ -130,19 +142,13 @@ def split_names(value: str | int | Iterable[object] | None) -> list[str]:
 
 
 def sequence_names(value: str | int | Iterable[object] | None) -> list[str]:
-    """Sequence names from a list, a comma-separated string or one integer, in order, without empties or
-    repeats: ``"00, 07"``, ``[0, 7]`` -> ``["00", "07"]``."""
+    """:func:`split_names` without empties or repeats: ``"00, 07"``, ``[0, 7]`` -> ``["00", "07"]``."""
     return list(dict.fromkeys(name for name in split_names(value) if name))
 
 
 def load_mapping(path: Path, what: str) -> dict[str, Any]:
-    """The mapping in a YAML (or JSON) file, an OpenCV ``%YAML:1.0`` first line skipped (kept as an empty
-    line, so that line numbers stay those of the file).
-
-    Raises:
-        DatasetFormatError: naming the file (and line) when it cannot be read, is not valid YAML or holds
-            no mapping; ``what`` says what it should hold.
-    """
+    """The mapping in a YAML (or JSON) file holding ``what``; an OpenCV ``%YAML:1.0`` first line is skipped
+    (PyYAML rejects it), line numbers kept."""
     try:
         lines = path.read_text().splitlines()
     except OSError as e:
@@ -162,8 +168,7 @@ def load_mapping(path: Path, what: str) -> dict[str, Any]:
 
 
 def check_choices(path: Path, data: dict[str, Any], choices: dict[str, str]) -> None:
-    """DatasetFormatError naming ``path`` and the key where a calibration file gives another value than the
-    one of ``choices`` (key -> the value this reader reads)."""
+    """An error naming the key where a calibration file gives another value than ``choices``' (those read)."""
     for key, expected in choices.items():
         if key in data and data[key] != expected:
             raise DatasetFormatError(f"{path}: key '{key}': expected {expected!r}, got {data[key]!r}")
@@ -172,8 +177,7 @@ def check_choices(path: Path, data: dict[str, Any], choices: dict[str, str]) -> 
 def yaml_array(
     path: Path, data: dict[str, Any], key: str, shape: tuple[int, ...], meaning: str
 ) -> np.ndarray:
-    """``data[key]`` as a finite float64 array of ``shape`` (lists of numbers), or DatasetFormatError naming
-    the file and key."""
+    """``data[key]`` as a finite float64 array of ``shape``; an error naming the file and key otherwise."""
     if key not in data:
         raise DatasetFormatError(f"{path}: key '{key}' missing (expected {meaning})")
     value = data[key]
@@ -187,21 +191,27 @@ def yaml_array(
     return array
 
 
+def yaml_resolution(path: Path, data: dict[str, Any]) -> tuple[int, int]:
+    """(H, W) of a calibration file's ``resolution: [width, height]``, both positive integers."""
+    width, height = yaml_array(path, data, "resolution", (2,), "[width, height] in pixels")
+    if width != int(width) or height != int(height) or width <= 0 or height <= 0:
+        raise DatasetFormatError(
+            f"{path}: key 'resolution': expected two positive integers [width, height], "
+            f"got {data['resolution']!r}"
+        )
+    return int(height), int(width)
+
+
 @dataclass(frozen=True)
 class Sequence:
-    """One sequence in lossvo's convention.
+    """One sequence in lossvo's convention (float64 T_w_c, camera x right, y down, z forward; seconds).
 
     Attributes:
-        name: the sequence's name as the dataset names it (``"07"``, ``"rgbd_dataset_freiburg1_xyz"``,
-            ``"V1_02_medium"``, ``"abandonedfactory/Easy/P000"``).
-        images: (N,) frame paths in time order.
-        times: (N,) float64 timestamps in seconds, strictly increasing.
-        poses: (N, 4, 4) float64 T_w_c at the frames' timestamps, or None for a sequence without ground truth
-            (usable for inference only).
-        K: (3, 3) float64 intrinsics in pixels of the frames on disk.
-        distortion: (D,) float64 OpenCV distortion coefficients (k1, k2, p1, p2[, k3]); all zeros when the
-            frames are undistorted.
-        size: (H, W) of the frames on disk, in pixels.
+        name: the sequence's name as the dataset names it (``"07"``, ``"V1_02_medium"``).
+        images: (N,) frame paths in time order; times: (N,) seconds, strictly increasing.
+        poses: (N, 4, 4) T_w_c at the frames' times, or None without ground truth (inference only).
+        K: (3, 3) intrinsics in pixels of the frames on disk; distortion: (D,) OpenCV coefficients (k1, k2,
+            p1, p2[, k3]), zeros for undistorted frames; size: (H, W) of the frames on disk.
         dropped: frames the reader left out (for example outside the ground truth's time span).
     """
 
@@ -240,17 +250,13 @@ class Sequence:
         return np.linalg.inv(self.poses[:-1]) @ self.poses[1:]
 
 
-def unit_quaternions(path: Path, lines: list[int], q: np.ndarray, label: str, tolerance: float) -> np.ndarray:
-    """(M, 4) quaternions divided by their norms.
-
-    Args:
-        path, lines: the file and the 1-based line of each quaternion; q: (M, 4) as read; label: how the
-            file names them (``"(qx qy qz qw)"``, ``"q_RS"``); tolerance: the largest accepted |norm - 1|.
-    Raises:
-        DatasetFormatError: ``<path>:<line>: quaternion <label> of norm <n> (expected a unit quaternion,
-            within <tolerance>)`` at the first one further from unit norm.
-    """
-    norm = np.linalg.norm(q, axis=1)
+def quaternion_poses(
+    path: Path, lines: list[int], t: np.ndarray, q_xyzw: np.ndarray, label: str, tolerance: float
+) -> np.ndarray:
+    """(M, 4, 4) ``[[R(q), t], [0, 1]]`` from translations (M, 3) and quaternions (M, 4) x y z w, each
+    normalised; an error at the first line (of ``lines``) whose quaternion's norm is further than
+    ``tolerance`` from 1 (``label``: how the file names it)."""
+    norm = np.linalg.norm(q_xyzw, axis=1)
     bad = np.flatnonzero(np.abs(norm - 1.0) > tolerance)
     if bad.size:
         k = bad[0]
@@ -258,80 +264,48 @@ def unit_quaternions(path: Path, lines: list[int], q: np.ndarray, label: str, to
             f"{where(path, lines[k])}: quaternion {label} of norm {norm[k]:.6g} "
             f"(expected a unit quaternion, within {tolerance})"
         )
-    return q / norm[:, None]
-
-
-def check_resolution(image: Path, size: tuple[int, int], calibration: Path) -> None:
-    """DatasetFormatError unless the PNG ``image`` is ``size`` (H, W), the ``resolution`` its camera's
-    ``calibration`` file states."""
-    found = png_size(image)
-    if found != size:
-        raise DatasetFormatError(
-            f"{image}: frame of {found[1]}x{found[0]} pixels, but {calibration} key 'resolution' says "
-            f"{size[1]}x{size[0]}"
-        )
-
-
-def positive_resolution(path: Path, width: float, height: float, given: Any) -> tuple[int, int]:
-    """(H, W) of a calibration file's ``resolution`` [width, height]; DatasetFormatError naming ``path``
-    unless both are positive integers."""
-    if width != int(width) or height != int(height) or width <= 0 or height <= 0:
-        raise DatasetFormatError(
-            f"{path}: key 'resolution': expected two positive integers [width, height], got {given!r}"
-        )
-    return int(height), int(width)
-
-
-RIGID_TOLERANCE = 1e-4
-"""Largest |RᵀR − I| entry and |det R − 1| accepted in a calibration's rigid transform (12 significant digits
-in EuRoC's files)."""
-
-
-def pose_matrices(t: np.ndarray, q_xyzw: np.ndarray) -> np.ndarray:
-    """4x4 poses from translations and unit quaternions.
-
-    Args:
-        t: (M, 3) translations in metres; q_xyzw: (M, 4) unit quaternions (x, y, z, w).
-    Returns:
-        (M, 4, 4) float64 ``[[R(q), t], [0, 1]]``.
-    """
     poses = np.zeros((len(t), 4, 4))
-    poses[:, :3, :3] = Rotation.from_quat(q_xyzw).as_matrix()
+    poses[:, :3, :3] = Rotation.from_quat(q_xyzw / norm[:, None]).as_matrix()
     poses[:, :3, 3] = t
     poses[:, 3, 3] = 1.0
     return poses
 
 
-def check_rigid(path: Path, T: np.ndarray, key: str) -> None:
-    """DatasetFormatError naming ``path`` and ``key`` unless the (4, 4) ``T`` is a rigid transform: rotation
-    block orthonormal with det +1 (within :data:`RIGID_TOLERANCE`), last row 0 0 0 1."""
-    R = T[:3, :3]
-    error = np.abs(R.T @ R - np.eye(3)).max()
+RIGID_TOLERANCE = 1e-4
+"""Largest |RᵀR − I| entry accepted in a calibration's rigid transform (EuRoC's have 12 digits)."""
+
+
+def check_rotations(
+    places: list[str], R: np.ndarray, tolerance: float, error: type[DatasetFormatError] = DatasetFormatError
+) -> None:
+    """An error at the place (of ``places``) of the first of R (M, 3, 3) that is no rotation: an entry of
+    RᵀR − I over ``tolerance``, or det < 0."""
+    deviation = np.abs(R.transpose(0, 2, 1) @ R - np.eye(3)).max(axis=(1, 2))
     det = np.linalg.det(R)
-    if error > RIGID_TOLERANCE or abs(det - 1.0) > RIGID_TOLERANCE:
-        raise DatasetFormatError(
-            f"{path}: key '{key}': rotation block is not a rotation (max |RᵀR − I| = {error:.2g}, "
-            f"det = {det:.4g}; expected orthonormal, det +1)"
+    bad = np.flatnonzero((deviation > tolerance) | (det < 0))
+    if bad.size:
+        k = bad[0]
+        raise error(
+            f"{places[k]}: rotation block is not a rotation (max |RᵀR − I| = {deviation[k]:.2g}, "
+            f"det = {det[k]:.4g}; expected orthonormal, det +1)"
         )
+
+
+def check_rigid(path: Path, T: np.ndarray, key: str) -> None:
+    """An error naming the file and key unless the (4, 4) ``T`` is a rigid transform."""
+    check_rotations([f"{path}: key '{key}'"], T[None, :3, :3], RIGID_TOLERANCE)
     if not np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0]):
         raise DatasetFormatError(f"{path}: key '{key}': last row {T[3].tolist()} (expected 0 0 0 1)")
 
 
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-
-
 def png_size(path: Path) -> tuple[int, int]:
-    """(H, W) of a PNG file from its header, without decoding it.
-
-    Raises:
-        DatasetFormatError: naming the file if it cannot be read or is not a PNG.
-    """
+    """(H, W) of a PNG file from its header, without decoding it."""
     try:
         with path.open("rb") as f:
             head = f.read(24)
     except OSError as e:
         raise DatasetFormatError(f"{path}: unreadable image ({e.strerror})") from None
-    if len(head) < 24 or not head.startswith(_PNG_SIGNATURE) or head[12:16] != b"IHDR":
+    if len(head) < 24 or not head.startswith(b"\x89PNG\r\n\x1a\n") or head[12:16] != b"IHDR":
         raise DatasetFormatError(f"{path}: not a PNG file (expected a PNG frame)")
     width, height = struct.unpack(">II", head[16:24])
     return int(height), int(width)
