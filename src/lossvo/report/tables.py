@@ -1,12 +1,5 @@
-"""Tables of a sweep report: per-sequence metric tables and their text forms.
-
-A :class:`~lossvo.report.frame.Column` is one compared configuration (its seeds) or one baseline;
-:func:`build_table` fills a :class:`Table` of :data:`TABLES` with mean ± sample std over seeds per sequence
-plus a mean row, and bolds the minimum of each row; :func:`table_markdown`, :func:`table_csv` and
-:func:`table_latex` give its text (:mod:`lossvo.table_render`).
-A row may carry a note (e.g. ``unseen motion``): in markdown and LaTeX it follows the sequence name in
-parentheses, in CSV it has its own last column, so the ``sequence`` column stays the bare name.
-Units are those of the metrics: m and rad for APE / RPE, % and deg/100 m for the KITTI errors.
+"""The per-sequence metric tables of a sweep report (:data:`TABLES`: mean ± sample std over seeds, a mean
+row, the row's minimum bold) and their markdown, CSV and LaTeX (:mod:`lossvo.table_render`).
 """
 
 from __future__ import annotations
@@ -26,20 +19,13 @@ from lossvo.table_render import Rows, prepend_column
 NETWORK, BASELINE = "network", "baseline"
 MEAN_ROW = "mean"
 UNKNOWN_ARCHITECTURE = "?"
-"""The architecture of a job whose folder names none (:func:`lossvo.report.jobs.read_architecture`)."""
 
 
 def with_architecture(table: Rows, architectures: Sequence[str | None], by_architecture: bool) -> Rows:
-    """``table`` with an ``architecture`` column first (one per row; None: :data:`UNKNOWN_ARCHITECTURE`)
-    where ``by_architecture``, else ``table``."""
+    """``table`` with an ``architecture`` column first where ``by_architecture``."""
     if not by_architecture:
         return table
     return prepend_column(table, "architecture", [a or UNKNOWN_ARCHITECTURE for a in architectures])
-
-
-# --------------------------------------------------------------------------------------------------
-# Building: specs, cells, the mean row, bold marks
-# --------------------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -85,15 +71,13 @@ def paired_samples(
 
 
 def evaluated_sequences(columns: Sequence[Column], among: Sequence[str] | None = None) -> list[str]:
-    """The sequences some replicate of ``columns`` has results for: sorted, or those of ``among`` in
-    order."""
+    """The sequences some replicate of ``columns`` has results for: sorted, or in ``among``'s order."""
     evaluated = {name for c in columns for per_sequence in c.results for name in per_sequence}
     return sorted(evaluated) if among is None else [s for s in among if s in evaluated]
 
 
 def seed_scores(column: Column, path: Sequence[str], sequences: Sequence[str]) -> dict[str, float]:
-    """``{replicate: mean over sequences}`` of one metric (its unit) of a configuration: each seed's value
-    as one number; a seed missing a sequence is left out."""
+    """``{replicate: mean over sequences}`` of one metric; a seed missing a sequence is left out."""
     values = samples(column, path, sequences)  # (seeds, sequences)
     means = values.mean(axis=1) if values.shape[1] else np.full(len(values), np.nan)
     return {r: float(m) for r, m in zip(column.replicates, means, strict=True) if math.isfinite(m)}
@@ -121,8 +105,8 @@ class Cell:
 
 @dataclass
 class Table:
-    """A filled table: ``cells[row][column][metric]``; rows are the sequences, then :data:`MEAN_ROW`;
-    ``notes`` maps a row to a short note shown beside its name."""
+    """A filled table: ``cells[row][column][metric]``, rows the sequences then :data:`MEAN_ROW`; ``notes``
+    ``{row: note}`` shown beside its name (a last column in CSV)."""
 
     spec: TableSpec
     columns: list[Column]
@@ -143,13 +127,9 @@ def build_table(
     notes: Mapping[str, str] | None = None,
     frame: pd.DataFrame | None = None,
 ) -> Table:
-    """Cells per sequence, a mean row and the bold marks; ``notes``: {sequence: note} (:attr:`Table.notes`);
-    ``frame``: the columns' :func:`~lossvo.report.frame.results_frame` (made here if None), pivoted per
-    column and metric to (replicates, sequences).
-
-    The mean row averages each replicate over the sequences where every column has a value (so all
-    columns are averaged over the same sequences), then takes mean ± std over the replicates.
-    """
+    """Cells per sequence, a mean row and the bold marks; ``frame``: the columns'
+    :func:`~lossvo.report.frame.results_frame` (made here if None). The mean row averages each replicate
+    over the sequences where every column has a value, then takes mean ± std over the replicates."""
     frame = results_frame(columns) if frame is None else frame
     k = len(spec.metrics)
     data = [metric_matrix(frame, c, path, sequences) for c in columns for _, path in spec.metrics]
@@ -168,11 +148,6 @@ def build_table(
                 column[m].best = bool(np.isfinite(row_means).any() and mean == np.nanmin(row_means))
     notes = {s: n for s, n in (notes or {}).items() if s in sequences}
     return Table(spec, list(columns), [*sequences, MEAN_ROW], cells, [sequences[j] for j in common], notes)
-
-
-# --------------------------------------------------------------------------------------------------
-# Formatting: markdown, CSV, LaTeX
-# --------------------------------------------------------------------------------------------------
 
 
 def fmt(x: float, digits: int = 4) -> str:
@@ -197,8 +172,7 @@ def mean_std_text(cell: Cell, digits: int = 4, replicated: bool = True) -> str:
 
 
 def table_rows(table: Table, mean_name: str = "**mean**") -> Rows:
-    """The table as text: ``sequence``, then per column and metric ``"<label>: <metric>"``; cells by
-    :func:`mean_std_text`; rows named with their note, the mean row ``mean_name``."""
+    """The table as text cells, the mean row named ``mean_name``."""
     replicated = any(len(c.replicates) > 1 for c in table.columns)
     header = ["sequence"] + [f"{c.label}: {name}" for c in table.columns for name, _ in table.spec.metrics]
     rows: list[list[object]] = []
@@ -214,9 +188,7 @@ def table_markdown(table: Table) -> str:
 
 
 def table_csv(table: Table) -> str:
-    """The table as CSV: ``sequence``, then per column and metric ``<label> | <metric>`` (mean),
-    ``... std`` (sample std, empty for n < 2) and ``... n``, then ``note`` (the row's note, or empty);
-    full precision."""
+    """The table as CSV: per column and metric mean, std and n at full precision, then ``note``."""
     header = ["sequence"]
     for c in table.columns:
         for name, _ in table.spec.metrics:
@@ -232,8 +204,7 @@ def table_csv(table: Table) -> str:
 
 
 def table_latex(table: Table) -> str:
-    """The table as a LaTeX ``tabular`` with booktabs rules, a configuration's metrics grouped under its
-    label; best cells in ``\\textbf``."""
+    """The table as a LaTeX ``tabular`` with booktabs rules."""
     rows = table_rows(table, mean_name="Mean")
     k = len(table.spec.metrics)
     latex = Rows(["", *(name for _ in table.columns for name, _ in table.spec.metrics)], rows.rows)
