@@ -134,7 +134,7 @@ def quantity_tests(
     """One quantity's tests as one Holm family, each with its decision, and their verdict."""
     family = statistics.corrected(tests)
     decisions = [statistics.decide(t) for t in family]
-    return QuantityTests(quantity, family, statistics.verdict(tests), list(secondary), decisions)
+    return QuantityTests(quantity, family, statistics.combine(decisions), list(secondary), decisions)
 
 
 def undecidable(n: int, comparisons: int) -> str | None:
@@ -369,9 +369,9 @@ def _secondary_rows(claim: Claim) -> Rows:
     return Rows(header, rows)
 
 
-def claim_markdown(claim: Claim, letter: str, level: str = "###") -> str:
+def claim_markdown(claim: Claim, level: str = "###") -> str:
     """One claim under a heading of ``level``: measured numbers, tests, verdict."""
-    head = f'{level} ({letter}) "{claim.statement}"'
+    head = f'{level} ({claim.letter}) "{claim.statement}"'
     head += f" ({claim.configuration})" if claim.configuration else ""
     if claim.untested:
         return f"{head}\n\nCannot be tested: {claim.untested}."
@@ -425,12 +425,12 @@ def claims_markdown(items: Sequence[Claim], by_architecture: bool = False) -> st
     if answer.rows:
         head.append(f"The answer, comparison by comparison:\n\n{table_render.markdown(answer)}")
     if not by_architecture:
-        return "\n\n".join([*head, *(claim_markdown(c, c.letter) for c in items)])
+        return "\n\n".join([*head, *(claim_markdown(c) for c in items)])
     parts = [*head, BY_ARCHITECTURE_TEXT.format(loss=loss_word(first.claimed_loss))]
     for architecture in dict.fromkeys(c.architecture or UNKNOWN_ARCHITECTURE for c in items):
         parts.append(f"### Architecture `{architecture}`")
         parts += [
-            claim_markdown(c, c.letter, "####")
+            claim_markdown(c, "####")
             for c in items
             if (c.architecture or UNKNOWN_ARCHITECTURE) == architecture
         ]

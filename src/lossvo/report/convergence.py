@@ -14,14 +14,6 @@ from lossvo.report.tables import NETWORK, Cell, Column, with_architecture
 from lossvo.table_render import Rows
 
 
-def convergence_metric(job: Job) -> tuple[str, str]:
-    """(metrics.csv column, mode) of a job's convergence: ``val/score``, else its selection monitor."""
-    if job.curves is not None and SCORE in job.curves.series:
-        return SCORE, "min"
-    selection = job_selection(job.config)
-    return selection.monitor, selection.mode
-
-
 @dataclass
 class Convergence:
     """A configuration's convergence, per seed: the column used, the first epoch (1-based) within
@@ -42,8 +34,12 @@ class Convergence:
 
 
 def job_convergence(job: Job) -> tuple[str, int | None, int]:
-    """(column, convergence epoch (1-based) or None, epochs logged) of one job."""
-    column, mode = convergence_metric(job)
+    """(column, convergence epoch (1-based) or None, epochs logged) of one job, on ``val/score`` where
+    logged, else on its selection monitor."""
+    column, mode = SCORE, "min"
+    if job.curves is None or SCORE not in job.curves.series:
+        selection = job_selection(job.config)
+        column, mode = selection.monitor, selection.mode
     if job.curves is None or column not in job.curves.series:
         return column, None, 0
     epochs, values = job.curves.series[column]
@@ -70,20 +66,17 @@ def epoch_text(cell: Cell) -> str:
     return f"{cell.mean:.1f}" + (f" ± {cell.std:.1f}" if cell.n > 1 else "")
 
 
-def convergence_rule() -> list[str]:
-    """How the convergence epoch is defined, in the report's words."""
-    tolerance = statistics.CONVERGENCE_TOLERANCE
-    return [
-        f"The first epoch (counted from 1, as in the curves; metrics.csv counts from 0) at which the "
-        f"validation score comes within {tolerance:.0%} of its best over the run (value <= best × "
-        f"{1 + tolerance:g} for a min metric), mean ± sample std over seeds. The "
-        f"score is the loss-independent `{SCORE}`, the same for every loss.",
-    ]
+CONVERGENCE_TEXT = (
+    f"The first epoch (counted from 1, as in the curves; metrics.csv counts from 0) at which the "
+    f"validation score comes within {statistics.CONVERGENCE_TOLERANCE:.0%} of its best over the run "
+    f"(value <= best × {1 + statistics.CONVERGENCE_TOLERANCE:g} for a min metric), mean ± sample std over "
+    f"seeds. The score is the loss-independent `{SCORE}`, the same for every loss."
+)
 
 
 def convergence_markdown(items: Sequence[Convergence], by_architecture: bool = False) -> str:
     """The rule, a note on curves measured on another metric, and the table."""
-    lines = convergence_rule()
+    lines = [CONVERGENCE_TEXT]
     fallback = sorted({m for c in items for m in c.metrics if m != SCORE})
     if fallback:
         lines += [

@@ -81,12 +81,11 @@ def analyse(
     items = convergence(networks)
     marked = {s for c in networks for j in c.jobs for s in j.included_results.unseen()}
     unseen = [s for s in sequences if s in marked]
-    if not varies_architecture(networks):
-        found = claims.study_claims(networks, items, sequences, margin, claimed_loss)
-        return Study(list(networks), items, found, unseen)
-    found = claims.claims_by_architecture(networks, items, sequences, margin, claimed_loss)
-    agreement = architectures.architecture_agreement(networks, sequences, evaluations)
-    return Study(list(networks), items, found, unseen, True, agreement)
+    by = varies_architecture(networks)
+    claims_of = claims.claims_by_architecture if by else claims.study_claims
+    found = claims_of(networks, items, sequences, margin, claimed_loss)
+    agreement = architectures.architecture_agreement(networks, sequences, evaluations) if by else None
+    return Study(list(networks), items, found, unseen, by, agreement)
 
 
 def build_tables(

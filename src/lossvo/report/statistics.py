@@ -200,21 +200,19 @@ class PairedTest:
     mean: float
     versus_mean: float
     p_value: float
-    median_diff: float = math.nan
     lower: int = 0
     method: str = WILCOXON
     sd_diff: float = math.nan
     ci_low: float = math.nan
     ci_high: float = math.nan
-    holm_p: float = math.nan
-    seeds_needed: float = math.nan
     rel_mean: float = math.nan
-    rel_sd: float = math.nan
     rel_low: float = math.nan
     rel_high: float = math.nan
     tost_p: float = math.nan
     margin: float = MARGIN
     seeds_equivalence: float = math.nan
+    holm_p: float = math.nan
+    seeds_needed: float = math.nan
 
     @property
     def claimed_lower(self) -> bool:
@@ -256,30 +254,13 @@ def paired_test(
     sd = float(d.std(ddof=1)) if d.size > 1 else math.nan
     rel_mean = float(r.mean()) if r.size else math.nan
     rel_sd = float(r.std(ddof=1)) if r.size > 1 else math.nan
-    low, high = t_interval(d)
-    rel_low, rel_high = t_interval(r, 1 - 2 * alpha)
     means = float(claimed.mean()), float(other.mean())
-    return PairedTest(
-        versus,
-        int(d.size),
-        *means,
-        p,
-        float(np.median(d)),
-        int((d < 0).sum()),
-        method,
-        sd,
-        low,
-        high,
-        p,
-        seeds_needed(means[0] - means[1], sd, 1, alpha),
-        rel_mean,
-        rel_sd,
-        rel_low,
-        rel_high,
-        tost_p(r, margin),
-        margin,
-        seeds_for_equivalence(rel_mean, rel_sd, margin, alpha),
+    equivalence = seeds_for_equivalence(rel_mean, rel_sd, margin, alpha)
+    relative = (rel_mean, *t_interval(r, 1 - 2 * alpha), tost_p(r, margin), margin, equivalence)
+    test = PairedTest(
+        versus, int(d.size), *means, p, int((d < 0).sum()), method, sd, *t_interval(d), *relative
     )
+    return corrected([test], alpha)[0]
 
 
 def cells_test(versus: str, claimed: np.ndarray, other: np.ndarray) -> PairedTest:
@@ -294,8 +275,7 @@ def cells_test(versus: str, claimed: np.ndarray, other: np.ndarray) -> PairedTes
             warnings.simplefilter("ignore")  # ties or zeros: scipy warns, then permutes or approximates
             p = float(wilcoxon(d).pvalue)
     means = float(claimed.mean()), float(other.mean())
-    median, lower = float(np.median(d)), int((d < 0).sum())
-    return PairedTest(versus, int(d.size), *means, p, median, lower, "Wilcoxon over cells")
+    return PairedTest(versus, int(d.size), *means, p, int((d < 0).sum()), "Wilcoxon over cells")
 
 
 def corrected(tests: Sequence[PairedTest], alpha: float = ALPHA) -> list[PairedTest]:

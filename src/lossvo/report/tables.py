@@ -39,15 +39,9 @@ class TableSpec:
 
 TABLES = (
     TableSpec(
-        "translation",
-        "Table I: translation RMSE (m)",
-        (("APE [m]", APE_TRANS), ("RPE [m]", RPE_TRANS)),
+        "translation", "Table I: translation RMSE (m)", (("APE [m]", APE_TRANS), ("RPE [m]", RPE_TRANS))
     ),
-    TableSpec(
-        "rotation",
-        "Table II: rotation RMSE (rad)",
-        (("APE [rad]", APE_ROT), ("RPE [rad]", RPE_ROT)),
-    ),
+    TableSpec("rotation", "Table II: rotation RMSE (rad)", (("APE [rad]", APE_ROT), ("RPE [rad]", RPE_ROT))),
     TableSpec(
         "kitti",
         "Table III: KITTI odometry error (mean over 100-800 m segments)",
