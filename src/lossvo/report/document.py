@@ -374,9 +374,8 @@ def write_figures(
     """Every figure, with the ground truth ``gt`` or the reason it is ``missing`` per sequence
     (:func:`lossvo.report.jobs.ground_truth`); the forest plot of the claims ``found``."""
     figures = Figures()
-    for (architecture, group), table in zip(
-        _groups(networks).items(), tables, strict=False
-    ):  # Table I's first
+    groups = _groups(networks)
+    for (architecture, group), table in zip(groups.items(), tables, strict=False):  # Table I's first
         suffix = f"_{architecture_file_name(architecture)}" if architecture else ""
         if group and plot_curves(group, folder / f"curves{suffix}.png"):
             figures.paths.append(folder / f"curves{suffix}.png")
