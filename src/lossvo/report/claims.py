@@ -134,7 +134,7 @@ def quantity_tests(
     """One quantity's tests as one Holm family, each with its decision, and their verdict."""
     family = statistics.corrected(tests)
     decisions = [statistics.decide(t) for t in family]
-    return QuantityTests(quantity, family, statistics.combine(decisions), list(secondary), decisions)
+    return QuantityTests(quantity, family, statistics.verdict(tests), list(secondary), decisions)
 
 
 def undecidable(n: int, comparisons: int) -> str | None:
@@ -188,8 +188,7 @@ def error_claim(
 def epoch_test(claimed: Convergence, other: Convergence, margin: float = statistics.MARGIN) -> PairedTest:
     """Convergence epochs against ``other``'s, paired by seed (seeds where either has none left out)."""
     pairs = [(claimed.epoch_of(r), other.epoch_of(r)) for r in claimed.replicates]
-    kept = [(x, y) for x, y in pairs if x is not None and y is not None]
-    x, y = (np.array([p[i] for p in kept], dtype=np.float64) for i in (0, 1))
+    x, y = (np.array([p[i] for p in pairs if None not in p], dtype=np.float64) for i in (0, 1))
     return statistics.paired_test(other.label, x, y, margin)
 
 

@@ -109,10 +109,6 @@ class Table:
     mean_over: list[str]
     notes: dict[str, str] = field(default_factory=dict)
 
-    def label(self, row: str) -> str:
-        """A row's name with its note: ``"11 (unseen motion)"``; the bare name without one."""
-        return f"{row} ({self.notes[row]})" if row in self.notes else row
-
 
 def build_table(
     spec: TableSpec,
@@ -166,12 +162,13 @@ def mean_std_text(cell: Cell, digits: int = 4, replicated: bool = True) -> str:
 
 
 def table_rows(table: Table, mean_name: str = "**mean**") -> Rows:
-    """The table as text cells, the mean row named ``mean_name``."""
+    """The table as text cells, a row named with its note (``11 (unseen motion)``), the mean row
+    ``mean_name``."""
     replicated = any(len(c.replicates) > 1 for c in table.columns)
     header = ["sequence"] + [f"{c.label}: {name}" for c in table.columns for name, _ in table.spec.metrics]
     rows: list[list[object]] = []
     for row, cells in zip(table.rows, table.cells, strict=True):
-        name = mean_name if row == MEAN_ROW else table.label(row)
+        name = mean_name if row == MEAN_ROW else f"{row} ({table.notes[row]})" if row in table.notes else row
         rows.append([name, *(mean_std_text(cell, replicated=replicated) for col in cells for cell in col)])
     return Rows(header, rows)
 
@@ -183,10 +180,8 @@ def table_markdown(table: Table) -> str:
 
 def table_csv(table: Table) -> str:
     """The table as CSV: per column and metric mean, std and n at full precision, then ``note``."""
-    header = ["sequence"]
-    for c in table.columns:
-        for name, _ in table.spec.metrics:
-            header += [f"{c.label} | {name}", f"{c.label} | {name} std", f"{c.label} | {name} n"]
+    metrics = [f"{c.label} | {name}" for c in table.columns for name, _ in table.spec.metrics]
+    header = ["sequence", *(f"{m}{part}" for m in metrics for part in ("", " std", " n")), "note"]
     rows: list[list[object]] = []
     for row, cells in zip(table.rows, table.cells, strict=True):
         values: list[object] = [row]
@@ -194,7 +189,7 @@ def table_csv(table: Table) -> str:
             for cell in col:
                 values += [repr(cell.mean) if cell.n else "", repr(cell.std) if cell.n > 1 else "", cell.n]
         rows.append([*values, table.notes.get(row, "")])
-    return table_render.csv_text(Rows([*header, "note"], rows))
+    return table_render.csv_text(Rows(header, rows))
 
 
 def table_latex(table: Table) -> str:
