@@ -162,30 +162,26 @@ def tost_p(relative: np.ndarray, margin: float = MARGIN) -> float:
     return max(above, below)
 
 
-def seeds_needed(
-    mean: float, sd: float, comparisons: int = 1, alpha: float = ALPHA, power: float = POWER
-) -> float:
+def seeds_needed(mean: float, sd: float, comparisons: int = 1) -> float:
     """The paired seeds that would detect a mean difference ``mean`` at the per-seed SD ``sd`` among
     ``comparisons`` tests, at least :func:`min_seeds`; inf where ``mean`` is 0, NaN where not finite."""
     m = max(1, comparisons)
-    return _normal_seeds(float(norm.ppf(1 - alpha / (2 * m))), power, sd, abs(mean), min_seeds(m, alpha))
+    return _normal_seeds(float(norm.ppf(1 - ALPHA / (2 * m))), sd, abs(mean), min_seeds(m))
 
 
-def seeds_for_equivalence(
-    mean: float, sd: float, margin: float = MARGIN, alpha: float = ALPHA, power: float = POWER
-) -> float:
+def seeds_for_equivalence(mean: float, sd: float, margin: float = MARGIN) -> float:
     """The paired seeds at which TOST would show equivalence if the relative difference were ``mean`` with
     per-seed SD ``sd``, at least 2; inf where |mean| >= margin, NaN where not finite."""
-    return _normal_seeds(float(norm.ppf(1 - alpha)), power, sd, margin - abs(mean), 2)
+    return _normal_seeds(float(norm.ppf(1 - ALPHA)), sd, margin - abs(mean), 2)
 
 
-def _normal_seeds(z_alpha: float, power: float, sd: float, room: float, fewest: int) -> float:
+def _normal_seeds(z_alpha: float, sd: float, room: float, fewest: int) -> float:
     """ceil(((z_alpha + z_power) · sd / room)²), at least ``fewest``."""
     if not (math.isfinite(room) and math.isfinite(sd)):
         return math.nan
     if room <= 0:
         return math.inf
-    z = z_alpha + float(norm.ppf(power))
+    z = z_alpha + float(norm.ppf(POWER))
     return float(max(math.ceil((z * sd / room) ** 2), fewest))
 
 
@@ -242,9 +238,7 @@ def _checked(claimed: np.ndarray, other: np.ndarray) -> tuple[np.ndarray, np.nda
     return claimed, other
 
 
-def paired_test(
-    versus: str, claimed: np.ndarray, other: np.ndarray, margin: float = MARGIN, alpha: float = ALPHA
-) -> PairedTest:
+def paired_test(versus: str, claimed: np.ndarray, other: np.ndarray, margin: float = MARGIN) -> PairedTest:
     """The report's paired test of per-seed values (n,) against ``versus``'s (n,), as a family of one."""
     claimed, other = _checked(claimed, other)
     if claimed.size == 0:
@@ -255,12 +249,12 @@ def paired_test(
     rel_mean = float(r.mean()) if r.size else math.nan
     rel_sd = float(r.std(ddof=1)) if r.size > 1 else math.nan
     means = float(claimed.mean()), float(other.mean())
-    equivalence = seeds_for_equivalence(rel_mean, rel_sd, margin, alpha)
-    relative = (rel_mean, *t_interval(r, 1 - 2 * alpha), tost_p(r, margin), margin, equivalence)
+    equivalence = seeds_for_equivalence(rel_mean, rel_sd, margin)
+    relative = (rel_mean, *t_interval(r, 1 - 2 * ALPHA), tost_p(r, margin), margin, equivalence)
     test = PairedTest(
         versus, int(d.size), *means, p, int((d < 0).sum()), method, sd, *t_interval(d), *relative
     )
-    return corrected([test], alpha)[0]
+    return corrected([test])[0]
 
 
 def cells_test(versus: str, claimed: np.ndarray, other: np.ndarray) -> PairedTest:
@@ -278,21 +272,21 @@ def cells_test(versus: str, claimed: np.ndarray, other: np.ndarray) -> PairedTes
     return PairedTest(versus, int(d.size), *means, p, int((d < 0).sum()), "Wilcoxon over cells")
 
 
-def corrected(tests: Sequence[PairedTest], alpha: float = ALPHA) -> list[PairedTest]:
+def corrected(tests: Sequence[PairedTest]) -> list[PairedTest]:
     """A family of tests with Holm's p and the seeds needed for m = ``len(tests)`` comparisons."""
     adjusted = holm([x.p_value for x in tests])
     return [
-        replace(x, holm_p=float(q), seeds_needed=seeds_needed(x.mean_diff, x.sd_diff, len(tests), alpha))
+        replace(x, holm_p=float(q), seeds_needed=seeds_needed(x.mean_diff, x.sd_diff, len(tests)))
         for x, q in zip(tests, adjusted, strict=True)
     ]
 
 
-def decide(test: PairedTest, alpha: float = ALPHA) -> str:
+def decide(test: PairedTest) -> str:
     """One comparison's verdict from a test of a :func:`corrected` family: equivalent (TOST), else
     supported or refuted (Holm p), else cannot decide."""
-    if test.n > 1 and test.tost_p < alpha:
+    if test.n > 1 and test.tost_p < ALPHA:
         return EQUIVALENT
-    if test.n > 0 and test.holm_p < alpha:
+    if test.n > 0 and test.holm_p < ALPHA:
         return SUPPORTED if test.claimed_lower else REFUTED
     return CANNOT_DECIDE
 
@@ -310,9 +304,9 @@ def combine(verdicts: Sequence[str]) -> str:
     return CANNOT_DECIDE
 
 
-def verdict(tests: Sequence[PairedTest], alpha: float = ALPHA) -> str:
+def verdict(tests: Sequence[PairedTest]) -> str:
     """The verdict of paired tests as one family: :func:`combine` of each :func:`decide`."""
-    return combine([decide(t, alpha) for t in corrected(tests, alpha)])
+    return combine([decide(t) for t in corrected(tests)])
 
 
 def verdict_text(verdict_: str, margin: float = MARGIN) -> str:
@@ -390,10 +384,8 @@ def interaction_test(differences: np.ndarray, max_enumerated: int = MAX_ENUMERAT
     return InteractionTest(losses, seeds, interaction_f(d), p, permutations, exact, smallest)
 
 
-def interaction_verdict(test: InteractionTest, alpha: float = ALPHA) -> str:
-    """:data:`INTERACTION` if p < ``alpha``; else cannot decide where no p < ``alpha`` is attainable."""
-    if test.p_value < alpha:
+def interaction_verdict(test: InteractionTest) -> str:
+    """:data:`INTERACTION` if p < :data:`ALPHA`; else cannot decide where no such p is attainable."""
+    if test.p_value < ALPHA:
         return INTERACTION
-    if test.smallest_p >= alpha:
-        return CANNOT_DECIDE
-    return NO_INTERACTION
+    return NO_INTERACTION if test.can_decide else CANNOT_DECIDE
