@@ -334,13 +334,11 @@ def seeds_needed_text(n: float, infinite: str = "no effect observed", missing: s
 
 
 def _comparisons(claim: Claim) -> Iterator[tuple[QuantityTests, PairedTest, str]]:
-    """Each quantity, test and decision of a claim."""
     for q in claim.quantities:
         yield from ((q, t, decision) for t, decision in zip(q.tests, q.decisions, strict=True))
 
 
 def _needed(t: PairedTest) -> list[str]:
-    """Seeds to detect and seeds for equivalence of a test as text."""
     return [seeds_needed_text(t.seeds_needed), seeds_needed_text(t.seeds_equivalence, "outside the margin")]
 
 
@@ -375,22 +373,17 @@ def claim_markdown(claim: Claim, level: str = "###") -> str:
     if claim.untested:
         return f"{head}\n\nCannot be tested: {claim.untested}."
     what = "each seed's mean over those sequences" if claim.letter == "a" else "epochs"
-    lines = [head, "", claim.scope, "", f"Measured ({what}; mean ± sample std over seeds):", ""]
-    lines += [
-        table_render.markdown(_measured_rows(claim)),
-        "",
-        "Paired by seed:",
-        "",
-        table_render.markdown(_tests_rows(claim)),
-    ]
+    measured = f"Measured ({what}; mean ± sample std over seeds):"
+    blocks = [head, claim.scope, measured, table_render.markdown(_measured_rows(claim))]
+    blocks += ["Paired by seed:", table_render.markdown(_tests_rows(claim))]
     secondary = _secondary_rows(claim)
     if secondary.rows:
-        lines += ["", f"{SECONDARY[0].upper()}{SECONDARY[1:]} (never decides the verdict):", ""]
-        lines += [table_render.markdown(secondary)]
-    lines += [f"\n*Note:* {n}" for n in claim.notes]
+        title = f"{SECONDARY[0].upper()}{SECONDARY[1:]} (never decides the verdict):"
+        blocks += [title, table_render.markdown(secondary)]
+    blocks += [f"*Note:* {n}" for n in claim.notes]
     verdict = statistics.verdict_text(claim.verdict, claim.margin)
-    lines += ["", " ".join([f"**Verdict: {verdict}.**", *claim.undecidable])]
-    return "\n".join(lines)
+    blocks.append(" ".join([f"**Verdict: {verdict}.**", *claim.undecidable]))
+    return "\n\n".join(blocks)
 
 
 BY_ARCHITECTURE_TEXT = (
@@ -445,7 +438,6 @@ CLAIMS_HEADER = ["claim", "configuration", "versus", "quantity", "n_seeds", "mea
 
 
 def _test_numbers(t: PairedTest, cells: PairedTest | None) -> list[object]:
-    """A paired test's cells from ``n_seeds`` to ``secondary_p``, full precision."""
     effect = (t.mean, t.versus_mean, t.mean_diff, t.relative, t.ci_low, t.ci_high, *t.relative_ci)
     p = (t.rel_mean, t.rel_low, t.rel_high, t.p_value)
     needed = [seeds_needed_text(n, "inf", "") for n in (t.seeds_needed, t.seeds_equivalence)]

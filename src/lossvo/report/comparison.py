@@ -12,7 +12,7 @@ import numpy as np
 from lossvo.report.configurations import architecture_groups
 from lossvo.report.jobs import APE_TRANS, RPE_ROT, RPE_TRANS
 from lossvo.report.statistics import ALPHA, PairedTest, can_decide, corrected, paired_test
-from lossvo.report.tables import NETWORK, Column, fmt, paired_samples, with_architecture
+from lossvo.report.tables import NETWORK, Column, evaluated_sequences, fmt, paired_samples, with_architecture
 from lossvo.table_render import Rows
 
 COMPARED = (
@@ -64,7 +64,7 @@ def compare(columns: Sequence[Column], by_architecture: bool = False) -> list[Co
     """Every pair of network columns (of one architecture with ``by_architecture``) on each metric of
     :data:`COMPARED`, Holm over the pairs of one metric."""
     networks = [c for c in columns if c.kind == NETWORK]
-    sequences = sorted({s for c in networks for r in c.results for s in r})
+    sequences = evaluated_sequences(networks)
     groups = architecture_groups(networks).values() if by_architecture else [networks]
     out = []
     for group in groups:

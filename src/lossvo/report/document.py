@@ -1,6 +1,5 @@
 """The report of a sweep: ``report.md``, ``tables/`` and ``figures/`` (:func:`make_report`), every file
-written atomically; per architecture where the sweep varies it (docs/report.md).
-"""
+written atomically; per architecture where the sweep varies it (docs/report.md)."""
 
 from __future__ import annotations
 
@@ -45,7 +44,7 @@ from lossvo.report.tables import (
     evaluated_sequences,
     table_csv,
     table_latex,
-    table_markdown,
+    table_rows,
     with_architecture,
 )
 from lossvo.table_render import Rows
@@ -103,7 +102,6 @@ def build_tables(
 
 
 def _groups(networks: Sequence[Column]) -> dict[str, list[Column]]:
-    """The networks by architecture where they span several, else all under ``""``."""
     return architecture_groups(networks) if varies_architecture(networks) else {"": list(networks)}
 
 
@@ -222,7 +220,7 @@ def tables_lines(c: Contents) -> list[str]:
         seeds_text(c.study.networks),
     ]
     for table in c.tables:
-        lines += ["", f"## {table.spec.title}", "", table_markdown(table)]
+        lines += ["", f"## {table.spec.title}", "", table_render.markdown(table_rows(table))]
         if table.mean_over != table.rows[:-1]:
             mean_over = ", ".join(table.mean_over) or "none"
             lines += ["", f"Mean over the sequences with a value in every column: {mean_over}."]

@@ -1,7 +1,6 @@
 """The statistics of the report's comparisons and claims: convergence epochs, the paired test over seeds,
 Holm's correction, the verdict rule and the architecture x loss interaction test. No I/O; the rules and
-their rationale: docs/report.md (*Seeds are the unit*, *A sweep of several architectures*).
-"""
+their rationale: docs/report.md (*Seeds are the unit*, *A sweep of several architectures*)."""
 
 from __future__ import annotations
 
@@ -176,7 +175,6 @@ def seeds_for_equivalence(mean: float, sd: float, margin: float = MARGIN) -> flo
 
 
 def _normal_seeds(z_alpha: float, sd: float, room: float, fewest: int) -> float:
-    """ceil(((z_alpha + z_power) · sd / room)²), at least ``fewest``."""
     if not (math.isfinite(room) and math.isfinite(sd)):
         return math.nan
     if room <= 0:

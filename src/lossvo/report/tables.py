@@ -1,6 +1,5 @@
 """The per-sequence metric tables of a sweep report (:data:`TABLES`: mean ± sample std over seeds, a mean
-row, the row's minimum bold) and their markdown, CSV and LaTeX (:mod:`lossvo.table_render`).
-"""
+row, the row's minimum bold) and their markdown, CSV and LaTeX (:mod:`lossvo.table_render`)."""
 
 from __future__ import annotations
 
@@ -125,12 +124,8 @@ def build_table(
     data = [metric_matrix(frame, c, path, sequences) for c in columns for _, path in spec.metrics]
     common = [j for j in range(len(sequences)) if all(np.isfinite(d[:, j]).any() for d in data)]
     means = [d[:, common].mean(axis=1) if common else np.full(len(d), np.nan) for d in data]
-
-    def by_column(cells: list[Cell]) -> list[list[Cell]]:
-        return [cells[c * k : (c + 1) * k] for c in range(len(columns))]
-
-    cells = [by_column([Cell.of(d[:, s]) for d in data]) for s in range(len(sequences))]
-    cells.append(by_column([Cell.of(m) for m in means]))
+    by_row = [[d[:, s] for d in data] for s in range(len(sequences))] + [means]  # [row][column * k + metric]
+    cells = [[[Cell.of(v) for v in row[c * k : (c + 1) * k]] for c in range(len(columns))] for row in by_row]
     for row in cells:  # bold: the minimum mean of each row and metric, over all columns
         for m in range(k):
             row_means = np.array([column[m].mean for column in row])
@@ -171,11 +166,6 @@ def table_rows(table: Table, mean_name: str = "**mean**") -> Rows:
         name = mean_name if row == MEAN_ROW else f"{row} ({table.notes[row]})" if row in table.notes else row
         rows.append([name, *(mean_std_text(cell, replicated=replicated) for col in cells for cell in col)])
     return Rows(header, rows)
-
-
-def table_markdown(table: Table) -> str:
-    """The table as GitHub markdown, best cells in ``**bold**``."""
-    return table_render.markdown(table_rows(table))
 
 
 def table_csv(table: Table) -> str:
