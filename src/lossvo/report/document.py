@@ -327,25 +327,27 @@ def across_lines(table: Rows | None, notes: Sequence[str]) -> list[str]:
     return ["", f"## {title}", "", across_datasets.ACROSS_TEXT, "", table_render.markdown(table), *unused]
 
 
-def write_tables(
-    tables: Sequence[Table], comparisons: Sequence[Comparison], study: Study, folder: Path
-) -> None:
-    """Tables I-III as CSV and LaTeX, :data:`TABLE_FILES` and :data:`ARCHITECTURE_FILES` into ``folder``."""
-    for table in tables:
+def write_tables(c: Contents, folder: Path) -> None:
+    """Tables I-III as CSV and LaTeX, :data:`TABLE_FILES`, :data:`ARCHITECTURE_FILES`, speed and across
+    datasets (where measured) into ``folder``."""
+    for table in c.tables:
         write_text_atomic(folder / f"{table.spec.key}.csv", table_csv(table))
         write_text_atomic(folder / f"{table.spec.key}.tex", table_latex(table))
-    by = study.by_architecture
+    study, by = c.study, c.study.by_architecture
     files = {
-        "pairwise.csv": comparison.comparison_csv_rows(comparisons, by),
+        "pairwise.csv": comparison.comparison_csv_rows(c.comparisons, by),
         "configurations.csv": configuration_rows(study.networks, by, csv=True),
         "convergence.csv": convergence_csv_rows(study.convergence, by),
         "claims.csv": claims.claims_csv_rows(study.claims, by),
+        "speed.csv": c.speed,
+        "across_datasets.csv": c.across,
     }
     if study.agreement is not None:
         files["rankings.csv"] = architectures.rankings_csv_rows(study.agreement)
         files["interaction.csv"] = architectures.interaction_csv_rows(study.agreement)
     for name, content in files.items():
-        write_text_atomic(folder / name, table_render.csv_text(content))
+        if content is not None:
+            write_text_atomic(folder / name, table_render.csv_text(content))
 
 
 def ground_truth_note(missing: dict[str, str]) -> list[str]:
@@ -420,22 +422,19 @@ def make_report(
     study = analyse(networks, sequences, margin, evaluations, claimed_loss)
     tables = build_tables(networks, base.columns, sequences, dict.fromkeys(study.unseen, UNSEEN_NOTE))
     comparisons = comparison.compare(networks, study.by_architecture)
-    write_tables(tables, comparisons, study, out / "tables")
     gt, missing = ground_truth(included, sequences)
     figures = None
     if with_figures:
         figures = write_figures(networks, tables, base, sequences, out / "figures", gt, missing, study.claims)
     speed = speed_rows(networks, gt, sequences) if included else None
-    if speed is not None:
-        write_text_atomic(out / "tables" / "speed.csv", table_render.csv_text(speed))
     across_notes = [f"evaluation not used: {note}" for note in unused]
     across_base: dict[tuple[str, str], dict[str, across_datasets.Rmses]] = {}
     if with_baselines and evaluations:
         across_base, base_notes = across_datasets.across_baselines(evaluations, out / "cache", cores)
         across_notes += base_notes
     across = across_datasets.across_rows(included, evaluations, across_base) if evaluations else None
-    if across is not None:
-        write_text_atomic(out / "tables" / "across_datasets.csv", table_render.csv_text(across))
     found = (tables, comparisons, base, with_baselines, figures, study, speed, across, across_notes)
-    write_text_atomic(out / "report.md", render_report(sweep, out, Contents(jobs, sequences, *found)))
+    contents = Contents(jobs, sequences, *found)
+    write_tables(contents, out / "tables")
+    write_text_atomic(out / "report.md", render_report(sweep, out, contents))
     return out / "report.md"
