@@ -45,8 +45,7 @@ SECONDARY = "secondary: (seed, sequence) cells share a network; indicative only"
 
 @dataclass
 class QuantityTests:
-    """The claimed configuration against each other on one quantity: the paired tests over seeds (one
-    Holm family) with their decisions and verdict, and the :data:`SECONDARY` tests over cells."""
+    """One quantity's Holm family of paired tests over seeds, and the :data:`SECONDARY` tests over cells."""
 
     quantity: str
     tests: list[PairedTest]
@@ -57,9 +56,7 @@ class QuantityTests:
 
 @dataclass
 class Claim:
-    """One claim about one claimed configuration: ``measured`` ``{label: {quantity: Cell over seeds}}``,
-    the tests per quantity and the verdict; ``untested``: why there are no tests; ``undecidable``: why
-    its n cannot decide."""
+    """One claim about one configuration; ``measured``: ``{label: {quantity: Cell over seeds}}``."""
 
     statement: str
     configuration: str
@@ -113,8 +110,7 @@ def seed_test(
     sequences: Sequence[str],
     margin: float = statistics.MARGIN,
 ) -> PairedTest:
-    """The claimed configuration against ``other`` on one metric, each seed's mean over ``sequences``,
-    paired by seed."""
+    """The paired test against ``other`` of each seed's mean over ``sequences`` of one metric."""
     a, b = seed_scores(claimed, path, sequences), seed_scores(other, path, sequences)
     seeds = [r for r in claimed.replicates if r in a and r in b]
     x, y = (np.array([v[r] for r in seeds], dtype=np.float64) for v in (a, b))
@@ -447,8 +443,7 @@ def _test_numbers(t: PairedTest, cells: PairedTest | None) -> list[object]:
 
 
 def claims_csv_rows(items: Sequence[Claim], by_architecture: bool = False) -> Rows:
-    """``tables/claims.csv``: a row per paired test, then an ``all`` row per claim (an untested claim's
-    says why in ``note``)."""
+    """``tables/claims.csv``: a row per paired test, then an ``all`` row per claim."""
     rows: list[list[object]] = []
     architectures: list[str | None] = []
     blank = [""] * (len(CLAIMS_HEADER) - 4)

@@ -185,9 +185,8 @@ def _normal_seeds(z_alpha: float, sd: float, room: float, fewest: int) -> float:
 
 @dataclass(frozen=True)
 class PairedTest:
-    """One configuration against ``versus`` on n paired values, in the quantity's unit (differences: this -
-    versus; ``lower``: pairs where this is lower; ``ci_*``: 95 % t-interval); ``rel_*``: on the relative
-    differences (90 % t-interval); ``holm_p`` and ``seeds_needed`` of its family (:func:`corrected`)."""
+    """One configuration against ``versus`` on n paired values, in the quantity's unit (``ci_*``: 95 %
+    t-interval of this - versus); ``rel_*`` on the relative differences (90 % t-interval)."""
 
     versus: str
     n: int
