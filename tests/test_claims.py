@@ -32,7 +32,7 @@ from lossvo.evaluation.job_folder import (
 from lossvo.report import statistics
 from lossvo.report.claims import (
     answer_rows,
-    claims_csv,
+    claims_csv_rows,
     claims_markdown,
     relative_interval_text,
     study_claims,
@@ -41,6 +41,7 @@ from lossvo.report.configurations import job_selection, job_weighting, selection
 from lossvo.report.convergence import convergence
 from lossvo.report.jobs import Curves, Job, trained_sequences
 from lossvo.report.tables import NETWORK, Column, mean_std_text
+from lossvo.table_render import csv_text
 
 LOSSES = "lossvo.losses"
 
@@ -444,7 +445,7 @@ def test_claims_cannot_be_tested_without_a_chordal_configuration() -> None:
     found = study_claims(columns, convergence(columns), ["00", "02"])
     assert all(c.untested and "no chordal configuration" in c.untested for c in found)
     assert claims_markdown(found).count("Cannot be tested: the sweep has no chordal configuration") == 2
-    rows = list(csv.DictReader(io.StringIO(claims_csv(found))))
+    rows = list(csv.DictReader(io.StringIO(csv_text(claims_csv_rows(found)))))
     assert [r["verdict"] for r in rows] == ["cannot be tested"] * 2
 
 
@@ -469,7 +470,7 @@ def test_the_claimed_loss_is_a_setting_named_in_the_rule() -> None:
 def test_claims_csv_has_a_row_per_test_and_one_per_claim() -> None:
     columns = sweep_columns(-0.5)
     found = study_claims(columns, convergence(columns), SEQUENCES)
-    rows = list(csv.DictReader(io.StringIO(claims_csv(found))))
+    rows = list(csv.DictReader(io.StringIO(csv_text(claims_csv_rows(found)))))
     assert len(rows) == 3 + 1 + 1 + 1  # three error metrics + overall, the epochs + overall
     overall = {r["claim"]: r for r in rows if r["versus"] == "all"}
     assert {c: r["verdict"] for c, r in overall.items()} == {

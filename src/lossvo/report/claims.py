@@ -1,10 +1,6 @@
-"""The study's claims about a loss class (``--claimed-loss``, default :data:`CLAIMED_LOSS`), tested on
-the numbers: (a) "the chordal loss gives the lowest errors" (on the sequences outside the training split)
-and (b) "it converges fastest", each for every configuration of that loss against every other, seeds as
-the unit (a seed's mean error over those sequences, a seed's convergence epoch; paired by seed), with the
-paired test, Holm's correction, the effect with its interval, the seeds needed and the verdict of
-:mod:`lossvo.report.statistics` (the last section of report.md and the rows of ``tables/claims.csv``);
-where a sweep varies the architecture, within each architecture (:func:`claims_by_architecture`)."""
+"""The study's claims about a loss class, tested on the numbers with seeds as the unit: (a) "it gives the
+lowest errors" on the held-out sequences and (b) "it converges fastest" (the last section of report.md and
+``tables/claims.csv``). The rule: docs/report.md (*Seeds are the unit*)."""
 
 from __future__ import annotations
 
@@ -35,15 +31,13 @@ from lossvo.report.tables import (
 from lossvo.table_render import Rows
 
 CLAIMED_LOSS = "ChordalLoss"
-"""The default claimed loss: the class name of ``loss._target_`` whose configurations the claims are
-about (``python -m lossvo.report --claimed-loss``)."""
+"""The default ``loss._target_`` class the claims are about (``--claimed-loss``)."""
 CLAIM_ERRORS = (
     ("RPE trans RMSE [m]", RPE_TRANS),
     ("RPE rot RMSE [rad]", RPE_ROT),
     ("APE trans RMSE [m]", APE_TRANS),
 )
 CLAIM_A = "the {loss} loss gives the lowest errors"
-"""Claim (a)'s statement, ``{loss}`` the claimed loss's :func:`loss_word`."""
 CLAIM_B = "it converges fastest"
 EPOCHS = "convergence epoch"
 SECONDARY = "secondary: (seed, sequence) cells share a network; indicative only"
@@ -51,10 +45,7 @@ SECONDARY = "secondary: (seed, sequence) cells share a network; indicative only"
 
 @dataclass
 class QuantityTests:
-    """The claimed configuration against each other on one quantity (an error metric or the
-    convergence epoch): the paired tests over seeds (Holm-corrected as one family,
-    :func:`lossvo.report.statistics.corrected`), their verdict, and the :data:`SECONDARY` tests over
-    (seed, sequence) cells (none for the epochs), which never decide."""
+    """One quantity's Holm family of paired tests over seeds, and the :data:`SECONDARY` tests over cells."""
 
     quantity: str
     tests: list[PairedTest]
@@ -65,10 +56,7 @@ class QuantityTests:
 
 @dataclass
 class Claim:
-    """One claim about one claimed configuration: what was paired (``scope``), the measured numbers
-    ``{label: {quantity: Cell over seeds}}``, the tests per quantity, the verdict, why its n cannot decide
-    (``undecidable``), notes; ``untested``: why there are no tests; ``sequences``: claim (a)'s held-out
-    sequences; ``architecture``: the one it was tested within (:func:`claims_by_architecture`)."""
+    """One claim about one configuration; ``measured``: ``{label: {quantity: Cell over seeds}}``."""
 
     statement: str
     configuration: str
@@ -96,8 +84,7 @@ def loss_word(claimed_loss: str) -> str:
 
 
 def is_claimed(column: Column, claimed_loss: str = CLAIMED_LOSS) -> bool:
-    """Whether a network column is a claimed configuration: every job's ``loss._target_`` class is
-    ``claimed_loss``."""
+    """Whether every job of a network column has the ``loss._target_`` class ``claimed_loss``."""
     return (
         column.kind == NETWORK
         and bool(column.jobs)
@@ -106,8 +93,7 @@ def is_claimed(column: Column, claimed_loss: str = CLAIMED_LOSS) -> bool:
 
 
 def training_sequences(columns: Sequence[Column]) -> set[str]:
-    """The union of the evaluated sequences the jobs' networks were trained on
-    (:func:`lossvo.report.jobs.trained_sequences`)."""
+    """The evaluated sequences some job of ``columns`` was trained on."""
     return {s for c in columns for j in c.jobs for s in trained_sequences(j)}
 
 
@@ -124,8 +110,7 @@ def seed_test(
     sequences: Sequence[str],
     margin: float = statistics.MARGIN,
 ) -> PairedTest:
-    """The claimed configuration against ``other`` on one metric, paired by seed: each seed's mean over
-    ``sequences`` (:func:`lossvo.report.tables.seed_scores`), on the seeds both have."""
+    """The paired test against ``other`` of each seed's mean over ``sequences`` of one metric."""
     a, b = seed_scores(claimed, path, sequences), seed_scores(other, path, sequences)
     seeds = [r for r in claimed.replicates if r in a and r in b]
     x, y = (np.array([v[r] for r in seeds], dtype=np.float64) for v in (a, b))
@@ -142,15 +127,14 @@ def cells_test(claimed: Column, other: Column, path: Sequence[str], sequences: S
 def quantity_tests(
     quantity: str, tests: Sequence[PairedTest], secondary: Sequence[PairedTest] = ()
 ) -> QuantityTests:
-    """One quantity's tests as one family: Holm-corrected, each with its verdict, and theirs combined."""
+    """One quantity's tests as one Holm family, each with its decision, and their verdict."""
     family = statistics.corrected(tests)
     decisions = [statistics.decide(t) for t in family]
     return QuantityTests(quantity, family, statistics.verdict(tests), list(secondary), decisions)
 
 
 def undecidable(n: int, comparisons: int) -> str | None:
-    """Why n paired seeds cannot decide a family of ``comparisons`` tests (None where they can, or
-    without seeds)."""
+    """Why n paired seeds cannot decide a family of ``comparisons`` tests (None where they can or n = 0)."""
     if n == 0 or statistics.can_decide(n, comparisons):
         return None
     alpha, needed = statistics.ALPHA, statistics.min_seeds(comparisons)
@@ -181,9 +165,7 @@ def error_claim(
     margin: float = statistics.MARGIN,
     claimed_loss: str = CLAIMED_LOSS,
 ) -> Claim:
-    """Claim (a): the claimed configuration's errors against every other's, paired by seed (each seed's
-    mean over the held-out sequences), one verdict per metric of :data:`CLAIM_ERRORS` (Holm over the
-    other configurations), combined by :func:`lossvo.report.statistics.combine`."""
+    """Claim (a) on each metric of :data:`CLAIM_ERRORS`, each seed's mean over the ``heldout`` sequences."""
     scope = f"On the sequences outside the training split: {', '.join(heldout)}."
     claim = Claim(CLAIM_A.format(loss=loss_word(claimed_loss)), claimed.label, scope, margin, list(heldout))
     for column in (claimed, *others):
@@ -200,11 +182,9 @@ def error_claim(
 
 
 def epoch_test(claimed: Convergence, other: Convergence, margin: float = statistics.MARGIN) -> PairedTest:
-    """The claimed configuration's convergence epochs against ``other``'s, paired by seed (seeds where
-    either has no epoch are left out)."""
+    """Convergence epochs against ``other``'s, paired by seed (seeds where either has none left out)."""
     pairs = [(claimed.epoch_of(r), other.epoch_of(r)) for r in claimed.replicates]
-    kept = [(x, y) for x, y in pairs if x is not None and y is not None]
-    x, y = (np.array([p[i] for p in kept], dtype=np.float64) for i in (0, 1))
+    x, y = (np.array([p[i] for p in pairs if None not in p], dtype=np.float64) for i in (0, 1))
     return statistics.paired_test(other.label, x, y, margin)
 
 
@@ -235,9 +215,8 @@ def study_claims(
     margin: float = statistics.MARGIN,
     claimed_loss: str = CLAIMED_LOSS,
 ) -> list[Claim]:
-    """Claims (a) and (b) for every configuration of ``claimed_loss`` (a ``loss._target_`` class name)
-    against all others (an untested claim says why: no claimed configuration, nothing to compare with,
-    no held-out sequence)."""
+    """Claims (a) and (b) for every configuration of ``claimed_loss`` against all others; an untested
+    claim says why."""
     networks = [c for c in columns if c.kind == NETWORK]
     claimed = [c for c in networks if is_claimed(c, claimed_loss)]
     others = [c for c in networks if not is_claimed(c, claimed_loss)]
@@ -273,9 +252,7 @@ def claims_by_architecture(
     margin: float = statistics.MARGIN,
     claimed_loss: str = CLAIMED_LOSS,
 ) -> list[Claim]:
-    """:func:`study_claims` within each architecture (its claimed configurations against its other
-    configurations, on the sequences they evaluated), architecture by architecture, each claim naming its
-    architecture."""
+    """:func:`study_claims` within each architecture, on the sequences it evaluated."""
     out = []
     for architecture, group in architecture_groups(columns).items():
         labels = {c.label for c in group}
@@ -287,14 +264,8 @@ def claims_by_architecture(
     return out
 
 
-# --------------------------------------------------------------------------------------------------
-# Text and rows
-# --------------------------------------------------------------------------------------------------
-
-
 def claims_rule(margin: float = statistics.MARGIN, claimed_loss: str = CLAIMED_LOSS) -> str:
-    """How a claim is decided, in the report's words, with the equivalence margin ``margin`` and the
-    claimed loss class ``claimed_loss``."""
+    """How a claim is decided, in the report's words."""
     alpha, delta, level = statistics.ALPHA, f"{100 * margin:g} %", 1 - 2 * statistics.ALPHA
     word = loss_word(claimed_loss)
     parts = [
@@ -352,21 +323,18 @@ def relative_interval_text(t: PairedTest) -> str:
 
 
 def seeds_needed_text(n: float, infinite: str = "no effect observed", missing: str = "n/a") -> str:
-    """:func:`lossvo.report.statistics.seeds_needed` as text: the count, ``infinite`` (inf) or
-    ``missing`` (NaN: fewer than two seeds)."""
+    """A seeds-needed count as text: ``infinite`` for inf, ``missing`` for NaN."""
     if math.isinf(n):
         return infinite
     return str(int(n)) if math.isfinite(n) else missing
 
 
 def _comparisons(claim: Claim) -> Iterator[tuple[QuantityTests, PairedTest, str]]:
-    """Each quantity, test and decision of a claim (none where untested)."""
     for q in claim.quantities:
         yield from ((q, t, decision) for t, decision in zip(q.tests, q.decisions, strict=True))
 
 
 def _needed(t: PairedTest) -> list[str]:
-    """Seeds to detect and seeds for equivalence of a test as text."""
     return [seeds_needed_text(t.seeds_needed), seeds_needed_text(t.seeds_equivalence, "outside the margin")]
 
 
@@ -394,31 +362,24 @@ def _secondary_rows(claim: Claim) -> Rows:
     return Rows(header, rows)
 
 
-def claim_markdown(claim: Claim, letter: str, level: str = "###") -> str:
-    """One claim under a heading of ``level``: measured numbers (mean ± std over seeds), the paired tests
-    over seeds, the secondary tests over cells, the verdict and why its n cannot decide where it
-    cannot."""
-    head = f'{level} ({letter}) "{claim.statement}"'
+def claim_markdown(claim: Claim, level: str = "###") -> str:
+    """One claim under a heading of ``level``: measured numbers, tests, verdict."""
+    head = f'{level} ({claim.letter}) "{claim.statement}"'
     head += f" ({claim.configuration})" if claim.configuration else ""
     if claim.untested:
         return f"{head}\n\nCannot be tested: {claim.untested}."
     what = "each seed's mean over those sequences" if claim.letter == "a" else "epochs"
-    lines = [head, "", claim.scope, "", f"Measured ({what}; mean ± sample std over seeds):", ""]
-    lines += [
-        table_render.markdown(_measured_rows(claim)),
-        "",
-        "Paired by seed:",
-        "",
-        table_render.markdown(_tests_rows(claim)),
-    ]
+    measured = f"Measured ({what}; mean ± sample std over seeds):"
+    blocks = [head, claim.scope, measured, table_render.markdown(_measured_rows(claim))]
+    blocks += ["Paired by seed:", table_render.markdown(_tests_rows(claim))]
     secondary = _secondary_rows(claim)
     if secondary.rows:
-        lines += ["", f"{SECONDARY[0].upper()}{SECONDARY[1:]} (never decides the verdict):", ""]
-        lines += [table_render.markdown(secondary)]
-    lines += [f"\n*Note:* {n}" for n in claim.notes]
+        title = f"{SECONDARY[0].upper()}{SECONDARY[1:]} (never decides the verdict):"
+        blocks += [title, table_render.markdown(secondary)]
+    blocks += [f"*Note:* {n}" for n in claim.notes]
     verdict = statistics.verdict_text(claim.verdict, claim.margin)
-    lines += ["", " ".join([f"**Verdict: {verdict}.**", *claim.undecidable])]
-    return "\n".join(lines)
+    blocks.append(" ".join([f"**Verdict: {verdict}.**", *claim.undecidable]))
+    return "\n\n".join(blocks)
 
 
 BY_ARCHITECTURE_TEXT = (
@@ -429,9 +390,7 @@ BY_ARCHITECTURE_TEXT = (
 
 
 def answer_rows(items: Sequence[Claim], claimed_loss: str = CLAIMED_LOSS) -> Rows:
-    """The study's answer in one table: per architecture, claim, quantity and comparison the claimed
-    configuration's and the other's mean ± std over seeds, the relative difference with its 90 % interval,
-    the comparison's verdict and, where it cannot decide, the seeds that would decide either way."""
+    """The study's answer in one table, a row per comparison of every claim."""
     rows: list[list[object]] = []
     for c in items:
         for q, t, decision in _comparisons(c):
@@ -454,12 +413,12 @@ def claims_markdown(items: Sequence[Claim], by_architecture: bool = False) -> st
     if answer.rows:
         head.append(f"The answer, comparison by comparison:\n\n{table_render.markdown(answer)}")
     if not by_architecture:
-        return "\n\n".join([*head, *(claim_markdown(c, c.letter) for c in items)])
+        return "\n\n".join([*head, *(claim_markdown(c) for c in items)])
     parts = [*head, BY_ARCHITECTURE_TEXT.format(loss=loss_word(first.claimed_loss))]
     for architecture in dict.fromkeys(c.architecture or UNKNOWN_ARCHITECTURE for c in items):
         parts.append(f"### Architecture `{architecture}`")
         parts += [
-            claim_markdown(c, c.letter, "####")
+            claim_markdown(c, "####")
             for c in items
             if (c.architecture or UNKNOWN_ARCHITECTURE) == architecture
         ]
@@ -471,16 +430,10 @@ CLAIMS_HEADER = ["claim", "configuration", "versus", "quantity", "n_seeds", "mea
                  "relative_ci_high", "relative_mean", "relative_low_90", "relative_high_90", "p_value",
                  "p_method", "holm_p", "smallest_p", "seeds_needed", "tost_p", "margin",
                  "seeds_for_equivalence", "secondary_cells", "secondary_p", "verdict", "note"]  # fmt: skip
-"""``tables/claims.csv``: a test's numbers over seeds in the claim's unit (``relative``: over |versus_mean|;
-``ci_*``: the 95 % t-interval of the mean difference), the mean of the per-seed relative differences and
-their 90 % t-interval, p (on those), its method and Holm's, ``smallest_p`` at n, ``seeds_needed`` to detect
-the difference (``inf``: no effect observed), TOST's p at ``margin`` and the seeds for equivalence
-(``inf``: the difference is outside the margin), the :data:`SECONDARY` test over cells, and the verdict
-(a test row's: that comparison's; an ``all`` row's: the claim's)."""
+"""``tables/claims.csv``'s columns (docs/report.md)."""
 
 
 def _test_numbers(t: PairedTest, cells: PairedTest | None) -> list[object]:
-    """A paired test's cells from ``n_seeds`` to ``secondary_p``, full precision."""
     effect = (t.mean, t.versus_mean, t.mean_diff, t.relative, t.ci_low, t.ci_high, *t.relative_ci)
     p = (t.rel_mean, t.rel_low, t.rel_high, t.p_value)
     needed = [seeds_needed_text(n, "inf", "") for n in (t.seeds_needed, t.seeds_equivalence)]
@@ -490,10 +443,7 @@ def _test_numbers(t: PairedTest, cells: PairedTest | None) -> list[object]:
 
 
 def claims_csv_rows(items: Sequence[Claim], by_architecture: bool = False) -> Rows:
-    """``tables/claims.csv`` (:data:`CLAIMS_HEADER`): one row per paired test (``verdict``: that
-    quantity's), then one ``all`` row per claim with its verdict and, in ``note``, why its n cannot decide
-    and its notes; an untested claim is one row with verdict ``cannot be tested`` and the reason in
-    ``note``; with ``by_architecture`` the claim's architecture first."""
+    """``tables/claims.csv``: a row per paired test, then an ``all`` row per claim."""
     rows: list[list[object]] = []
     architectures: list[str | None] = []
     blank = [""] * (len(CLAIMS_HEADER) - 4)
@@ -509,8 +459,3 @@ def claims_csv_rows(items: Sequence[Claim], by_architecture: bool = False) -> Ro
             rows.append([c.statement, c.configuration, "all", "all", *blank[2:], c.verdict, note])
         architectures += [c.architecture] * (len(rows) - start)
     return with_architecture(Rows(CLAIMS_HEADER, rows), architectures, by_architecture)
-
-
-def claims_csv(items: Sequence[Claim], by_architecture: bool = False) -> str:
-    """:func:`claims_csv_rows` as CSV text."""
-    return table_render.csv_text(claims_csv_rows(items, by_architecture))

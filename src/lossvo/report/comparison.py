@@ -1,8 +1,5 @@
-"""The pairwise comparison of configurations: every pair (of one architecture, where the sweep varies it)
-on the APE / RPE RMSEs, seeds as the unit (each seed's mean over the evaluated sequences both have on every
-paired seed, paired by seed), with the report's paired test (:func:`lossvo.report.statistics.paired_test`)
-and Holm's correction over the pairs of one metric (rows of ``tables/pairwise.csv`` and of its section of
-report.md)."""
+"""The pairwise comparison of configurations on the APE / RPE RMSEs, paired by seed, Holm-corrected over
+the pairs of one metric (``tables/pairwise.csv`` and its section of report.md)."""
 
 from __future__ import annotations
 
@@ -15,7 +12,7 @@ import numpy as np
 from lossvo.report.configurations import architecture_groups
 from lossvo.report.jobs import APE_TRANS, RPE_ROT, RPE_TRANS
 from lossvo.report.statistics import ALPHA, PairedTest, can_decide, corrected, paired_test
-from lossvo.report.tables import NETWORK, Column, fmt, paired_samples, with_architecture
+from lossvo.report.tables import NETWORK, Column, evaluated_sequences, fmt, paired_samples, with_architecture
 from lossvo.table_render import Rows
 
 COMPARED = (
@@ -27,10 +24,8 @@ COMPARED = (
 
 @dataclass
 class Comparison:
-    """A vs B on one metric, paired by seed (``test.n`` seeds; ``test.mean_diff``: A - B in the metric's
-    unit; ``test.lower``: seeds where A is lower; ``test.holm_p``: corrected over the pairs of this
-    metric, ``comparisons`` of them), each seed's value its mean over the same ``sequences``;
-    ``architecture``: A's (and B's)."""
+    """A vs B on one metric, paired by seed (``test.holm_p`` over ``comparisons`` pairs), each seed's value
+    its mean over ``sequences``."""
 
     a: str
     b: str
@@ -55,9 +50,8 @@ class Comparison:
 def seed_pairs(
     a: Column, b: Column, path: Sequence[str], sequences: Sequence[str]
 ) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """Per-seed values of A and B on the S seeds both have, paired by seed: (S,), (S,), each seed's mean
-    over those of ``sequences`` that both configurations have on every one of the S seeds (so every seed
-    averages the same sequences), and those sequences."""
+    """Per-seed values (S,) of A and B on their common seeds, each the mean over the ``sequences`` both
+    have on every one of them, and those sequences."""
     x, y = paired_samples(a, b, path, sequences)  # (S, sequences)
     common = np.isfinite(x).all(axis=0) & np.isfinite(y).all(axis=0)
     if not len(x) or not common.any():
@@ -67,11 +61,10 @@ def seed_pairs(
 
 
 def compare(columns: Sequence[Column], by_architecture: bool = False) -> list[Comparison]:
-    """Every pair of network columns on each metric of :data:`COMPARED`, over every sequence some job
-    evaluated; Holm's correction over the pairs of one metric (of one architecture with
-    ``by_architecture``, architecture by architecture)."""
+    """Every pair of network columns (of one architecture with ``by_architecture``) on each metric of
+    :data:`COMPARED`, Holm over the pairs of one metric."""
     networks = [c for c in columns if c.kind == NETWORK]
-    sequences = sorted({s for c in networks for r in c.results for s in r})
+    sequences = evaluated_sequences(networks)
     groups = architecture_groups(networks).values() if by_architecture else [networks]
     out = []
     for group in groups:
@@ -91,7 +84,7 @@ def compare(columns: Sequence[Column], by_architecture: bool = False) -> list[Co
 
 
 def comparison_rows(comparisons: Sequence[Comparison], by_architecture: bool = False) -> Rows:
-    """The section's table (with ``by_architecture`` an ``architecture`` column first)."""
+    """The section's table."""
     header = ["A", "B", "metric", "seeds", "mean A − B", "A lower", "p", "Holm p",
               f"distinguishable at {ALPHA}"]  # fmt: skip
     rows: list[list[object]] = []
@@ -103,8 +96,7 @@ def comparison_rows(comparisons: Sequence[Comparison], by_architecture: bool = F
 
 
 def comparison_csv_rows(comparisons: Sequence[Comparison], by_architecture: bool = False) -> Rows:
-    """``tables/pairwise.csv``: full precision (with ``by_architecture`` an ``architecture`` column first);
-    ``sequences``: those each seed's value averages, ``;``-separated."""
+    """``tables/pairwise.csv`` at full precision."""
     header = ["a", "b", "metric", "seeds", "sequences", "mean_diff", "ci_low", "ci_high", "a_lower",
               "p_value", "method", "holm_p", "verdict"]  # fmt: skip
     rows: list[list[object]] = []

@@ -1,5 +1,5 @@
 """Convergence of each configuration: per seed, the first epoch within 10 % of the best validation score
-(rows of ``tables/convergence.csv`` and of the *Convergence* section of report.md)."""
+(``tables/convergence.csv`` and the *Convergence* section of report.md)."""
 
 from __future__ import annotations
 
@@ -14,20 +14,10 @@ from lossvo.report.tables import NETWORK, Cell, Column, with_architecture
 from lossvo.table_render import Rows
 
 
-def convergence_metric(job: Job) -> tuple[str, str]:
-    """(metrics.csv column, mode) a job's convergence is measured on: ``val/score`` (min) if logged,
-    else its selection monitor."""
-    if job.curves is not None and SCORE in job.curves.series:
-        return SCORE, "min"
-    selection = job_selection(job.config)
-    return selection.monitor, selection.mode
-
-
 @dataclass
 class Convergence:
-    """A configuration's convergence: per replicate (seed) the column used, the first epoch (1-based,
-    = metrics.csv epoch + 1) within :data:`lossvo.report.statistics.CONVERGENCE_TOLERANCE` of its best
-    value (None without that column) and the number of epochs logged; the configuration's architecture."""
+    """A configuration's convergence, per seed: the column used, the first epoch (1-based) within
+    :data:`~lossvo.report.statistics.CONVERGENCE_TOLERANCE` of the best (None without), epochs logged."""
 
     label: str
     replicates: list[str]
@@ -44,8 +34,12 @@ class Convergence:
 
 
 def job_convergence(job: Job) -> tuple[str, int | None, int]:
-    """(column, first epoch within 10 % of the best (1-based) or None, epochs logged) of one job."""
-    column, mode = convergence_metric(job)
+    """(column, convergence epoch (1-based) or None, epochs logged) of one job, on ``val/score`` where
+    logged, else on its selection monitor."""
+    column, mode = SCORE, "min"
+    if job.curves is None or SCORE not in job.curves.series:
+        selection = job_selection(job.config)
+        column, mode = selection.monitor, selection.mode
     if job.curves is None or column not in job.curves.series:
         return column, None, 0
     epochs, values = job.curves.series[column]
@@ -72,21 +66,17 @@ def epoch_text(cell: Cell) -> str:
     return f"{cell.mean:.1f}" + (f" ± {cell.std:.1f}" if cell.n > 1 else "")
 
 
-def convergence_rule() -> list[str]:
-    """The paragraph (lines) that says how the convergence epoch is defined."""
-    tolerance = statistics.CONVERGENCE_TOLERANCE
-    return [
-        f"The first epoch (counted from 1, as in the curves; metrics.csv counts from 0) at which the "
-        f"validation score comes within {tolerance:.0%} of its best over the run (value <= best × "
-        f"{1 + tolerance:g} for a min metric), mean ± sample std over seeds. The "
-        f"score is the loss-independent `{SCORE}`, the same for every loss.",
-    ]
+CONVERGENCE_TEXT = (
+    f"The first epoch (counted from 1, as in the curves; metrics.csv counts from 0) at which the "
+    f"validation score comes within {statistics.CONVERGENCE_TOLERANCE:.0%} of its best over the run "
+    f"(value <= best × {1 + statistics.CONVERGENCE_TOLERANCE:g} for a min metric), mean ± sample std over "
+    f"seeds. The score is the loss-independent `{SCORE}`, the same for every loss."
+)
 
 
 def convergence_markdown(items: Sequence[Convergence], by_architecture: bool = False) -> str:
-    """The rule, a note on curves measured on another metric, the table (with ``by_architecture`` an
-    ``architecture`` column first)."""
-    lines = convergence_rule()
+    """The rule, a note on curves measured on another metric, and the table."""
+    lines = [CONVERGENCE_TEXT]
     fallback = sorted({m for c in items for m in c.metrics if m != SCORE})
     if fallback:
         lines += [
@@ -98,8 +88,7 @@ def convergence_markdown(items: Sequence[Convergence], by_architecture: bool = F
 
 
 def convergence_rows(items: Sequence[Convergence], by_architecture: bool = False) -> Rows:
-    """Per configuration: the metric, seeds with a curve, the epoch (mean ± std), per seed, epochs logged;
-    with ``by_architecture`` the configuration's architecture first."""
+    """The *Convergence* table, a row per configuration."""
     header = ["configuration", "metric", "seeds with a curve", "epoch (mean ± std)", "per seed",
               "epochs logged"]  # fmt: skip
     rows: list[list[object]] = []
@@ -114,9 +103,7 @@ def convergence_rows(items: Sequence[Convergence], by_architecture: bool = False
 
 
 def convergence_csv_rows(items: Sequence[Convergence], by_architecture: bool = False) -> Rows:
-    """One row per configuration and seed: ``configuration, seed, metric, epoch`` (1-based, empty if
-    none), ``epochs_logged``; then per configuration a row with seed ``mean`` (mean epoch) and one with
-    seed ``std`` (sample std); with ``by_architecture`` the configuration's architecture first."""
+    """``tables/convergence.csv``: a row per configuration and seed, then its ``mean`` and ``std`` rows."""
     rows: list[list[object]] = []
     architectures: list[str | None] = []
     for c in items:

@@ -1,8 +1,5 @@
-"""The report of a sweep: reading its jobs, building the tables, analyses and figures, and writing
-``report.md``, ``tables/`` and ``figures/`` (:func:`make_report`), every file atomically. Where the sweep
-varies the architecture, tables get an ``architecture`` column and Tables I-III, curves, APE bars, pairs and
-claims are given per architecture; a single-architecture sweep's report is unchanged.
-"""
+"""The report of a sweep: ``report.md``, ``tables/`` and ``figures/`` (:func:`make_report`), every file
+written atomically; per architecture where the sweep varies it (docs/report.md)."""
 
 from __future__ import annotations
 
@@ -47,7 +44,7 @@ from lossvo.report.tables import (
     evaluated_sequences,
     table_csv,
     table_latex,
-    table_markdown,
+    table_rows,
     with_architecture,
 )
 from lossvo.table_render import Rows
@@ -55,23 +52,14 @@ from lossvo.table_render import Rows
 log = logging.getLogger("lossvo")
 
 UNSEEN_NOTE = "unseen motion"
-"""The note beside an unseen-motion sequence's name in the per-sequence tables."""
 TABLE_FILES = ("pairwise.csv", "configurations.csv", "convergence.csv", "claims.csv")
 ARCHITECTURE_FILES = ("rankings.csv", "interaction.csv")
-"""The tables of the *Architectures* section, written where the sweep varies the architecture."""
-
-
-# --------------------------------------------------------------------------------------------------
-# What a report measures
-# --------------------------------------------------------------------------------------------------
 
 
 @dataclass
 class Study:
-    """What a report measures besides the tables: the configurations (network columns), their
-    convergence, the study's claims and the evaluated sequences of unseen motion; where the sweep varies
-    the architecture (``by_architecture``), whether the architectures rank the losses alike
-    (``agreement``)."""
+    """What a report measures besides the tables: the network columns, their convergence, the claims, the
+    sequences of unseen motion and, across architectures, whether they rank the losses alike."""
 
     networks: list[Column]
     convergence: list[Convergence]
@@ -88,60 +76,52 @@ def analyse(
     evaluations: Sequence[across_datasets.Evaluation] = (),
     claimed_loss: str = CLAIMED_LOSS,
 ) -> Study:
-    """Convergence, claims (``claimed_loss``'s configurations, equivalence within ±``margin``) and
-    unseen-motion sequences (those some network job's results.json marks) of the network columns on the
-    evaluated ``sequences``; where they span several architectures, the claims within each and the
-    agreement of the architectures' rankings (on their ``evaluations`` on one another's data)."""
+    """The :class:`Study` of the network columns on the evaluated ``sequences``."""
     items = convergence(networks)
     marked = {s for c in networks for j in c.jobs for s in j.included_results.unseen()}
     unseen = [s for s in sequences if s in marked]
-    if not varies_architecture(networks):
-        found = claims.study_claims(networks, items, sequences, margin, claimed_loss)
-        return Study(list(networks), items, found, unseen)
-    found = claims.claims_by_architecture(networks, items, sequences, margin, claimed_loss)
-    agreement = architectures.architecture_agreement(networks, sequences, evaluations)
-    return Study(list(networks), items, found, unseen, True, agreement)
+    by = varies_architecture(networks)
+    claims_of = claims.claims_by_architecture if by else claims.study_claims
+    found = claims_of(networks, items, sequences, margin, claimed_loss)
+    agreement = architectures.architecture_agreement(networks, sequences, evaluations) if by else None
+    return Study(list(networks), items, found, unseen, by, agreement)
 
 
 def build_tables(
     networks: Sequence[Column], baselines: Sequence[Column], sequences: Sequence[str], notes: dict[str, str]
 ) -> list[Table]:
-    """Tables I-III of the networks beside the baselines; where the networks span several architectures,
-    each table per architecture (table by table, architectures in order, the key and title naming it);
-    none without networks."""
+    """Tables I-III of the networks beside the baselines (each per architecture where several)."""
     if not networks:
         return []
     frame = results_frame([*networks, *baselines])
-    if not varies_architecture(networks):
-        return [build_table(spec, [*networks, *baselines], sequences, notes, frame) for spec in TABLES]
     return [
         build_table(_architecture_spec(spec, architecture), [*group, *baselines], sequences, notes, frame)
         for spec in TABLES
-        for architecture, group in architecture_groups(networks).items()
+        for architecture, group in _groups(networks).items()
     ]
 
 
+def _groups(networks: Sequence[Column]) -> dict[str, list[Column]]:
+    return architecture_groups(networks) if varies_architecture(networks) else {"": list(networks)}
+
+
 def _architecture_spec(spec: TableSpec, architecture: str) -> TableSpec:
+    if not architecture:
+        return spec
     key = f"{spec.key}_{architecture_file_name(architecture)}"
     return replace(spec, key=key, title=f"{spec.title}, architecture {architecture}")
 
 
 @dataclass
 class Figures:
-    """The figures of a report: the PNGs written and a note on what they lack (e.g. ground truth)."""
+    """The PNGs written and notes on what they lack."""
 
     paths: list[Path] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
 
 
-# --------------------------------------------------------------------------------------------------
-# report.md, section by section
-# --------------------------------------------------------------------------------------------------
-
-
 def jobs_rows(jobs: Sequence[Job], by_architecture: bool = False) -> Rows:
-    """Every job: its folder, configuration, seed, status, whether it is in the tables (or why not: the
-    file it could not use and why) and notes; with ``by_architecture`` its architecture first."""
+    """Every job: folder, configuration, seed, status, whether it is in the tables (or why not), notes."""
     rows: list[list[object]] = [
         [f"`{job.path.name}`", job.label or "?", job.seed, job.status, used, "; ".join(job.notes)]
         for job, used in zip(jobs, ("yes" if j.skip is None else f"no: {j.skip}" for j in jobs), strict=True)
@@ -175,7 +155,7 @@ def figures_markdown(figures: Figures | None, out: Path) -> str:
 
 
 def header_lines(sweep: Path, jobs: Sequence[Job], study: Study) -> list[str]:
-    """The title, the job count and the selection warning (if any)."""
+    """The title, the job count and the warnings."""
     included = sum(j.included for j in jobs)
     lines = [
         f"# Sweep report: `{sweep}`",
@@ -217,7 +197,7 @@ def configurations_lines(study: Study) -> list[str]:
 
 
 def tables_lines(c: Contents) -> list[str]:
-    """What the tables show (sequences, alignment, delta, bold, unseen marks, seeds), then Tables I-III."""
+    """What the tables show, then Tables I-III."""
     included = [j for j in c.jobs if j.included]
     if not included:
         return ["", "No job has usable results yet: no tables."]
@@ -240,7 +220,7 @@ def tables_lines(c: Contents) -> list[str]:
         seeds_text(c.study.networks),
     ]
     for table in c.tables:
-        lines += ["", f"## {table.spec.title}", "", table_markdown(table)]
+        lines += ["", f"## {table.spec.title}", "", table_render.markdown(table_rows(table))]
         if table.mean_over != table.rows[:-1]:
             mean_over = ", ".join(table.mean_over) or "none"
             lines += ["", f"Mean over the sequences with a value in every column: {mean_over}."]
@@ -267,20 +247,15 @@ PAIRWISE_BY_ARCHITECTURE_TEXT = (
 
 
 def pairwise_lines(comparisons: Sequence[Comparison], by_architecture: bool = False) -> list[str]:
-    if not comparisons:
-        return [
-            "",
-            "## Pairwise comparison",
-            "",
-            "Fewer than two configurations with results: nothing to compare.",
-        ]
-    table = table_render.markdown(comparison.comparison_rows(comparisons, by_architecture))
-    text = PAIRWISE_TEXT + (PAIRWISE_BY_ARCHITECTURE_TEXT if by_architecture else "")
-    return ["", "## Pairwise comparison", "", text, "", table]
+    text = "Fewer than two configurations with results: nothing to compare."
+    if comparisons:
+        table = table_render.markdown(comparison.comparison_rows(comparisons, by_architecture))
+        text = PAIRWISE_TEXT + (PAIRWISE_BY_ARCHITECTURE_TEXT if by_architecture else "") + "\n\n" + table
+    return ["", "## Pairwise comparison", "", text]
 
 
 def baseline_lines(c: Contents) -> list[str]:
-    """The *Baselines* section, and each job against the mean motion and on unseen motion."""
+    """The *Baselines* section, each job against the mean motion and on unseen motion."""
     lines = ["", "## Baselines", "", against_baselines.baselines_markdown(c.base, c.baselines_on)]
     if not (c.baselines_on and any(j.included for j in c.jobs)):
         return lines
@@ -307,7 +282,7 @@ DAMAGED_CURVES_TEXT = (
 
 @dataclass
 class Contents:
-    """Everything report.md shows: the jobs, the tables, comparisons, baselines, figures and study."""
+    """Everything report.md shows."""
 
     jobs: list[Job]
     sequences: list[str]
@@ -323,11 +298,7 @@ class Contents:
 
 
 def render_report(sweep: Path, out: Path, c: Contents) -> str:
-    """The text of report.md (``c.figures`` None: not drawn), in this order: a bold warning when the
-    configurations were selected by different metrics; the configurations; Tables I-III; the pairwise
-    comparison; convergence; the baselines and each job against them; the jobs, included or skipped and
-    why; the files; the figures; where the sweep varies the architecture, whether the architectures rank
-    the losses alike; and last the study's claims."""
+    """The text of report.md (``c.figures`` None: not drawn)."""
     by = c.study.by_architecture
     lines = header_lines(sweep, c.jobs, c.study) + configurations_lines(c.study) + tables_lines(c)
     lines += pairwise_lines(c.comparisons, by)
@@ -356,35 +327,31 @@ def across_lines(table: Rows | None, notes: Sequence[str]) -> list[str]:
     return ["", f"## {title}", "", across_datasets.ACROSS_TEXT, "", table_render.markdown(table), *unused]
 
 
-# --------------------------------------------------------------------------------------------------
-# Writing the files
-# --------------------------------------------------------------------------------------------------
-
-
-def write_tables(
-    tables: Sequence[Table], comparisons: Sequence[Comparison], study: Study, folder: Path
-) -> None:
-    """Tables I-III as CSV and LaTeX, :data:`TABLE_FILES` and, where the sweep varies the architecture,
-    :data:`ARCHITECTURE_FILES`, into ``folder``."""
-    for table in tables:
+def write_tables(c: Contents, folder: Path) -> None:
+    """Tables I-III as CSV and LaTeX, :data:`TABLE_FILES`, :data:`ARCHITECTURE_FILES`, speed and across
+    datasets (where measured) into ``folder``."""
+    for table in c.tables:
         write_text_atomic(folder / f"{table.spec.key}.csv", table_csv(table))
         write_text_atomic(folder / f"{table.spec.key}.tex", table_latex(table))
-    by = study.by_architecture
+    study, by = c.study, c.study.by_architecture
     files = {
-        "pairwise.csv": comparison.comparison_csv_rows(comparisons, by),
+        "pairwise.csv": comparison.comparison_csv_rows(c.comparisons, by),
         "configurations.csv": configuration_rows(study.networks, by, csv=True),
         "convergence.csv": convergence_csv_rows(study.convergence, by),
         "claims.csv": claims.claims_csv_rows(study.claims, by),
+        "speed.csv": c.speed,
+        "across_datasets.csv": c.across,
     }
     if study.agreement is not None:
         files["rankings.csv"] = architectures.rankings_csv_rows(study.agreement)
         files["interaction.csv"] = architectures.interaction_csv_rows(study.agreement)
     for name, content in files.items():
-        write_text_atomic(folder / name, table_render.csv_text(content))
+        if content is not None:
+            write_text_atomic(folder / name, table_render.csv_text(content))
 
 
 def ground_truth_note(missing: dict[str, str]) -> list[str]:
-    """One note on the sequences drawn without ground truth, grouped by reason; none if none."""
+    """One note on the sequences drawn without ground truth, grouped by reason."""
     if not missing:
         return []
     by_reason: dict[str, list[str]] = {}
@@ -404,13 +371,10 @@ def write_figures(
     missing: dict[str, str],
     found: Sequence[Claim] = (),
 ) -> Figures:
-    """Every figure, with the ground truth ``gt`` and the reasons it is ``missing`` for the other sequences
-    (:func:`lossvo.report.jobs.ground_truth`); the curves and the APE bars per architecture where the
-    networks span several (``curves_<architecture>.png``). Returns the paths written and a note if some
-    trajectory figure lacks ground truth; the forest plot of the claims ``found`` where claim (a) was
-    tested."""
+    """Every figure, with the ground truth ``gt`` or the reason it is ``missing`` per sequence
+    (:func:`lossvo.report.jobs.ground_truth`); the forest plot of the claims ``found``."""
     figures = Figures()
-    groups = architecture_groups(networks) if varies_architecture(networks) else {"": list(networks)}
+    groups = _groups(networks)
     for (architecture, group), table in zip(groups.items(), tables, strict=False):  # Table I's first
         suffix = f"_{architecture_file_name(architecture)}" if architecture else ""
         if group and plot_curves(group, folder / f"curves{suffix}.png"):
@@ -438,9 +402,8 @@ def make_report(
     margin: float = MARGIN,
     claimed_loss: str = CLAIMED_LOSS,
 ) -> Path:
-    """Write the report of a sweep folder, claims made for the loss class ``claimed_loss`` and decided
-    with the equivalence margin ``margin``; returns the path of report.md. SweepError if ``sweep`` is not
-    a sweep folder."""
+    """Write the report of a sweep folder; returns the path of report.md. SweepError if ``sweep`` is not a
+    sweep folder."""
     sweep = Path(sweep)
     out = Path(out) if out is not None else sweep / "report"
     jobs = [load_job(p) for p in job_dirs(sweep)]
@@ -459,22 +422,19 @@ def make_report(
     study = analyse(networks, sequences, margin, evaluations, claimed_loss)
     tables = build_tables(networks, base.columns, sequences, dict.fromkeys(study.unseen, UNSEEN_NOTE))
     comparisons = comparison.compare(networks, study.by_architecture)
-    write_tables(tables, comparisons, study, out / "tables")
     gt, missing = ground_truth(included, sequences)
     figures = None
     if with_figures:
         figures = write_figures(networks, tables, base, sequences, out / "figures", gt, missing, study.claims)
     speed = speed_rows(networks, gt, sequences) if included else None
-    if speed is not None:
-        write_text_atomic(out / "tables" / "speed.csv", table_render.csv_text(speed))
     across_notes = [f"evaluation not used: {note}" for note in unused]
     across_base: dict[tuple[str, str], dict[str, across_datasets.Rmses]] = {}
     if with_baselines and evaluations:
         across_base, base_notes = across_datasets.across_baselines(evaluations, out / "cache", cores)
         across_notes += base_notes
     across = across_datasets.across_rows(included, evaluations, across_base) if evaluations else None
-    if across is not None:
-        write_text_atomic(out / "tables" / "across_datasets.csv", table_render.csv_text(across))
     found = (tables, comparisons, base, with_baselines, figures, study, speed, across, across_notes)
-    write_text_atomic(out / "report.md", render_report(sweep, out, Contents(jobs, sequences, *found)))
+    contents = Contents(jobs, sequences, *found)
+    write_tables(contents, out / "tables")
+    write_text_atomic(out / "report.md", render_report(sweep, out, contents))
     return out / "report.md"

@@ -1,13 +1,5 @@
-"""Tables of a sweep report: per-sequence metric tables and their text forms.
-
-A :class:`~lossvo.report.frame.Column` is one compared configuration (its seeds) or one baseline;
-:func:`build_table` fills a :class:`Table` of :data:`TABLES` with mean ± sample std over seeds per sequence
-plus a mean row, and bolds the minimum of each row; :func:`table_markdown`, :func:`table_csv` and
-:func:`table_latex` give its text (:mod:`lossvo.table_render`).
-A row may carry a note (e.g. ``unseen motion``): in markdown and LaTeX it follows the sequence name in
-parentheses, in CSV it has its own last column, so the ``sequence`` column stays the bare name.
-Units are those of the metrics: m and rad for APE / RPE, % and deg/100 m for the KITTI errors.
-"""
+"""The per-sequence metric tables of a sweep report (:data:`TABLES`: mean ± sample std over seeds, a mean
+row, the row's minimum bold) and their markdown, CSV and LaTeX (:mod:`lossvo.table_render`)."""
 
 from __future__ import annotations
 
@@ -26,20 +18,13 @@ from lossvo.table_render import Rows, prepend_column
 NETWORK, BASELINE = "network", "baseline"
 MEAN_ROW = "mean"
 UNKNOWN_ARCHITECTURE = "?"
-"""The architecture of a job whose folder names none (:func:`lossvo.report.jobs.read_architecture`)."""
 
 
 def with_architecture(table: Rows, architectures: Sequence[str | None], by_architecture: bool) -> Rows:
-    """``table`` with an ``architecture`` column first (one per row; None: :data:`UNKNOWN_ARCHITECTURE`)
-    where ``by_architecture``, else ``table``."""
+    """``table`` with an ``architecture`` column first where ``by_architecture``."""
     if not by_architecture:
         return table
     return prepend_column(table, "architecture", [a or UNKNOWN_ARCHITECTURE for a in architectures])
-
-
-# --------------------------------------------------------------------------------------------------
-# Building: specs, cells, the mean row, bold marks
-# --------------------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -53,15 +38,9 @@ class TableSpec:
 
 TABLES = (
     TableSpec(
-        "translation",
-        "Table I: translation RMSE (m)",
-        (("APE [m]", APE_TRANS), ("RPE [m]", RPE_TRANS)),
+        "translation", "Table I: translation RMSE (m)", (("APE [m]", APE_TRANS), ("RPE [m]", RPE_TRANS))
     ),
-    TableSpec(
-        "rotation",
-        "Table II: rotation RMSE (rad)",
-        (("APE [rad]", APE_ROT), ("RPE [rad]", RPE_ROT)),
-    ),
+    TableSpec("rotation", "Table II: rotation RMSE (rad)", (("APE [rad]", APE_ROT), ("RPE [rad]", RPE_ROT))),
     TableSpec(
         "kitti",
         "Table III: KITTI odometry error (mean over 100-800 m segments)",
@@ -85,15 +64,13 @@ def paired_samples(
 
 
 def evaluated_sequences(columns: Sequence[Column], among: Sequence[str] | None = None) -> list[str]:
-    """The sequences some replicate of ``columns`` has results for: sorted, or those of ``among`` in
-    order."""
+    """The sequences some replicate of ``columns`` has results for: sorted, or in ``among``'s order."""
     evaluated = {name for c in columns for per_sequence in c.results for name in per_sequence}
     return sorted(evaluated) if among is None else [s for s in among if s in evaluated]
 
 
 def seed_scores(column: Column, path: Sequence[str], sequences: Sequence[str]) -> dict[str, float]:
-    """``{replicate: mean over sequences}`` of one metric (its unit) of a configuration: each seed's value
-    as one number; a seed missing a sequence is left out."""
+    """``{replicate: mean over sequences}`` of one metric; a seed missing a sequence is left out."""
     values = samples(column, path, sequences)  # (seeds, sequences)
     means = values.mean(axis=1) if values.shape[1] else np.full(len(values), np.nan)
     return {r: float(m) for r, m in zip(column.replicates, means, strict=True) if math.isfinite(m)}
@@ -121,8 +98,8 @@ class Cell:
 
 @dataclass
 class Table:
-    """A filled table: ``cells[row][column][metric]``; rows are the sequences, then :data:`MEAN_ROW`;
-    ``notes`` maps a row to a short note shown beside its name."""
+    """A filled table: ``cells[row][column][metric]``, rows the sequences then :data:`MEAN_ROW`; ``notes``
+    ``{row: note}`` shown beside its name (a last column in CSV)."""
 
     spec: TableSpec
     columns: list[Column]
@@ -130,10 +107,6 @@ class Table:
     cells: list[list[list[Cell]]]
     mean_over: list[str]
     notes: dict[str, str] = field(default_factory=dict)
-
-    def label(self, row: str) -> str:
-        """A row's name with its note: ``"11 (unseen motion)"``; the bare name without one."""
-        return f"{row} ({self.notes[row]})" if row in self.notes else row
 
 
 def build_table(
@@ -143,24 +116,16 @@ def build_table(
     notes: Mapping[str, str] | None = None,
     frame: pd.DataFrame | None = None,
 ) -> Table:
-    """Cells per sequence, a mean row and the bold marks; ``notes``: {sequence: note} (:attr:`Table.notes`);
-    ``frame``: the columns' :func:`~lossvo.report.frame.results_frame` (made here if None), pivoted per
-    column and metric to (replicates, sequences).
-
-    The mean row averages each replicate over the sequences where every column has a value (so all
-    columns are averaged over the same sequences), then takes mean ± std over the replicates.
-    """
+    """Cells per sequence, a mean row and the bold marks; ``frame``: the columns'
+    :func:`~lossvo.report.frame.results_frame` (made here if None). The mean row averages each replicate
+    over the sequences where every column has a value, then takes mean ± std over the replicates."""
     frame = results_frame(columns) if frame is None else frame
     k = len(spec.metrics)
     data = [metric_matrix(frame, c, path, sequences) for c in columns for _, path in spec.metrics]
     common = [j for j in range(len(sequences)) if all(np.isfinite(d[:, j]).any() for d in data)]
     means = [d[:, common].mean(axis=1) if common else np.full(len(d), np.nan) for d in data]
-
-    def by_column(cells: list[Cell]) -> list[list[Cell]]:
-        return [cells[c * k : (c + 1) * k] for c in range(len(columns))]
-
-    cells = [by_column([Cell.of(d[:, s]) for d in data]) for s in range(len(sequences))]
-    cells.append(by_column([Cell.of(m) for m in means]))
+    by_row = [[d[:, s] for d in data] for s in range(len(sequences))] + [means]  # [row][column * k + metric]
+    cells = [[[Cell.of(v) for v in row[c * k : (c + 1) * k]] for c in range(len(columns))] for row in by_row]
     for row in cells:  # bold: the minimum mean of each row and metric, over all columns
         for m in range(k):
             row_means = np.array([column[m].mean for column in row])
@@ -168,11 +133,6 @@ def build_table(
                 column[m].best = bool(np.isfinite(row_means).any() and mean == np.nanmin(row_means))
     notes = {s: n for s, n in (notes or {}).items() if s in sequences}
     return Table(spec, list(columns), [*sequences, MEAN_ROW], cells, [sequences[j] for j in common], notes)
-
-
-# --------------------------------------------------------------------------------------------------
-# Formatting: markdown, CSV, LaTeX
-# --------------------------------------------------------------------------------------------------
 
 
 def fmt(x: float, digits: int = 4) -> str:
@@ -197,30 +157,21 @@ def mean_std_text(cell: Cell, digits: int = 4, replicated: bool = True) -> str:
 
 
 def table_rows(table: Table, mean_name: str = "**mean**") -> Rows:
-    """The table as text: ``sequence``, then per column and metric ``"<label>: <metric>"``; cells by
-    :func:`mean_std_text`; rows named with their note, the mean row ``mean_name``."""
+    """The table as text cells, a row named with its note (``11 (unseen motion)``), the mean row
+    ``mean_name``."""
     replicated = any(len(c.replicates) > 1 for c in table.columns)
     header = ["sequence"] + [f"{c.label}: {name}" for c in table.columns for name, _ in table.spec.metrics]
     rows: list[list[object]] = []
     for row, cells in zip(table.rows, table.cells, strict=True):
-        name = mean_name if row == MEAN_ROW else table.label(row)
+        name = mean_name if row == MEAN_ROW else f"{row} ({table.notes[row]})" if row in table.notes else row
         rows.append([name, *(mean_std_text(cell, replicated=replicated) for col in cells for cell in col)])
     return Rows(header, rows)
 
 
-def table_markdown(table: Table) -> str:
-    """The table as GitHub markdown, best cells in ``**bold**``."""
-    return table_render.markdown(table_rows(table))
-
-
 def table_csv(table: Table) -> str:
-    """The table as CSV: ``sequence``, then per column and metric ``<label> | <metric>`` (mean),
-    ``... std`` (sample std, empty for n < 2) and ``... n``, then ``note`` (the row's note, or empty);
-    full precision."""
-    header = ["sequence"]
-    for c in table.columns:
-        for name, _ in table.spec.metrics:
-            header += [f"{c.label} | {name}", f"{c.label} | {name} std", f"{c.label} | {name} n"]
+    """The table as CSV: per column and metric mean, std and n at full precision, then ``note``."""
+    metrics = [f"{c.label} | {name}" for c in table.columns for name, _ in table.spec.metrics]
+    header = ["sequence", *(f"{m}{part}" for m in metrics for part in ("", " std", " n")), "note"]
     rows: list[list[object]] = []
     for row, cells in zip(table.rows, table.cells, strict=True):
         values: list[object] = [row]
@@ -228,12 +179,11 @@ def table_csv(table: Table) -> str:
             for cell in col:
                 values += [repr(cell.mean) if cell.n else "", repr(cell.std) if cell.n > 1 else "", cell.n]
         rows.append([*values, table.notes.get(row, "")])
-    return table_render.csv_text(Rows([*header, "note"], rows))
+    return table_render.csv_text(Rows(header, rows))
 
 
 def table_latex(table: Table) -> str:
-    """The table as a LaTeX ``tabular`` with booktabs rules, a configuration's metrics grouped under its
-    label; best cells in ``\\textbf``."""
+    """The table as a LaTeX ``tabular`` with booktabs rules."""
     rows = table_rows(table, mean_name="Mean")
     k = len(table.spec.metrics)
     latex = Rows(["", *(name for _ in table.columns for name, _ in table.spec.metrics)], rows.rows)
