@@ -53,8 +53,7 @@ def dataset_name(layout: str, root: str | None) -> str:
 
 
 def find_evaluations(sweep: Path, jobs: Sequence[Job]) -> tuple[list[Evaluation], list[str]]:
-    """The evaluations under ``sweep/evaluations`` of checkpoints of ``jobs`` (by the job's folder, or by
-    its name where the sweep has moved since), and a note for each results.json that could not be used."""
+    """The evaluations of ``jobs``' checkpoints under ``sweep/evaluations``, and notes on those unusable."""
     folder = sweep / EVALUATIONS
     by_folder = {job.path.resolve(): job for job in jobs if job.included}
     by_name = {job.path.name: job for job in jobs if job.included}
@@ -98,8 +97,7 @@ def across_rows(
     evaluations: Sequence[Evaluation],
     base: dict[tuple[str, str], dict[str, Rmses]] | None = None,
 ) -> Rows:
-    """One row per :func:`_key` over seeds, the sweep's own evaluations first, then the other datasets by
-    name, each set of sequences followed by its baselines (``base``, :func:`across_baselines`)."""
+    """One row per :func:`_key` over seeds, own evaluations first, each set followed by its baselines."""
     base = base or {}
     runs = [(job, job.included_results) for job in jobs if job.included]
     runs += [(e.job, e.results) for e in evaluations]
@@ -124,8 +122,7 @@ def across_rows(
 
 @dataclass(frozen=True)
 class Rmses:
-    """The APE, RPE and scale-given RPE (None: not recorded) translation RMSEs (m) and the RPE rotation
-    RMSE (rad) of one set of scores."""
+    """A row's APE, RPE, scale-given RPE (None: unrecorded) RMSEs (m) and RPE rotation RMSE (rad)."""
 
     ape: float
     rpe: float
@@ -149,8 +146,8 @@ def _score_cells(values: Sequence[Rmses], zero: Rmses | None) -> list[str]:
 def across_baselines(
     evaluations: Sequence[Evaluation], cache_dir: Path, n_jobs: int
 ) -> tuple[dict[tuple[str, str], dict[str, Rmses]], list[str]]:
-    """{(evaluated dataset, sequences): {baseline: pooled RMSEs}} on each set of sequences of other data
-    than their training data that the checkpoints were evaluated on, and a note for each without."""
+    """{(evaluated dataset, sequences): {baseline: pooled RMSEs}} where the evaluated data is not the
+    training data, and a note for each without."""
     by_key: dict[tuple[str, str], list[Results]] = {}
     for e in evaluations:
         data = e.results.data
@@ -218,8 +215,7 @@ def pooled_rmses(results: Sequence[baselines.BaselineResult], delta: int) -> Rms
 
 
 def read_as(results: Results) -> str:
-    """Which translation RPE reads an evaluation: ``metric`` where every scored sequence's platform gives
-    metric scale a cue, ``scale given`` where none does."""
+    """Which translation RPE reads an evaluation (``metric`` where every platform gives scale a cue)."""
     flags = {s.metric_scale for s in results.sequences.values() if s.scores is not None}
     if flags == {True}:
         return "metric"

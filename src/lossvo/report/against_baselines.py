@@ -39,8 +39,7 @@ LEARNING_METRICS = (("RPE trans", RPE_TRANS), ("RPE rot", RPE_ROT))
 
 @dataclass
 class BaselineRun:
-    """The baselines of a report: columns, trajectories (N, 4, 4) per sequence and baseline, ORB failures
-    and frame counts per sequence, notes, seconds taken and the number of sequences from the cache."""
+    """The baselines of a report: columns, trajectories (N, 4, 4), ORB failures, frame counts and notes."""
 
     columns: list[Column] = field(default_factory=list)
     trajectories: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
@@ -82,8 +81,7 @@ def data_groups(
 
 
 def run_baselines(jobs: Sequence[Job], sequences: Sequence[str], cache_dir: Path, n_jobs: int) -> BaselineRun:
-    """Baselines on ``sequences``, each on its jobs' data (:func:`data_groups`); a group's failure is a
-    note."""
+    """Baselines on ``sequences``, each on its jobs' data; a group's failure is a note."""
     run = BaselineRun()
     start = time.perf_counter()
     align, delta, run.notes = evaluation_settings(jobs)
@@ -186,8 +184,7 @@ def _baseline(base: BaselineRun, name: str) -> Column | None:
 
 
 def learning_markdown(networks: Sequence[Column], base: BaselineRun, by_architecture: bool = False) -> str:
-    """Per job and validation sequence (``data.splits.val``): how far below the mean-motion baseline its
-    RPE lies."""
+    """Per job and validation sequence, how far below the mean-motion baseline its RPE lies."""
     mean_motion = _baseline(base, baselines.MEAN)
     sequences = config_sequences((j for c in networks for j in c.jobs), "data.splits.val")
     if mean_motion is None or not sequences:
@@ -213,8 +210,7 @@ UNSEEN_HEADER = ("RPE rot [rad]", "vs zero motion", "RPE trans [m]", "vs own mea
 
 
 def unseen_cells(entry: Scores | None, zero: Scores | None, own: Scores | None) -> tuple[list[str], bool]:
-    """A job's cells of :data:`UNSEEN_HEADER` on one unseen-motion sequence against the zero-motion and
-    own-mean-motion baselines' scores there, and whether both criteria (:data:`UNSEEN_TEXT`) are met."""
+    """A job's :data:`UNSEEN_HEADER` cells on one sequence, and whether both criteria are met."""
     rot, trans = (finite_number(metric_value(entry, path)) for path in (RPE_ROT, RPE_TRANS))
     rot_down = reduction(rot, metric_value(zero, RPE_ROT))
     trans_down = reduction(trans, metric_value(own, RPE_TRANS))
@@ -238,13 +234,11 @@ UNSEEN_TEXT = (
 def unseen_markdown(
     networks: Sequence[Column], base: BaselineRun, unseen: Sequence[str], by_architecture: bool = False
 ) -> str:
-    """Per job and unseen-motion sequence, :func:`unseen_cells`; then how many jobs meet both on every
-    unseen sequence (per architecture with ``by_architecture``)."""
+    """Per job and unseen-motion sequence :func:`unseen_cells`, and how many jobs meet both on every one."""
     zero, own = _baseline(base, baselines.ZERO), _baseline(base, baselines.OWN)
     if zero is None or own is None:
         return "No zero-motion or own-mean-motion baseline: nothing to compare."
     rows: list[list[object]] = []
-    architectures: list[str | None] = []
     passed: dict[str, list[bool]] = {}
     for column in networks:
         for job, results in zip(column.jobs, column.results, strict=True):
@@ -254,10 +248,10 @@ def unseen_markdown(
             rows += [
                 [column.label, job.seed, s, *cells] for s, (cells, _) in zip(unseen, checks, strict=True)
             ]
-            architectures += [column.architecture] * len(unseen)
             passed.setdefault(column.architecture or UNKNOWN_ARCHITECTURE, []).append(
                 all(met for _, met in checks)
             )
+    architectures = [c.architecture for c in networks for _ in c.jobs for _ in unseen]
     table = with_architecture(
         Rows(["configuration", "seed", "sequence", *UNSEEN_HEADER], rows), architectures, by_architecture
     )

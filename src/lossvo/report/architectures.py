@@ -41,8 +41,7 @@ class Ranking:
 
 @dataclass
 class Interaction:
-    """The interaction test of a pair of architectures on one quantity (``test`` None where untested, then
-    ``untested`` says why); ``sequences``: those a seed's score averages."""
+    """The interaction test of two architectures on one quantity (None where ``untested`` says why)."""
 
     quantity: str
     architectures: tuple[str, str]
@@ -103,8 +102,8 @@ def _root(path: str | None) -> str:
 def keyed(
     column: Column, sequences: Sequence[str], evaluations: Sequence[Evaluation]
 ) -> tuple[Column, set[str]]:
-    """A copy of a network column with results keyed ``<dataset folder>|<sequence>`` (its own of
-    ``sequences`` and its jobs' ``evaluations`` on other data), and the keys its jobs trained on."""
+    """A copy of a network column with results keyed ``<dataset folder>|<sequence>`` (with its jobs'
+    ``evaluations``), and the keys its jobs trained on."""
     by_job: dict[Path, list[Evaluation]] = {}
     for e in evaluations:
         by_job.setdefault(e.job.path, []).append(e)
@@ -126,8 +125,7 @@ def keyed(
 
 
 def common_held_out(a: Sequence[tuple[Column, set[str]]], b: Sequence[tuple[Column, set[str]]]) -> list[str]:
-    """The keys that some configuration of each of two groups of :func:`keyed` columns has and none of
-    them trained on, first seen first."""
+    """The keys that both groups of :func:`keyed` columns have and none trained on."""
 
     def keys(group: Sequence[tuple[Column, set[str]]]) -> list[str]:
         return list(dict.fromkeys(k for c, _ in group for r in c.results for k in r))
@@ -153,8 +151,7 @@ NO_COMMON = (
 def architecture_agreement(
     networks: Sequence[Column], sequences: Sequence[str], evaluations: Sequence[Evaluation] = ()
 ) -> Agreement:
-    """Rankings per architecture (over its held-out ``sequences``) and interaction tests per pair (over
-    :func:`common_held_out`) on each quantity of :data:`lossvo.report.claims.CLAIM_ERRORS`."""
+    """Rankings per architecture and interaction tests per pair on each quantity of claim (a)."""
     groups = architecture_groups(networks)
     names = treatments(networks)
     heldout = {architecture: heldout_sequences(group, sequences) for architecture, group in groups.items()}
@@ -286,8 +283,7 @@ def rankings_csv_rows(agreement: Agreement) -> Rows:
 
 
 def interaction_csv_rows(agreement: Agreement) -> Rows:
-    """``tables/interaction.csv``: per quantity and pair of architectures, full precision; an untested one
-    has the reason in ``note`` (a section untested at all: one such row)."""
+    """``tables/interaction.csv``: per quantity and pair of architectures, full precision."""
     header = ["quantity", "architecture_a", "architecture_b", "configurations", "seeds", "same_order",
               "statistic", "p_value", "permutations", "exact", "smallest_p", "verdict", "note",
               "sequences"]  # fmt: skip

@@ -57,8 +57,7 @@ def parser() -> argparse.ArgumentParser:
 
 
 def check_writable(out: Path, given: bool) -> None:
-    """UserError, before any work, where the report folder ``out`` cannot be written (``given``: by
-    ``--out``)."""
+    """UserError, before any work, where ``out`` (``given`` by ``--out``) cannot be written."""
     try:
         out.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=out):

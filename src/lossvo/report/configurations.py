@@ -33,15 +33,13 @@ SCORE = "val/score"
 LOSS_DEPENDENT = ("val/loss", "val/rot_loss")
 """Monitors whose value depends on the loss and its weights."""
 
-
 GROUPS = (DATA_KEY, ARCHITECTURE_KEY)
 """The config groups whose choice groups configurations (compared within each choice)."""
 
 
 def design(jobs: Sequence[Job]) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """The jobs' design, one row per job: their overrides other than ``seed`` (a column per key, first seen
-    first; None where missing), and their choice in each of :data:`GROUPS` (``job.data``,
-    ``job.architecture``)."""
+    """One row per job: its overrides other than ``seed`` (a column per key), and its :data:`GROUPS`
+    choices."""
     index = pd.RangeIndex(len(jobs))
     rows = [{k: v for k, v in job.overrides.items() if k != REPLICATE_KEY} for job in jobs]
     overrides = pd.DataFrame(rows, index=index, dtype=object)
@@ -65,8 +63,7 @@ def varying_keys(jobs: Sequence[Job]) -> list[str]:
 
 
 def _fixed_by_group(key: str, overrides: pd.DataFrame, choices: pd.DataFrame) -> bool:
-    """Whether ``key`` sets part of a group whose choice differs between jobs (``data.sources.car.root``)
-    and takes one value among the jobs of each choice: part of what the choice names, not a treatment."""
+    """Whether ``key`` (``data.sources.car.root``) takes one value per choice of a group that varies."""
     for group in GROUPS:
         if key.startswith(f"{group}."):
             values = overrides[key].groupby(choices[group], dropna=False).nunique(dropna=False)
@@ -87,8 +84,8 @@ def label_jobs(jobs: Sequence[Job]) -> None:
 
 
 def network_columns(jobs: Sequence[Job]) -> list[Column]:
-    """One column per configuration of included jobs (equal labels), replicates ordered by seed, with its
-    architecture (``flowvo on data=mix`` where the jobs vary :data:`DATA_KEY`)."""
+    """One column per label of the included jobs, replicates by seed, architecture ``flowvo on data=mix``
+    where the data varies."""
     columns: dict[str, Column] = {}
     for job in jobs:
         if job.included:
@@ -179,8 +176,8 @@ def loss_attribute(target: str | None, name: str) -> float | None:
 
 @dataclass(frozen=True)
 class Weighting:
-    """A job's rotation weighting: the loss's small-angle gain (rotation term ~ gain·theta², rad) and the
-    rotation weight (k·gain, or gain·exp(s_t − s_r) at the last epoch when learned); None where unknown."""
+    """A job's rotation weighting: small-angle gain (rotation term ~ gain·theta², rad) and weight (k·gain,
+    or gain·exp(s_t − s_r) at the last epoch when learned); None where unknown."""
 
     loss: str | None
     preset: str | None
@@ -240,8 +237,7 @@ def short(x: float | None) -> str:
 
 
 def weight_text(weightings: Sequence[Weighting]) -> str:
-    """The small-angle rotation weight of a configuration's seeds as text (``"learned: mean ± std"`` when
-    learned)."""
+    """The rotation weight of a configuration's seeds as text (``"learned: mean ± std"`` if learned)."""
     if not weightings:
         return "?"
     if any(w.learned for w in weightings):
@@ -276,8 +272,7 @@ def selection_text(selection: Selection) -> str:
 
 
 def selection_identity(job: Job) -> tuple[Any, ...]:
-    """What a job's selection metric is: monitor and mode, plus the loss and weights that define a
-    loss-dependent one."""
+    """A job's selection metric: monitor, mode (and loss and weights where they define its value)."""
     selection = job_selection(job.config)
     key: tuple[Any, ...] = (selection.monitor, selection.mode)
     if selection.monitor in LOSS_DEPENDENT:

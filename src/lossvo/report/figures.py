@@ -6,6 +6,7 @@ atomically; matplotlib is imported only where a figure is drawn.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
@@ -36,14 +37,12 @@ CURVE_COLUMNS = 3
 
 
 def curve_band(jobs: Sequence[Job], key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """Epochs (E,), mean (E,) and sample std (E,) (NaN for one seed) of a metrics.csv column over the
-    jobs, on the epochs all of them logged; None if no job has it."""
+    """Epochs (E,), mean (E,) and sample std (E,) of a metrics.csv column over the jobs, on their common
+    epochs; None if none."""
     series = [j.curves.series[key] for j in jobs if j.curves is not None and key in j.curves.series]
     if not series:
         return None
-    epochs = series[0][0]
-    for e, _ in series[1:]:
-        epochs = np.intersect1d(epochs, e)
+    epochs = functools.reduce(np.intersect1d, (e for e, _ in series))
     if epochs.size == 0:
         return None
     values = np.stack([v[np.searchsorted(e, epochs)] for e, v in series])
@@ -61,8 +60,8 @@ def _spans_decades(ax: Axes, ratio: float = 20.0) -> bool:
 
 
 def plot_curves(columns: Sequence[Column], path: Path) -> bool:
-    """Per-epoch curves per configuration, one panel per :data:`CURVE_PANELS` entry: train solid, val
-    dashed, mean over seeds ± 1 sample std; False (nothing written) when no job has curves."""
+    """Per-epoch curves per configuration (mean ± std over seeds), a panel per :data:`CURVE_PANELS` entry;
+    False if no job has curves."""
     rows = -(-len(CURVE_PANELS) // CURVE_COLUMNS)
     fig = new_figure(4.2 * CURVE_COLUMNS, 3.4 * rows)
     axes = fig.subplots(rows, CURVE_COLUMNS, squeeze=False).ravel()
@@ -81,8 +80,7 @@ def plot_curves(columns: Sequence[Column], path: Path) -> bool:
 
 
 def _draw_bands(ax: Axes, column: Column, key: str, color: Any) -> bool:
-    """The train and val curves of one :data:`CURVE_PANELS` key of a configuration; whether any was
-    drawn."""
+    """The train (solid) and val (dashed) curves of one key of a configuration; whether any was drawn."""
     drawn = False
     for split, style in (("train", "-"), ("val", "--")):
         band = curve_band(column.jobs, f"{split}/{key}")
@@ -125,9 +123,8 @@ def plot_trajectories(
     extra: Mapping[str, np.ndarray],
     path: Path,
 ) -> None:
-    """Bird's-eye view of one sequence (:func:`lossvo.evaluation.plots.plot_birdseye`): the ground truth
-    ``gt`` (N, 4, 4), each configuration's first seed and the baselines in ``extra`` (name -> (N, 4, 4))
-    dashed."""
+    """Bird's-eye view of one sequence: ``gt`` (N, 4, 4), each configuration's first seed and the baselines
+    in ``extra`` (name -> (N, 4, 4)) dashed."""
     trajectories: dict[str, np.ndarray] = {}
     styles: dict[str, dict[str, Any]] = {}
     for column, color in zip(columns, colors(len(columns)), strict=True):
@@ -142,8 +139,7 @@ def plot_trajectories(
 
 
 def plot_ape_bars(table: Table, path: Path) -> None:
-    """Grouped bars of the first metric of ``table`` (Table I's APE, m) per row, one per column (baselines
-    hatched), error bars the sample std over seeds."""
+    """Grouped bars of Table I's APE (m) per row and column, error bars the sample std over seeds."""
     fig = new_figure(min(16.0, 3.0 + 0.12 * len(table.rows) * max(1, len(table.columns))), 4.2)
     ax = fig.add_subplot()
     width = 0.8 / max(1, len(table.columns))
@@ -178,10 +174,8 @@ def forest_rows(claim: Claim, columns: Mapping[str, Column]) -> list[tuple[str, 
 
 
 def plot_forest(claims: Sequence[Claim], columns: Sequence[Column], path: Path) -> bool:
-    """The forest plot of claim (a), a column of panels per :data:`CLAIM_ERRORS` metric: per seed its value
-    (top) and its relative difference to each other configuration (bottom, with the ±margin band and the
-    verdict), each with the mean and its t-interval; False (nothing written) when no claim (a) was
-    tested."""
+    """The forest plot of claim (a), a column per :data:`CLAIM_ERRORS` metric (docs/report.md); False if no
+    claim (a) was tested."""
     tested = [c for c in claims if c.letter == "a" and not c.untested and c.quantities]
     if not tested:
         return False

@@ -43,8 +43,7 @@ def metric_name(path: Sequence[str]) -> str:
 
 
 def column_rows(column: Column) -> list[dict[str, Any]]:
-    """The rows of one column: per replicate, sequence and metric of :data:`METRICS` its value (None where
-    missing), with the replicate's job and config choices."""
+    """The rows of one column: per replicate, sequence and metric its value, job and config choices."""
     rows = []
     for position, (replicate, per_sequence) in enumerate(zip(column.replicates, column.results, strict=True)):
         job = column.jobs[position] if position < len(column.jobs) else None
@@ -60,8 +59,7 @@ def column_rows(column: Column) -> list[dict[str, Any]]:
 
 
 def results_frame(columns: Sequence[Column]) -> pd.DataFrame:
-    """Every column's results as one tidy table: :data:`FIELDS`, the ``choice.<key>`` columns,
-    ``sequence``, ``metric``, ``value`` (float64, NaN where missing)."""
+    """Every column's results as one tidy table (``value`` float64, NaN where missing)."""
     rows = [row for column in columns for row in column_rows(column)]
     frame = pd.DataFrame(rows, columns=[*FIELDS, "sequence", "metric", "value"] if not rows else None)
     frame["value"] = frame["value"].astype(np.float64)

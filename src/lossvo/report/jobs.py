@@ -71,8 +71,7 @@ def finite_number(value: Any) -> float | None:
 
 
 def job_dirs(sweep: Path) -> list[Path]:
-    """Job folders of a sweep (sub-folders holding ``.hydra/config.yaml``) by job number; SweepError
-    if there is none."""
+    """Job folders of a sweep (holding ``.hydra/config.yaml``) by job number; SweepError if none."""
     expected = "a Hydra sweep folder with job folders <num>_<overrides>/.hydra/config.yaml"
     if not sweep.is_dir():
         raise SweepError(f"{sweep}: no such folder (expected {expected})")
@@ -89,8 +88,7 @@ def job_number(path: Path) -> tuple[int, str]:
 
 
 def latest_sweep(parent: Path) -> Path:
-    """The newest sweep folder directly under ``parent`` by the mtime of its ``multirun.yaml`` (written when
-    the sweep starts), else of the folder; SweepError if there is none."""
+    """The newest sweep folder under ``parent`` (by its ``multirun.yaml``'s mtime); SweepError if none."""
     if not parent.is_dir():
         raise SweepError(f"{parent}: no such folder (expected a folder of sweeps, e.g. outputs/multirun)")
     sweeps = [p for p in parent.iterdir() if p.is_dir() and any(p.glob("*/.hydra/config.yaml"))]
@@ -106,8 +104,7 @@ def _started(path: Path) -> tuple[float, str]:
 
 @dataclass
 class Job:
-    """One job folder as read; ``code`` and ``machines``: the code versions and machines its processes ran
-    (status.json's history)."""
+    """One job folder as read (``code``, ``machines``: those its processes ran, from status.json)."""
 
     path: Path
     overrides: dict[str, str] = field(default_factory=dict)
@@ -209,8 +206,7 @@ def load_job(path: Path) -> Job:
 
 
 def _read_config(job: Job) -> None:
-    """A job's config, overrides, choices, seed, architecture and data from ``.hydra/``; UserError naming
-    a key of :data:`REQUIRED_CONFIG` that the config lacks."""
+    """Fill a job's config and what it names from ``.hydra/``; UserError without :data:`REQUIRED_CONFIG`."""
     from omegaconf import OmegaConf
 
     job.config = OmegaConf.load(job.path / ".hydra" / "config.yaml")
@@ -284,8 +280,7 @@ UNRECORDED = "unrecorded"
 def _pooled_note(
     jobs: Sequence[Job], values: Callable[[Job], tuple[str, ...]], ran: str, why: str
 ) -> str | None:
-    """The note naming each value (code version, machine) of the included jobs with its jobs, where they
-    have more than one; else None."""
+    """A note naming each value (code version, machine) of the included jobs with its jobs, if several."""
     found: dict[str, list[str]] = {}
     for job in (j for j in jobs if j.included):
         for value in values(job):
@@ -311,8 +306,7 @@ def machines_note(jobs: Sequence[Job]) -> str | None:
 
 
 def config_value(config: Any, key: str, default: Any = None) -> Any:
-    """The value at dotted ``key`` of a job config (a DictConfig or a mapping), interpolations resolved;
-    ``default`` where it is missing, null or unresolvable."""
+    """The resolved value at dotted ``key`` of a job config; ``default`` if missing, null or unresolvable."""
     from omegaconf import OmegaConf
 
     if config is None:
@@ -339,8 +333,7 @@ def check_on_disk(data: DataRecord, job: Job) -> None:
 
 
 def trained_sequences(job: Job) -> set[str]:
-    """The evaluated sequences an included job trained on: ``data.train`` where the evaluated root is the
-    training root, else none."""
+    """The evaluated sequences an included job trained on (none where it evaluated other data)."""
     data = job.included_results.data
     same = data.train_root is not None and os.path.realpath(data.root) == os.path.realpath(data.train_root)
     return set(data.train) if same else set()

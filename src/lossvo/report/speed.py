@@ -44,15 +44,13 @@ def stretches(true: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def speed_ratios(estimate: np.ndarray, gt: np.ndarray) -> dict[str, float]:
-    """Stretch -> mean predicted over mean true step length of a trajectory and its ground truth, (N, 4, 4)
-    m each."""
+    """Stretch -> mean predicted over mean true step length of ``estimate`` and ``gt`` (N, 4, 4), m."""
     true, predicted = step_lengths(gt), step_lengths(estimate)
     return {name: float(predicted[m].mean() / true[m].mean()) for name, m in stretches(true).items()}
 
 
 def speed_rows(networks: Sequence[Column], gt: Mapping[str, np.ndarray], sequences: Sequence[str]) -> Rows:
-    """One row per configuration and sequence outside the training split with ground truth: each
-    stretch's mean true step length and the predicted / true ratio over seeds."""
+    """Per configuration and held-out sequence: each stretch's true step length and ratio over seeds."""
     outside = [s for s in sequences if s in gt and s not in training_sequences(networks)]
     header = ["configuration", "sequence"]
     header += [f"{name}: {what}" for name in STRETCHES for what in ("true [m]", "predicted / true")]
@@ -64,17 +62,13 @@ def speed_rows(networks: Sequence[Column], gt: Mapping[str, np.ndarray], sequenc
 
 
 def _cells(column: Column, sequence: str, gt: np.ndarray) -> list[str]:
+    """Per stretch the true step length and the ratio over the seeds whose trajectory matches ``gt``."""
     true = step_lengths(gt)
     masks = stretches(true)
-    ratios = [speed_ratios(t, gt) for t in _trajectories(column, sequence, len(gt))]
+    found = (read_trajectory(job, sequence) for job in column.jobs)
+    ratios = [speed_ratios(t, gt) for t in found if t is not None and len(t) == len(gt)]
     cells: list[str] = []
     for name in STRETCHES:
         cell = Cell.of([r[name] for r in ratios])
         cells += [fmt(float(true[masks[name]].mean()), 3), mean_std_text(cell, 3)]
     return cells
-
-
-def _trajectories(column: Column, sequence: str, frames: int) -> list[np.ndarray]:
-    """The column's replicates' trajectories of ``sequence`` that exist and match its ground truth."""
-    found = (read_trajectory(job, sequence) for job in column.jobs)
-    return [t for t in found if t is not None and len(t) == frames]
