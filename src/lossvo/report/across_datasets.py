@@ -64,8 +64,7 @@ def find_evaluations(sweep: Path, jobs: Sequence[Job]) -> tuple[list[Evaluation]
         except JobFolderError as e:
             notes.append(str(e))
             continue
-        checkpoint = Path(results.checkpoint) if results.checkpoint else None
-        job_folder = checkpoint.resolve().parent.parent if checkpoint else None
+        job_folder = Path(results.checkpoint).resolve().parent.parent if results.checkpoint else None
         job = None if job_folder is None else by_folder.get(job_folder)
         if job is None and job_folder is not None and not job_folder.exists():
             job = by_name.get(job_folder.name)

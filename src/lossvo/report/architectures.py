@@ -104,19 +104,14 @@ def keyed(
 ) -> tuple[Column, set[str]]:
     """A copy of a network column with results keyed ``<dataset folder>|<sequence>`` (with its jobs'
     ``evaluations``), and the keys its jobs trained on."""
-    by_job: dict[Path, list[Evaluation]] = {}
-    for e in evaluations:
-        by_job.setdefault(e.job.path, []).append(e)
     results, trained = [], set()
     for job, per_sequence in zip(column.jobs, column.results, strict=True):
         data = job.results.data if job.results is not None else None
         root = _root(data.root if data else None)
         entry = {f"{root}{KEY_SEPARATOR}{s}": per_sequence[s] for s in sequences if s in per_sequence}
-        for e in by_job.get(job.path, []):
-            other = _root(e.results.data.root)
-            entry.update(
-                {f"{other}{KEY_SEPARATOR}{s}": r.scores for s, r in e.results.sequences.items() if r.scores}
-            )
+        for other in (e.results for e in evaluations if e.job.path == job.path):
+            key = _root(other.data.root) + KEY_SEPARATOR
+            entry.update({f"{key}{s}": r.scores for s, r in other.sequences.items() if r.scores})
         results.append(entry)
         if data is not None:
             trained |= {f"{_root(data.train_root)}{KEY_SEPARATOR}{s}" for s in data.train}

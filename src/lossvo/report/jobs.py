@@ -237,11 +237,8 @@ def read_choices(hydra_yaml: Path, overrides: dict[str, str]) -> dict[str, str]:
 def read_architecture(choices: dict[str, str], config: Any) -> str | None:
     """A job's architecture: its :data:`ARCHITECTURE_KEY` choice (``flowvo``), else the class name of
     ``model._target_`` (``DeepVO``); None without either."""
-    choice = choices.get(ARCHITECTURE_KEY)
-    if choice is None:
-        target = config_value(config, f"{ARCHITECTURE_KEY}._target_")
-        choice = str(target).rsplit(".", 1)[-1] if target is not None else None
-    return choice
+    target = config_value(config, f"{ARCHITECTURE_KEY}._target_")
+    return choices.get(ARCHITECTURE_KEY, str(target).rsplit(".", 1)[-1] if target is not None else None)
 
 
 def _running(path: Path) -> str:
