@@ -308,8 +308,6 @@ def config_value(config: Any, key: str, default: Any = None) -> Any:
 
     if config is None:
         return default
-    if not OmegaConf.is_config(config):
-        config = OmegaConf.create(config)
     value = OmegaConf.select(config, key, default=None, throw_on_resolution_failure=False)
     return default if value is None else value
 
