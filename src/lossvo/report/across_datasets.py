@@ -1,14 +1,6 @@
-"""The sweep's networks on other datasets: the table "trained on X, evaluated on Y".
-
-An evaluation is a folder holding the ``results.json`` that ``python -m lossvo.eval`` wrote for a checkpoint
-of one of the sweep's jobs, found under ``SWEEP/evaluations/`` (any depth), for example::
-
-    python -m lossvo.eval ckpt_path=SWEEP/3_loss-quat+seed-0/checkpoints/best.ckpt data=tum \\
-        data.sources.tum.root=/data/tum hydra.run.dir=SWEEP/evaluations/tum/3
-
-Each row pools one configuration (the job's label, seeds apart) on one evaluated dataset: the mean ± standard
-deviation over its seeds (n) of the pooled APE and RPE of every evaluated sequence. The sweep's own
-evaluations (on the data each job trained with) are the rows where both datasets agree.
+"""The sweep's networks on other datasets: the table "trained on X, evaluated on Y", from the results.json
+that ``python -m lossvo.eval`` wrote for the sweep's checkpoints under ``SWEEP/evaluations/``, with the
+baselines on each such dataset. See docs/report.md.
 """
 
 from __future__ import annotations
@@ -61,10 +53,7 @@ def dataset_name(layout: str, root: str | None) -> str:
 
 
 def find_evaluations(sweep: Path, jobs: Sequence[Job]) -> tuple[list[Evaluation], list[str]]:
-    """The evaluations under ``sweep/evaluations`` of checkpoints of ``jobs``, and a note for each
-    results.json that could not be used (unreadable, or of a checkpoint of no job of this sweep). A
-    checkpoint is a job's by its folder, or, where the sweep folder has moved since (an archive unpacked
-    elsewhere), by the name of its job folder."""
+    """The evaluations of ``jobs``' checkpoints under ``sweep/evaluations``, and notes on those unusable."""
     folder = sweep / EVALUATIONS
     by_folder = {job.path.resolve(): job for job in jobs if job.included}
     by_name = {job.path.name: job for job in jobs if job.included}
@@ -75,8 +64,7 @@ def find_evaluations(sweep: Path, jobs: Sequence[Job]) -> tuple[list[Evaluation]
         except JobFolderError as e:
             notes.append(str(e))
             continue
-        checkpoint = Path(results.checkpoint) if results.checkpoint else None
-        job_folder = checkpoint.resolve().parent.parent if checkpoint else None
+        job_folder = Path(results.checkpoint).resolve().parent.parent if results.checkpoint else None
         job = None if job_folder is None else by_folder.get(job_folder)
         if job is None and job_folder is not None and not job_folder.exists():
             job = by_name.get(job_folder.name)
@@ -88,15 +76,14 @@ def find_evaluations(sweep: Path, jobs: Sequence[Job]) -> tuple[list[Evaluation]
 
 
 def _key(job: Job, results: Results) -> tuple[str, str, str, str]:
-    """A row: the configuration, its training data, the evaluated data and sequences (so that an evaluation
-    on other sequences of the training data is a row of its own, not one more seed of the sweep's own)."""
+    """A row: the configuration, its training data, the evaluated data and sequences."""
     data: DataRecord = results.data
     trained = dataset_name(data.train_layout, data.train_root)
     return job.label, trained, dataset_name(data.layout, data.root), ", ".join(results.overall.sequences)
 
 
 def _cell(values: list[float]) -> str:
-    """``mean ± std`` (sample standard deviation; the mean alone for one value; ``-`` for none)."""
+    """``mean ± sample std`` (the mean alone for one value; ``-`` for none)."""
     if not values:
         return "-"
     if len(values) == 1:
@@ -109,10 +96,7 @@ def across_rows(
     evaluations: Sequence[Evaluation],
     base: dict[tuple[str, str], dict[str, Rmses]] | None = None,
 ) -> Rows:
-    """The table: one row per (configuration, trained on, evaluated on, sequences), the sweep's own
-    evaluations first, then the other datasets in name order, each set of sequences followed by its
-    baselines (``base``: {(evaluated dataset, sequences): {baseline: pooled RMSEs}},
-    :func:`across_baselines`); cells over seeds (:func:`_cell`)."""
+    """One row per :func:`_key` over seeds, own evaluations first, each set followed by its baselines."""
     base = base or {}
     runs = [(job, job.included_results) for job in jobs if job.included]
     runs += [(e.job, e.results) for e in evaluations]
@@ -137,8 +121,7 @@ def across_rows(
 
 @dataclass(frozen=True)
 class Rmses:
-    """What a row shows of one set of scores: the APE and RPE translation RMSEs (m), the scale-given RPE's
-    (m; None: not recorded) and the RPE rotation RMSE (rad)."""
+    """A row's APE, RPE, scale-given RPE (None: unrecorded) RMSEs (m) and RPE rotation RMSE (rad)."""
 
     ape: float
     rpe: float
@@ -152,8 +135,7 @@ class Rmses:
 
 
 def _score_cells(values: Sequence[Rmses], zero: Rmses | None) -> list[str]:
-    """APE, RPE, scale-given RPE and rotation cells over ``values`` (one a seed) and the rotation's reduction
-    against ``zero`` (zero motion's; ``-`` without)."""
+    """The cells over ``values`` (one a seed) and the rotation's reduction against zero motion's."""
     rot = [v.rot for v in values]
     below = "-" if zero is None else f"{1 - float(np.mean(rot)) / zero.rot:.0%}"
     scaled = [v.rpe_scaled for v in values if v.rpe_scaled is not None]
@@ -163,10 +145,8 @@ def _score_cells(values: Sequence[Rmses], zero: Rmses | None) -> list[str]:
 def across_baselines(
     evaluations: Sequence[Evaluation], cache_dir: Path, n_jobs: int
 ) -> tuple[dict[tuple[str, str], dict[str, Rmses]], list[str]]:
-    """The baselines (:func:`lossvo.evaluation.baselines.compute_baselines`) on each dataset and set of
-    sequences the sweep's checkpoints were evaluated on, other than their training data, pooled over those
-    sequences (:func:`pooled_rmses`): {(evaluated dataset, sequences): {baseline: RMSEs}}, and a note for
-    each without (:func:`baseline_training`)."""
+    """{(evaluated dataset, sequences): {baseline: pooled RMSEs}} where the evaluated data is not the
+    training data, and a note for each without."""
     by_key: dict[tuple[str, str], list[Results]] = {}
     for e in evaluations:
         data = e.results.data
@@ -199,24 +179,23 @@ def across_baselines(
 
 
 def baseline_training(results: Sequence[Results], single: Sequence[DataRecord]) -> DataRecord | None:
-    """Whose training split fits the baselines of the evaluations ``results`` of one dataset (the mean
-    motion, the flow's speed scale): the first there of a network trained on one dataset, else the first
-    such anywhere (``single``), else the first there of a network trained on several with their sources
-    recorded (its mean motion is that of every platform's training sequences); None without."""
+    """The training split for the baselines of ``results`` (of one dataset): the first there of a network
+    trained on one dataset, else the first such anywhere (``single``), else the first there of a network
+    trained on several with their sources recorded; None without."""
     own = [r.data for r in results if r.data.train_layout != MULTI_LAYOUT]
     several = [r.data for r in results if r.data.train_layout == MULTI_LAYOUT and r.data.train_sources]
     return next(iter([*own, *single, *several]), None)
 
 
 def with_training(data: DataRecord, training: DataRecord) -> DataRecord:
-    """``data``'s evaluated dataset with ``training``'s training split (root, names, layout, frames kept)."""
+    """``data``'s evaluated dataset with ``training``'s training split."""
     keys = ("train_root", "train", "train_layout", "train_keep_every", "train_sources")
     return replace(data, **{key: getattr(training, key) for key in keys})
 
 
 def pooled_rmses(results: Sequence[baselines.BaselineResult], delta: int) -> Rmses:
-    """One baseline's RMSEs pooled over sequences, as a network's ``overall``: each over every sequence's
-    errors, from each sequence's RMSE and its count of poses (APE) or of pose pairs ``delta`` apart (RPE)."""
+    """One baseline's RMSEs pooled over sequences as a network's ``overall`` is, weighting each sequence's
+    RMSE² by its count of poses (APE) or of pose pairs ``delta`` apart (RPE)."""
     frames = np.array([len(r.trajectory) for r in results], dtype=np.float64)
     pairs = np.maximum(frames - delta, 0)
     each = [Rmses.of(r.scores) for r in results]
@@ -235,8 +214,7 @@ def pooled_rmses(results: Sequence[baselines.BaselineResult], delta: int) -> Rms
 
 
 def read_as(results: Results) -> str:
-    """Which translation RPE reads an evaluation: ``metric`` where every scored sequence's platform gives
-    metric scale a cue, ``scale given`` where none does, ``per sequence`` for a mix, ``-`` unrecorded."""
+    """Which translation RPE reads an evaluation (``metric`` where every platform gives scale a cue)."""
     flags = {s.metric_scale for s in results.sequences.values() if s.scores is not None}
     if flags == {True}:
         return "metric"

@@ -1,13 +1,6 @@
-"""The baselines in a sweep report: their table columns and section (:func:`run_baselines`,
-:func:`baselines_markdown`), and each job against them: below the training mean motion on the validation
-sequences (:func:`learning_markdown`), below zero motion in rotation and below the sequence's own mean
-motion in translation on the unseen-motion sequences (:func:`unseen_markdown`).
-
-The baselines of a sequence use the data that the results.json of a job which evaluated it records (its
-:class:`lossvo.evaluation.job_folder.DataRecord`): the included jobs are grouped by their data, and each
-group's first job gives the baselines of the sequences its group evaluated (a sequence two groups evaluated
-takes the first group's, with a note). Where a group's data is no longer on disk, its sequences have no
-baseline and one note says why.
+"""The baselines in a sweep report (:func:`run_baselines`, computed on the data each sequence's jobs
+recorded, :func:`data_groups`), their section, and each job against them on the validation sequences
+(:func:`learning_markdown`) and the unseen-motion ones (:func:`unseen_markdown`). See docs/report.md.
 """
 
 from __future__ import annotations
@@ -46,9 +39,7 @@ LEARNING_METRICS = (("RPE trans", RPE_TRANS), ("RPE rot", RPE_ROT))
 
 @dataclass
 class BaselineRun:
-    """The baselines of a report: columns, trajectories (N, 4, 4) per sequence and baseline, ORB failures
-    and frame counts per sequence, notes, the time taken (s) and how many sequences came from the
-    cache."""
+    """The baselines of a report: columns, trajectories (N, 4, 4), ORB failures, frame counts and notes."""
 
     columns: list[Column] = field(default_factory=list)
     trajectories: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
@@ -60,7 +51,7 @@ class BaselineRun:
 
 
 def evaluation_settings(jobs: Sequence[Job]) -> tuple[str, int, list[str]]:
-    """(align, delta) of the included jobs' results.json (the first job's) and notes if they differ."""
+    """(align, delta) of the first job's results.json, and a note if the jobs differ."""
     settings = [(j.included_results.align, j.included_results.delta) for j in jobs]
     differ = f"jobs differ in align/delta {sorted(set(settings))}: baselines use {settings[0]}"
     return *settings[0], [differ] if len(set(settings)) > 1 else []
@@ -69,9 +60,8 @@ def evaluation_settings(jobs: Sequence[Job]) -> tuple[str, int, list[str]]:
 def data_groups(
     jobs: Sequence[Job], sequences: Sequence[str]
 ) -> tuple[list[tuple[Job, list[str]]], list[str]]:
-    """The included ``jobs`` grouped by their data (:meth:`DataRecord.identity`), in order of first
-    appearance: each group's first job and the ``sequences`` its group evaluated that no earlier group did;
-    and a note naming the sequences several groups evaluated."""
+    """The included ``jobs`` grouped by their data (:meth:`DataRecord.identity`): each group's first job
+    with the ``sequences`` its group evaluated and no earlier group did; a note naming those shared."""
     groups: dict[str, tuple[Job, set[str]]] = {}
     for job in jobs:
         key = json.dumps(job.included_results.data.identity(), sort_keys=True)
@@ -91,8 +81,7 @@ def data_groups(
 
 
 def run_baselines(jobs: Sequence[Job], sequences: Sequence[str], cache_dir: Path, n_jobs: int) -> BaselineRun:
-    """Baselines on ``sequences``, each on the data of the jobs that evaluated it (:func:`data_groups`);
-    never raises (a group's failure becomes a note and no baseline for its sequences)."""
+    """Baselines on ``sequences``, each on its jobs' data; a group's failure is a note."""
     run = BaselineRun()
     start = time.perf_counter()
     align, delta, run.notes = evaluation_settings(jobs)
@@ -118,7 +107,7 @@ def run_baselines(jobs: Sequence[Job], sequences: Sequence[str], cache_dir: Path
 def _fill(
     run: BaselineRun, results: dict[str, dict[str, baselines.BaselineResult]], sequences: Sequence[str]
 ) -> None:
-    """A run's columns, trajectories, failure and frame counts from :func:`baselines.compute_baselines`."""
+    """A run's columns, trajectories, failures and frame counts from the baselines' results."""
     for name in baselines.NAMES:
         per_sequence = {s: results[s][name].scores for s in sequences}
         run.columns.append(Column(name, BASELINE, ["deterministic"], [per_sequence]))
@@ -154,7 +143,7 @@ BASELINES_TEXT = [
 
 
 def baselines_markdown(run: BaselineRun, enabled: bool) -> str:
-    """The *Baselines* section: what each baseline is, ORB failures, time and cache use, notes."""
+    """The *Baselines* section."""
     if not enabled:
         return "Baselines were not computed (`--no-baselines`)."
     lines = list(BASELINES_TEXT)
@@ -185,7 +174,7 @@ def reduction(value: object, reference: object) -> float | None:
 
 
 def _below(value: Scores | None, baseline: Scores | None, path: Sequence[str]) -> str:
-    """How far below ``baseline``'s a value at ``path`` lies, as text (``"12 %"``; ``"–"`` where unknown)."""
+    """How far below ``baseline``'s a value at ``path`` lies, as text (``"12 %"``)."""
     r = reduction(metric_value(value, path), metric_value(baseline, path))
     return "–" if r is None else f"{100 * r:.0f} %"
 
@@ -195,8 +184,7 @@ def _baseline(base: BaselineRun, name: str) -> Column | None:
 
 
 def learning_markdown(networks: Sequence[Column], base: BaselineRun, by_architecture: bool = False) -> str:
-    """Per job and validation sequence (the configs' ``data.splits.val``): how far below the mean-motion
-    baseline its RPE lies (with ``by_architecture`` the job's architecture first)."""
+    """Per job and validation sequence, how far below the mean-motion baseline its RPE lies."""
     mean_motion = _baseline(base, baselines.MEAN)
     sequences = config_sequences((j for c in networks for j in c.jobs), "data.splits.val")
     if mean_motion is None or not sequences:
@@ -222,10 +210,7 @@ UNSEEN_HEADER = ("RPE rot [rad]", "vs zero motion", "RPE trans [m]", "vs own mea
 
 
 def unseen_cells(entry: Scores | None, zero: Scores | None, own: Scores | None) -> tuple[list[str], bool]:
-    """A job's cells of :data:`UNSEEN_HEADER` on one unseen-motion sequence, against the zero-motion and
-    own-mean-motion baselines' scores there (None where missing), and whether both are met: the RPE
-    rotation RMSE (rad) at least :data:`UNSEEN_ROTATION_BAR` below zero motion's and the RPE translation
-    RMSE (m) below the oracle's (reductions 1 - network / baseline; a missing value meets neither)."""
+    """A job's :data:`UNSEEN_HEADER` cells on one sequence, and whether both criteria are met."""
     rot, trans = (finite_number(metric_value(entry, path)) for path in (RPE_ROT, RPE_TRANS))
     rot_down = reduction(rot, metric_value(zero, RPE_ROT))
     trans_down = reduction(trans, metric_value(own, RPE_TRANS))
@@ -249,14 +234,11 @@ UNSEEN_TEXT = (
 def unseen_markdown(
     networks: Sequence[Column], base: BaselineRun, unseen: Sequence[str], by_architecture: bool = False
 ) -> str:
-    """Per job and unseen-motion sequence: RPE rotation against zero motion, RPE translation against the
-    sequence's own mean motion, whether both criteria are met; then how many jobs meet both on every
-    unseen sequence. With ``by_architecture`` the job's architecture first and a count per architecture."""
+    """Per job and unseen-motion sequence :func:`unseen_cells`, and how many jobs meet both on every one."""
     zero, own = _baseline(base, baselines.ZERO), _baseline(base, baselines.OWN)
     if zero is None or own is None:
         return "No zero-motion or own-mean-motion baseline: nothing to compare."
     rows: list[list[object]] = []
-    architectures: list[str | None] = []
     passed: dict[str, list[bool]] = {}
     for column in networks:
         for job, results in zip(column.jobs, column.results, strict=True):
@@ -266,10 +248,10 @@ def unseen_markdown(
             rows += [
                 [column.label, job.seed, s, *cells] for s, (cells, _) in zip(unseen, checks, strict=True)
             ]
-            architectures += [column.architecture] * len(unseen)
             passed.setdefault(column.architecture or UNKNOWN_ARCHITECTURE, []).append(
                 all(met for _, met in checks)
             )
+    architectures = [c.architecture for c in networks for _ in c.jobs for _ in unseen]
     table = with_architecture(
         Rows(["configuration", "seed", "sequence", *UNSEEN_HEADER], rows), architectures, by_architecture
     )

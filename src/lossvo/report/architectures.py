@@ -1,14 +1,7 @@
-"""Where a sweep varies the architecture: does the loss ranking agree between the architectures?
-
-For each quantity of claim (a) (:data:`lossvo.report.claims.CLAIM_ERRORS`: RPE translation and rotation
-and APE translation RMSE), a seed's score is its mean over the evaluated sequences outside the training
-split, as in claim (a). Each architecture ranks its configurations, named by their treatment (the varying
-overrides without the architecture, :func:`lossvo.report.configurations.treatments`: ``loss=euler``), by
-the mean over seeds. For every pair of architectures, on the treatments both have and the seeds every one
-of those configurations has, the architecture x loss interaction is tested by
-:func:`lossvo.report.statistics.interaction_test` and worded by
-:func:`~lossvo.report.statistics.interaction_verdict` (the *Architectures* section of report.md,
-``tables/rankings.csv`` and ``tables/interaction.csv``).
+"""Where a sweep varies the architecture, does the loss ranking agree between architectures? Each
+architecture's ranking of its treatments on each quantity of claim (a), and an architecture x loss
+interaction test per pair (:func:`lossvo.report.statistics.interaction_test`): the *Architectures* section,
+``tables/rankings.csv`` and ``tables/interaction.csv``. See docs/report.md.
 """
 
 from __future__ import annotations
@@ -35,8 +28,7 @@ UNTESTED = "cannot be tested"
 
 @dataclass
 class Ranking:
-    """One architecture's configurations on one quantity, lowest mean first: (treatment, mean ± std over
-    seeds of each seed's score) each."""
+    """One architecture's treatments on one quantity with their cell over seeds, lowest mean first."""
 
     quantity: str
     architecture: str
@@ -49,10 +41,7 @@ class Ranking:
 
 @dataclass
 class Interaction:
-    """The interaction test of one pair of architectures (A, B) on one quantity: the treatments and seeds
-    it used, whether the two rankings order those treatments alike, the test (None where untested, then
-    ``untested`` says why), its verdict and the ``sequences`` a seed's score averages (with their dataset's
-    folder)."""
+    """The interaction test of two architectures on one quantity (None where ``untested`` says why)."""
 
     quantity: str
     architectures: tuple[str, str]
@@ -67,8 +56,7 @@ class Interaction:
 
 @dataclass
 class Agreement:
-    """The section: the held-out ``sequences`` the scores average, the rankings and interaction tests per
-    quantity; ``untested`` says why there are none."""
+    """The section: the held-out ``sequences``, the rankings and the tests; ``untested`` says why none."""
 
     sequences: list[str] = field(default_factory=list)
     rankings: list[Ranking] = field(default_factory=list)
@@ -86,7 +74,7 @@ def rank(quantity: str, architecture: str, scores: dict[str, dict[str, float]]) 
 def interaction(
     quantity: str, pair: tuple[Ranking, Ranking], scores: tuple[dict[str, dict[str, float]], ...]
 ) -> Interaction:
-    """The interaction test of architectures A, B (their rankings and {treatment: {seed: score}})."""
+    """The interaction test of architectures A, B from their rankings and {treatment: {seed: score}}."""
     (a, b), (sa, sb) = pair, scores
     common = [t for t in a.order(list(sa)) if t in sb]
     seeds = [r for r in sa[common[0]] if all(r in s[t] for s in (sa, sb) for t in common)] if common else []
@@ -104,7 +92,7 @@ def interaction(
 
 
 KEY_SEPARATOR = "|"
-"""Between a dataset's folder and a sequence's name in a :func:`keyed` column: one sequence of one dataset."""
+"""Between a dataset's folder and a sequence's name in a :func:`keyed` column's results."""
 
 
 def _root(path: str | None) -> str:
@@ -114,23 +102,16 @@ def _root(path: str | None) -> str:
 def keyed(
     column: Column, sequences: Sequence[str], evaluations: Sequence[Evaluation]
 ) -> tuple[Column, set[str]]:
-    """A copy of a network column whose results are keyed ``<dataset folder>|<sequence>`` (its own of
-    ``sequences``, and those of its jobs' evaluations on other data, :mod:`lossvo.report.across_datasets`),
-    and the keys its jobs trained on: two configurations trained on different data are compared on the
-    frames both were evaluated on."""
-    by_job: dict[Path, list[Evaluation]] = {}
-    for e in evaluations:
-        by_job.setdefault(e.job.path, []).append(e)
+    """A copy of a network column with results keyed ``<dataset folder>|<sequence>`` (with its jobs'
+    ``evaluations``), and the keys its jobs trained on."""
     results, trained = [], set()
     for job, per_sequence in zip(column.jobs, column.results, strict=True):
         data = job.results.data if job.results is not None else None
         root = _root(data.root if data else None)
         entry = {f"{root}{KEY_SEPARATOR}{s}": per_sequence[s] for s in sequences if s in per_sequence}
-        for e in by_job.get(job.path, []):
-            other = _root(e.results.data.root)
-            entry.update(
-                {f"{other}{KEY_SEPARATOR}{s}": r.scores for s, r in e.results.sequences.items() if r.scores}
-            )
+        for other in (e.results for e in evaluations if e.job.path == job.path):
+            key = _root(other.data.root) + KEY_SEPARATOR
+            entry.update({f"{key}{s}": r.scores for s, r in other.sequences.items() if r.scores})
         results.append(entry)
         if data is not None:
             trained |= {f"{_root(data.train_root)}{KEY_SEPARATOR}{s}" for s in data.train}
@@ -139,8 +120,7 @@ def keyed(
 
 
 def common_held_out(a: Sequence[tuple[Column, set[str]]], b: Sequence[tuple[Column, set[str]]]) -> list[str]:
-    """The keys that some configuration of each of two groups of :func:`keyed` columns has and none of
-    them trained on, in order of first appearance."""
+    """The keys that both groups of :func:`keyed` columns have and none trained on."""
 
     def keys(group: Sequence[tuple[Column, set[str]]]) -> list[str]:
         return list(dict.fromkeys(k for c, _ in group for r in c.results for k in r))
@@ -151,7 +131,7 @@ def common_held_out(a: Sequence[tuple[Column, set[str]]], b: Sequence[tuple[Colu
 
 
 def sequence_name(key: str) -> str:
-    """A key as the report names it: ``07 (synthetic)``, the sequence and its dataset's folder."""
+    """A key as the report names it: ``07 (synthetic)``."""
     root, _, name = key.rpartition(KEY_SEPARATOR)
     return f"{name} ({Path(root).name})"
 
@@ -166,11 +146,7 @@ NO_COMMON = (
 def architecture_agreement(
     networks: Sequence[Column], sequences: Sequence[str], evaluations: Sequence[Evaluation] = ()
 ) -> Agreement:
-    """Rankings per architecture and interaction tests per pair of architectures, on each quantity of
-    :data:`lossvo.report.claims.CLAIM_ERRORS`: each architecture ranked over the ``sequences`` it evaluated
-    outside its training split (:func:`lossvo.report.claims.heldout_sequences`); each pair tested over the
-    sequences of one dataset that both evaluated, on their own data or in ``evaluations``, and neither
-    trained on (:func:`common_held_out`)."""
+    """Rankings per architecture and interaction tests per pair on each quantity of claim (a)."""
     groups = architecture_groups(networks)
     names = treatments(networks)
     heldout = {architecture: heldout_sequences(group, sequences) for architecture, group in groups.items()}
@@ -202,10 +178,6 @@ def architecture_agreement(
     return out
 
 
-# --------------------------------------------------------------------------------------------------
-# Text and rows
-# --------------------------------------------------------------------------------------------------
-
 AGREEMENT_TEXT = (
     "The sweep varies the architecture. A seed's score is its mean over the sequences its architecture "
     "evaluated outside its training split (of {sequences}), as in claim (a); each architecture ranks its "
@@ -228,7 +200,7 @@ def _ranking_text(ranking: Ranking) -> str:
 
 
 def ranking_rows(agreement: Agreement) -> Rows:
-    """Per quantity and architecture, the configurations lowest first with their mean ± std."""
+    """Per quantity and architecture, the configurations lowest first."""
     rows: list[list[object]] = [[r.quantity, r.architecture, _ranking_text(r)] for r in agreement.rankings]
     return Rows(["quantity", "architecture", "ranking (lowest first; mean ± std over seeds)"], rows)
 
@@ -242,8 +214,7 @@ def _test_cells(i: Interaction) -> list[object]:
 
 
 def interaction_rows(agreement: Agreement) -> Rows:
-    """Per quantity and pair of architectures: the configurations, seeds, whether the rankings agree in
-    order, F, p, the relabellings, the smallest p at this n and the verdict."""
+    """Per quantity and pair of architectures: what was tested, the test and the verdict."""
     header = ["quantity", "architectures", "configurations", "seeds", "same order", "F", "p",
               "relabellings", "smallest p at this n", "verdict"]  # fmt: skip
     rows: list[list[object]] = []
@@ -256,8 +227,7 @@ def interaction_rows(agreement: Agreement) -> Rows:
 
 
 def verdict_line(i: Interaction) -> str:
-    """The verdict of one test in one line: the quantity and architectures, the verdict, n, the test, F
-    and p, and why it cannot decide where it cannot."""
+    """The verdict of one test in one line, with n, F and p (and why it cannot decide where it cannot)."""
     head = f"**{i.quantity}, {' vs '.join(i.architectures)}: {i.verdict}.**"
     if i.test is None:
         return f"{head} {i.untested}."
@@ -298,8 +268,7 @@ def agreement_markdown(agreement: Agreement) -> str:
 
 
 def rankings_csv_rows(agreement: Agreement) -> Rows:
-    """``tables/rankings.csv``: per quantity, architecture and rank (1 = lowest) the configuration and its
-    mean, std (empty for n < 2) and n, full precision."""
+    """``tables/rankings.csv``: per quantity, architecture and rank (1 = lowest), full precision."""
     rows: list[list[object]] = [
         [r.quantity, r.architecture, k, t, repr(c.mean) if c.n else "", repr(c.std) if c.n > 1 else "", c.n]
         for r in agreement.rankings
@@ -309,9 +278,7 @@ def rankings_csv_rows(agreement: Agreement) -> Rows:
 
 
 def interaction_csv_rows(agreement: Agreement) -> Rows:
-    """``tables/interaction.csv``: one row per quantity and pair of architectures, full precision; an
-    untested pair has verdict ``cannot be tested`` and the reason in ``note`` (a section that cannot be
-    tested at all: one such row)."""
+    """``tables/interaction.csv``: per quantity and pair of architectures, full precision."""
     header = ["quantity", "architecture_a", "architecture_b", "configurations", "seeds", "same_order",
               "statistic", "p_value", "permutations", "exact", "smallest_p", "verdict", "note",
               "sequences"]  # fmt: skip

@@ -1,15 +1,6 @@
 """A sweep folder -> the study's tables and figures: ``python -m lossvo.report SWEEP_DIR [--out DIR]``.
 
-Command line::
-
-    python -m lossvo.report outputs/multirun/2026-11-23_10-00-00
-    python -m lossvo.report --latest outputs/multirun          # the newest sweep under that folder
-    python -m lossvo.report SWEEP_DIR --out DIR --no-baselines
-    python -m lossvo.report SWEEP_DIR --margin 0.02        # equivalence within ±2 % (default 5 %)
-    python -m lossvo.report SWEEP_DIR --claimed-loss QuatLoss  # the claims about QuatLoss's configurations
-
-It prints the path of ``report.md``. A folder that is not a sweep, a bad option or an ``--out`` that is a
-file is a one-line error, exit status 2 (``LOSSVO_FULL_ERROR=1``: its traceback instead).
+Prints the path of ``report.md``; bad input is a one-line error, exit status 2. See docs/report.md.
 """
 
 from __future__ import annotations
@@ -66,8 +57,7 @@ def parser() -> argparse.ArgumentParser:
 
 
 def check_writable(out: Path, given: bool) -> None:
-    """Refuse, before any work, a report folder that cannot be written (a read-only sweep folder):
-    :class:`~lossvo.console.UserError` naming it, and ``--out`` where the folder was the default."""
+    """UserError, before any work, where ``out`` (``given`` by ``--out``) cannot be written."""
     try:
         out.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=out):
@@ -82,8 +72,7 @@ def check_writable(out: Path, given: bool) -> None:
 
 @one_line_main
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m lossvo.report SWEEP_DIR [--out DIR] [--latest] [--no-baselines] [--jobs N]``; returns
-    the exit status (2: not a sweep)."""
+    """``python -m lossvo.report``; returns the exit status."""
     command = parser()
     args = command.parse_args(argv)
     if args.jobs is not None and args.jobs < 1:

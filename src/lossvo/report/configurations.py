@@ -1,12 +1,6 @@
-"""The compared configurations of a sweep: jobs grouped by the overrides that differ (seeds as
-replicates), each with its architecture (and its training data where the sweep varies it), grouped by
-architecture where the sweep varies either; each
-configuration's rotation weighting (k · gain) and the metric that selected its best checkpoint, and the
-configurations table of report.md and ``tables/configurations.csv``.
-
-Everything is read from the jobs' ``.hydra/config.yaml`` (and metrics.csv for learned weighting); the loss
-classes are looked up by their ``_target_`` only for their ``small_angle_gain`` and, through
-:func:`lossvo.weighting.preset_k`, a preset's k.
+"""The compared configurations of a sweep (jobs grouped by the overrides that differ, seeds as replicates),
+their architectures, rotation weighting (k · gain) and selection metric, and the configurations table; read
+from the jobs' ``.hydra/`` (and metrics.csv for learned weighting). See docs/report.md.
 """
 
 from __future__ import annotations
@@ -37,64 +31,39 @@ from lossvo.table_render import Rows
 SCORE = "val/score"
 """The loss-independent validation score (:mod:`lossvo.training.selection`)."""
 LOSS_DEPENDENT = ("val/loss", "val/rot_loss")
-"""Monitors whose value depends on the loss and its weights: the same key names a different metric in
-configurations that differ in loss or weighting."""
-
-
-# --------------------------------------------------------------------------------------------------
-# Jobs -> configurations
-# --------------------------------------------------------------------------------------------------
-
-
-def design(jobs: Sequence[Job]) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """The jobs' study design, one row per job: their overrides other than ``seed`` (a column per key, in
-    the order the keys first appear; None where a job has no such override), and their choice in each of
-    :data:`GROUPS` as it resolved (:func:`group_choice`)."""
-    index = pd.RangeIndex(len(jobs))
-    rows = [{k: v for k, v in job.overrides.items() if k != REPLICATE_KEY} for job in jobs]
-    overrides = pd.DataFrame(rows, index=index, dtype=object)
-    choices = pd.DataFrame(
-        {g: [group_choice(job, g) for job in jobs] for g in GROUPS}, index=index, dtype=object
-    )
-    return overrides, choices
-
-
-CONFIGURATION_KEYS = ("experiment", ARCHITECTURE_KEY, DATA_KEY)
-"""The keys that name a configuration, first in a label (``model=flowvo,loss=euler``) whatever order the
-jobs' folders are read in."""
-
-
-def varying_keys(jobs: Sequence[Job]) -> list[str]:
-    """Override keys (other than ``seed``) whose value differs between jobs or is missing in some:
-    :data:`CONFIGURATION_KEYS` first, then the others in the order they first appear; the training
-    data's and the architecture's only where the choice they resolve to differs (:func:`group_choice`:
-    an ``experiment`` may make it), and without the settings that each choice fixes
-    (:func:`_fixed_by_group`)."""
-    overrides, choices = design(jobs)
-    values = overrides.assign(**{g: choices[g] for g in GROUPS if g in overrides})
-    varies = values.nunique(dropna=False) > 1
-    keys = [k for k in overrides if varies[k] and not _fixed_by_group(k, overrides, choices)]
-    return sorted(
-        keys,
-        key=lambda k: CONFIGURATION_KEYS.index(k) if k in CONFIGURATION_KEYS else len(CONFIGURATION_KEYS),
-    )
-
+"""Monitors whose value depends on the loss and its weights."""
 
 GROUPS = (DATA_KEY, ARCHITECTURE_KEY)
 """The config groups whose choice groups configurations (compared within each choice)."""
 
 
-def group_choice(job: Job, group: str) -> str | None:
-    """A job's choice in one of :data:`GROUPS` as Hydra recorded it (``job.data``, ``job.architecture``:
-    :func:`lossvo.report.jobs.read_choices`)."""
-    return job.data if group == DATA_KEY else job.architecture
+def design(jobs: Sequence[Job]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """One row per job: its overrides other than ``seed`` (a column per key), and its :data:`GROUPS`
+    choices."""
+    index = pd.RangeIndex(len(jobs))
+    rows = [{k: v for k, v in job.overrides.items() if k != REPLICATE_KEY} for job in jobs]
+    overrides = pd.DataFrame(rows, index=index, dtype=object)
+    chosen = {DATA_KEY: [j.data for j in jobs], ARCHITECTURE_KEY: [j.architecture for j in jobs]}
+    return overrides, pd.DataFrame(chosen, index=index, dtype=object)
+
+
+CONFIGURATION_KEYS = ("experiment", ARCHITECTURE_KEY, DATA_KEY)
+"""The keys that come first in a configuration's label (``model=flowvo,loss=euler``)."""
+
+
+def varying_keys(jobs: Sequence[Job]) -> list[str]:
+    """Override keys (other than ``seed``) whose value differs between jobs or is missing in some,
+    :data:`CONFIGURATION_KEYS` first; a group's key only where its resolved choice differs, and without
+    the settings that each choice fixes (:func:`_fixed_by_group`)."""
+    overrides, choices = design(jobs)
+    values = overrides.assign(**{g: choices[g] for g in GROUPS if g in overrides})
+    varies = values.nunique(dropna=False) > 1
+    keys = [k for k in overrides if varies[k] and not _fixed_by_group(k, overrides, choices)]
+    return [k for k in CONFIGURATION_KEYS if k in keys] + [k for k in keys if k not in CONFIGURATION_KEYS]
 
 
 def _fixed_by_group(key: str, overrides: pd.DataFrame, choices: pd.DataFrame) -> bool:
-    """Whether ``key`` sets part of one of :data:`GROUPS` whose choice differs between jobs
-    (``data.sources.car.root`` of ``data``) and takes one value (or none) among the jobs of each choice
-    (:func:`design`'s frames): part of what the choice names (its data's folders), not a compared
-    treatment."""
+    """Whether ``key`` (``data.sources.car.root``) takes one value per choice of a group that varies."""
     for group in GROUPS:
         if key.startswith(f"{group}."):
             values = overrides[key].groupby(choices[group], dropna=False).nunique(dropna=False)
@@ -104,8 +73,8 @@ def _fixed_by_group(key: str, overrides: pd.DataFrame, choices: pd.DataFrame) ->
 
 
 def label_jobs(jobs: Sequence[Job]) -> None:
-    """Set each job's ``label`` from the varying overrides (``loss=euler``); the common overrides name a
-    sweep whose jobs differ only in seed."""
+    """Set each job's ``label`` from the varying overrides (``loss=euler``); from all of them where only
+    the seed varies."""
     keys = varying_keys(jobs)
     for job in jobs:
         names = [f"{k}={job.overrides[k]}" for k in keys if k in job.overrides]
@@ -115,9 +84,8 @@ def label_jobs(jobs: Sequence[Job]) -> None:
 
 
 def network_columns(jobs: Sequence[Job]) -> list[Column]:
-    """One column per configuration (jobs with equal labels), replicates ordered by seed, with its
-    architecture (:func:`column_architecture`; ``flowvo on data=mix`` where the jobs vary
-    :data:`DATA_KEY`); only included jobs; in the order of the configurations' first job."""
+    """One column per label of the included jobs, replicates by seed, architecture ``flowvo on data=mix``
+    where the data varies."""
     columns: dict[str, Column] = {}
     for job in jobs:
         if job.included:
@@ -134,19 +102,13 @@ def network_columns(jobs: Sequence[Job]) -> list[Column]:
     return list(columns.values())
 
 
-# --------------------------------------------------------------------------------------------------
-# Architectures
-# --------------------------------------------------------------------------------------------------
-
-
 def column_architecture(jobs: Sequence[Job]) -> str:
-    """The architecture of a configuration's jobs (``flowvo``); several, should its seeds differ, joined
-    by ``" + "``; :data:`UNKNOWN_ARCHITECTURE` where none is known."""
+    """The architecture of a configuration's jobs (``flowvo``); several joined by ``" + "``."""
     return " + ".join(sorted({j.architecture or UNKNOWN_ARCHITECTURE for j in jobs})) or UNKNOWN_ARCHITECTURE
 
 
 def architecture_groups(columns: Sequence[Column]) -> dict[str, list[Column]]:
-    """The network columns by architecture, architectures in the order of their first configuration."""
+    """The network columns by architecture, first seen first."""
     groups: dict[str, list[Column]] = {}
     for column in columns:
         if column.kind == NETWORK:
@@ -155,22 +117,18 @@ def architecture_groups(columns: Sequence[Column]) -> dict[str, list[Column]]:
 
 
 def varies_architecture(columns: Sequence[Column]) -> bool:
-    """Whether the network columns span more than one architecture (then the report is given per
-    architecture)."""
+    """Whether the network columns span more than one architecture."""
     return len(architecture_groups(columns)) > 1
 
 
 def architecture_file_name(architecture: str) -> str:
-    """An architecture's name as part of a file name (``flowvo``; characters other than letters, digits,
-    ``_``, ``.`` and ``-`` replaced by ``-``; ``unknown`` for :data:`UNKNOWN_ARCHITECTURE`)."""
+    """An architecture's name as part of a file name (``flowvo on data=mix`` -> ``flowvo-on-data-mix``)."""
     return re.sub(r"[^A-Za-z0-9_.-]+", "-", architecture).strip("-.") or "unknown"
 
 
 def treatments(columns: Sequence[Column]) -> dict[str, str]:
-    """``{label: treatment}`` of the network columns: a configuration's varying overrides without those
-    that name its group (:data:`GROUPS`, and any other, such as ``experiment=mix``, that takes one value
-    within each group: ``model=flowvo,loss=euler`` -> ``loss=euler``), which names the same loss (and
-    weights, ...) in every architecture and training data; ``defaults`` where nothing else varies."""
+    """``{label: treatment}`` of the network columns: the varying overrides without those that name the
+    group (:data:`GROUPS`, or take one value within each: ``model=flowvo,loss=euler`` -> ``loss=euler``)."""
     networks = [c for c in columns if c.kind == NETWORK and c.jobs]
     jobs = [j for c in networks for j in c.jobs]
     overrides, choices = design(jobs)
@@ -185,20 +143,15 @@ def treatments(columns: Sequence[Column]) -> dict[str, str]:
 
 
 def _seed_order(seed: Any) -> tuple[int, float, str]:
-    """Sort key of seeds: numbers numerically (2 before 10), then anything else by its text."""
+    """Sort key of seeds: numbers numerically (2 before 10), then the rest by text."""
     try:
         return (0, float(seed), "")
     except (TypeError, ValueError):
         return (1, 0.0, str(seed))
 
 
-# --------------------------------------------------------------------------------------------------
-# Rotation weighting
-# --------------------------------------------------------------------------------------------------
-
-
 def loss_target(job: Job) -> str | None:
-    """The job's ``loss._target_`` (e.g. ``lossvo.losses.ChordalLoss``), None if missing."""
+    """The job's ``loss._target_`` (``lossvo.losses.ChordalLoss``), None if missing."""
     target = config_value(job.config, "loss._target_")
     return str(target) if target is not None else None
 
@@ -210,8 +163,7 @@ def loss_class_name(job: Job) -> str | None:
 
 
 def loss_attribute(target: str | None, name: str) -> float | None:
-    """A numeric class attribute (``small_angle_gain``, ``paper_k``) of the loss class named ``target``;
-    None if the class cannot be imported or lacks it."""
+    """A numeric class attribute (``small_angle_gain``) of the loss class ``target``; None if unavailable."""
     from hydra.utils import get_class
 
     if not target:
@@ -224,9 +176,8 @@ def loss_attribute(target: str | None, name: str) -> float | None:
 
 @dataclass(frozen=True)
 class Weighting:
-    """A job's rotation weighting: loss class, ``weighting.preset``, k, the loss's small-angle gain (rotation
-    term ~ gain·theta², theta in rad) and the rotation weight relative to the translation term (k·gain, or
-    gain·exp(s_t − s_r) at the last epoch under learned weighting); None where unknown."""
+    """A job's rotation weighting: small-angle gain (rotation term ~ gain·theta², rad) and weight (k·gain,
+    or gain·exp(s_t − s_r) at the last epoch when learned); None where unknown."""
 
     loss: str | None
     preset: str | None
@@ -253,7 +204,7 @@ def learned_ratio(curves: Curves | None) -> float | None:
 
 
 def job_weighting(job: Job) -> Weighting:
-    """How the job weighted its rotation term, from ``.hydra/config.yaml`` (and metrics.csv for learned)."""
+    """How the job weighted its rotation term."""
     target = loss_target(job)
     preset = config_value(job.config, "weighting.preset")
     preset = str(preset) if preset is not None else None
@@ -270,8 +221,7 @@ def job_weighting(job: Job) -> Weighting:
 
 
 def _preset_k(job: Job, target: str | None, preset: str | None) -> float | None:
-    """``loss.k`` if it is a number, else the preset's k (:func:`lossvo.weighting.preset_k`: matched
-    c / gain, paper the class's); None where neither can be had."""
+    """``loss.k`` if it is a number, else the preset's k (:func:`lossvo.weighting.preset_k`), else None."""
     k = finite_number(config_value(job.config, "loss.k"))
     if k is not None or preset not in ("matched", "paper") or target is None:
         return k
@@ -282,13 +232,12 @@ def _preset_k(job: Job, target: str | None, preset: str | None) -> float | None:
 
 
 def short(x: float | None) -> str:
-    """A weight or gain with up to 4 significant digits (``100``, ``0.25``, ``33.33``); ``"?"`` if None."""
+    """A weight or gain with up to 4 significant digits; ``"?"`` if None."""
     return "?" if x is None else f"{x:.4g}"
 
 
 def weight_text(weightings: Sequence[Weighting]) -> str:
-    """The effective small-angle rotation weight of a configuration's seeds as text: one number (k·gain),
-    ``"learned: mean ± std"`` over seeds, ``"?"`` where unknown."""
+    """The rotation weight of a configuration's seeds as text (``"learned: mean ± std"`` if learned)."""
     if not weightings:
         return "?"
     if any(w.learned for w in weightings):
@@ -301,27 +250,16 @@ def weight_text(weightings: Sequence[Weighting]) -> str:
     return ", ".join(sorted({short(w.weight) for w in weightings}))
 
 
-# --------------------------------------------------------------------------------------------------
-# Selection metric
-# --------------------------------------------------------------------------------------------------
-
-
 @dataclass(frozen=True)
 class Selection:
-    """How a job chose its best checkpoint: the monitored metrics.csv column (``selection.monitor``) and
-    ``min`` / ``max`` (``selection.mode``)."""
+    """How a job chose its best checkpoint (``selection.monitor``, ``selection.mode``)."""
 
     monitor: str
     mode: str
 
 
 def job_selection(config: Any) -> Selection:
-    """The selection metric of a job config.
-
-    Raises:
-        UserError: the config has no ``selection.monitor`` or ``selection.mode`` (:func:`load_job`
-            skips such a job).
-    """
+    """The selection metric of a job config; UserError without one."""
     monitor, mode = (config_value(config, f"selection.{key}") for key in ("monitor", "mode"))
     if None in (monitor, mode):
         raise UserError("the job's config has no selection.monitor and selection.mode")
@@ -334,8 +272,7 @@ def selection_text(selection: Selection) -> str:
 
 
 def selection_identity(job: Job) -> tuple[Any, ...]:
-    """What a job's selection metric is: the monitor and mode, plus, for a loss-dependent monitor
-    (:data:`LOSS_DEPENDENT`), the loss and weights that define its value."""
+    """A job's selection metric: monitor, mode (and loss and weights where they define its value)."""
     selection = job_selection(job.config)
     key: tuple[Any, ...] = (selection.monitor, selection.mode)
     if selection.monitor in LOSS_DEPENDENT:
@@ -345,9 +282,8 @@ def selection_identity(job: Job) -> tuple[Any, ...]:
 
 
 def selection_warning(columns: Sequence[Column]) -> str | None:
-    """A bold markdown warning if the configurations were selected by different metrics (different
-    monitors, or one loss-dependent monitor such as ``val/loss`` over different losses or weights);
-    None if one metric selected them all."""
+    """A bold warning if the configurations were selected by different metrics (or one loss-dependent
+    monitor over different losses or weights); None if one metric selected them all."""
     networks = [c for c in columns if c.kind == NETWORK and c.jobs]
     if len({selection_identity(j) for c in networks for j in c.jobs}) < 2:
         return None
@@ -368,25 +304,21 @@ def selection_warning(columns: Sequence[Column]) -> str | None:
     )
 
 
-# --------------------------------------------------------------------------------------------------
-# The configurations table
-# --------------------------------------------------------------------------------------------------
-
-CONFIGURATION_FIELDS = (
-    ("configuration", "configuration"),
-    ("loss", "loss"),
-    ("weighting", "weighting"),
-    ("k", "k"),
-    ("gain", "gain"),
-    ("rotation weight k·gain", "rotation_weight"),
-    ("selected by", "selected_by"),
-    ("seeds", "seeds"),
+CONFIGURATION_HEADER = (
+    "configuration",
+    "loss",
+    "weighting",
+    "k",
+    "gain",
+    "rotation weight k·gain",
+    "selected by",
+    "seeds",
 )
-"""(markdown header, CSV header) of the configurations table."""
+"""The configurations table's markdown header (the CSV's: without `` k·gain``, ``_`` for spaces)."""
 
 
 def configuration_row(column: Column) -> list[str]:
-    """One configuration's :data:`CONFIGURATION_FIELDS` as text (several values of its seeds joined)."""
+    """One configuration's :data:`CONFIGURATION_HEADER` fields as text (its seeds' values joined)."""
     ws = [job_weighting(j) for j in column.jobs]
     first = ws[0] if ws else Weighting(None, None, None, None, None)
     return [
@@ -402,11 +334,11 @@ def configuration_row(column: Column) -> list[str]:
 
 
 def configuration_rows(columns: Sequence[Column], by_architecture: bool = False, csv: bool = False) -> Rows:
-    """Per configuration: loss class, weighting preset, k, gain, k·gain and the selection metric; with
-    ``by_architecture`` an ``architecture`` column first; ``csv``: CSV headers, backticks dropped."""
+    """The configurations table; ``csv``: CSV headers, backticks dropped."""
     networks = [c for c in columns if c.kind == NETWORK]
     rows: list[list[object]] = [
         [v.replace("`", "") if csv else v for v in configuration_row(c)] for c in networks
     ]
-    table = Rows([f[csv] for f in CONFIGURATION_FIELDS], rows)
+    header = [h.removesuffix(" k·gain").replace(" ", "_") if csv else h for h in CONFIGURATION_HEADER]
+    table = Rows(header, rows)
     return with_architecture(table, [c.architecture for c in networks], by_architecture)

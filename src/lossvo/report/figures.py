@@ -1,14 +1,12 @@
 """Figures of a sweep report: loss curves, bird's-eye trajectories, APE bar chart, the claims' forest plot.
 
-Each ``plot_*`` function draws one PNG (sizes in inches) on a figure of
-:func:`lossvo.evaluation.plots.new_figure` (Agg canvas, no pyplot state) and saves it atomically
-(:func:`lossvo.evaluation.plots.save_png`); the trajectories are drawn by the one bird's-eye plot,
-:func:`lossvo.evaluation.plots.plot_birdseye`. matplotlib is imported inside the functions, so a report
-without figures never loads it.
+Each ``plot_*`` draws one PNG on a :func:`lossvo.evaluation.plots.new_figure` (sizes in inches) and saves it
+atomically; matplotlib is imported only where a figure is drawn.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
@@ -26,8 +24,6 @@ from lossvo.report.tables import BASELINE, Column, Table, seed_scores
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
 
-# The panels of the curves figure: (title, metrics.csv key without the ``train/`` or ``val/`` prefix,
-# log scale allowed).
 CURVE_PANELS = (
     ("validation score (loss-independent)", "score", False),
     ("total loss", "loss", True),
@@ -36,18 +32,17 @@ CURVE_PANELS = (
     ("rotation error (rad)", "rot_err_rad", False),
     ("translation error (m)", "trans_err_m", False),
 )
+"""The curves figure's panels: (title, metrics.csv key without ``train/`` or ``val/``, log scale allowed)."""
 CURVE_COLUMNS = 3
 
 
 def curve_band(jobs: Sequence[Job], key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """Epochs (E,), mean (E,) and sample std (E,) (NaN for one seed) of a metrics.csv column over the
-    jobs' seeds, on the epochs all of them logged; None if no job has it."""
+    """Epochs (E,), mean (E,) and sample std (E,) of a metrics.csv column over the jobs, on their common
+    epochs; None if none."""
     series = [j.curves.series[key] for j in jobs if j.curves is not None and key in j.curves.series]
     if not series:
         return None
-    epochs = series[0][0]
-    for e, _ in series[1:]:
-        epochs = np.intersect1d(epochs, e)
+    epochs = functools.reduce(np.intersect1d, (e for e, _ in series))
     if epochs.size == 0:
         return None
     values = np.stack([v[np.searchsorted(e, epochs)] for e, v in series])
@@ -65,15 +60,8 @@ def _spans_decades(ax: Axes, ratio: float = 20.0) -> bool:
 
 
 def plot_curves(columns: Sequence[Column], path: Path) -> bool:
-    """Score, loss and yardstick curves per configuration, one panel per :data:`CURVE_PANELS` entry
-    (:data:`CURVE_COLUMNS` panels a row).
-
-    x: epoch (1-based); y: the validation score ``val/score`` (unitless, the same for every loss), the
-    losses (unitless, the translation and rotation terms unweighted), rotation error (rad) and translation
-    error (m) as logged in metrics.csv. Train solid, val dashed; the line is the mean over seeds, the band
-    mean ± 1 sample std (none for one seed); log scale where a loss panel spans decades. A panel whose
-    column no job logged stays empty. Returns False (and writes nothing) when no job has curves.
-    """
+    """Per-epoch curves per configuration (mean ± std over seeds), a panel per :data:`CURVE_PANELS` entry;
+    False if no job has curves."""
     rows = -(-len(CURVE_PANELS) // CURVE_COLUMNS)
     fig = new_figure(4.2 * CURVE_COLUMNS, 3.4 * rows)
     axes = fig.subplots(rows, CURVE_COLUMNS, squeeze=False).ravel()
@@ -92,8 +80,7 @@ def plot_curves(columns: Sequence[Column], path: Path) -> bool:
 
 
 def _draw_bands(ax: Axes, column: Column, key: str, color: Any) -> bool:
-    """The train (solid) and val (dashed) mean ± std curves of one metrics.csv key (without its
-    ``train/``/``val/`` prefix) of a configuration; whether any was drawn."""
+    """The train (solid) and val (dashed) curves of one key of a configuration; whether any was drawn."""
     drawn = False
     for split, style in (("train", "-"), ("val", "--")):
         band = curve_band(column.jobs, f"{split}/{key}")
@@ -136,13 +123,8 @@ def plot_trajectories(
     extra: Mapping[str, np.ndarray],
     path: Path,
 ) -> None:
-    """Bird's-eye view of one sequence (:func:`lossvo.evaluation.plots.plot_birdseye`): x (m) right,
-    z (m) forward, equal axes.
-
-    Draws the ground truth ``gt`` (N, 4, 4) in black with its start marked, each configuration's
-    trajectory of its first seed (read from the job folder) in the configuration's colour of the curves
-    figure, and the baselines' trajectories in ``extra`` (name -> (N, 4, 4)) dashed.
-    """
+    """Bird's-eye view of one sequence: ``gt`` (N, 4, 4), each configuration's first seed and the baselines
+    in ``extra`` (name -> (N, 4, 4)) dashed."""
     trajectories: dict[str, np.ndarray] = {}
     styles: dict[str, dict[str, Any]] = {}
     for column, color in zip(columns, colors(len(columns)), strict=True):
@@ -157,9 +139,7 @@ def plot_trajectories(
 
 
 def plot_ape_bars(table: Table, path: Path) -> None:
-    """Grouped bars of the first metric of ``table`` (APE translation RMSE, m, of Table I) per sequence
-    and the mean row, one bar per column (baselines hatched), error bars = sample std over seeds; log
-    scale."""
+    """Grouped bars of Table I's APE (m) per row and column, error bars the sample std over seeds."""
     fig = new_figure(min(16.0, 3.0 + 0.12 * len(table.rows) * max(1, len(table.columns))), 4.2)
     ax = fig.add_subplot()
     width = 0.8 / max(1, len(table.columns))
@@ -185,8 +165,7 @@ SeedValues = dict[str, dict[str, float]]
 
 
 def forest_rows(claim: Claim, columns: Mapping[str, Column]) -> list[tuple[str, SeedValues]]:
-    """Claim (a)'s configurations, the claimed one first, each with its per-seed values: each seed's mean
-    over the claim's held-out sequences of each metric of :data:`CLAIM_ERRORS` (the numbers it tests)."""
+    """Claim (a)'s configurations, the claimed one first, each with the per-seed values it tests."""
     labels = [claim.configuration, *(t.versus for t in claim.quantities[0].tests)]
     return [
         (label, {q: seed_scores(columns[label], path, claim.sequences) for q, path in CLAIM_ERRORS})
@@ -195,14 +174,8 @@ def forest_rows(claim: Claim, columns: Mapping[str, Column]) -> list[tuple[str, 
 
 
 def plot_forest(claims: Sequence[Claim], columns: Sequence[Column], path: Path) -> bool:
-    """The forest plot of claim (a), one column of panels per error metric (:data:`CLAIM_ERRORS`) and,
-    within the claims of each architecture, one row per configuration.
-
-    Top: each seed's value (m or rad: its mean over the held-out sequences) as a dot, the mean with its
-    95 % t-interval as a diamond and bar. Bottom: each seed's relative difference (claimed − other) /
-    other (%) against each other configuration as a dot, their mean with the 90 % t-interval that TOST
-    reads, the ±margin band shaded and the comparison's verdict written at the right. Returns False (and
-    writes nothing) when no claim (a) was tested."""
+    """The forest plot of claim (a), a column per :data:`CLAIM_ERRORS` metric (docs/report.md); False if no
+    claim (a) was tested."""
     tested = [c for c in claims if c.letter == "a" and not c.untested and c.quantities]
     if not tested:
         return False

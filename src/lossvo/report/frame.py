@@ -1,8 +1,6 @@
-"""The sweep's results as one tidy table: a :class:`pandas.DataFrame` with one row per column
-(configuration or baseline), replicate, sequence and metric, beside each network job's folder, seed,
-architecture, training data and config choices (the ``choice.<key>`` columns: the overrides Hydra recorded
-and its config-group choices, :attr:`lossvo.report.jobs.Job.choices`). The tables of the report are
-group-bys and pivots of it (:func:`metric_matrix`, :func:`lossvo.report.tables.build_table`).
+"""The sweep's results as one tidy :class:`pandas.DataFrame`: a row per column (configuration or baseline),
+replicate, sequence and metric, beside each job's folder, seed, architecture, data and config choices. The
+report's tables are pivots of it.
 """
 
 from __future__ import annotations
@@ -27,14 +25,9 @@ FIELDS = ("column", "kind", "replicate", "position", "job", "seed", "architectur
 
 @dataclass
 class Column:
-    """One compared configuration (network) or baseline: its replicates' per-sequence metrics.
-
-    ``results[i]`` is ``{sequence: Scores}`` (results.json's scores) of replicate ``i`` (a seed),
-    ``replicates[i]`` its name; ``kind`` is :data:`lossvo.report.tables.NETWORK` or
-    :data:`~lossvo.report.tables.BASELINE`; ``jobs`` are a network's
-    job folders in replicate order (none for a baseline); ``architecture`` a network's architecture
-    (:attr:`lossvo.report.jobs.Job.architecture`; None for a baseline or where unknown).
-    """
+    """One compared configuration (network) or baseline: ``results[i]`` is ``{sequence: Scores}`` of
+    replicate ``replicates[i]`` (a seed; for a network, of job ``jobs[i]``); ``kind`` is
+    :data:`lossvo.report.tables.NETWORK` or ``BASELINE``."""
 
     label: str
     kind: str
@@ -50,8 +43,7 @@ def metric_name(path: Sequence[str]) -> str:
 
 
 def column_rows(column: Column) -> list[dict[str, Any]]:
-    """The rows of one column: per replicate, sequence and metric of :data:`METRICS` its value (NaN where
-    missing, as a KITTI error without a 100 m segment), with the replicate's job and config choices."""
+    """The rows of one column: per replicate, sequence and metric its value, job and config choices."""
     rows = []
     for position, (replicate, per_sequence) in enumerate(zip(column.replicates, column.results, strict=True)):
         job = column.jobs[position] if position < len(column.jobs) else None
@@ -67,8 +59,7 @@ def column_rows(column: Column) -> list[dict[str, Any]]:
 
 
 def results_frame(columns: Sequence[Column]) -> pd.DataFrame:
-    """Every column's results as one tidy table (:data:`FIELDS`, the ``choice.<key>`` columns,
-    ``sequence``, ``metric``, ``value`` float64), columns and their replicates in order."""
+    """Every column's results as one tidy table (``value`` float64, NaN where missing)."""
     rows = [row for column in columns for row in column_rows(column)]
     frame = pd.DataFrame(rows, columns=[*FIELDS, "sequence", "metric", "value"] if not rows else None)
     frame["value"] = frame["value"].astype(np.float64)

@@ -1,12 +1,6 @@
-"""Reading a sweep folder and its job folders: what each job is, what happened, what it produced.
-
-A Hydra multirun leaves one job folder per run, ``SWEEP_DIR/<num>_<overrides>/``. :func:`load_job` reads one
-into a :class:`Job` and never raises: what cannot be used is recorded in ``Job.skip`` (naming the file and
-why) or ``Job.notes``. ``status.json`` and ``metrics.csv`` are read through their contract
-(:mod:`lossvo.evaluation.job_folder`), ``results.json`` through its own
-(:class:`lossvo.evaluation.job_folder.Results`); the data a job trained and was evaluated on comes from its
-``data`` record (:func:`trained_sequences`, :func:`ground_truth`). The report never
-builds a datamodule.
+"""Reading a sweep folder and its job folders (``SWEEP_DIR/<num>_<overrides>/``) through the job-folder
+contract (:mod:`lossvo.evaluation.job_folder`): what each job is, what happened, what it produced. The report
+never builds a datamodule; see docs/report.md.
 """
 
 from __future__ import annotations
@@ -45,8 +39,7 @@ REPLICATE_KEY = "seed"
 ARCHITECTURE_KEY = "model"
 """The config group whose choice names a job's architecture (``model=deepvo_small``, ``model=flowvo``)."""
 DATA_KEY = "data"
-"""The config group naming a job's training data: configurations trained on different data are compared
-only within their own data, as configurations of different architectures are."""
+"""The config group naming a job's training data (configurations are compared within their own data)."""
 
 APE_TRANS = ("ape", "trans", "rmse")
 APE_ROT = ("ape", "rot_rad", "rmse")
@@ -54,8 +47,8 @@ RPE_TRANS = ("rpe", "trans", "rmse")
 RPE_ROT = ("rpe", "rot_rad", "rmse")
 KITTI_T = ("kitti", "t_err_pct")
 KITTI_R = ("kitti", "r_err_deg_per_100m")
-"""Paths into a sequence's :class:`lossvo.evaluation.job_folder.Scores` of the numbers the report reads:
-RMSEs in m and rad, the KITTI errors in % and deg/100 m (None where no 100 m segment exists)."""
+"""Paths into a sequence's :class:`~lossvo.evaluation.job_folder.Scores`: RMSEs in m and rad, the KITTI
+errors in % and deg/100 m (None where no 100 m segment exists)."""
 
 
 class SweepError(UserError):
@@ -63,8 +56,7 @@ class SweepError(UserError):
 
 
 def metric_value(scores: Scores | None, path: Sequence[str]) -> float | None:
-    """The number at ``path`` of a sequence's scores (``("ape", "trans", "rmse")``), None where the
-    scores or the value are missing (a KITTI error without a segment)."""
+    """The number at ``path`` of a sequence's scores; None where the scores or the value are missing."""
     value: Any = scores
     for key in path:
         value = getattr(value, key, None)
@@ -78,17 +70,8 @@ def finite_number(value: Any) -> float | None:
     return float(value)
 
 
-# --------------------------------------------------------------------------------------------------
-# Finding the sweep and its jobs
-# --------------------------------------------------------------------------------------------------
-
-
 def job_dirs(sweep: Path) -> list[Path]:
-    """Job folders of a sweep (sub-folders holding ``.hydra/config.yaml``), ordered by job number.
-
-    Raises:
-        SweepError: naming the folder and what was expected, if it is missing or holds no job folder.
-    """
+    """Job folders of a sweep (holding ``.hydra/config.yaml``) by job number; SweepError if none."""
     expected = "a Hydra sweep folder with job folders <num>_<overrides>/.hydra/config.yaml"
     if not sweep.is_dir():
         raise SweepError(f"{sweep}: no such folder (expected {expected})")
@@ -105,9 +88,7 @@ def job_number(path: Path) -> tuple[int, str]:
 
 
 def latest_sweep(parent: Path) -> Path:
-    """The newest sweep folder directly under ``parent`` (e.g. ``outputs/multirun``), by the modification
-    time of its ``multirun.yaml`` (written once, when the sweep starts), else of the folder itself;
-    SweepError if there is none."""
+    """The newest sweep folder under ``parent`` (by its ``multirun.yaml``'s mtime); SweepError if none."""
     if not parent.is_dir():
         raise SweepError(f"{parent}: no such folder (expected a folder of sweeps, e.g. outputs/multirun)")
     sweeps = [p for p in parent.iterdir() if p.is_dir() and any(p.glob("*/.hydra/config.yaml"))]
@@ -121,17 +102,9 @@ def _started(path: Path) -> tuple[float, str]:
     return ((marker if marker.is_file() else path).stat().st_mtime, path.name)
 
 
-# --------------------------------------------------------------------------------------------------
-# One job
-# --------------------------------------------------------------------------------------------------
-
-
 @dataclass
 class Job:
-    """One job folder as read: what it is (overrides, config choices, seed, architecture, training data's
-    config choice), what happened (status), what it produced; ``code`` and ``machines``: the code versions
-    and machines its processes ran (:func:`lossvo.code_version.code_version`, :func:`lossvo.machine.machine`,
-    from status.json's history; none where unrecorded)."""
+    """One job folder as read (``code``, ``machines``: those its processes ran, from status.json)."""
 
     path: Path
     overrides: dict[str, str] = field(default_factory=dict)
@@ -156,19 +129,18 @@ class Job:
 
     @property
     def included_results(self) -> Results:
-        """``results`` of an included job: load_job includes a job only with a readable results.json."""
+        """``results`` of an included job (which always has them)."""
         assert self.results is not None, f"{self.path.name} is not included: {self.skip}"
         return self.results
 
 
 REQUIRED_CONFIG = ("selection.monitor", "selection.mode")
-"""Keys of a job's ``.hydra/config.yaml`` that the report reads and that every job config has."""
+"""Keys that every job's ``.hydra/config.yaml`` has and the report reads."""
 
 
 def parse_overrides(items: Sequence[str]) -> dict[str, str]:
-    """Hydra overrides (``["loss=euler", "+evaluate=false"]``) as an ordered ``{key: value}``, each parsed
-    by Hydra's :class:`OverridesParser`: the key without a leading ``+``/``++`` (``~key`` kept), the value
-    as written."""
+    """Hydra overrides (``["loss=euler", "+evaluate=false"]``) as an ordered ``{key: value}`` by Hydra's
+    parser: the key without a leading ``+``/``++`` (``~key`` kept), the value as written."""
     from hydra.core.override_parser.overrides_parser import OverridesParser
 
     parsed = OverridesParser.create().parse_overrides([str(item) for item in items])
@@ -176,8 +148,7 @@ def parse_overrides(items: Sequence[str]) -> dict[str, str]:
 
 
 def read_overrides(path: Path) -> dict[str, str]:
-    """``.hydra/overrides.yaml`` (Hydra's record of the job's command-line overrides, a YAML list of
-    ``key=value`` strings) by :func:`parse_overrides`."""
+    """``.hydra/overrides.yaml`` (a YAML list of ``key=value``) by :func:`parse_overrides`."""
     import yaml
 
     items = yaml.safe_load(path.read_text()) or []
@@ -187,8 +158,7 @@ def read_overrides(path: Path) -> dict[str, str]:
 
 
 def read_curves(folder: Path) -> tuple[Curves, list[str]]:
-    """Per-epoch curves of a job folder's ``metrics.csv`` (:meth:`MetricsTable.curves
-    <lossvo.evaluation.job_folder.MetricsTable.curves>`), and notes on a missing or damaged file."""
+    """Per-epoch curves of a job folder's ``metrics.csv``, and notes on a missing or damaged file."""
     if not (folder / METRICS).is_file():
         return Curves(), [f"no {METRICS}: no curves"]
     try:
@@ -236,8 +206,7 @@ def load_job(path: Path) -> Job:
 
 
 def _read_config(job: Job) -> None:
-    """``config``, ``overrides``, ``choices``, ``seed``, ``architecture`` and ``data`` of a job from
-    ``.hydra/``; UserError naming a key of :data:`REQUIRED_CONFIG` that the config lacks."""
+    """Fill a job's config and what it names from ``.hydra/``; UserError without :data:`REQUIRED_CONFIG`."""
     from omegaconf import OmegaConf
 
     job.config = OmegaConf.load(job.path / ".hydra" / "config.yaml")
@@ -253,10 +222,8 @@ def _read_config(job: Job) -> None:
 
 
 def read_choices(hydra_yaml: Path, overrides: dict[str, str]) -> dict[str, str]:
-    """A job's config choices: its ``overrides``, and over them the config-group choices Hydra recorded in
-    ``.hydra/hydra.yaml`` (``hydra.runtime.choices``, set on the command line or by an ``experiment``;
-    null choices left out). A missing or unreadable hydra.yaml leaves the overrides (it decides nothing
-    else)."""
+    """A job's ``overrides`` updated by the non-null config-group choices Hydra recorded in ``hydra.yaml``
+    (``hydra.runtime.choices``); the overrides alone where that file is missing or unreadable."""
     import yaml
 
     try:
@@ -268,18 +235,14 @@ def read_choices(hydra_yaml: Path, overrides: dict[str, str]) -> dict[str, str]:
 
 
 def read_architecture(choices: dict[str, str], config: Any) -> str | None:
-    """A job's architecture as a short name: its :data:`ARCHITECTURE_KEY` choice (:func:`read_choices`:
-    ``deepvo_small``, ``flowvo``), else the class name of ``model._target_`` (``DeepVO``); None without
-    either."""
-    choice = choices.get(ARCHITECTURE_KEY)
-    if choice is None:
-        target = config_value(config, f"{ARCHITECTURE_KEY}._target_")
-        choice = str(target).rsplit(".", 1)[-1] if target is not None else None
-    return choice
+    """A job's architecture: its :data:`ARCHITECTURE_KEY` choice (``flowvo``), else the class name of
+    ``model._target_`` (``DeepVO``); None without either."""
+    target = config_value(config, f"{ARCHITECTURE_KEY}._target_")
+    return choices.get(ARCHITECTURE_KEY, str(target).rsplit(".", 1)[-1] if target is not None else None)
 
 
 def _running(path: Path) -> str:
-    """Why a job whose status.json says "running" is skipped: it runs, or its process was killed."""
+    """Why a job whose status.json says "running" is skipped: it runs, or it was killed."""
     alive = folder_lock.in_use(path)
     if alive is None:
         return "still running (status.json says running)"
@@ -314,8 +277,7 @@ UNRECORDED = "unrecorded"
 def _pooled_note(
     jobs: Sequence[Job], values: Callable[[Job], tuple[str, ...]], ran: str, why: str
 ) -> str | None:
-    """The report's note where the included jobs' ``values`` (code versions, machines) are more than one:
-    each value with its jobs' folders; None where there is one."""
+    """A note naming each value (code version, machine) of the included jobs with its jobs, if several."""
     found: dict[str, list[str]] = {}
     for job in (j for j in jobs if j.included):
         for value in values(job):
@@ -329,49 +291,33 @@ def _pooled_note(
 
 
 def code_versions_note(jobs: Sequence[Job]) -> str | None:
-    """:func:`_pooled_note` of the code versions (a job resumed under another version under each, one
-    without a record under :data:`UNRECORDED`)."""
+    """:func:`_pooled_note` of the code versions."""
     why = " (a job resumed under another version counts under each)"
     return _pooled_note(jobs, lambda job: job.code or (UNRECORDED,), "{} code versions", why)
 
 
 def machines_note(jobs: Sequence[Job]) -> str | None:
-    """:func:`_pooled_note` of the machines recorded (jobs without a record are not counted): one code
-    and seed give other numbers on another CPU, so jobs paired by seed across machines are not one start."""
+    """:func:`_pooled_note` of the machines recorded (jobs without a record not counted)."""
     why = "; jobs paired by seed on different machines are not one start (their arithmetic differs)"
     return _pooled_note(jobs, lambda job: job.machines, "on {} machines", why)
 
 
-# --------------------------------------------------------------------------------------------------
-# A job's config
-# --------------------------------------------------------------------------------------------------
-
-
 def config_value(config: Any, key: str, default: Any = None) -> Any:
-    """The value at dotted ``key`` of a job config (a DictConfig or a mapping), interpolations resolved;
-    ``default`` where the key is missing, null or cannot be resolved here."""
+    """The resolved value at dotted ``key`` of a job config; ``default`` if missing, null or unresolvable."""
     from omegaconf import OmegaConf
 
     if config is None:
         return default
-    if not OmegaConf.is_config(config):
-        config = OmegaConf.create(config)
     value = OmegaConf.select(config, key, default=None, throw_on_resolution_failure=False)
     return default if value is None else value
 
 
 def config_sequences(jobs: Iterable[Job], key: str) -> list[str]:
-    """The sequence names listed at ``key`` (e.g. ``data.splits.val``) in the jobs' configs, in order of first
-    appearance; a missing or empty key lists none."""
+    """The sequence names listed at ``key`` (``data.splits.val``) in the jobs' configs, first seen first."""
     names: list[str] = []
     for job in jobs:
         names.extend(n for n in sequence_names(config_value(job.config, key, [])) if n not in names)
     return names
-
-
-# --------------------------------------------------------------------------------------------------
-# What a job was evaluated on: results.json's data record
-# --------------------------------------------------------------------------------------------------
 
 
 def check_on_disk(data: DataRecord, job: Job) -> None:
@@ -382,21 +328,14 @@ def check_on_disk(data: DataRecord, job: Job) -> None:
 
 
 def trained_sequences(job: Job) -> set[str]:
-    """The sequences of the evaluated dataset that an included job's network was trained on: results.json's
-    ``data.train`` when the evaluated root is the training root, none when they differ."""
+    """The evaluated sequences an included job trained on (none where it evaluated other data)."""
     data = job.included_results.data
     same = data.train_root is not None and os.path.realpath(data.root) == os.path.realpath(data.train_root)
     return set(data.train) if same else set()
 
 
-# --------------------------------------------------------------------------------------------------
-# Trajectories and ground truth
-# --------------------------------------------------------------------------------------------------
-
-
 def read_trajectory(job: Job, sequence: str) -> np.ndarray | None:
-    """A job's estimated trajectory (N, 4, 4), translation in m, of one sequence; None if missing or
-    unreadable."""
+    """A job's estimated trajectory (N, 4, 4), m, of one sequence; None if missing or unreadable."""
     entry = job.results.sequences.get(sequence) if job.results else None
     try:
         return read_poses(job.path / (entry.trajectory if entry else f"trajectories/{sequence}.txt"))
@@ -407,9 +346,8 @@ def read_trajectory(job: Job, sequence: str) -> np.ndarray | None:
 def ground_truth(
     jobs: Sequence[Job], sequences: Sequence[str]
 ) -> tuple[dict[str, np.ndarray], dict[str, str]]:
-    """``{sequence: ground-truth poses (N, 4, 4), m}`` read from the pose file (KITTI, or TUM ``.tum``)
-    that the results.json of the first of ``jobs`` to evaluate it names, and ``{sequence: reason}`` of the
-    sequences without."""
+    """``{sequence: ground-truth poses (N, 4, 4), m}`` from the pose file (KITTI, or TUM ``.tum``) named by
+    the first job that evaluated it, and ``{sequence: reason}`` of those without."""
     found, missing = {}, {}
     for s in sequences:
         job = next((j for j in jobs if j.results and s in j.results.sequences), None)

@@ -1,13 +1,6 @@
-"""How the predicted speed follows the true one, where metric scale is hardest: on the slowest and the
-fastest stretches of each sequence the networks were not trained on.
-
-A sequence's frame pairs are ranked by their true step length ``|t_k|`` (metres a frame, from the ground
-truth); the slowest and the fastest :data:`SHARE` of them are its slow and fast stretches. Per job the
-*speed ratio* of a set of pairs is the mean predicted step length over the mean true one (1: right on
-average; 1.2: reads 20 % too fast), from the job's trajectory (``trajectories/NN.txt``, whose steps are the
-network's relative poses); each cell is the mean ± std of the ratio over a configuration's seeds.
-A configuration scored with ground-truth step lengths (``loss.translation=direction``) has ratio 1 by
-construction.
+"""How the predicted speed follows the true one on the slowest and the fastest stretches (by true step
+length) of each sequence the networks were not trained on: per job the mean predicted over the mean true
+step length, from its trajectory. See docs/report.md.
 """
 
 from __future__ import annotations
@@ -51,16 +44,13 @@ def stretches(true: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def speed_ratios(estimate: np.ndarray, gt: np.ndarray) -> dict[str, float]:
-    """Stretch -> mean predicted over mean true step length, for an estimated trajectory and its ground
-    truth, both (N, 4, 4) in metres."""
+    """Stretch -> mean predicted over mean true step length of ``estimate`` and ``gt`` (N, 4, 4), m."""
     true, predicted = step_lengths(gt), step_lengths(estimate)
     return {name: float(predicted[m].mean() / true[m].mean()) for name, m in stretches(true).items()}
 
 
 def speed_rows(networks: Sequence[Column], gt: Mapping[str, np.ndarray], sequences: Sequence[str]) -> Rows:
-    """One row per configuration and sequence outside the training split with ground truth (with an
-    ``architecture`` column first where the networks span several): each stretch's mean true step length
-    and the predicted / true ratio over seeds."""
+    """Per configuration and held-out sequence: each stretch's true step length and ratio over seeds."""
     outside = [s for s in sequences if s in gt and s not in training_sequences(networks)]
     header = ["configuration", "sequence"]
     header += [f"{name}: {what}" for name in STRETCHES for what in ("true [m]", "predicted / true")]
@@ -72,17 +62,13 @@ def speed_rows(networks: Sequence[Column], gt: Mapping[str, np.ndarray], sequenc
 
 
 def _cells(column: Column, sequence: str, gt: np.ndarray) -> list[str]:
+    """Per stretch the true step length and the ratio over the seeds whose trajectory matches ``gt``."""
     true = step_lengths(gt)
     masks = stretches(true)
-    ratios = [speed_ratios(t, gt) for t in _trajectories(column, sequence, len(gt))]
+    found = (read_trajectory(job, sequence) for job in column.jobs)
+    ratios = [speed_ratios(t, gt) for t in found if t is not None and len(t) == len(gt)]
     cells: list[str] = []
     for name in STRETCHES:
         cell = Cell.of([r[name] for r in ratios])
         cells += [fmt(float(true[masks[name]].mean()), 3), mean_std_text(cell, 3)]
     return cells
-
-
-def _trajectories(column: Column, sequence: str, frames: int) -> list[np.ndarray]:
-    """The column's replicates' trajectories of ``sequence`` that exist and match its ground truth."""
-    found = (read_trajectory(job, sequence) for job in column.jobs)
-    return [t for t in found if t is not None and len(t) == frames]
