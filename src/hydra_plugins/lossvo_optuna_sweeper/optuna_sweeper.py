@@ -1,15 +1,9 @@
 """lossvo's Optuna sweeper for Hydra: ``hydra/sweeper=lossvo_optuna`` (``hparams_search=k_search``).
 
-Asks the study for ``n_jobs`` trials at a time (Optuna's ask-and-tell interface), launches them as Hydra
-jobs with the trial's parameters and the fixed overrides, and tells the study each job's return value
-(a job that fails, or returns no number, is told FAIL). While a trial runs its worker records heartbeats;
-before asking, it fails the study's trials whose worker stopped beating
-(:mod:`lossvo.training.shared_study`). Its search space is ``hydra.sweeper.params`` and the command line's
-sweep overrides, in Hydra's sweep syntax (:mod:`lossvo.training.search_space`). When its trials are done
-it writes ``optimization_results.yaml`` in the sweep folder: the study's best trial (``best_params``,
-``best_value``), or its Pareto front (``solutions``) for several directions.
-
-This module imports Optuna and lossvo only when a sweep starts: Hydra imports it on every command.
+Asks the study for ``n_jobs`` trials at a time (ask-and-tell), launches them as Hydra jobs and tells the
+study each job's return value (FAIL for a failed job); heartbeats and stale trials:
+:mod:`lossvo.training.shared_study`. Writes ``optimization_results.yaml`` in the sweep folder
+(docs/sweep.md). Imports Optuna only when a sweep starts: Hydra imports this module on every command.
 """
 
 # No ``from __future__ import annotations``: OmegaConf reads the config dataclasses' annotations as types,
@@ -32,9 +26,8 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class StorageConf:
-    """Where the study lives: ``url`` an SQLAlchemy URL (an RDB) or a file path (a journal), None: in
-    memory; heartbeats every ``heartbeat_interval`` seconds; a running trial without one for
-    ``grace_period`` seconds is failed."""
+    """Where the study lives (``url``: an SQLAlchemy URL, a journal file, or None: in memory) and its
+    heartbeats: a running trial without one for ``grace_period`` seconds is failed."""
 
     url: Optional[str] = None  # noqa: UP045
     heartbeat_interval: float = 60.0
