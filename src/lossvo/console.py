@@ -47,10 +47,7 @@ class UserError(Exception):
 
 class JobFailedError(UserError):
     """A sweep job's user error, already printed by the job and recorded in its ``status.json``: the
-    sweep's end names the job (``args`` hold all three, to cross a launcher's process boundary)."""
-
-    def __init__(self, label: str, line: str, sweep_dir: str) -> None:
-        super().__init__(label, line, sweep_dir)
+    sweep's end names the job. ``args``: the job's label, the line and the sweep folder."""
 
     def __str__(self) -> str:
         return f"{self.args[0]}: {self.args[1]}"

@@ -293,23 +293,17 @@ def _batch(cfg: DictConfig, windows_: int, seq_len: int) -> dict[str, torch.Tens
     }
 
 
-_LIGHTNING_LOGGERS = ("lightning.pytorch", "lightning.pytorch.utilities.rank_zero")
-
-
 @contextmanager
 def _quiet() -> Iterator[None]:
-    """Lightning's banners and warnings silenced (a calibration is not a run)."""
-    loggers = [logging.getLogger(name) for name in _LIGHTNING_LOGGERS]
-    levels = [logger.level for logger in loggers]
-    for logger in loggers:
-        logger.setLevel(logging.ERROR)
+    """Lightning's banners (log records below ERROR) and warnings silenced (a calibration is not a run)."""
+    previous = logging.root.manager.disable
+    logging.disable(logging.WARNING)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             yield
     finally:
-        for logger, level in zip(loggers, levels, strict=True):
-            logger.setLevel(level)
+        logging.disable(previous)
 
 
 def time_training_step(cfg: DictConfig) -> tuple[float, float]:
@@ -582,12 +576,7 @@ def cross_evaluations(plan: Plan) -> list[list[str]]:
         if str(cfg.hydra.runtime.choices.data) == choice:
             continue
         crop = bool(cfg.data.frames.get("crop", False))
-        jobs = (
-            sorted(p for p in plan.sweep_dir.iterdir() if _job_of(p, experiment))
-            if plan.sweep_dir.is_dir()
-            else []
-        )
-        for job in jobs:
+        for job in sorted(p for p in plan.sweep_dir.glob("*") if _job_of(p, experiment)):
             out = plan.sweep_dir / EVALUATIONS / choice / job.name
             if (out / "results.json").is_file():
                 continue

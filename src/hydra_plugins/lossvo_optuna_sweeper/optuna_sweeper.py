@@ -54,15 +54,18 @@ ConfigStore.instance().store(
 )
 
 
+def _items(value: Any) -> list[Any]:
+    return list(value) if isinstance(value, (list, tuple, ListConfig)) else [value]
+
+
 def directions_of(direction: Any) -> list[str]:
     """The sweeper's ``direction`` (one name, or a list) as a list of names."""
-    items = list(direction) if isinstance(direction, (list, tuple, ListConfig)) else [direction]
-    return [str(item).lower() for item in items]
+    return [str(item).lower() for item in _items(direction)]
 
 
 def values_of(returned: Any, n: int) -> list[float]:
     """A job's return value as ``n`` numbers (anything ``float`` takes, not a bool), or UserError."""
-    items = list(returned) if isinstance(returned, (list, tuple, ListConfig)) else [returned]
+    items = _items(returned)
     try:
         if len(items) != n or any(isinstance(v, bool) for v in items):
             raise TypeError
@@ -109,8 +112,9 @@ class LossvoOptunaSweeper(Sweeper):
             study = self._open(space, fixed)
         except UserError as e:
             exit_in_one_line(e)
+        where = "memory" if self.storage.url is None else shared_study.shown_url(str(self.storage.url))
         log.info(
-            f"Study {study.study_name} in {self._where()}, sampler {type(study.sampler).__name__}, "
+            f"Study {study.study_name} in {where}, sampler {type(study.sampler).__name__}, "
             f"directions {self.directions}"
         )
         heartbeats = shared_study.Heartbeats(self.storage.heartbeat_interval)
@@ -135,11 +139,6 @@ class LossvoOptunaSweeper(Sweeper):
             left -= len(trials)
         self._write_results(study)
 
-    def _where(self) -> str:
-        from lossvo.training.shared_study import shown_url
-
-        return "memory" if self.storage.url is None else shown_url(str(self.storage.url))
-
     def _open(self, space: dict[str, Any], fixed: dict[str, str]) -> Any:
         """The study, its search checked against the one recorded under its name (UserError)."""
         import optuna
@@ -156,7 +155,7 @@ class LossvoOptunaSweeper(Sweeper):
             wanted = shared_study.search_of(self.directions, space, fixed)
             shared_study.check_study(url, self.study_name, wanted, storage)  # creates the study if new
             return optuna.load_study(study_name=self.study_name, storage=storage, sampler=self.sampler)
-        directions: Any = self.directions
+        directions: Any = self.directions  # checked above: each minimize or maximize
         return optuna.create_study(
             study_name=self.study_name,
             storage=storage,
