@@ -214,11 +214,8 @@ class PoseLoss(nn.Module):
 
 
 class EulerLoss(PoseLoss):
-    """Euler angles + Euclidean: ``|t - t^|^2 + k |phi - phi^|^2`` (study: k1 = 100).
-
-    Output ``[t (3), yaw, pitch, roll]``, ``R = Ry(yaw) Rx(pitch) Rz(roll)``; targets are the Euler angles
-    of the relative rotation, in (-pi, pi].
-    """
+    """Euler angles + Euclidean: ``|t - t^|^2 + k |phi - phi^|^2`` (study: k1 = 100); output ``[t (3), yaw,
+    pitch, roll]``, ``R = Ry(yaw) Rx(pitch) Rz(roll)``; targets the relative rotation's angles."""
 
     dim = 6
     small_angle_gain = 1.0  # |dphi|^2 = theta^2 at zero pitch
@@ -235,11 +232,9 @@ class EulerLoss(PoseLoss):
 
 
 class QuaternionLoss(PoseLoss):
-    """Quaternion + sign-invariant Euclidean: ``|t - t^|^2 + k min_b |q - b q^|^2`` (study: k2 = 14).
-
-    Output ``[t (3), w, x, y, z]``, the quaternion normalised here. ``squared=False``: the unsquared
-    distance ``min_b |q - b q^|`` of the study's released code (~ theta / 2, no matched k: give ``k``).
-    """
+    """Quaternion + sign-invariant Euclidean: ``|t - t^|^2 + k min_b |q - b q^|^2`` (study: k2 = 14); output
+    ``[t (3), w, x, y, z]``, normalised here. ``squared=False``: the unsquared distance of the study's
+    released code (~ theta / 2, no matched k: give ``k``)."""
 
     dim = 7
     small_angle_gain = 0.25  # |q - q^|^2 = 2 - 2 cos(theta / 2) = theta^2 / 4 + O(theta^4)
@@ -282,10 +277,8 @@ class _ChordalTerm(PoseLoss):
 
 
 class ChordalLoss(_ChordalTerm):
-    """SE(3) + chordal: ``|t - t^|^2 + k |R - R^|_F^2`` with ``(R^, t^) = Exp(xi^)`` (study: k3 = 153).
-
-    Output the se(3) vector ``xi = (rho, omega)``; the translation is ``t^ = V(omega) rho``, not rho.
-    """
+    """SE(3) + chordal: ``|t - t^|^2 + k |R - R^|_F^2`` with ``(R^, t^) = Exp(xi^)`` (study: k3 = 153);
+    output the se(3) vector ``xi = (rho, omega)``, the translation ``t^ = V(omega) rho``, not rho."""
 
     dim = 6
 
@@ -328,10 +321,8 @@ class SixDLoss(_ChordalTerm):
 
 class SVDLoss(_ChordalTerm):
     """9-D rotation (special Procrustes / SVD) + chordal; output ``[t (3), M (9)]``, M row-major.
-
-    :func:`roma.special_procrustes` (Levinson et al. 2020, Brégier 2021) damps its derivative where M's
-    singular values coincide, so values and gradients stay finite at degenerate outputs.
-    """
+    :func:`roma.special_procrustes` (Levinson et al. 2020, Brégier 2021) keeps gradients finite at
+    degenerate M."""
 
     dim = 12
 
@@ -343,12 +334,9 @@ class SVDLoss(_ChordalTerm):
 
 
 class SymMatrixQuatLoss(_ChordalTerm):
-    """10-D symmetric-matrix quaternion (Peretroukhin et al. 2020) + chordal; output ``[t (3), a (10)]``.
-
-    ``a``: a symmetric 4x4 matrix A in roma's order (a00, a10, a20, a30, a11, a21, a31, a22, a32, a33);
-    the rotation is the eigenvector of A's smallest eigenvalue (:func:`roma.symmatrixvec_to_unitquat`,
-    its derivative damped where that eigenvalue is repeated, so gradients stay finite).
-    """
+    """10-D symmetric-matrix quaternion (Peretroukhin et al. 2020) + chordal; output ``[t (3), a (10)]``,
+    a symmetric 4x4 A in roma's order (a00, a10, a20, a30, a11, a21, a31, a22, a32, a33), the rotation its
+    smallest eigenvalue's eigenvector (:func:`roma.symmatrixvec_to_unitquat`: finite gradients)."""
 
     dim = 13
 
