@@ -64,14 +64,10 @@ class PoseLoss(nn.Module):
         self.weighting: HomoscedasticWeighting | None = learned_from_config(learned)
         check_k(k, learned=self.weighting is not None)
         if self.weighting is None and k is None:
-            k = self.matched_k()
+            k = DEFAULT_C / self.small_angle_gain  # the matched weighting
         if k is not None and (not is_number(k) or not math.isfinite(k) or k < 0):
             raise UserError(f"loss.k: expected a finite number >= 0 for {name}, got {k!r}")
         self.k = None if k is None else float(k)
-
-    def matched_k(self) -> float:
-        """The default k: ``100 / small_angle_gain`` (the matched weighting with c = 100)."""
-        return DEFAULT_C / self.small_angle_gain
 
     def extra_repr(self) -> str:
         weight = "learned" if self.k is None else f"{self.k:g}"
