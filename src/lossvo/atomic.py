@@ -1,8 +1,5 @@
-"""Atomic file writes: readers see the old file or the whole new one, never a part.
-
-An interrupted run (Ctrl-C, a killed cluster job) must not leave a half-written pose file, cache
-manifest or results file that a later run would read as complete.
-"""
+"""Atomic file writes: readers see the old file or the whole new one, never a part (an interrupted run
+leaves no half-written file a later run would read as complete)."""
 
 from __future__ import annotations
 
@@ -26,10 +23,9 @@ UMASK = _umask()
 
 @contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str = ".tmp") -> Iterator[Path]:
-    """A temporary path in ``path``'s folder to write to; renamed onto ``path`` when the block ends
-    without an error, deleted otherwise. ``suffix`` keeps writers that pick a format by extension
-    (matplotlib, ``np.savez``) writing the right one. The file gets the permissions the umask gives
-    a new file (``mkstemp`` alone would make it private to its owner)."""
+    """A temporary path in ``path``'s folder, renamed onto ``path`` when the block ends without an error,
+    deleted otherwise; ``suffix`` for writers that pick a format by extension. The file gets the umask's
+    permissions (``mkstemp`` alone would make it private)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=suffix)

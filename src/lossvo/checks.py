@@ -1,7 +1,5 @@
-"""Type tests of config and file values: a YAML ``true`` is a Python ``bool``, and ``bool`` is a subclass
-of ``int``, so ``isinstance(value, int)`` alone would take ``true`` for the integer 1. These predicates do
-not; the callers raise their own one-line errors.
-"""
+"""Type tests of config and file values that, unlike ``isinstance(value, int)``, do not take a ``bool``
+(a YAML ``true``) for a number."""
 
 from __future__ import annotations
 

@@ -1,7 +1,5 @@
-"""The version of the code that trains and evaluates a job, recorded in its ``status.json`` history, so
-that a report can tell jobs of different code apart: ``<package version>+<12 hex digits>``, the digits a
-SHA-256 of the package's Python and YAML files (paths and contents), less those that only read finished
-runs (:data:`READERS`). No git: an installed wheel has the same version as its checkout."""
+"""The version of the code that trains and evaluates a job, recorded in its ``status.json``: the package
+version and a SHA-256 of its Python and YAML files less :data:`READERS` (no git: a wheel has the same)."""
 
 from __future__ import annotations
 

@@ -1,13 +1,7 @@
-"""Command-line plumbing: the one error path of every entry point, and printing a result also into a
-pipe that closes early (``| head``).
-
-A user error (a bad argument, override, config value or input file: :class:`UserError`, a config that
-Hydra cannot compose, a full or read-only disk) ends a command in one line naming the key, file or line
-and what was expected, with exit status 2 and no traceback (:func:`user_message` tells which errors are
-the user's; :func:`one_line_errors` wraps a Hydra entry point, :func:`one_line_main` an argparse one).
-Any other error (``ValueError``, ``TypeError``, ``ImportError``, ``AttributeError``, ``KeyError`` raised
-by lossvo's own code or a library) keeps its traceback. ``LOSSVO_FULL_ERROR=1`` in the environment shows
-the full traceback of a user error too, as ``HYDRA_FULL_ERROR=1`` does for Hydra.
+"""Command-line plumbing: the one error path of every entry point, and printing into a pipe that closes
+early (``| head``). A user error (:func:`user_message`) ends a command in one line with exit status 2;
+any other error keeps its traceback, and ``LOSSVO_FULL_ERROR=1`` keeps it for every error
+(docs/bad-input.md).
 """
 
 from __future__ import annotations
@@ -41,25 +35,19 @@ HYDRA_FLAGS = frozenset({
     "--multirun", "-m", "--shell-completion", "-sc", "--config-path", "-cp", "--config-name", "-cn",
     "--config-dir", "-cd", "--experimental-rerun", "--info", "-i",
 })  # fmt: skip
-"""The flags of a ``@hydra.main`` command line, as ``--hydra-help`` documents them."""
+"""The flags of a ``@hydra.main`` command line."""
 
 FULL_ERROR = "LOSSVO_FULL_ERROR"
-"""The environment variable that, set to 1, turns one-line user errors into full tracebacks."""
 
 
 class UserError(Exception):
-    """Bad input: a command-line argument, a config value or an input file that lossvo refuses. Its
-    message is one line naming the key, file or line and what was expected. Not a ``ValueError``: a
-    ``ValueError`` is a programming error (or a library's refusal not yet named at lossvo's boundary)."""
+    """Bad input that lossvo refuses, in one line naming the key, file or line and what was expected (a
+    ``ValueError`` is a programming error)."""
 
 
 class JobFailedError(UserError):
-    """A sweep job's user error, already printed by the job (:func:`user_error_line`) and recorded in its
-    ``status.json``: the sweep's end names the job instead of repeating the line. Built from the job's
-    label, the line and the sweep folder (in ``args``, so that it crosses a launcher's process boundary)."""
-
-    def __init__(self, label: str, line: str, sweep_dir: str) -> None:
-        super().__init__(label, line, sweep_dir)
+    """A sweep job's user error, already printed by the job and recorded in its ``status.json``: the
+    sweep's end names the job. ``args``: the job's label, the line and the sweep folder."""
 
     def __str__(self) -> str:
         return f"{self.args[0]}: {self.args[1]}"
@@ -82,8 +70,7 @@ DISK_ERRORS = (
     errno.ENOTDIR,
     errno.EISDIR,
 )
-"""OS errors that are the disk's or the user's (full, read-only, not permitted, a path that is missing
-or of the other kind), not lossvo's."""
+"""OS errors that are the disk's or the user's, not lossvo's."""
 
 _HYDRA_FULL_ERROR = "HYDRA_FULL_ERROR"
 _P = ParamSpec("_P")
@@ -91,8 +78,7 @@ _R = TypeVar("_R")
 
 
 def emit(text: str) -> None:
-    """Print text and a newline to stdout. When the reader has gone (``BrokenPipeError``), the rest of
-    the output is discarded quietly, as command-line tools do, instead of ending in a traceback."""
+    """Print a line to stdout; once the reader has gone (``BrokenPipeError``) the rest is discarded."""
     try:
         print(text)
         sys.stdout.flush()
@@ -103,8 +89,7 @@ def emit(text: str) -> None:
 
 def log_to_files(logger: logging.Logger, message: str) -> None:
     """An ERROR record of ``message`` in the log files ``logger`` writes to (Hydra's ``<job>.log``), not on
-    its terminal handlers: a user error reaches the terminal once, as ``error: ...`` on stderr. A log file
-    that cannot be written (a full disk) is passed over in silence."""
+    its terminal handlers; a log file that cannot be written is passed over."""
     record = logger.makeRecord(logger.name, logging.ERROR, "(lossvo)", 0, message, (), None)
     raising, logging.raiseExceptions = logging.raiseExceptions, False  # a full disk: the line is on stderr
     try:
@@ -119,8 +104,7 @@ def log_to_files(logger: logging.Logger, message: str) -> None:
 
 
 def user_error_line(logger: logging.Logger, message: str) -> None:
-    """A user error's one line: ``error: ...`` on stderr, and the same line in the log files of ``logger``
-    (:func:`log_to_files`)."""
+    """A user error's one line: ``error: ...`` on stderr, and in the log files of ``logger``."""
     print(f"error: {message}", file=sys.stderr, flush=True)
     log_to_files(logger, message)
 
@@ -138,16 +122,14 @@ def full_error() -> bool:
 
 
 def raise_if_full_error() -> None:
-    """Called in an ``except`` block before printing a one-line error: with ``LOSSVO_FULL_ERROR=1``,
-    re-raise the exception being handled, so that it ends in its full traceback."""
+    """In an ``except`` block: with ``LOSSVO_FULL_ERROR=1``, re-raise the exception being handled."""
     if full_error() and sys.exc_info()[1] is not None:
         raise  # the exception the caller is handling
 
 
 def exit_in_one_line(error: BaseException) -> NoReturn:
-    """End the command on a user error found where an exception would not end it (a Hydra callback: Hydra
-    turns its exceptions into warnings): ``error: ...`` on stderr, exit status 2; with
-    ``LOSSVO_FULL_ERROR=1`` its traceback, exit status 1."""
+    """End the command on a user error where an exception would not (a Hydra callback): one line, exit
+    status 2; with ``LOSSVO_FULL_ERROR=1`` its traceback, exit status 1."""
     if full_error():
         traceback.print_exception(error)
         raise SystemExit(1) from None
@@ -166,9 +148,8 @@ def one_line(text: object) -> str:
 
 
 def disk_error(error: BaseException, folder: object = None) -> str | None:
-    """One line for an OS error of :data:`DISK_ERRORS`, naming the path and the cause
-    (``/data/run/status.json: No space left on device``), or ``folder`` where the error names no file;
-    None for any other error."""
+    """``<path>: <cause>`` for an OS error of :data:`DISK_ERRORS` (``folder`` where the error names no
+    file); None for any other error."""
     if not isinstance(error, OSError) or error.errno not in DISK_ERRORS:
         return None
     cause = error.strerror or errno.errorcode.get(error.errno or 0, "OS error")
@@ -184,21 +165,19 @@ TYPE_REFUSALS = (
     r"Invalid value assigned: \w+ is not a (?P<type>ListConfig), list or tuple",
     r"Merge error: (?P<given>\w+) is not a subclass of (?P<type>\w+)\. value: (?P<value>.*)",
 )
-"""OmegaConf's refusals of a value whose type a structured config states (first lines of its messages)."""
+"""OmegaConf's refusals of a value of the wrong type (first lines of its messages)."""
 
 TYPE_NAMES = {"Integer": "an int", "int": "an int", "Float": "a float", "float": "a float",
               "Boolean": "a bool", "bool": "a bool", "String": "a string", "str": "a string",
               "ListConfig": "a list"}  # fmt: skip
-"""OmegaConf's names of the types it converts to -> the expected type in a one-line error."""
+"""OmegaConf's type names -> the expected type in a one-line error."""
 
 
 def typed_value_message(
     error: OmegaConfBaseException, key: str | None = None, given: str | None = None
 ) -> str:
-    """One line for OmegaConf's refusal of a value of the wrong type (:data:`TYPE_REFUSALS`):
-    ``<key>: expected an int, got 'abc'`` (``key``: the full key where given, else the error's; ``given``:
-    the value as typed, where OmegaConf's message lacks it); for any other OmegaConf error, its first line
-    after the key."""
+    """``<key>: expected an int, got 'abc'`` for OmegaConf's refusal of a value of the wrong type (``key``
+    and ``given``, the value as typed, where the error lacks them); else the error's first line."""
     where = key or error.full_key
     text = first_line(error.msg)
     for pattern in TYPE_REFUSALS:
@@ -218,8 +197,7 @@ def typed_value_message(
 
 
 def _typed_override(error: HydraException) -> str | None:
-    """One line for an override that a structured config's type refuses (``data.windows.batch_size=abc``):
-    :func:`typed_value_message` with the override's key; None for any other error."""
+    """:func:`typed_value_message` of an override a structured config's type refuses, else None."""
     cause = error.__cause__
     match = re.match(r"Error merging override (?P<key>[^=]+)=(?P<value>.*)", first_line(error))
     if not (isinstance(error, ConfigCompositionException) and isinstance(cause, ValidationError) and match):
@@ -228,9 +206,7 @@ def _typed_override(error: HydraException) -> str | None:
 
 
 def hydra_message(error: HydraException) -> str:
-    """One line for a Hydra error: an unknown config group option with the options there are, an
-    override of a key the config lacks, an override that does not parse, an override of the wrong type
-    for its key's schema (:func:`typed_value_message`)."""
+    """One line for a Hydra error (an unknown option listed with those there are, a bad override)."""
     text = str(error)
     typed = _typed_override(error)
     if typed is not None:
@@ -247,15 +223,13 @@ def hydra_message(error: HydraException) -> str:
 
 
 def _lightning_misconfiguration(error: BaseException) -> bool:
-    """Whether an error is Lightning's ``MisconfigurationException`` (a trainer setting it refuses)."""
+    """Whether an error is Lightning's ``MisconfigurationException``."""
     module = sys.modules.get("lightning.fabric.utilities.exceptions")
     return module is not None and isinstance(error, module.MisconfigurationException)
 
 
 def _config_mismatch(error: InstantiationException, cause: TypeError) -> bool:
-    """Whether Hydra's ``_target_`` was called with keys its signature lacks or without ones it needs
-    (``Trainer.__init__() got an unexpected keyword argument 'foo'``): the config's error, not a bug
-    inside the constructor."""
+    """Whether Hydra's ``_target_`` was called with keys its signature lacks or without ones it needs."""
     target = re.search(r"target '([^']*)'", str(error))
     if target is None:
         return False
@@ -267,9 +241,8 @@ def _config_mismatch(error: InstantiationException, cause: TypeError) -> bool:
 
 
 def _instantiation_message(error: InstantiationException, folder: object) -> str | None:
-    """One line, named by its key, for an object Hydra cannot instantiate from its config: its
-    ``_target_`` does not import, it is called with keys its signature lacks, or it refuses a value with a
-    user error (:func:`user_message`); None where it fails otherwise (an import inside it, a bug)."""
+    """One line, named by its key, for an object Hydra cannot instantiate because of its config (its
+    ``_target_``, its keys, a user error); None where it fails otherwise."""
     text, cause = str(error), error.__cause__
     if isinstance(cause, OSError):
         return user_message(cause, folder)
@@ -285,13 +258,9 @@ def _instantiation_message(error: InstantiationException, folder: object) -> str
 
 
 def user_message(error: BaseException, folder: object = None) -> str | None:
-    """The one line of a user error, or None for an error that keeps its traceback.
-
-    User errors: :class:`UserError`, Lightning's ``MisconfigurationException``, a disk error
-    (:func:`disk_error`, naming ``folder`` where the error names no file), a config that Hydra cannot
-    compose or an override that does not parse, and an object Hydra cannot instantiate because its
-    ``_target_`` does not import or its constructor refuses a value with one of these errors.
-    """
+    """The one line of a user error, or None for an error that keeps its traceback: user errors are
+    :class:`UserError`, Lightning's ``MisconfigurationException``, a disk error, Hydra's refusal of a
+    config or override, and an instantiation that fails on one of these."""
     if isinstance(error, InstantiationException):
         return _instantiation_message(error, folder)
     if isinstance(error, CompactHydraException):  # before OSError: MissingConfigException is an IOError
@@ -304,9 +273,8 @@ def user_message(error: BaseException, folder: object = None) -> str | None:
 
 
 def printed_one_line(error: BaseException, folder: object = None) -> bool:
-    """Called in an ``except`` block of an entry point: for a user error (:func:`user_message`), print
-    ``error: ...`` on stderr and return True (the command then exits with status 2); otherwise, or with
-    ``LOSSVO_FULL_ERROR=1``, print nothing and return False (the caller re-raises)."""
+    """For a user error, print ``error: ...`` on stderr and return True; else (or with
+    ``LOSSVO_FULL_ERROR=1``) return False: the caller re-raises."""
     message = error.summary() if isinstance(error, JobFailedError) else user_message(error, folder)
     if message is None or full_error():
         return False
@@ -321,8 +289,7 @@ def end_in_one_line(error: BaseException, folder: object = None) -> None:
 
 
 def one_line_main(main: Callable[_P, int]) -> Callable[_P, int]:
-    """An argparse entry point (``main(argv) -> exit status``) whose user errors end in one line with
-    exit status 2 returned (:func:`printed_one_line`); other errors keep their traceback."""
+    """An argparse entry point (``main(argv) -> exit status``) whose user errors end in one line, status 2."""
 
     @functools.wraps(main)
     def wrapped(*args: _P.args, **kwargs: _P.kwargs) -> int:
@@ -337,8 +304,7 @@ def one_line_main(main: Callable[_P, int]) -> Callable[_P, int]:
 
 
 def _check_flags(argv: list[str]) -> None:
-    """One line and exit status 2 for a command-line flag that Hydra's own parser does not know (it
-    would print its usage block)."""
+    """One line and exit status 2 for a flag Hydra does not know (instead of its usage block)."""
     for arg in argv:
         if arg.startswith("-") and arg.split("=", 1)[0] not in HYDRA_FLAGS:
             print(
@@ -349,11 +315,8 @@ def _check_flags(argv: list[str]) -> None:
 
 
 def one_line_errors(hydra_main: Callable[_P, _R]) -> Callable[_P, _R]:
-    """A ``@hydra.main`` entry point whose user errors (:func:`user_message`: an unknown config group
-    option, an override of a key the config lacks, a malformed override, a config value refused, a
-    disk error) end in one line on stderr with exit status 2, instead of Hydra's multi-line report
-    with exit status 1. Errors that are not the user's keep their traceback; ``LOSSVO_FULL_ERROR=1``
-    (or ``HYDRA_FULL_ERROR=1``) keeps it for every error."""
+    """A ``@hydra.main`` entry point whose user errors end in one line with exit status 2 instead of
+    Hydra's report; ``LOSSVO_FULL_ERROR=1`` or ``HYDRA_FULL_ERROR=1`` keeps every traceback."""
 
     @functools.wraps(hydra_main)
     def main(*args: _P.args, **kwargs: _P.kwargs) -> _R:
@@ -389,10 +352,8 @@ def close_logs_in(folder: Path) -> None:
 
 
 def remove_refused(folder: Path, made: Collection[str], keep_folder: bool = False) -> None:
-    """Remove the output folder of a command refused on bad input when it holds only what the command
-    made before the refusal (``made``: names such as ``.hydra`` and ``eval.log``), so that a refused
-    command leaves nothing behind; with ``keep_folder`` (an empty folder the user gave) only what it made.
-    A folder holding anything else is left as it is."""
+    """Remove a refused command's output folder where it holds only the names in ``made`` (``.hydra``,
+    ``eval.log``); with ``keep_folder`` (an empty folder the user gave) only its contents."""
     if not (folder.is_dir() and {p.name for p in folder.iterdir()} <= set(made)):
         return
     close_logs_in(folder)
@@ -408,26 +369,21 @@ LIGHTNING_HINTS = (
     r"The number of training batches .* is smaller than the logging interval",
     r"`isinstance\(treespec, LeafSpec\)` is deprecated",
 )
-"""Lightning's warnings that do not fit lossvo: ``srun`` on the PATH of a login node is no sign that a
-run should be started with it (:mod:`lossvo.training.slurm` starts cluster jobs); the logging interval
-is the training curve's, whose points are epoch means (an epoch shorter than it loses no point); the
-pytree deprecation is Lightning's call of a torch API, not the user's to fix."""
+"""Lightning's warnings that do not fit lossvo: ``srun`` (:mod:`lossvo.training.slurm` starts cluster
+jobs), the logging interval (the curve's points are epoch means), Lightning's own call of a deprecated API."""
 
 LIGHTNING_TIPS = ("Tip: For seamless cloud ",)
-"""Lightning's advertising lines (its ``litmodels`` and ``litlogger`` tips), dropped from its log."""
+"""Lightning's advertising lines, dropped from its log."""
 
 _RANK_ZERO_LOGGERS = ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.rank_zero")
-"""The loggers of Lightning's ``rank_zero_info``."""
 
 
 def _no_tips(record: logging.LogRecord) -> bool:
-    """A log filter dropping the records that are one of :data:`LIGHTNING_TIPS`."""
     return not any(tip in str(record.msg) for tip in LIGHTNING_TIPS)
 
 
 def quiet_lightning() -> None:
-    """Silence Lightning's hints that do not fit lossvo (:data:`LIGHTNING_HINTS`, :data:`LIGHTNING_TIPS`),
-    so that a command's output (and a one-line error) is lossvo's own; called by each entry point's job."""
+    """Silence :data:`LIGHTNING_HINTS` and :data:`LIGHTNING_TIPS`; called by each entry point's job."""
     for hint in LIGHTNING_HINTS:
         warnings.filterwarnings("ignore", message=hint)
     for name in _RANK_ZERO_LOGGERS:

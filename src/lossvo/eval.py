@@ -4,12 +4,9 @@
     python -m lossvo.eval ckpt_path=... data=kitti data.sources.kitti.root=/data/kitti \
         data.splits.test=[09,10]
 
-The checkpoint records how its network was trained (:mod:`lossvo.evaluation.checkpoints`): frame size,
-``seq_len``, normalisation and the training data, which is what is evaluated unless ``data=...`` or
-``data.KEY=...`` chooses otherwise (the other data need hold no training sequence). An override that
-contradicts the checkpoint's frame size, ``seq_len`` or normalisation, like any bad input, ends in one line
-with exit status 2. The output folder (``outputs/eval/<time>/`` or ``hydra.run.dir``) receives what
-:func:`lossvo.evaluation.results.evaluate_run` writes.
+The checkpoint's training data is evaluated unless ``data=...`` or ``data.KEY=...`` chooses otherwise
+(:mod:`lossvo.evaluation.checkpoints`); the output folder receives what
+:func:`lossvo.evaluation.results.evaluate_run` writes (docs/training.md).
 """
 
 from __future__ import annotations
@@ -22,7 +19,10 @@ from typing import Any, cast
 import hydra
 import torch
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.errors import InstantiationException
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
 
 from lossvo import output_folders
 from lossvo.console import (
@@ -54,18 +54,8 @@ log = logging.getLogger("lossvo")
 CONFIG_DIR = str(Path(__file__).resolve().parent / "conf")
 
 
-def _resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
-
-
 def check_config(cfg: Any) -> None:
-    """Raise :class:`~lossvo.console.UserError` (one line naming the key, the value and what was
-    expected) for a config of ``python -m lossvo.eval`` that would fail only after the checkpoint is
-    loaded."""
-    from omegaconf import OmegaConf
-
+    """``UserError`` for a config of ``python -m lossvo.eval`` that would fail after the checkpoint loads."""
     if OmegaConf.is_missing(cfg, "ckpt_path"):
         raise UserError("ckpt_path is required: python -m lossvo.eval ckpt_path=PATH")
     resolved_config(cfg)  # an interpolation that does not resolve: one line naming its key
@@ -96,8 +86,6 @@ def check_config(cfg: Any) -> None:
 def data_overrides(overrides: Sequence[str]) -> tuple[bool, list[str]]:
     """From command-line overrides: whether a data config was chosen (``data=kitti``) and the data keys
     set, dotted below ``data`` (``data.frames.cache_dir=...`` gives ``frames.cache_dir``)."""
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
     chosen, keys = False, []
     for override in OverridesParser.create().parse_overrides(list(overrides)):
         key = override.key_or_group
@@ -109,14 +97,11 @@ def data_overrides(overrides: Sequence[str]) -> tuple[bool, list[str]]:
 
 
 def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
-    """The body of ``python -m lossvo.eval``: load the checkpoint, build the data it describes (with the
-    command line's ``overrides`` of data settings), evaluate the test and unseen-motion sequences."""
-    from hydra.errors import InstantiationException
-    from hydra.utils import instantiate
-    from omegaconf import OmegaConf
-
-    device = _resolve_device(str(cfg.get("device", "auto")))
-    network = checkpoints.load_network(cfg.ckpt_path, device)
+    """Load the checkpoint, build the data it describes (with the command line's data ``overrides``) and
+    evaluate the test and unseen-motion sequences."""
+    name = str(cfg.get("device", "auto"))
+    auto = "cuda" if torch.cuda.is_available() else "cpu"
+    network = checkpoints.load_network(cfg.ckpt_path, torch.device(auto if name == "auto" else name))
     chosen, keys = data_overrides(overrides)
     given = cast("dict[str, Any]", OmegaConf.to_container(cfg.data, resolve=True))
     recorded = checkpoints.recorded_data(cfg.ckpt_path, network)
@@ -157,8 +142,7 @@ def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
 @refusing_flat_keys
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="eval")
 def main(cfg: DictConfig) -> None:
-    """Evaluate ``cfg.ckpt_path`` into this Hydra job's folder; bad input is one line, exit status 2,
-    and leaves no output folder behind."""
+    """Evaluate ``cfg.ckpt_path`` into this Hydra job's folder; bad input leaves no output folder behind."""
     quiet_lightning()
     restore_start_method()  # a joblib-launched job: let its loader workers start
     out_dir = Path(HydraConfig.get().runtime.output_dir)

@@ -17,56 +17,40 @@ from lossvo.console import UserError
 from lossvo.weighting import DEFAULT_C, HomoscedasticWeighting, check_k, check_unsquared, learned_from_config
 
 TRANSLATIONS = ("metric", "direction", "cue")
-"""The translation terms (``loss.translation``): ``|t - t^|^2``; the direction only, up to scale; or
-``|t - t^|^2`` on the windows whose platform gives metric scale a cue and the scale-given
-``|t |t^| / |t| - t^|^2`` on the others (:meth:`PoseLoss.translation_term`)."""
+"""The translation terms (``loss.translation``; :meth:`PoseLoss.translation_term`)."""
 
 MIN_STEP_M = 1e-3
-"""The shortest step with a direction, in metres. ``translation="direction"``: a ground-truth step
-shorter than this (a standing car) has no translation term, and a predicted ``t`` is divided by
-``max(|t|, MIN_STEP_M)`` instead of ``|t|`` (finite value and gradient at ``t = 0``)."""
+"""The shortest step with a direction, in metres: ``translation="direction"`` gives a shorter ground-truth
+step no term, and divides a predicted ``t`` by ``max(|t|, MIN_STEP_M)``."""
 
 DIRECTION_WEIGHT_M2 = 1.0
-"""The weight of the direction term in m^2: the term is then the metric term ``|t - t^|^2`` of a 1 m
-step of the right length with the same direction error."""
+"""The direction term's weight in m^2: the metric term of a 1 m step with the same direction error."""
 
 
 def _floored_unit(t: Tensor) -> Tensor:
-    """(..., 3) ``t / max(|t|, MIN_STEP_M)``: the sqrt of the floored squared norm, so no 0/0 in the value
-    or the gradient at ``t = 0``."""
+    """(..., 3) ``t / max(|t|, MIN_STEP_M)``, with no 0/0 in the value or the gradient at ``t = 0``."""
     return t / torch.sqrt(t.square().sum(-1, keepdim=True).clamp_min(MIN_STEP_M**2))
 
 
 class PoseLoss(nn.Module):
     """Base class: shape checks, the shared translation term, the weighting, the yardsticks.
 
-    The loss is the mean over all pairs (batch and time) of ``trans_term + k * rot_term``; the study sums
-    over time, dividing by the number of pairs keeps ``k`` independent of the window length. The
-    translation term is the same for every loss (with ``t`` the decoded translation, for se(3)
-    ``V(omega) rho``), so only the rotation term differs between compared runs. ``small_angle_gain``:
-    the rotation term is ``gain * theta^2 + O(theta^3)`` for a rotation error theta (identity target;
-    Euler at zero pitch), so the matched ``k = 100 / gain`` weighs small rotation errors alike for every
-    loss (:mod:`lossvo.weighting`). The loss runs in float32 (float64 for a float64 prediction) with
-    autocast off; a non-finite prediction gives a non-finite loss.
-
-    Subclasses set ``dim``, ``small_angle_gain`` and ``paper_k`` and implement :meth:`decode_rt`,
-    :meth:`encode` and :meth:`rotation_term`.
+    Output ``[t (3), rotation (dim - 3)]`` unless a subclass overrides :meth:`decode_rt` and :meth:`encode`;
+    subclasses set ``dim``, ``small_angle_gain`` and ``paper_k`` and implement :meth:`to_matrix`,
+    :meth:`from_matrix` and :meth:`rotation_term`. The loss runs in float32 (float64 for a float64
+    prediction) with autocast off.
 
     Args:
         k: rotation weight; None: the matched weighting ``100 / small_angle_gain``.
-        learned: initial log-variances ``{"s_t": .., "s_r": ..}`` for the learned (homoscedastic)
-            weighting instead of k (then k must be None).
-        translation: one of :data:`TRANSLATIONS` (:meth:`translation_term`): ``"metric"`` is the
-            study's; with ``"direction"`` metric scale comes from evaluation, which scales each step to
-            the ground-truth length; ``"cue"`` scores as the scale-given RPE where there is no cue.
+        learned: initial log-variances ``{"s_t": .., "s_r": ..}`` of the learned weighting (k must be None).
+        translation: one of :data:`TRANSLATIONS`.
     """
 
     dim: int
     small_angle_gain: float
     """Rotation term ~ gain * theta^2 for a small rotation error theta (radians)."""
     paper_k: float
-    """The study's weight for this loss (for losses the study did not have: the study's weight of the
-    loss with the same rotation distance)."""
+    """The study's weight for this loss (or for the study's loss with the same rotation distance)."""
 
     def __init__(
         self, k: float | None = None, learned: dict[str, float] | None = None, translation: str = "metric"
@@ -80,14 +64,10 @@ class PoseLoss(nn.Module):
         self.weighting: HomoscedasticWeighting | None = learned_from_config(learned)
         check_k(k, learned=self.weighting is not None)
         if self.weighting is None and k is None:
-            k = self.matched_k()
+            k = DEFAULT_C / self.small_angle_gain  # the matched weighting
         if k is not None and (not is_number(k) or not math.isfinite(k) or k < 0):
             raise UserError(f"loss.k: expected a finite number >= 0 for {name}, got {k!r}")
         self.k = None if k is None else float(k)
-
-    def matched_k(self) -> float:
-        """The default k: ``100 / small_angle_gain`` (the matched weighting with c = 100)."""
-        return DEFAULT_C / self.small_angle_gain
 
     def extra_repr(self) -> str:
         weight = "learned" if self.k is None else f"{self.k:g}"
@@ -104,13 +84,21 @@ class PoseLoss(nn.Module):
 
     # -- parameterisation -------------------------------------------------------------------------
 
+    def to_matrix(self, rot: Tensor) -> Tensor:
+        """Rotations (..., 3, 3) of the output's rotation part (..., dim - 3)."""
+        raise NotImplementedError
+
+    def from_matrix(self, R: Tensor) -> Tensor:
+        """The output's rotation part (..., dim - 3) that decodes to ``R`` (..., 3, 3)."""
+        raise NotImplementedError
+
     def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
         """Rotation (..., 3, 3) and translation (..., 3, metres) encoded by ``pred`` (..., dim)."""
-        raise NotImplementedError
+        return self.to_matrix(pred[..., 3:]), pred[..., :3]
 
     def encode(self, pose: Tensor) -> Tensor:
         """The network output (..., dim) that decodes to ``pose`` (..., 4, 4)."""
-        raise NotImplementedError
+        return torch.cat((pose[..., :3, 3], self.from_matrix(pose[..., :3, :3])), dim=-1)
 
     def rotation_term(self, pred: Tensor, R: Tensor, R_target: Tensor) -> Tensor:
         """Unweighted rotation term per pair (...), >= 0, of the raw output ``pred`` (..., dim), the
@@ -133,9 +121,9 @@ class PoseLoss(nn.Module):
             metric: (B,) bool, whether each window's platform gives metric scale a cue (read by
                 ``translation="cue"`` only; None: every window's does).
         Returns:
-            Scalar tensors ``loss``, the unweighted means ``trans_loss`` and ``rot_loss``, and two
-            yardsticks without gradient, the same for every loss: ``trans_err_m`` (mean ``|t - t^|``,
-            metres; :meth:`translation_term`) and ``rot_err_rad`` (mean geodesic angle, radians).
+            Scalars ``loss``, the unweighted means ``trans_loss`` and ``rot_loss``, and two yardsticks
+            without gradient: ``trans_err_m`` (:meth:`translation_term`) and ``rot_err_rad`` (mean
+            geodesic angle).
         """
         self._check_pred(pred)
         self._check_target(pred, target)
@@ -167,22 +155,9 @@ class PoseLoss(nn.Module):
     def translation_term(
         self, t: Tensor, t_target: Tensor, metric: Tensor | None = None
     ) -> tuple[Tensor, Tensor]:
-        """The translation term per pair and the yardstick ``trans_err_m`` (its mean, no gradient).
-
-        ``direction``: ``DIRECTION_WEIGHT_M2 * |u - u^|^2`` of the unit steps; for a direction error alpha
-        ``|u - u^|^2 = 2 - 2 cos(alpha) = alpha^2 + O(alpha^4)``, the metric term of a 1 m step of the right
-        length. A ground-truth step shorter than :data:`MIN_STEP_M` has no term (the mean still divides by
-        all pairs). ``cue``: the metric term where ``metric`` is true, elsewhere the scale-given term
-        ``|t |t^| / |t| - t^|^2`` in m^2 (a direction error alpha costs ``|t^|^2 alpha^2``: short steps,
-        whose direction is least observable, weigh least), one kernel path for both.
-
-        Args:
-            t, t_target: (B, ..., 3) decoded and target translations (metres).
-            metric: (B,) bool for ``cue`` (None: every window metric).
-        Returns:
-            (B, ...) terms, and the scalar mean of ``|t - t^|`` on metric pairs and of
-            ``|t / |t| * |t^| - t^|`` on the others (metres).
-        """
+        """The translation term per pair (B, ...) and the yardstick ``trans_err_m`` (its scalar mean
+        distance, metres, no gradient) of the decoded and target translations ``t``, ``t_target``
+        (B, ..., 3); ``metric`` (B,) bool for ``cue``. Formulas: docs/losses.md."""
         if self.translation == "cue" and metric is not None:
             return self._cue_term(t, t_target, metric)
         if self.translation != "direction":
@@ -200,7 +175,7 @@ class PoseLoss(nn.Module):
 
     @staticmethod
     def _cue_term(t: Tensor, t_target: Tensor, metric: Tensor) -> tuple[Tensor, Tensor]:
-        """:meth:`translation_term` for ``cue``: (B, ...) terms and the scalar yardstick."""
+        """``cue``: the metric term where ``metric``, elsewhere the scale-given ``|t |t^| / |t| - t^|^2``."""
         metric = metric.to(torch.bool).view(-1, *([1] * (t.dim() - 2)))
         step = torch.linalg.vector_norm(t_target, dim=-1, keepdim=True)
         error = torch.where(metric[..., None], t, _floored_unit(t) * step) - t_target
@@ -235,36 +210,27 @@ class PoseLoss(nn.Module):
 
 
 class EulerLoss(PoseLoss):
-    """Euler angles + Euclidean: ``|t - t^|^2 + k |phi - phi^|^2`` (study: k1 = 100).
-
-    Output ``[t (3), yaw, pitch, roll]``, ``R = Ry(yaw) Rx(pitch) Rz(roll)``. Targets are the Euler
-    angles of the relative rotation (never differences of absolute angles), in (-pi, pi].
-    """
+    """Euler angles + Euclidean: ``|t - t^|^2 + k |phi - phi^|^2`` (study: k1 = 100); output ``[t (3), yaw,
+    pitch, roll]``, ``R = Ry(yaw) Rx(pitch) Rz(roll)``; targets the relative rotation's angles."""
 
     dim = 6
     small_angle_gain = 1.0  # |dphi|^2 = theta^2 at zero pitch
     paper_k = 100.0
 
-    def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
-        return g.euler_to_matrix(pred[..., 3:]), pred[..., :3]
+    def to_matrix(self, rot: Tensor) -> Tensor:
+        return g.euler_to_matrix(rot)
 
-    def encode(self, pose: Tensor) -> Tensor:
-        return torch.cat((pose[..., :3, 3], g.matrix_to_euler(pose[..., :3, :3])), dim=-1)
+    def from_matrix(self, R: Tensor) -> Tensor:
+        return g.matrix_to_euler(R)
 
     def rotation_term(self, pred: Tensor, R: Tensor, R_target: Tensor) -> Tensor:
         return (pred[..., 3:] - g.matrix_to_euler(R_target)).square().sum(-1)
 
 
 class QuaternionLoss(PoseLoss):
-    """Quaternion + sign-invariant Euclidean: ``|t - t^|^2 + k min_b |q - b q^|^2`` (study: k2 = 14).
-
-    Output ``[t (3), w, x, y, z]`` with a raw quaternion, normalised here (see
-    :func:`lossvo.geometry.quat_normalize`); q and -q give identical losses.
-
-    ``squared=False`` uses the unsquared distance ``min_b |q - b q^|``: the study writes d_q without a
-    square (and squares it in its loss), its released code used unsquared norms. That term is about
-    theta / 2, not quadratic, so it has no matched k: give ``k`` (or ``weighting=paper``).
-    """
+    """Quaternion + sign-invariant Euclidean: ``|t - t^|^2 + k min_b |q - b q^|^2`` (study: k2 = 14); output
+    ``[t (3), w, x, y, z]``, normalised here. ``squared=False``: the unsquared distance of the study's
+    released code (~ theta / 2, no matched k: give ``k``)."""
 
     dim = 7
     small_angle_gain = 0.25  # |q - q^|^2 = 2 - 2 cos(theta / 2) = theta^2 / 4 + O(theta^4)
@@ -283,11 +249,11 @@ class QuaternionLoss(PoseLoss):
         self.squared = squared
         super().__init__(k, learned, translation)
 
-    def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
-        return g.quat_to_matrix(g.quat_normalize(pred[..., 3:])), pred[..., :3]
+    def to_matrix(self, rot: Tensor) -> Tensor:
+        return g.quat_to_matrix(g.quat_normalize(rot))
 
-    def encode(self, pose: Tensor) -> Tensor:
-        return torch.cat((pose[..., :3, 3], g.matrix_to_quat(pose[..., :3, :3])), dim=-1)
+    def from_matrix(self, R: Tensor) -> Tensor:
+        return g.matrix_to_quat(R)
 
     def rotation_term(self, pred: Tensor, R: Tensor, R_target: Tensor) -> Tensor:
         q, q_target = g.quat_normalize(pred[..., 3:]), g.matrix_to_quat(R_target)
@@ -297,9 +263,7 @@ class QuaternionLoss(PoseLoss):
 
 
 class _ChordalTerm(PoseLoss):
-    """The chordal rotation term ``|R - R^|_F^2`` of every loss that compares the decoded rotation
-    matrices, whatever the parameterisation (subclasses set ``dim``, :meth:`decode_rt`, :meth:`encode`);
-    the study's weight is the chordal loss's k3."""
+    """The chordal rotation term ``|R - R^|_F^2`` of the decoded rotations; ``paper_k`` the chordal k3."""
 
     small_angle_gain = 2.0  # |R - R^|_F^2 = 8 sin^2(theta / 2) = 2 theta^2 + O(theta^4)
     paper_k = 153.0
@@ -309,10 +273,8 @@ class _ChordalTerm(PoseLoss):
 
 
 class ChordalLoss(_ChordalTerm):
-    """SE(3) + chordal: ``|t - t^|^2 + k |R - R^|_F^2`` with ``(R^, t^) = Exp(xi^)`` (study: k3 = 153).
-
-    Output the se(3) vector ``xi = (rho, omega)``; the translation is ``t^ = V(omega) rho``, not rho.
-    """
+    """SE(3) + chordal: ``|t - t^|^2 + k |R - R^|_F^2`` with ``(R^, t^) = Exp(xi^)`` (study: k3 = 153);
+    output the se(3) vector ``xi = (rho, omega)``, the translation ``t^ = V(omega) rho``, not rho."""
 
     dim = 6
 
@@ -324,82 +286,64 @@ class ChordalLoss(_ChordalTerm):
 
 
 class GeodesicLoss(PoseLoss):
-    """Rotation vector + geodesic angle: ``|t - t^|^2 + k angle(R, R^)^2``.
-
-    Output ``[t (3), omega (3)]``, ``R^ = exp(omega)``; ``paper_k`` is the study's Euler k1 (for small
-    errors the squared angle equals the squared Euler error).
-    """
+    """Rotation vector + geodesic angle: ``|t - t^|^2 + k angle(R, R^)^2``; output ``[t (3), omega (3)]``,
+    ``R^ = exp(omega)``; ``paper_k`` the Euler k1."""
 
     dim = 6
     small_angle_gain = 1.0
     paper_k = 100.0
 
-    def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
-        return g.so3_exp(pred[..., 3:]), pred[..., :3]
+    def to_matrix(self, rot: Tensor) -> Tensor:
+        return g.so3_exp(rot)
 
-    def encode(self, pose: Tensor) -> Tensor:
-        return torch.cat((pose[..., :3, 3], g.so3_log(pose[..., :3, :3])), dim=-1)
+    def from_matrix(self, R: Tensor) -> Tensor:
+        return g.so3_log(R)
 
     def rotation_term(self, pred: Tensor, R: Tensor, R_target: Tensor) -> Tensor:
         return g.so3_geodesic_distance(R, R_target).square()
 
 
 class SixDLoss(_ChordalTerm):
-    """6-D rotation (two columns, Gram-Schmidt) + chordal: ``|t - t^|^2 + k |R - R^|_F^2``.
-
-    Output ``[t (3), c1 (3), c2 (3)]`` (Zhou et al. 2019); ``paper_k`` is the chordal loss's k3, as the
-    distance is the same.
-    """
+    """6-D rotation (two columns, Gram-Schmidt; Zhou et al. 2019) + chordal; output ``[t (3), c1, c2]``."""
 
     dim = 9
 
-    def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
-        return g.sixd_to_matrix(pred[..., 3:]), pred[..., :3]
+    def to_matrix(self, rot: Tensor) -> Tensor:
+        return g.sixd_to_matrix(rot)
 
-    def encode(self, pose: Tensor) -> Tensor:
-        return torch.cat((pose[..., :3, 3], g.matrix_to_sixd(pose[..., :3, :3])), dim=-1)
+    def from_matrix(self, R: Tensor) -> Tensor:
+        return g.matrix_to_sixd(R)
 
 
 class SVDLoss(_ChordalTerm):
-    """9-D rotation (special Procrustes / SVD) + chordal: ``|t - t^|^2 + k |R - R^|_F^2``.
-
-    Output ``[t (3), M (9)]`` with M a 3x3 matrix in row-major order, projected onto SO(3) by
-    :func:`roma.special_procrustes` (the rotation nearest to M in the Frobenius norm; Levinson et al.
-    2020, Brégier 2021). Its derivative is damped where M's singular values coincide (M = 0, rank < 2),
-    so values and gradients stay finite at degenerate outputs. ``paper_k`` is the chordal loss's k3.
-    """
+    """9-D rotation (special Procrustes / SVD) + chordal; output ``[t (3), M (9)]``, M row-major.
+    :func:`roma.special_procrustes` (Levinson et al. 2020, Brégier 2021) keeps gradients finite at
+    degenerate M."""
 
     dim = 12
 
-    def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
-        M = pred[..., 3:].unflatten(-1, (3, 3))
-        return roma.special_procrustes(M).to(pred.dtype), pred[..., :3]
+    def to_matrix(self, rot: Tensor) -> Tensor:
+        return roma.special_procrustes(rot.unflatten(-1, (3, 3))).to(rot.dtype)
 
-    def encode(self, pose: Tensor) -> Tensor:
-        return torch.cat((pose[..., :3, 3], pose[..., :3, :3].flatten(-2)), dim=-1)
+    def from_matrix(self, R: Tensor) -> Tensor:
+        return R.flatten(-2)
 
 
 class SymMatrixQuatLoss(_ChordalTerm):
-    """10-D symmetric-matrix quaternion + chordal: ``|t - t^|^2 + k |R - R^|_F^2``.
-
-    Output ``[t (3), a (10)]``: the upper triangle of a symmetric 4x4 matrix A (roma's order a00, a10,
-    a20, a30, a11, a21, a31, a22, a32, a33); the rotation is the unit quaternion (x, y, z, w) minimising
-    ``q^T A q``, the eigenvector of A's smallest eigenvalue (Peretroukhin et al. 2020), by
-    :func:`roma.symmatrixvec_to_unitquat`, whose derivative is damped where that eigenvalue is repeated
-    (e.g. A = 0), so values and gradients stay finite. ``paper_k`` is the chordal loss's k3.
-    """
+    """10-D symmetric-matrix quaternion (Peretroukhin et al. 2020) + chordal; output ``[t (3), a (10)]``,
+    a symmetric 4x4 A in roma's order (a00, a10, a20, a30, a11, a21, a31, a22, a32, a33), the rotation its
+    smallest eigenvalue's eigenvector (:func:`roma.symmatrixvec_to_unitquat`: finite gradients)."""
 
     dim = 13
 
     _UPPER = (0, 4, 8, 12, 5, 9, 13, 10, 14, 15)
-    """Indices of roma's 10 entries in the row-major flattened 4x4 matrix (its lower triangle by columns)."""
+    """Indices of roma's 10 entries in the row-major flattened 4x4 matrix."""
 
-    def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
-        q = roma.symmatrixvec_to_unitquat(pred[..., 3:])
-        return roma.unitquat_to_rotmat(q).to(pred.dtype), pred[..., :3]
+    def to_matrix(self, rot: Tensor) -> Tensor:
+        return roma.unitquat_to_rotmat(roma.symmatrixvec_to_unitquat(rot)).to(rot.dtype)
 
-    def encode(self, pose: Tensor) -> Tensor:
-        """``A = I - q q^T`` for the pose's quaternion q: eigenvalue 0 for q, 1 for the rest."""
-        q = roma.rotmat_to_unitquat(pose[..., :3, :3])
+    def from_matrix(self, R: Tensor) -> Tensor:
+        """``A = I - q q^T`` for the quaternion q of ``R``: eigenvalue 0 for q, 1 for the rest."""
+        q = roma.rotmat_to_unitquat(R)
         A = torch.eye(4, dtype=q.dtype, device=q.device) - q[..., :, None] * q[..., None, :]
-        return torch.cat((pose[..., :3, 3], A.flatten(-2)[..., list(self._UPPER)]), dim=-1)
+        return A.flatten(-2)[..., list(self._UPPER)]

@@ -1,7 +1,5 @@
-"""The processor a job's arithmetic ran on, recorded beside its code version in ``status.json``: one code
-and seed give the same numbers on one machine and different ones on another, whose kernels round
-differently (experiments/2026-12-07-camera-arm-one-machine.md), so jobs paired by seed share a start only
-where they also share a machine."""
+"""The processor a job's arithmetic ran on, recorded in ``status.json``: kernels round differently on
+another machine (experiments/2026-12-07-camera-arm-one-machine.md)."""
 
 from __future__ import annotations
 
@@ -16,9 +14,8 @@ CPUINFO = Path("/proc/cpuinfo")
 
 
 def describe(cpuinfo: str, capability: str) -> str:
-    """``"AMD EPYC, AVX512, flags 3f2a9c1b"``: the first ``model name`` of a ``/proc/cpuinfo`` text, torch's
-    CPU kernel set and a digest of the CPU's feature flags (which pick the kernels); the platform's
-    processor string where the text has none."""
+    """``"AMD EPYC, AVX512, flags 3f2a9c1b"``: a ``/proc/cpuinfo`` text's first ``model name``, torch's CPU
+    kernel set and a digest of the CPU's feature flags."""
     fields = dict(
         (key.strip(), value.strip())
         for key, _, value in (line.partition(":") for line in reversed(cpuinfo.splitlines()))

@@ -1,7 +1,5 @@
 """``python -m lossvo.metrics GT_FILE EST_FILE [--align ...] [--delta N] [--json]``: APE, RPE and the KITTI
-odometry error of an estimated trajectory against a ground-truth one (:mod:`lossvo.evaluation.metrics`),
-as a table or JSON. Files ending in ``.tum`` are read as TUM trajectories (``timestamp tx ty tz qx qy qz
-qw``, as lossvo writes ``<seq>.tum`` and ``<seq>_gt.tum``), any other as KITTI pose files.
+odometry error of an estimated trajectory (:mod:`lossvo.evaluation.metrics`), as a table or JSON.
 """
 
 from __future__ import annotations

@@ -1,7 +1,5 @@
-"""``python -m lossvo.motion [ROOT] [--train 00,02 --val 07,09 --test ... --unseen 11,12]``: the per-frame
-motion statistics of a dataset's ground truth (:mod:`lossvo.data.motion`) as a Markdown table, one row per
-split, then one per sequence, for a KITTI root (default: the embedded synthetic dataset);
-``--layout tum|euroc|tartanair|mimir [--sequences A,B]`` for another layout (docs/data.md).
+"""``python -m lossvo.motion [ROOT] [--train 00,02 ...]``: the per-frame motion statistics of a dataset's
+ground truth (:mod:`lossvo.data.motion`) as a Markdown table, per split, then per sequence (docs/data.md).
 """
 
 from __future__ import annotations
@@ -54,7 +52,7 @@ def _parser() -> argparse.ArgumentParser:
 
 @one_line_main
 def main(argv: Sequence[str] | None = None) -> int:
-    """Command-line entry point: prints the table; exit status 2 and one line for a bad root or split."""
+    """Print the table; one line and exit status 2 for a bad root or split."""
     parser = _parser()
     args = parser.parse_args(argv)
     if args.layout != "kitti":

@@ -1,7 +1,6 @@
-"""Output folders lossvo may write into: those it creates, and those that carry its own marker (a run's
-``.hydra/config.yaml`` or ``status.json``, an evaluation's ``results.json``, a sweep's ``multirun.yaml`` or
-job folders). A Hydra callback checks ``hydra.run.dir`` / ``hydra.sweep.dir`` before Hydra creates or
-writes anything there; a folder that already existed is never removed by a refused run."""
+"""Output folders lossvo may write into: those it creates, and those that carry its own marker. A Hydra
+callback checks ``hydra.run.dir`` / ``hydra.sweep.dir`` before Hydra writes there; a folder that already
+existed is never removed by a refused run."""
 
 from __future__ import annotations
 
@@ -20,16 +19,13 @@ _P = ParamSpec("_P")
 _R = TypeVar("_R")
 
 RUN_MARKERS = (".hydra/config.yaml", "status.json", "results.json", "run.lock")
-"""Files of a run or an evaluation folder of lossvo's (``run.lock``: a job that has just started): one of
-them makes an existing folder its own, and a sweep folder holding such a folder."""
+"""Files of a run or an evaluation folder of lossvo's (``run.lock``: a job that has just started)."""
 
 SWEEP_MARKERS = ("multirun.yaml", "optuna.db", ".submitit")
-"""Entries of a sweep folder of lossvo's besides job folders: Hydra's record of the sweep, the Optuna
-search's default storage (made before its first job), the SLURM launcher's folder (made at submission)."""
+"""Entries of a sweep folder of lossvo's besides job folders (Hydra's, Optuna's, the SLURM launcher's)."""
 
 _EXISTED: dict[str, bool] = {}
-"""The output folders that existed before this process's Hydra run began (never removed on a refusal), each
-with whether it was empty then."""
+"""The output folders that existed before this process's run began, each with whether it was empty."""
 
 
 def _key(folder: Path) -> str:
@@ -56,8 +52,8 @@ def _is_ours(folder: Path, sweep: bool) -> bool:
 
 
 def check_output_folder(folder: Path, key: str, sweep: bool = False) -> None:
-    """``UserError`` (one line naming ``key``) where ``folder`` is a file, or an existing folder that holds
-    files and no marker of lossvo's; an existing folder is remembered (:func:`existed`)."""
+    """``UserError`` naming ``key`` where ``folder`` is a file, or holds files and no marker of lossvo's;
+    an existing folder is remembered (:func:`existed`)."""
     what = "sweep" if sweep else "run"
     if folder.exists() and not folder.is_dir():
         raise UserError(
@@ -74,8 +70,7 @@ def check_output_folder(folder: Path, key: str, sweep: bool = False) -> None:
 
 
 class OutputFolderCheck(Callback):
-    """Before Hydra creates or writes the output folder: :func:`check_output_folder` on ``hydra.run.dir``
-    (a run) or ``hydra.sweep.dir`` (a sweep), a refusal one line with exit status 2."""
+    """:func:`check_output_folder` on ``hydra.run.dir`` or ``hydra.sweep.dir`` before Hydra writes there."""
 
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
         self._check(config, "hydra.run.dir", False)
@@ -97,19 +92,12 @@ _CHECKED: list[Path] = []
 """The output folders :class:`OutputFolderCheck` accepted in this process."""
 
 HYDRA_FILES = ("multirun.yaml", ".hydra", "run.lock")
-"""What Hydra (and a run's lock) writes in an output folder before lossvo's first file; the log beside them
-is ``<job name>.log``."""
-
-
-def _made_by_hydra(folder: Path) -> set[str]:
-    """The names in ``folder`` that Hydra (or a run's lock) may have written: :data:`HYDRA_FILES` and logs."""
-    return set(HYDRA_FILES) | {p.name for p in folder.glob("*.log")}
+"""What Hydra (and a run's lock) writes in an output folder before lossvo's first file, besides logs."""
 
 
 def leaving_as_found(main: Callable[_P, _R]) -> Callable[_P, _R]:
-    """A Hydra entry point whose disk errors (a full or read-only disk, :func:`~lossvo.console.disk_error`)
-    name the output folder where the error names no file, and leave each output folder as it was found:
-    one it created removed, an empty one it was given emptied, where it holds only what Hydra wrote."""
+    """A Hydra entry point whose disk errors name the output folder where they name no file, and leave
+    each output folder that holds only what Hydra wrote as it was found."""
 
     @functools.wraps(main)
     def wrapped(*args: _P.args, **kwargs: _P.kwargs) -> _R:
@@ -120,7 +108,8 @@ def leaving_as_found(main: Callable[_P, _R]) -> Callable[_P, _R]:
                 if e.filename is None:
                     e.filename = str(_CHECKED[-1])
                 for folder in (f for f in _CHECKED if f.is_dir() and was_empty(f)):
-                    remove_refused(folder, _made_by_hydra(folder), keep_folder=existed(folder))
+                    made = {*HYDRA_FILES, *(p.name for p in folder.glob("*.log"))}
+                    remove_refused(folder, made, keep_folder=existed(folder))
             raise
 
     return wrapped

@@ -7,12 +7,8 @@ Examples::
     python -m lossvo.study --seeds 0,1,2 --models flowvo weighting=paper selection=loss
     python -m lossvo.study --models none --experiments mix --seeds 0,1,2,3,4,5,6 --sweep-dir S
 
-It plans and checks the sweep, estimates its time, runs ``python -m lossvo.train -m ...`` (joblib launcher)
-into one sweep folder (the architectures in one multirun, then each experiment in one of its own, their job
-folders side by side) and ``python -m lossvo.report`` on it, and exits with the sweeps' status. With CUDA the
-jobs train with ``trainer=gpu``, as many at once as fit (:mod:`lossvo.training.gpu_jobs`); on the CPU two at
-once, the time estimated from a few timed training steps and an inference pass per architecture. The plan
-and its estimate: docs/sweep.md.
+It checks the plan, estimates its time, runs the sweeps (``python -m lossvo.train -m ...``, joblib) into one
+sweep folder, then ``python -m lossvo.report`` on it. The plan and its estimate: docs/sweep.md.
 """
 
 from __future__ import annotations
@@ -62,28 +58,23 @@ SEEDS = tuple(range(10))
 MODELS = ("deepvo_small", "flowvo")
 EXPERIMENTS: tuple[str, ...] = ()
 LOSSES = ("euler", "quat", "chordal")
-"""The study's default seeds, architectures (``model=``), experiments (``experiment=``, each a configuration
-of its own, e.g. ``mix``) and losses (``loss=``)."""
+"""The study's default seeds, architectures (``model=``), experiments (``experiment=``) and losses."""
 NONE = "none"
 """``--models none`` / ``--experiments none``: no configuration of that kind."""
 
 CPU_JOBS = 2
-"""Jobs at once on a CPU, as ``make sweep`` runs them, single-threaded (why:
-experiments/2026-12-01-sweep-wall-time.md)."""
+"""Jobs at once on a CPU (experiments/2026-12-01-sweep-wall-time.md)."""
 
 KEPT_MEMORY = {
     "MALLOC_MMAP_THRESHOLD_": str(32 << 20),
     "MALLOC_TRIM_THRESHOLD_": str(16 << 30),
     "MALLOC_TOP_PAD_": str(256 << 20),
 }
-"""glibc's settings for the jobs on a CPU: buffers below 32 MiB from the heap, freed memory kept in the
-process (no trim below 16 GiB), 256 MiB of headroom. Fewer page faults, the same numbers; a mix epoch
-0.865x (experiments/2026-12-07-camera-arm-cost.md)."""
+"""glibc's settings for the jobs on a CPU: fewer page faults, the same numbers
+(experiments/2026-12-07-camera-arm-cost.md)."""
 
 JOB_OVERHEAD_S = 15.0
-"""Seconds a job spends outside its training steps and inference passes: the process's start (~6 s on 2
-CPU cores, measured as a refused ``python -m lossvo.train``), opening the data cache, writing checkpoints,
-and the evaluation's metrics, trajectories and plots."""
+"""Seconds a job spends outside its training steps and inference passes (start, checkpoints, evaluation)."""
 
 CALIBRATION_STEPS = 8
 """Training steps timed for each architecture; the first two warm up and are not counted."""
@@ -94,9 +85,8 @@ CALIBRATION_STEPS = 8
 
 @dataclass(frozen=True)
 class Plan:
-    """A study's sweep: ``seeds`` x configurations (``models``, then ``experiments``) x ``losses`` with
-    ``overrides`` for every job, ``at_once`` jobs at a time on the GPU (``gpu``) or the CPU, written into
-    ``sweep_dir``."""
+    """A study's sweep: ``seeds`` x configurations (``models``, then ``experiments``) x ``losses``,
+    ``at_once`` jobs at a time."""
 
     seeds: tuple[int, ...]
     models: tuple[str, ...]
@@ -110,15 +100,14 @@ class Plan:
     @property
     def configurations(self) -> tuple[str, ...]:
         """Each configuration's override: ``model=deepvo_small``, ..., ``experiment=mix``."""
-        return (*(f"model={m}" for m in self.models), *(f"experiment={e}" for e in self.experiments))
+        return configurations(self.models, self.experiments)
 
     @property
     def jobs(self) -> int:
         return len(self.seeds) * len(self.configurations) * len(self.losses)
 
     def sweep_commands(self) -> list[list[str]]:
-        """``python -m lossvo.train -m ...``: one multirun of the architectures, then one per experiment,
-        into the one sweep folder, each job in a joblib (loky) process."""
+        """``python -m lossvo.train -m ...``: one multirun of the architectures, then one per experiment."""
         groups = [f"model={','.join(self.models)}"] if self.models else []
         return [self._sweep(group) for group in [*groups, *(f"experiment={e}" for e in self.experiments)]]
 
@@ -143,10 +132,8 @@ class Plan:
 
 
 def seed_warning(seeds: Sequence[int], losses: Sequence[str] = LOSSES, alpha: float = ALPHA) -> str | None:
-    """The warning for too few seeds to decide a claim about ``losses``, else None. A claim's p-values come
-    from exact tests over seeds, whose smallest two-sided p with n seeds is ``2 / 2**n``, Holm-corrected
-    over the claim's comparisons (the claimed loss against each other one; :mod:`lossvo.report.statistics`):
-    6 seeds decide one comparison at 0.05, 7 the two of a claim about three losses."""
+    """The warning for too few seeds to decide a claim about ``losses`` (exact tests over seeds,
+    Holm-corrected over the claim's comparisons: :mod:`lossvo.report.statistics`), else None."""
     n, m = len(seeds), max(len(losses) - 1, 1)
     if statistics.can_decide(n, m, alpha):
         return None
@@ -164,9 +151,8 @@ def seed_warning(seeds: Sequence[int], losses: Sequence[str] = LOSSES, alpha: fl
 
 
 def gpu_jobs_at_once(jobs: int, job_gib: float, requested: int | None) -> int:
-    """Jobs at once on this machine's GPU: ``requested`` (checked against its free memory), or as many as
-    fit (:func:`lossvo.training.gpu_jobs.jobs_that_fit`), no more than ``jobs``. Raises ``UserError`` when
-    they do not fit (not one, or fewer than requested)."""
+    """Jobs at once on this machine's GPU: ``requested``, or as many as fit, no more than ``jobs``;
+    ``UserError`` when they do not fit."""
     free, job_bytes = gpu_jobs.free_memory(), int(job_gib * gpu_jobs.GIB)
     at_once = requested or min(jobs, gpu_jobs.jobs_that_fit(free, job_bytes, joblib.cpu_count()))
     gpu_jobs.check_jobs_fit(at_once, max(at_once, 1), free, job_bytes)
@@ -176,9 +162,14 @@ def gpu_jobs_at_once(jobs: int, job_gib: float, requested: int | None) -> int:
 # -- what a job does, from its composed config -------------------------------------------------------
 
 
+def configurations(models: Sequence[str], experiments: Sequence[str]) -> tuple[str, ...]:
+    """The configurations' overrides: ``model=...`` each, then ``experiment=...`` each."""
+    return (*(f"model={m}" for m in models), *(f"experiment={e}" for e in experiments))
+
+
 def compose_job(configuration: str, loss: str, overrides: Sequence[str]) -> DictConfig:
-    """The training config of one job of the study (Hydra's config included, unresolved);
-    ``configuration`` is its override (``model=flowvo``, ``experiment=mix``)."""
+    """The training config of one job (Hydra's config included, unresolved); ``configuration`` is its
+    override (``model=flowvo``, ``experiment=mix``)."""
     with initialize_config_dir(config_dir=CONFIG_DIR, version_base="1.3"):
         return compose(
             "train", overrides=[configuration, f"loss={loss}", *overrides], return_hydra_config=True
@@ -199,9 +190,8 @@ def check_configurations(models: Sequence[str], experiments: Sequence[str]) -> N
 
 @dataclass(frozen=True)
 class JobSize:
-    """The work of one job: ``steps`` training steps, ``val_pairs`` frame pairs validated each of its
-    ``epochs`` epochs, ``evaluated_pairs`` pairs evaluated at its end, ``passes`` inference passes over a
-    pair for a trajectory (2 with mirror averaging, else 1)."""
+    """The work of one job: ``steps`` training steps, ``val_pairs`` frame pairs validated each epoch,
+    ``evaluated_pairs`` evaluated at its end, ``passes`` inference passes a pair (2 with mirror averaging)."""
 
     epochs: int
     steps: int
@@ -211,15 +201,12 @@ class JobSize:
 
     @property
     def inferred_pairs(self) -> int:
-        """Pair inferences of the job: validation's losses (one pass) and trajectories each epoch, then the
-        evaluation."""
+        """Pair inferences of the job: validation (losses, trajectories) each epoch, then the evaluation."""
         return self.epochs * self.val_pairs * (1 + self.passes) + self.evaluated_pairs * self.passes
 
 
 def job_size(cfg: DictConfig) -> JobSize:
-    """A job's :class:`JobSize`, from its composed config and the data's metadata (poses and timestamps;
-    the embedded dataset is rendered first where it is missing). Training windows follow
-    :func:`lossvo.data.windows.training_starts`, ``data.windows.per_epoch`` of them an epoch where set."""
+    """A job's :class:`JobSize`, from its composed config and the data's metadata (poses, timestamps)."""
     datamodule = instantiate(cfg.data, _convert_="all")
     datamodule.load_metadata()
     sequences, spec = datamodule.sequences, datamodule.windows
@@ -247,11 +234,8 @@ def job_size(cfg: DictConfig) -> JobSize:
 
 @dataclass(frozen=True)
 class Calibration:
-    """One architecture's rates measured here: ``step_s`` seconds a training step (forward, loss,
-    backward, optimiser, through Lightning), ``pair_s`` seconds a frame pair's inference pass; and the
-    floating-point operations of each, ``step_flops`` and ``pair_flops``
-    (``torch.utils.flop_counter.FlopCounterMode``: matrix products and convolutions, forward and
-    backward)."""
+    """One architecture's rates measured here: seconds and FLOPs (``FlopCounterMode``) of a training step
+    through Lightning and of a frame pair's inference pass."""
 
     step_s: float
     pair_s: float
@@ -265,8 +249,7 @@ class Calibration:
 
 
 class _StepTimes(Callback):
-    """Wall time of each training batch, seconds, and the FLOPs of the first (a warm-up step, not timed:
-    counting slows it)."""
+    """Wall time of each training batch, seconds, and the FLOPs of the first (counting slows it)."""
 
     def __init__(self) -> None:
         self.seconds: list[float] = []
@@ -299,9 +282,7 @@ def _module(cfg: DictConfig) -> VOModule:
 
 
 def _batch(cfg: DictConfig, windows_: int, seq_len: int) -> dict[str, torch.Tensor]:
-    """A batch as the data module hands it to the network: ``windows_`` windows of ``seq_len`` frames of
-    random normalised frames (B, L, 3, H, W), flow (B, L-1, 2, H, W) in pixels, K (B, 3, 3) and targets
-    (B, L-1, 4, 4) of no motion."""
+    """A random batch of ``windows_`` windows of ``seq_len`` frames as the data module hands it over."""
     h, w = int(cfg.data.frames.height), int(cfg.data.frames.width)
     K = torch.tensor([[w, 0.0, w / 2], [0.0, w, h / 2], [0.0, 0.0, 1.0]])
     return {
@@ -312,29 +293,22 @@ def _batch(cfg: DictConfig, windows_: int, seq_len: int) -> dict[str, torch.Tens
     }
 
 
-_LIGHTNING_LOGGERS = ("lightning.pytorch", "lightning.pytorch.utilities.rank_zero")
-"""Loggers of Lightning's banners (devices, tips), each with a level of its own."""
-
-
 @contextmanager
 def _quiet() -> Iterator[None]:
-    """Lightning's banners and warnings silenced (a calibration is not a run)."""
-    loggers = [logging.getLogger(name) for name in _LIGHTNING_LOGGERS]
-    levels = [logger.level for logger in loggers]
-    for logger in loggers:
-        logger.setLevel(logging.ERROR)
+    """Lightning's banners (log records below ERROR) and warnings silenced (a calibration is not a run)."""
+    previous = logging.root.manager.disable
+    logging.disable(logging.WARNING)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             yield
     finally:
-        for logger, level in zip(loggers, levels, strict=True):
-            logger.setLevel(level)
+        logging.disable(previous)
 
 
 def time_training_step(cfg: DictConfig) -> tuple[float, float]:
-    """Median seconds of a training step on the CPU, through Lightning, on batches of the config's shape
-    (:data:`CALIBRATION_STEPS`, the first two not counted), and the FLOPs of one step."""
+    """Median seconds of a training step on the CPU, through Lightning, on batches of the config's shape,
+    and the FLOPs of one step."""
     windows = cfg.data.windows
     batches = [_batch(cfg, int(windows.batch_size), int(windows.seq_len)) for _ in range(CALIBRATION_STEPS)]
     timer = _StepTimes()
@@ -356,9 +330,8 @@ def time_training_step(cfg: DictConfig) -> tuple[float, float]:
 
 
 def time_inference_pair(cfg: DictConfig, windows_per_pass: int = 32) -> tuple[float, float]:
-    """Seconds and FLOPs of a frame pair in one inference pass over a sequence, as validation and the
-    evaluation run it (:func:`lossvo.evaluation.inference.predict_sequence`), on ``windows_per_pass``
-    windows of random inputs; the FLOPs counted in a warm-up pass."""
+    """Seconds and FLOPs of a frame pair in an inference pass over ``windows_per_pass`` random windows
+    (:func:`lossvo.evaluation.inference.predict_sequence`); the FLOPs counted in a warm-up pass."""
     seq_len = int(cfg.data.windows.seq_len)
     frames = windows_per_pass * (seq_len - 1) + 1
     batch = _batch(cfg, 1, frames)
@@ -403,10 +376,8 @@ def _hours(seconds: float) -> str:
 
 @dataclass(frozen=True)
 class Floor:
-    """A study's compute floor on the CPU: ``train_flops`` and ``infer_flops`` of all its jobs, done at
-    the rate each architecture's timed training steps reached on one core (``flops_per_core_s``, FLOP/s)
-    on all of ``cores``: ``seconds``. A wall time's ratio to it is what the study lost to everything
-    else (process starts, data loading, validation's bookkeeping, checkpoints, the report, idle cores)."""
+    """A study's compute floor on the CPU: ``seconds`` for its FLOPs at the rate each architecture's timed
+    training steps reached on one core (``flops_per_core_s``), on all of ``cores`` (docs/sweep.md)."""
 
     train_flops: float
     infer_flops: float
@@ -425,8 +396,7 @@ class Floor:
 
 
 def compute_floor(work: Sequence[tuple[JobSize, Calibration, int]], cores: int) -> Floor:
-    """The :class:`Floor` of ``(size, calibration, jobs)`` per configuration, the calibration measured on
-    one thread a job, the jobs sharing ``cores``."""
+    """The :class:`Floor` of ``(size, calibration, jobs)`` per configuration, the jobs sharing ``cores``."""
     train = sum(jobs * size.steps * rate.step_flops for size, rate, jobs in work)
     infer = sum(jobs * size.inferred_pairs * rate.pair_flops for size, rate, jobs in work)
     seconds = sum(
@@ -437,8 +407,8 @@ def compute_floor(work: Sequence[tuple[JobSize, Calibration, int]], cores: int) 
 
 
 def cpu_estimate(plan: Plan) -> tuple[str, Floor]:
-    """The study's one line on a CPU: its jobs, how many at once and about how long, with what was measured
-    here for each architecture (on the threads joblib gives each job), then its :class:`Floor`."""
+    """The study's one line on a CPU (its jobs, how many at once, about how long, what was measured) and
+    its :class:`Floor`."""
     threads = max(joblib.cpu_count() // plan.at_once, 1)
     job_s, measured, work = [], [], []
     for configuration in plan.configurations:
@@ -463,9 +433,7 @@ def cpu_estimate(plan: Plan) -> tuple[str, Floor]:
 
 
 def wall_line(seconds: float, floors: Sequence[Floor] = ()) -> str:
-    """The study's last line: its wall time and, on the CPU, that time's ratio to its compute floor, the
-    lowest of ``floors`` (measured before and after the jobs: a calibration that other work on the machine
-    slowed would flatter the ratio)."""
+    """The study's last line: its wall time and, on the CPU, its ratio to the lowest of ``floors``."""
     if not floors:
         return f"study: wall time {_hours(seconds)}"
     low = min(floor.seconds for floor in floors)
@@ -477,8 +445,7 @@ def wall_line(seconds: float, floors: Sequence[Floor] = ()) -> str:
 
 
 def gpu_line(plan: Plan, job_gib: float) -> str:
-    """The study's one line on a GPU: its jobs and how many at once (a GPU shared by its jobs is not
-    estimated from one job's rate)."""
+    """The study's one line on a GPU: its jobs and how many at once (no time estimate)."""
     return (
         f"study: {plan.jobs} jobs on the GPU ({plan.at_once} at once: min(CPU cores, free GPU memory / "
         f"{job_gib:g} GiB a job, {gpu_jobs.JOB_MEMORY_KEY})); no time estimate: jobs at once share the "
@@ -547,14 +514,11 @@ def parser() -> argparse.ArgumentParser:
 
 
 def checked_jobs(args: argparse.Namespace, sweep_dir: Path) -> float:
-    """Compose and check (:func:`~lossvo.training.config_checks.check_job`) one job of each configuration
-    and loss of the command line; the GPU memory one job needs, GiB
-    (``hydra.callbacks.gpu_jobs.job_memory_gib``, overridable)."""
+    """Compose and check one job of each configuration and loss; the GPU memory one job needs, GiB."""
     check_configurations(args.models, args.experiments)
     if not args.models and not args.experiments:
         raise UserError("--models none with no --experiments: the study has no configuration")
-    configurations = [*(f"model={m}" for m in args.models), *(f"experiment={e}" for e in args.experiments)]
-    for configuration in configurations:
+    for configuration in configurations(args.models, args.experiments):
         for loss in args.losses:
             cfg = compose_job(configuration, loss, args.overrides)
             check_job(cfg, sweep_dir / "check")
@@ -567,8 +531,7 @@ def sweep_dir_of(args: argparse.Namespace) -> Path:
 
 
 def plan_study(args: argparse.Namespace, cuda: bool, job_gib: float, sweep_dir: Path) -> Plan:
-    """The :class:`Plan` of the parsed command line: on the GPU where ``cuda``, as many jobs at once as fit
-    at ``job_gib`` GiB a job (:func:`gpu_jobs_at_once`); else on the CPU, ``--jobs`` or :data:`CPU_JOBS`."""
+    """The :class:`Plan` of the parsed command line, on the GPU where ``cuda``."""
     jobs = len(args.seeds) * (len(args.models) + len(args.experiments)) * len(args.losses)
     at_once = gpu_jobs_at_once(jobs, job_gib, args.jobs) if cuda else args.jobs or CPU_JOBS
     return Plan(
@@ -598,10 +561,8 @@ def _job_of(folder: Path, experiment: str) -> bool:
 
 def cross_evaluations(plan: Plan) -> list[list[str]]:
     """``python -m lossvo.eval`` of each completed job of an experiment trained on other data than the
-    architectures (``experiment=mix``), on the sequences the architectures evaluate outside their training
-    split (``test`` and ``unseen``; the train config's defaults where the study has no architecture), into
-    ``<sweep>/evaluations/<data>/<job>`` (those already there are not repeated): the report then compares
-    the two on the same frames (the interaction of training data and loss)."""
+    architectures, on the architectures' held-out sequences, into ``<sweep>/evaluations/<data>/<job>``
+    (those already there are not repeated; docs/sweep.md)."""
     first = plan.configurations[0] if plan.models else f"model={MODELS[0]}"
     base = compose_job(first, plan.losses[0], [o for o in plan.overrides if not o.startswith("experiment=")])
     choice, splits = str(base.hydra.runtime.choices.data), base.data.splits
@@ -615,12 +576,7 @@ def cross_evaluations(plan: Plan) -> list[list[str]]:
         if str(cfg.hydra.runtime.choices.data) == choice:
             continue
         crop = bool(cfg.data.frames.get("crop", False))
-        jobs = (
-            sorted(p for p in plan.sweep_dir.iterdir() if _job_of(p, experiment))
-            if plan.sweep_dir.is_dir()
-            else []
-        )
-        for job in jobs:
+        for job in sorted(p for p in plan.sweep_dir.glob("*") if _job_of(p, experiment)):
             out = plan.sweep_dir / EVALUATIONS / choice / job.name
             if (out / "results.json").is_file():
                 continue
@@ -633,16 +589,13 @@ def cross_evaluations(plan: Plan) -> list[list[str]]:
 
 
 def job_environment(plan: Plan, environ: Mapping[str, str] = os.environ) -> dict[str, str]:
-    """The jobs' environment: ``environ`` with :data:`KEPT_MEMORY` on a CPU, where ``environ`` does not
-    set them already."""
+    """The jobs' environment: ``environ`` over :data:`KEPT_MEMORY` on a CPU."""
     return {**({} if plan.gpu else KEPT_MEMORY), **environ}
 
 
 def run(plan: Plan, floor: Floor | None = None) -> int:
-    """The sweeps, the experiments' evaluations on the architectures' data (:func:`cross_evaluations`),
-    each in :func:`job_environment`, then the report (also after a failed job), then the wall time
-    (:func:`wall_line`, against the floor measured again on the CPU): the first failed command's exit
-    status, or the report's where the report fails."""
+    """The sweeps, :func:`cross_evaluations`, the report (also after a failed job) and the wall line; the
+    report's exit status where it fails, else the first failed command's."""
     start, env = time.perf_counter(), job_environment(plan)
     statuses = [subprocess.run(command, env=env).returncode for command in plan.sweep_commands()]
     statuses += [subprocess.run(command, env=env).returncode for command in cross_evaluations(plan)]
@@ -655,8 +608,7 @@ def run(plan: Plan, floor: Floor | None = None) -> int:
 
 @one_line_main
 def main(argv: list[str] | None = None) -> int:
-    """Warn about too few seeds, plan, print the estimate and the sweep's command; unless ``--dry-run``,
-    run the sweep and the report. Exit status 2 for an override or a plan that cannot run (one line)."""
+    """Warn about too few seeds, plan, print the estimate and the commands; unless ``--dry-run``, run them."""
     args = parser().parse_args(argv)
     warning = seed_warning(args.seeds, args.losses)
     if warning:

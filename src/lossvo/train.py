@@ -7,10 +7,8 @@ Examples::
     python -m lossvo.train -m loss=euler,quat,chordal seed=0,1,2 hydra/launcher=joblib
     python -m lossvo.train experiment=paper data.sources.kitti.root=/data/kitti trainer=gpu
 
-A run writes to ``outputs/runs/<time>/``, a sweep job to ``outputs/multirun/<time>/<num>_<overrides>/`` (what
-a job folder holds: docs/training.md; ``+evaluate=false`` and ``trainer.fast_dev_run`` skip the final
-evaluation). A run's life in its folder: :mod:`lossvo.training.lifecycle`; what it builds and trains:
-:mod:`lossvo.training.fitting`.
+A run writes to ``outputs/runs/<time>/``, a sweep job to ``outputs/multirun/<time>/<num>_<overrides>/``
+(docs/training.md); the run's life: :mod:`lossvo.training.lifecycle`; its training: ``fitting``.
 """
 
 from __future__ import annotations
@@ -40,12 +38,7 @@ CONFIG_DIR = str(Path(__file__).resolve().parent / "conf")
 @refusing_flat_keys
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")
 def main(cfg: DictConfig) -> float | None:
-    """Train in this Hydra job's folder; returns ``cfg.optimized_metric`` for hyperparameter sweepers.
-
-    A user error (a config value, a data file, a checkpoint that does not fit, a full or read-only disk)
-    ends the job in one line with exit status 2, before anything is written where the config alone
-    tells; ``LOSSVO_FULL_ERROR=1`` shows its traceback instead. In a sweep the other jobs go on.
-    """
+    """Train in this Hydra job's folder; returns ``cfg.optimized_metric`` for hyperparameter sweepers."""
     quiet_lightning()
     restore_start_method()  # a joblib-launched job: let its loader workers and renderer start
     with lifecycle.job(cfg) as run:

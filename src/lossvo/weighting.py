@@ -1,16 +1,6 @@
-"""How the translation and rotation terms of a pose loss are weighted (config group ``weighting``).
-
-Every loss of :mod:`lossvo.losses` is ``L_t + k * L_r`` per frame pair, ``L_t = |t - t^|^2`` and
-``L_r ~ gain * theta^2`` for a small rotation error theta (each class's ``small_angle_gain``). Presets:
-
-- ``matched`` (default): ``k = c / gain``, every rotation term ``c * theta^2`` at small errors (``c`` 100);
-- ``paper``: the study's k verbatim (100 Euler, 14 quaternion, 153 chordal; each class's ``paper_k``);
-- ``learned``: homoscedastic weighting (Kendall & Cipolla, CVPR 2017),
-  ``L = exp(-s_t) L_t + s_t + exp(-s_r) L_r + s_r`` (:class:`HomoscedasticWeighting`), no k.
-
-An explicit ``loss.k`` wins over ``matched`` and ``paper`` and is an error with ``learned``. The resolvers
-compute k inside the config, so a job's ``.hydra/config.yaml`` shows the k used. Gains and k per loss:
-docs/losses.md.
+"""How the translation and rotation terms of a pose loss are weighted (config group ``weighting``):
+``matched`` (``k = c / small_angle_gain``), ``paper`` (each class's ``paper_k``) or ``learned``
+(:class:`HomoscedasticWeighting`). Presets: docs/fair-comparison.md; gains and k per loss: docs/losses.md.
 """
 
 from __future__ import annotations
@@ -32,16 +22,20 @@ DEFAULT_C = 100.0
 PRESETS = ("matched", "paper", "learned")
 
 
+def _check_preset(preset: Any) -> None:
+    if preset not in PRESETS:
+        raise UserError(f"weighting.preset: expected one of {PRESETS}, got {preset!r}")
+
+
 def check_c(c: Any) -> float:
-    """``weighting.c`` as a float; one clear error for anything but a finite number > 0."""
+    """``weighting.c`` as a float; ``UserError`` for anything but a finite number > 0."""
     if not is_number(c) or not math.isfinite(c) or c <= 0:
         raise UserError(f"weighting.c: expected a finite number > 0, got {c!r}")
     return float(c)
 
 
 def loss_class(target: str) -> Any:
-    """The pose loss class (a :class:`lossvo.losses.PoseLoss`) a loss config's ``_target_`` names;
-    UserError for any other class."""
+    """The pose loss class a loss config's ``_target_`` names; ``UserError`` for any other class."""
     cls = get_class(target)
     if not hasattr(cls, "small_angle_gain"):
         raise UserError(f"loss._target_: {target} is not a lossvo pose loss (no small_angle_gain)")
@@ -49,11 +43,9 @@ def loss_class(target: str) -> Any:
 
 
 def preset_k(target: str, preset: str, c: float = DEFAULT_C, squared: bool = True) -> float | None:
-    """The k of a weighting preset for the loss class named ``target`` (None for ``learned``, and for
-    a rotation term without a theta^2 gain under ``matched``: the loss then asks for an explicit k); the
-    matched k makes the rotation term ``c * theta^2`` at small errors."""
-    if preset not in PRESETS:
-        raise UserError(f"weighting.preset: expected one of {PRESETS}, got {preset!r}")
+    """The k of a weighting preset for the loss class named ``target``: None for ``learned``, and for an
+    unsquared rotation term under ``matched`` (the loss then asks for an explicit k)."""
+    _check_preset(preset)
     cls = loss_class(target)
     if preset == "learned":
         return None
@@ -63,7 +55,7 @@ def preset_k(target: str, preset: str, c: float = DEFAULT_C, squared: bool = Tru
 
 
 def check_k(k: Any, learned: bool) -> None:
-    """Refuse an explicit ``loss.k`` together with the learned weighting (the learned weights replace k)."""
+    """Refuse an explicit ``loss.k`` together with the learned weighting."""
     if learned and k is not None:
         raise UserError(
             f"loss.k={k!r} cannot be combined with weighting=learned (the learned weights replace k): "
@@ -72,8 +64,7 @@ def check_k(k: Any, learned: bool) -> None:
 
 
 def check_unsquared(squared: Any, k: Any, learned: bool) -> None:
-    """Refuse ``loss.squared=false`` with neither ``loss.k`` nor the learned weighting: the unsquared
-    quaternion distance has no matched k."""
+    """Refuse ``loss.squared=false`` with neither ``loss.k`` nor the learned weighting."""
     if squared is False and k is None and not learned:
         raise UserError(
             "loss.squared=false: the unsquared quaternion distance (~ theta / 2) has no matched k; "
@@ -82,15 +73,9 @@ def check_unsquared(squared: Any, k: Any, learned: bool) -> None:
 
 
 def check_config(weighting: Mapping[str, Any], loss: Mapping[str, Any]) -> None:
-    """Check a job's ``weighting`` and ``loss`` config entries before anything is built.
-
-    Raises:
-        UserError: one line naming the key: an unknown preset, ``weighting.c`` not a finite number
-            > 0 (matched), or ``loss.k`` given together with ``weighting=learned``.
-    """
+    """Check a job's ``weighting`` and ``loss`` config entries before anything is built (``UserError``)."""
     preset = weighting.get("preset")
-    if preset not in PRESETS:
-        raise UserError(f"weighting.preset: expected one of {PRESETS}, got {preset!r}")
+    _check_preset(preset)
     if preset == "matched":
         check_c(weighting.get("c"))
         check_unsquared(loss.get("squared"), loss.get("k"), learned=False)
@@ -98,15 +83,8 @@ def check_config(weighting: Mapping[str, Any], loss: Mapping[str, Any]) -> None:
 
 
 class HomoscedasticWeighting(nn.Module):
-    """Learned task weights: ``exp(-s_t) L_t + s_t + exp(-s_r) L_r + s_r`` (Kendall & Cipolla 2017).
-
-    ``s_t``, ``s_r`` are log-variances (scalars, float32 parameters saved in the state dict, so
-    checkpoints still reload with ``weights_only``). The effective rotation weight relative to the
-    translation term is ``exp(s_t - s_r)``.
-
-    Args:
-        s_t, s_r: initial log-variances (0: both terms start with weight 1).
-    """
+    """Learned task weights: ``exp(-s_t) L_t + s_t + exp(-s_r) L_r + s_r`` (Kendall & Cipolla 2017), with
+    ``s_t``, ``s_r`` the log-variances (initial values given; float32 parameters in the state dict)."""
 
     def __init__(self, s_t: float = 0.0, s_r: float = 0.0) -> None:
         super().__init__()

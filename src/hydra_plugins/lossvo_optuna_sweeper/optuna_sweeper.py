@@ -1,15 +1,9 @@
 """lossvo's Optuna sweeper for Hydra: ``hydra/sweeper=lossvo_optuna`` (``hparams_search=k_search``).
 
-Asks the study for ``n_jobs`` trials at a time (Optuna's ask-and-tell interface), launches them as Hydra
-jobs with the trial's parameters and the fixed overrides, and tells the study each job's return value
-(a job that fails, or returns no number, is told FAIL). While a trial runs its worker records heartbeats;
-before asking, it fails the study's trials whose worker stopped beating
-(:mod:`lossvo.training.shared_study`). Its search space is ``hydra.sweeper.params`` and the command line's
-sweep overrides, in Hydra's sweep syntax (:mod:`lossvo.training.search_space`). When its trials are done
-it writes ``optimization_results.yaml`` in the sweep folder: the study's best trial (``best_params``,
-``best_value``), or its Pareto front (``solutions``) for several directions.
-
-This module imports Optuna and lossvo only when a sweep starts: Hydra imports it on every command.
+Asks the study for ``n_jobs`` trials at a time (ask-and-tell), launches them as Hydra jobs and tells the
+study each job's return value (FAIL for a failed job); heartbeats and stale trials:
+:mod:`lossvo.training.shared_study`. Writes ``optimization_results.yaml`` in the sweep folder
+(docs/sweep.md). Imports Optuna only when a sweep starts: Hydra imports this module on every command.
 """
 
 # No ``from __future__ import annotations``: OmegaConf reads the config dataclasses' annotations as types,
@@ -32,9 +26,8 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class StorageConf:
-    """Where the study lives: ``url`` an SQLAlchemy URL (an RDB) or a file path (a journal), None: in
-    memory; heartbeats every ``heartbeat_interval`` seconds; a running trial without one for
-    ``grace_period`` seconds is failed."""
+    """Where the study lives (``url``: an SQLAlchemy URL, a journal file, or None: in memory) and its
+    heartbeats: a running trial without one for ``grace_period`` seconds is failed."""
 
     url: Optional[str] = None  # noqa: UP045
     heartbeat_interval: float = 60.0
@@ -61,15 +54,18 @@ ConfigStore.instance().store(
 )
 
 
+def _items(value: Any) -> list[Any]:
+    return list(value) if isinstance(value, (list, tuple, ListConfig)) else [value]
+
+
 def directions_of(direction: Any) -> list[str]:
     """The sweeper's ``direction`` (one name, or a list) as a list of names."""
-    items = list(direction) if isinstance(direction, (list, tuple, ListConfig)) else [direction]
-    return [str(item).lower() for item in items]
+    return [str(item).lower() for item in _items(direction)]
 
 
 def values_of(returned: Any, n: int) -> list[float]:
     """A job's return value as ``n`` numbers (anything ``float`` takes, not a bool), or UserError."""
-    items = list(returned) if isinstance(returned, (list, tuple, ListConfig)) else [returned]
+    items = _items(returned)
     try:
         if len(items) != n or any(isinstance(v, bool) for v in items):
             raise TypeError
@@ -116,8 +112,9 @@ class LossvoOptunaSweeper(Sweeper):
             study = self._open(space, fixed)
         except UserError as e:
             exit_in_one_line(e)
+        where = "memory" if self.storage.url is None else shared_study.shown_url(str(self.storage.url))
         log.info(
-            f"Study {study.study_name} in {self._where()}, sampler {type(study.sampler).__name__}, "
+            f"Study {study.study_name} in {where}, sampler {type(study.sampler).__name__}, "
             f"directions {self.directions}"
         )
         heartbeats = shared_study.Heartbeats(self.storage.heartbeat_interval)
@@ -142,11 +139,6 @@ class LossvoOptunaSweeper(Sweeper):
             left -= len(trials)
         self._write_results(study)
 
-    def _where(self) -> str:
-        from lossvo.training.shared_study import shown_url
-
-        return "memory" if self.storage.url is None else shown_url(str(self.storage.url))
-
     def _open(self, space: dict[str, Any], fixed: dict[str, str]) -> Any:
         """The study, its search checked against the one recorded under its name (UserError)."""
         import optuna
@@ -163,7 +155,7 @@ class LossvoOptunaSweeper(Sweeper):
             wanted = shared_study.search_of(self.directions, space, fixed)
             shared_study.check_study(url, self.study_name, wanted, storage)  # creates the study if new
             return optuna.load_study(study_name=self.study_name, storage=storage, sampler=self.sampler)
-        directions: Any = self.directions
+        directions: Any = self.directions  # checked above: each minimize or maximize
         return optuna.create_study(
             study_name=self.study_name,
             storage=storage,
