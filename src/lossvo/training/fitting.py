@@ -1,9 +1,5 @@
-"""A training run from a composed config: build the data, network, loss and trainer, fit, then evaluate
-the best checkpoint on the test sequences.
-
-Everything (data, network, loss, loggers, callbacks, trainer) is built and the data set up before
-:meth:`lossvo.training.lifecycle.Run.start` claims the job folder, so that a wrong name, argument or
-data file fails at once, leaving no run behind.
+"""A training run from a composed config: build everything (before the run claims its folder, so that a
+mistake leaves no run behind), fit, then evaluate the best checkpoint on the test sequences.
 """
 
 from __future__ import annotations
@@ -39,8 +35,7 @@ log = logging.getLogger("lossvo")
 
 
 def _instantiate_group(group: DictConfig | None, name: str) -> list[Any]:
-    """Instantiate every entry of a dict-of-configs group (callbacks, logger); each needs a _target_.
-    An entry switched off (``callbacks.key=null``), or whose factory returns None, is left out."""
+    """Every entry of a dict-of-configs group (callbacks, logger) built; a null entry or result left out."""
     objects = []
     for key, entry in (group or {}).items():
         if entry is None:
@@ -67,8 +62,7 @@ def _load_flownet(module: VOModule, path: str) -> None:
 
 
 def _trainer(config: DictConfig, **kwargs: Any) -> L.Trainer:
-    """Lightning's Trainer from the ``trainer`` config; a value it refuses (its ``ValueError``: an unknown
-    accelerator, precision or strategy name) is the user's, one line naming ``trainer``."""
+    """Lightning's Trainer; a value it refuses with ``ValueError`` is one line naming ``trainer``."""
     try:
         return cast("L.Trainer", instantiate(config, **kwargs))
     except InstantiationException as e:
@@ -122,8 +116,7 @@ def _sync_batchnorm_where_supported(cfg: DictConfig) -> None:
 
 
 def train(cfg: DictConfig, run: Run) -> dict[str, float]:
-    """Seed, build, start the run, fit, evaluate the best checkpoint (``evaluate=true``); returns the
-    trainer's final callback metrics."""
+    """Seed, build, start the run, fit, evaluate the best checkpoint; returns the final callback metrics."""
     if cfg.get("threads") is not None:
         torch.set_num_threads(cfg.threads)
     if cfg.get("seed") is not None:  # seed 0 is a seed
@@ -170,9 +163,8 @@ def train(cfg: DictConfig, run: Run) -> dict[str, float]:
 
 
 def _resume_point(trainer: L.Trainer, source: str, epoch: int, step: int) -> dict[str, Any]:
-    """Where a run continues a checkpoint of ``epoch`` (0-based) at global ``step``: the next epoch
-    (``{"epoch": N}``, from 1), or the evaluation (``{"stage": "evaluation"}``) when the checkpoint ends
-    the training (``trainer.max_epochs`` or ``trainer.max_steps`` reached); ``source``: the checkpoint."""
+    """Where a run continues a checkpoint of ``epoch`` (0-based) at global ``step``: ``{"epoch": N}`` (from
+    1), or ``{"stage": "evaluation"}`` when the checkpoint ends the training."""
     max_epochs, max_steps = trainer.max_epochs, trainer.max_steps
     trained = (max_epochs is not None and 0 <= max_epochs <= epoch + 1) or 0 <= max_steps <= step
     return {"stage": "evaluation", "source": source} if trained else {"epoch": epoch + 2, "source": source}
@@ -184,17 +176,16 @@ def evaluate_after_fit(
     datamodule: VODataModule,
     out_dir: Path,
     mirror_average: bool = True,
-) -> Any:
-    """Evaluate the best checkpoint (the last weights if there is none) on the test sequences, writing
-    ``results.json``, ``trajectories/`` and ``plots/`` into ``out_dir`` (``mirror_average``: see
-    :func:`lossvo.evaluation.inference.predict_sequence`)."""
+) -> None:
+    """Evaluate the best checkpoint (else the last weights) on the test sequences into ``out_dir``."""
     best = next(
         (
             c.best_model_path
             for c in trainer.checkpoint_callbacks
             if isinstance(c, ModelCheckpoint)
             and c.monitor
-            and Path(c.best_model_path or "/nonexistent").is_file()
+            and c.best_model_path
+            and Path(c.best_model_path).is_file()
         ),
         None,
     )
@@ -202,7 +193,7 @@ def evaluate_after_fit(
     network: torch.nn.Module = load_network(best, device) if best else module.to(device)
     if not best:
         log.warning("no best checkpoint: evaluating the last weights")
-    result = evaluate_run(
+    evaluate_run(
         network,
         datamodule,
         out_dir,
@@ -217,4 +208,3 @@ def evaluate_after_fit(
         ", ".join(datamodule.evaluated),
         out_dir / RESULTS,
     )
-    return result
