@@ -53,9 +53,9 @@ class EpochProgressBar(RichProgressBar):
         return {**super().get_metrics(trainer, pl_module), **shown}
 
 
-def progress(rich_on_tty: bool = True) -> Callback | None:
+def progress() -> Callback | None:
     """An :class:`EpochProgressBar` when stdout is a terminal, else None (no bar)."""
-    return EpochProgressBar() if rich_on_tty and sys.stdout.isatty() else None
+    return EpochProgressBar() if sys.stdout.isatty() else None
 
 
 class TrajectoryValidation(Callback):

@@ -224,25 +224,19 @@ def _sweeping() -> bool:
     return HydraConfig.get().mode == RunMode.MULTIRUN
 
 
-def _user_error(run: Run, message: str) -> BaseException:
-    """Print a user error's one line and return what ends the job: exit status 2, or in a sweep a
-    :class:`~lossvo.console.JobFailedError`, so that its other jobs still run."""
-    user_error_line(log, f"{run.label}: {message}" if _sweeping() else message)
-    if _sweeping():
-        return JobFailedError(run.label, message, str(HydraConfig.get().sweep.dir))
-    return SystemExit(2)
-
-
 def _end(run: Run, error: Exception, cleanup: Callable[[Run, Exception], None]) -> NoReturn:
-    """In an ``except`` block: a user error ends the job in one line, printed before ``cleanup`` may remove
-    the folder its log is in; any other (or any with ``LOSSVO_FULL_ERROR=1``) is raised after ``cleanup``."""
+    """In an ``except`` block: a user error ends the job in one line (printed before ``cleanup`` may remove
+    the folder its log is in) with exit status 2, or in a sweep a :class:`~lossvo.console.JobFailedError`
+    so that its other jobs still run; any other (or any with ``LOSSVO_FULL_ERROR=1``) is raised as it is."""
     message = user_message(error, run.out_dir)
     if message is None or full_error():
         cleanup(run, error)
         raise error
-    ending = _user_error(run, message)
+    user_error_line(log, f"{run.label}: {message}" if _sweeping() else message)
     cleanup(run, error)
-    raise ending from None
+    if _sweeping():
+        raise JobFailedError(run.label, message, str(HydraConfig.get().sweep.dir)) from None
+    raise SystemExit(2) from None
 
 
 def _remove_made(run: Run) -> None:
@@ -275,14 +269,9 @@ def _interrupted(run: Run, stop: InterruptedRun) -> None:
     if run.started:
         last = run.out_dir / LAST_CHECKPOINT
         stage = "evaluation" if stop.epoch is None else None
-        run.history.append(event("stopped", signal=stop.signal_name, epoch=stop.epoch, stage=stage))
-        run.write(
-            "interrupted",
-            signal=stop.signal_name,
-            epoch=stop.epoch,
-            stage=stage,
-            resume_from=str(last) if last.is_file() else None,
-        )
+        stopped = {"signal": stop.signal_name, "epoch": stop.epoch, "stage": stage}
+        run.history.append(event("stopped", **stopped))
+        run.write("interrupted", **stopped, resume_from=str(last) if last.is_file() else None)
     log.error(
         "%s: interrupted by %s during %s; run the same command to resume",
         run.label,
@@ -320,7 +309,27 @@ def job(cfg: DictConfig) -> Iterator[Run]:
     fresh = not (out_dir / ".hydra").exists() and not (out_dir / STATUS).exists()
     run = Run(cfg, out_dir, job_label(), fresh)
     with _held(run):
-        yield from _run_in(run)
+        try:
+            _accept(run)
+        except UserError as e:
+            _end(run, e, _failed)
+        if run.completed is not None:
+            log.info("%s: already completed (resume=true): %s%s", run.label, out_dir / STATUS, _longer(run))
+            yield run
+            return
+        try:
+            with SIGNALS.installed():
+                yield run
+                run.history.append(event("completed"))
+                run.write("completed", metrics=job_folder.read_metrics(run.out_dir).final())
+        except (InterruptedRun, KeyboardInterrupt) as e:
+            stop = e if isinstance(e, InterruptedRun) else InterruptedRun("SIGINT")
+            _interrupted(run, stop)
+            raise SystemExit(stop.exit_code) from None
+        except Exception as e:
+            if user_message(e, out_dir) is None:
+                log.error("%s failed: %s: %s", run.label, type(e).__name__, e)
+            _end(run, e, _failed)
 
 
 def _longer(run: Run) -> str:
@@ -336,29 +345,3 @@ def _longer(run: Run) -> str:
         f"; it trained {trained} epochs, and trainer.max_epochs={asked} does not extend it (its schedule "
         "ended there): train the longer run in another folder (hydra.run.dir=... or hydra.sweep.dir=...)"
     )
-
-
-def _run_in(run: Run) -> Iterator[Run]:
-    """:func:`job`'s body, in the held folder."""
-    out_dir = run.out_dir
-    try:
-        _accept(run)
-    except UserError as e:
-        _end(run, e, _failed)
-    if run.completed is not None:
-        log.info("%s: already completed (resume=true): %s%s", run.label, out_dir / STATUS, _longer(run))
-        yield run
-        return
-    try:
-        with SIGNALS.installed():
-            yield run
-            run.history.append(event("completed"))
-            run.write("completed", metrics=job_folder.read_metrics(run.out_dir).final())
-    except (InterruptedRun, KeyboardInterrupt) as e:
-        stop = e if isinstance(e, InterruptedRun) else InterruptedRun("SIGINT")
-        _interrupted(run, stop)
-        raise SystemExit(stop.exit_code) from None
-    except Exception as e:
-        if user_message(e, out_dir) is None:
-            log.error("%s failed: %s: %s", run.label, type(e).__name__, e)
-        _end(run, e, _failed)

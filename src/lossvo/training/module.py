@@ -79,8 +79,6 @@ class VOModule(L.LightningModule):
         """Relative poses (..., 4, 4) from network outputs (..., dim)."""
         return self.loss.decode(pred)
 
-    # -- checkpoints ----------------------------------------------------------------------------------
-
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         """Record how the network is trained (the datamodule's data description, else the loaded one) and
         the random streams, which a resumed fit restores."""
@@ -105,8 +103,6 @@ class VOModule(L.LightningModule):
             self._resumed_rng = None
         for config in self.trainer.lr_scheduler_configs:
             extend_cosine(config.scheduler, (self.hparams["scheduler"] or {}).get("T_max"))
-
-    # -- steps ----------------------------------------------------------------------------------------
 
     def losses(
         self, inputs: Mapping[str, Tensor], targets: Tensor, metric: Tensor | None = None
@@ -222,8 +218,6 @@ class VOModule(L.LightningModule):
 
     def test_step(self, batch: Mapping[str, Tensor], batch_idx: int) -> Tensor:
         return self._step(batch, "test")
-
-    # -- optimisation ---------------------------------------------------------------------------------
 
     def configure_optimizers(self) -> Any:
         config = self.hparams["optimizer"]

@@ -182,21 +182,16 @@ def difference(recorded: dict[str, Any], wanted: dict[str, Any]) -> str | None:
     if recorded["directions"] != wanted["directions"]:
         return f"its direction is {', '.join(recorded['directions'])}, not {', '.join(wanted['directions'])}"
     old, new = recorded["space"], wanted["space"]
-    if old != new:
-        names = sorted(name for name in old.keys() | new.keys() if old.get(name) != new.get(name))
+    names = sorted(name for name in old.keys() | new.keys() if old.get(name) != new.get(name))
+    if names:
         return (
             f"it searches {_space_text(old, [n for n in names if n in old])}, "
             f"not {_space_text(new, [n for n in names if n in new])}"
         )
     old, new = recorded["fixed"], wanted["fixed"]
-    if old != new:
-        names = sorted(name for name in old.keys() | new.keys() if old.get(name) != new.get(name))
-        shown = [
-            (f"{n}={old[n]}" if n in old else f"no {n}", f"{n}={new[n]}" if n in new else f"no {n}")
-            for n in names
-        ]
-        return f"it runs with {' '.join(o for o, _ in shown)}, not {' '.join(n for _, n in shown)}"
-    return None
+    names = sorted(name for name in old.keys() | new.keys() if old.get(name) != new.get(name))
+    shown = [" ".join(f"{n}={d[n]}" if n in d else f"no {n}" for n in names) for d in (old, new)]
+    return f"it runs with {shown[0]}, not {shown[1]}" if names else None
 
 
 def check_study(url: str, name: str, wanted: dict[str, Any], storage: BaseStorage | None = None) -> None:

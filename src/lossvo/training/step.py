@@ -23,13 +23,9 @@ def compile_mode(setting: bool | str | None, device: torch.device) -> str | None
     """The ``torch.compile`` mode of the training losses on ``device`` for the ``compile`` setting, or
     None for eager (``auto`` is eager on a CPU: compiling costs more than it saves in a sweep's jobs)."""
     check_compile(setting)
-    if setting is None or setting is False:
-        return None
-    if setting is True:
-        return "default"
     if setting == "auto":
         return AUTO_CUDA_MODE if device.type == "cuda" else None
-    return str(setting)
+    return "default" if setting is True else (str(setting) if setting else None)
 
 
 def check_compile(setting: Any) -> None:

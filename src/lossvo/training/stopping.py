@@ -33,10 +33,6 @@ class InterruptedRun(BaseException):
         return 128 + int(getattr(signal, self.signal_name))
 
 
-def _is_submitit(handler: Any) -> bool:
-    return callable(handler) and "submitit" in getattr(handler, "__module__", "")
-
-
 class StopSignals:
     """The signals that stop a run, and the first of them to come (:attr:`first`, e.g. ``"SIGTERM"``)."""
 
@@ -85,8 +81,7 @@ class StopSignals:
         if callable(sigint):  # a SIGINT ignored (a background job) stays ignored
             handlers[signal.SIGINT] = self._on_sigint(sigint)
         usr2 = signal.getsignal(signal.SIGUSR2)
-        if _is_submitit(usr2):
-            assert callable(usr2)
+        if callable(usr2) and "submitit" in getattr(usr2, "__module__", ""):
             handlers[signal.SIGUSR2] = self._on_requeue(usr2)
         return handlers
 
