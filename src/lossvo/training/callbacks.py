@@ -79,8 +79,7 @@ class TrajectoryValidation(Callback):
     def _share(
         names: list[str], trainer: L.Trainer, pl_module: L.LightningModule
     ) -> tuple[list[str], torch.device]:
-        """This process's validation sequences and its metric states' device: under DDP each process takes
-        every world_size-th on its device (``compute`` pools them); alone, all on the CPU."""
+        """This process's validation sequences and its metric states' device (DDP: every world_size-th)."""
         world, rank = trainer.world_size, trainer.global_rank
         if world > 1 and len(names) >= world:
             return names[rank::world], pl_module.device

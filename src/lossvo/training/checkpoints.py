@@ -53,8 +53,7 @@ def _check_shapes(path: str | os.PathLike, saved: Mapping[str, Any], current: Ma
 
 
 class AtomicCheckpointIO(TorchCheckpointIO):
-    """Checkpoints written next to their path and renamed onto it (Lightning's stage in the system's
-    temporary folder: a copy, not atomic, from another disk)."""
+    """Checkpoints written next to their path and renamed onto it (Lightning's save copies across disks)."""
 
     def save_checkpoint(
         self, checkpoint: dict[str, Any], path: str | os.PathLike, storage_options: Any | None = None

@@ -155,8 +155,7 @@ def _check_flow(resolved: Mapping[str, Any]) -> None:
 
 
 def check_devices(devices: Any, strategy: Any) -> None:
-    """Several devices need a distributed strategy (else Lightning starts one process per device, each
-    running the whole command)."""
+    """Several devices need a distributed strategy (else each device's process runs the whole command)."""
     several = (is_integer(devices, 2)) or (isinstance(devices, list) and len(devices) > 1)
     if several and strategy in (_ABSENT, None, "auto"):
         raise UserError(

@@ -77,8 +77,7 @@ def build(cfg: DictConfig) -> tuple[VODataModule, VOModule, L.Trainer]:
         # FlowNetS weights were trained on img/255 - 0.5; the dataset statistics would not match them.
         cfg.data.frames.normalization = "flownet"
     datamodule = instantiate(cfg.data, _convert_="all")
-    # The FlowNet file initialises the encoder once, here; it is kept out of the module's
-    # hyperparameters so that a checkpoint reloads without that file.
+    # The FlowNet file initialises the encoder here, kept out of the hyperparameters: checkpoints need none.
     model_cfg = _container(cfg.model)
     flownet = model_cfg.pop("flownet", None)
     module = VOModule(

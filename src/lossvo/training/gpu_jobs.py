@@ -67,8 +67,7 @@ def free_memory() -> int:
 
 
 def sweep_jobs(overrides: Sequence[str], params: Mapping[str, Any] | None = None) -> int | None:
-    """How many jobs Hydra's basic sweeper makes of ``overrides`` and ``hydra.sweeper.params``; None where
-    it does not expand them."""
+    """How many jobs Hydra's basic sweeper makes of ``overrides`` and ``hydra.sweeper.params``, or None."""
     given = [f"{key}={value}" for key, value in (params or {}).items()] + list(overrides)
     try:
         return len(config_checks.sweep_jobs(given))
@@ -79,15 +78,6 @@ def sweep_jobs(overrides: Sequence[str], params: Mapping[str, Any] | None = None
 def trains_on_cuda(accelerator: str, cuda_available: bool) -> bool:
     """Whether a trainer with ``accelerator`` trains on a CUDA GPU here (``auto`` takes one when there is)."""
     return accelerator in CUDA_ACCELERATORS or (accelerator == "auto" and cuda_available)
-
-
-def at_once_of(config: DictConfig) -> int:
-    """The jobs a sweep's joblib launcher runs at once (:func:`jobs_at_once`)."""
-    hydra = config.hydra
-    size = None
-    if str(hydra.sweeper.get("_target_", "")).endswith(".BasicSweeper"):
-        size = sweep_jobs([str(o) for o in hydra.overrides.task], hydra.sweeper.get("params"))
-    return jobs_at_once(int(hydra.launcher.n_jobs), size)
 
 
 class GpuJobsCheck(Callback):
@@ -115,5 +105,8 @@ class GpuJobsCheck(Callback):
         gib = self.job_memory_gib
         if not (isinstance(gib, (int, float)) and math.isfinite(gib) and gib > 0):
             raise UserError(f"{JOB_MEMORY_KEY}: expected a finite number > 0 (GiB), got {gib!r}")
-        n_jobs = int(config.hydra.launcher.n_jobs)
-        check_jobs_fit(n_jobs, at_once_of(config), free_memory(), int(gib * GIB))
+        hydra, size = config.hydra, None
+        if str(hydra.sweeper.get("_target_", "")).endswith(".BasicSweeper"):
+            size = sweep_jobs([str(o) for o in hydra.overrides.task], hydra.sweeper.get("params"))
+        n_jobs = int(hydra.launcher.n_jobs)
+        check_jobs_fit(n_jobs, jobs_at_once(n_jobs, size), free_memory(), int(gib * GIB))

@@ -92,8 +92,7 @@ def _defining(cfg: DictConfig | ListConfig) -> dict[str, Any]:
 
 
 def killed(out_dir: Path) -> Event:
-    """The history entry of a process that ended without a word (``status.json`` "running", the lock
-    free), timed at the latest change to ``status.json``, ``metrics.csv`` or ``last.ckpt``."""
+    """The history entry of a process that ended without a word, timed at its files' latest change."""
     files = (out_dir / STATUS, out_dir / METRICS, out_dir / LAST_CHECKPOINT)
     last = max((f.stat().st_mtime for f in files if f.is_file()), default=None)
     when = None if last is None else datetime.fromtimestamp(last, timezone.utc).isoformat(timespec="seconds")
@@ -111,8 +110,7 @@ def config_drift(recorded: DictConfig | ListConfig, requested: DictConfig) -> li
 
 
 def sweep_size() -> int | None:
-    """How many jobs this sweep runs: the Optuna sweeper's ``n_trials``, or the basic sweeper's expansion
-    of ``multirun.yaml``; None when unknown."""
+    """How many jobs this sweep runs (Optuna's ``n_trials``, or ``multirun.yaml`` expanded), or None."""
     hydra_cfg = HydraConfig.get()
     trials = hydra_cfg.sweeper.get("n_trials")
     if isinstance(trials, int):
@@ -180,8 +178,7 @@ class Run:
         self.started = True
 
     def write(self, status: str, **extra: Any) -> None:
-        """``status.json`` (the first process's), ``extra`` its :class:`~lossvo.evaluation.job_folder.Status`
-        fields."""
+        """``status.json`` (the first process's), with ``extra`` fields of its ``Status``."""
         if _first_process():
             job_folder.write_status(self.out_dir, Status(status, tuple(self.history), self.threads, **extra))
 
@@ -301,10 +298,8 @@ def _held(run: Run) -> Iterator[None]:
 
 @contextmanager
 def job(cfg: DictConfig) -> Iterator[Run]:
-    """The run in this Hydra job's output folder, from its checks to its final ``status.json``.
-
-    The body builds and trains when ``run.completed`` is None, calling :meth:`Run.start` once all is built.
-    """
+    """The run in this Hydra job's output folder, from its checks to its final ``status.json``; the body
+    builds and trains when ``run.completed`` is None, calling :meth:`Run.start` once all is built."""
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     fresh = not (out_dir / ".hydra").exists() and not (out_dir / STATUS).exists()
     run = Run(cfg, out_dir, job_label(), fresh)

@@ -80,8 +80,7 @@ class VOModule(L.LightningModule):
         return self.loss.decode(pred)
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
-        """Record how the network is trained (the datamodule's data description, else the loaded one) and
-        the random streams, which a resumed fit restores."""
+        """Record how the network is trained (its data description) and the random streams."""
         datamodule = getattr(self.trainer, "datamodule", None)
         description = getattr(datamodule, "description", None)
         describe(checkpoint, description() if callable(description) else self.data)

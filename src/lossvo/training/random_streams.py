@@ -1,7 +1,5 @@
 """The process's random streams (Python, NumPy, torch CPU and CUDA) as ``weights_only`` checkpoint
-primitives, and back: Lightning does not restore them, and a resumed run must draw what an uninterrupted one
-would.
-"""
+primitives, and back, so that a resumed run draws what an uninterrupted one would (Lightning does not)."""
 
 from __future__ import annotations
 

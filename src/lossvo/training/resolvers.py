@@ -112,14 +112,8 @@ def sqlite_storage(path: str) -> str:
 
 
 RESOLVERS: dict[str, Callable[..., Any]] = {
-    "dim_of": dim_of,
-    "identity_of": identity_of,
-    "matched_k": matched_k,
-    "paper_k": paper_k,
-    "path_safe": path_safe,
-    "job_name": job_name,
-    "sqlite_storage": sqlite_storage,
-    "sweep_group": sweep_group,
+    f.__name__: f
+    for f in (dim_of, identity_of, matched_k, paper_k, path_safe, job_name, sqlite_storage, sweep_group)
 }
 
 

@@ -1,7 +1,5 @@
-"""An Optuna study that several workers share (same study name and storage): its storage, heartbeats of
-running trials, a per-trial seeded TPE sampler, and the search a study was created for. Storages, clocks
-and restarts: docs/sweep.md.
-"""
+"""An Optuna study that several workers share: its storage, heartbeats of running trials, a per-trial
+seeded TPE sampler, and the search a study was created for (docs/sweep.md)."""
 
 from __future__ import annotations
 

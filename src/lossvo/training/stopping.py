@@ -61,8 +61,7 @@ class StopSignals:
         return handler
 
     def _on_requeue(self, submitit: Handler) -> Handler:
-        """Submitit's requeue signal: its exit becomes an :class:`InterruptedRun`; a process it does not exit
-        (a DDP rank above 0) goes on."""
+        """Submitit's requeue signal: its exit becomes an :class:`InterruptedRun` (other ranks go on)."""
 
         def handler(signum: int, frame: Any) -> None:
             first = self._record(signum)
