@@ -109,24 +109,19 @@ def config_drift(recorded: DictConfig | ListConfig, requested: DictConfig) -> li
     return sorted(k for k in theirs.keys() | ours.keys() if theirs.get(k) != ours.get(k))
 
 
-def sweep_size() -> int | None:
-    """How many jobs this sweep runs (Optuna's ``n_trials``, or ``multirun.yaml`` expanded), or None."""
-    hydra_cfg = HydraConfig.get()
-    trials = hydra_cfg.sweeper.get("n_trials")
-    if isinstance(trials, int):
-        return trials
-    try:
-        sweep = OmegaConf.load(Path(hydra_cfg.sweep.dir) / "multirun.yaml")
-    except OSError:  # no multirun.yaml (another launcher): the job number alone
-        return None
-    return gpu_jobs.sweep_jobs(list(sweep.hydra.overrides.task), hydra_cfg.sweeper.get("params"))
-
-
 def job_label() -> str:
-    """``"job 3/9 (loss=quat seed=0)"`` for a sweep's job, ``"run"`` for a single run."""
+    """``"job 3/9 (loss=quat seed=0)"`` for a sweep's job, ``"run"`` for a single run; the total is Optuna's
+    ``n_trials`` or the basic sweeper's expansion of ``multirun.yaml``, where known."""
     if not _sweeping():
         return "run"
-    hydra_cfg, total = HydraConfig.get(), sweep_size()
+    hydra_cfg = HydraConfig.get()
+    total = hydra_cfg.sweeper.get("n_trials")
+    if not isinstance(total, int):
+        try:
+            task = list(OmegaConf.load(Path(hydra_cfg.sweep.dir) / "multirun.yaml").hydra.overrides.task)
+            total = gpu_jobs.sweep_jobs(task, hydra_cfg.sweeper.get("params"))
+        except OSError:  # no multirun.yaml (another launcher): the job number alone
+            total = None
     number = f"{hydra_cfg.job.num + 1}/{total}" if total else f"{hydra_cfg.job.num + 1}"
     return f"job {number} ({' '.join(hydra_cfg.overrides.task)})"
 
