@@ -81,8 +81,7 @@ def resolved_config(cfg: DictConfig) -> dict[str, Any]:
 
 
 def check_train_config(cfg: DictConfig, machine: bool = True) -> None:
-    """Raise UserError (one line) for a training config that would fail only once the run is under way.
-    ``machine=False`` skips what depends on the machine that trains (its GPU)."""
+    """UserError (one line) for a config that would fail under way; ``machine=False``: no GPU checks."""
     if cfg.get("weighting") is not None:
         weighting.check_config(cfg.weighting, cfg.loss)
     resolved = resolved_config(cfg)
@@ -225,8 +224,7 @@ def check_added_keys(cfg: DictConfig, overrides: Sequence[str], config_name: str
 
 
 def check_job(cfg: DictConfig, out_dir: Path, machine: bool = True) -> None:
-    """A job's checks on its composed config (Hydra's node included), ``${hydra:...}`` resolved as in a job
-    writing to ``out_dir``."""
+    """A job's checks on its composed config (Hydra's node included), as in a job writing to ``out_dir``."""
     with open_dict(cfg):
         cfg.hydra.runtime.output_dir = str(out_dir)
     job = cfg.copy()

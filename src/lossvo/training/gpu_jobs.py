@@ -58,8 +58,7 @@ def check_jobs_fit(n_jobs: int, at_once: int, free_bytes: int, job_bytes: int) -
 
 
 def free_memory() -> int:
-    """The CUDA device's free memory, bytes, measured in a child process (a CUDA context made here would
-    hold memory for the whole sweep); ``OSError`` when the child fails."""
+    """The GPU's free bytes, read in a child process (a CUDA context here would hold memory all sweep)."""
     done = subprocess.run([sys.executable, "-c", _FREE_MEMORY], capture_output=True, text=True, timeout=300)
     if done.returncode != 0:
         raise OSError(f"cannot read the GPU's free memory: {first_line(done.stderr) or done.returncode}")

@@ -100,8 +100,7 @@ def killed(out_dir: Path) -> Event:
 
 
 def config_drift(recorded: DictConfig | ListConfig, requested: DictConfig) -> list[str]:
-    """The run-defining keys (:data:`RUN_KEYS`) whose values differ between two configs (withdrawn keys
-    at the value this version runs do not)."""
+    """The run-defining keys whose values differ between two configs (withdrawn keys at ours do not)."""
     theirs, ours = _defining(recorded), _defining(requested)
     for key, only in WITHDRAWN_KEYS.items():
         if key not in ours and key in theirs and only in (None, theirs[key]):
@@ -157,8 +156,7 @@ class Run:
     history: list[Event] = field(default_factory=list)
 
     def start(self, resumed: Mapping[str, Any] | None = None, threads: int | None = None) -> None:
-        """Claim the folder: ``.hydra/`` and ``status.json`` "running"; ``resumed``: where a resumed run
-        continues (``{"epoch": N, "source": checkpoint}`` or ``{"stage": "evaluation", ...}``)."""
+        """Claim the folder; ``resumed``: where a resumed run continues (``{"epoch": N, ...}``)."""
         self.threads = threads
         self.history.append(
             event("resumed", code=code_version(), machine=machine(), **resumed)

@@ -106,8 +106,7 @@ class VOModule(L.LightningModule):
     def losses(
         self, inputs: Mapping[str, Tensor], targets: Tensor, metric: Tensor | None = None
     ) -> tuple[Tensor, Tensor]:
-        """The training loss (scalar) of a batch and its record row; targets (B, L-1, 4, 4), metric (B,) bool:
-        whether each window's platform cues metric scale."""
+        """The training loss (scalar) of a batch and its record row; targets (B, L-1, 4, 4), metric (B,)."""
         pred = self(inputs)
         out = self.loss(pred, targets, metric)
         return out["loss"], step_row(out, pred, targets.shape[0] * targets.shape[1])

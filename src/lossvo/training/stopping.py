@@ -16,8 +16,7 @@ Handler = Callable[[int, Any], Any]
 
 
 class InterruptedRun(BaseException):
-    """A run stopped by a signal; a BaseException, as raised from a signal handler inside any code.
-    ``epoch``: the epoch that was running, from 1; None outside training."""
+    """A run stopped by a signal (in ``epoch``, from 1; None outside training), raised from any code."""
 
     def __init__(self, signal_name: str, epoch: int | None = None) -> None:
         self.signal_name, self.epoch = signal_name, epoch
