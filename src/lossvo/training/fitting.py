@@ -15,7 +15,7 @@ from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint, ProgressBar
 from lightning.pytorch.loggers import Logger, WandbLogger
-from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf import DictConfig, open_dict
 
 from lossvo.console import UserError, one_line
 from lossvo.evaluation.checkpoints import load_network
@@ -23,6 +23,7 @@ from lossvo.evaluation.job_folder import RESULTS
 from lossvo.evaluation.results import evaluate_run
 from lossvo.models import load_flownet
 from lossvo.training import checkpoints, metrics_log, slurm
+from lossvo.training.config_checks import resolved_config
 from lossvo.training.lifecycle import Run
 from lossvo.training.module import VOModule
 from lossvo.training.selection import SCORE_KEY
@@ -46,10 +47,6 @@ def _instantiate_group(group: DictConfig | None, name: str) -> list[Any]:
         if built is not None:
             objects.append(built)
     return objects
-
-
-def _container(cfg: DictConfig) -> dict[str, Any]:
-    return cast("dict[str, Any]", OmegaConf.to_container(cfg, resolve=True))  # a DictConfig: str keys
 
 
 def _load_flownet(module: VOModule, path: str) -> None:
@@ -78,13 +75,13 @@ def build(cfg: DictConfig) -> tuple[VODataModule, VOModule, L.Trainer]:
         cfg.data.frames.normalization = "flownet"
     datamodule = instantiate(cfg.data, _convert_="all")
     # The FlowNet file initialises the encoder here, kept out of the hyperparameters: checkpoints need none.
-    model_cfg = _container(cfg.model)
+    model_cfg = resolved_config(cfg.model)
     flownet = model_cfg.pop("flownet", None)
     module = VOModule(
         model=model_cfg,
-        loss=_container(cfg.loss),
-        optimizer=_container(cfg.optimizer),
-        scheduler=_container(cfg.scheduler) if cfg.get("scheduler") else None,
+        loss=resolved_config(cfg.loss),
+        optimizer=resolved_config(cfg.optimizer),
+        scheduler=resolved_config(cfg.scheduler) if cfg.get("scheduler") else None,
         monitor=cfg.selection.monitor if cfg.get("selection") else SCORE_KEY,
         compile=cfg.get("compile", False),
     )
@@ -136,7 +133,7 @@ def train(cfg: DictConfig, run: Run) -> dict[str, float]:
         run.out_dir, Path(ckpt_path).parent.parent if ckpt_path else run.out_dir, epoch, step
     )
     for logger in trainer.loggers:
-        logger.log_hyperparams(_container(cfg))
+        logger.log_hyperparams(resolved_config(cfg))
     try:
         try:
             with warnings.catch_warnings():
