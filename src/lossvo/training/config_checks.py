@@ -33,10 +33,6 @@ def _finite(value: Any, low: float) -> bool:
     return is_number(value) and math.isfinite(value) and value >= low
 
 
-def _positive(value: Any) -> bool:
-    return _finite(value, 0.0) and value > 0
-
-
 def _limit(value: Any) -> bool:
     return is_integer(value, 1) or (is_integer(value, -1) and value == -1)
 
@@ -50,7 +46,7 @@ SCALARS: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
     ("trainer.log_every_n_steps", lambda v: is_integer(v, 1), "an integer >= 1"),
     ("trainer.check_val_every_n_epoch", lambda v: v is None or is_integer(v, 1), "null or an integer >= 1"),
     ("trainer.gradient_clip_val", lambda v: v is None or _finite(v, 0.0), "null or a finite number >= 0"),
-    ("optimizer.lr", _positive, "a finite number > 0"),
+    ("optimizer.lr", lambda v: _finite(v, 0.0) and v > 0, "a finite number > 0"),
     ("optimizer.weight_decay", lambda v: _finite(v, 0.0), "a finite number >= 0"),
     ("resume", lambda v: isinstance(v, bool), "true or false"),
     ("evaluate", lambda v: isinstance(v, bool), "true or false"),
