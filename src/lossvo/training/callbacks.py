@@ -1,10 +1,5 @@
-"""Lightning callbacks that no library provides in this form.
-
-- :class:`EpochSummary` logs one line per epoch (terminal and ``train.log``) with the validation metrics;
-  :func:`progress` adds Lightning's Rich progress bar on a terminal (epochs counted from 1, the
-  validation metrics beside the training loss) and none when output goes to a file or a cluster log.
-- :class:`TrajectoryValidation` integrates the whole validation sequences during fit and logs trajectory
-  errors (APE / RPE / KITTI), the numbers the study compares, next to the per-window losses.
+"""Lightning callbacks that no library provides in this form: a line per epoch, a progress bar on a terminal
+only, and trajectory errors of the whole validation sequences during fit.
 """
 
 from __future__ import annotations
@@ -41,8 +36,7 @@ class EpochSummary(Callback):
 
 
 class EpochProgressBar(RichProgressBar):
-    """Lightning's Rich bar with epochs counted from 1 (``Epoch 2/2`` for the second of two) and the
-    selection score and validation loss shown beside the training loss."""
+    """Lightning's Rich bar with epochs counted from 1, ``val/loss`` and ``val/score`` beside the loss."""
 
     SHOWN = ("val/loss", "val/score")
 
@@ -59,24 +53,15 @@ class EpochProgressBar(RichProgressBar):
         return {**super().get_metrics(trainer, pl_module), **shown}
 
 
-def progress(rich_on_tty: bool = True) -> Callback | None:
+def progress() -> Callback | None:
     """An :class:`EpochProgressBar` when stdout is a terminal, else None (no bar)."""
-    return EpochProgressBar() if rich_on_tty and sys.stdout.isatty() else None
+    return EpochProgressBar() if sys.stdout.isatty() else None
 
 
 class TrajectoryValidation(Callback):
-    """Every ``every_n_epochs`` epochs, integrate the validation sequences and log trajectory errors.
-
-    Each validation sequence goes through :func:`lossvo.evaluation.results.predict_and_score`; the errors
-    are pooled over them (APE unaligned, RPE over one frame) and logged into ``metrics.csv`` as
-    ``val/ape_trans_rmse``, ``val/rpe_trans_rmse``, ``val/rpe_rot_rmse`` and, where the sequences hold a
-    100 m segment, ``val/kitti_t_err`` (%) and ``val/kitti_r_err`` (deg / 100 m), else neither (never 0).
-    Nothing happens during the sanity check or for a datamodule without whole sequences (a benchmark's).
-
-    Args:
-        every_n_epochs: run after the validation of every n-th epoch (>= 1).
-        mirror_average: see :func:`lossvo.evaluation.inference.predict_sequence`.
-    """
+    """Every ``every_n_epochs`` epochs, integrate the validation sequences and log their pooled trajectory
+    errors (APE unaligned, RPE over one frame, KITTI's where a 100 m segment exists: docs/training.md).
+    A datamodule without whole sequences (a benchmark's) is skipped."""
 
     def __init__(self, every_n_epochs: int = 1, mirror_average: bool = False) -> None:
         if not is_integer(every_n_epochs, 1):
@@ -94,9 +79,7 @@ class TrajectoryValidation(Callback):
     def _share(
         names: list[str], trainer: L.Trainer, pl_module: L.LightningModule
     ) -> tuple[list[str], torch.device]:
-        """This process's validation sequences and the device of its metric states: under DDP every
-        process integrates every world_size-th sequence on its device and the metrics' ``compute``
-        pools them across processes (as one process would over all); one process does all, on the CPU."""
+        """This process's validation sequences and its metric states' device (DDP: every world_size-th)."""
         world, rank = trainer.world_size, trainer.global_rank
         if world > 1 and len(names) >= world:
             return names[rank::world], pl_module.device

@@ -1,7 +1,4 @@
-"""Checkpoints of a fit: written atomically, checked before a resume.
-
-What a checkpoint holds and how evaluation reads it: :mod:`lossvo.evaluation.checkpoints`.
-"""
+"""Checkpoints of a fit: written atomically, checked before a resume (contents: docs/training.md)."""
 
 from __future__ import annotations
 
@@ -19,13 +16,8 @@ from lossvo.training.module import VOModule
 
 
 def check_resume(path: str | os.PathLike, module: VOModule, data: Mapping[str, Any]) -> tuple[int, int]:
-    """Refuse to resume a run from a checkpoint of another loss, parameterisation, network shape or
-    training data setting, naming the difference; returns the checkpoint's epoch (0-based) and global
-    step.
-
-    Args:
-        path: the checkpoint. module: the run's freshly built module. data: the run's data description.
-    """
+    """Refuse to resume from a checkpoint of another loss, network (shape) or training data setting, naming
+    the difference; returns the checkpoint's epoch (0-based) and global step."""
     content = read(path)
     described = Description.of(content)
     theirs, ours = described.loss.get("_target_"), module.hparams["loss"].get("_target_")
@@ -61,9 +53,7 @@ def _check_shapes(path: str | os.PathLike, saved: Mapping[str, Any], current: Ma
 
 
 class AtomicCheckpointIO(TorchCheckpointIO):
-    """Checkpoints written to a temporary file next to their path and renamed onto it, so a crash or a
-    full disk leaves the previous checkpoint in place. Lightning's own save stages the file in the
-    system's temporary folder and moves it, which is a copy, not atomic, when that is another disk."""
+    """Checkpoints written next to their path and renamed onto it (Lightning's save copies across disks)."""
 
     def save_checkpoint(
         self, checkpoint: dict[str, Any], path: str | os.PathLike, storage_options: Any | None = None

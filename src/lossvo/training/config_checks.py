@@ -1,8 +1,5 @@
-"""Checks of a composed training config before anything is built: the settings that Lightning, torch or
-the data loader would otherwise refuse deep inside a run (or misread without a word), each failure a
-:class:`~lossvo.console.UserError` naming the key, the value and what was expected, e.g.
-``trainer.max_epochs: expected an integer >= 1, or -1 for no limit, got 0``. The data settings are
-checked by their schema (:class:`lossvo.data.specs.Data`) and the data module's constructor.
+"""Checks of a composed training config before anything is built, each failure a one-line
+:class:`~lossvo.console.UserError` naming the key, the value and what was expected (docs/bad-input.md).
 """
 
 from __future__ import annotations
@@ -36,10 +33,6 @@ def _finite(value: Any, low: float) -> bool:
     return is_number(value) and math.isfinite(value) and value >= low
 
 
-def _positive(value: Any) -> bool:
-    return _finite(value, 0.0) and value > 0
-
-
 def _limit(value: Any) -> bool:
     return is_integer(value, 1) or (is_integer(value, -1) and value == -1)
 
@@ -53,7 +46,7 @@ SCALARS: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
     ("trainer.log_every_n_steps", lambda v: is_integer(v, 1), "an integer >= 1"),
     ("trainer.check_val_every_n_epoch", lambda v: v is None or is_integer(v, 1), "null or an integer >= 1"),
     ("trainer.gradient_clip_val", lambda v: v is None or _finite(v, 0.0), "null or a finite number >= 0"),
-    ("optimizer.lr", _positive, "a finite number > 0"),
+    ("optimizer.lr", lambda v: _finite(v, 0.0) and v > 0, "a finite number > 0"),
     ("optimizer.weight_decay", lambda v: _finite(v, 0.0), "a finite number >= 0"),
     ("resume", lambda v: isinstance(v, bool), "true or false"),
     ("evaluate", lambda v: isinstance(v, bool), "true or false"),
@@ -64,9 +57,6 @@ SCALARS: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
 
 CUDA_ACCELERATORS = ("gpu", "cuda")
 """``trainer.accelerator`` values that train on a CUDA GPU."""
-
-GPU_TRAINER = "gpu"
-"""The trainer config (``conf/trainer/gpu.yaml``) that trains on one CUDA GPU."""
 
 
 def _select(config: Mapping[str, Any], key: str) -> Any:
@@ -79,8 +69,7 @@ def _select(config: Mapping[str, Any], key: str) -> Any:
 
 
 def resolved_config(cfg: DictConfig) -> dict[str, Any]:
-    """The config as plain containers, its interpolations resolved; :class:`~lossvo.console.UserError`
-    naming the key of one that does not resolve (OmegaConf's errors are ``ValueError``)."""
+    """The config as plain containers, resolved; UserError naming the key of one that does not resolve."""
     try:
         return cast("dict[str, Any]", OmegaConf.to_container(cfg, resolve=True))
     except OmegaConfBaseException as e:  # an interpolation that does not resolve, or to a wrong type
@@ -88,14 +77,7 @@ def resolved_config(cfg: DictConfig) -> dict[str, Any]:
 
 
 def check_train_config(cfg: DictConfig, machine: bool = True) -> None:
-    """Raise :class:`~lossvo.console.UserError` (one line: key, value, what was expected) for a training
-    config that would fail only once the run is under way: its loss weights
-    (:func:`lossvo.weighting.check_config`), a value left missing (``???``), an interpolation that does
-    not resolve, a bad scalar setting (:data:`SCALARS`), a cosine schedule without a length, a trainer
-    asking for a CUDA GPU where there is none (:func:`check_accelerator`) or for several devices without
-    a distributed strategy (:func:`check_devices`), a source ``root`` that is a file, a ``ckpt_path``
-    that is no file, a data setting its module refuses (:func:`check_data`). ``machine=False`` skips what
-    depends on the machine that trains (its GPU), for a config checked where it is submitted from."""
+    """UserError (one line) for a config that would fail under way; ``machine=False``: no GPU checks."""
     if cfg.get("weighting") is not None:
         weighting.check_config(cfg.weighting, cfg.loss)
     resolved = resolved_config(cfg)
@@ -130,8 +112,7 @@ def check_train_config(cfg: DictConfig, machine: bool = True) -> None:
 
 
 def check_data(cfg: DictConfig) -> None:
-    """The data module's own checks (its constructor's: frames, windows, splits, flow, loader), without
-    reading any data: ``UserError`` naming the key."""
+    """The data module's constructor's checks, without reading any data."""
     if cfg.get("data") is None:
         return
     try:
@@ -169,9 +150,7 @@ def _check_flow(resolved: Mapping[str, Any]) -> None:
 
 
 def check_devices(devices: Any, strategy: Any) -> None:
-    """Several devices (``trainer.devices`` above 1, or a list of more than one) need a distributed
-    strategy: without one (``trainer.strategy`` absent or ``auto``), Lightning starts one process per
-    device, each running the whole command. ``UserError`` naming ``trainer=ddp``."""
+    """Several devices need a distributed strategy (else each device's process runs the whole command)."""
     several = (is_integer(devices, 2)) or (isinstance(devices, list) and len(devices) > 1)
     if several and strategy in (_ABSENT, None, "auto"):
         raise UserError(
@@ -181,13 +160,11 @@ def check_devices(devices: Any, strategy: Any) -> None:
 
 
 def check_accelerator(accelerator: Any, cuda_available: bool, trainer_choice: str | None = None) -> None:
-    """A trainer asking for a CUDA GPU (``trainer.accelerator`` in :data:`CUDA_ACCELERATORS`) where
-    ``cuda_available`` (``torch.cuda.is_available()``) is false: ``UserError`` naming ``trainer=gpu``
-    (``trainer_choice``, the trainer config chosen) or the accelerator, and ``trainer=default``."""
+    """Refuse a trainer asking for a CUDA GPU where there is none, naming ``trainer=gpu`` where that is
+    ``trainer_choice`` (the trainer config chosen), else the accelerator."""
     if str(accelerator) not in CUDA_ACCELERATORS or cuda_available:
         return
-    chosen = trainer_choice == GPU_TRAINER
-    named = f"trainer={GPU_TRAINER}" if chosen else f"trainer.accelerator={accelerator}"
+    named = "trainer=gpu" if trainer_choice == "gpu" else f"trainer.accelerator={accelerator}"
     raise UserError(
         f"{named}: no CUDA GPU here (torch.cuda.is_available() is false): use trainer=default "
         f"to train on the CPU"
@@ -201,8 +178,7 @@ CONFIG_DIR = Path(__file__).resolve().parent.parent / "conf"
 
 
 def _added_keys(overrides: Sequence[str], allowed: Sequence[str]) -> list[tuple[str, str]]:
-    """(override, key) of each ``+key=...`` / ``++key=...`` that adds a top-level key other than those
-    ``allowed`` or a config group."""
+    """(override, key) of each ``+key=...`` / ``++key=...`` adding a top-level key, no group."""
     added = []
     for text in overrides:
         match = re.match(r"\+\+?([A-Za-z_][\w-]*)=", text)
@@ -222,9 +198,8 @@ def _leaves(node: Any, prefix: str = "") -> dict[str, str]:
 
 
 def check_added_keys(cfg: DictConfig, overrides: Sequence[str], config_name: str = "train") -> None:
-    """A top-level key that a ``+key=value`` override adds and nothing reads (``+epochs=3``, which Hydra
-    itself suggests for ``epochs=3``, would be ignored): ``UserError`` naming the close keys there are and
-    the top-level ones. ``++key=value`` of a key the config has is an override like any other."""
+    """Refuse a top-level key that a ``+key=value`` override adds and nothing reads (``+epochs=3``, which
+    Hydra suggests for ``epochs=3``), naming the close keys there are and the top-level ones."""
     allowed = ADDED_KEYS.get(config_name, ())
     added = _added_keys(overrides, allowed)
     if not added:
@@ -245,9 +220,7 @@ def check_added_keys(cfg: DictConfig, overrides: Sequence[str], config_name: str
 
 
 def check_job(cfg: DictConfig, out_dir: Path, machine: bool = True) -> None:
-    """The checks a job runs on its composed config (Hydra's node included) before it reads data,
-    :func:`check_train_config` and :func:`check_added_keys`, its ``${hydra:...}`` values resolved as in a
-    job writing to ``out_dir``: ``UserError`` (one line)."""
+    """A job's checks on its composed config (Hydra's node included), as in a job writing to ``out_dir``."""
     with open_dict(cfg):
         cfg.hydra.runtime.output_dir = str(out_dir)
     job = cfg.copy()
@@ -269,12 +242,9 @@ def sweep_jobs(overrides: list[str]) -> list[list[str]]:
 
 
 class SweepConfigCheck(Callback):
-    """Before a sweep creates its folder or any job's: where every job's config fails :func:`check_job`
-    (a setting all jobs share), the sweep ends in that one line, exit status 2, having created nothing. The
-    jobs are composed in the sweep's order until one passes (one, for a sweep that can run); a sweep whose
-    jobs fail on values of their own runs, each such job failing in its folder. Another sweeper (Optuna)
-    chooses its jobs' values as it goes: its base config is checked. The machine's GPU is left to
-    :class:`~lossvo.training.gpu_jobs.GpuJobsCheck` (a SLURM job's is the node's)."""
+    """Before a sweep creates anything: where every job's config fails :func:`check_job`, end the sweep in
+    that one line, exit status 2. Jobs are checked in order until one passes; an Optuna sweep checks its
+    base config."""
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         basic = str(config.hydra.sweeper.get("_target_", "")).endswith("BasicSweeper")

@@ -1,9 +1,5 @@
-"""A training run from a composed config: build the data, network, loss and trainer, fit, then evaluate
-the best checkpoint on the test sequences.
-
-Everything (data, network, loss, loggers, callbacks, trainer) is built and the data set up before
-:meth:`lossvo.training.lifecycle.Run.start` claims the job folder, so that a wrong name, argument or
-data file fails at once, leaving no run behind.
+"""A training run from a composed config: build everything (before the run claims its folder, so that a
+mistake leaves no run behind), fit, then evaluate the best checkpoint on the test sequences.
 """
 
 from __future__ import annotations
@@ -19,7 +15,7 @@ from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint, ProgressBar
 from lightning.pytorch.loggers import Logger, WandbLogger
-from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf import DictConfig, open_dict
 
 from lossvo.console import UserError, one_line
 from lossvo.evaluation.checkpoints import load_network
@@ -27,6 +23,7 @@ from lossvo.evaluation.job_folder import RESULTS
 from lossvo.evaluation.results import evaluate_run
 from lossvo.models import load_flownet
 from lossvo.training import checkpoints, metrics_log, slurm
+from lossvo.training.config_checks import resolved_config
 from lossvo.training.lifecycle import Run
 from lossvo.training.module import VOModule
 from lossvo.training.selection import SCORE_KEY
@@ -39,8 +36,7 @@ log = logging.getLogger("lossvo")
 
 
 def _instantiate_group(group: DictConfig | None, name: str) -> list[Any]:
-    """Instantiate every entry of a dict-of-configs group (callbacks, logger); each needs a _target_.
-    An entry switched off (``callbacks.key=null``), or whose factory returns None, is left out."""
+    """Every entry of a dict-of-configs group (callbacks, logger) built; a null entry or result left out."""
     objects = []
     for key, entry in (group or {}).items():
         if entry is None:
@@ -53,10 +49,6 @@ def _instantiate_group(group: DictConfig | None, name: str) -> list[Any]:
     return objects
 
 
-def _container(cfg: DictConfig) -> dict[str, Any]:
-    return cast("dict[str, Any]", OmegaConf.to_container(cfg, resolve=True))  # a DictConfig: str keys
-
-
 def _load_flownet(module: VOModule, path: str) -> None:
     """FlowNetS weights into the encoder; any problem with the file is one line naming the key."""
     try:
@@ -67,8 +59,7 @@ def _load_flownet(module: VOModule, path: str) -> None:
 
 
 def _trainer(config: DictConfig, **kwargs: Any) -> L.Trainer:
-    """Lightning's Trainer from the ``trainer`` config; a value it refuses (its ``ValueError``: an unknown
-    accelerator, precision or strategy name) is the user's, one line naming ``trainer``."""
+    """Lightning's Trainer; a value it refuses with ``ValueError`` is one line naming ``trainer``."""
     try:
         return cast("L.Trainer", instantiate(config, **kwargs))
     except InstantiationException as e:
@@ -83,15 +74,14 @@ def build(cfg: DictConfig) -> tuple[VODataModule, VOModule, L.Trainer]:
         # FlowNetS weights were trained on img/255 - 0.5; the dataset statistics would not match them.
         cfg.data.frames.normalization = "flownet"
     datamodule = instantiate(cfg.data, _convert_="all")
-    # The FlowNet file initialises the encoder once, here; it is kept out of the module's
-    # hyperparameters so that a checkpoint reloads without that file.
-    model_cfg = _container(cfg.model)
+    # The FlowNet file initialises the encoder here, kept out of the hyperparameters: checkpoints need none.
+    model_cfg = resolved_config(cfg.model)
     flownet = model_cfg.pop("flownet", None)
     module = VOModule(
         model=model_cfg,
-        loss=_container(cfg.loss),
-        optimizer=_container(cfg.optimizer),
-        scheduler=_container(cfg.scheduler) if cfg.get("scheduler") else None,
+        loss=resolved_config(cfg.loss),
+        optimizer=resolved_config(cfg.optimizer),
+        scheduler=resolved_config(cfg.scheduler) if cfg.get("scheduler") else None,
         monitor=cfg.selection.monitor if cfg.get("selection") else SCORE_KEY,
         compile=cfg.get("compile", False),
     )
@@ -122,8 +112,7 @@ def _sync_batchnorm_where_supported(cfg: DictConfig) -> None:
 
 
 def train(cfg: DictConfig, run: Run) -> dict[str, float]:
-    """Seed, build, start the run, fit, evaluate the best checkpoint (``evaluate=true``); returns the
-    trainer's final callback metrics."""
+    """Seed, build, start the run, fit, evaluate the best checkpoint; returns the final callback metrics."""
     if cfg.get("threads") is not None:
         torch.set_num_threads(cfg.threads)
     if cfg.get("seed") is not None:  # seed 0 is a seed
@@ -144,7 +133,7 @@ def train(cfg: DictConfig, run: Run) -> dict[str, float]:
         run.out_dir, Path(ckpt_path).parent.parent if ckpt_path else run.out_dir, epoch, step
     )
     for logger in trainer.loggers:
-        logger.log_hyperparams(_container(cfg))
+        logger.log_hyperparams(resolved_config(cfg))
     try:
         try:
             with warnings.catch_warnings():
@@ -170,9 +159,8 @@ def train(cfg: DictConfig, run: Run) -> dict[str, float]:
 
 
 def _resume_point(trainer: L.Trainer, source: str, epoch: int, step: int) -> dict[str, Any]:
-    """Where a run continues a checkpoint of ``epoch`` (0-based) at global ``step``: the next epoch
-    (``{"epoch": N}``, from 1), or the evaluation (``{"stage": "evaluation"}``) when the checkpoint ends
-    the training (``trainer.max_epochs`` or ``trainer.max_steps`` reached); ``source``: the checkpoint."""
+    """Where a run continues a checkpoint of ``epoch`` (0-based) at global ``step``: ``{"epoch": N}`` (from
+    1), or ``{"stage": "evaluation"}`` when the checkpoint ends the training."""
     max_epochs, max_steps = trainer.max_epochs, trainer.max_steps
     trained = (max_epochs is not None and 0 <= max_epochs <= epoch + 1) or 0 <= max_steps <= step
     return {"stage": "evaluation", "source": source} if trained else {"epoch": epoch + 2, "source": source}
@@ -184,17 +172,16 @@ def evaluate_after_fit(
     datamodule: VODataModule,
     out_dir: Path,
     mirror_average: bool = True,
-) -> Any:
-    """Evaluate the best checkpoint (the last weights if there is none) on the test sequences, writing
-    ``results.json``, ``trajectories/`` and ``plots/`` into ``out_dir`` (``mirror_average``: see
-    :func:`lossvo.evaluation.inference.predict_sequence`)."""
+) -> None:
+    """Evaluate the best checkpoint (else the last weights) on the test sequences into ``out_dir``."""
     best = next(
         (
             c.best_model_path
             for c in trainer.checkpoint_callbacks
             if isinstance(c, ModelCheckpoint)
             and c.monitor
-            and Path(c.best_model_path or "/nonexistent").is_file()
+            and c.best_model_path
+            and Path(c.best_model_path).is_file()
         ),
         None,
     )
@@ -202,7 +189,7 @@ def evaluate_after_fit(
     network: torch.nn.Module = load_network(best, device) if best else module.to(device)
     if not best:
         log.warning("no best checkpoint: evaluating the last weights")
-    result = evaluate_run(
+    evaluate_run(
         network,
         datamodule,
         out_dir,
@@ -217,4 +204,3 @@ def evaluate_after_fit(
         ", ".join(datamodule.evaluated),
         out_dir / RESULTS,
     )
-    return result

@@ -1,7 +1,5 @@
-"""Several training jobs at once on one GPU (each a process of Hydra's joblib launcher): how many fit,
-and the check before a sweep starts (:class:`GpuJobsCheck`, the Hydra callback ``hydra.callbacks.gpu_jobs``).
-The memory one job needs is ``hydra.callbacks.gpu_jobs.job_memory_gib`` in ``conf/train.yaml`` (what it
-covers and how to measure it: docs/sweep.md).
+"""Several training jobs at once on one GPU (Hydra's joblib launcher): how many fit, and the check before a
+sweep starts (:class:`GpuJobsCheck`). The memory a job needs: docs/sweep.md.
 """
 
 from __future__ import annotations
@@ -24,11 +22,8 @@ from lossvo.training.config_checks import CUDA_ACCELERATORS, check_accelerator
 from lossvo.training.slurm import SLURM_LAUNCHER
 
 GIB = 2**30
-"""Bytes in a GiB."""
-
 JOBLIB_LAUNCHER = "hydra_plugins.hydra_joblib_launcher.joblib_launcher.JoblibLauncher"
 JOB_MEMORY_KEY = "hydra.callbacks.gpu_jobs.job_memory_gib"
-"""The config key of the GPU memory one job needs (GiB)."""
 
 _FREE_MEMORY = "import torch; print(torch.cuda.mem_get_info()[0])"
 
@@ -38,22 +33,18 @@ class GpuMemoryError(UserError):
 
 
 def jobs_that_fit(free_bytes: int, job_bytes: int, cpus: int) -> int:
-    """How many jobs run at once on one GPU: ``min(cpus, free_bytes // job_bytes)`` (0 when not one fits):
-    each job's Python loop needs a core, and its memory (``job_bytes`` > 0) of the GPU's free bytes."""
+    """How many jobs run at once on one GPU: each needs a core and ``job_bytes`` of the free memory."""
     return max(0, min(cpus, free_bytes // job_bytes))
 
 
 def jobs_at_once(n_jobs: int, sweep_jobs: int | None) -> int:
-    """Jobs the joblib launcher runs at once: ``n_jobs`` as joblib reads it (``-1``: every core), no more
-    than the sweep's jobs (``sweep_jobs``; None: unknown)."""
+    """Jobs the joblib launcher runs at once: ``n_jobs`` as joblib reads it, at most ``sweep_jobs``."""
     at_once = int(joblib.effective_n_jobs(n_jobs))
     return at_once if sweep_jobs is None else min(at_once, sweep_jobs)
 
 
 def check_jobs_fit(n_jobs: int, at_once: int, free_bytes: int, job_bytes: int) -> None:
-    """Raise :class:`GpuMemoryError` when ``at_once`` jobs of ``job_bytes`` each need more than the GPU's
-    ``free_bytes``, naming ``hydra.launcher.n_jobs`` (as given: ``n_jobs``), the jobs, the memory a job
-    needs, the free memory and how many fit."""
+    """Raise :class:`GpuMemoryError` when ``at_once`` jobs of ``job_bytes`` need more than ``free_bytes``."""
     if at_once * job_bytes <= free_bytes:
         return
     fit, need = free_bytes // job_bytes, at_once * job_bytes
@@ -67,9 +58,7 @@ def check_jobs_fit(n_jobs: int, at_once: int, free_bytes: int, job_bytes: int) -
 
 
 def free_memory() -> int:
-    """The free memory of this process's CUDA device (``torch.cuda.mem_get_info``), bytes. Measured in a
-    child process: a CUDA context created here would stay for the whole sweep, taking memory its jobs need.
-    Raises ``OSError`` when the child fails."""
+    """The GPU's free bytes, read in a child process (a CUDA context here would hold memory all sweep)."""
     done = subprocess.run([sys.executable, "-c", _FREE_MEMORY], capture_output=True, text=True, timeout=300)
     if done.returncode != 0:
         raise OSError(f"cannot read the GPU's free memory: {first_line(done.stderr) or done.returncode}")
@@ -77,8 +66,7 @@ def free_memory() -> int:
 
 
 def sweep_jobs(overrides: Sequence[str], params: Mapping[str, Any] | None = None) -> int | None:
-    """How many jobs Hydra's basic sweeper makes of the command line's ``overrides`` and its
-    ``hydra.sweeper.params``; None where it cannot tell (a sweep the basic sweeper does not expand)."""
+    """How many jobs Hydra's basic sweeper makes of ``overrides`` and ``hydra.sweeper.params``, or None."""
     given = [f"{key}={value}" for key, value in (params or {}).items()] + list(overrides)
     try:
         return len(config_checks.sweep_jobs(given))
@@ -91,23 +79,10 @@ def trains_on_cuda(accelerator: str, cuda_available: bool) -> bool:
     return accelerator in CUDA_ACCELERATORS or (accelerator == "auto" and cuda_available)
 
 
-def at_once_of(config: DictConfig) -> int:
-    """The jobs a sweep's joblib launcher runs at once (:func:`jobs_at_once`), counting the sweep's jobs
-    where the sweeper is Hydra's basic one."""
-    hydra = config.hydra
-    size = None
-    if str(hydra.sweeper.get("_target_", "")).endswith(".BasicSweeper"):
-        size = sweep_jobs([str(o) for o in hydra.overrides.task], hydra.sweeper.get("params"))
-    return jobs_at_once(int(hydra.launcher.n_jobs), size)
-
-
 class GpuJobsCheck(Callback):
-    """Before a sweep on this machine trains: a trainer asking for a CUDA GPU where there is none
-    (:func:`~lossvo.training.config_checks.check_accelerator`), and, on a GPU with the joblib launcher,
-    the jobs at once fitting its free memory (:func:`check_jobs_fit`). Either refusal ends the command in
-    one line with exit status 2 (:func:`~lossvo.console.exit_in_one_line`: Hydra turns a callback's
-    exceptions into warnings). Nothing is checked under SLURM, whose nodes are not this machine.
-    ``job_memory_gib``: the GPU memory one job needs, GiB (> 0)."""
+    """Before a sweep on this machine (not SLURM) trains: a CUDA trainer needs a GPU, and with the joblib
+    launcher the jobs at once must fit its free memory; a refusal ends the command in one line, exit
+    status 2 (Hydra turns a callback's exceptions into warnings)."""
 
     def __init__(self, job_memory_gib: float) -> None:
         self.job_memory_gib = job_memory_gib
@@ -129,5 +104,8 @@ class GpuJobsCheck(Callback):
         gib = self.job_memory_gib
         if not (isinstance(gib, (int, float)) and math.isfinite(gib) and gib > 0):
             raise UserError(f"{JOB_MEMORY_KEY}: expected a finite number > 0 (GiB), got {gib!r}")
-        n_jobs = int(config.hydra.launcher.n_jobs)
-        check_jobs_fit(n_jobs, at_once_of(config), free_memory(), int(gib * GIB))
+        hydra, size = config.hydra, None
+        if str(hydra.sweeper.get("_target_", "")).endswith(".BasicSweeper"):
+            size = sweep_jobs([str(o) for o in hydra.overrides.task], hydra.sweeper.get("params"))
+        n_jobs = int(hydra.launcher.n_jobs)
+        check_jobs_fit(n_jobs, jobs_at_once(n_jobs, size), free_memory(), int(gib * GIB))

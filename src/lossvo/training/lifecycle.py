@@ -1,13 +1,7 @@
 """A run's life in its job folder, in one place: start, resume, skip, stop, fail and finish.
 
-:func:`job` wraps the body of ``python -m lossvo.train``. Before anything is written it checks the config and,
-in a folder that already ran, that the recorded config defines the same run (:data:`RUN_KEYS`). A completed
-folder is skipped; an interrupted, killed or failed one with ``checkpoints/last.ckpt`` is resumed from it.
-:meth:`Run.start` claims the folder once everything is built; an error before that leaves no run folder
-behind (a sweep's job folder stays, marked failed). ``status.json`` is always true (running, completed,
-failed or interrupted, with the folder's history, :func:`event`). A user error ends the run in one line with
-exit status 2 (``LOSSVO_FULL_ERROR=1`` shows its traceback); any other failure keeps its traceback. The
-contract, case by case: docs/training.md.
+:func:`job` wraps the body of ``python -m lossvo.train``; ``status.json`` is always true. The contract, case
+by case: docs/training.md.
 """
 
 from __future__ import annotations
@@ -51,32 +45,27 @@ from lossvo.training.stopping import SIGNALS, InterruptedRun
 log = logging.getLogger("lossvo")
 
 UNREAD_CHECKPOINT = Path("checkpoints") / "interrupted.ckpt"
-"""A checkpoint of the weights at a stop, which no run reads (a resume continues from ``last.ckpt``);
-one found in a folder is removed when its run resumes."""
+"""The weights at a stop, which no run reads (a resume continues from ``last.ckpt``): removed on resuming."""
 
 RUN_KEYS = ("data", "model", "loss", "weighting", "selection", "seed", "optimizer", "threads")
 """Config keys that define a run: a folder whose recorded config differs in one is refused."""
 
 NOT_DEFINING = ("data.frames.cache_dir", "data.loader.num_workers")
-"""Keys under :data:`RUN_KEYS` that say where the data lies or how it is loaded, not what is trained; the
-sources' roots (``data.sources.<name>.root``) too."""
+"""Keys under :data:`RUN_KEYS` that say where the data lies or how it is loaded (so do the sources' roots)."""
 
 WITHDRAWN_KEYS = {f"data.{k}": v for k, v in WITHDRAWN.items()} | {
     f"model.{k}": v for k, v in MODEL_WITHDRAWN.items()
 }
-"""Keys an earlier version recorded that this one does not have -> the value this one runs (None: any)."""
+"""Keys an earlier version recorded -> the value this one runs (None: any)."""
 
 
 def _first_process() -> bool:
-    """Whether this is a run's first process (rank 0; Lightning sets the rank from the launcher's
-    environment): in a multi-process (DDP) run, only it writes and holds the folder."""
+    """Whether this is rank 0, the process that writes and holds the folder."""
     return getattr(rank_zero_only, "rank", 0) == 0
 
 
 def event(name: str, **details: Any) -> Event:
-    """One event of the run's history, now: what happened (started, stopped, resumed, failed,
-    completed), ``details`` (the fields of :class:`~lossvo.evaluation.job_folder.Event`) and the SLURM
-    job, if any."""
+    """One event of the run's history, now, with the SLURM job if any."""
     now = datetime.now(timezone.utc).isoformat(timespec="seconds")
     return Event(name, now, **details, **slurm_job())
 
@@ -103,9 +92,7 @@ def _defining(cfg: DictConfig | ListConfig) -> dict[str, Any]:
 
 
 def killed(out_dir: Path) -> Event:
-    """The history entry of a process that ended without a word (SIGKILL, the out-of-memory killer, a
-    lost node): its ``status.json`` still said "running" and nothing held the folder's lock. Its time
-    is the last sign of life: the latest change to ``status.json``, ``metrics.csv`` or ``last.ckpt``."""
+    """The history entry of a process that ended without a word, timed at its files' latest change."""
     files = (out_dir / STATUS, out_dir / METRICS, out_dir / LAST_CHECKPOINT)
     last = max((f.stat().st_mtime for f in files if f.is_file()), default=None)
     when = None if last is None else datetime.fromtimestamp(last, timezone.utc).isoformat(timespec="seconds")
@@ -113,8 +100,7 @@ def killed(out_dir: Path) -> Event:
 
 
 def config_drift(recorded: DictConfig | ListConfig, requested: DictConfig) -> list[str]:
-    """The run-defining keys (:data:`RUN_KEYS`) whose values differ between two configs; a key recorded by
-    an earlier version and withdrawn since (:data:`WITHDRAWN_KEYS`) does not, at the value this one runs."""
+    """The run-defining keys whose values differ between two configs (withdrawn keys at ours do not)."""
     theirs, ours = _defining(recorded), _defining(requested)
     for key, only in WITHDRAWN_KEYS.items():
         if key not in ours and key in theirs and only in (None, theirs[key]):
@@ -122,35 +108,25 @@ def config_drift(recorded: DictConfig | ListConfig, requested: DictConfig) -> li
     return sorted(k for k in theirs.keys() | ours.keys() if theirs.get(k) != ours.get(k))
 
 
-def sweep_size() -> int | None:
-    """How many jobs this sweep runs: the Optuna sweeper's ``n_trials``, or what Hydra's basic sweeper
-    expands the sweep folder's ``multirun.yaml`` into (:func:`~lossvo.training.gpu_jobs.sweep_jobs`); None
-    when unknown."""
-    hydra_cfg = HydraConfig.get()
-    trials = hydra_cfg.sweeper.get("n_trials")
-    if isinstance(trials, int):
-        return trials
-    try:
-        sweep = OmegaConf.load(Path(hydra_cfg.sweep.dir) / "multirun.yaml")
-    except OSError:  # no multirun.yaml (another launcher): the job number alone
-        return None
-    return gpu_jobs.sweep_jobs(list(sweep.hydra.overrides.task), hydra_cfg.sweeper.get("params"))
-
-
 def job_label() -> str:
-    """``"job 3/9 (loss=quat seed=0)"`` for a sweep's job, ``"run"`` for a single run."""
-    hydra_cfg = HydraConfig.get()
-    if hydra_cfg.mode != RunMode.MULTIRUN:
+    """``"job 3/9 (loss=quat seed=0)"`` for a sweep's job, ``"run"`` for a single run; the total is Optuna's
+    ``n_trials`` or the basic sweeper's expansion of ``multirun.yaml``, where known."""
+    if not _sweeping():
         return "run"
-    total = sweep_size()
+    hydra_cfg = HydraConfig.get()
+    total = hydra_cfg.sweeper.get("n_trials")
+    if not isinstance(total, int):
+        try:
+            task = list(OmegaConf.load(Path(hydra_cfg.sweep.dir) / "multirun.yaml").hydra.overrides.task)
+            total = gpu_jobs.sweep_jobs(task, hydra_cfg.sweeper.get("params"))
+        except OSError:  # no multirun.yaml (another launcher): the job number alone
+            total = None
     number = f"{hydra_cfg.job.num + 1}/{total}" if total else f"{hydra_cfg.job.num + 1}"
     return f"job {number} ({' '.join(hydra_cfg.overrides.task)})"
 
 
 def save_config(out_dir: Path, cfg: DictConfig) -> None:
-    """``.hydra/config.yaml``, ``hydra.yaml`` and ``overrides.yaml`` as Hydra writes them, written here
-    once the run is accepted, so that a refused run leaves a folder's record as it was (the train
-    config sets ``hydra.output_subdir: null``)."""
+    """``.hydra/``'s files as Hydra writes them, once the run is accepted (``hydra.output_subdir: null``)."""
     hydra_cfg = HydraConfig.get()
     folder = out_dir / ".hydra"
     files = {
@@ -164,17 +140,9 @@ def save_config(out_dir: Path, cfg: DictConfig) -> None:
 
 @dataclass
 class Run:
-    """A job folder and what this process does in it.
-
-    Attributes:
-        out_dir: the job folder. label: ``"run"`` or ``"job i/N (overrides)"``.
-        completed: the status of a completed run (the job is skipped), else None.
-        resume_from: the ``last.ckpt`` to continue from, else None (a fresh start, or ``ckpt_path``).
-        started: whether :meth:`start` claimed the folder.
-        guarded: whether this process holds the folder's lock (:mod:`lossvo.folder_lock`).
-        threads: the CPU thread count the run trains with, in every ``status.json`` it writes.
-        history: the folder's events so far (see :func:`event`), this process's appended.
-    """
+    """A job folder and what this process does in it (``completed``: the status of a completed run, which
+    is skipped; ``resume_from``: the ``last.ckpt`` to continue; ``guarded``: whether this process holds
+    the folder's lock)."""
 
     cfg: DictConfig
     out_dir: Path
@@ -188,9 +156,7 @@ class Run:
     history: list[Event] = field(default_factory=list)
 
     def start(self, resumed: Mapping[str, Any] | None = None, threads: int | None = None) -> None:
-        """Claim the folder: ``.hydra/`` and ``status.json`` "running"; ``resumed``: where a resumed run
-        continues (``{"epoch": N, "source": checkpoint}`` or ``{"stage": "evaluation", ...}``), recorded
-        in its history. A checkpoint of an earlier stop (:data:`UNREAD_CHECKPOINT`) goes."""
+        """Claim the folder; ``resumed``: where a resumed run continues (``{"epoch": N, ...}``)."""
         self.threads = threads
         self.history.append(
             event("resumed", code=code_version(), machine=machine(), **resumed)
@@ -205,14 +171,12 @@ class Run:
         self.started = True
 
     def write(self, status: str, **extra: Any) -> None:
-        """``status.json`` (in a multi-process run, the first process's): the status, the thread count,
-        ``extra`` (fields of :class:`~lossvo.evaluation.job_folder.Status`) and the history."""
+        """``status.json`` (the first process's), with ``extra`` fields of its ``Status``."""
         if _first_process():
             job_folder.write_status(self.out_dir, Status(status, tuple(self.history), self.threads, **extra))
 
     def optimized_metric(self) -> float | None:
-        """The value of ``cfg.optimized_metric`` in the metrics of the folder's ``status.json`` (a
-        completed run's); None where it has none."""
+        """``cfg.optimized_metric``'s value in the folder's ``status.json`` (a completed run's), or None."""
         status = job_folder.read_status(self.out_dir)
         value = (status.metrics or {}).get(self.cfg.get("optimized_metric")) if status else None
         return None if value is None else float(value)
@@ -223,9 +187,9 @@ def _accept(run: Run) -> None:
     cfg, out_dir = run.cfg, run.out_dir
     check_train_config(cfg)
     check_added_keys(cfg, list(HydraConfig.get().overrides.task))
-    recorded = out_dir / ".hydra" / "config.yaml"
     if run.fresh:
         return
+    recorded = out_dir / ".hydra" / "config.yaml"
     if not cfg.get("resume", True):
         raise UserError(f"{out_dir}: holds a run already (resume=false starts afresh only in a new folder: "
                         f"another hydra.run.dir or hydra.sweep.dir)")  # fmt: skip
@@ -250,53 +214,35 @@ def _sweeping() -> bool:
     return HydraConfig.get().mode == RunMode.MULTIRUN
 
 
-def _user_error(run: Run, message: str) -> BaseException:
-    """Print a user error's one line (:func:`~lossvo.console.user_error_line`: stderr and the run's log;
-    a sweep's job names itself first) and return what ends the job: exit status 2, or in a sweep a
-    :class:`~lossvo.console.JobFailedError` so that the sweep's other jobs (or a search's other trials) still
-    run."""
-    user_error_line(log, f"{run.label}: {message}" if _sweeping() else message)
-    if _sweeping():
-        return JobFailedError(run.label, message, str(HydraConfig.get().sweep.dir))
-    return SystemExit(2)
-
-
 def _end(run: Run, error: Exception, cleanup: Callable[[Run, Exception], None]) -> NoReturn:
-    """Called in an ``except`` block: a user error (:func:`~lossvo.console.user_message`) ends the job in
-    one line (:func:`_user_error`), printed before ``cleanup(run, error)`` may remove the folder its log is
-    in; any other error, or any with ``LOSSVO_FULL_ERROR=1``, is raised as it is after ``cleanup``."""
+    """In an ``except`` block: a user error ends the job in one line (printed before ``cleanup`` may remove
+    the folder its log is in) with exit status 2, or in a sweep a :class:`~lossvo.console.JobFailedError`
+    so that its other jobs still run; any other (or any with ``LOSSVO_FULL_ERROR=1``) is raised as it is."""
     message = user_message(error, run.out_dir)
     if message is None or full_error():
         cleanup(run, error)
         raise error
-    ending = _user_error(run, message)
+    user_error_line(log, f"{run.label}: {message}" if _sweeping() else message)
     cleanup(run, error)
-    raise ending from None
-
-
-def _leave(run: Run) -> None:
-    """An error before the run started: a sweep job's folder records the failure for the report; a single
-    run's folder goes as :func:`_remove_made` says."""
     if _sweeping():
-        if run.fresh:
-            run.start()
-        return
-    _remove_made(run)
+        raise JobFailedError(run.label, message, str(HydraConfig.get().sweep.dir)) from None
+    raise SystemExit(2) from None
 
 
 def _remove_made(run: Run) -> None:
-    """What a fresh run made before it was refused (its lock and log) goes: the folder too where this run
-    created it, only those files where it was given empty (:func:`~lossvo.console.remove_refused`)."""
+    """What a fresh run made before it was refused (its lock and log) goes, with the folder if it made it."""
     if run.fresh and output_folders.was_empty(run.out_dir):
         made = {folder_lock.LOCK, f"{HydraConfig.get().job.name}.log"}
         remove_refused(run.out_dir, made, keep_folder=output_folders.existed(run.out_dir))
 
 
 def _failed(run: Run, error: BaseException) -> None:
-    """Record a failure: before the run started, see :func:`_leave`; then in ``status.json`` where it
-    can be written (a full or read-only disk may refuse it too)."""
-    if not run.started:
-        _leave(run)
+    """Record a failure in ``status.json`` where it can be written. Before the run started, a sweep job's
+    folder records it for the report; a single run's goes (:func:`_remove_made`)."""
+    if not run.started and not _sweeping():
+        _remove_made(run)
+    elif not run.started and run.fresh:
+        run.start()
     if not run.started:
         return
     line = user_message(error, run.out_dir)
@@ -313,14 +259,9 @@ def _interrupted(run: Run, stop: InterruptedRun) -> None:
     if run.started:
         last = run.out_dir / LAST_CHECKPOINT
         stage = "evaluation" if stop.epoch is None else None
-        run.history.append(event("stopped", signal=stop.signal_name, epoch=stop.epoch, stage=stage))
-        run.write(
-            "interrupted",
-            signal=stop.signal_name,
-            epoch=stop.epoch,
-            stage=stage,
-            resume_from=str(last) if last.is_file() else None,
-        )
+        stopped = {"signal": stop.signal_name, "epoch": stop.epoch, "stage": stage}
+        run.history.append(event("stopped", **stopped))
+        run.write("interrupted", **stopped, resume_from=str(last) if last.is_file() else None)
     log.error(
         "%s: interrupted by %s during %s; run the same command to resume",
         run.label,
@@ -331,8 +272,7 @@ def _interrupted(run: Run, stop: InterruptedRun) -> None:
 
 @contextmanager
 def _held(run: Run) -> Iterator[None]:
-    """The folder's lock (:mod:`lossvo.folder_lock`), held by the run's first process for as long as it
-    runs in the folder; another live process there ends this one in one line, the folder untouched."""
+    """The folder's lock, held by the first process; another live process there ends this one in one line."""
     if not _first_process():
         yield
         return
@@ -351,23 +291,37 @@ def _held(run: Run) -> Iterator[None]:
 
 @contextmanager
 def job(cfg: DictConfig) -> Iterator[Run]:
-    """The run in this Hydra job's output folder, from its checks to its final ``status.json``.
-
-    The body builds and trains when ``run.completed`` is None, calling :meth:`Run.start` once all is
-    built, and raises :class:`InterruptedRun` on a signal; on leaving, ``status.json`` says "completed"
-    with the final metrics of ``metrics.csv``, or what stopped the run. The folder's lock is held
-    throughout (:func:`_held`).
-    """
+    """The run in this Hydra job's output folder, from its checks to its final ``status.json``; the body
+    builds and trains when ``run.completed`` is None, calling :meth:`Run.start` once all is built."""
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     fresh = not (out_dir / ".hydra").exists() and not (out_dir / STATUS).exists()
     run = Run(cfg, out_dir, job_label(), fresh)
     with _held(run):
-        yield from _run_in(run)
+        try:
+            _accept(run)
+        except UserError as e:
+            _end(run, e, _failed)
+        if run.completed is not None:
+            log.info("%s: already completed (resume=true): %s%s", run.label, out_dir / STATUS, _longer(run))
+            yield run
+            return
+        try:
+            with SIGNALS.installed():
+                yield run
+                run.history.append(event("completed"))
+                run.write("completed", metrics=job_folder.read_metrics(run.out_dir).final())
+        except (InterruptedRun, KeyboardInterrupt) as e:
+            stop = e if isinstance(e, InterruptedRun) else InterruptedRun("SIGINT")
+            _interrupted(run, stop)
+            raise SystemExit(stop.exit_code) from None
+        except Exception as e:
+            if user_message(e, out_dir) is None:
+                log.error("%s failed: %s: %s", run.label, type(e).__name__, e)
+            _end(run, e, _failed)
 
 
 def _longer(run: Run) -> str:
-    """What to do where a completed run is asked for more epochs than it trained (its schedule has
-    ended there, so it is not extended); empty otherwise."""
+    """What to do where a completed run is asked for more epochs than it trained; empty otherwise."""
     recorded = run.out_dir / ".hydra" / "config.yaml"
     if not recorded.is_file():
         return ""
@@ -379,29 +333,3 @@ def _longer(run: Run) -> str:
         f"; it trained {trained} epochs, and trainer.max_epochs={asked} does not extend it (its schedule "
         "ended there): train the longer run in another folder (hydra.run.dir=... or hydra.sweep.dir=...)"
     )
-
-
-def _run_in(run: Run) -> Iterator[Run]:
-    """:func:`job`'s body, in the held folder."""
-    out_dir = run.out_dir
-    try:
-        _accept(run)
-    except UserError as e:
-        _end(run, e, _failed)
-    if run.completed is not None:
-        log.info("%s: already completed (resume=true): %s%s", run.label, out_dir / STATUS, _longer(run))
-        yield run
-        return
-    try:
-        with SIGNALS.installed():
-            yield run
-            run.history.append(event("completed"))
-            run.write("completed", metrics=job_folder.read_metrics(run.out_dir).final())
-    except (InterruptedRun, KeyboardInterrupt) as e:
-        stop = e if isinstance(e, InterruptedRun) else InterruptedRun("SIGINT")
-        _interrupted(run, stop)
-        raise SystemExit(stop.exit_code) from None
-    except Exception as e:
-        if user_message(e, out_dir) is None:
-            log.error("%s failed: %s: %s", run.label, type(e).__name__, e)
-        _end(run, e, _failed)

@@ -8,8 +8,7 @@ from lightning.pytorch import loggers
 
 
 class WandbLogger(loggers.WandbLogger):
-    """Lightning's W&B logger without the ``anonymous`` argument it always passes to ``wandb.init``: W&B
-    no longer has an anonymous mode and warns about the argument on every run."""
+    """Lightning's W&B logger without the ``anonymous`` argument (W&B warns about it on every run)."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)

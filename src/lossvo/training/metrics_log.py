@@ -1,10 +1,5 @@
-"""``metrics.csv`` as a run writes it: Lightning's CSV logger, only ever appending, and the file's rows
-when a run continues a checkpoint.
-
-Lightning's CSV logger deletes a ``metrics.csv`` it finds in its folder; :class:`CSVLogger` keeps it and
-appends (:func:`lossvo.evaluation.job_folder.append_metrics`), so a resumed run (or one stopped after its
-last epoch and run again) keeps every row already written. The file's contract:
-:class:`lossvo.evaluation.job_folder.MetricsTable`.
+"""``metrics.csv`` as a run writes it: Lightning's CSV logger appending to the file it finds (instead of
+deleting it), and the file's rows when a run continues a checkpoint.
 """
 
 from __future__ import annotations
@@ -21,8 +16,7 @@ from lossvo.evaluation.job_folder import MetricsTable
 
 
 class AppendingWriter(ExperimentWriter):
-    """Lightning's experiment writer, keeping the ``metrics.csv`` it finds: new rows are appended, and a
-    new column rewrites the file atomically with every row it held."""
+    """Lightning's experiment writer appending to the ``metrics.csv`` it finds (a new column rewrites it)."""
 
     def _check_log_dir_exists(self) -> None:  # Lightning's deletes metrics.csv here
         self.metrics_keys = list(job_folder.read_metrics(Path(self.log_dir)).header)
@@ -47,22 +41,16 @@ class CSVLogger(LightningCSVLogger):
 
 
 def _before(row: dict[str, str], last_epoch: int, global_step: int) -> bool:
-    """Whether a row was logged before a checkpoint of ``last_epoch`` (0-based) at ``global_step``: rows
-    of later epochs, and rows without an epoch (the learning rate) at or after that step, come again."""
+    """Whether a row was logged before a checkpoint of ``last_epoch`` (0-based) at ``global_step``."""
     if row.get("epoch"):
         return int(float(row["epoch"])) <= last_epoch
     return bool(row.get("step")) and int(float(row["step"])) < global_step
 
 
 def continue_history(folder: Path, source: Path, last_epoch: int, global_step: int) -> None:
-    """Prepare ``folder``'s ``metrics.csv`` for a run that continues a checkpoint of ``last_epoch``
-    (-1: none) at ``global_step``.
-
-    ``source`` is the checkpoint's job folder. In the same folder, rows of an epoch that never reached a
-    checkpoint (a stop between the logger's write and the checkpoint's) are replaced, as that epoch runs
-    again, and so is a row cut short; every other row stays. In a new folder, the source's rows up to
-    the checkpoint are written first, so that the file holds every epoch once.
-    """
+    """Prepare ``folder``'s ``metrics.csv`` for a run continuing a checkpoint of ``last_epoch`` (-1: none) in
+    ``source``: rows after the checkpoint (or cut short) go, as their epoch runs again; a new folder starts
+    with the source's rows up to the checkpoint, so the file holds every epoch once."""
     table = job_folder.read_metrics(source)
     kept = tuple(row for row in table.rows if _before(row, last_epoch, global_step))
     path = folder / job_folder.METRICS

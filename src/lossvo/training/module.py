@@ -1,12 +1,5 @@
-"""The LightningModule: a VO network trained with one pose loss.
-
-Built from plain config dictionaries (Hydra ``_target_`` style), which are its hyperparameters: a
-checkpoint holds only primitives, reloads with torch's default ``weights_only`` and
-``VOModule.load_from_checkpoint(path)`` rebuilds the network and loss without Hydra. Every key the loss
-returns is logged per epoch as ``train/<key>`` and ``val/<key>``; validation also logs the selection
-score ``val/score`` (:mod:`lossvo.training.selection`), on steps scaled as evaluation scores them where
-the loss has no metric scale. Checkpoints also record the training data
-(:mod:`lossvo.evaluation.checkpoints`).
+"""The LightningModule: a VO network trained with one pose loss, built from plain config dictionaries (its
+hyperparameters, so ``VOModule.load_from_checkpoint(path)`` needs no Hydra). Logging: docs/training.md.
 """
 
 from __future__ import annotations
@@ -48,19 +41,11 @@ class VOModule(L.LightningModule):
     """A visual-odometry network and its pose loss.
 
     Args:
-        model: config of the network (``_target_`` and arguments), e.g. :class:`lossvo.models.DeepVO`;
-            it maps the batch entries its ``INPUTS`` names (``("frames",)`` if it names none: frames
-            (B, L, 3, H, W)) to outputs (B, L-1, loss.dim).
+        model: config of the network; it maps the batch entries it names to outputs (B, L-1, loss.dim).
         loss: config of a :class:`lossvo.losses.PoseLoss`.
-        optimizer: config of a partial optimiser (``_partial_: true``), called with the parameters.
-        scheduler: optional config of a partial LR scheduler, called with the optimiser; stepped per
-            epoch and given the ``monitor`` metric when it needs one (ReduceLROnPlateau).
+        optimizer, scheduler: configs of a partial optimiser and (optional) LR scheduler, stepped per epoch.
         monitor: the selection metric (``selection.monitor``): ``val/score`` or ``val/loss``.
-        compile: how the training step's forward pass and loss run
-            (:func:`lossvo.training.step.compile_mode`); an execution setting that checkpoints omit.
-
-    A training step synchronises nothing with the host (:mod:`lossvo.training.step`): the epoch's record
-    is read at its end, its means logged, and a non-finite loss stops the run naming its step and term.
+        compile: :func:`lossvo.training.step.compile_mode`'s setting; checkpoints omit it.
     """
 
     def __init__(
@@ -87,20 +72,15 @@ class VOModule(L.LightningModule):
         self._epoch_start = 0  # the global step of the epoch's first step
 
     def forward(self, batch: Mapping[str, Tensor]) -> Tensor:
-        """Network output (B, L-1, dim) for a batch of windows (:mod:`lossvo.data.datamodules`), of which
-        it reads the entries the network names (:func:`lossvo.models.apply`)."""
+        """Network output (B, L-1, dim) for a batch of windows."""
         return models.apply(self.model, batch)
 
     def decode(self, pred: Tensor) -> Tensor:
         """Relative poses (..., 4, 4) from network outputs (..., dim)."""
         return self.loss.decode(pred)
 
-    # -- checkpoints ----------------------------------------------------------------------------------
-
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
-        """Record how the network is trained (:func:`lossvo.evaluation.checkpoints.describe`: the
-        datamodule's description of the data, or the one this module was loaded with) and the random
-        streams (``checkpoint["rng"]``), which a resumed fit restores (Lightning restores the rest)."""
+        """Record how the network is trained (its data description) and the random streams."""
         datamodule = getattr(self.trainer, "datamodule", None)
         description = getattr(datamodule, "description", None)
         describe(checkpoint, description() if callable(description) else self.data)
@@ -116,26 +96,17 @@ class VOModule(L.LightningModule):
         self._train_losses = compiled(self.losses, self._mode)
 
     def on_train_start(self) -> None:
-        """On resuming a fit: the random streams as they were when the checkpoint was written, and a
-        schedule whose length grew (``trainer.max_epochs`` raised) continued at its current epoch."""
+        """On resuming: the checkpoint's random streams, and a cosine schedule that grew continued."""
         if self._resumed_rng:
             random_streams.restore(self._resumed_rng)
             self._resumed_rng = None
         for config in self.trainer.lr_scheduler_configs:
             extend_cosine(config.scheduler, (self.hparams["scheduler"] or {}).get("T_max"))
 
-    # -- steps ----------------------------------------------------------------------------------------
-
     def losses(
         self, inputs: Mapping[str, Tensor], targets: Tensor, metric: Tensor | None = None
     ) -> tuple[Tensor, Tensor]:
-        """The training loss (scalar) of a batch and its record row (:func:`lossvo.training.step.step_row`).
-
-        Args:
-            inputs: the batch's entries the network reads; targets: (B, L-1, 4, 4) relative poses;
-            metric: (B,) bool, whether each window's platform gives metric scale a cue (the loss's
-                ``translation="cue"`` reads it).
-        """
+        """The training loss (scalar) of a batch and its record row; targets (B, L-1, 4, 4), metric (B,)."""
         pred = self(inputs)
         out = self.loss(pred, targets, metric)
         return out["loss"], step_row(out, pred, targets.shape[0] * targets.shape[1])
@@ -169,7 +140,7 @@ class VOModule(L.LightningModule):
             self._close_epoch()
 
     def _last_step(self, batch_idx: int) -> bool:
-        """Whether this is the epoch's last training step (its record is read after it)."""
+        """Whether this is the epoch's last training step."""
         trainer = self.trainer
         max_steps = trainer.max_steps if trainer.max_steps is not None else -1
         return (
@@ -245,8 +216,6 @@ class VOModule(L.LightningModule):
 
     def test_step(self, batch: Mapping[str, Tensor], batch_idx: int) -> Tensor:
         return self._step(batch, "test")
-
-    # -- optimisation ---------------------------------------------------------------------------------
 
     def configure_optimizers(self) -> Any:
         config = self.hparams["optimizer"]

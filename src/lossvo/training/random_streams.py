@@ -1,10 +1,5 @@
-"""The process's random streams (Python, NumPy, torch CPU and CUDA) as checkpoint primitives, and back.
-
-Lightning restores weights, optimiser, schedulers and loop counters when a fit resumes, but not the
-random streams that draw dropout masks and augmentations; these two functions make a resumed run draw
-what an uninterrupted one would. Everything is a tensor, a list or a number, so a checkpoint holding it
-still loads with torch's default ``weights_only``.
-"""
+"""The process's random streams (Python, NumPy, torch CPU and CUDA) as ``weights_only`` checkpoint
+primitives, and back, so that a resumed run draws what an uninterrupted one would (Lightning does not)."""
 
 from __future__ import annotations
 

@@ -1,13 +1,4 @@
-"""The OmegaConf resolvers lossvo's configs use; the entry points register them (:func:`register`).
-
-- ``dim_of``, ``identity_of``: a loss class's head size and its no-motion output (the model's ``out_dim``
-  and ``head_bias`` interpolate them);
-- ``matched_k``, ``paper_k``: ``weighting=matched`` and ``weighting=paper``'s k
-  (:func:`lossvo.weighting.preset_k`);
-- ``path_safe``: a folder name from overrides, short and pasteable into an override; ``job_name``: a
-  sweep job's folder name, the swept keys first (:func:`job_name`);
-- ``sqlite_storage``: an SQLite URL for an Optuna study, its folder created first.
-"""
+"""The OmegaConf resolvers lossvo's configs use (:data:`RESOLVERS`), registered by :func:`register`."""
 
 from __future__ import annotations
 
@@ -26,11 +17,10 @@ from omegaconf import ListConfig, OmegaConf
 from lossvo import weighting
 
 PATH_SAFE = str.maketrans("/=,", "_-+", " '\"[]{}()")
-"""Characters of overrides that Hydra's override grammar does not take unquoted (or that would nest
-folders), and what they become in a job folder's name."""
+"""Characters that Hydra's override grammar does not take unquoted (or would nest folders), replaced."""
 
 MAX_NAME = 64
-"""Longest folder name :func:`path_safe` returns (file systems allow 255 bytes a name)."""
+"""Longest folder name :func:`path_safe` returns."""
 
 
 def dim_of(target: str) -> int:
@@ -54,10 +44,8 @@ def paper_k(target: str) -> float | None:
 
 
 def path_safe(text: str) -> str:
-    """A sweep job's folder name from its overrides, e.g. ``loss-euler+seed-0``, that can be pasted
-    unquoted into an override (``ckpt_path=.../0_loss-euler+seed-0/checkpoints/best.ckpt``). A name
-    longer than :data:`MAX_NAME` keeps its beginning and ends in a hash of the whole (``-h`` and 10 hex
-    digits): stable for the same overrides, and the full overrides stay in ``.hydra/overrides.yaml``."""
+    """A folder name from overrides, e.g. ``loss-euler+seed-0``, pasteable unquoted into an override; a
+    longer one than :data:`MAX_NAME` keeps its beginning and ends in ``-h`` and 10 hex digits of a hash."""
     name = str(text).translate(PATH_SAFE)
     if len(name) <= MAX_NAME:
         return name
@@ -66,13 +54,11 @@ def path_safe(text: str) -> str:
 
 
 SWEPT_KEYS = "LOSSVO_SWEPT_KEYS"
-"""The environment variable holding the keys a multirun's command line sweeps (``loss`` in
-``-m loss=euler,chordal``), comma-separated, for :func:`job_name` in the launched jobs."""
+"""The environment variable holding the keys a multirun's command line sweeps, comma-separated."""
 
 
 def swept_keys(argv: Sequence[str]) -> list[str]:
-    """The keys of a command line's sweep overrides (``loss=euler,chordal``, ``seed=range(3)``), sorted;
-    arguments that are no override, or do not parse, are skipped (Hydra reports them)."""
+    """The keys of a command line's sweep overrides, sorted; what does not parse is skipped (Hydra says)."""
     parser = OverridesParser.create()
     keys = set()
     for arg in argv:
@@ -88,8 +74,7 @@ def swept_keys(argv: Sequence[str]) -> list[str]:
 
 
 def names_swept_jobs(main: Callable[[], Any]) -> Callable[[], Any]:
-    """A Hydra entry point that records the keys its command line sweeps (:func:`swept_keys`) in
-    :data:`SWEPT_KEYS` for the jobs it launches (child processes inherit it) to name their folders."""
+    """A Hydra entry point recording its command line's swept keys in :data:`SWEPT_KEYS` for its jobs."""
 
     @functools.wraps(main)
     def wrapped() -> Any:
@@ -100,10 +85,8 @@ def names_swept_jobs(main: Callable[[], Any]) -> Callable[[], Any]:
 
 
 def job_name(overrides: Sequence[str], swept: str = "", exclude: Sequence[str] = ()) -> str:
-    """A sweep job's folder name from its overrides (``hydra.overrides.task``): the swept keys first
-    (``swept``, comma-separated: the ones that differ between the sweep's jobs), then the others, each
-    group sorted, without the ``exclude`` keys, made short and pasteable by :func:`path_safe`, e.g.
-    ``loss-euler+data.splits.test-07+data.splits.unseen-11+trainer.max_epochs-1``."""
+    """A sweep job's folder name from its overrides: the ``swept`` keys (comma-separated) first, then the
+    others, each group sorted, without ``exclude``, through :func:`path_safe`."""
     first = set(swept.split(",")) - {""}
     lines = [
         o.input_line or ""
@@ -117,28 +100,20 @@ def job_name(overrides: Sequence[str], swept: str = "", exclude: Sequence[str] =
 
 
 def sweep_group(mode: Any, sweep_dir: str) -> str | None:
-    """A logger's group of runs (W&B's ``group``): the sweep folder in a sweep (``mode``: Hydra's
-    ``${hydra:mode}``), none for a single run."""
+    """A logger's group of runs: the sweep folder in a sweep (``mode``: ``${hydra:mode}``), else None."""
     return sweep_dir if str(mode).endswith("MULTIRUN") else None
 
 
 def sqlite_storage(path: str) -> str:
-    """An SQLite URL for an Optuna study stored at ``path``, whose folder is created first (the sweep
-    folder does not exist yet when the sweeper opens its study)."""
+    """An SQLite URL for ``path``, its folder created first (the sweeper opens it before the sweep folder)."""
     db = Path(path).expanduser().resolve()
     db.parent.mkdir(parents=True, exist_ok=True)
     return f"sqlite:///{db}"
 
 
 RESOLVERS: dict[str, Callable[..., Any]] = {
-    "dim_of": dim_of,
-    "identity_of": identity_of,
-    "matched_k": matched_k,
-    "paper_k": paper_k,
-    "path_safe": path_safe,
-    "job_name": job_name,
-    "sqlite_storage": sqlite_storage,
-    "sweep_group": sweep_group,
+    f.__name__: f
+    for f in (dim_of, identity_of, matched_k, paper_k, path_safe, job_name, sqlite_storage, sweep_group)
 }
 
 

@@ -1,10 +1,5 @@
-"""Learning-rate schedules across a resume that extends a run.
-
-A resumed fit restores its scheduler's state, including the length of a cosine schedule, so raising
-``trainer.max_epochs`` on a finished run would keep training at the final (minimum) learning rate.
-:func:`extend_cosine` gives the restored schedule the configured length instead and sets the learning
-rate to that schedule's value at the current epoch: extending an N-epoch run to M epochs continues as if
-it had been an M-epoch run from the start (from the weights the N-epoch schedule produced).
+"""Learning-rate schedules across a resume that extends a run: an N-epoch cosine schedule extended to M
+epochs continues as if it had been M epochs from the start.
 """
 
 from __future__ import annotations
@@ -18,8 +13,7 @@ log = logging.getLogger("lossvo")
 
 
 def extend_cosine(scheduler: Any, t_max: Any) -> bool:
-    """Give a restored ``CosineAnnealingLR`` the configured length ``t_max`` (epochs) if it differs;
-    returns whether it changed. Other schedulers, or a ``t_max`` that is not an integer, are left alone."""
+    """Give a restored ``CosineAnnealingLR`` the configured length ``t_max`` (epochs); whether it changed."""
     if not isinstance(scheduler, CosineAnnealingLR) or not isinstance(t_max, int) or t_max == scheduler.T_max:
         return False
     old = scheduler.T_max

@@ -1,16 +1,6 @@
-"""A hyperparameter search space written in Hydra's sweep syntax, as Optuna distributions.
-
-``hydra.sweeper.params`` and the command line's overrides of ``hparams_search`` hold one override per
-key. Sweeps become distributions, plain values fixed overrides:
-
-- ``choice(a, b, ...)``: :class:`~optuna.distributions.CategoricalDistribution`;
-- ``interval(low, high)``: :class:`~optuna.distributions.FloatDistribution` (Hydra reads an interval's
-  ends as floats); ``tag(log, interval(...))`` draws on a log scale;
-- ``range(start, stop, step)``: :class:`~optuna.distributions.IntDistribution` (a
-  :class:`~optuna.distributions.FloatDistribution` with a step where any bound is a float) from ``start``
-  to ``stop`` inclusive in steps of ``step``; ``shuffle(range(...))``: the same values, sorted, as
-  categories;
-- anything else (``loss=euler``): fixed, passed to every trial as it is written.
+"""A hyperparameter search space written in Hydra's sweep syntax, as Optuna distributions: ``choice``,
+``interval`` (``tag(log, ...)``: log scale), ``range`` (inclusive) and ``shuffle(range)`` (categories); any
+other override is fixed. The table: docs/sweep.md.
 """
 
 from __future__ import annotations
@@ -31,12 +21,12 @@ from optuna.distributions import (
 from lossvo.console import UserError, first_line
 
 CHOICE_TYPES = (str, int, float, bool, type(None))
-"""The types a ``choice`` may hold (Optuna's categorical choices)."""
+"""The types a ``choice`` may hold (Optuna's categories)."""
 
 
 def distribution_of(override: Override) -> BaseDistribution | str:
-    """The distribution of a sweep override, or the value of a plain override as written. Raises
-    UserError naming the override's key where the sweep is not one a search space can hold."""
+    """The distribution of a sweep override, or a plain override's value as written; UserError naming the
+    key of a sweep no search space holds."""
     key = override.get_key_element()
     if not override.is_sweep_override():
         return str(override.get_value_element_as_str())
@@ -89,9 +79,8 @@ def _parse_error(error: HydraException) -> str:
 
 
 def parse(overrides: Sequence[str]) -> tuple[dict[str, BaseDistribution], dict[str, str]]:
-    """The search space (key -> distribution, in the order given) and the fixed overrides (key -> value
-    as written) of ``KEY=VALUE`` overrides; a key given twice keeps its last value. Raises UserError in
-    one line naming the key of a sweep that is no search space or an override that does not parse."""
+    """The search space (key -> distribution) and fixed overrides (key -> value as written) of overrides,
+    a key given twice at its last value; UserError (one line) naming the key of a bad one."""
     parser = OverridesParser.create()
     space: dict[str, BaseDistribution] = {}
     fixed: dict[str, str] = {}

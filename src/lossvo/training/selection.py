@@ -1,15 +1,7 @@
-"""The loss-independent validation score that selects checkpoints (config group ``selection``).
-
-A loss's own ``val/loss`` weighs rotation by its own k, so it ranks epochs differently for each loss.
-``val/score`` is built from the yardsticks every loss reports on its decoded poses, each relative to
-predicting no motion on the same validation pairs:
+"""The loss-independent validation score that selects checkpoints (config group ``selection``), summed over
+every validation frame pair (t, R the target, t^, R^ the prediction; docs/fair-comparison.md):
 
     score = ( sum |t - t^| / sum |t|  +  sum angle(R^T R^) / sum angle(R) ) / 2
-
-summed over every validation frame pair (t, R the target, t^, R^ the prediction): 1 is the error of
-predicting no motion, 0 a perfect prediction; unitless. ``selection=loss`` monitors ``val/loss`` instead, to
-reproduce the study. The maths is :func:`selection_score`; :class:`SelectionScore` is its torchmetrics
-wrapper (sum states, reduced across processes).
 """
 
 from __future__ import annotations
@@ -24,11 +16,7 @@ SCORE_KEY = "val/score"
 
 
 def _sums(pred: Tensor, target: Tensor) -> Tensor:
-    """(4,) float64 sums over pairs: translation error, rotation error, |t|, angle(R).
-
-    Args:
-        pred, target: (..., 4, 4) predicted and target relative poses.
-    """
+    """(4,) float64 sums over (..., 4, 4) pairs: translation error, rotation error, |t|, angle(R)."""
     pred, target = pred.double(), target.double()
     trans_err = torch.linalg.vector_norm(pred[..., :3, 3] - target[..., :3, 3], dim=-1)
     rot_err = g.so3_geodesic_distance(target[..., :3, :3], pred[..., :3, :3])
@@ -44,14 +32,8 @@ def _score(sums: Tensor) -> Tensor:
 
 
 def selection_score(pred: Tensor, target: Tensor) -> Tensor:
-    """Mean of the translation and rotation errors relative to no motion (scalar, float64).
-
-    Args:
-        pred: (..., 4, 4) predicted relative poses (decoded network outputs).
-        target: (..., 4, 4) target relative poses.
-    Returns:
-        0 for a perfect prediction, 1 for predicting the identity everywhere.
-    """
+    """Mean of the translation and rotation errors relative to no motion (scalar, float64) of (..., 4, 4)
+    relative poses: 0 for a perfect prediction, 1 for the identity everywhere."""
     return _score(_sums(pred, target))
 
 

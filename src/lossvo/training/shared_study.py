@@ -1,17 +1,5 @@
-"""An Optuna study that several workers share: ``hparams_search=k_search`` run by two or more processes with
-the same study name and storage, on Optuna's public API (ask and tell).
-
-- :func:`open_storage`: an RDB storage (SQLite, MariaDB, MySQL, PostgreSQL) from an SQLAlchemy URL, or a
-  journal file from a path.
-- :class:`Heartbeats` and :func:`fail_stale_trials`: each worker stamps its running trials every
-  ``heartbeat_interval`` s (Unix seconds, a user attribute) and, before asking for a trial, marks FAIL the
-  running trials whose stamp is more than ``grace_period`` s old (their worker was killed).
-- :class:`TrialSeededTPESampler`: TPE drawing trial number k from ``SeedSequence([seed, k])``.
-- :func:`check_study`: records the search in a new study and refuses, in one line, a different search under
-  the same name.
-
-Storages, clocks and restarts: docs/sweep.md.
-"""
+"""An Optuna study that several workers share: its storage, heartbeats of running trials, a per-trial
+seeded TPE sampler, and the search a study was created for (docs/sweep.md)."""
 
 from __future__ import annotations
 
@@ -45,9 +33,6 @@ HEARTBEAT_ATTR = "lossvo_heartbeat"
 """The trial's user attribute holding its worker's last heartbeat, in Unix seconds (:class:`Heartbeats`)."""
 
 
-# -- the storage -----------------------------------------------------------------------------------
-
-
 def shown_url(url: str) -> str:
     """A storage URL with its password hidden (a URL that does not parse, or a path, as it is)."""
     try:
@@ -57,31 +42,24 @@ def shown_url(url: str) -> str:
 
 
 def open_storage(url: str) -> BaseStorage:
-    """The storage at ``url``: an SQLAlchemy URL (``sqlite:///...``, ``mysql+pymysql://...``) opens an
-    RDB, its tables created where new; anything else is the path of a journal file, created where new.
-    Raises UserError (one line naming ``hydra.sweeper.storage.url``) where it cannot be opened."""
+    """The RDB storage at an SQLAlchemy ``url``, or the journal file at a path; created where new. UserError
+    naming ``hydra.sweeper.storage.url`` where it cannot be opened."""
     try:
         if "://" not in url:
             return JournalStorage(JournalFileBackend(str(Path(url).expanduser())))
-        for attempt in range(3):  # workers started together on a new database race to create its tables
+        for _ in range(2):  # workers started together on a new database race to create its tables
             try:
                 return RDBStorage(url)
             except (SQLAlchemyError, StorageInternalError):
-                if attempt == 2:
-                    raise
                 time.sleep(1.0)
-        raise AssertionError("unreachable")
+        return RDBStorage(url)
     except (SQLAlchemyError, StorageInternalError, ImportError, OSError) as e:
         raise UserError(f"hydra.sweeper.storage.url: cannot open {shown_url(url)}: {first_line(e)}") from e
 
 
-# -- heartbeats and stale trials -------------------------------------------------------------------
-
-
 class Heartbeats:
-    """The heartbeats of a worker's running trials: the time (Unix seconds) written into each trial's
-    :data:`HEARTBEAT_ATTR` when it is added and then every ``interval`` seconds (a daemon thread), until
-    it is discarded. A failed write is logged and tried again at the next beat."""
+    """The heartbeats of a worker's running trials: the time written into each trial's :data:`HEARTBEAT_ATTR`
+    when added and every ``interval`` seconds (a daemon thread) until discarded; a failed write is logged."""
 
     def __init__(self, interval: float) -> None:
         self.interval = interval
@@ -118,9 +96,7 @@ class Heartbeats:
 
 
 def fail_stale_trials(study: Study, grace_period: float) -> list[int]:
-    """Mark FAIL the running trials of ``study`` whose last heartbeat is more than ``grace_period``
-    seconds old (their worker is gone; a trial without a heartbeat is left alone); the numbers of the
-    trials this call failed, each logged."""
+    """Mark FAIL (and return) the running trials whose last heartbeat is over ``grace_period`` s old."""
     now = time.time()
     failed = []
     for trial in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,)):
@@ -136,22 +112,16 @@ def fail_stale_trials(study: Study, grace_period: float) -> list[int]:
     return failed
 
 
-# -- the sampler -----------------------------------------------------------------------------------
-
-
 def _seed_of(seed: int | None, number: int) -> int | None:
-    """The seed of trial number ``number``'s sampler: ``SeedSequence([seed, number])``'s first word."""
+    """Trial ``number``'s sampler seed: ``SeedSequence([seed, number])``'s first word."""
     if seed is None:
         return None
     return int(np.random.SeedSequence([seed, number]).generate_state(1)[0])
 
 
 class TrialSeededTPESampler(BaseSampler):
-    """Optuna's TPE sampler (keyword arguments as :class:`optuna.samplers.TPESampler`'s) whose draws for
-    trial number k come from a TPE sampler seeded with ``SeedSequence([seed, k])``: reproducible for a
-    trial number, and different for every trial of a study, also across workers and restarts (a worker
-    seeded once would repeat its first draws after a restart, and two workers seeded alike would draw the
-    same parameters). ``seed=None``: unseeded."""
+    """Optuna's TPE sampler drawing trial number k from one seeded with ``SeedSequence([seed, k])``: the same
+    for a trial number, different across the study's trials, workers and restarts (docs/sweep.md)."""
 
     def __init__(self, seed: int | None = None, **tpe: Any) -> None:
         self._seed = seed
@@ -190,14 +160,10 @@ class TrialSeededTPESampler(BaseSampler):
         self._samplers.pop(trial.number, None)
 
 
-# -- the search a study was created for ------------------------------------------------------------
-
-
 def search_of(
     directions: Sequence[str], space: dict[str, BaseDistribution], fixed: dict[str, str]
 ) -> dict[str, Any]:
-    """The search a sweep runs, as a study records it: its directions (``minimize``, ``maximize``), its
-    search space (the JSON of each distribution) and its fixed overrides, keys sorted."""
+    """The search a sweep runs, as a study records it: directions, space (as JSON) and fixed overrides."""
     return {
         "directions": [d.lower() for d in directions],
         "space": {name: distribution_to_json(space[name]) for name in sorted(space)},
@@ -214,27 +180,21 @@ def difference(recorded: dict[str, Any], wanted: dict[str, Any]) -> str | None:
     if recorded["directions"] != wanted["directions"]:
         return f"its direction is {', '.join(recorded['directions'])}, not {', '.join(wanted['directions'])}"
     old, new = recorded["space"], wanted["space"]
-    if old != new:
-        names = sorted(name for name in old.keys() | new.keys() if old.get(name) != new.get(name))
+    names = sorted(name for name in old.keys() | new.keys() if old.get(name) != new.get(name))
+    if names:
         return (
             f"it searches {_space_text(old, [n for n in names if n in old])}, "
             f"not {_space_text(new, [n for n in names if n in new])}"
         )
     old, new = recorded["fixed"], wanted["fixed"]
-    if old != new:
-        names = sorted(name for name in old.keys() | new.keys() if old.get(name) != new.get(name))
-        shown = [
-            (f"{n}={old[n]}" if n in old else f"no {n}", f"{n}={new[n]}" if n in new else f"no {n}")
-            for n in names
-        ]
-        return f"it runs with {' '.join(o for o, _ in shown)}, not {' '.join(n for _, n in shown)}"
-    return None
+    names = sorted(name for name in old.keys() | new.keys() if old.get(name) != new.get(name))
+    shown = [" ".join(f"{n}={d[n]}" if n in d else f"no {n}" for n in names) for d in (old, new)]
+    return f"it runs with {shown[0]}, not {shown[1]}" if names else None
 
 
 def check_study(url: str, name: str, wanted: dict[str, Any], storage: BaseStorage | None = None) -> None:
-    """Record the search ``wanted`` (:func:`search_of`) in the study ``name`` at ``url`` (through
-    ``storage``, else a storage opened here; the study created if new), or raise UserError (one line)
-    where the study was created for another search or the storage cannot be opened."""
+    """Record the search ``wanted`` in the study ``name`` at ``url`` (created if new; through ``storage``
+    if given), or raise UserError where it was created for another search."""
     opened = open_storage(url) if storage is None else storage
     try:
         try:

@@ -1,10 +1,5 @@
-"""SLURM: the checks before a sweep submits to it, and the environment Lightning trains in there.
-
-:class:`ClusterCheck` is a Hydra callback (``hydra.callbacks.slurm`` in the train config). When the sweep's
-launcher is Hydra's submitit SLURM launcher it checks, before anything is submitted, that a job has a task
-per device, that a cluster answers (``sbatch`` on the PATH, ``scontrol ping``) and that the partition and
-account the launcher asks for exist; each refusal is one line with exit status 2. Hydra turns a
-callback's exceptions into warnings, so the callback ends the command itself.
+"""SLURM: the checks before a sweep submits to it (:class:`ClusterCheck`), and the environment Lightning
+trains in there (docs/training.md).
 """
 
 from __future__ import annotations
@@ -45,7 +40,7 @@ def check_reachable() -> None:
 
 
 def check_partition(partition: str | None) -> None:
-    """Every partition of ``hydra.launcher.partition`` (a comma list) is one of the cluster's."""
+    """Every partition of ``hydra.launcher.partition`` (a comma list) exists."""
     if not partition:
         return
     known = set(_query("sinfo", "-h", "-o", "%R").stdout.split())
@@ -59,8 +54,7 @@ def check_partition(partition: str | None) -> None:
 
 
 def check_account(account: str | None) -> None:
-    """``hydra.launcher.account`` is one of the accounting database's accounts (unchecked where the
-    cluster keeps no accounting: ``sacctmgr`` fails)."""
+    """``hydra.launcher.account`` exists (unchecked where ``sacctmgr`` fails: no accounting)."""
     if not account:
         return
     listed = _query("sacctmgr", "-n", "-P", "show", "account", "format=account")
@@ -73,9 +67,7 @@ def check_account(account: str | None) -> None:
 
 
 def check_tasks(launcher: DictConfig, trainer: DictConfig) -> None:
-    """Under SLURM, ``srun`` starts one process per device and Lightning takes them instead of spawning
-    its own: ``hydra.launcher.tasks_per_node`` must equal the trainer's devices a node (``-1``: the job's
-    ``gpus_per_node``)."""
+    """``hydra.launcher.tasks_per_node`` equals the trainer's devices a node (srun starts one per device)."""
     devices, tasks = trainer.get("devices", 1), launcher.get("tasks_per_node", 1)
     if devices in (-1, "-1", "auto"):
         devices = launcher.get("gpus_per_node") or 1
@@ -87,31 +79,25 @@ def check_tasks(launcher: DictConfig, trainer: DictConfig) -> None:
         )
 
 
-def check_cluster(launcher: DictConfig, trainer: DictConfig) -> None:
-    """The checks for a SLURM launcher's config, in order; raises :class:`ClusterError`."""
-    check_tasks(launcher, trainer)
-    check_reachable()
-    check_partition(launcher.get("partition"))
-    check_account(launcher.get("account"))
-
-
 class ClusterCheck(Callback):
-    """Before a sweep with the SLURM launcher submits: :func:`check_cluster`, ending the command in one
-    line (``error: ...``) with exit status 2 when it fails (:func:`~lossvo.console.exit_in_one_line`)."""
+    """Before a sweep with the SLURM launcher submits: tasks per device, a cluster answering, the partition
+    and account existing; a refusal ends the command in one line with exit status 2."""
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         launcher = config.hydra.launcher
         if launcher.get("_target_") != SLURM_LAUNCHER:
             return
         try:
-            check_cluster(launcher, config.trainer)
+            check_tasks(launcher, config.trainer)
+            check_reachable()
+            check_partition(launcher.get("partition"))
+            check_account(launcher.get("account"))
         except (ClusterError, OSError, subprocess.TimeoutExpired) as e:
             exit_in_one_line(e)
 
 
 def slurm_job() -> dict[str, Any]:
-    """The SLURM job this process runs in: ``{"slurm_job": "12_0", "slurm_restarts": 1}`` (an array
-    task as sacct names it; restarts: how often SLURM requeued it), or {} outside SLURM."""
+    """The SLURM job this process runs in, ``{"slurm_job": "12_0", "slurm_restarts": 1}``, or {}."""
     env = os.environ
     if "SLURM_JOB_ID" not in env:
         return {}
@@ -121,6 +107,5 @@ def slurm_job() -> dict[str, Any]:
 
 
 def lightning_environment() -> list[SLURMEnvironment]:
-    """Under SLURM, Lightning's SLURM environment without its own requeue (``auto_requeue=False``): the
-    submitit launcher owns the requeue, and a requeued job resumes from lossvo's ``last.ckpt``."""
+    """Under SLURM, Lightning's SLURM environment without its requeue (submitit's requeues)."""
     return [SLURMEnvironment(auto_requeue=False)] if SLURMEnvironment.detect() else []

@@ -1,11 +1,5 @@
 """The training step's tensors: its losses as one (optionally compiled) function, the epoch's record kept on
-the training device, and the optimiser's kernel choice.
-
-A small network on a GPU is bound by kernel launches and host synchronisations, not by arithmetic. So a
-training step here reads nothing back to the host: each step's loss terms go into a per-epoch record on
-the device (:class:`StepRecord`), which is read once, at the end of the epoch, to log the epoch means and
-to stop a run whose loss went non-finite; the forward pass and the loss can be compiled
-(:func:`compile_mode`), and the optimiser uses its fused or multi-tensor kernels (:func:`optimizer_options`).
+the training device (no host synchronisation per step) and the optimiser's kernel choice. Why: docs/gpu.md.
 """
 
 from __future__ import annotations
@@ -21,24 +15,17 @@ from torch import Tensor
 from lossvo.console import UserError
 
 COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
-"""``torch.compile`` modes (``compile=<mode>``); ``reduce-overhead`` also captures CUDA graphs."""
 AUTO_CUDA_MODE = "reduce-overhead"
-"""What ``compile=auto`` compiles with on a CUDA device (on other devices it runs eagerly)."""
+"""What ``compile=auto`` compiles with on a CUDA device (elsewhere it runs eagerly)."""
 
 
 def compile_mode(setting: bool | str | None, device: torch.device) -> str | None:
-    """The ``torch.compile`` mode of the training losses on ``device``, or None for eager execution, for
-    the ``compile`` setting: false/null (eager), true (``"default"``), ``"auto"`` (:data:`AUTO_CUDA_MODE`
-    on CUDA, eager elsewhere: on a CPU the first compilation costs more than it saves in a sweep's jobs),
-    or one of :data:`COMPILE_MODES`."""
+    """The ``torch.compile`` mode of the training losses on ``device`` for the ``compile`` setting, or
+    None for eager (``auto`` is eager on a CPU: compiling costs more than it saves in a sweep's jobs)."""
     check_compile(setting)
-    if setting is None or setting is False:
-        return None
-    if setting is True:
-        return "default"
     if setting == "auto":
         return AUTO_CUDA_MODE if device.type == "cuda" else None
-    return str(setting)
+    return "default" if setting is True else (str(setting) if setting else None)
 
 
 def check_compile(setting: Any) -> None:
@@ -50,18 +37,15 @@ def check_compile(setting: Any) -> None:
 
 
 def compiled(function: Callable[..., Any], mode: str | None) -> Callable[..., Any]:
-    """``function`` compiled by ``torch.compile`` in ``mode`` (static shapes), or itself for None."""
+    """``function`` compiled in ``mode`` (static shapes), or itself for None."""
     if mode is None:
         return function
     return torch.compile(function, mode=mode, dynamic=False)
 
 
 def optimizer_options(factory: Callable[..., Any], device: torch.device, config: Mapping[str, Any]) -> dict:
-    """Keyword arguments that pick an optimiser's fastest kernels where the config chooses none: ``fused``
-    on CUDA (one kernel for every parameter), ``foreach`` elsewhere (one call for all parameters; on a CPU
-    it gives the same numbers as the per-parameter loop, which ``fused`` does not). Empty when the config
-    sets ``fused`` or ``foreach`` itself (``config``: the optimiser's), or the optimiser (``factory``:
-    its class or a partial of it) has neither."""
+    """Keyword arguments picking an optimiser's fastest kernels where its ``config`` chooses none: ``fused``
+    on CUDA, ``foreach`` elsewhere (on a CPU it gives the per-parameter loop's numbers, ``fused`` not)."""
     if "fused" in config or "foreach" in config:
         return {}
     target = getattr(factory, "func", factory)  # a functools.partial's class
@@ -77,10 +61,8 @@ def optimizer_options(factory: Callable[..., Any], device: torch.device, config:
 
 
 class StepRecord:
-    """Each training step's loss terms, written on the training device (two kernels, no host
-    synchronisation) and copied to the host once an epoch (:meth:`rows`). A row: the loss's scalars in
-    :attr:`keys` order, whether the network's output was finite (1.0 or 0.0), the step's frame pairs.
-    ``capacity``: the most steps an epoch can have (its training batches)."""
+    """Each training step's loss terms, written on the device and copied to the host once an epoch. A row:
+    the loss's scalars in :attr:`keys` order, whether the output was finite (1.0 or 0.0), the frame pairs."""
 
     def __init__(self, capacity: int, keys: tuple[str, ...], device: torch.device) -> None:
         self.keys = keys
@@ -89,7 +71,7 @@ class StepRecord:
         self.steps = 0  # host-side count of the rows written
 
     def write(self, row: Tensor) -> None:
-        """Append a row (len(keys) + 2,) float32 on the device; grows the table when it is full."""
+        """Append a row (len(keys) + 2,) float32; the table grows when full."""
         if self.steps == len(self.table):  # more batches than announced: double (one allocation)
             self.table = torch.cat((self.table, torch.zeros_like(self.table)))
         self.table.index_copy_(0, self.count.view(1), row.view(1, -1))
@@ -102,8 +84,7 @@ class StepRecord:
 
 
 def step_row(out: Mapping[str, Tensor], pred: Tensor, pairs: int) -> Tensor:
-    """A step's record row: the loss's scalars in ``out``'s order, whether ``pred`` is finite, and the
-    number of frame pairs, as one (len(out) + 2,) float32 tensor without gradient."""
+    """A step's record row (len(out) + 2,) float32, without gradient (see :class:`StepRecord`)."""
     with torch.no_grad():
         finite = torch.isfinite(pred).all().to(torch.float32)
         values = [value.detach().to(torch.float32) for value in out.values()]
@@ -111,14 +92,8 @@ def step_row(out: Mapping[str, Tensor], pred: Tensor, pairs: int) -> Tensor:
 
 
 def epoch_means(rows: np.ndarray, width: int) -> np.ndarray:
-    """(width,) float32 means over an epoch's steps, each step weighted by its frame pairs.
-
-    Accumulates as Lightning's epoch reduction does (``total = total + value * pairs`` in float32 step by
-    step, then ``total / sum(pairs)``), so the logged numbers are the ones per-step logging gives.
-
-    Args:
-        rows: (steps, width + 2) float32 record rows (:class:`StepRecord`).
-    """
+    """(width,) float32 means over an epoch's record ``rows``, weighted by frame pairs, accumulated in
+    float32 step by step as Lightning's epoch reduction does (so the numbers equal per-step logging's)."""
     total = np.zeros(width, dtype=np.float32)
     pairs = 0
     for row in rows:  # in step order: float32 sums depend on it (a few hundred rows, once an epoch)

@@ -1,12 +1,6 @@
-"""Stopping a run on a signal: which signal stopped it, and the one exception that says so.
-
-Three signals stop a run: SIGINT (Ctrl-C), SIGTERM (``kill``, SLURM's preemption or time limit) and SIGUSR2
-(submitit's, before the time limit or on preemption). While a run runs, :data:`SIGNALS` handles them
-(:meth:`StopSignals.installed`) and records the first; :meth:`StopSignals.stop` turns each way a stop ends the
-code it interrupts into an :class:`InterruptedRun` named after that first signal (a later one, such as SLURM's
-SIGTERM after submitit's requeue, is not the cause). During a fit Lightning owns SIGTERM and ends the fit at
-its next check, calling this handler, which only records the signal; outside a fit the SIGTERM handler raises
-:class:`InterruptedRun` at once. What a stopped run leaves: docs/training.md.
+"""Stopping a run on a signal (SIGINT, SIGTERM, submitit's SIGUSR2): the first one to come, and the one
+exception that says so. During a fit Lightning owns SIGTERM (this handler only records it); outside a fit
+it raises :class:`InterruptedRun` at once. What a stopped run leaves: docs/training.md.
 """
 
 from __future__ import annotations
@@ -22,13 +16,7 @@ Handler = Callable[[int, Any], Any]
 
 
 class InterruptedRun(BaseException):
-    """A run stopped by a signal. A BaseException, as KeyboardInterrupt is: raised from a signal handler,
-    it can arise inside any code, and a library's ``except Exception`` must not swallow it.
-
-    Args:
-        signal_name: ``"SIGINT"``, ``"SIGTERM"`` or ``"SIGUSR2"``.
-        epoch: the epoch that was running, counted from 1; None when the stop came outside training.
-    """
+    """A run stopped by a signal (in ``epoch``, from 1; None outside training), raised from any code."""
 
     def __init__(self, signal_name: str, epoch: int | None = None) -> None:
         self.signal_name, self.epoch = signal_name, epoch
@@ -44,13 +32,8 @@ class InterruptedRun(BaseException):
         return 128 + int(getattr(signal, self.signal_name))
 
 
-def _is_submitit(handler: Any) -> bool:
-    return callable(handler) and "submitit" in getattr(handler, "__module__", "")
-
-
 class StopSignals:
-    """The signals that stop a run, and the first of them to come (:attr:`first`, a name such as
-    ``"SIGTERM"``; None before any)."""
+    """The signals that stop a run, and the first of them to come (:attr:`first`, e.g. ``"SIGTERM"``)."""
 
     def __init__(self) -> None:
         self.first: str | None = None
@@ -77,8 +60,7 @@ class StopSignals:
         return handler
 
     def _on_requeue(self, submitit: Handler) -> Handler:
-        """Submitit's requeue signal: submitit requeues the job and exits, and the exit becomes an
-        :class:`InterruptedRun`; a process it does not exit (a DDP rank above 0) goes on, unstopped."""
+        """Submitit's requeue signal: its exit becomes an :class:`InterruptedRun` (other ranks go on)."""
 
         def handler(signum: int, frame: Any) -> None:
             first = self._record(signum)
@@ -97,15 +79,13 @@ class StopSignals:
         if callable(sigint):  # a SIGINT ignored (a background job) stays ignored
             handlers[signal.SIGINT] = self._on_sigint(sigint)
         usr2 = signal.getsignal(signal.SIGUSR2)
-        if _is_submitit(usr2):
-            assert callable(usr2)
+        if callable(usr2) and "submitit" in getattr(usr2, "__module__", ""):
             handlers[signal.SIGUSR2] = self._on_requeue(usr2)
         return handlers
 
     @contextmanager
     def installed(self) -> Iterator[None]:
-        """The handlers in place for the block, the handlers before them restored after it (in a thread
-        other than the main one, where a signal cannot be handled, nothing is installed)."""
+        """The handlers in place for the block (none outside the main thread), the previous ones after."""
         try:
             previous = {signum: signal.signal(signum, h) for signum, h in self._handlers().items()}
         except ValueError:  # not the main thread (a launcher's worker thread)
@@ -119,12 +99,8 @@ class StopSignals:
             self.first = None
 
     def stop(self, error: BaseException, epoch: int | None = None) -> BaseException:
-        """The :class:`InterruptedRun` that ``error`` means, named after the first signal, with ``epoch``
-        (the epoch it interrupted, from 1; None outside training); any other error as it is.
-
-        A stop ends a fit as an :class:`InterruptedRun` (submitit's exit, SIGTERM outside a fit), as
-        Lightning's ``SIGTERMException``, or after a KeyboardInterrupt as Lightning's ``sys.exit(1)``.
-        """
+        """The :class:`InterruptedRun` that ``error`` means (also Lightning's ``SIGTERMException``, or its
+        ``sys.exit(1)`` after a KeyboardInterrupt), named after the first signal; any other error as it is."""
         if isinstance(error, InterruptedRun):
             name = error.signal_name
         elif isinstance(error, SIGTERMException):
