@@ -110,9 +110,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(str(err))
     progress = not args.quiet
     if progress:  # the writer's line per sequence, on stderr as the final one
-        handler = logging.StreamHandler(sys.stderr)
-        logging.getLogger(writer.__name__).addHandler(handler)
-        logging.getLogger(writer.__name__).setLevel(logging.INFO)
+        writer.log.addHandler(logging.StreamHandler(sys.stderr))
+        writer.log.setLevel(logging.INFO)
+
     start = time.perf_counter()
     try:
         out = writer.generate(

@@ -1,7 +1,6 @@
 """The town rendered into the other datasets' layouts (TUM RGB-D, EuRoC ASL, TartanAir, MIMIR), each
 exactly as lossvo's reader of that layout reads it: per layout its camera, clock, platform and files. Frames
-and ground truth are evaluated at their own stamps from one trajectory (docs/data.md, "Other layouts").
-"""
+and ground truth are evaluated at their own stamps from one trajectory (docs/data.md, "Other layouts")."""
 
 from __future__ import annotations
 

@@ -1,8 +1,7 @@
 """Platforms other than the car (handheld, flying, drone, underwater) moving along a town's route as
 continuous functions of time: the route's path travelled at the platform's own speed (a cubic spline of its
 positions, a slerp of its attitudes) plus seeded sinusoidal sway, rise, look-around and shake. Town axes
-and units (x right, y down, z forward; m, s, rad); docs/data.md, "Other layouts".
-"""
+and units (x right, y down, z forward; m, s, rad); docs/data.md, "Other layouts"."""
 
 from __future__ import annotations
 

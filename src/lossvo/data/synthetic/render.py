@@ -14,7 +14,7 @@ import numpy as np
 
 from lossvo.console import UserError
 from lossvo.data.synthetic.camera import CAMERA_HEIGHT
-from lossvo.data.synthetic.textures import MIP_TOP, TEXELS_PER_M, Atlas
+from lossvo.data.synthetic.textures import MIP_TOP, TEXELS_PER_M
 from lossvo.data.synthetic.world import World
 
 NEAR = 0.05
@@ -190,7 +190,8 @@ class Renderer:
         self.tile_luts = self._tile_luts(world)
         self.atlas = cv2.cvtColor(world.atlas.image, cv2.COLOR_RGB2BGR)
         self.noise: np.ndarray | None = None
-        self.mip_luts = self._mip_luts(world.atlas)
+        levels = (0.5 ** np.arange(MIP_TOP + 1), world.atlas.level_x, world.atlas.level_y)
+        self.mip_luts = [_lut(col) for col in levels]  # scale 2**-l and atlas offsets x, y by mip level
         self.wall_corners = self._wall_corners(world.walls)
         self.pole_corners = self._pole_corners(world.poles)
 
@@ -201,11 +202,6 @@ class Renderer:
         du, dv = np.zeros(len(x)), np.full(len(x), -CAMERA_HEIGHT * TEXELS_PER_M)
         du[0], dv[0] = world.ground_offset  # walls and poles: v = world y, tiles end at the ground
         return [_lut(col) for col in (x, y, w, h, 1 / w, 1 / h, du, dv)]
-
-    @staticmethod
-    def _mip_luts(atlas: Atlas) -> list[np.ndarray]:
-        """Per-mip-level scale 2**-l and atlas offsets x, y as cv2.LUT tables indexed by level."""
-        return [_lut(col) for col in (0.5 ** np.arange(MIP_TOP + 1), atlas.level_x, atlas.level_y)]
 
     @staticmethod
     def _wall_corners(walls: np.ndarray) -> np.ndarray:

@@ -1,6 +1,5 @@
 """Textures: procedural periodic RGB tiles ("dead leaves" patches, windows, bricks, bands, grain) for the
-ground, facades and poles, and the mip-mapped atlas that holds them; sizes in texels, TEXELS_PER_M a metre.
-"""
+ground, facades and poles, and the mip-mapped atlas that holds them; sizes in texels, TEXELS_PER_M a metre."""
 
 from __future__ import annotations
 

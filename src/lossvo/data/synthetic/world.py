@@ -1,7 +1,6 @@
 """The world of a sequence: a town around its route (a textured ground plane, buildings in rows along the
 route and in blocks behind, poles, sky and fog), and each sequence's seeded route, world and sensor-noise
-streams. Metres in the first camera frame (x right, y down, z forward; the ground is y = CAMERA_HEIGHT).
-"""
+streams. Metres in the first camera frame (x right, y down, z forward; the ground is y = CAMERA_HEIGHT)."""
 
 from __future__ import annotations
 

@@ -200,14 +200,13 @@ def generate(
     scale: float = 1.0,
     cameras: CameraRange | None = None,
 ) -> Path:
-    """Render the synthetic dataset into out in a layout (default KITTI's); returns out as a Path.
+    """Render the synthetic dataset into out (new, empty or a render of lossvo's) in a layout; returns out.
 
-    sequences: two-digit names; frames: None (DEFAULT_FRAMES), one count for all, or a mapping; height,
-    width: pixels, by default the layout's size times scale; seed: the same seed gives the same bytes;
-    spec: route families and mixes (:func:`~lossvo.data.synthetic.routes.route_spec`); cameras: each
-    sequence's camera drawn from these ranges (KITTI layout only). Sequences already in out rendered with
-    the same parameters are kept; out must be new, empty or a render of lossvo's (UserError otherwise).
+    frames: None (DEFAULT_FRAMES), one count for all, or a mapping; height, width: by default the layout's
+    size times scale; spec: route families and mixes; cameras: ranges each sequence's camera is drawn from
+    (KITTI layout only). Sequences already in out rendered with the same parameters are kept.
     """
+
     counts = resolve_frames(sequences, frames)
     height, width = frame_size(layout, height, width, scale)
     check_cameras(layout, cameras)
