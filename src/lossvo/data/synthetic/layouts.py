@@ -221,7 +221,7 @@ def _rows(values: np.ndarray, sep: str) -> list[str]:
 
 
 def _lines(stamps: list[str] | np.ndarray, values: list[str], sep: str) -> str:
-    """A line per stamp and value, each ending in a newline."""
+
     return "".join(f"{s}{sep}{v}\n" for s, v in zip(stamps, values, strict=True))
 
 

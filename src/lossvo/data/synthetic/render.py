@@ -163,6 +163,33 @@ def _lut(values: np.ndarray) -> np.ndarray:
     return lut
 
 
+def _tile_luts(world: World) -> list[np.ndarray]:
+    """Per-tile cv2.LUT tables: first texel x, y, width, height, their inverses, u and v offsets."""
+    x, y, w, h = world.atlas.tiles.T.astype(np.float64)
+    du, dv = np.zeros(len(x)), np.full(len(x), -CAMERA_HEIGHT * TEXELS_PER_M)
+    du[0], dv[0] = world.ground_offset  # walls and poles: v = world y, tiles end at the ground
+    return [_lut(col) for col in (x, y, w, h, 1 / w, 1 / h, du, dv)]
+
+
+def _wall_corners(walls: np.ndarray) -> np.ndarray:
+    """World corners (M, 4, 3) of the wall rectangles (bottom at the ground)."""
+    x0, z0, x1, z1, top = (walls[:, i] for i in range(5))
+    g = np.full_like(top, CAMERA_HEIGHT)
+    return np.stack([np.stack(c, -1) for c in ((x0, g, z0), (x1, g, z1), (x1, top, z1), (x0, top, z0))], 1)
+
+
+def _pole_corners(poles: np.ndarray) -> np.ndarray:
+    """World corners (P, 8, 3) of the square prisms that bound the pole cylinders."""
+    x, z, r, top = (poles[:, i] for i in range(4))
+    ring = [(-1, -1), (1, -1), (1, 1), (-1, 1)]
+    corners = [
+        np.stack([x + a * r, y, z + b * r], -1)
+        for y in (np.full_like(top, CAMERA_HEIGHT), top)
+        for a, b in ring
+    ]
+    return np.stack(corners, 1)
+
+
 class Renderer:
     """Renders a world from camera poses: (height, width, 3) uint8 BGR frames with intrinsics K (3, 3) and,
     when given and not all zero, lens distortion (k1, k2, p1, p2[, k3]) (frames rendered distorted)."""
@@ -187,42 +214,13 @@ class Renderer:
         self.dnorm = np.sqrt(self.ux**2 + self.uy**2 + 1.0).astype(np.float32)
         self.texel_scale = np.float32(TEXELS_PER_M / math.sqrt(self.K[0, 0] * self.K[1, 1]))
         self.cull = min(CULL, 3.0 * world.fog_distance)
-        self.tile_luts = self._tile_luts(world)
+        self.tile_luts = _tile_luts(world)
         self.atlas = cv2.cvtColor(world.atlas.image, cv2.COLOR_RGB2BGR)
         self.noise: np.ndarray | None = None
         levels = (0.5 ** np.arange(MIP_TOP + 1), world.atlas.level_x, world.atlas.level_y)
         self.mip_luts = [_lut(col) for col in levels]  # scale 2**-l and atlas offsets x, y by mip level
-        self.wall_corners = self._wall_corners(world.walls)
-        self.pole_corners = self._pole_corners(world.poles)
-
-    @staticmethod
-    def _tile_luts(world: World) -> list[np.ndarray]:
-        """Per-tile cv2.LUT tables: first texel x, y, width, height, their inverses, u and v offsets."""
-        x, y, w, h = world.atlas.tiles.T.astype(np.float64)
-        du, dv = np.zeros(len(x)), np.full(len(x), -CAMERA_HEIGHT * TEXELS_PER_M)
-        du[0], dv[0] = world.ground_offset  # walls and poles: v = world y, tiles end at the ground
-        return [_lut(col) for col in (x, y, w, h, 1 / w, 1 / h, du, dv)]
-
-    @staticmethod
-    def _wall_corners(walls: np.ndarray) -> np.ndarray:
-        """World corners (M, 4, 3) of the wall rectangles (bottom at the ground)."""
-        x0, z0, x1, z1, top = (walls[:, i] for i in range(5))
-        g = np.full_like(top, CAMERA_HEIGHT)
-        return np.stack(
-            [np.stack(c, -1) for c in ((x0, g, z0), (x1, g, z1), (x1, top, z1), (x0, top, z0))], 1
-        )
-
-    @staticmethod
-    def _pole_corners(poles: np.ndarray) -> np.ndarray:
-        """World corners (P, 8, 3) of the square prisms that bound the pole cylinders."""
-        x, z, r, top = (poles[:, i] for i in range(4))
-        ring = [(-1, -1), (1, -1), (1, 1), (-1, 1)]
-        corners = [
-            np.stack([x + a * r, y, z + b * r], -1)
-            for y in (np.full_like(top, CAMERA_HEIGHT), top)
-            for a, b in ring
-        ]
-        return np.stack(corners, 1)
+        self.wall_corners = _wall_corners(world.walls)
+        self.pole_corners = _pole_corners(world.poles)
 
     def render(self, T_w_c: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Frame (height, width, 3) uint8 BGR seen from pose T_w_c (4, 4); rng draws the sensor noise."""

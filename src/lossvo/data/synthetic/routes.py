@@ -106,12 +106,7 @@ def check_mix(mix: Mapping[str, float], families: Mapping[str, Family] = FAMILIE
     if unknown:
         raise UserError(f"unknown route family {unknown[0]!r}: expected one of {', '.join(families)}")
     weights = [w for w in mix.values() if is_number(w)]
-    if (
-        not mix
-        or len(weights) < len(mix)
-        or any(not (w >= 0 and math.isfinite(w)) for w in weights)
-        or sum(weights) <= 0
-    ):
+    if len(weights) < len(mix) or not all(w >= 0 and math.isfinite(w) for w in weights) or sum(weights) <= 0:
         raise UserError(f"route mix: expected non-negative weights with a positive sum, got {dict(mix)}")
     return {name: float(w) / sum(weights) for name, w in mix.items()}
 

@@ -20,7 +20,6 @@ import cv2
 from lossvo.atomic import write_text_atomic
 from lossvo.console import UserError
 from lossvo.data import kitti, pose_files
-from lossvo.data.sequence import sequence_name
 from lossvo.data.synthetic import layouts, manifest, routes
 from lossvo.data.synthetic.camera import CameraRange, calib_text, drawn_intrinsics, intrinsics
 from lossvo.data.synthetic.manifest import Rendering
@@ -32,7 +31,7 @@ log = logging.getLogger(__name__)
 
 DEFAULT_HEIGHT = 160
 DEFAULT_WIDTH = 512
-SEQUENCES = tuple(map(sequence_name, range(11))) + routes.UNSEEN_SEQUENCES
+SEQUENCES = tuple(routes.MIXES)
 DEFAULT_FRAMES = {
     "00": 240, "01": 120, "02": 240, "03": 120, "04": 100, "05": 200,
     "06": 150, "07": 120, "08": 240, "09": 150, "10": 120, "11": 150, "12": 150,
@@ -71,10 +70,6 @@ def resolve_frames(
     return counts
 
 
-FRAME_RATE = 10.0
-"""Frames per second (KITTI's 10 Hz) of times.txt."""
-
-
 def render_kitti(root: Path, sequence: str, n_frames: int, r: Rendering) -> None:
     """Render one sequence in the KITTI layout under root: sequences/NN/{image_2, calib.txt, times.txt}
     and poses/NN.txt, seen by KITTI's camera or, with ``r.cameras``, one drawn from those ranges."""
@@ -87,7 +82,8 @@ def render_kitti(root: Path, sequence: str, n_frames: int, r: Rendering) -> None
     folder = root / "sequences" / sequence
     (folder / "image_2").mkdir(parents=True)
     (folder / "calib.txt").write_text(calib_text(K))
-    (folder / "times.txt").write_text("".join(f"{k / FRAME_RATE:e}\n" for k in range(n_frames)))
+    (folder / "times.txt").write_text("".join(f"{k / 10.0:e}\n" for k in range(n_frames)))  # KITTI's 10 Hz
+
     renderer = Renderer(world, K, r.height, r.width)
     for k, T in enumerate(poses):
         write_png(folder / "image_2" / f"{k:06d}.png", renderer.render(T, noise))
