@@ -111,8 +111,7 @@ P4[:3, :3] = tartanair.NED_TO_CAMERA
 
 
 def ned(T: np.ndarray) -> np.ndarray:
-    """Poses (..., 4, 4) in the town's axes -> NED body and world axes (inverse of
-    :func:`lossvo.data.tartanair.ned_to_camera`)."""
+    """Poses (..., 4, 4) in the town's axes -> NED axes (the inverse of tartanair.ned_to_camera)."""
     return P4.T @ T @ P4
 
 
@@ -125,8 +124,7 @@ def mimir_T_BS() -> np.ndarray:
 
 
 def sequence_name(layout: str, sequence: str) -> str:
-    """The name a layout's reader knows a town sequence by, e.g. "00" -> tum
-    "rgbd_dataset_freiburg1_synthetic_00"."""
+    """The name a layout's reader knows a town sequence by ("00" -> "rgbd_dataset_freiburg1_synthetic_00")."""
     return NAMES[check_layout(layout)].format(sequence, int(sequence))
 
 
@@ -151,8 +149,7 @@ def scaled_size(size: tuple[int, int], scale: float) -> tuple[int, int]:
 
 
 def camera(layout: str, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """K (3, 3) and distortion (5,) (k1, k2, p1, p2, k3) of a layout's frames of size (H, W), as its reader
-    returns them."""
+    """K (3, 3) and distortion (5,) of a layout's frames of size (H, W), as its reader returns them."""
     if layout == "tum":
         return tum.camera(sequence_name("tum", "00"), size=size)
     if layout == "euroc":
@@ -232,8 +229,7 @@ def _tum_stamp(us: int, decimals: int) -> str:
 
 
 def write_tum(folder: Path, name: str, c: Clock, gt: np.ndarray) -> list[Path]:
-    """rgb.txt and groundtruth.txt (gt: (M, 4, 4) T_w_c at c.groundtruth) of a TUM sequence; returns the
-    frame paths to render into."""
+    """rgb.txt and groundtruth.txt (gt: (M, 4, 4) T_w_c at c.groundtruth); returns the frame paths."""
     (folder / "rgb").mkdir(parents=True)
     frames = [f"rgb/{_tum_stamp(us, 6)}.png" for us in c.frames]
     header = f"# file: '{name}.bag'\n# timestamp "
@@ -334,8 +330,7 @@ def _streams(layout: str, sequence: str, seed: int) -> np.random.Generator:
 
 
 def route_frames(sequence: str, distance: float, seed: int, spec: routes.RouteSpec) -> int:
-    """Route frames (10 Hz car poses) whose path is at least distance metres long (doubling from an
-    estimate at 0.5 m a frame)."""
+    """Route frames (10 Hz car poses) whose path is at least distance metres long."""
     n = 20 + math.ceil(distance / 0.5)
     while True:
         route = sequence_route(sequence, n, seed, spec)

@@ -118,8 +118,7 @@ class Trajectory:
 
 
 def route_parameter(route: np.ndarray, distance: np.ndarray) -> np.ndarray:
-    """(N,) route parameters (fractional route frames) at distances (N,) metres along the route's path;
-    UserError past its end."""
+    """(N,) route parameters (fractional frames) at distances (N,) m along its path; UserError past it."""
     steps = np.linalg.norm(np.diff(route[:, :3, 3], axis=0), axis=1)
     arc = np.concatenate([[0.0], np.cumsum(steps)])
     if distance.max() > arc[-1]:

@@ -202,7 +202,6 @@ def generate(
     size times scale; spec: route families and mixes; cameras: ranges each sequence's camera is drawn from
     (KITTI layout only). Sequences already in out rendered with the same parameters are kept.
     """
-
     counts = resolve_frames(sequences, frames)
     height, width = frame_size(layout, height, width, scale)
     check_cameras(layout, cameras)
