@@ -69,22 +69,86 @@ class Family:
                 raise UserError(f"{where}: {key} must be in [0, 1), got {getattr(self, key)}")
 
 
-FAMILIES: dict[str, Family] = {f.name: f for f in (
-    # name, description, then cruise, straight, turn, turn_angle, turn_radius, turn_speed, lane_change,
-    # stop, stop_frames, hill, camber
-    Family("town", "city streets: right-angle corners at crossings, stops at lights",
-           (0.5, 1.0), (10, 60), 0.65, (75, 105), (10, 22), (0.35, 0.6), 0.1, 0.25, (5, 40), 0.0, 0.01),
-    Family("residential", "quiet side streets at low speed: crossings, parked-car stops",
-           (0.15, 0.5), (10, 50), 0.5, (60, 100), (8, 20), (0.15, 0.35), 0.0, 0.2, (5, 30), 0.0, 0.0),
-    Family("arterial", "fast multi-lane roads: long straights, wide curves, lane changes",
-           (0.9, 1.4), (50, 200), 0.5, (20, 70), (40, 150), (0.7, 1.1), 0.3, 0.05, (10, 25), 0.15, 0.0),
-    Family("country", "winding roads over gentle hills, with camber",
-           (0.6, 1.1), (10, 40), 0.85, (20, 120), (15, 60), (0.5, 0.85), 0.0, 0.0, (10, 30), 0.35, 0.025),
-    Family("stop_and_go", "slow urban traffic: frequent long stops, tight corners at walking pace",
-           (0.2, 0.5), (8, 25), 0.35, (85, 95), (9, 14), (0.2, 0.3), 0.0, 0.6, (10, 40), 0.0, 0.0),
-    Family("expressway", "fast straight roads: very wide curves, lane changes, no stops",
-           (1.2, 1.45), (100, 300), 0.4, (5, 20), (400, 1200), (1.15, 1.4), 0.5, 0.0, (10, 30), 0.0, 0.0),
-)}  # fmt: skip
+FAMILIES: dict[str, Family] = {
+    f.name: f
+    for f in (
+        Family(
+            "town",
+            "city streets: right-angle corners at crossings, stops at lights",
+            cruise=(0.5, 1.0),
+            straight=(10, 60),
+            turn=0.65,
+            turn_angle=(75, 105),
+            turn_radius=(10, 22),
+            turn_speed=(0.35, 0.6),
+            lane_change=0.1,
+            stop=0.25,
+            stop_frames=(5, 40),
+            camber=0.01,
+        ),
+        Family(
+            "residential",
+            "quiet side streets at low speed: crossings, parked-car stops",
+            cruise=(0.15, 0.5),
+            straight=(10, 50),
+            turn=0.5,
+            turn_angle=(60, 100),
+            turn_radius=(8, 20),
+            turn_speed=(0.15, 0.35),
+            stop=0.2,
+            stop_frames=(5, 30),
+        ),
+        Family(
+            "arterial",
+            "fast multi-lane roads: long straights, wide curves, lane changes",
+            cruise=(0.9, 1.4),
+            straight=(50, 200),
+            turn=0.5,
+            turn_angle=(20, 70),
+            turn_radius=(40, 150),
+            turn_speed=(0.7, 1.1),
+            lane_change=0.3,
+            stop=0.05,
+            stop_frames=(10, 25),
+            hill=0.15,
+        ),
+        Family(
+            "country",
+            "winding roads over gentle hills, with camber",
+            cruise=(0.6, 1.1),
+            straight=(10, 40),
+            turn=0.85,
+            turn_angle=(20, 120),
+            turn_radius=(15, 60),
+            turn_speed=(0.5, 0.85),
+            hill=0.35,
+            camber=0.025,
+        ),
+        Family(
+            "stop_and_go",
+            "slow urban traffic: frequent long stops, tight corners at walking pace",
+            cruise=(0.2, 0.5),
+            straight=(8, 25),
+            turn=0.35,
+            turn_angle=(85, 95),
+            turn_radius=(9, 14),
+            turn_speed=(0.2, 0.3),
+            stop=0.6,
+            stop_frames=(10, 40),
+        ),
+        Family(
+            "expressway",
+            "fast straight roads: very wide curves, lane changes, no stops",
+            cruise=(1.2, 1.45),
+            straight=(100, 300),
+            turn=0.4,
+            turn_angle=(5, 20),
+            turn_radius=(400, 1200),
+            turn_speed=(1.15, 1.4),
+            lane_change=0.5,
+        ),
+    )
+}
 """The route families by name."""
 
 TRAINING_MIX: dict[str, float] = {"town": 0.4, "residential": 0.15, "arterial": 0.25, "country": 0.2}
