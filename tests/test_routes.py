@@ -117,13 +117,13 @@ def test_the_unseen_mix_is_slower_and_faster_than_training_and_stops_more() -> N
 
 
 def test_unseen_sequences_drive_only_families_that_no_other_sequence_drives() -> None:
-    unseen = {f for s in routes.UNSEEN_SEQUENCES for f in routes.sequence_mix(s)}
+    unseen = {f for s in routes.UNSEEN_SEQUENCES for f in routes.DEFAULT_SPEC.mix(s)}
     others = {
-        f for s in synthetic.SEQUENCES if s not in routes.UNSEEN_SEQUENCES for f in routes.sequence_mix(s)
+        f for s in synthetic.SEQUENCES if s not in routes.UNSEEN_SEQUENCES for f in routes.DEFAULT_SPEC.mix(s)
     }
     assert unseen and not unseen & others
     for s in routes.UNSEEN_SEQUENCES:
-        plan = routes.plan_route(np.random.default_rng(0), 450, routes.sequence_mix(s))
+        plan = routes.plan_route(np.random.default_rng(0), 450, routes.DEFAULT_SPEC.mix(s))
         assert set(plan.family) <= unseen
 
 

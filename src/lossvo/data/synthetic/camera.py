@@ -1,10 +1,5 @@
-"""The camera: KITTI's left colour camera (image_2) scaled to the rendered size, mounted CAMERA_HEIGHT
-above the ground, and the calib.txt that describes it; or, with :class:`CameraRange`, a camera drawn per
-sequence within stated ranges of focal length, principal point and aspect.
-
-Axes are KITTI's: x right, y down, z forward; K maps camera coordinates to pixels with pixel centres at
-integer coordinates.
-"""
+"""The camera: KITTI's left colour camera scaled to the rendered size, or one drawn per sequence
+(:class:`CameraRange`), and the calib.txt that describes it; KITTI's axes, pixel centres at integers."""
 
 from __future__ import annotations
 
@@ -22,14 +17,12 @@ KITTI_SIZE = (376, 1241)
 """(height, width) in pixels of KITTI odometry colour images."""
 KITTI_INTRINSICS = (718.856, 718.856, 607.1928, 185.2157)
 """(fx, fy, cx, cy) in pixels of KITTI's P2 at KITTI_SIZE (sequences 00-02)."""
-
 CAMERA_HEIGHT = 1.65
-"""Metres from the camera centre down to the ground at frame 0; the ground is the world plane y = +1.65."""
+"""Metres from the camera centre down to the ground (the world plane y = +1.65)."""
 
 
 def intrinsics(height: int, width: int) -> np.ndarray:
-    """KITTI's P2 intrinsics scaled to (height, width) pixels, as resizing a KITTI frame scales them
-    (:func:`lossvo.geometry.camera.resized_intrinsics`): (3, 3) float64 K."""
+    """(3, 3) float64 K: KITTI's P2 intrinsics scaled to (height, width) pixels as a resize scales them."""
     fx, fy, cx, cy = KITTI_INTRINSICS
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     return resized_intrinsics(K, KITTI_SIZE, (height, width))
@@ -37,9 +30,8 @@ def intrinsics(height: int, width: int) -> np.ndarray:
 
 @dataclass(frozen=True)
 class CameraRange:
-    """Ranges (low, high) a sequence's camera is drawn from, uniformly and independently: ``focal``, fx as a
-    fraction of the frame width (KITTI's camera 0.58, TartanAir's 0.5, TUM's 0.81); ``principal``, (cx, cy)
-    as fractions of the width and height (0.5: the centre); ``aspect``, fy / fx."""
+    """Ranges (low, high) a sequence's camera is drawn from, uniformly: ``focal``, fx as a fraction of the
+    width; ``principal``, (cx, cy) as fractions of width and height; ``aspect``, fy / fx (docs/data.md)."""
 
     focal: tuple[float, float] = (0.45, 0.85)
     principal: tuple[float, float] = (0.45, 0.55)
@@ -48,24 +40,21 @@ class CameraRange:
     @classmethod
     def of(cls, value: Any, where: str) -> CameraRange:
         """From ``{focal: [lo, hi], principal: [lo, hi], aspect: [lo, hi]}`` (each optional); UserError
-        naming ``<where>.<key>`` for a range that is not two finite numbers lo <= hi, a focal length or aspect
-        not > 0, or a principal point outside the frame (0 < p < 1)."""
+        naming ``<where>.<key>`` for a range that cannot be rendered."""
         if not isinstance(value, Mapping):
             raise UserError(f"{where}: expected {{focal: [lo, hi], principal: [lo, hi], aspect: [lo, hi]}}, "
                             f"got {value!r}")  # fmt: skip
         unknown = sorted(set(map(str, value)) - set(asdict(cls())))
         if unknown:
             raise UserError(f"{where}.{unknown[0]}: unknown key (expected some of focal, principal, aspect)")
-        ranges = {**asdict(cls()), **value}
-        for key in ("focal", "principal", "aspect"):
-            ranges[key] = _range(ranges[key], f"{where}.{key}")
+        ranges = {key: _range(v, f"{where}.{key}") for key, v in {**asdict(cls()), **value}.items()}
         for key in ("focal", "aspect"):
             if ranges[key][0] <= 0:
                 raise UserError(f"{where}.{key}: expected values > 0, got {list(ranges[key])}")
         if not (ranges["principal"][0] > 0 and ranges["principal"][1] < 1):
             raise UserError(f"{where}.principal: expected fractions of the frame inside (0, 1), "
                             f"got {list(ranges['principal'])}")  # fmt: skip
-        return cls(ranges["focal"], ranges["principal"], ranges["aspect"])
+        return cls(**ranges)
 
     def draw(self, height: int, width: int, rng: np.random.Generator) -> np.ndarray:
         """(3, 3) float64 K of a frame of (height, width) pixels, drawn from the ranges."""
@@ -92,19 +81,15 @@ def _range(value: Any, key: str) -> tuple[float, float]:
 
 
 def drawn_intrinsics(cameras: CameraRange, height: int, width: int, seed: int, sequence: str) -> np.ndarray:
-    """(3, 3) K of a sequence's camera drawn from ``cameras`` (the same for a seed and sequence, from a
-    stream of its own: the town and the route do not change with the ranges)."""
+    """(3, 3) K of a sequence's camera drawn from ``cameras``, from a stream of its own (the town and the
+    route do not change with the ranges)."""
     rng = np.random.default_rng(np.random.SeedSequence([seed, int(sequence), 7919]))
     return cameras.draw(height, width, rng)
 
 
 def calib_text(K: np.ndarray) -> str:
-    """KITTI calib.txt content for intrinsics K (3, 3): P0..P3 = K [I | t_i], Tr, 12 floats each.
-
-    The rendered camera is camera 2, so P2 = [K | 0]; the others sit at KITTI's offsets to its right
-    (grey cameras 0 and 1 at 0.06 m and 0.60 m, colour camera 3 at 0.53 m); Tr is KITTI's nominal
-    velodyne-to-camera axis swap.
-    """
+    """KITTI calib.txt content for intrinsics K (3, 3): P0..P3 = K [I | t_i] (the rendered camera is 2,
+    the others at KITTI's offsets) and Tr, KITTI's nominal velodyne-to-camera axis swap."""
     offsets = {"P0": -0.06, "P1": -0.60, "P2": 0.0, "P3": -0.533}
     lines = []
     for name, tx in offsets.items():

@@ -1,10 +1,5 @@
-"""The command line: ``python -m lossvo.data.synthetic --out DIR [--layout kitti|tum|euroc|tartanair|mimir]
-[--sequences 00,07] [--frames N] [--scale F | --height H --width W] [--seed S] [--workers N]
-[--mix NN=FAMILY[:W][+FAMILY[:W]]] [--quiet]``.
-
-Bad values end in one line on stderr and exit status 2, before anything is written (with
-``LOSSVO_FULL_ERROR=1`` in the environment, in their traceback instead).
-"""
+"""The command line, ``python -m lossvo.data.synthetic --out DIR [--layout L] [--sequences 00,07] ...``
+(``--help``); bad values end in one line on stderr and exit status 2, before anything is written."""
 
 from __future__ import annotations
 
@@ -16,16 +11,7 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from lossvo.console import OneLineParser, UserError, one_line_main, raise_if_full_error
-from lossvo.data import kitti
 from lossvo.data.synthetic import layouts, routes, writer
-from lossvo.data.synthetic.parameters import (
-    DEFAULT_HEIGHT,
-    DEFAULT_WIDTH,
-    SEQUENCES,
-    parse_sequences,
-    resolve_frames,
-)
-from lossvo.data.synthetic.writer import frame_size, generate
 
 DESCRIPTION = (
     "Synthetic dataset: a procedural town rendered along car-like routes, in the KITTI odometry layout or "
@@ -54,11 +40,11 @@ def _parser() -> argparse.ArgumentParser:
         help="the dataset layout to write (default: kitti)",
     )
     p.add_argument(
-        "--sequences", default=",".join(SEQUENCES), help="comma-separated, e.g. 00,07 (default: 00..12)"
+        "--sequences",
+        default=",".join(writer.SEQUENCES),
+        help="comma-separated, e.g. 00,07 (default: 00..12)",
     )
-    p.add_argument(
-        "--frames", type=int, default=None, help="frames per sequence (default: 100-240 by sequence)"
-    )
+    p.add_argument("--frames", type=int, help="frames per sequence (default: 100-240 by sequence)")
     p.add_argument(
         "--scale",
         type=float,
@@ -66,26 +52,14 @@ def _parser() -> argparse.ArgumentParser:
         help="times the layout's default size (kitti 160x512, tum/tartanair 640x480, "
         "euroc 752x480, mimir 720x540; default: 1)",
     )
-    p.add_argument(
-        "--height",
-        type=int,
-        default=None,
-        help=f"pixels (default: the layout's, kitti {DEFAULT_HEIGHT}, times --scale)",
-    )
-    p.add_argument(
-        "--width",
-        type=int,
-        default=None,
-        help=f"pixels (default: the layout's, kitti {DEFAULT_WIDTH}, times --scale)",
-    )
+    p.add_argument("--height", type=int, help="pixels (default: the layout's, kitti 160, times --scale)")
+    p.add_argument("--width", type=int, help="pixels (default: the layout's, kitti 512, times --scale)")
+
     p.add_argument(
         "--seed", type=_seed, default=0, help="an integer >= 0; same seed, same bytes (default: 0)"
     )
     p.add_argument(
-        "--workers",
-        type=int,
-        default=None,
-        help="processes (default: one per core; one below 10 million pixels in all)",
+        "--workers", type=int, help="processes (default: one per core; one below 10 million pixels in all)"
     )
     example = "11=stop_and_go:2+expressway"
     p.add_argument(
@@ -115,7 +89,7 @@ def parse_mix(text: str) -> tuple[str, dict[str, float]]:
         routes.check_mix(mix)
     except UserError as err:
         raise UserError(f"--mix {text}: {err}") from None
-    return parse_sequences(sequence, "--mix")[0], mix
+    return writer.parse_sequences(sequence, "--mix")[0], mix
 
 
 @one_line_main
@@ -124,8 +98,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
     try:
-        counts = resolve_frames(args.sequences, args.frames, prefix="--")
-        height, width = frame_size(args.layout, args.height, args.width, args.scale, prefix="--")
+        counts = writer.resolve_frames(args.sequences, args.frames, prefix="--")
+        height, width = writer.frame_size(args.layout, args.height, args.width, args.scale, prefix="--")
         if args.workers is not None and args.workers < 1:
             raise UserError(f"--workers: must be >= 1, got {args.workers}")
         spec = routes.route_spec(mixes=dict(parse_mix(m) for m in args.mix))
@@ -134,39 +108,28 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as err:
         raise_if_full_error()
         parser.error(str(err))
-    if not args.quiet:  # the writer's line per sequence, on stderr as the final one
-        handler = logging.StreamHandler(sys.stderr)
-        logging.getLogger(writer.__name__).addHandler(handler)
-        logging.getLogger(writer.__name__).setLevel(logging.INFO)
+    progress = not args.quiet
+    if progress:  # the writer's line per sequence, on stderr as the final one
+        writer.log.addHandler(logging.StreamHandler(sys.stderr))
+        writer.log.setLevel(logging.INFO)
+
     start = time.perf_counter()
     try:
-        out = generate(
-            args.out,
-            counts,
-            counts,
-            height,
-            width,
-            args.seed,
-            not args.quiet,
-            args.workers,
-            spec,
-            args.layout,
+        out = writer.generate(
+            args.out, counts, counts, height, width, args.seed, progress, args.workers, spec, args.layout
         )
     except OSError as err:  # a folder it may not write to, a full disk
         raise_if_full_error()
         parser.error(f"--out: cannot write {err.filename or args.out}: {err.strerror or err}")
-    if not args.quiet:
+    if progress:
         size = dataset_size(out, counts, args.layout)
+
         elapsed = time.perf_counter() - start
         print(f"synthetic: wrote {out} in {elapsed:.1f} s, {size / 1e6:.0f} MB", file=sys.stderr)
     return 0
 
 
 def dataset_size(root: Path, sequences: Iterable[str], layout: str = "kitti") -> int:
-    """Bytes on disk of the given sequences' images, calibration, timestamps and pose files."""
-    if layout != "kitti":
-        folders = [root / layouts.sequence_name(layout, s) for s in sequences]
-        return sum(p.stat().st_size for f in folders for p in f.rglob("*") if p.is_file())
-    files = [p for s in sequences for p in (root / "sequences" / s).rglob("*") if p.is_file()]
-    files += [kitti.pose_path(root, s) for s in sequences]
-    return sum(p.stat().st_size for p in files if p.is_file())
+    """Bytes on disk of the given sequences' files."""
+    paths = [root / p for s in sequences for p in layouts.sequence_paths(layout, s)]
+    return sum(f.stat().st_size for p in paths for f in [p, *p.rglob("*")] if f.is_file())

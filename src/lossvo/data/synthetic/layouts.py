@@ -1,19 +1,11 @@
-"""The town rendered into the other datasets' own layouts (TUM RGB-D, EuRoC ASL, TartanAir, MIMIR), each
-exactly as lossvo's reader of that layout reads it (:mod:`lossvo.data.tum`, :mod:`~lossvo.data.euroc`,
-:mod:`~lossvo.data.tartanair`, :mod:`~lossvo.data.mimir`).
-
-Per layout: its camera (K and distortion at the rendered size, as its reader returns them), its clock (frame
-stamps; ground-truth stamps at its own rate, never a frame's), its platform
-(:mod:`~lossvo.data.synthetic.platforms`) and its files. Frames and ground truth are evaluated at their own
-stamps from one continuous trajectory, so every reader returns the rendered T_w_c in the town's world (x
-right, y down, z forward) up to its own association or interpolation (docs/data.md, "Other layouts").
-"""
+"""The town rendered into the other datasets' layouts (TUM RGB-D, EuRoC ASL, TartanAir, MIMIR), each
+exactly as lossvo's reader of that layout reads it: per layout its camera, clock, platform and files. Frames
+and ground truth are evaluated at their own stamps from one trajectory (docs/data.md, "Other layouts")."""
 
 from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,10 +25,9 @@ from lossvo.geometry.camera import resized_intrinsics
 
 @dataclass(frozen=True)
 class Layout:
-    """A dataset layout: native frame size (H, W) pixels, camera and ground-truth rates (Hz; None: a pose
-    a frame), the platform that carries the camera, and whether its frames are grey."""
+    """A dataset layout: native (H, W) pixels, camera and ground-truth rates (Hz; None: a pose a frame),
+    the platform that carries the camera, and whether its frames are grey."""
 
-    name: str
     size: tuple[int, int]
     rate_hz: float
     groundtruth_hz: float | None
@@ -45,14 +36,37 @@ class Layout:
 
 
 SPECS = {
-    "tum": Layout("tum", tum.SIZE, 30.0, 100.0, platforms.PLATFORMS["handheld"]),
-    "euroc": Layout("euroc", (480, 752), 20.0, 200.0, platforms.PLATFORMS["flying"], grey=True),
-    "tartanair": Layout("tartanair", tartanair.SIZE, tartanair.RATE_HZ, None, platforms.PLATFORMS["drone"]),
-    "mimir": Layout("mimir", (540, 720), 10.0, 100.0, platforms.PLATFORMS["auv"]),
+    "tum": Layout(tum.SIZE, 30.0, 100.0, platforms.PLATFORMS["handheld"]),
+    "euroc": Layout((480, 752), 20.0, 200.0, platforms.PLATFORMS["flying"], grey=True),
+    "tartanair": Layout(tartanair.SIZE, tartanair.RATE_HZ, None, platforms.PLATFORMS["drone"]),
+    "mimir": Layout((540, 720), 10.0, 100.0, platforms.PLATFORMS["auv"]),
 }
 
+NAMES = {
+    "kitti": "{0}",
+    "tum": "rgbd_dataset_freiburg1_synthetic_{0}",
+    "euroc": "synthetic_{0}",
+    "tartanair": "synthetic/Easy/P{1:03d}",
+    "mimir": "SyntheticTown/auv0/track{1}",
+}
+"""Each layout's name of a town sequence, formatted with its two digits and its number."""
+FILES = {
+    "kitti": ("image_2/*.png", ("calib.txt", "times.txt")),
+    "tum": ("rgb/*.png", ("rgb.txt", "groundtruth.txt")),
+    "euroc": (
+        "mav0/cam0/data/*.png",
+        ("mav0/cam0/data.csv", "mav0/cam0/sensor.yaml", "mav0/state_groundtruth_estimate0/data.csv"),
+    ),
+    "tartanair": ("image_left/*_left.png", ("pose_left.txt",)),
+    "mimir": (
+        "rgb/cam0/data/*.png",
+        ("rgb/cam0/data.csv", "rgb/cam0/sensor.yaml", "pose_groundtruth/data.csv"),
+    ),
+}
+"""Each layout's (glob of a sequence folder's frames, its other files)."""
+
 EUROC_K = np.array([[458.654, 0.0, 367.215], [0.0, 457.296, 248.375], [0.0, 0.0, 1.0]])
-"""EuRoC cam0's intrinsics (fu, fv, cu, cv) at 752x480 (its sensor.yaml)."""
+"""EuRoC cam0's intrinsics at 752x480 (its sensor.yaml)."""
 EUROC_DISTORTION = np.array([-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05])
 """EuRoC cam0's radial-tangential (k1, k2, p1, p2)."""
 EUROC_T_BS = np.array(
@@ -63,17 +77,16 @@ EUROC_T_BS = np.array(
         [0.0, 0.0, 0.0, 1.0],
     ]
 )
-"""EuRoC cam0's pose in the body (IMU) frame (its sensor.yaml), orthonormalised below before use."""
+"""EuRoC cam0's pose in the body (IMU) frame (its sensor.yaml), orthonormalised before use."""
 EUROC_BIASES = (-0.002229, 0.020700, 0.076350, -0.012492, 0.547666, 0.068904)
-"""Gyroscope (rad/s) and accelerometer (m/s^2) biases written in every ground-truth row (V1_01's first)."""
+"""Gyroscope (rad/s) and accelerometer (m/s^2) biases of every ground-truth row (V1_01's first)."""
 
 MIMIR_K = np.array([[360.0, 0.0, 360.0], [0.0, 360.0, 270.0], [0.0, 0.0, 1.0]])
-"""A 90-degree pinhole (AirSim's default field of view) at 720x540, without distortion (a simulator)."""
+"""A 90-degree pinhole (AirSim's default) at 720x540, without distortion."""
 MIMIR_PITCH = math.radians(15)
 """The camera looks this far down (the README's front camera)."""
 MIMIR_OFFSET = (0.45, -0.06, 0.0)
-"""Metres: the camera in the body frame (x forward, y right, z down), the README's front camera."""
-MIMIR_ENVIRONMENT = "SyntheticTown"
+"""Metres: the camera in the body frame (x forward, y right, z down)."""
 
 TUM_START_US = 1_305_031_102_175_304
 """Microseconds: the first frame's nominal stamp (that of freiburg1_xyz)."""
@@ -98,49 +111,45 @@ P4[:3, :3] = tartanair.NED_TO_CAMERA
 
 
 def ned(T: np.ndarray) -> np.ndarray:
-    """Poses (..., 4, 4) in the town's axes -> NED body and world axes, the inverse of
-    :func:`lossvo.data.tartanair.ned_to_camera`."""
+    """Poses (..., 4, 4) in the town's axes -> NED axes (the inverse of tartanair.ned_to_camera)."""
     return P4.T @ T @ P4
 
 
 def mimir_T_BS() -> np.ndarray:
-    """(4, 4) the camera in the body frame, both NED-like (x forward, y right, z down): pitched down by
-    MIMIR_PITCH (rotated about y by -MIMIR_PITCH), at MIMIR_OFFSET."""
+    """(4, 4) the camera in the NED body frame: pitched down by MIMIR_PITCH, at MIMIR_OFFSET."""
     T = np.eye(4)
     T[:3, :3] = Rotation.from_euler("y", -MIMIR_PITCH).as_matrix()
     T[:3, 3] = MIMIR_OFFSET
     return T
 
 
-# --------------------------------------------------------------------------------------------------
-# Names, sizes and cameras
-# --------------------------------------------------------------------------------------------------
-
-
 def sequence_name(layout: str, sequence: str) -> str:
-    """The name a layout's reader knows a town sequence by: "00" -> kitti "00", tum
-    "rgbd_dataset_freiburg1_synthetic_00", euroc "synthetic_00", tartanair "synthetic/Easy/P000", mimir
-    "SyntheticTown/auv0/track0"."""
-    names: dict[str, Callable[[str], str]] = {
-        "kitti": lambda s: s,
-        "tum": lambda s: f"rgbd_dataset_freiburg1_synthetic_{s}",
-        "euroc": lambda s: f"synthetic_{s}",
-        "tartanair": lambda s: f"synthetic/Easy/P{int(s):03d}",
-        "mimir": lambda s: f"{MIMIR_ENVIRONMENT}/auv0/track{int(s)}",
-    }
-    return names[check_layout(layout)](sequence)
+    """The name a layout's reader knows a town sequence by ("00" -> "rgbd_dataset_freiburg1_synthetic_00")."""
+    return NAMES[check_layout(layout)].format(sequence, int(sequence))
+
+
+def sequence_paths(layout: str, sequence: str) -> list[str]:
+    """The paths under a dataset root that hold a sequence: its folder (and KITTI's poses file)."""
+    if layout == "kitti":
+        return [f"sequences/{sequence}", f"poses/{sequence}.txt"]
+    return [sequence_name(layout, sequence)]
+
+
+def sequence_complete(root: Path, layout: str, sequence: str, n_frames: int) -> bool:
+    """Whether root holds a layout's sequence with its files and n_frames frames."""
+    folder, *others = (root / p for p in sequence_paths(layout, sequence))
+    frames, files = FILES[layout]
+    required = [folder / f for f in files] + others
+    return all(p.is_file() for p in required) and sum(1 for _ in folder.glob(frames)) == n_frames
 
 
 def scaled_size(size: tuple[int, int], scale: float) -> tuple[int, int]:
-    """(H, W) pixels of size (H, W) scaled by scale, rounded; UserError for a scale that is not > 0."""
-    if not (isinstance(scale, int | float) and math.isfinite(scale) and scale > 0):
-        raise UserError(f"scale: must be a number > 0, got {scale!r}")
+    """(H, W) pixels of size (H, W) scaled by scale, rounded."""
     return round(size[0] * scale), round(size[1] * scale)
 
 
 def camera(layout: str, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """K (3, 3) pixels and distortion (5,) (k1, k2, p1, p2, k3) of a layout's frames of size (H, W): what its
-    reader returns for them."""
+    """K (3, 3) and distortion (5,) of a layout's frames of size (H, W), as its reader returns them."""
     if layout == "tum":
         return tum.camera(sequence_name("tum", "00"), size=size)
     if layout == "euroc":
@@ -157,14 +166,9 @@ def mount(layout: str) -> np.ndarray:
     return P4 @ mimir_T_BS() @ P4.T if layout == "mimir" else np.eye(4)
 
 
-# --------------------------------------------------------------------------------------------------
-# Clocks
-# --------------------------------------------------------------------------------------------------
-
-
 @dataclass(frozen=True)
 class Clock:
-    """Integer stamps of frames (N,) and ground truth (M,) (M = 0: one pose a frame) in ticks of unit
+    """Integer stamps of frames (N,) and ground truth (M,) (M = 0: a pose a frame) in ticks of unit
     seconds, and the origin (a tick) of the trajectory's time t = (stamp - origin) * unit >= 0."""
 
     frames: np.ndarray
@@ -178,10 +182,9 @@ class Clock:
 
 
 def clock(layout: str, n_frames: int, rng: np.random.Generator) -> Clock:
-    """The stamps of a layout's sequence of n_frames frames. TUM: microseconds, 30 Hz with +-3 ms of
-    jitter, ground truth every 10 ms on a 100 us grid (4 decimals, as TUM writes it), any frame stamp that
-    falls on it moved by 1 us. EuRoC and MIMIR: nanoseconds, regular frames, ground truth offset from them
-    by 1.234567 ms. TartanAir: frame indices at 10 Hz."""
+    """The stamps of a layout's sequence of n_frames frames. TUM: microseconds, jittered frames, ground truth
+    on a 100 us grid (TUM's 4 decimals), a frame stamp on it moved by 1 us. EuRoC and MIMIR: nanoseconds,
+    ground truth offset from the frames by 1.234567 ms. TartanAir: frame indices."""
     spec = SPECS[layout]
     k = np.arange(n_frames)
     if layout == "tartanair":
@@ -203,11 +206,6 @@ def clock(layout: str, n_frames: int, rng: np.random.Generator) -> Clock:
     return Clock(frames, groundtruth, tick, int(first))
 
 
-# --------------------------------------------------------------------------------------------------
-# Files
-# --------------------------------------------------------------------------------------------------
-
-
 def _quaternions(T: np.ndarray) -> np.ndarray:
     """(N, 4) unit quaternions (x, y, z, w), w >= 0, of the rotations of poses T (N, 4, 4)."""
     q = Rotation.from_matrix(T[:, :3, :3]).as_quat()
@@ -219,6 +217,11 @@ def _rows(values: np.ndarray, sep: str) -> list[str]:
     return [sep.join(f"{v:.10g}" for v in row) for row in values]
 
 
+def _lines(stamps: list[str] | np.ndarray, values: list[str], sep: str) -> str:
+
+    return "".join(f"{s}{sep}{v}\n" for s, v in zip(stamps, values, strict=True))
+
+
 def _tum_stamp(us: int, decimals: int) -> str:
     """Microseconds -> 'seconds.fraction' with 6 or 4 decimals (exact: 4 only on a 100 us grid)."""
     sec, rest = divmod(int(us), 1_000_000)
@@ -226,17 +229,16 @@ def _tum_stamp(us: int, decimals: int) -> str:
 
 
 def write_tum(folder: Path, name: str, c: Clock, gt: np.ndarray) -> list[Path]:
-    """rgb.txt and groundtruth.txt (gt: (M, 4, 4) T_w_c at c.groundtruth) of a TUM sequence; returns the
-    frame paths to render into."""
+    """rgb.txt and groundtruth.txt (gt: (M, 4, 4) T_w_c at c.groundtruth); returns the frame paths."""
     (folder / "rgb").mkdir(parents=True)
     frames = [f"rgb/{_tum_stamp(us, 6)}.png" for us in c.frames]
     header = f"# file: '{name}.bag'\n# timestamp "
-    lines = [f"{_tum_stamp(us, 6)} {f}" for us, f in zip(c.frames, frames, strict=True)]
-    (folder / "rgb.txt").write_text(f"# color images\n{header}filename\n" + "\n".join(lines) + "\n")
+    stamps = [_tum_stamp(us, 6) for us in c.frames]
+    (folder / "rgb.txt").write_text(f"# color images\n{header}filename\n" + _lines(stamps, frames, " "))
     values = _rows(np.concatenate([gt[:, :3, 3], _quaternions(gt)], 1), " ")
-    lines = [f"{_tum_stamp(us, 4)} {v}" for us, v in zip(c.groundtruth, values, strict=True)]
+    stamps = [_tum_stamp(us, 4) for us in c.groundtruth]
     (folder / "groundtruth.txt").write_text(
-        f"# ground truth trajectory\n{header}tx ty tz qx qy qz qw\n" + "\n".join(lines) + "\n"
+        f"# ground truth trajectory\n{header}tx ty tz qx qy qz qw\n" + _lines(stamps, values, " ")
     )
     return [folder / f for f in frames]
 
@@ -244,9 +246,18 @@ def write_tum(folder: Path, name: str, c: Clock, gt: np.ndarray) -> list[Path]:
 def _asl_frames(camera_dir: Path, c: Clock) -> list[Path]:
     """cam0/data.csv of an ASL camera; returns the frame paths (data/<ns>.png) to render into."""
     (camera_dir / "data").mkdir(parents=True)
-    lines = [f"{ns},{ns}.png" for ns in c.frames]
-    (camera_dir / "data.csv").write_text("#timestamp [ns],filename\n" + "\n".join(lines) + "\n")
-    return [camera_dir / "data" / f"{ns}.png" for ns in c.frames]
+    names = [f"{ns}.png" for ns in c.frames]
+    (camera_dir / "data.csv").write_text("#timestamp [ns],filename\n" + _lines(c.frames, names, ","))
+    return [camera_dir / "data" / name for name in names]
+
+
+def _asl_groundtruth(path: Path, header: str, c: Clock, T: np.ndarray, *columns: np.ndarray) -> None:
+    """An ASL ground-truth data.csv: per stamp of c.groundtruth, the position and quaternion (w, x, y, z)
+    of T (M, 4, 4), then the further columns (M, C)."""
+    q = _quaternions(T)[:, [3, 0, 1, 2]]
+    path.parent.mkdir(parents=True)
+    values = _rows(np.concatenate([T[:, :3, 3], q, *columns], 1), ",")
+    path.write_text(header + _lines(c.groundtruth, values, ","))
 
 
 def _euroc_sensor_yaml(K: np.ndarray, size: tuple[int, int], rate: float) -> str:
@@ -270,19 +281,14 @@ def write_euroc(
     (M, 4, 4) and velocities (M, 3) m/s at c.groundtruth); returns the frame paths."""
     frames = _asl_frames(folder / "mav0" / "cam0", c)
     (folder / "mav0" / "cam0" / "sensor.yaml").write_text(_euroc_sensor_yaml(K, size, SPECS["euroc"].rate_hz))
-    q = _quaternions(T_w_b)[:, [3, 0, 1, 2]]
-    biases = np.broadcast_to(EUROC_BIASES, (len(T_w_b), 6))
-    values = _rows(np.concatenate([T_w_b[:, :3, 3], q, velocity, biases], 1), ",")
     header = (
         "#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z [], "
         "v_RS_R_x [m s^-1], v_RS_R_y [m s^-1], v_RS_R_z [m s^-1], b_w_RS_S_x [rad s^-1], "
         "b_w_RS_S_y [rad s^-1], b_w_RS_S_z [rad s^-1], b_a_RS_S_x [m s^-2], b_a_RS_S_y [m s^-2], "
         "b_a_RS_S_z [m s^-2]\n"
     )
-    lines = [f"{ns},{v}" for ns, v in zip(c.groundtruth, values, strict=True)]
-    gt_dir = folder / "mav0" / "state_groundtruth_estimate0"
-    gt_dir.mkdir(parents=True)
-    (gt_dir / "data.csv").write_text(header + "\n".join(lines) + "\n")
+    biases = np.broadcast_to(EUROC_BIASES, (len(T_w_b), 6))
+    _asl_groundtruth(folder / "mav0/state_groundtruth_estimate0/data.csv", header, c, T_w_b, velocity, biases)
     return frames
 
 
@@ -313,42 +319,9 @@ def write_mimir(
         "distortion_coefficients": [0.0] * 5,
     }
     (camera_dir / "sensor.yaml").write_text(json.dumps(sensor, indent=2) + "\n")
-    q = _quaternions(T_w_b)[:, [3, 0, 1, 2]]
-    values = _rows(np.concatenate([T_w_b[:, :3, 3], q], 1), ",")
-    lines = [f"{ns},{v}" for ns, v in zip(c.groundtruth, values, strict=True)]
-    (folder / "pose_groundtruth").mkdir()
-    (folder / "pose_groundtruth" / "data.csv").write_text(
-        "#timestamp [ns],tx [m],ty [m],tz [m],qw,qx,qy,qz\n" + "\n".join(lines) + "\n"
-    )
+    header = "#timestamp [ns],tx [m],ty [m],tz [m],qw,qx,qy,qz\n"
+    _asl_groundtruth(folder / "pose_groundtruth/data.csv", header, c, T_w_b)
     return frames
-
-
-def _frame_glob(layout: str) -> tuple[str, tuple[str, ...]]:
-    """(glob of a sequence folder's frames, its other required files) of a layout."""
-    return {
-        "tum": ("rgb/*.png", ("rgb.txt", "groundtruth.txt")),
-        "euroc": (
-            "mav0/cam0/data/*.png",
-            ("mav0/cam0/data.csv", "mav0/cam0/sensor.yaml", "mav0/state_groundtruth_estimate0/data.csv"),
-        ),
-        "tartanair": ("image_left/*_left.png", ("pose_left.txt",)),
-        "mimir": (
-            "rgb/cam0/data/*.png",
-            ("rgb/cam0/data.csv", "rgb/cam0/sensor.yaml", "pose_groundtruth/data.csv"),
-        ),
-    }[layout]
-
-
-def sequence_complete(root: Path, layout: str, sequence: str, n_frames: int) -> bool:
-    """Whether root holds a layout's sequence with its files and n_frames frames."""
-    folder = root / sequence_name(layout, sequence)
-    frames, files = _frame_glob(layout)
-    return all((folder / f).is_file() for f in files) and sum(1 for _ in folder.glob(frames)) == n_frames
-
-
-# --------------------------------------------------------------------------------------------------
-# Rendering a sequence
-# --------------------------------------------------------------------------------------------------
 
 
 def _streams(layout: str, sequence: str, seed: int) -> np.random.Generator:
@@ -357,8 +330,7 @@ def _streams(layout: str, sequence: str, seed: int) -> np.random.Generator:
 
 
 def route_frames(sequence: str, distance: float, seed: int, spec: routes.RouteSpec) -> int:
-    """Route frames (10 Hz car poses) whose path is at least distance metres long (doubling from an
-    estimate at 0.5 m a frame)."""
+    """Route frames (10 Hz car poses) whose path is at least distance metres long."""
     n = 20 + math.ceil(distance / 0.5)
     while True:
         route = sequence_route(sequence, n, seed, spec)
@@ -379,33 +351,25 @@ def render_sequence(
     """Render one town sequence in a layout into folder (the sequence's own folder, created)."""
     lay, rng = SPECS[layout], _streams(layout, sequence, seed)
     c = clock(layout, n_frames, rng)
-    t_frames = c.seconds(c.frames)
-    t_end = float(c.seconds(c.groundtruth).max(initial=t_frames[-1]))
+    t_frames, t_gt = c.seconds(c.frames), c.seconds(c.groundtruth)
+    t_end = float(t_gt.max(initial=t_frames[-1]))
     n_route = route_frames(sequence, platforms.max_distance(lay.platform, t_end) + 5.0, seed, spec)
     route, world, noise = scene(sequence, n_route, seed, spec)
     motion = platforms.trajectory(route, lay.platform, rng)
-    T_pc = mount(layout)
     K, distortion = camera(layout, size)
     folder.mkdir(parents=True)
     if layout == "tum":
-        paths = write_tum(folder, sequence_name(layout, sequence), c, motion.poses(c.seconds(c.groundtruth)))
+        paths = write_tum(folder, sequence_name(layout, sequence), c, motion.poses(t_gt))
     elif layout == "euroc":
-        T_w_b, velocity = _euroc_bodies(motion, c.seconds(c.groundtruth))
-        paths = write_euroc(folder, K, size, c, T_w_b, velocity)
+        T_SB = np.linalg.inv(orthonormal(EUROC_T_BS))  # body poses, velocities by central differences
+        ahead, behind = motion.poses(t_gt + 5e-4) @ T_SB, motion.poses(t_gt - 5e-4) @ T_SB
+        velocity = (ahead[:, :3, 3] - behind[:, :3, 3]) / 1e-3
+        paths = write_euroc(folder, K, size, c, motion.poses(t_gt) @ T_SB, velocity)
     elif layout == "tartanair":
         paths = write_tartanair(folder, c, ned(motion.poses(t_frames)))
     else:
-        paths = write_mimir(folder, K, size, c, ned(motion.poses(c.seconds(c.groundtruth))))
+        paths = write_mimir(folder, K, size, c, ned(motion.poses(t_gt)))
     renderer = Renderer(world, K, *size, distortion=distortion)
-    for path, T in zip(paths, motion.poses(t_frames) @ T_pc, strict=True):
+    for path, T in zip(paths, motion.poses(t_frames) @ mount(layout), strict=True):
         image = renderer.render(T, noise)
         write_png(path, cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if lay.grey else image)
-
-
-def _euroc_bodies(motion: platforms.Trajectory, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """EuRoC body poses T_w_b = T_w_c @ inv(T_BS) (M, 4, 4) at times t (M,) s, and their velocities (M, 3)
-    m/s (central differences over 1 ms)."""
-    T_SB = np.linalg.inv(orthonormal(EUROC_T_BS))
-    T_w_b = motion.poses(t) @ T_SB
-    ahead, behind = motion.poses(t + 5e-4) @ T_SB, motion.poses(t - 5e-4) @ T_SB
-    return T_w_b, (ahead[:, :3, 3] - behind[:, :3, 3]) / 1e-3

@@ -1,15 +1,7 @@
-"""Platforms other than the car: handheld, flying and underwater cameras moving through a town along its
-route, as continuous functions of time.
-
-A platform travels along the route's path (its N car poses at 10 Hz) at its own speed: its distance
-d(t) = v0 t + the integral of a slow speed wave (seconds -> metres, monotone) is mapped to the route
-parameter tau (frames) through the route's arc length; the position is a cubic spline of the route's
-positions in tau, the attitude a slerp. Seeded sums of sinusoids add a sway and a rise (m, in the route's
-heading frame), a look-around (yaw, pitch, roll, rad, R = Ry Rx Rz) and a fast shake (a rotation vector and
-an offset in the camera frame). Vectorised over time and deterministic for a seed, so frame times and
-ground-truth times give poses that agree exactly. Axes and units are the town's (KITTI's): x right, y down,
-z forward, m, s, rad.
-"""
+"""Platforms other than the car (handheld, flying, drone, underwater) moving along a town's route as
+continuous functions of time: the route's path travelled at the platform's own speed (a cubic spline of its
+positions, a slerp of its attitudes) plus seeded sinusoidal sway, rise, look-around and shake. Town axes
+and units (x right, y down, z forward; m, s, rad); docs/data.md, "Other layouts"."""
 
 from __future__ import annotations
 
@@ -25,14 +17,10 @@ from lossvo.console import UserError
 
 @dataclass(frozen=True)
 class Platform:
-    """How a platform moves. Speeds m/s; amplitudes metres or radians; bands (low, high) in Hz.
+    """How a platform moves: mean speed (m/s) and the relative amplitude (< 1) of its variation; sway and
+    rise (m; the camera climbs between 0 and rise above the route); look (yaw, pitch, roll amplitudes,
+    rad); shake (rad, m); each wave's band (low, high) in Hz."""
 
-    speed: mean speed; speed_wave: relative amplitude (< 1) of its variation at speed_band;
-    sway: sideways amplitude; rise: the camera climbs between 0 and rise metres above the route;
-    look: (yaw, pitch, roll) amplitudes at look_band; shake_angle, shake_offset: at shake_band.
-    """
-
-    name: str
     speed: float
     speed_wave: float
     speed_band: tuple[float, float]
@@ -48,19 +36,16 @@ class Platform:
 
 DEG = math.pi / 180
 PLATFORMS = {
-    "handheld": Platform("handheld", 0.5, 0.6, (0.05, 0.15), 0.15, 0.15, (0.05, 0.2),
+    "handheld": Platform(0.5, 0.6, (0.05, 0.15), 0.15, 0.15, (0.05, 0.2),
                          (15 * DEG, 6 * DEG, 3 * DEG), (0.08, 0.2), 0.3 * DEG, 0.004, (0.8, 2.0)),
-    "flying": Platform("flying", 1.0, 0.5, (0.03, 0.1), 0.6, 3.0, (0.03, 0.08),
+    "flying": Platform(1.0, 0.5, (0.03, 0.1), 0.6, 3.0, (0.03, 0.08),
                        (12 * DEG, 6 * DEG, 8 * DEG), (0.05, 0.15), 0.15 * DEG, 0.003, (2.0, 5.0)),
-    "drone": Platform("drone", 1.5, 0.4, (0.03, 0.1), 0.8, 2.0, (0.02, 0.06),
+    "drone": Platform(1.5, 0.4, (0.03, 0.1), 0.8, 2.0, (0.02, 0.06),
                       (15 * DEG, 6 * DEG, 6 * DEG), (0.03, 0.1), 0.0, 0.0, (1.0, 2.0)),
-    "auv": Platform("auv", 0.3, 0.3, (0.02, 0.05), 0.3, 1.0, (0.01, 0.04),
+    "auv": Platform(0.3, 0.3, (0.02, 0.05), 0.3, 1.0, (0.01, 0.04),
                     (5 * DEG, 2 * DEG, 2 * DEG), (0.02, 0.05), 0.05 * DEG, 0.002, (0.2, 0.5)),
 }  # fmt: skip
-"""handheld: TUM RGB-D's walking camera (0.2-0.8 m/s, looking around by up to 15 degrees, hand shake);
-flying: EuRoC's MAV (0.5-1.5 m/s, climbs up to 3 m, banks and pitches, rotor vibration); drone:
-TartanAir's smooth 6-DoF flight (0.9-2.1 m/s); auv: MIMIR's underwater vehicle (0.2-0.4 m/s, slow heave
-and yaw)."""
+"""The platforms of TUM RGB-D (handheld), EuRoC (flying), TartanAir (drone) and MIMIR (auv)."""
 
 WAVE_TERMS = 3
 """Sinusoids summed in each wave."""
@@ -88,8 +73,8 @@ class Wave:
 
 
 def wave(rng: np.random.Generator, amplitude: np.ndarray | list[float], band: tuple[float, float]) -> Wave:
-    """A seeded :class:`Wave` per entry of amplitude (shape S): WAVE_TERMS random frequencies in band (Hz)
-    and phases, term amplitudes random positive weights summing to amplitude (so |wave| <= amplitude)."""
+    """A seeded :class:`Wave` per entry of amplitude: WAVE_TERMS random frequencies in band (Hz) and
+    phases, the terms' amplitudes summing to amplitude."""
     amplitude = np.asarray(amplitude, np.float64)
     shape = (*amplitude.shape, WAVE_TERMS)
     weights = rng.uniform(0.5, 1.0, shape)
@@ -99,14 +84,13 @@ def wave(rng: np.random.Generator, amplitude: np.ndarray | list[float], band: tu
 
 @dataclass(frozen=True)
 class Trajectory:
-    """A platform's camera poses along a route, a function of time (s >= 0); see the module docstring."""
+    """A platform's camera poses along a route (N, 4, 4) of 10 Hz car poses, a function of time (s >= 0);
+    motion: the (sway, rise) waves."""
 
     route: np.ndarray
-    """(N, 4, 4) T_w_c of the route (10 Hz car poses) the platform follows."""
     platform: Platform
     speed: Wave
     motion: Wave
-    """(sway, rise) waves."""
     look: Wave
     shake_angle: Wave
     shake_offset: Wave
@@ -134,8 +118,7 @@ class Trajectory:
 
 
 def route_parameter(route: np.ndarray, distance: np.ndarray) -> np.ndarray:
-    """(N,) route parameters tau (fractional route frames) at distances (N,) metres along the route's path
-    (cumulative length of its position steps; standstills are skipped); UserError past its end."""
+    """(N,) route parameters (fractional frames) at distances (N,) m along its path; UserError past it."""
     steps = np.linalg.norm(np.diff(route[:, :3, 3], axis=0), axis=1)
     arc = np.concatenate([[0.0], np.cumsum(steps)])
     if distance.max() > arc[-1]:

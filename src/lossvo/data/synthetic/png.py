@@ -13,8 +13,7 @@ if hasattr(cv2, "IMWRITE_PNG_FILTER"):  # OpenCV >= 4.10: one fixed filter, not 
 
 
 def write_png(path: Path, image: np.ndarray) -> None:
-    """Write image ((H, W, 3) BGR or (H, W) grey uint8) to path as a PNG; RuntimeError if OpenCV cannot
-    encode it, OSError naming the file if it cannot be written."""
+    """Write image ((H, W, 3) BGR or (H, W) grey uint8) to path as a PNG."""
     encoded, png = cv2.imencode(".png", image, PNG_PARAMS)
     if not encoded:
         raise RuntimeError(f"OpenCV could not encode {path}")

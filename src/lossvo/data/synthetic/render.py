@@ -1,14 +1,7 @@
-"""Rendering: frames of a world seen from camera poses, by ray casting with deferred shading.
-
-Vectorised numpy over the pixels, with one Python loop over the few dozen visible objects per frame: a
-ray per pixel is intersected with the ground and with each visible wall and pole (nearest objects first,
-occluded ones skipped, depth test) into a g-buffer; textures are then looked up once per pixel with
-trilinear mip-mapping via ``cv2.remap`` (texture anti-aliasing; silhouettes are not supersampled by
-default, see SUPERSAMPLE), shaded (Lambert), fogged towards the sky, and sensor noise is added.
-
-A camera with lens distortion is rendered distorted: each pixel's ray is its undistorted normalised
-coordinate (:func:`undistorted_rays`), and objects find their pixels through :class:`RayGrid`.
-"""
+"""Rendering by ray casting with deferred shading: each visible wall and pole (nearest first) writes its
+hits into a g-buffer over the ground's; textures are sampled once per pixel (trilinear mip-mapping,
+``cv2.remap``), shaded (Lambert), fogged towards the sky and given sensor noise. A distorted camera is
+rendered along each pixel's undistorted ray (:func:`undistorted_rays`, :class:`RayGrid`)."""
 
 from __future__ import annotations
 
@@ -21,12 +14,9 @@ import numpy as np
 
 from lossvo.console import UserError
 from lossvo.data.synthetic.camera import CAMERA_HEIGHT
-from lossvo.data.synthetic.textures import MIP_TOP, TEXELS_PER_M, Atlas
+from lossvo.data.synthetic.textures import MIP_TOP, TEXELS_PER_M
 from lossvo.data.synthetic.world import World
 
-SUPERSAMPLE = 1
-"""Render at SUPERSAMPLE x the resolution and area-average down (anti-aliases silhouettes too); at 1,
-textures are anti-aliased by mip-mapping only (the choice: experiments/README.md)."""
 NEAR = 0.05
 """Metres: nearest depth a surface is drawn at."""
 FAR = 2000.0
@@ -49,9 +39,7 @@ _BOX_EDGES = np.array(
 @dataclass
 class GBuffer:
     """Per-pixel nearest surface, (h, w) arrays: depth (camera z, m; inf: sky), texture coordinates u, v
-    (m, before the tile's offsets), cos (|n . d| of the unnormalised ray d, for the mip footprint), shade
-    (Lambert brightness) and tile (uint8 atlas tile index).
-    """
+    (m), cos (|n . d| of the unnormalised ray d, for the mip footprint), shade and tile (uint8 index)."""
 
     depth: np.ndarray
     u: np.ndarray
@@ -62,12 +50,13 @@ class GBuffer:
 
     def view(self, window: tuple[slice, slice]) -> GBuffer:
         """The same buffers restricted to a pixel window (views: writes go through)."""
-        return GBuffer(*(getattr(self, f)[window] for f in ("depth", "u", "v", "cos", "shade", "tile")))
+        return GBuffer(*(buffer[window] for buffer in vars(self).values()))
 
-    def write(self, mask: np.ndarray, **values: np.ndarray | float) -> None:
-        """Store values (arrays of the window's shape, or scalars) where mask is true."""
-        for name, value in values.items():
-            np.copyto(getattr(self, name), value, where=mask, casting="unsafe")
+    def write(self, mask: np.ndarray, *values: np.ndarray | float) -> None:
+        """Store a value (an array of the window's shape, or a scalar) in every buffer, in field order, where
+        mask is true."""
+        for buffer, value in zip(vars(self).values(), values, strict=True):
+            np.copyto(buffer, value, where=mask, casting="unsafe")
 
 
 UNDISTORT_ITERATIONS = 200
@@ -76,17 +65,11 @@ UNDISTORT_TOLERANCE = 1e-10
 """Largest residual (normalised image units) of an undistorted ray re-distorted onto its pixel."""
 
 
-def distort(x: np.ndarray, y: np.ndarray, distortion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """OpenCV's radial-tangential model: normalised undistorted (x, y) (any shape) -> distorted, with
-    distortion (k1, k2, p1, p2[, k3])."""
-    radial, dx, dy = _lens_terms(x, y, distortion)
-    return x * radial + dx, y * radial + dy
-
-
 def _lens_terms(
     x: np.ndarray, y: np.ndarray, distortion: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The radial factor and the tangential offsets (dx, dy) of the model at normalised (x, y)."""
+    """OpenCV's radial-tangential model at normalised (x, y): the radial factor and the tangential offsets
+    (dx, dy), distorted = (x radial + dx, y radial + dy)."""
     k1, k2, p1, p2, k3 = np.concatenate([np.asarray(distortion, np.float64), np.zeros(5)])[:5]
     r2 = x * x + y * y
     radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
@@ -96,31 +79,26 @@ def _lens_terms(
 def undistorted_rays(
     K: np.ndarray, distortion: np.ndarray, size: tuple[int, int]
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Undistorted normalised coordinates (x/z, y/z) of every pixel centre of a (h, w) = size frame seen
-    through K (3, 3, pixels) and distortion (k1, k2, p1, p2[, k3]): (h, w) float64 each.
-
-    OpenCV's fixed-point iteration (as cv2.undistortPoints), run until every pixel re-distorts onto its
-    centre within UNDISTORT_TOLERANCE; UserError where it does not converge (a lens model that folds).
-    """
+    """Undistorted normalised coordinates (x/z, y/z), (h, w) float64 each, of every pixel centre of a
+    size = (h, w) frame seen through K and distortion (k1, k2, p1, p2[, k3]): OpenCV's fixed-point
+    iteration until converged; UserError where it does not (a lens model that folds)."""
     h, w = size
     xd = np.broadcast_to((np.arange(w) - K[0, 2]) / K[0, 0], (h, w))
     yd = np.broadcast_to((np.arange(h)[:, None] - K[1, 2]) / K[1, 1], (h, w))
     x, y = xd.copy(), yd.copy()
     for _ in range(UNDISTORT_ITERATIONS):
-        fx, fy = distort(x, y, distortion)
-        if max(np.abs(fx - xd).max(), np.abs(fy - yd).max()) < UNDISTORT_TOLERANCE:
-            return x, y
         radial, dx, dy = _lens_terms(x, y, distortion)
+        if max(np.abs(x * radial + dx - xd).max(), np.abs(y * radial + dy - yd).max()) < UNDISTORT_TOLERANCE:
+            return x, y
         x, y = (xd - dx) / radial, (yd - dy) / radial
     raise UserError(f"distortion {list(distortion)}: the pixel grid does not undistort (no convergence)")
 
 
 @dataclass
 class RayGrid:
-    """Per-pixel rays of a distorted camera: ux, uy (h, w) float32 undistorted normalised coordinates, and
-    monotone envelopes that turn a rectangle of normalised coordinates into the window of the pixels whose
-    rays may fall in it: col_max[c] = max of ux over columns <= c, col_min[c] = min over columns >= c
-    (likewise rows with uy)."""
+    """Per-pixel rays of a distorted camera, ux, uy (h, w) float32 undistorted normalised coordinates, and
+    their monotone envelopes (col_max[c]: max of ux over columns <= c, col_min[c]: min over columns >= c;
+    rows likewise), which bound the pixels whose rays may fall in a rectangle."""
 
     ux: np.ndarray
     uy: np.ndarray
@@ -150,13 +128,9 @@ def screen_bounds(
     cull: float,
     grid: RayGrid | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel windows of convex objects given their corners (M, n, 3) in camera coordinates (m).
-
-    The object is clipped at depth NEAR (corners in front plus edge crossings), projected with K (3, 3)
-    and bounded (through grid's rays instead of K when given). Returns (M, 4) int rows r0, r1, c0, c1
-    (half-open, clipped to size = (h, w); empty windows mark objects out of view or wholly deeper than
-    cull metres) and (M,) the smallest depth (m) of the clipped object.
-    """
+    """Pixel windows (M, 4) int rows r0, r1, c0, c1 (half-open; empty: out of view or deeper than cull m)
+    and nearest depths (M,) m of convex objects with corners (M, n, 3) in camera coordinates, clipped at
+    NEAR and projected with K (through grid's rays when given)."""
     a, b = corners[:, edges[:, 0]], corners[:, edges[:, 1]]
     za, zb = a[..., 2], b[..., 2]
     crossing = (za > NEAR) != (zb > NEAR)
@@ -189,14 +163,36 @@ def _lut(values: np.ndarray) -> np.ndarray:
     return lut
 
 
+def _tile_luts(world: World) -> list[np.ndarray]:
+    """Per-tile cv2.LUT tables: first texel x, y, width, height, their inverses, u and v offsets."""
+    x, y, w, h = world.atlas.tiles.T.astype(np.float64)
+    du, dv = np.zeros(len(x)), np.full(len(x), -CAMERA_HEIGHT * TEXELS_PER_M)
+    du[0], dv[0] = world.ground_offset  # walls and poles: v = world y, tiles end at the ground
+    return [_lut(col) for col in (x, y, w, h, 1 / w, 1 / h, du, dv)]
+
+
+def _wall_corners(walls: np.ndarray) -> np.ndarray:
+    """World corners (M, 4, 3) of the wall rectangles (bottom at the ground)."""
+    x0, z0, x1, z1, top = (walls[:, i] for i in range(5))
+    g = np.full_like(top, CAMERA_HEIGHT)
+    return np.stack([np.stack(c, -1) for c in ((x0, g, z0), (x1, g, z1), (x1, top, z1), (x0, top, z0))], 1)
+
+
+def _pole_corners(poles: np.ndarray) -> np.ndarray:
+    """World corners (P, 8, 3) of the square prisms that bound the pole cylinders."""
+    x, z, r, top = (poles[:, i] for i in range(4))
+    ring = [(-1, -1), (1, -1), (1, 1), (-1, 1)]
+    corners = [
+        np.stack([x + a * r, y, z + b * r], -1)
+        for y in (np.full_like(top, CAMERA_HEIGHT), top)
+        for a, b in ring
+    ]
+    return np.stack(corners, 1)
+
+
 class Renderer:
     """Renders a world from camera poses: (height, width, 3) uint8 BGR frames with intrinsics K (3, 3) and,
-    when given and not all zero, lens distortion (k1, k2, p1, p2[, k3]) (frames rendered distorted).
-
-    Deferred shading: each object writes its nearer hits into a g-buffer (one window of pixels per
-    object, nearest objects first, occluded ones skipped); one pass then samples the textures, shades,
-    fogs and composites over the sky; a last one area-averages the supersampled frame and adds noise.
-    """
+    when given and not all zero, lens distortion (k1, k2, p1, p2[, k3]) (frames rendered distorted)."""
 
     def __init__(
         self,
@@ -204,66 +200,27 @@ class Renderer:
         K: np.ndarray,
         height: int,
         width: int,
-        supersample: int | None = None,
         distortion: np.ndarray | None = None,
     ):
-        s = SUPERSAMPLE if supersample is None else supersample
-        self.world, self.size, self.s = world, (height, width), s
-        self.Ks = np.diag([s, s, 1.0]) @ K
-        self.Ks[:2, 2] += 0.5 * (s - 1)  # pixel centres: c' = (c + 0.5) s - 0.5
-        self.hs, self.ws = height * s, width * s
+        self.world, self.size, self.K = world, (height, width), np.array(K, np.float64)
         self.grid: RayGrid | None = None
         if distortion is not None and np.any(np.asarray(distortion) != 0):
-            ux, uy = undistorted_rays(self.Ks, np.asarray(distortion, np.float64), (self.hs, self.ws))
+            ux, uy = undistorted_rays(self.K, np.asarray(distortion, np.float64), self.size)
             self.grid = RayGrid(ux.astype(np.float32), uy.astype(np.float32))
             self.ux, self.uy = self.grid.ux, self.grid.uy
-        else:  # (1, ws) and (hs, 1): broadcast over the frame
-            self.ux = ((np.arange(self.ws) - self.Ks[0, 2]) / self.Ks[0, 0]).astype(np.float32)[None, :]
-            self.uy = ((np.arange(self.hs) - self.Ks[1, 2]) / self.Ks[1, 1]).astype(np.float32)[:, None]
+        else:  # (1, w) and (h, 1): broadcast over the frame
+            self.ux = ((np.arange(width) - self.K[0, 2]) / self.K[0, 0]).astype(np.float32)[None, :]
+            self.uy = ((np.arange(height) - self.K[1, 2]) / self.K[1, 1]).astype(np.float32)[:, None]
         self.dnorm = np.sqrt(self.ux**2 + self.uy**2 + 1.0).astype(np.float32)
-        self.texel_scale = np.float32(TEXELS_PER_M / math.sqrt(self.Ks[0, 0] * self.Ks[1, 1]))
+        self.texel_scale = np.float32(TEXELS_PER_M / math.sqrt(self.K[0, 0] * self.K[1, 1]))
         self.cull = min(CULL, 3.0 * world.fog_distance)
-        self.tile_luts = self._tile_luts(world)
+        self.tile_luts = _tile_luts(world)
         self.atlas = cv2.cvtColor(world.atlas.image, cv2.COLOR_RGB2BGR)
         self.noise: np.ndarray | None = None
-        self.mip_luts = self._mip_luts(world.atlas)
-        self.wall_corners = self._wall_corners(world.walls)
-        self.pole_corners = self._pole_corners(world.poles)
-
-    @staticmethod
-    def _tile_luts(world: World) -> list[np.ndarray]:
-        """Per-tile parameters as cv2.LUT tables indexed by tile: x, y of the tile's first texel, its
-        width, height and their inverses, u and v offsets (texels)."""
-        x, y, w, h = world.atlas.tiles.T.astype(np.float64)
-        du, dv = np.zeros(len(x)), np.full(len(x), -CAMERA_HEIGHT * TEXELS_PER_M)
-        du[0], dv[0] = world.ground_offset  # walls and poles: v = world y, tiles end at the ground
-        return [_lut(col) for col in (x, y, w, h, 1 / w, 1 / h, du, dv)]
-
-    @staticmethod
-    def _mip_luts(atlas: Atlas) -> list[np.ndarray]:
-        """Per-mip-level scale 2**-l and atlas offsets x, y as cv2.LUT tables indexed by level."""
-        return [_lut(col) for col in (0.5 ** np.arange(MIP_TOP + 1), atlas.level_x, atlas.level_y)]
-
-    @staticmethod
-    def _wall_corners(walls: np.ndarray) -> np.ndarray:
-        """World corners (M, 4, 3) of the wall rectangles (bottom at the ground)."""
-        x0, z0, x1, z1, top = (walls[:, i] for i in range(5))
-        g = np.full_like(top, CAMERA_HEIGHT)
-        return np.stack(
-            [np.stack(c, -1) for c in ((x0, g, z0), (x1, g, z1), (x1, top, z1), (x0, top, z0))], 1
-        )
-
-    @staticmethod
-    def _pole_corners(poles: np.ndarray) -> np.ndarray:
-        """World corners (P, 8, 3) of the square prisms that bound the pole cylinders."""
-        x, z, r, top = (poles[:, i] for i in range(4))
-        ring = [(-1, -1), (1, -1), (1, 1), (-1, 1)]
-        corners = [
-            np.stack([x + a * r, y, z + b * r], -1)
-            for y in (np.full_like(top, CAMERA_HEIGHT), top)
-            for a, b in ring
-        ]
-        return np.stack(corners, 1)
+        levels = (0.5 ** np.arange(MIP_TOP + 1), world.atlas.level_x, world.atlas.level_y)
+        self.mip_luts = [_lut(col) for col in levels]  # scale 2**-l and atlas offsets x, y by mip level
+        self.wall_corners = _wall_corners(world.walls)
+        self.pole_corners = _pole_corners(world.poles)
 
     def render(self, T_w_c: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Frame (height, width, 3) uint8 BGR seen from pose T_w_c (4, 4); rng draws the sensor noise."""
@@ -272,7 +229,7 @@ class Renderer:
         g = self._ground(d, c)
         for m, window in self._visible(g, (self.wall_corners - c) @ R, _RECT_EDGES):
             self._draw_wall(g.view(window), [a[window] for a in d], m, c)
-        pole_px = self.Ks[0, 0] * 2 * self.world.poles[:, 2]
+        pole_px = self.K[0, 0] * 2 * self.world.poles[:, 2]
         for p, window in self._visible(g, (self.pole_corners - c) @ R, _BOX_EDGES, pole_px / MIN_POLE_PIXELS):
             self._draw_pole(g.view(window), [a[window] for a in d], p, c)
         return self._finish(self._colour(g, d), rng)
@@ -282,7 +239,7 @@ class Renderer:
     ) -> Iterator[tuple[int, tuple[slice, slice]]]:
         """(index, pixel window) of the objects in view (corners (M, n, 3) in camera coordinates), nearest
         first, skipping those deeper than max_depth (M,) and those wholly behind what g holds by then."""
-        bounds, zmin = screen_bounds(corners, edges, self.Ks, (self.hs, self.ws), self.cull, self.grid)
+        bounds, zmin = screen_bounds(corners, edges, self.K, self.size, self.cull, self.grid)
         seen = (bounds[:, 0] < bounds[:, 1]) & (bounds[:, 2] < bounds[:, 3])
         if max_depth is not None:
             seen &= zmin < max_depth
@@ -321,15 +278,7 @@ class Renderer:
         if mask.any():
             facing = math.copysign(1.0, num)  # the lit side is the one the camera is on
             light = AMBIENT + DIFFUSE * max(0.0, facing * (ex * self.world.sun[2] - ez * self.world.sun[0]))
-            g.write(
-                mask,
-                depth=t,
-                u=u + np.float32(u_off),
-                v=y,
-                cos=np.abs(denom),
-                shade=light,
-                tile=self.world.wall_tile[m],
-            )
+            g.write(mask, t, u + np.float32(u_off), y, np.abs(denom), light, self.world.wall_tile[m])
 
     def _draw_pole(self, g: GBuffer, d: list[np.ndarray], p: int, c: np.ndarray) -> None:
         """Intersect the rays d (h, w) of a window with pole p (a vertical cylinder); store nearer hits."""
@@ -347,15 +296,8 @@ class Renderer:
             light = AMBIENT + DIFFUSE * np.maximum(
                 0, nx * np.float32(self.world.sun[0]) + nz * np.float32(self.world.sun[2])
             )
-            g.write(
-                mask,
-                depth=t,
-                u=np.arctan2(nz, nx) * np.float32(r),
-                v=y,
-                cos=np.abs(nx * d[0] + nz * d[2]),
-                shade=light,
-                tile=self.world.pole_tile[p],
-            )
+            u = np.arctan2(nz, nx) * np.float32(r)
+            g.write(mask, t, u, y, np.abs(nx * d[0] + nz * d[2]), light, self.world.pole_tile[p])
 
     def _texels(self, g: GBuffer) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Level-0 atlas coordinates ax, ay and footprint (texels per pixel), (h, w) float32 each."""
@@ -388,11 +330,8 @@ class Renderer:
         return cv2.remap(self.atlas, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
     def _colour(self, g: GBuffer, d: list[np.ndarray]) -> list[np.ndarray]:
-        """Shaded surface colours fogged towards the sky behind: B, G, R planes (hs, ws) float32 in [0, 1].
-
-        The fog colour is the sky's colour in the pixel's direction (a vertical gradient from the horizon
-        colour at and below the horizon to the zenith colour), so the sky itself is depth = inf.
-        """
+        """Shaded surface colours fogged towards the sky's colour in the pixel's direction (a gradient from
+        horizon to zenith; the sky itself is depth = inf): B, G, R planes (h, w) float32 in [0, 1]."""
         w = self.world
         fog = cv2.exp(np.minimum(g.depth, np.float32(1e5)) * np.float32(-1 / w.fog_distance))
         elevation = cv2.sqrt(np.clip(d[1] / self.dnorm * np.float32(-1 / 0.6), 0, 1))
@@ -405,12 +344,8 @@ class Renderer:
         ]
 
     def _finish(self, colour: list[np.ndarray], rng: np.random.Generator) -> np.ndarray:
-        """Area-average colour planes to (height, width), apply exposure gain and sensor noise: (height,
-        width, 3) uint8 BGR.
-
-        The noise is a random crop of a Gaussian noise image twice the frame's size, drawn on first use
-        (far cheaper than fresh Gaussian draws per frame, and as random to the eye and to a network).
-        """
+        """Colour planes with exposure gain and sensor noise, (height, width, 3) uint8 BGR; the noise is a
+        random crop of a Gaussian noise image twice the frame's size (cheaper than fresh draws)."""
         h, w = self.size
         if self.noise is None:
             self.noise = rng.standard_normal((3, 2 * h, 2 * w), dtype=np.float32) * np.float32(
@@ -419,7 +354,6 @@ class Renderer:
         y, x = rng.integers(0, h), rng.integers(0, w)
         planes = []
         for c, plane in enumerate(colour):
-            small = cv2.resize(plane, (w, h), interpolation=cv2.INTER_AREA) if self.s > 1 else plane
-            small = small * np.float32(255 * self.world.gain) + self.noise[c, y : y + h, x : x + w]
-            planes.append(np.clip(small + np.float32(0.5), 0, 255).astype(np.uint8))
+            value = plane * np.float32(255 * self.world.gain) + self.noise[c, y : y + h, x : x + w]
+            planes.append(np.clip(value + np.float32(0.5), 0, 255).astype(np.uint8))
         return cv2.merge(planes)

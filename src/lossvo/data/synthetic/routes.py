@@ -1,16 +1,7 @@
-"""Car-like camera routes on the ground plane, drawn from route families.
-
-A route is a chain of manoeuvres: a straight stretch, then a turn, a lane change or a stop, their numbers
-(speeds, lengths, angles, radii) drawn from a :class:`Family`'s ranges; a sequence draws the family of each
-stretch of :data:`STRETCH` manoeuvres from its mix (:data:`MIXES`). Speeds follow the planned targets under
-acceleration and braking limits (a forward and a backward pass); yaw is curvature times speed, so a standing
-car does not turn. Hills pitch the camera with the grade (height change at most ``Family.hill`` m); camber is
-a slowly varying roll. The families and their motion statistics: docs/data.md.
-
-Units: metres, radians and frames (10 Hz), speeds in m/frame (1 m/frame = 36 km/h). Poses are camera-to-world
-T_w_c in KITTI's axes (x right, y down, z forward), the first one the identity, R = Ry(yaw) @ Rx(pitch) @
-Rz(roll).
-"""
+"""Car-like camera routes on the ground plane, drawn from route families: chains of manoeuvres (a
+straight, then a turn, a lane change or a stop) under acceleration and braking limits, with hills and camber.
+Units: metres, radians, frames (10 Hz), speeds in m/frame; poses T_w_c in KITTI's axes, the first the
+identity, R = Ry(yaw) @ Rx(pitch) @ Rz(roll). The families and their motion statistics: docs/data.md."""
 
 from __future__ import annotations
 
@@ -29,7 +20,8 @@ from lossvo.console import UserError
 from lossvo.data.sequence import sequence_name
 
 STRETCH = 60
-"""Frames (at least) driven in one family before the next family is drawn from the sequence's mix."""
+"""Frames (at least) driven in one family before the next is drawn from the mix."""
+
 ACCEL, BRAKE = 0.012, 0.02
 """Acceleration and braking limits, m/frame per frame (1.2 and 2.0 m/s^2)."""
 LANE_WIDTH = 3.5
@@ -40,33 +32,11 @@ MAX_TILT = 0.045
 """Radians: pitch and roll (grade, braking, camber, cornering) are clipped to this (2.6 degrees)."""
 
 
-def check_family(f: Family) -> None:
-    """Raise UserError naming the first impossible parameter of f (negative speed, zero radius, ...)."""
-    for key in ("cruise", "straight", "turn_angle", "turn_radius", "turn_speed", "stop_frames"):
-        lo, hi = getattr(f, key)
-        if not (0 < lo <= hi and math.isfinite(hi)):
-            raise UserError(f"route family {f.name!r}: {key} must be a range 0 < low <= high, got {(lo, hi)}")
-    for key in ("turn", "lane_change", "stop"):
-        p = getattr(f, key)
-        if not 0.0 <= p <= 1.0:
-            raise UserError(f"route family {f.name!r}: {key} must be a probability in [0, 1], got {p}")
-    if f.turn + f.lane_change + f.stop > 1.0:
-        raise UserError(f"route family {f.name!r}: turn + lane_change + stop must be <= 1")
-    for key in ("hill", "camber"):
-        if not 0.0 <= getattr(f, key) < 1.0:
-            raise UserError(f"route family {f.name!r}: {key} must be in [0, 1), got {getattr(f, key)}")
-
-
 @dataclass(frozen=True)
 class Family:
-    """Ranges that the manoeuvres of one kind of driving are drawn from (uniformly within each range).
-
-    cruise: speed on straights (m/frame); straight: length of a straight (m); after a straight comes a
-    turn with probability ``turn``, a lane change with ``lane_change``, a stop with ``stop`` (else
-    another straight). turn_angle (degrees, either direction), turn_radius (m, mean over the turn),
-    turn_speed (m/frame); stop_frames: frames standing still; hill: height amplitude (m) of the rises,
-    camber: roll amplitude (rad) of the road's camber.
-    """
+    """Ranges the manoeuvres of one kind of driving are drawn from, uniformly: cruise (m/frame), straight
+    (m), the probabilities of a turn, lane change or stop after a straight, turn_angle (degrees), turn_radius
+    (m, mean over the turn), turn_speed (m/frame), stop_frames; hill (m) and camber (rad) amplitudes."""
 
     name: str
     description: str
@@ -83,7 +53,20 @@ class Family:
     camber: float = 0.0
 
     def __post_init__(self) -> None:
-        check_family(self)
+        """UserError naming the first impossible parameter (negative speed, zero radius, ...)."""
+        where = f"route family {self.name!r}"
+        for key in ("cruise", "straight", "turn_angle", "turn_radius", "turn_speed", "stop_frames"):
+            lo, hi = getattr(self, key)
+            if not (0 < lo <= hi and math.isfinite(hi)):
+                raise UserError(f"{where}: {key} must be a range 0 < low <= high, got {(lo, hi)}")
+        for key in ("turn", "lane_change", "stop"):
+            if not 0.0 <= getattr(self, key) <= 1.0:
+                raise UserError(f"{where}: {key} must be a probability in [0, 1], got {getattr(self, key)}")
+        if self.turn + self.lane_change + self.stop > 1.0:
+            raise UserError(f"{where}: turn + lane_change + stop must be <= 1")
+        for key in ("hill", "camber"):
+            if not 0.0 <= getattr(self, key) < 1.0:
+                raise UserError(f"{where}: {key} must be in [0, 1), got {getattr(self, key)}")
 
 
 FAMILIES: dict[str, Family] = {
@@ -187,17 +170,9 @@ def check_mix(mix: Mapping[str, float], families: Mapping[str, Family] = FAMILIE
     if unknown:
         raise UserError(f"unknown route family {unknown[0]!r}: expected one of {', '.join(families)}")
     weights = [w for w in mix.values() if is_number(w)]
-    if not mix or len(weights) < len(mix) or any(not (w >= 0 and math.isfinite(w)) for w in weights):
+    if len(weights) < len(mix) or not all(w >= 0 and math.isfinite(w) for w in weights) or sum(weights) <= 0:
         raise UserError(f"route mix: expected non-negative weights with a positive sum, got {dict(mix)}")
-    total = sum(weights)
-    if total <= 0:
-        raise UserError(f"route mix: expected non-negative weights with a positive sum, got {dict(mix)}")
-    return {name: float(w) / total for name, w in mix.items()}
-
-
-def sequence_mix(sequence: str) -> dict[str, float]:
-    """The default family mix (name -> weight) that the routes of this sequence are drawn from."""
-    return MIXES.get(sequence, TRAINING_MIX)
+    return {name: float(w) / sum(weights) for name, w in mix.items()}
 
 
 @dataclass(frozen=True)
@@ -209,6 +184,7 @@ class RouteSpec:
     mixes: Mapping[str, Mapping[str, float]]
 
     def mix(self, sequence: str) -> dict[str, float]:
+        """The family mix (name -> weight) the routes of this sequence are drawn from."""
         return dict(self.mixes.get(sequence, TRAINING_MIX))
 
     def manifest(self) -> dict:
@@ -220,6 +196,8 @@ class RouteSpec:
 
 
 FIELDS = tuple(f.name for f in dataclasses.fields(Family) if f.name != "name")
+REQUIRED = tuple(f.name for f in dataclasses.fields(Family)[1:] if f.default is dataclasses.MISSING)
+"""The parameters a new family needs."""
 
 
 def route_spec(
@@ -227,23 +205,17 @@ def route_spec(
     mixes: Mapping[str, Mapping[str, float]] | None = None,
     prefix: str = "",
 ) -> RouteSpec:
-    """The default RouteSpec with families added or changed and sequences' mixes replaced; validated.
-
-    families: name -> parameters of :class:`Family` (for a known family, only those that change; for a
-    new one, all of them); mixes: sequence -> {family: weight}. prefix goes before the key in errors
-    (e.g. "data."). Raises UserError with one line naming the family, the parameter or the sequence.
-    """
+    """The default RouteSpec with families added or changed (name -> the parameters that change, all
+    :data:`REQUIRED` for a new one) and sequences' mixes replaced; UserError naming the key after prefix."""
     table = dict(FAMILIES)
     for name, params in (families or {}).items():
+        where = f"{prefix}route_families.{name}"
         if not isinstance(params, Mapping):
-            raise UserError(
-                f"{prefix}route_families.{name}: expected a mapping of parameters, got {params!r}"
-            )
+            raise UserError(f"{where}: expected a mapping of parameters, got {params!r}")
         unknown = [k for k in params if k not in FIELDS]
         if unknown:
             raise UserError(
-                f"{prefix}route_families.{name}: unknown parameter {unknown[0]!r} "
-                f"(expected some of {', '.join(FIELDS)})"
+                f"{where}: unknown parameter {unknown[0]!r} (expected some of {', '.join(FIELDS)})"
             )
         values: dict[str, Any] = {  # config values; Family's own checks validate them
             k: tuple(v) if isinstance(v, list | tuple) else v for k, v in params.items()
@@ -251,13 +223,10 @@ def route_spec(
         if name in table:
             table[name] = dataclasses.replace(table[name], **values)
             continue
-        missing = [
-            k
-            for k in ("description", "cruise", "straight", "turn", "turn_angle", "turn_radius", "turn_speed")
-            if k not in values
-        ]
+        missing = [k for k in REQUIRED if k not in values]
         if missing:
-            raise UserError(f"{prefix}route_families.{name}: a new family needs {', '.join(missing)}")
+            raise UserError(f"{where}: a new family needs {', '.join(missing)}")
+
         table[name] = Family(name=str(name), **values)
     chosen = dict(MIXES)
     for sequence, mix in (mixes or {}).items():
@@ -269,16 +238,10 @@ def route_spec(
     return RouteSpec(table, chosen)
 
 
-# --------------------------------------------------------------------------------------------------
-# Manoeuvres -> per-frame plan
-# --------------------------------------------------------------------------------------------------
-
-
 @dataclass
 class Plan:
-    """Per-frame targets of a route: target speed (n,) m/frame, the family driven (n,) (names), and the
-    manoeuvre events that rotate the car, as (first frame, end frame, kind "turn" | "lane", signed
-    amount: rad | m)."""
+    """Per-frame target speed (n,) m/frame and family (n,) of a route, and the events that rotate the car:
+    (first frame, end frame, "turn" | "lane", signed rad | m)."""
 
     target: np.ndarray
     family: np.ndarray
@@ -299,9 +262,7 @@ def _turn_sign(rng: np.random.Generator, heading: float) -> float:
 def plan_route(
     rng: np.random.Generator, n: int, mix: Mapping[str, float], families: Mapping[str, Family] = FAMILIES
 ) -> Plan:
-    """Draw manoeuvres from the mix until at least n frames are planned; returns their per-frame Plan,
-    which runs to the end of its last manoeuvre (so that a route cut at n frames still turns, brakes
-    and changes lanes as planned up to its last frame)."""
+    """Manoeuvres drawn from the mix until at least n frames are planned, to the end of the last one."""
     weights = check_mix(mix, families)
     names, p = list(weights), np.array(list(weights.values()))
     speeds: list[np.ndarray] = []
@@ -339,11 +300,8 @@ def plan_route(
 
 
 def speed_profile(target: np.ndarray, accel: float = ACCEL, brake: float = BRAKE) -> np.ndarray:
-    """Speeds (n,) m/frame as close to target (n,) as the acceleration and braking limits allow.
-
-    A forward pass limits acceleration and a backward pass braking (so the car slows down ahead of a
-    lower target); the result never exceeds the target and is exactly 0 where the car stands.
-    """
+    """Speeds (n,) m/frame as close to target (n,) as the acceleration (forward pass) and braking
+    (backward pass) limits allow; never above the target, exactly 0 where the car stands."""
     v = target.astype(np.float64).copy()
     for k in range(1, len(v)):  # sequential by nature: each speed depends on the previous one
         v[k] = min(v[k], v[k - 1] + accel)
@@ -353,12 +311,10 @@ def speed_profile(target: np.ndarray, accel: float = ACCEL, brake: float = BRAKE
 
 
 def yaw_rates(speed: np.ndarray, events: list[tuple[int, int, str, float]]) -> np.ndarray:
-    """Yaw change per frame (n,) rad of the turn and lane-change events at the given speeds (n,) m/frame.
+    """Yaw change per frame (n,) rad of the turn and lane-change events at speeds (n,) m/frame.
 
-    A turn of angle a over frames [i, j) turns by a * w_k / sum(w) at frame k, w_k = v_k sin^2(pi u_k)
-    (curvature with a smooth sin^2 profile times speed): a standing car does not turn. A lane change
-    heads away by h_k = A sin^2(pi k / (N - 1)) and back over its N frames, A chosen so that the
-    sideways offset sum(v_k h_k) is its signed width.
+    A turn of angle a over frames [i, j) turns by a * w_k / sum(w), w_k = v_k sin^2(pi u_k). A lane change
+    heads away by h_k = A sin^2(pi k / (N - 1)) and back, A such that sum(v_k h_k) is its signed width.
     """
     rate = np.zeros(len(speed))
     for start, end, kind, amount in events:
@@ -371,11 +327,6 @@ def yaw_rates(speed: np.ndarray, events: list[tuple[int, int, str, float]]) -> n
             heading = amount * shape / max((v * shape).sum(), 1e-9)
             rate[start : start + len(v)] += np.diff(np.concatenate([[0.0], heading]))
     return rate
-
-
-# --------------------------------------------------------------------------------------------------
-# Plan -> poses
-# --------------------------------------------------------------------------------------------------
 
 
 def _gaussian(sigma: float) -> np.ndarray:
@@ -401,9 +352,8 @@ def _blend(driven: np.ndarray, families: Mapping[str, Family], key: str, sigma: 
 def undulation(
     rng: np.random.Generator, wavelength: tuple[float, float]
 ) -> Callable[[np.ndarray], np.ndarray]:
-    """A profile f(distance) (n,) -> (n,) in [-1, 1]: the mean of two sinusoids of the travelled distance
-    (m), wavelengths (m) drawn from the range. Hills and camber follow it, so they do not change while the
-    car stands."""
+    """A profile f(distance) (n,) -> (n,) in [-1, 1] of the distance travelled (m): the mean of two
+    sinusoids of wavelengths (m) drawn from the range."""
     lengths, phases = rng.uniform(*wavelength, 2), rng.uniform(0, 2 * np.pi, 2)
 
     def profile(distance: np.ndarray) -> np.ndarray:
@@ -418,12 +368,8 @@ def make_route(
     mix: Mapping[str, float] = TRAINING_MIX,
     families: Mapping[str, Family] = FAMILIES,
 ) -> np.ndarray:
-    """Camera poses T_w_c (n_frames, 4, 4) float64 of a car driving a route drawn from the mix.
-
-    On top of the planned manoeuvres: speed noise of ~3 %, lane wobble, suspension pitch when braking
-    and roll when cornering (below ~1.5 degrees), hills and camber of the families, height bobbing of
-    ~1 cm. The first pose is the identity.
-    """
+    """Camera poses T_w_c (n_frames, 4, 4) float64 of a car driving a route drawn from the mix: the planned
+    manoeuvres plus speed noise, lane wobble, suspension pitch and roll, hills, camber and bobbing."""
     plan = plan_route(rng, n_frames, mix, families)
     n = len(plan.target)
     moving = plan.target > 0

@@ -1,10 +1,5 @@
-"""Textures: periodic RGB tiles for the ground, the facades and the poles, and the mip-mapped atlas that
-holds them for the renderer.
-
-Tiles are drawn procedurally from a numpy Generator ("dead leaves" patches of random convex shapes,
-windows, bricks, bands, per-texel grain), every one periodic so that surfaces repeat it without seams.
-Sizes are in texels, TEXELS_PER_M to the metre on every surface.
-"""
+"""Textures: procedural periodic RGB tiles ("dead leaves" patches, windows, bricks, bands, grain) for the
+ground, facades and poles, and the mip-mapped atlas that holds them; sizes in texels, TEXELS_PER_M a metre."""
 
 from __future__ import annotations
 
@@ -22,8 +17,7 @@ MARGIN = 2**MIP_TOP
 
 
 def _fill_wrapped(img: np.ndarray, pts: np.ndarray, colour: tuple[float, ...]) -> None:
-    """Fill the convex polygon pts (k, 2) int32 (texel x, y in 1/16 texel) on the periodic tile img,
-    once for each whole-tile shift of it that overlaps the tile."""
+    """Fill the convex polygon pts (k, 2) int32 (1/16 texel) on the periodic tile img, wrapped around."""
     h, w = img.shape[:2]
     lo, hi = pts.min(0) >> 4, pts.max(0) >> 4
     for sx in (-w, 0, w):
@@ -36,11 +30,8 @@ def _fill_wrapped(img: np.ndarray, pts: np.ndarray, colour: tuple[float, ...]) -
 def _shapes(
     rng: np.random.Generator, count: int, radii: tuple[float, float], size: tuple[int, int]
 ) -> np.ndarray:
-    """count random convex shapes (count, 6, 2) int32 in 1/16 texel, largest first, log-uniform radii.
-
-    Rotated rectangles (aspect 0.2-1) and jittered 3-6-gons (padded by repeating a vertex), centred
-    uniformly on a (h, w) tile.
-    """
+    """count random convex shapes (count, 6, 2) int32 in 1/16 texel on a (h, w) tile, largest first:
+    rotated rectangles and 3-6-gons (padded by repeating a vertex), log-uniform radii."""
     h, w = size
     r = np.sort(np.exp(rng.uniform(np.log(radii[0]), np.log(radii[1]), count)))[::-1, None]
     aspect = rng.uniform(0.2, 1.0, (count, 1))
@@ -123,11 +114,8 @@ def _bricks(img: np.ndarray, mortar: np.ndarray) -> None:
 
 
 def facade_texture(rng: np.random.Generator, size: tuple[int, int] = (768, 1024)) -> np.ndarray:
-    """Periodic building facade tile (h, w, 3) uint8 RGB (19.2 x 25.6 m): plaster or bricks, windows.
-
-    Row 0 is the top; the renderer anchors the bottom row at the ground. A quarter of the tiles are walls
-    (concrete panels with posters and graffiti) instead of windowed facades.
-    """
+    """Periodic building facade tile (h, w, 3) uint8 RGB (row 0 the top): plaster or bricks with windows,
+    or a quarter of the time concrete panels with graffiti."""
     h, w = size
     palette = np.array([[200, 190, 170], [170, 90, 70], [150, 150, 150], [215, 210, 200], [120, 100, 80]])
     base = np.clip(
@@ -166,12 +154,9 @@ def pole_texture(rng: np.random.Generator, size: tuple[int, int] = (512, 128)) -
 
 @dataclass(frozen=True)
 class Atlas:
-    """All texture tiles of a world and their mip levels, for cv2.remap.
-
-    image: (H, W, 3) uint8 RGB. Level 0 (the tiles, each with a MARGIN of wrapped texels around it) is
-    the block at the origin; level l >= 1 is the same block scaled by 2**-l, at (level_x[l], level_y[l]).
-    tiles: (T, 4) int64 per tile: level-0 x, y of its first texel, its width and height (texels).
-    """
+    """All texture tiles of a world and their mip levels, for cv2.remap: image (H, W, 3) uint8 RGB holds
+    level 0 (the tiles with wrapped margins) at the origin and level l scaled by 2**-l at (level_x[l],
+    level_y[l]); tiles (T, 4): each tile's level-0 first texel x, y, width and height."""
 
     image: np.ndarray
     level_x: np.ndarray

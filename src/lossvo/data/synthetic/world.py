@@ -1,15 +1,6 @@
-"""The world of a sequence: a town built around its route, and the seeded route, world and sensor-noise
-streams of each sequence.
-
-The town: an infinite textured ground plane (asphalt-like multi-scale "dead leaves" patches with paint
-marks), buildings (vertical boxes with window, brick or panel facades) in rows along both sides of the
-route and in city blocks behind them, poles (vertical cylinders), a sky gradient and distance fog. Sun,
-sky, fog, exposure gain and sensor noise vary a little between sequences.
-
-Lengths are metres in the world frame, which is the first camera frame (KITTI's axes: x right, y down,
-z forward), so the ground is the plane y = CAMERA_HEIGHT. Each sequence draws its route, its world and
-its sensor noise from three independent streams of ``SeedSequence([seed, int(sequence)])``.
-"""
+"""The world of a sequence: a town around its route (a textured ground plane, buildings in rows along the
+route and in blocks behind, poles, sky and fog), and each sequence's seeded route, world and sensor-noise
+streams. Metres in the first camera frame (x right, y down, z forward; the ground is y = CAMERA_HEIGHT)."""
 
 from __future__ import annotations
 
@@ -29,12 +20,9 @@ FACADES = 5
 
 @dataclass(frozen=True)
 class World:
-    """A town around one route. Lengths in metres, world frame (y down, ground at y = CAMERA_HEIGHT).
-
-    walls: vertical rectangles, (M, 6) float64 rows x0, z0, x1, z1 (ground segment), y_top, u_offset;
-    wall_tile: (M,) atlas tile index. poles: vertical cylinders, (P, 4) rows x, z, radius, y_top;
-    pole_tile: (P,). sun: (3,) unit vector towards the sun. Colours are RGB in [0, 1].
-    """
+    """A town around one route: walls (M, 6) rows x0, z0, x1, z1 (ground segment), y_top, u_offset; poles
+    (P, 4) rows x, z, radius, y_top; their atlas tiles (M,), (P,); sun (3,) a unit vector towards the sun;
+    sky colours RGB in [0, 1]."""
 
     walls: np.ndarray
     wall_tile: np.ndarray
@@ -51,10 +39,8 @@ class World:
 
 
 def path_samples(xz: np.ndarray, back: float = 40.0, ahead: float = 160.0) -> tuple[np.ndarray, np.ndarray]:
-    """Route (N, 2) (x, z) extended straight back and ahead, resampled every PATH_STEP m.
-
-    Returns the points (S, 2) and the unit vectors (S, 2) to the right of the direction of travel.
-    """
+    """Points (S, 2) of a route (N, 2) (x, z) extended straight back and ahead, every PATH_STEP m, and
+    the unit vectors (S, 2) to their right."""
     d0 = (xz[1] - xz[0]) / max(np.linalg.norm(xz[1] - xz[0]), 1e-9)
     d1 = (xz[-1] - xz[-2]) / max(np.linalg.norm(xz[-1] - xz[-2]), 1e-9)
     poly = np.vstack([xz[0] - back * d0, xz, xz[-1] + ahead * d1])
@@ -82,11 +68,8 @@ def _footprints(
     offset: tuple[float, float],
     length: tuple[float, float],
 ) -> list[np.ndarray]:
-    """Building footprints (4, 2) in a row along one side (+1 right, -1 left) of the path samples.
-
-    Front faces follow the path at a lateral offset (m) that drifts within ``offset``, with short gaps and
-    occasional wide ones (side streets); each footprint is a rectangle 6-15 m deep, away from the path.
-    """
+    """Building footprints (4, 2) in a row along one side (+1 right, -1 left) of the path, fronts at a
+    lateral offset (m) drifting within ``offset``, with gaps (side streets), 6-15 m deep."""
     out: list[np.ndarray] = []
     i = int(rng.integers(0, 20))
     lateral = rng.uniform(*offset)
@@ -122,8 +105,8 @@ def _block_fill(rng: np.random.Generator, pts: np.ndarray, spacing: float = 20.0
 
 
 def _buildings(rng: np.random.Generator, pts: np.ndarray, right: np.ndarray, n_tiles: int) -> tuple:
-    """Walls (M, 6) and their tiles (M,): street-front rows along both sides of the path (4-12 m from it)
-    and city blocks filling the space behind; every wall at least 3 m from the path, blocks 7 m."""
+    """Walls (M, 6) and their tiles (M,): rows along both sides of the path (4-12 m from it) and blocks
+    behind; every wall at least 3 m from the path, blocks 7 m."""
     footprints, tops = [], []
     for side in (-1.0, 1.0):
         row = _footprints(rng, pts, right, side, (4.0, 12.0), (6.0, 25.0))
@@ -193,7 +176,7 @@ def _streams(sequence: str, seed: int) -> list[np.random.SeedSequence]:
 def sequence_route(
     sequence: str, n_frames: int, seed: int = 0, spec: routes.RouteSpec = routes.DEFAULT_SPEC
 ) -> np.ndarray:
-    """The camera poses T_w_c (n_frames, 4, 4) float64 that generate() writes for this sequence and seed."""
+    """The camera poses T_w_c (n_frames, 4, 4) float64 of this sequence and seed."""
     rng = np.random.default_rng(_streams(sequence, seed)[0])
     return routes.make_route(rng, n_frames, spec.mix(sequence), spec.families)
 

@@ -1,12 +1,12 @@
-"""Writing datasets: each sequence rendered into the KITTI odometry layout (or another layout,
-:mod:`~lossvo.data.synthetic.layouts`) and moved into place whole, sequences in parallel processes, the
-manifest last; :func:`generate` and :func:`ensure_dataset`.
-"""
+"""Writing datasets (:func:`generate`, :func:`ensure_dataset`): their sequences, frames and image size
+(defaults and checks; 160 x 512 is KITTI's 376 x 1241 scaled by about 0.42), each sequence rendered into a
+temporary folder and moved into place whole, sequences in parallel processes, the manifest last."""
 
 from __future__ import annotations
 
 import json
 import logging
+import math
 import multiprocessing
 import os
 import shutil
@@ -23,97 +23,110 @@ from lossvo.data import kitti, pose_files
 from lossvo.data.synthetic import layouts, manifest, routes
 from lossvo.data.synthetic.camera import CameraRange, calib_text, drawn_intrinsics, intrinsics
 from lossvo.data.synthetic.manifest import Rendering
-from lossvo.data.synthetic.parameters import (
-    DEFAULT_HEIGHT,
-    DEFAULT_WIDTH,
-    MAX_SIZE,
-    MIN_SIZE,
-    SEQUENCES,
-    check_size,
-    resolve_frames,
-)
 from lossvo.data.synthetic.png import write_png
 from lossvo.data.synthetic.render import Renderer
 from lossvo.data.synthetic.world import scene
 
 log = logging.getLogger(__name__)
 
-FRAME_RATE = 10.0
-"""Frames per second (KITTI's 10 Hz): the timestamps of times.txt."""
+DEFAULT_HEIGHT = 160
+DEFAULT_WIDTH = 512
+SEQUENCES = tuple(routes.MIXES)
+DEFAULT_FRAMES = {
+    "00": 240, "01": 120, "02": 240, "03": 120, "04": 100, "05": 200,
+    "06": 150, "07": 120, "08": 240, "09": 150, "10": 120, "11": 150, "12": 150,
+}  # fmt: skip
+"""Frames per sequence when none are given; sequences not listed get FALLBACK_FRAMES."""
+FALLBACK_FRAMES = 150
+MIN_FRAMES = 2
+MIN_SIZE = 32
+MAX_SIZE = 4096
 
 
-def times_text(n_frames: int) -> str:
-    """KITTI times.txt content: one timestamp in seconds a line, FRAME_RATE Hz, starting at 0."""
-    return "".join(f"{k / FRAME_RATE:e}\n" for k in range(n_frames))
+def parse_sequences(text: str, label: str = "sequences") -> tuple[str, ...]:
+    """'00,07' -> ('00', '07'): comma-separated two-digit sequence numbers, duplicates dropped."""
+    names = [s.strip() for s in text.split(",")]
+    if not names or any(len(s) != 2 or not s.isdigit() for s in names):
+        raise UserError(f"{label}: expected two-digit sequence numbers like 00,07, got {text!r}")
+    return tuple(dict.fromkeys(names))
 
 
-def render_sequence(folder: Path, sequence: str, n_frames: int, r: Rendering) -> None:
-    """Render one sequence into folder: folder/NN/{image_2/*.png, calib.txt, times.txt} and folder/NN.txt,
-    seen by KITTI's camera or, with ``r.cameras``, by one drawn from those ranges."""
+def resolve_frames(
+    sequences: Iterable[str], frames: int | Mapping[str, int] | None, prefix: str = ""
+) -> dict[str, int]:
+    """Frames per sequence: DEFAULT_FRAMES (None), one count for all (int) or a mapping; validated
+    (UserError naming the parameter after prefix, "--" on the command line)."""
+    text = sequences if isinstance(sequences, str) else ",".join(sequences)
+    sequences = parse_sequences(text, f"{prefix}sequences")
+    if frames is None:
+        counts = {s: DEFAULT_FRAMES.get(s, FALLBACK_FRAMES) for s in sequences}
+    elif isinstance(frames, Mapping):
+        counts = {s: int(frames[s]) for s in sequences}
+    else:
+        counts = dict.fromkeys(sequences, int(frames))
+    for n in counts.values():
+        if n < MIN_FRAMES:
+            raise UserError(f"{prefix}frames: must be >= {MIN_FRAMES}, got {n}")
+    return counts
+
+
+def render_kitti(root: Path, sequence: str, n_frames: int, r: Rendering) -> None:
+    """Render one sequence in the KITTI layout under root: sequences/NN/{image_2, calib.txt, times.txt}
+    and poses/NN.txt, seen by KITTI's camera or, with ``r.cameras``, one drawn from those ranges."""
     poses, world, noise = scene(sequence, n_frames, r.seed, r.spec)
     K = (
         intrinsics(r.height, r.width)
         if r.cameras is None
         else drawn_intrinsics(r.cameras, r.height, r.width, r.seed, sequence)
     )
-    (folder / sequence / "image_2").mkdir(parents=True)
-    (folder / sequence / "calib.txt").write_text(calib_text(K))
-    (folder / sequence / "times.txt").write_text(times_text(n_frames))
+    folder = root / "sequences" / sequence
+    (folder / "image_2").mkdir(parents=True)
+    (folder / "calib.txt").write_text(calib_text(K))
+    (folder / "times.txt").write_text("".join(f"{k / 10.0:e}\n" for k in range(n_frames)))  # KITTI's 10 Hz
+
     renderer = Renderer(world, K, r.height, r.width)
     for k, T in enumerate(poses):
-        write_png(folder / sequence / "image_2" / f"{k:06d}.png", renderer.render(T, noise))
-    pose_files.write_poses(folder / f"{sequence}.txt", poses)
+        write_png(folder / "image_2" / f"{k:06d}.png", renderer.render(T, noise))
+    kitti.pose_path(root, sequence).parent.mkdir()
+    pose_files.write_poses(kitti.pose_path(root, sequence), poses)
 
 
 def write_sequence(out: Path, sequence: str, n_frames: int, r: Rendering) -> float:
-    """Render one sequence into the dataset root out, atomically; returns the seconds it took.
-
-    Everything is rendered into a temporary folder inside out first (removed on failure; layouts other
-    than kitti: :func:`lossvo.data.synthetic.layouts.render_sequence`); the sequence's folder (and then
-    its poses file) are moved into place only once complete.
-    """
+    """Render one sequence into the dataset root out, atomically; returns the seconds it took."""
     start = time.perf_counter()
     tmp = out / f".tmp-{r.layout}-{sequence}-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     try:
         if r.layout == "kitti":
-            render_sequence(tmp, sequence, n_frames, r)
-            moves = {
-                tmp / sequence: out / "sequences" / sequence,
-                tmp / f"{sequence}.txt": kitti.pose_path(out, sequence),
-            }
+            render_kitti(tmp, sequence, n_frames, r)
         else:
-            layouts.render_sequence(
-                tmp / "sequence", r.layout, sequence, n_frames, (r.height, r.width), r.seed, r.spec
-            )
-            moves = {tmp / "sequence": out / layouts.sequence_name(r.layout, sequence)}
-        for source, target in moves.items():
-            target.parent.mkdir(parents=True, exist_ok=True)
-            shutil.rmtree(target, ignore_errors=True)
-            os.replace(source, target)
+            folder = tmp / layouts.sequence_name(r.layout, sequence)
+            layouts.render_sequence(folder, r.layout, sequence, n_frames, (r.height, r.width), r.seed, r.spec)
+        for path in layouts.sequence_paths(r.layout, sequence):
+            (out / path).parent.mkdir(parents=True, exist_ok=True)
+            shutil.rmtree(out / path, ignore_errors=True)
+            os.replace(tmp / path, out / path)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return time.perf_counter() - start
 
 
 PARALLEL_PIXELS = 10_000_000
-"""Without an explicit worker count, a dataset of fewer pixels (frames x height x width; about 750
-frames of 64x208) renders in this process: a spawned worker first spends seconds importing torch, which
-is longer than rendering that many pixels takes."""
+"""Without an explicit worker count, a dataset of fewer pixels (frames x height x width) renders in this
+process: a spawned worker spends seconds importing torch first."""
 
 
 def _worker_count(jobs: int, workers: int | None, pixels: int) -> int:
-    """Processes to render jobs sequences of pixels in all with: at most one a sequence and, unless
-    workers says how many, one a core, or 1 below PARALLEL_PIXELS; 1 inside a daemon process (e.g. a
-    pool worker), which may not have children."""
+    """Processes to render jobs sequences with: 1 below PARALLEL_PIXELS unless workers is given, and 1 in
+    a daemon process (a pool worker may not have children)."""
     if multiprocessing.current_process().daemon or (workers is None and pixels < PARALLEL_PIXELS):
         return 1
     return min(jobs, workers or os.cpu_count() or 1)
 
 
 def _render_all(out: Path, counts: dict[str, int], r: Rendering, progress: bool, workers: int | None) -> None:
-    """Render the sequences, in parallel spawned worker processes when there are several and cores to spare
-    (so a calling script needs the usual ``if __name__ == "__main__":`` guard)."""
+    """Render the sequences, in spawned worker processes when there are several (so a calling script needs
+    the usual ``if __name__ == "__main__":`` guard)."""
     workers = _worker_count(len(counts), workers, sum(counts.values()) * r.height * r.width)
     pool = None
     if workers > 1:
@@ -136,8 +149,7 @@ def _render_all(out: Path, counts: dict[str, int], r: Rendering, progress: bool,
 
 
 def check_cameras(layout: str, cameras: CameraRange | None, key: str = "cameras") -> None:
-    """UserError naming ``key`` for cameras drawn per sequence in a layout other than KITTI's, whose readers
-    know one camera (TUM, TartanAir) or whose files are not written per drawn camera."""
+    """UserError naming ``key`` for cameras drawn per sequence in a layout other than KITTI's."""
     if cameras is not None and layout != "kitti":
         raise UserError(f"{key}: cameras drawn per sequence are rendered in the KITTI layout only (its "
                         f"calib.txt holds each sequence's K), not in {layout}")  # fmt: skip
@@ -150,26 +162,23 @@ def frame_size(
     scale: float = 1.0,
     prefix: str = "",
 ) -> tuple[int, int]:
-    """(H, W) pixels a layout is rendered at: height and width where given, else the layout's default
-    (kitti DEFAULT_HEIGHT x DEFAULT_WIDTH, the others their datasets' native sizes) times scale; checked
-    (UserError, parameter names after prefix)."""
+    """(H, W) pixels a layout is rendered at: height and width where given, else the layout's default size
+    times scale; checked (UserError, parameter names after prefix)."""
     layouts.check_layout(layout)
     default = (DEFAULT_HEIGHT, DEFAULT_WIDTH) if layout == "kitti" else layouts.SPECS[layout].size
-    try:
-        scaled = layouts.scaled_size(default, scale)
-    except UserError as err:
-        raise UserError(f"{prefix}{err}") from None
+    if not (isinstance(scale, int | float) and math.isfinite(scale) and scale > 0):
+        raise UserError(f"{prefix}scale: must be a number > 0, got {scale!r}")
+    scaled = layouts.scaled_size(default, scale)
     size = (scaled[0] if height is None else height, scaled[1] if width is None else width)
-    try:
-        check_size(*size, prefix=prefix)
-    except UserError as err:
-        bad_height = not MIN_SIZE <= size[0] <= MAX_SIZE
-        if (height if bad_height else width) is not None:  # a size given: the error names it
-            raise
-        raise UserError(  # a size from the scale: the error names the scale
-            f"{prefix}scale: {scale:g} gives {size[0]}x{size[1]} pixels for the {layout} layout's "
-            f"{default[0]}x{default[1]} ({str(err).removeprefix(prefix)})"
-        ) from None
+    for name, value, given in (("height", size[0], height), ("width", size[1], width)):
+        if not MIN_SIZE <= value <= MAX_SIZE:
+            error = f"{name}: must be between {MIN_SIZE} and {MAX_SIZE} pixels, got {value}"
+            if given is None:  # a size from the scale: the error names the scale
+                error = (
+                    f"scale: {scale:g} gives {size[0]}x{size[1]} pixels for the {layout} layout's "
+                    f"{default[0]}x{default[1]} ({error})"
+                )
+            raise UserError(prefix + error)
     return size
 
 
@@ -187,18 +196,11 @@ def generate(
     scale: float = 1.0,
     cameras: CameraRange | None = None,
 ) -> Path:
-    """Render the synthetic dataset into out in a layout (:data:`lossvo.data.synthetic.layouts.LAYOUTS`,
-    default the KITTI odometry layout); returns out as a Path.
+    """Render the synthetic dataset into out (new, empty or a render of lossvo's) in a layout; returns out.
 
-    sequences: two-digit names (each layout names them its own way,
-    :func:`lossvo.data.synthetic.layouts.sequence_name`); frames: None (DEFAULT_FRAMES), one count for
-    all, or a mapping; height, width: pixels, by default the layout's size times scale
-    (:func:`frame_size`); seed: the same seed gives byte-identical files; spec: route families and mixes
-    (:func:`lossvo.data.synthetic.routes.route_spec`); cameras: each sequence's camera drawn from these
-    ranges (KITTI layout only; None: KITTI's camera). Sequences of an earlier dataset in out generated
-    with the same layout, size, seed and spec are kept. The manifest is removed first and written last,
-    so an interrupted run never looks complete; out must be new, empty or a render of lossvo's
-    (:func:`lossvo.data.synthetic.manifest.check_ours`: ``UserError`` otherwise).
+    frames: None (DEFAULT_FRAMES), one count for all, or a mapping; height, width: by default the layout's
+    size times scale; spec: route families and mixes; cameras: ranges each sequence's camera is drawn from
+    (KITTI layout only). Sequences already in out rendered with the same parameters are kept.
     """
     counts = resolve_frames(sequences, frames)
     height, width = frame_size(layout, height, width, scale)
@@ -208,7 +210,7 @@ def generate(
 
 
 def _generate(out: Path, counts: dict[str, int], r: Rendering, progress: bool, workers: int | None) -> Path:
-    """:func:`generate` of checked arguments."""
+    """:func:`generate` of checked arguments: the manifest removed first and written last."""
     manifest.check_ours(out)
     out.mkdir(parents=True, exist_ok=True)
     (out / manifest.RENDERING).touch()
@@ -236,12 +238,8 @@ def ensure_dataset(
     scale: float = 1.0,
     cameras: CameraRange | None = None,
 ) -> Path:
-    """Root as a Path, holding the requested synthetic sequences: generated unless already there.
-
-    Nothing is rendered when root's manifest has the same generator version, layout, size, seed and routes
-    and lists every requested sequence with the requested frame count, and those sequences' files are
-    present. Parameters as :func:`generate`.
-    """
+    """Root as a Path, holding the requested sequences: rendered by :func:`generate` (same parameters)
+    unless its manifest lists them all with these parameters and their files are present."""
     root = Path(root)
     counts = resolve_frames(sequences, frames)
     height, width = frame_size(layout, height, width, scale)
