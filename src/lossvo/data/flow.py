@@ -1,12 +1,5 @@
-"""Optical flow between cached frames: OpenCV's DIS (its medium preset), computed once per sequence and frame
-step.
-
-A flow field is ``(2, H, W)``: ``(u, v)`` in pixels of the cached frames (the network's input size), the
-displacement that carries pixel ``(x, y)`` of frame ``k`` to ``(x + u, y + v)`` in frame ``k + s`` (s: the
-frame step). A sequence of N frames has ``N - s`` fields at step s, stored as float16 (a quarter of a pixel
-resolves to 1/2048 px at 1 px and 1/64 px at 32 px) in one ``.npy`` beside its frames
-(:mod:`lossvo.data.frame_cache`), with a manifest naming the frames it was computed from
-(:mod:`lossvo.data.array_cache`): a changed frame cache, flow setting or interrupted build is recomputed.
+"""Optical flow between cached frames: OpenCV's DIS (medium preset), cached once per sequence and frame step
+as float16 (N - s, 2, H, W) ``(u, v)`` in pixels of the cached frames (:mod:`lossvo.data.array_cache`).
 """
 
 from __future__ import annotations
@@ -36,11 +29,8 @@ CHUNK = 64
 
 @dataclass(frozen=True)
 class FlowSetting:
-    """Which flow a dataset caches: ``method`` one of METHODS (``"none"``: no flow), ``scale``: the flow is
-    computed between frames resized from their source images to ``scale`` times the cached size, then
-    resized to the cached size (values scaled with it): DIS resolves small motions (a slow car's road, a
-    far wall) better on the finer frames. Raises UserError naming the key (``data.flow.method``,
-    ``data.flow.scale``)."""
+    """Which flow a dataset caches: ``method`` one of METHODS; ``scale``: computed on the source images at
+    ``scale`` times the cached size, then resized (DIS resolves small motions better on finer frames)."""
 
     method: str = "dis"
     scale: float = 1.0
@@ -86,13 +76,8 @@ class _Estimator:
 
 
 def pair_flow(first: np.ndarray, second: np.ndarray, setting: FlowSetting = FlowSetting()) -> np.ndarray:
-    """Flow from one frame to another.
-
-    Args:
-        first, second: (3, H, W) uint8 RGB frames.
-    Returns:
-        (2, H, W) float32 (u, v) in pixels: pixel (x, y) of ``first`` is at (x + u, y + v) in ``second``.
-    """
+    """(2, H, W) float32 (u, v) in pixels from ``first`` to ``second``, (3, H, W) uint8 RGB frames: pixel
+    (x, y) of ``first`` is at (x + u, y + v) in ``second``."""
     if not setting.enabled:
         raise UserError("data.flow.method: none computes no flow")
     return _Estimator()(_gray(first), _gray(second))
@@ -117,8 +102,8 @@ def _computer(
     workers: int,
     progress: bool,
 ) -> array_cache.Fill:
-    """Fills a sequence's flow array at one step, :data:`CHUNK` pairs at a time on ``workers`` threads
-    (OpenCV releases the GIL): ``read(k)`` is frame k, (h, w) uint8 grey, each read once a chunk."""
+    """Fills a sequence's flow array at one step, :data:`CHUNK` pairs at a time on ``workers`` threads:
+    ``read(k)`` is frame k, (h, w) uint8 grey."""
 
     def fill(out: np.ndarray) -> dict:
         estimate = _Estimator()
@@ -151,8 +136,8 @@ def _reader(
     undistort: frame_cache.Undistortion | None = None,
     crop: bool = False,
 ) -> Callable[[int], np.ndarray]:
-    """Frame k, (h, w) uint8 grey at the size the flow is computed at: the cached frame (``scale`` 1) or
-    its source image read again at ``setting.size`` (and undistorted as the cached frames are)."""
+    """Frame k, (h, w) uint8 grey at the size the flow is computed at: the cached frame or its source image
+    read again as the cached ones were."""
     n, _, height, width = frames.shape
     if setting.scale == 1:
         return lambda k: _gray(frames[k])
@@ -182,18 +167,9 @@ def ensure_flow(
     undistort: frame_cache.Undistortion | None = None,
     crop: bool = False,
 ) -> np.ndarray:
-    """The cached flow of a sequence's frames at one frame step, computed first where it is missing,
-    incomplete or stale (its frames changed: ``frames_source``, the frame cache's record of them).
-
-    Args:
-        folder: the frame-cache folder of the sequence's dataset and size; name: the sequence.
-        frames: (N, 3, H, W) uint8 RGB, the cached frames; step: frames from first to second (>= 1).
-        images: the N source images, read again at ``setting.size(H, W)`` when ``setting.scale > 1`` and
-            undistorted with ``undistort`` (:func:`lossvo.data.frame_cache.undistortion`) and cropped with
-            ``crop`` as the cached frames are.
-    Returns:
-        (max(N - step, 0), 2, H, W) float16 memory map.
-    """
+    """(max(N - step, 0), 2, H, W) float16 cached flow of a sequence's (N, 3, H, W) cached ``frames`` at
+    one frame step, computed first where missing or stale (``frames_source``: the frame cache's record of
+    them). ``images``, ``undistort``, ``crop``: the source images, read again where ``setting.scale > 1``."""
     if not setting.enabled:
         raise UserError("data.flow.method: none computes no flow")
     n, _, height, width = frames.shape
@@ -218,13 +194,6 @@ def ensure_flow(
 
 
 def mirror_flow(flow: torch.Tensor) -> torch.Tensor:
-    """The flow of horizontally mirrored frames: fields flipped left to right, ``u`` negated (a pixel at
-    x moving by u is, mirrored, at W - 1 - x moving by -u).
-
-    Args:
-        flow: (..., 2, H, W).
-    Returns:
-        (..., 2, H, W).
-    """
+    """(..., 2, H, W) flow of horizontally mirrored frames: fields flipped left to right, ``u`` negated."""
     sign = torch.tensor([-1.0, 1.0], dtype=flow.dtype).to(flow.device, non_blocking=True).view(2, 1, 1)
     return flow.flip(-1) * sign
