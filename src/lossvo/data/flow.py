@@ -5,7 +5,7 @@ as float16 (N - s, 2, H, W) ``(u, v)`` in pixels of the cached frames (:mod:`los
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +25,7 @@ MAX_SCALE = 4.0
 """Largest ``scale``: finer frames cost DIS time in proportion to their pixels."""
 CHUNK = 64
 """Pairs computed together: the frames a chunk needs are read once, then dropped."""
+WORKERS = 2
 
 
 @dataclass(frozen=True)
@@ -93,62 +94,6 @@ def resized_flow(field: np.ndarray, height: int, width: int) -> np.ndarray:
     return resized.transpose(2, 0, 1) * np.array([width / w, height / h], dtype=np.float32).reshape(2, 1, 1)
 
 
-def _computer(
-    read: Callable[[int], np.ndarray],
-    step: int,
-    setting: FlowSetting,
-    name: str,
-    size_hw: tuple[int, int],
-    workers: int,
-    progress: bool,
-) -> array_cache.Fill:
-    """Fills a sequence's flow array at one step, :data:`CHUNK` pairs at a time on ``workers`` threads:
-    ``read(k)`` is frame k, (h, w) uint8 grey."""
-
-    def fill(out: np.ndarray) -> dict:
-        estimate = _Estimator()
-        with (
-            ThreadPoolExecutor(workers) as pool,
-            tqdm(
-                total=len(out),
-                desc=f"flow {name} (step {step}, {setting.key})",
-                unit="pair",
-                disable=None if progress else True,  # None: off where stderr is no terminal
-                leave=False,
-            ) as bar,
-        ):
-            for lo in range(0, len(out), CHUNK):
-                hi = min(lo + CHUNK, len(out))
-                grey = list(pool.map(read, range(lo, hi + step)))
-                fields = pool.map(estimate, grey[: hi - lo], grey[step:])
-                for k, field in enumerate(fields, lo):
-                    out[k] = resized_flow(field, *size_hw)
-                bar.update(hi - lo)
-        return {}
-
-    return fill
-
-
-def _reader(
-    frames: np.ndarray,
-    images: Sequence[Path],
-    setting: FlowSetting,
-    undistort: frame_cache.Undistortion | None = None,
-    crop: bool = False,
-) -> Callable[[int], np.ndarray]:
-    """Frame k, (h, w) uint8 grey at the size the flow is computed at: the cached frame or its source image
-    read again as the cached ones were."""
-    n, _, height, width = frames.shape
-    if setting.scale == 1:
-        return lambda k: _gray(frames[k])
-    if len(images) != n:
-        raise UserError(
-            f"data.flow.scale={setting.scale:g} reads the source images: expected {n}, got {len(images)}"
-        )
-    h, w = setting.size(height, width)
-    return lambda k: _gray(frame_cache.read_frame(images[k], h, w, undistort, crop)[0])
-
-
 def flow_file(folder: Path, name: str, step: int, setting: FlowSetting) -> Path:
     """The flow array of sequence ``name`` at frame step ``step`` in a frame-cache folder."""
     return folder / f"{name}.flow-{setting.key}-s{step}.npy"
@@ -162,17 +107,50 @@ def ensure_flow(
     step: int,
     setting: FlowSetting,
     images: Sequence[Path] = (),
-    workers: int = 2,
     progress: bool = True,
     undistort: frame_cache.Undistortion | None = None,
     crop: bool = False,
 ) -> np.ndarray:
     """(max(N - step, 0), 2, H, W) float16 cached flow of a sequence's (N, 3, H, W) cached ``frames`` at
     one frame step, computed first where missing or stale (``frames_source``: the frame cache's record of
-    them). ``images``, ``undistort``, ``crop``: the source images, read again where ``setting.scale > 1``."""
+    them). ``images``, ``undistort``, ``crop``: the source images, read again where ``setting.scale > 1``.
+    :data:`CHUNK` pairs at a time on :data:`WORKERS` threads (OpenCV releases the GIL)."""
     if not setting.enabled:
         raise UserError("data.flow.method: none computes no flow")
     n, _, height, width = frames.shape
+    if setting.scale != 1 and len(images) != n:
+        raise UserError(
+            f"data.flow.scale={setting.scale:g} reads the source images: expected {n}, got {len(images)}"
+        )
+    size = setting.size(height, width)
+
+    def read(k: int) -> np.ndarray:
+        """Frame k, (h, w) uint8 grey at the size the flow is computed at."""
+        if setting.scale == 1:
+            return _gray(frames[k])
+        return _gray(frame_cache.read_frame(images[k], *size, undistort, crop)[0])
+
+    def fill(out: np.ndarray) -> dict:
+        estimate = _Estimator()
+        with (
+            ThreadPoolExecutor(WORKERS) as pool,
+            tqdm(
+                total=len(out),
+                desc=f"flow {name} (step {step}, {setting.key})",
+                unit="pair",
+                disable=None if progress else True,  # None: off where stderr is no terminal
+                leave=False,
+            ) as bar,
+        ):
+            for lo in range(0, len(out), CHUNK):
+                hi = min(lo + CHUNK, len(out))
+                grey = list(pool.map(read, range(lo, hi + step)))
+                fields = pool.map(estimate, grey[: hi - lo], grey[step:])
+                for k, field in enumerate(fields, lo):
+                    out[k] = resized_flow(field, height, width)
+                bar.update(hi - lo)
+        return {}
+
     shape = (max(n - step, 0), 2, height, width)
     expected = {
         "version": FLOW_VERSION,
@@ -181,15 +159,6 @@ def ensure_flow(
         "flow": setting.key,
         "frames": frames_source,
     }
-    fill = _computer(
-        _reader(frames, images, setting, undistort, crop),
-        step,
-        setting,
-        name,
-        (height, width),
-        workers,
-        progress,
-    )
     return array_cache.ensure_array(flow_file(folder, name, step, setting), expected, shape, np.float16, fill)
 
 

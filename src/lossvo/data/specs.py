@@ -203,16 +203,21 @@ def sources_of(value: Any, cache_dir: Path) -> dict[str, Source]:
     return sources
 
 
-def _built(cls: type[_S], value: Any, where: str, described: Mapping[str, Any]) -> _S:
-    """The spec ``cls`` from its mapping, the keys it lacks taking ``described``'s values."""
-    if isinstance(value, cls):
-        return value
-    given = _fields(cls, value, where)
-    try:
-        merged = OmegaConf.merge(OmegaConf.structured(cls), described, given)
-        return cls(**OmegaConf.to_container(merged, resolve=True))  # type: ignore[arg-type]
-    except OmegaConfBaseException as e:
-        raise UserError(f"{where}.{typed_value_message(e)}") from None
+class _Spec:
+    """A spec ``data.<its class, lower case>`` built from a mapping by :meth:`of`."""
+
+    @classmethod
+    def of(cls: type[_S], value: Any) -> _S:
+        """The spec from its mapping, the keys it lacks taking :data:`DESCRIBED`'s values."""
+        if isinstance(value, cls):
+            return value
+        name = cls.__name__.lower()
+        given = _fields(cls, value, f"data.{name}")
+        try:
+            merged = OmegaConf.merge(OmegaConf.structured(cls), DESCRIBED[name], given)
+            return cls(**OmegaConf.to_container(merged, resolve=True))  # type: ignore[arg-type]
+        except OmegaConfBaseException as e:
+            raise UserError(f"data.{name}.{typed_value_message(e)}") from None
 
 
 @dataclass
@@ -243,7 +248,7 @@ class Splits:
 
 
 @dataclass
-class Frames:
+class Frames(_Spec):
     """The cached frames: (height, width) pixels, cropped to that aspect ratio first with ``crop``;
     ``statistics`` ``{mean: [3], std: [3]}`` given instead of computed; ``cache_dir`` None: the default."""
 
@@ -260,10 +265,6 @@ class Frames:
         one_of = f"one of {', '.join(NORMALIZATIONS)}"
         _require(self, "normalization", lambda v: v in NORMALIZATIONS, one_of)
         self.statistics = _statistics(self.statistics)
-
-    @classmethod
-    def of(cls, value: Any) -> Frames:
-        return _built(cls, value, "data.frames", DESCRIBED["frames"])
 
 
 def _statistics(value: Any) -> dict[str, list[float]] | None:
@@ -282,7 +283,7 @@ def _statistics(value: Any) -> dict[str, list[float]] | None:
 
 
 @dataclass
-class Windows:
+class Windows(_Spec):
     """Training windows: ``seq_len`` frames at each of ``frame_steps``, ``per_epoch`` drawn afresh each
     epoch (None: all). Three defaults are the network's ``reads:`` where it declares them (interpolations
     that a composed config resolves, so that a ``Windows`` made directly names them)."""
@@ -300,13 +301,9 @@ class Windows:
         _require(self, "frame_steps", lambda v: bool(v) and all(is_integer(s, 1) for s in v), steps)
         self.frame_steps = list(dict.fromkeys(self.frame_steps))
 
-    @classmethod
-    def of(cls, value: Any) -> Windows:
-        return _built(cls, value, "data.windows", DESCRIBED["windows"])
-
 
 @dataclass
-class Flow:
+class Flow(_Spec):
     """``data.flow``: the optical flow cached beside the frames (checked by
     :class:`lossvo.data.flow.FlowSetting`)."""
 
@@ -318,12 +315,12 @@ def flow_of(value: Any) -> FlowSetting:
     """``data.flow`` ``{method, scale}`` as a :class:`lossvo.data.flow.FlowSetting`."""
     if isinstance(value, FlowSetting):
         return value
-    flow = _built(Flow, value, "data.flow", DESCRIBED["flow"])
+    flow = Flow.of(value)
     return FlowSetting(flow.method, flow.scale)
 
 
 @dataclass
-class Loader:
+class Loader(_Spec):
     """Where batches are assembled: the host loader's settings; ``on_device`` ``auto``, ``true`` or
     ``false`` (typed ``Any``), :mod:`lossvo.data.resident` within ``device_budget_gb`` GiB."""
 
@@ -337,10 +334,6 @@ class Loader:
         _require(self, "on_device", lambda v: v == "auto" or isinstance(v, bool), "auto, true or false")
         _require(self, "device_budget_gb", lambda v: is_number(v) and v >= 0, "a number of GiB >= 0")
         self.device_budget_gb = float(self.device_budget_gb)
-
-    @classmethod
-    def of(cls, value: Any) -> Loader:
-        return _built(cls, value, "data.loader", DESCRIBED["loader"])
 
 
 @dataclass
