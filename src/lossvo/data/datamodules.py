@@ -204,10 +204,8 @@ class VODataModule(L.LightningDataModule):
         source = next(iter(self.sources.values())) if name is None else self.source_of(name)[0]
         root = layouts.dataset_root(source.reader, source.root).resolve()
         folder = frame_cache.cache_folder(self.cache_dir, root, self.frames.height, self.frames.width)
-        suffix = (f"-every{source.keep_every}" if source.keep_every > 1 else "") + (
-            "-crop" if self.frames.crop else ""
-        )
-        return folder.with_name(folder.name + suffix) if suffix else folder
+        suffix = f"-every{source.keep_every}" if source.keep_every > 1 else ""
+        return folder.with_name(folder.name + suffix + ("-crop" if self.frames.crop else ""))
 
     def _frame_files(self, name: str) -> tuple[Path, Path]:
         """The cached frames (.npy) and their manifest (.json) of sequence ``name``."""
@@ -289,11 +287,7 @@ class VODataModule(L.LightningDataModule):
         for split, names in self.splits.items():
             labelled = [(n, p) for n in names if (p := self.sequences[n].poses) is not None]  # labelled ones
             steps = (1,) if split != "train" else self.windows.frame_steps
-            flow_files = (
-                None
-                if not self.flow.enabled
-                else {step: [self._flow_file(n, step) for n, _ in labelled] for step in steps}
-            )
+            flow_files = {step: [self._flow_file(n, step) for n, _ in labelled] for step in steps}
             self.datasets[split] = WindowDataset(
                 [self._frame_files(n)[0] for n, _ in labelled],
                 [p for _, p in labelled],
@@ -301,7 +295,7 @@ class VODataModule(L.LightningDataModule):
                 self.windows.frame_steps,
                 tiled=split != "train",
                 intrinsics=[self.intrinsics(n) for n, _ in labelled],
-                flow_files=flow_files,
+                flow_files=flow_files if self.flow.enabled else None,
                 times=[self.sequences[n].times for n, _ in labelled],
                 metric=[self.metric_scale(n) for n, _ in labelled],
             )

@@ -39,8 +39,7 @@ def _stretch(first: int, stop: int, seq_len: int) -> np.ndarray:
 
 
 GAP_FACTOR = 1.5
-"""A pair of consecutive frames further apart in time than GAP_FACTOR times the sequence's median frame
-interval spans a gap (frames the reader dropped, e.g. where the ground truth has none)."""
+"""A pair further apart than GAP_FACTOR times the sequence's median frame interval spans a gap."""
 
 
 def gaps(times: np.ndarray) -> np.ndarray:
@@ -106,7 +105,6 @@ class WindowDataset(Dataset):
     ) -> None:  # fmt: skip
         self.cache_files = cache_files
         self.flow_files = flow_files
-        self.seq_len = seq_len
         Ks = intrinsics if intrinsics is not None else [np.eye(3)] * len(poses)
         self.intrinsics = [torch.from_numpy(np.asarray(K, dtype=np.float32)) for K in Ks]
         flags = [True] * len(poses) if metric is None else list(metric)
@@ -184,13 +182,10 @@ class EpochShuffle(Sampler[int]):
     def set_epoch(self, epoch: int) -> None:
         self.epoch = epoch
 
-    def generator(self) -> torch.Generator:
-        """The epoch's own random stream: a function of the seed and the epoch only."""
-        state = np.random.SeedSequence([self.seed % 2**63, self.epoch]).generate_state(2, dtype=np.uint32)
-        return torch.Generator().manual_seed(int(state[0]) << 32 | int(state[1]))
-
     def __iter__(self) -> Iterator[int]:
-        return iter(torch.randperm(self.n, generator=self.generator())[: self.count].tolist())
+        state = np.random.SeedSequence([self.seed % 2**63, self.epoch]).generate_state(2, dtype=np.uint32)
+        generator = torch.Generator().manual_seed(int(state[0]) << 32 | int(state[1]))  # the epoch's own
+        return iter(torch.randperm(self.n, generator=generator)[: self.count].tolist())
 
     def __len__(self) -> int:
         return self.count
