@@ -352,15 +352,11 @@ class VODataModule(L.LightningDataModule):
     def resident_windows(self, split: str) -> resident.ResidentWindows | None:
         """The split's windows kept on the training device, or None (the host loader); decided once."""
         if self.resident is None:
-            self.resident = self._make_resident(self._training_device())
+            strategy = getattr(self.trainer, "strategy", None)  # none: the CPU
+            self.resident = self._make_resident(getattr(strategy, "root_device", torch.device("cpu")))
         if self.resident and split not in self.resident:  # the test split, asked for later
             self.resident[split] = self._resident_split(split, next(iter(self.resident.values())).device)
         return self.resident.get(split)
-
-    def _training_device(self) -> torch.device:
-        """The device the attached trainer trains on; the CPU without one."""
-        strategy = getattr(self.trainer, "strategy", None)
-        return getattr(strategy, "root_device", torch.device("cpu"))
 
     def _make_resident(self, device: torch.device) -> dict[str, resident.ResidentWindows]:
         """The training and validation splits' windows on ``device`` where the settings allow; a log line."""

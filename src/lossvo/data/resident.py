@@ -100,20 +100,17 @@ def _table_offsets(blocks: Sequence[Sequence[Sized]]) -> np.ndarray:
 def _stacked(arrays: Sequence[np.ndarray], device: torch.device) -> Tensor:
     """The arrays (N_i, ...) concatenated into one tensor on ``device``, copied one array at a time."""
     total = sum(len(a) for a in arrays)
-    out = torch.empty((total, *arrays[0].shape[1:]), dtype=_torch_dtype(arrays[0].dtype), device=device)
+    dtype = torch.from_numpy(np.zeros(0, dtype=arrays[0].dtype)).dtype
+    out = torch.empty((total, *arrays[0].shape[1:]), dtype=dtype, device=device)
     for start, array in zip(_offsets([len(a) for a in arrays]), arrays, strict=True):
         out[start : start + len(array)].copy_(torch.from_numpy(np.array(array)))
     return out
 
 
-def _torch_dtype(dtype: np.dtype) -> torch.dtype:
-    return torch.from_numpy(np.zeros(0, dtype=dtype)).dtype
-
-
 def resident_bytes(frames: Sequence[np.ndarray], flow: dict[int, list[np.ndarray]] | None) -> int:
     """Bytes the frames and flow arrays take once resident (targets and K are comparatively nothing)."""
     arrays = [*frames, *(f for fields in (flow or {}).values() for f in fields)]
-    return int(sum(np.prod(a.shape, dtype=np.int64) * a.dtype.itemsize for a in arrays))
+    return int(sum(a.nbytes for a in arrays))
 
 
 class IndexBatches(Dataset):

@@ -452,22 +452,18 @@ def check_overrides(overrides: Seq[str]) -> None:
                 raise UserError(f"{key}: not a data key; the setting is data.{new} (docs/data.md lists them)")
 
 
-def check_spec_values(overrides: Seq[str]) -> None:
-    """UserError for an override giving a spec a value that is no mapping (``data.flow=dis``)."""
-    for line in overrides:
-        key, _, value = line.lstrip("+~").partition("=")
-        spec = SPECS.get(key.removeprefix("data.")) if key.startswith("data.") else None
-        if spec is not None and value not in ("", "null") and not value.startswith(("{", "$")):
-            _fields(spec, value, key)
-
-
 def refusing_flat_keys(main: Callable[[], _R]) -> Callable[[], _R]:
-    """A Hydra entry point that runs both override checks before Hydra composes the config."""
+    """A Hydra entry point that refuses, before Hydra composes the config, a flat-form data override
+    (:func:`check_overrides`) and a spec given a value that is no mapping (``data.flow=dis``)."""
 
     @functools.wraps(main)
     def wrapped() -> _R:
         check_overrides(sys.argv[1:])
-        check_spec_values(sys.argv[1:])
+        for line in sys.argv[1:]:
+            key, _, value = line.lstrip("+~").partition("=")
+            spec = SPECS.get(key.removeprefix("data.")) if key.startswith("data.") else None
+            if spec is not None and value not in ("", "null") and not value.startswith(("{", "$")):
+                _fields(spec, value, key)
         return main()
 
     return wrapped

@@ -116,24 +116,24 @@ class WindowDataset(Dataset):
         lengths = [len(p) for p in poses]
         gap = [gaps(t) for t in times] if times is not None else [None] * len(poses)
         rows = [
-            self._tiles(i, n, seq_len, gap[i]) if tiled else self._training(i, n, seq_len, s, gap[i])
-            for s in steps for i, n in enumerate(lengths) if n >= 2
-        ]  # fmt: skip
+            self._rows(i, n, seq_len, s, gap[i], tiled)
+            for s in steps
+            for i, n in enumerate(lengths)
+            if n >= 2
+        ]
         self.index = np.concatenate(rows) if rows else np.zeros((0, 4), dtype=np.int64)
         self._frames: list[np.ndarray] | None = None
         self._flow: dict[int, list[np.ndarray]] | None = None
 
     @staticmethod
-    def _training(seq: int, n: int, seq_len: int, step: int, gap: np.ndarray | None) -> np.ndarray:
-        starts = training_starts(n, seq_len, step, gap)
-        stops = starts + step * (seq_len - 1) + 1
+    def _rows(seq: int, n: int, seq_len: int, step: int, gap: np.ndarray | None, tiled: bool) -> np.ndarray:
+        """(M, 4) rows (sequence, start, stop, step) of a sequence's windows (tiles: step 1)."""
+        if tiled:
+            starts, stops = tile(n, seq_len, gap).T
+        else:
+            starts = training_starts(n, seq_len, step, gap)
+            stops = starts + step * (seq_len - 1) + 1
         return np.stack((np.full_like(starts, seq), starts, stops, np.full_like(starts, step)), axis=1)
-
-    @staticmethod
-    def _tiles(seq: int, n: int, seq_len: int, gap: np.ndarray | None) -> np.ndarray:
-        ranges = tile(n, seq_len, gap)
-        ones = np.ones(len(ranges), dtype=np.int64)
-        return np.stack((seq * ones, ranges[:, 0], ranges[:, 1], ones), axis=1)
 
     @property
     def lengths(self) -> np.ndarray:
