@@ -48,7 +48,6 @@ def build_array(
     data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type, fill: Fill
 ) -> np.ndarray:
     """Write the array ``fill`` computes into ``data`` (through a temporary file), then its manifest."""
-    data.parent.mkdir(parents=True, exist_ok=True)
     manifest = data.with_suffix(".json")
     manifest.unlink(missing_ok=True)  # the manifest marks a complete array; none while writing
     tmp = data.with_name(f".{data.name}.{os.getpid()}.tmp")

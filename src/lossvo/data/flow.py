@@ -132,15 +132,11 @@ def ensure_flow(
 
     def fill(out: np.ndarray) -> dict:
         estimate = _Estimator()
+        desc = f"flow {name} (step {step}, {setting.key})"
+        disable = None if progress else True  # None: shown on a terminal only
         with (
             ThreadPoolExecutor(WORKERS) as pool,
-            tqdm(
-                total=len(out),
-                desc=f"flow {name} (step {step}, {setting.key})",
-                unit="pair",
-                disable=None if progress else True,  # None: off where stderr is no terminal
-                leave=False,
-            ) as bar,
+            tqdm(None, desc, len(out), leave=False, disable=disable, unit="pair") as bar,
         ):
             for lo in range(0, len(out), CHUNK):
                 hi = min(lo + CHUNK, len(out))

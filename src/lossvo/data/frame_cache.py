@@ -140,14 +140,8 @@ def ensure_frames(folder: Path, seq: Sequence, height: int, width: int, crop: bo
         first_size: tuple[int, int] | None = None
         with ThreadPoolExecutor(WORKERS) as pool:
             jobs = pool.map(lambda p: read_frame(p, height, width, undistort, crop), seq.images)
-            bar = tqdm(
-                jobs,
-                total=len(seq.images),
-                desc=f"caching {seq.name} at {height}x{width}",
-                unit="frame",
-                disable=None,  # off where stderr is no terminal
-                leave=False,
-            )
+            desc = f"caching {seq.name} at {height}x{width}"  # shown on a terminal only (disable=None)
+            bar = tqdm(jobs, desc, len(seq.images), leave=False, disable=None, unit="frame")
             for i, (frame, size) in enumerate(bar):
                 first_size = first_size or size
                 if size != first_size:

@@ -145,12 +145,6 @@ class Source:
         every = value.get("keep_every", 1)
         _check(where, "keep_every", every, is_integer(every, 1), "an integer >= 1 (frames)")
         render = _render(value, where) if render_keys else None
-        if render is not None and render.frame_counts is not None:
-            counts = render.frame_counts
-            fits = is_integer(counts, 2) or (
-                isinstance(counts, Mapping) and all(is_integer(v, 2) for v in counts.values())
-            )
-            _check(where, "frame_counts", counts, fits, "an integer >= 2 or {sequence: frames}")
         folder = Path(str(root)).expanduser() if root is not None else default_root
         return cls(str(layout), folder, int(every), _camera(value.get("camera"), f"{where}.camera"), render)
 
@@ -177,6 +171,10 @@ def _render(value: Mapping[str, Any], where: str) -> Render:
     if fields.get("cameras") is not None:
         check_cameras(layout, fields["cameras"], f"{where}.cameras")
         fields["cameras"] = CameraRange.of(fields["cameras"], f"{where}.cameras")
+    counts = fields.get("frame_counts")
+    many = isinstance(counts, Mapping) and all(is_integer(v, 2) for v in counts.values())
+    fits = counts is None or is_integer(counts, 2) or many
+    _check(where, "frame_counts", counts, fits, "an integer >= 2 or {sequence: frames}")
     return Render(**fields)
 
 
@@ -432,13 +430,7 @@ def current(description: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-SPECS: dict[str, type] = {
-    "splits": Splits,
-    "frames": Frames,
-    "windows": Windows,
-    "flow": Flow,
-    "loader": Loader,
-}
+SPECS: dict[str, type] = {spec.__name__.lower(): spec for spec in (Splits, Frames, Windows, Flow, Loader)}
 
 
 def check_overrides(overrides: Seq[str]) -> None:

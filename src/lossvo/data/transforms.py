@@ -48,9 +48,9 @@ def _draw(p: float, size: int, generator: torch.Generator | None) -> torch.Tenso
     return torch.rand(size, generator=generator) < p
 
 
-def _check_probability(name: str, p: Any) -> None:
-    if not (is_number(p) and 0.0 <= p <= 1.0):
-        raise UserError(f"data.transforms: {name}.p: expected a probability in [0, 1], got {p!r}")
+def _check(where: str, value: Any, high: float, what: str) -> None:
+    if not (is_number(value) and 0.0 <= value <= high):
+        raise UserError(f"data.transforms: {where}: expected {what} in [0, {high:g}], got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -60,7 +60,7 @@ class Mirror:
     p: float
 
     def __post_init__(self) -> None:
-        _check_probability("Mirror", self.p)
+        _check("Mirror.p", self.p, 1.0, "a probability")
 
     def __call__(
         self, inputs: Inputs, targets: torch.Tensor, generator: torch.Generator | None = None
@@ -82,11 +82,8 @@ class Roll:
     max_rad: float
 
     def __post_init__(self) -> None:
-        _check_probability("Roll", self.p)
-        if not (is_number(self.max_rad) and 0.0 <= self.max_rad <= 0.5):
-            raise UserError(
-                f"data.transforms: Roll.max_rad: expected radians in [0, 0.5], got {self.max_rad!r}"
-            )
+        _check("Roll.p", self.p, 1.0, "a probability")
+        _check("Roll.max_rad", self.max_rad, 0.5, "radians")
 
     def __call__(
         self, inputs: Inputs, targets: torch.Tensor, generator: torch.Generator | None = None

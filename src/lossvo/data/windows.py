@@ -4,6 +4,7 @@ windows), the dataset of windows of cached frames, each epoch's order and batche
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
@@ -122,8 +123,6 @@ class WindowDataset(Dataset):
             if n >= 2
         ]
         self.index = np.concatenate(rows) if rows else np.zeros((0, 4), dtype=np.int64)
-        self._frames: list[np.ndarray] | None = None
-        self._flow: dict[int, list[np.ndarray]] | None = None
 
     @staticmethod
     def _rows(seq: int, n: int, seq_len: int, step: int, gap: np.ndarray | None, tiled: bool) -> np.ndarray:
@@ -141,23 +140,19 @@ class WindowDataset(Dataset):
         return (self.index[:, 2] - self.index[:, 1] - 1) // self.index[:, 3] + 1
 
     def __getstate__(self) -> dict:
-        return {**self.__dict__, "_frames": None, "_flow": None}
+        return {k: v for k, v in self.__dict__.items() if k not in ("frames", "flow")}  # opened lazily
 
-    @property
+    @functools.cached_property
     def frames(self) -> list[np.ndarray]:
-        if self._frames is None:
-            self._frames = [np.load(f, mmap_mode="r") for f in self.cache_files]
-        return self._frames
+        return [np.load(f, mmap_mode="r") for f in self.cache_files]
+
+    @functools.cached_property
+    def flow(self) -> dict[int, list[np.ndarray]]:
+        files = self.flow_files or {}
+        return {step: [np.load(f, mmap_mode="r") for f in paths] for step, paths in files.items()}
 
     def __len__(self) -> int:
         return len(self.index)
-
-    @property
-    def flow(self) -> dict[int, list[np.ndarray]]:
-        if self._flow is None:
-            files = self.flow_files or {}
-            self._flow = {step: [np.load(f, mmap_mode="r") for f in paths] for step, paths in files.items()}
-        return self._flow
 
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
         seq, start, stop, step = (int(v) for v in self.index[i])
