@@ -26,7 +26,7 @@ import lightning as L
 import numpy as np
 import torch
 from filelock import FileLock
-from torch.utils.data import BatchSampler, DataLoader, SequentialSampler
+from torch.utils.data import BatchSampler, DataLoader, SequentialSampler, default_convert
 
 from lossvo.atomic import write_text_atomic
 from lossvo.console import UserError
@@ -338,15 +338,14 @@ class VODataModule(L.LightningDataModule):
 
     def intrinsics(self, name: str) -> np.ndarray:
         """(3, 3) float64 K of a sequence's cached frames (pixels); after :meth:`setup`."""
-        if name in self._cameras:
-            return self._cameras[name].copy()
-        manifest = json.loads(self._frame_files(name)[1].read_text())
-        source = tuple(manifest["source_size_hw"])
-        K = frame_cache.source_intrinsics(self.sequences[name])
-        if self.frames.crop:
-            box = frame_cache.centre_crop(source, (self.frames.height, self.frames.width))
-            K, source = frame_cache.cropped_intrinsics(K, box), box[2:]
-        self._cameras[name] = camera.resized_intrinsics(K, source, (self.frames.height, self.frames.width))
+        if name not in self._cameras:
+            size = (self.frames.height, self.frames.width)
+            source = tuple(json.loads(self._frame_files(name)[1].read_text())["source_size_hw"])
+            K = frame_cache.source_intrinsics(self.sequences[name])
+            if self.frames.crop:
+                box = frame_cache.centre_crop(source, size)
+                K, source = frame_cache.cropped_intrinsics(K, box), box[2:]
+            self._cameras[name] = camera.resized_intrinsics(K, source, size)
         return self._cameras[name].copy()
 
     def resident_windows(self, split: str) -> resident.ResidentWindows | None:
@@ -414,7 +413,7 @@ class VODataModule(L.LightningDataModule):
         return DataLoader(
             resident.IndexBatches(windows, split),
             batch_sampler=batches,
-            collate_fn=resident.as_is,
+            collate_fn=default_convert,  # the batch is built already
             generator=_own_stream(),
         )
 

@@ -6,7 +6,6 @@ one indexing operation per entry, giving the host loader's batch.
 from __future__ import annotations
 
 from collections.abc import Sequence, Sized
-from typing import Any
 
 import numpy as np
 import torch
@@ -128,8 +127,3 @@ class IndexBatches(Dataset):
 
     def __getitems__(self, indices: list[int]) -> dict[str, Tensor | str]:
         return {"split": self.split, **self.windows.index_batch(indices)}
-
-
-def as_is(batch: Any) -> Any:
-    """The DataLoader's collate function for :class:`IndexBatches`: the batch is built already."""
-    return batch

@@ -133,12 +133,8 @@ def rolled_windows(
     frames, K = inputs["frames"], inputs["K"].float()
     (B, L), (H, W) = frames.shape[:2], frames.shape[-2:]
     angles = angles.to(torch.float32)
-    ys, xs = torch.meshgrid(
-        torch.arange(H, dtype=K.dtype, device=K.device),
-        torch.arange(W, dtype=K.dtype, device=K.device),
-        indexing="ij",
-    )
-    grid = torch.stack((xs, ys), dim=-1)  # (H, W, 2) pixel coordinates
+    xs, ys = (torch.arange(n, dtype=K.dtype, device=K.device) for n in (W, H))
+    grid = torch.stack(torch.meshgrid(xs, ys, indexing="xy"), dim=-1)  # (H, W, 2) pixel coordinates
     source = _turn(K, grid.expand(B, L, H, W, 2), angles)
     turned = _sample(frames, source)
     out = dict(inputs)
