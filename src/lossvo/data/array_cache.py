@@ -26,8 +26,7 @@ Fill = Callable[[np.ndarray], dict[str, Any]]
 def open_array(
     data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type, say: bool = True
 ) -> np.ndarray | None:
-    """The array in ``data`` as a read-only memory map, or None if it is missing, incomplete or stale;
-    ``say``: warn of an unreadable or stale one."""
+    """The array in ``data`` as a read-only memory map, or None if missing or stale (``say``: warn)."""
     manifest = data.with_suffix(".json")
     try:
         meta = json.loads(manifest.read_text())

@@ -83,7 +83,7 @@ class VODataModule(L.LightningDataModule):
         cache = self.frames.cache_dir
         self.cache_dir = Path(cache).expanduser() if cache else frame_cache.default_cache_dir()
         self.sources = specs.sources_of(sources, self.cache_dir)
-        self.splits = specs.Splits.of(splits).as_dict()
+        self.splits: dict[str, tuple[str, ...]] = dataclasses.asdict(specs.Splits.of(splits))
         self.windows = specs.Windows.of(windows)
         self.flow = specs.flow_of(flow)
         self.loader = specs.Loader.of(loader)

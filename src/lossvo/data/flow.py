@@ -51,10 +51,6 @@ class FlowSetting:
         """The setting in file names and manifests: ``"dis-medium"``, ``"dis-medium-x1.5"``."""
         return "dis-medium" if self.scale == 1 else f"dis-medium-x{self.scale:g}"
 
-    def size(self, height: int, width: int) -> tuple[int, int]:
-        """(h, w) of the frames the flow of a (height, width) cache is computed on."""
-        return round(height * self.scale), round(width * self.scale)
-
 
 def _gray(frame: np.ndarray) -> np.ndarray:
     """(3, H, W) uint8 RGB -> (H, W) uint8 grey, contiguous (what OpenCV's flows take)."""
@@ -122,7 +118,7 @@ def ensure_flow(
         raise UserError(
             f"data.flow.scale={setting.scale:g} reads the source images: expected {n}, got {len(images)}"
         )
-    size = setting.size(height, width)
+    size = round(height * setting.scale), round(width * setting.scale)  # the frames the flow is computed on
 
     def read(k: int) -> np.ndarray:
         """Frame k, (h, w) uint8 grey at the size the flow is computed at."""

@@ -21,8 +21,7 @@ def _offsets(lengths: Sequence[int]) -> np.ndarray:
 
 
 class ResidentWindows:
-    """A :class:`lossvo.data.windows.WindowDataset`'s arrays (its ``index``, ``frames``, ``targets``,
-    ``intrinsics``, ``metric`` and ``flow``, per sequence) on one device, and the gather of its batches."""
+    """A :class:`lossvo.data.windows.WindowDataset`'s arrays on one device, and the gather of its batches."""
 
     def __init__(
         self,
@@ -113,8 +112,7 @@ def resident_bytes(frames: Sequence[np.ndarray], flow: dict[int, list[np.ndarray
 
 
 class IndexBatches(Dataset):
-    """The loader's side of resident windows: a batch of window indices becomes its index batch, tagged
-    with its split."""
+    """The loader's side of resident windows: window indices -> their index batch, tagged with its split."""
 
     def __init__(self, windows: ResidentWindows, split: str) -> None:
         self.windows, self.split = windows, split

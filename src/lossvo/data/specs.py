@@ -91,8 +91,7 @@ def _camera(value: Any, key: str) -> tuple[np.ndarray, np.ndarray] | None:
 
 @dataclass(frozen=True)
 class Render:
-    """How the synthetic dataset is rendered (:func:`lossvo.data.synthetic.ensure_dataset`; None values: the
-    generator's or the layout's defaults)."""
+    """How the synthetic dataset is rendered (:func:`lossvo.data.synthetic.ensure_dataset`; None: default)."""
 
     frame_counts: int | dict[str, int] | None = None
     render_height: int | None = None
@@ -241,9 +240,6 @@ class Splits:
         """From ``{train: [...], ...}``."""
         return cls(**_fields(cls, value, "data.splits"))
 
-    def as_dict(self) -> dict[str, tuple[str, ...]]:
-        return {key: getattr(self, key) for key in SPLITS}
-
 
 @dataclass
 class Frames(_Spec):
@@ -302,8 +298,7 @@ class Windows(_Spec):
 
 @dataclass
 class Flow(_Spec):
-    """``data.flow``: the optical flow cached beside the frames (checked by
-    :class:`lossvo.data.flow.FlowSetting`)."""
+    """``data.flow``: the flow cached beside the frames, checked by :class:`lossvo.data.flow.FlowSetting`."""
 
     method: str = SI("${oc.select:reads.flow,none}")
     scale: float = 1.5
