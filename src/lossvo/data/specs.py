@@ -39,8 +39,6 @@ _S = TypeVar("_S")
 
 def _fields(cls: type, value: Any, where: str) -> dict[str, Any]:
     """``value`` as a dict of ``cls``'s fields; UserError for a non-mapping or an unknown key."""
-    if isinstance(value, cls):
-        return {f.name: getattr(value, f.name) for f in dataclasses.fields(cls)}
     names = [f.name for f in dataclasses.fields(cls)]
     if value is not None and not isinstance(value, Mapping):
         one = isinstance(value, str | int | float)
@@ -129,8 +127,6 @@ class Source:
     def of(cls, value: Any, where: str, default_root: Path) -> Source:
         """A source from its config (a synthetic one's with :class:`Render`'s fields; without a root it is
         rendered into ``default_root``)."""
-        if isinstance(value, Source):
-            return value
         if not isinstance(value, Mapping):
             raise UserError(f"{where}: expected {{layout: ..., root: ...}}, got {value!r}")
         layout = value.get("layout")
@@ -206,8 +202,6 @@ class _Spec:
     @classmethod
     def of(cls: type[_S], value: Any) -> _S:
         """The spec from its mapping, the keys it lacks taking :data:`DESCRIBED`'s values."""
-        if isinstance(value, cls):
-            return value
         name = cls.__name__.lower()
         given = _fields(cls, value, f"data.{name}")
         try:
@@ -306,8 +300,6 @@ class Flow(_Spec):
 
 def flow_of(value: Any) -> FlowSetting:
     """``data.flow`` ``{method, scale}`` as a :class:`lossvo.data.flow.FlowSetting`."""
-    if isinstance(value, FlowSetting):
-        return value
     flow = Flow.of(value)
     return FlowSetting(flow.method, flow.scale)
 
