@@ -214,9 +214,9 @@ class VODataModule(L.LightningDataModule):
     def _flow_file(self, name: str, step: int) -> Path:
         return optical_flow.flow_file(self.cache_path(name), self.sequences[name].name, step, self.flow)
 
-    def _frames_source(self, name: str) -> dict:
-        """What sequence ``name``'s cached frames were built from (``frame_cache.source_of``)."""
-        return frame_cache.source_of(self.cache_path(name), self.sequences[name].name)
+    def _manifest(self, name: str) -> dict:
+        """The manifest of sequence ``name``'s cached frames: what they were built from."""
+        return json.loads(self._frame_files(name)[1].read_text())
 
     def prepare_data(self) -> None:
         """Check the dataset, then build what is missing or stale: frames, statistics and flow."""
@@ -233,7 +233,7 @@ class VODataModule(L.LightningDataModule):
             seq, folder = self.sequences[n], self.cache_path(n)
             undistort = frame_cache.undistortion(seq)
             for step in steps:
-                source = self._frames_source(n)
+                source = self._manifest(n)["source"]
                 optical_flow.ensure_flow(
                     folder,
                     seq.name,
@@ -255,7 +255,7 @@ class VODataModule(L.LightningDataModule):
             return np.full(3, 0.5), np.ones(3)  # (x/255 - 0.5) / 1
         key = hashlib.sha1(",".join(self.splits["train"]).encode()).hexdigest()[:10]
         path = self.cache_path(self.splits["train"][0]) / f"stats-{key}.json"  # beside the frames
-        sources = {n: self._frames_source(n) for n in self.splits["train"]}
+        sources = {n: self._manifest(n)["source"] for n in self.splits["train"]}
         try:
             saved = json.loads(path.read_text())
             if saved["sources"] == sources:
@@ -340,7 +340,7 @@ class VODataModule(L.LightningDataModule):
         """(3, 3) float64 K of a sequence's cached frames (pixels); after :meth:`setup`."""
         if name not in self._cameras:
             size = (self.frames.height, self.frames.width)
-            source = tuple(json.loads(self._frame_files(name)[1].read_text())["source_size_hw"])
+            source = tuple(self._manifest(name)["source_size_hw"])
             K = frame_cache.source_intrinsics(self.sequences[name])
             if self.frames.crop:
                 box = frame_cache.centre_crop(source, size)

@@ -5,7 +5,6 @@
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -85,11 +84,6 @@ def _fingerprint(seq: Sequence) -> dict:
 def files(folder: Path, name: str) -> tuple[Path, Path]:
     """The frames file (.npy) and the manifest (.json) of sequence ``name`` in a cache folder."""
     return folder / f"{name}.npy", folder / f"{name}.json"
-
-
-def source_of(folder: Path, name: str) -> dict:
-    """What the cached frames of sequence ``name`` were built from, as their manifest records it."""
-    return json.loads(files(folder, name)[1].read_text())["source"]
 
 
 def centre_crop(size_hw: tuple[int, int], target_hw: tuple[int, int]) -> tuple[int, int, int, int]:
