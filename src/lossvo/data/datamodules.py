@@ -311,11 +311,9 @@ class VODataModule(L.LightningDataModule):
         specs' configs and, after :meth:`setup` (None before), ``statistics`` and each training sequence's
         ``intrinsics``."""
         sources = {k: s.config() | {"root": str(s.root.resolve())} for k, s in self.sources.items()}
-        stats = (
-            None
-            if self.mean is None or self.std is None
-            else {"mean": [float(v) for v in self.mean], "std": [float(v) for v in self.std]}
-        )
+        stats = None
+        if self.mean is not None and self.std is not None:
+            stats = {"mean": self.mean.tolist(), "std": self.std.tolist()}
         cameras = {n: self.intrinsics(n).tolist() for n in self.splits["train"]} if self.datasets else None
         return {
             "_target_": f"{type(self).__module__}.{type(self).__qualname__}",
