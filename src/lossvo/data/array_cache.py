@@ -1,9 +1,5 @@
-"""One cached array: an ``.npy`` file beside a JSON manifest that is written last.
-
-The manifest says what the array was built from. An array is read (memory-mapped) only when its manifest
-exists, matches what the caller expects and the file has the expected shape and dtype: a cache from an
-interrupted run, a truncated file or changed inputs is rebuilt, never read as garbage. A file lock lets
-the jobs of a parallel sweep that share a cache build each array once.
+"""One cached array: an ``.npy`` file beside a JSON manifest, written last, of what it was built from; read
+only when both match what the caller expects, built once under a file lock otherwise.
 """
 
 from __future__ import annotations
@@ -24,22 +20,14 @@ from lossvo.atomic import write_text_atomic
 log = logging.getLogger(__name__)
 
 Fill = Callable[[np.ndarray], dict[str, Any]]
-"""Writes every element of the (memory-mapped) array it is given; returns manifest entries it found
-while doing so (for example the size of the source images)."""
-
-
-def manifest_of(data: Path) -> Path:
-    """The manifest beside an array file: ``x.npy`` -> ``x.json``."""
-    return data.with_suffix(".json")
+"""Writes every element of the array it is given; returns manifest entries it found on the way."""
 
 
 def open_array(
     data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type, say: bool = True
 ) -> np.ndarray | None:
-    """The array in ``data`` as a read-only memory map, or None if it is missing, incomplete or stale:
-    its manifest must hold every entry of ``expected`` with the same value, and the array ``shape`` and
-    ``dtype``. ``say``: a warning names an unreadable or stale array."""
-    manifest = manifest_of(data)
+    """The array in ``data`` as a read-only memory map, or None if missing or stale (``say``: warn)."""
+    manifest = data.with_suffix(".json")
     try:
         meta = json.loads(manifest.read_text())
         array = np.load(data, mmap_mode="r")
@@ -58,11 +46,8 @@ def open_array(
 def build_array(
     data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type, fill: Fill
 ) -> np.ndarray:
-    """Write the array ``fill`` computes into ``data`` (through a temporary file), then its manifest
-    (``expected``, the shape and what ``fill`` returned); the memory map. An exception leaves no array
-    that looks complete."""
-    data.parent.mkdir(parents=True, exist_ok=True)
-    manifest = manifest_of(data)
+    """Write the array ``fill`` computes into ``data`` (through a temporary file), then its manifest."""
+    manifest = data.with_suffix(".json")
     manifest.unlink(missing_ok=True)  # the manifest marks a complete array; none while writing
     tmp = data.with_name(f".{data.name}.{os.getpid()}.tmp")
     start = time.perf_counter()
@@ -83,8 +68,7 @@ def build_array(
 def ensure_array(
     data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type, fill: Fill
 ) -> np.ndarray:
-    """The array in ``data`` (:func:`open_array`), built first by :func:`build_array` where it is missing,
-    incomplete or stale, under a file lock so that concurrent jobs build it once."""
+    """The array in ``data``, built first where it is missing, incomplete or stale (once, under a lock)."""
     array = open_array(data, expected, shape, dtype)
     if array is not None:
         return array

@@ -1,8 +1,5 @@
-"""LightningDataModules for datasets in their own layouts (KITTI odometry, TUM RGB-D, EuRoC, TartanAir, MIMIR:
-:mod:`lossvo.data.layouts`) and for the embedded synthetic KITTI-layout dataset.
-
-A sample is a window of ``seq_len`` consecutive frames and its ``seq_len - 1`` relative-pose targets;
-a batch is a dict, as the model receives it::
+"""The LightningDataModule of datasets in their own layouts (:mod:`lossvo.data.layouts`) or rendered, as
+cached frames and windows of them (docs/data.md). A batch, as the model receives it::
 
     "frames":  (B, seq_len, 3, H, W) float32, normalised per channel
     "targets": (B, seq_len - 1, 4, 4) float32, inv(T_w_k) @ T_w_{k+1} computed in float64
@@ -10,16 +7,7 @@ a batch is a dict, as the model receives it::
     "metric":  (B,) bool, whether the window's platform gives metric scale a cue (a KITTI-layout car)
     "flow":    (B, seq_len - 1, 2, H, W) float32, optical flow of each pair in pixels (with ``flow``)
 
-The loaders carry frames as uint8 (a window is one copy out of the memory map) and the DataModule
-normalises them on the training device in ``on_after_batch_transfer``, Lightning's hook for this.
-
-Training windows start at every frame; validation and test windows tile each sequence
-(:mod:`lossvo.data.windows`), so that every consecutive pair of a sequence is seen exactly once. No window
-spans a gap in a sequence's timestamps (frames its reader dropped): tiles cut there, the pair across a gap a
-window of its own.
-``prepare_data`` checks the dataset (one clear error naming the file) and builds the frame cache
-(:mod:`lossvo.data.frame_cache`) before anything trains. Normalisation statistics come from the training
-sequences only, or are FlowNet's ``x / 255 - 0.5`` when its weights are used.
+The loaders carry frames as uint8; ``on_after_batch_transfer`` normalises them on the training device.
 """
 
 from __future__ import annotations
@@ -38,7 +26,7 @@ import lightning as L
 import numpy as np
 import torch
 from filelock import FileLock
-from torch.utils.data import BatchSampler, DataLoader, SequentialSampler
+from torch.utils.data import BatchSampler, DataLoader, SequentialSampler, default_convert
 
 from lossvo.atomic import write_text_atomic
 from lossvo.console import UserError
@@ -58,14 +46,13 @@ PAPER_TEST = ("00", "01", "02", "03", "04", "05", "06", "07", "08", "09", "10")
 
 
 def _own_stream() -> torch.Generator:
-    """A generator for a DataLoader's worker seeds, seeded with the run's seed: without one, every
-    epoch's loader iterator draws from the global stream, which the network's dropout uses."""
+    """A generator for a DataLoader's worker seeds, seeded with the run's seed (the global stream is the
+    network's dropout's)."""
     return torch.Generator().manual_seed(torch.initial_seed())
 
 
 def _transforms(value: Any) -> tuple[batch_transforms.Transform, ...]:
-    """``data.transforms`` as a tuple of batch transforms (:mod:`lossvo.data.transforms`); UserError naming
-    the key otherwise."""
+    """``data.transforms`` as a tuple of batch transforms (:mod:`lossvo.data.transforms`)."""
     items = list(value) if isinstance(value, Seq) and not isinstance(value, str) else None
     if items is None or not all(isinstance(t, batch_transforms.TRANSFORMS) for t in items):
         names = ", ".join(t.__name__ for t in batch_transforms.TRANSFORMS)
@@ -77,27 +64,9 @@ def _transforms(value: Any) -> tuple[batch_transforms.Transform, ...]:
 
 
 class VODataModule(L.LightningDataModule):
-    """Datasets in their own layouts (or rendered), as cached frames and windows of them.
-
-    Args:
-        sources: name -> dataset (:class:`lossvo.data.specs.Source`: ``{layout, root, keep_every,
-            camera}``; the synthetic one with its rendering). With one, sequences keep their names; with
-            several, the run names them ``<source>/<sequence>`` and pools the normalisation over every
-            training sequence.
-        splits: ``{train, val, test, unseen}`` sequence names (:class:`lossvo.data.specs.Splits`).
-        frames: frame size, crop, normalisation and cache folder (:class:`lossvo.data.specs.Frames`).
-        windows: training windows and batch size (:class:`lossvo.data.specs.Windows`).
-        flow: optical flow cached beside the frames for every pair a network sees (``{method, scale}``,
-            :class:`lossvo.data.flow.FlowSetting`).
-        loader: where batches are assembled (:class:`lossvo.data.specs.Loader`, :mod:`lossvo.data.resident`).
-        transforms: batch transforms of training batches, applied in order on the training device
-            (:mod:`lossvo.data.transforms`).
-
-    Frames with distortion are undistorted once, when the frame cache is built
-    (:func:`lossvo.data.frame_cache.undistortion`); :meth:`intrinsics` is K of the cached frames.
-    :meth:`description` records the specs, the dataset root and the normalisation statistics: a
-    checkpoint stores it (:mod:`lossvo.training.checkpoints`), so that evaluation needs nothing else.
-    """
+    """Datasets in their own layouts (or rendered), as cached frames and windows of them; each argument is
+    the config of its spec in :mod:`lossvo.data.specs` (``transforms``: applied in order to training
+    batches). With several sources, the run names sequences ``<source>/<sequence>``."""
 
     def __init__(
         self,
@@ -114,9 +83,7 @@ class VODataModule(L.LightningDataModule):
         cache = self.frames.cache_dir
         self.cache_dir = Path(cache).expanduser() if cache else frame_cache.default_cache_dir()
         self.sources = specs.sources_of(sources, self.cache_dir)
-        """The datasets read, by name: with one, its sequences keep their names; with several, the run
-        names them ``<source>/<sequence>``."""
-        self.splits = specs.Splits.of(splits).as_dict()
+        self.splits: dict[str, tuple[str, ...]] = dataclasses.asdict(specs.Splits.of(splits))
         self.windows = specs.Windows.of(windows)
         self.flow = specs.flow_of(flow)
         self.loader = specs.Loader.of(loader)
@@ -137,8 +104,7 @@ class VODataModule(L.LightningDataModule):
         return self.windows.seq_len
 
     def _check_names(self) -> None:
-        """UserError ``data.splits.<split>: sequence 'NN' not found (available: ...)`` for a sequence no
-        source can hold: of an unknown source, or missing from a rendered dataset's ``frame_counts``."""
+        """UserError for a sequence no source can hold (of an unknown source, or not rendered)."""
         for split, names in self.splits.items():
             for name in names:
                 key, local = self._split_name(name)
@@ -154,8 +120,6 @@ class VODataModule(L.LightningDataModule):
                         f"data.splits.{split}: sequence {name!r} not found (available: "
                         f"{', '.join(sorted(counts))})"
                     )
-
-    # -- preparation: check everything, build the cache, compute statistics --------------------------
 
     @property
     def all_names(self) -> list[str]:
@@ -179,8 +143,7 @@ class VODataModule(L.LightningDataModule):
         return self.sources[key], local
 
     def _render(self) -> None:
-        """Render each synthetic source's sequences that are not on disk yet (a lock lets parallel sweep
-        jobs share them)."""
+        """Render each synthetic source's sequences that are not on disk yet, under a lock."""
         for key, source in self.sources.items():
             if source.render is None:
                 continue
@@ -206,9 +169,8 @@ class VODataModule(L.LightningDataModule):
                 )
 
     def load_metadata(self) -> None:
-        """Read and check every sequence's metadata (every ``keep_every``-th frame; no frame cache),
-        rendering synthetic sources first; only test sequences may lack poses (KITTI 11-21).
-        ``sequences`` is keyed by the names of :attr:`splits`; each Sequence keeps its dataset's name."""
+        """Read and check every sequence's metadata (no frame cache), rendering synthetic sources first;
+        only test sequences may lack poses."""
         self._render()
         labelled = set(self.splits["train"]) | set(self.splits["val"]) | set(self.splits["unseen"])
         self.sequences, self._cameras = {}, {}
@@ -227,8 +189,7 @@ class VODataModule(L.LightningDataModule):
             self.sequences[name] = seq.every(source.keep_every)
 
     def _name_unknown(self, name: str, source: specs.Source, root: Path, error: Exception) -> None:
-        """Where sequence ``name`` of a split is not in its dataset: ``UserError`` naming the split's key,
-        the dataset and the sequences it has (the reader's error names only a path)."""
+        """UserError naming the split and the sequences the dataset has, where ``name`` is not one of them."""
         found = layouts.list_sequences(source.reader, root)
         if source.file_name(self.source_of(name)[1]) in found:
             return
@@ -243,10 +204,8 @@ class VODataModule(L.LightningDataModule):
         source = next(iter(self.sources.values())) if name is None else self.source_of(name)[0]
         root = layouts.dataset_root(source.reader, source.root).resolve()
         folder = frame_cache.cache_folder(self.cache_dir, root, self.frames.height, self.frames.width)
-        suffix = (f"-every{source.keep_every}" if source.keep_every > 1 else "") + (
-            "-crop" if self.frames.crop else ""
-        )
-        return folder.with_name(folder.name + suffix) if suffix else folder
+        suffix = f"-every{source.keep_every}" if source.keep_every > 1 else ""
+        return folder.with_name(folder.name + suffix + ("-crop" if self.frames.crop else ""))
 
     def _frame_files(self, name: str) -> tuple[Path, Path]:
         """The cached frames (.npy) and their manifest (.json) of sequence ``name``."""
@@ -255,42 +214,48 @@ class VODataModule(L.LightningDataModule):
     def _flow_file(self, name: str, step: int) -> Path:
         return optical_flow.flow_file(self.cache_path(name), self.sequences[name].name, step, self.flow)
 
-    def _frames_source(self, name: str) -> dict:
-        """What sequence ``name``'s cached frames were built from (``frame_cache.source_of``)."""
-        return frame_cache.source_of(self.cache_path(name), self.sequences[name].name)
-
-    def _ensure_frames(self) -> dict[str, np.ndarray]:
-        """Every sequence's cached frames, built where missing or stale."""
-        return {
-            n: frame_cache.ensure_frames(
-                self.cache_path(n), s, self.frames.height, self.frames.width, crop=self.frames.crop
-            )
-            for n, s in self.sequences.items()
-        }
+    def _manifest(self, name: str) -> dict:
+        """The manifest of sequence ``name``'s cached frames: what they were built from."""
+        return json.loads(self._frame_files(name)[1].read_text())
 
     def prepare_data(self) -> None:
-        """Check the dataset (its metadata), then build what is missing or stale: the frame cache, the
-        normalisation statistics (:attr:`mean`, :attr:`std`) and the flow."""
+        """Check the dataset, then build what is missing or stale: frames, statistics and flow."""
         self.load_metadata()
-        frames = self._ensure_frames()
+        size = (self.frames.height, self.frames.width)
+        frames = {
+            n: frame_cache.ensure_frames(self.cache_path(n), s, *size, crop=self.frames.crop)
+            for n, s in self.sequences.items()
+        }
         self.mean, self.std = self._stats(frames)
-        self._ensure_flow(frames)
-
-    def _stats_path(self) -> Path:
-        """Beside the first training sequence's frames, named after the training split."""
-        key = hashlib.sha1(",".join(self.splits["train"]).encode()).hexdigest()[:10]
-        return self.cache_path(self.splits["train"][0]) / f"stats-{key}.json"
+        if not self.flow.enabled:
+            return
+        for n, steps in self.flow_steps().items():
+            seq, folder = self.sequences[n], self.cache_path(n)
+            undistort = frame_cache.undistortion(seq)
+            for step in steps:
+                source = self._manifest(n)["source"]
+                optical_flow.ensure_flow(
+                    folder,
+                    seq.name,
+                    frames[n],
+                    source,
+                    step,
+                    self.flow,
+                    seq.images,
+                    undistort=undistort,
+                    crop=self.frames.crop,
+                )
 
     def _stats(self, frames: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        """Per-channel mean/std: given (``statistics``), FlowNet's, or of the training sequences (cached
-        with the frames; pooled over every training sequence of every dataset)."""
+        """Per-channel mean/std: given, FlowNet's, or of the training sequences (cached with the frames)."""
         if self.frames.statistics is not None:
             given = self.frames.statistics
             return np.asarray(given["mean"], dtype=np.float64), np.asarray(given["std"], dtype=np.float64)
         if self.frames.normalization == "flownet":
             return np.full(3, 0.5), np.ones(3)  # (x/255 - 0.5) / 1
-        path = self._stats_path()
-        sources = {n: self._frames_source(n) for n in self.splits["train"]}
+        key = hashlib.sha1(",".join(self.splits["train"]).encode()).hexdigest()[:10]
+        path = self.cache_path(self.splits["train"][0]) / f"stats-{key}.json"  # beside the frames
+        sources = {n: self._manifest(n)["source"] for n in self.splits["train"]}
         try:
             saved = json.loads(path.read_text())
             if saved["sources"] == sources:
@@ -298,47 +263,20 @@ class VODataModule(L.LightningDataModule):
         except (OSError, ValueError, KeyError):
             pass
         mean, std = frame_cache.channel_stats([frames[n] for n in self.splits["train"]])
-        write_text_atomic(
-            path,
-            json.dumps(
-                {
-                    "train": self.splits["train"],
-                    "sources": sources,
-                    "mean": mean.tolist(),
-                    "std": std.tolist(),
-                }
-            ),
-        )
+        record = {
+            "train": self.splits["train"],
+            "sources": sources,
+            "mean": mean.tolist(),
+            "std": std.tolist(),
+        }
+        write_text_atomic(path, json.dumps(record))
         return mean, std
 
     def flow_steps(self) -> dict[str, tuple[int, ...]]:
-        """Sequence -> the frame steps of the pairs a network sees in it: each of ``frame_steps`` in a
-        training sequence, and 1 (consecutive frames) in every sequence."""
+        """Sequence -> the frame steps of the pairs a network sees in it (1, and a training one's steps)."""
         train = set(self.splits["train"])
         return {
             n: tuple(sorted({1, *(self.windows.frame_steps if n in train else ())})) for n in self.all_names
-        }
-
-    def _ensure_flow(self, frames: dict[str, np.ndarray]) -> dict[tuple[str, int], np.ndarray]:
-        """The cached flow of every (sequence, step) of :meth:`flow_steps`, computed where missing or
-        stale; none without ``flow``."""
-        if not self.flow.enabled:
-            return {}
-        seqs = self.sequences
-        return {
-            (n, step): optical_flow.ensure_flow(
-                self.cache_path(n),
-                seqs[n].name,
-                frames[n],
-                self._frames_source(n),
-                step,
-                self.flow,
-                seqs[n].images,
-                undistort=frame_cache.undistortion(seqs[n]),
-                crop=self.frames.crop,
-            )
-            for n, steps in self.flow_steps().items()
-            for step in steps
         }
 
     def setup(self, stage: str | None = None) -> None:
@@ -349,11 +287,7 @@ class VODataModule(L.LightningDataModule):
         for split, names in self.splits.items():
             labelled = [(n, p) for n in names if (p := self.sequences[n].poses) is not None]  # labelled ones
             steps = (1,) if split != "train" else self.windows.frame_steps
-            flow_files = (
-                None
-                if not self.flow.enabled
-                else {step: [self._flow_file(n, step) for n, _ in labelled] for step in steps}
-            )
+            flow_files = {step: [self._flow_file(n, step) for n, _ in labelled] for step in steps}
             self.datasets[split] = WindowDataset(
                 [self._frame_files(n)[0] for n, _ in labelled],
                 [p for _, p in labelled],
@@ -361,7 +295,7 @@ class VODataModule(L.LightningDataModule):
                 self.windows.frame_steps,
                 tiled=split != "train",
                 intrinsics=[self.intrinsics(n) for n, _ in labelled],
-                flow_files=flow_files,
+                flow_files=flow_files if self.flow.enabled else None,
                 times=[self.sequences[n].times for n, _ in labelled],
                 metric=[self.metric_scale(n) for n, _ in labelled],
             )
@@ -373,17 +307,13 @@ class VODataModule(L.LightningDataModule):
             )
 
     def description(self) -> dict[str, Any]:
-        """What a network trained on this data depends on, as primitives (a checkpoint's ``data``):
-        ``_target_`` (this class), the specs as their configs (roots absolute; ``transforms`` as theirs,
-        :func:`lossvo.data.transforms.spec`), ``dataset_root`` and, after :meth:`setup` (None before),
-        ``statistics`` ``{"mean": [3], "std": [3]}`` and ``intrinsics``, the (3, 3) K of each training
-        sequence's cached frames (pixels)."""
+        """What a network trained on this data depends on, as primitives (a checkpoint's ``data``): the
+        specs' configs and, after :meth:`setup` (None before), ``statistics`` and each training sequence's
+        ``intrinsics``."""
         sources = {k: s.config() | {"root": str(s.root.resolve())} for k, s in self.sources.items()}
-        stats = (
-            None
-            if self.mean is None or self.std is None
-            else {"mean": [float(v) for v in self.mean], "std": [float(v) for v in self.std]}
-        )
+        stats = None
+        if self.mean is not None and self.std is not None:
+            stats = {"mean": self.mean.tolist(), "std": self.std.tolist()}
         cameras = {n: self.intrinsics(n).tolist() for n in self.splits["train"]} if self.datasets else None
         return {
             "_target_": f"{type(self).__module__}.{type(self).__qualname__}",
@@ -400,47 +330,33 @@ class VODataModule(L.LightningDataModule):
         }
 
     def dataset_root(self) -> Path:
-        """The absolute folder the layout's reader reads (for KITTI the one holding ``sequences/``); with
-        several datasets, the folder their roots share."""
+        """The absolute folder the layout's reader reads; with several datasets, the one they share."""
         roots = [str(layouts.dataset_root(s.reader, s.root).resolve()) for s in self.sources.values()]
         return Path(os.path.commonpath(roots))
 
     def intrinsics(self, name: str) -> np.ndarray:
-        """(3, 3) float64 K of a sequence's cached frames: its camera's K (of the undistorted frames where
-        they are undistorted: :func:`lossvo.data.frame_cache.source_intrinsics`), resized from the source
-        images' size to (height, width) (:func:`lossvo.geometry.camera.resized_intrinsics`); after
-        :meth:`setup`; read once a sequence."""
-        if name in self._cameras:
-            return self._cameras[name].copy()
-        manifest = json.loads(self._frame_files(name)[1].read_text())
-        source = tuple(manifest["source_size_hw"])
-        K = frame_cache.source_intrinsics(self.sequences[name])
-        if self.frames.crop:
-            box = frame_cache.centre_crop(source, (self.frames.height, self.frames.width))
-            K, source = frame_cache.cropped_intrinsics(K, box), box[2:]
-        self._cameras[name] = camera.resized_intrinsics(K, source, (self.frames.height, self.frames.width))
+        """(3, 3) float64 K of a sequence's cached frames (pixels); after :meth:`setup`."""
+        if name not in self._cameras:
+            size = (self.frames.height, self.frames.width)
+            source = tuple(self._manifest(name)["source_size_hw"])
+            K = frame_cache.source_intrinsics(self.sequences[name])
+            if self.frames.crop:
+                box = frame_cache.centre_crop(source, size)
+                K, source = frame_cache.cropped_intrinsics(K, box), box[2:]
+            self._cameras[name] = camera.resized_intrinsics(K, source, size)
         return self._cameras[name].copy()
 
-    # -- where batches are assembled -----------------------------------------------------------------
-
     def resident_windows(self, split: str) -> resident.ResidentWindows | None:
-        """The split's windows kept on the training device, or None where the host loader assembles its
-        batches (:attr:`on_device`). Decided once, for the training and validation splits together, and
-        said in the log."""
+        """The split's windows kept on the training device, or None (the host loader); decided once."""
         if self.resident is None:
-            self.resident = self._make_resident(self._training_device())
+            strategy = getattr(self.trainer, "strategy", None)  # none: the CPU
+            self.resident = self._make_resident(getattr(strategy, "root_device", torch.device("cpu")))
         if self.resident and split not in self.resident:  # the test split, asked for later
             self.resident[split] = self._resident_split(split, next(iter(self.resident.values())).device)
         return self.resident.get(split)
 
-    def _training_device(self) -> torch.device:
-        """The device the attached trainer trains on; the CPU without one."""
-        strategy = getattr(self.trainer, "strategy", None)
-        return getattr(strategy, "root_device", torch.device("cpu"))
-
     def _make_resident(self, device: torch.device) -> dict[str, resident.ResidentWindows]:
-        """The training and validation splits' windows on ``device`` where :attr:`on_device` and the budget
-        allow, else nothing (the host loader); one log line either way."""
+        """The training and validation splits' windows on ``device`` where the settings allow; a log line."""
         splits = [s for s in ("train", "val") if s in self.datasets]
         size = sum(resident.resident_bytes(*self._arrays(s)) for s in splits) / resident.GIB
         setting = f"data.loader.on_device={str(self.loader.on_device).lower()}"
@@ -476,11 +392,8 @@ class VODataModule(L.LightningDataModule):
             data.index, frames, data.targets, data.intrinsics, data.metric, flow, device
         )
 
-    # -- loaders --------------------------------------------------------------------------------------
-
     def _host_loader(self, split: str, **sampling: Any) -> DataLoader:
-        """The host loader of the split's windows, in the batches ``sampling`` names (DataLoader's
-        ``sampler`` and ``batch_size``, or ``batch_sampler``)."""
+        """The host loader of the split's windows; ``sampling``: DataLoader's sampler arguments."""
         return DataLoader(
             self.datasets[split],
             num_workers=self.loader.num_workers,
@@ -491,15 +404,14 @@ class VODataModule(L.LightningDataModule):
         )
 
     def _batches(self, split: str, batches: BatchSampler) -> DataLoader:
-        """The split's windows in the given batches: items of the host loader, or index batches that
-        :meth:`on_after_batch_transfer` gathers on the device (:mod:`lossvo.data.resident`)."""
+        """The split's windows in the given batches: from the host loader, or as index batches."""
         windows = self.resident_windows(split)
         if windows is None:
             return self._host_loader(split, batch_sampler=batches)
         return DataLoader(
             resident.IndexBatches(windows, split),
             batch_sampler=batches,
-            collate_fn=resident.as_is,
+            collate_fn=default_convert,  # the batch is built already
             generator=_own_stream(),
         )
 
@@ -512,12 +424,8 @@ class VODataModule(L.LightningDataModule):
         return self._batches(split, batches)
 
     def train_dataloader(self) -> DataLoader:
-        """Shuffled training windows; with ``windows_per_epoch``, a fresh random subset every epoch.
-
-        Each epoch's order comes from a generator of its own, seeded with torch's initial seed (the run's
-        ``seed``) and the epoch (:class:`EpochShuffle`), so it depends on the seed, the epoch and the data
-        alone: not on the network, its head or the loss, which draw from other streams, and a resumed run
-        sees the order an uninterrupted one would. Host loader and device gathering give the same batches."""
+        """Shuffled training windows (a fresh subset each epoch with ``per_epoch``), in an order that depends
+        on the run's seed, the epoch and the data alone (:class:`EpochShuffle`)."""
         dataset = self.datasets["train"]
         count = min(self.windows.per_epoch or len(dataset), len(dataset))
         order = EpochShuffle(len(dataset), count, torch.initial_seed())
@@ -531,8 +439,6 @@ class VODataModule(L.LightningDataModule):
     def test_dataloader(self) -> DataLoader:
         return self._tiled_loader("test")
 
-    # -- whole sequences (evaluation) -----------------------------------------------------------------
-
     def normalize(self, frames: torch.Tensor) -> torch.Tensor:
         """uint8 frames (..., 3, H, W) -> float32 ``(x / 255 - mean) / std``, per channel."""
         mean = torch.as_tensor(self.mean, dtype=torch.float32, device=frames.device).view(3, 1, 1)
@@ -540,8 +446,7 @@ class VODataModule(L.LightningDataModule):
         return frames.float().mul_(1.0 / (255.0 * std)).sub_(mean / std)  # in place: one pass less
 
     def prepare(self, inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        """Loaded inputs, on their device, as a network reads them: frames normalised (:meth:`normalize`),
-        flow as float32; the other entries as they are."""
+        """Loaded inputs as a network reads them: frames normalised, flow as float32."""
         prepared = {**inputs, "frames": self.normalize(inputs["frames"])}
         if "flow" in inputs:
             prepared["flow"] = inputs["flow"].float()
@@ -550,8 +455,7 @@ class VODataModule(L.LightningDataModule):
     def on_after_batch_transfer(
         self, batch: dict[str, torch.Tensor], dataloader_idx: int
     ) -> dict[str, torch.Tensor]:
-        """On the training device: an index batch gathered (:mod:`lossvo.data.resident`), when training
-        the :attr:`transforms` applied in order, then :meth:`prepare`."""
+        """On the device: an index batch gathered, training transforms applied, then :meth:`prepare`."""
         if "frame_index" in batch:  # an index batch of windows kept on the device
             windows = self.resident_windows(str(batch["split"]))
             assert windows is not None
@@ -586,8 +490,7 @@ class VODataModule(L.LightningDataModule):
         return self.source_of(name)[0].reader
 
     def metric_scale(self, name: str) -> bool:
-        """Whether one sequence's platform gives monocular metric scale a cue
-        (:data:`lossvo.data.layouts.METRIC_SCALE_LAYOUTS`: a car's camera at a known height above a road)."""
+        """Whether one sequence's platform gives metric scale a cue (:data:`layouts.METRIC_SCALE_LAYOUTS`)."""
         return self.sequence_layout(name) in layouts.METRIC_SCALE_LAYOUTS
 
     def sequence_times(self, name: str) -> np.ndarray:

@@ -1,18 +1,11 @@
-"""Optical flow between cached frames: OpenCV's DIS (its medium preset), computed once per sequence and frame
-step.
-
-A flow field is ``(2, H, W)``: ``(u, v)`` in pixels of the cached frames (the network's input size), the
-displacement that carries pixel ``(x, y)`` of frame ``k`` to ``(x + u, y + v)`` in frame ``k + s`` (s: the
-frame step). A sequence of N frames has ``N - s`` fields at step s, stored as float16 (a quarter of a pixel
-resolves to 1/2048 px at 1 px and 1/64 px at 32 px) in one ``.npy`` beside its frames
-(:mod:`lossvo.data.frame_cache`), with a manifest naming the frames it was computed from
-(:mod:`lossvo.data.array_cache`): a changed frame cache, flow setting or interrupted build is recomputed.
+"""Optical flow between cached frames: OpenCV's DIS (medium preset), cached once per sequence and frame step
+as float16 (N - s, 2, H, W) ``(u, v)`` in pixels of the cached frames (:mod:`lossvo.data.array_cache`).
 """
 
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,15 +25,13 @@ MAX_SCALE = 4.0
 """Largest ``scale``: finer frames cost DIS time in proportion to their pixels."""
 CHUNK = 64
 """Pairs computed together: the frames a chunk needs are read once, then dropped."""
+WORKERS = 2
 
 
 @dataclass(frozen=True)
 class FlowSetting:
-    """Which flow a dataset caches: ``method`` one of METHODS (``"none"``: no flow), ``scale``: the flow is
-    computed between frames resized from their source images to ``scale`` times the cached size, then
-    resized to the cached size (values scaled with it): DIS resolves small motions (a slow car's road, a
-    far wall) better on the finer frames. Raises UserError naming the key (``data.flow.method``,
-    ``data.flow.scale``)."""
+    """Which flow a dataset caches: ``method`` one of METHODS; ``scale``: computed on the source images at
+    ``scale`` times the cached size, then resized (DIS resolves small motions better on finer frames)."""
 
     method: str = "dis"
     scale: float = 1.0
@@ -59,10 +50,6 @@ class FlowSetting:
     def key(self) -> str:
         """The setting in file names and manifests: ``"dis-medium"``, ``"dis-medium-x1.5"``."""
         return "dis-medium" if self.scale == 1 else f"dis-medium-x{self.scale:g}"
-
-    def size(self, height: int, width: int) -> tuple[int, int]:
-        """(h, w) of the frames the flow of a (height, width) cache is computed on."""
-        return round(height * self.scale), round(width * self.scale)
 
 
 def _gray(frame: np.ndarray) -> np.ndarray:
@@ -86,13 +73,8 @@ class _Estimator:
 
 
 def pair_flow(first: np.ndarray, second: np.ndarray, setting: FlowSetting = FlowSetting()) -> np.ndarray:
-    """Flow from one frame to another.
-
-    Args:
-        first, second: (3, H, W) uint8 RGB frames.
-    Returns:
-        (2, H, W) float32 (u, v) in pixels: pixel (x, y) of ``first`` is at (x + u, y + v) in ``second``.
-    """
+    """(2, H, W) float32 (u, v) in pixels from ``first`` to ``second``, (3, H, W) uint8 RGB frames: pixel
+    (x, y) of ``first`` is at (x + u, y + v) in ``second``."""
     if not setting.enabled:
         raise UserError("data.flow.method: none computes no flow")
     return _Estimator()(_gray(first), _gray(second))
@@ -108,62 +90,6 @@ def resized_flow(field: np.ndarray, height: int, width: int) -> np.ndarray:
     return resized.transpose(2, 0, 1) * np.array([width / w, height / h], dtype=np.float32).reshape(2, 1, 1)
 
 
-def _computer(
-    read: Callable[[int], np.ndarray],
-    step: int,
-    setting: FlowSetting,
-    name: str,
-    size_hw: tuple[int, int],
-    workers: int,
-    progress: bool,
-) -> array_cache.Fill:
-    """Fills a sequence's flow array at one step, :data:`CHUNK` pairs at a time on ``workers`` threads
-    (OpenCV releases the GIL): ``read(k)`` is frame k, (h, w) uint8 grey, each read once a chunk."""
-
-    def fill(out: np.ndarray) -> dict:
-        estimate = _Estimator()
-        with (
-            ThreadPoolExecutor(workers) as pool,
-            tqdm(
-                total=len(out),
-                desc=f"flow {name} (step {step}, {setting.key})",
-                unit="pair",
-                disable=None if progress else True,  # None: off where stderr is no terminal
-                leave=False,
-            ) as bar,
-        ):
-            for lo in range(0, len(out), CHUNK):
-                hi = min(lo + CHUNK, len(out))
-                grey = list(pool.map(read, range(lo, hi + step)))
-                fields = pool.map(estimate, grey[: hi - lo], grey[step:])
-                for k, field in enumerate(fields, lo):
-                    out[k] = resized_flow(field, *size_hw)
-                bar.update(hi - lo)
-        return {}
-
-    return fill
-
-
-def _reader(
-    frames: np.ndarray,
-    images: Sequence[Path],
-    setting: FlowSetting,
-    undistort: frame_cache.Undistortion | None = None,
-    crop: bool = False,
-) -> Callable[[int], np.ndarray]:
-    """Frame k, (h, w) uint8 grey at the size the flow is computed at: the cached frame (``scale`` 1) or
-    its source image read again at ``setting.size`` (and undistorted as the cached frames are)."""
-    n, _, height, width = frames.shape
-    if setting.scale == 1:
-        return lambda k: _gray(frames[k])
-    if len(images) != n:
-        raise UserError(
-            f"data.flow.scale={setting.scale:g} reads the source images: expected {n}, got {len(images)}"
-        )
-    h, w = setting.size(height, width)
-    return lambda k: _gray(frame_cache.read_frame(images[k], h, w, undistort, crop)[0])
-
-
 def flow_file(folder: Path, name: str, step: int, setting: FlowSetting) -> Path:
     """The flow array of sequence ``name`` at frame step ``step`` in a frame-cache folder."""
     return folder / f"{name}.flow-{setting.key}-s{step}.npy"
@@ -177,26 +103,46 @@ def ensure_flow(
     step: int,
     setting: FlowSetting,
     images: Sequence[Path] = (),
-    workers: int = 2,
     progress: bool = True,
     undistort: frame_cache.Undistortion | None = None,
     crop: bool = False,
 ) -> np.ndarray:
-    """The cached flow of a sequence's frames at one frame step, computed first where it is missing,
-    incomplete or stale (its frames changed: ``frames_source``, the frame cache's record of them).
-
-    Args:
-        folder: the frame-cache folder of the sequence's dataset and size; name: the sequence.
-        frames: (N, 3, H, W) uint8 RGB, the cached frames; step: frames from first to second (>= 1).
-        images: the N source images, read again at ``setting.size(H, W)`` when ``setting.scale > 1`` and
-            undistorted with ``undistort`` (:func:`lossvo.data.frame_cache.undistortion`) and cropped with
-            ``crop`` as the cached frames are.
-    Returns:
-        (max(N - step, 0), 2, H, W) float16 memory map.
-    """
+    """(max(N - step, 0), 2, H, W) float16 cached flow of a sequence's (N, 3, H, W) cached ``frames`` at
+    one frame step, computed first where missing or stale (``frames_source``: the frame cache's record of
+    them). ``images``, ``undistort``, ``crop``: the source images, read again where ``setting.scale > 1``.
+    :data:`CHUNK` pairs at a time on :data:`WORKERS` threads (OpenCV releases the GIL)."""
     if not setting.enabled:
         raise UserError("data.flow.method: none computes no flow")
     n, _, height, width = frames.shape
+    if setting.scale != 1 and len(images) != n:
+        raise UserError(
+            f"data.flow.scale={setting.scale:g} reads the source images: expected {n}, got {len(images)}"
+        )
+    size = round(height * setting.scale), round(width * setting.scale)  # the frames the flow is computed on
+
+    def read(k: int) -> np.ndarray:
+        """Frame k, (h, w) uint8 grey at the size the flow is computed at."""
+        if setting.scale == 1:
+            return _gray(frames[k])
+        return _gray(frame_cache.read_frame(images[k], *size, undistort, crop)[0])
+
+    def fill(out: np.ndarray) -> dict:
+        estimate = _Estimator()
+        desc = f"flow {name} (step {step}, {setting.key})"
+        disable = None if progress else True  # None: shown on a terminal only
+        with (
+            ThreadPoolExecutor(WORKERS) as pool,
+            tqdm(None, desc, len(out), leave=False, disable=disable, unit="pair") as bar,
+        ):
+            for lo in range(0, len(out), CHUNK):
+                hi = min(lo + CHUNK, len(out))
+                grey = list(pool.map(read, range(lo, hi + step)))
+                fields = pool.map(estimate, grey[: hi - lo], grey[step:])
+                for k, field in enumerate(fields, lo):
+                    out[k] = resized_flow(field, height, width)
+                bar.update(hi - lo)
+        return {}
+
     shape = (max(n - step, 0), 2, height, width)
     expected = {
         "version": FLOW_VERSION,
@@ -205,26 +151,10 @@ def ensure_flow(
         "flow": setting.key,
         "frames": frames_source,
     }
-    fill = _computer(
-        _reader(frames, images, setting, undistort, crop),
-        step,
-        setting,
-        name,
-        (height, width),
-        workers,
-        progress,
-    )
     return array_cache.ensure_array(flow_file(folder, name, step, setting), expected, shape, np.float16, fill)
 
 
 def mirror_flow(flow: torch.Tensor) -> torch.Tensor:
-    """The flow of horizontally mirrored frames: fields flipped left to right, ``u`` negated (a pixel at
-    x moving by u is, mirrored, at W - 1 - x moving by -u).
-
-    Args:
-        flow: (..., 2, H, W).
-    Returns:
-        (..., 2, H, W).
-    """
+    """(..., 2, H, W) flow of horizontally mirrored frames: fields flipped left to right, ``u`` negated."""
     sign = torch.tensor([-1.0, 1.0], dtype=flow.dtype).to(flow.device, non_blocking=True).view(2, 1, 1)
     return flow.flip(-1) * sign

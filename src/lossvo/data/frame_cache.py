@@ -1,20 +1,10 @@
-"""Resized frames of a sequence, decoded once and memory-mapped afterwards.
-
-``prepare_data`` decodes every PNG of a sequence once (a single-channel frame, EuRoC's, replicated to three
-channels by OpenCV's colour decoding), undistorts it where the sequence's camera has distortion
-(:class:`Undistortion`), resizes it to the configured (H, W) with area interpolation and stores the frames as
-one uint8 ``.npy`` (N, 3, H, W) RGB file per sequence (channels first, as the network reads them, so that a
-window is one contiguous slice), next to a small JSON manifest. Training and evaluation then read windows
-straight from the memory map: no epoch decodes a PNG. The manifest records what the cache was built from
-(frame names, sizes, mtimes) and is written last, so a cache from an interrupted run, a truncated file or a
-changed dataset is detected and rebuilt, never read as garbage.
-Whether a cached array is complete is :mod:`lossvo.data.array_cache`'s concern.
+"""A sequence's frames decoded once (undistorted, cropped, resized with area interpolation) into one uint8
+(N, 3, H, W) RGB ``.npy`` beside a manifest (:mod:`lossvo.data.array_cache`), memory-mapped afterwards.
 """
 
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -29,6 +19,7 @@ from lossvo.data.kitti import KittiFormatError, check_png
 from lossvo.data.sequence import Sequence
 
 CACHE_VERSION = 2
+WORKERS = 4
 
 
 def default_cache_dir() -> Path:
@@ -45,15 +36,8 @@ def cache_folder(cache_dir: str | os.PathLike, root: Path, height: int, width: i
 
 @dataclass(frozen=True)
 class Undistortion:
-    """How a distorted sequence's frames are undistorted: OpenCV's remap onto a pinhole camera ``K`` of the
-    same size, chosen by ``cv2.getOptimalNewCameraMatrix`` with ``alpha=0`` (every pixel valid, no black
-    border).
-
-    Attributes:
-        K: (3, 3) float64 intrinsics of the undistorted frames, at the source size (pixels).
-        size: (H, W) of the source frames.
-        map_x, map_y: (H, W) float32, where each undistorted pixel is sampled in the source frame.
-    """
+    """How a distorted sequence's frames are undistorted: OpenCV's remap onto a pinhole camera ``K`` (3, 3)
+    of the same source size (H, W) (``getOptimalNewCameraMatrix``, ``alpha=0``: no black border)."""
 
     K: np.ndarray
     size: tuple[int, int]
@@ -76,8 +60,7 @@ def undistortion(seq: Sequence) -> Undistortion | None:
 
 
 def source_intrinsics(seq: Sequence) -> np.ndarray:
-    """(3, 3) float64 K of a sequence's frames as cached before resizing: its camera's K, or that of the
-    undistorted frames (:func:`undistortion`)."""
+    """(3, 3) float64 K of a sequence's frames before resizing (undistorted where they have distortion)."""
     if not np.any(seq.distortion):
         return seq.K
     height, width = seq.size
@@ -86,8 +69,7 @@ def source_intrinsics(seq: Sequence) -> np.ndarray:
 
 
 def _fingerprint(seq: Sequence) -> dict:
-    """What the cache depends on: frame names, total size and latest modification time, and the camera
-    where the frames are undistorted."""
+    """What the cache depends on: frame names, total size, latest mtime and any distortion."""
     stats = [p.stat() for p in seq.images]
     fingerprint = {
         "frames": [p.name for p in seq.images],
@@ -104,21 +86,8 @@ def files(folder: Path, name: str) -> tuple[Path, Path]:
     return folder / f"{name}.npy", folder / f"{name}.json"
 
 
-def source_of(folder: Path, name: str) -> dict:
-    """What the cached frames of sequence ``name`` were built from (names, bytes, mtime of its images),
-    as their manifest records it; call once the cache is built."""
-    return json.loads(files(folder, name)[1].read_text())["source"]
-
-
-def _expected(seq: Sequence, crop: bool = False) -> dict:
-    """What a sequence's cached frames are built from (:mod:`lossvo.data.array_cache` manifests)."""
-    expected = {"version": CACHE_VERSION, "sequence": seq.name, "source": _fingerprint(seq)}
-    return expected | {"crop": "centre"} if crop else expected
-
-
 def centre_crop(size_hw: tuple[int, int], target_hw: tuple[int, int]) -> tuple[int, int, int, int]:
-    """The largest centred window of a frame of ``size_hw`` (H, W) with the aspect ratio of ``target_hw``:
-    ``(y0, x0, h, w)`` in pixels (its top-left corner and size)."""
+    """``(y0, x0, h, w)``: the largest centred window of an (H, W) frame with ``target_hw``'s aspect ratio."""
     H, W = size_hw
     th, tw = target_hw
     if W * th > H * tw:  # wider than the target: keep the full height
@@ -139,10 +108,8 @@ def cropped_intrinsics(K: np.ndarray, box: tuple[int, int, int, int]) -> np.ndar
 def read_frame(
     path: Path, height: int, width: int, undistort: Undistortion | None = None, crop: bool = False
 ) -> tuple[np.ndarray, tuple[int, int]]:
-    """Decode one PNG (checked complete first; a grey one replicated to three channels), undistort it (when
-    ``undistort`` is given and the frame has its size), cut its centred window of the target's aspect ratio
-    (``crop``: :func:`centre_crop`), resize it with area interpolation: (3, height, width) RGB uint8, and the
-    PNG's own size (H, W)."""
+    """One PNG decoded, undistorted (where it has ``undistort``'s size), cropped and resized: (3, height,
+    width) RGB uint8, and the PNG's own size (H, W)."""
     check_png(path)
     image = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if image is None:
@@ -158,30 +125,17 @@ def read_frame(
     return cv2.cvtColor(resized, cv2.COLOR_BGR2RGB).transpose(2, 0, 1), size
 
 
-def _decoder(
-    seq: Sequence, height: int, width: int, workers: int, progress: bool, crop: bool = False
-) -> array_cache.Fill:
-    """Fills a sequence's frame array: decoded and resized on ``workers`` threads (OpenCV releases the
-    GIL while decoding); the manifest entry ``source_size_hw``.
-
-    Raises:
-        KittiFormatError: an unreadable or truncated PNG, or frames of differing sizes (naming the file).
-    """
-
+def ensure_frames(folder: Path, seq: Sequence, height: int, width: int, crop: bool = False) -> np.ndarray:
+    """The cached frames of ``seq``, built first where missing, incomplete or stale (decoded on
+    :data:`WORKERS` threads: OpenCV releases the GIL); KittiFormatError for frames of two sizes."""
     undistort = undistortion(seq)
 
     def fill(out: np.ndarray) -> dict:
         first_size: tuple[int, int] | None = None
-        with ThreadPoolExecutor(workers) as pool:
+        with ThreadPoolExecutor(WORKERS) as pool:
             jobs = pool.map(lambda p: read_frame(p, height, width, undistort, crop), seq.images)
-            bar = tqdm(
-                jobs,
-                total=len(seq.images),
-                desc=f"caching {seq.name} at {height}x{width}",
-                unit="frame",
-                disable=None if progress else True,  # None: off where stderr is no terminal
-                leave=False,
-            )
+            desc = f"caching {seq.name} at {height}x{width}"  # shown on a terminal only (disable=None)
+            bar = tqdm(jobs, desc, len(seq.images), leave=False, disable=None, unit="frame")
             for i, (frame, size) in enumerate(bar):
                 first_size = first_size or size
                 if size != first_size:
@@ -193,37 +147,15 @@ def _decoder(
         assert first_size is not None  # a Sequence has frames (kitti.image_paths raises on none)
         return {"source_size_hw": list(first_size)}
 
-    return fill
-
-
-def ensure_frames(
-    folder: Path,
-    seq: Sequence,
-    height: int,
-    width: int,
-    workers: int = 4,
-    progress: bool = True,
-    crop: bool = False,
-) -> np.ndarray:
-    """The cached frames of ``seq``, building them if missing, incomplete or stale.
-
-    A file lock makes concurrent jobs (a parallel sweep sharing one cache) build each sequence once.
-    """
+    expected = {"version": CACHE_VERSION, "sequence": seq.name, "source": _fingerprint(seq)}
+    if crop:
+        expected["crop"] = "centre"
     shape = (len(seq.images), 3, height, width)
-    fill = _decoder(seq, height, width, workers, progress, crop)
-    expected = _expected(seq, crop)
     return array_cache.ensure_array(files(folder, seq.name)[0], expected, shape, np.uint8, fill)
 
 
 def channel_stats(frames: list[np.ndarray], chunk: int = 256) -> tuple[np.ndarray, np.ndarray]:
-    """Per-channel mean and standard deviation of uint8 RGB frames, in [0, 1] units.
-
-    Args:
-        frames: arrays (N_i, 3, H, W) uint8 (memory maps), e.g. every training sequence.
-        chunk: frames per step, to bound memory.
-    Returns:
-        mean (3,), std (3,) float64.
-    """
+    """(3,) mean and (3,) std of uint8 (N_i, 3, H, W) frames in [0, 1] units, ``chunk`` frames at a time."""
     total = np.zeros(3)
     total_sq = np.zeros(3)
     count = 0

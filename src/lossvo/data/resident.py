@@ -1,17 +1,11 @@
-"""Windows gathered on the training device from arrays kept there.
-
-When a split's cached arrays fit a memory budget, they are copied once to the training device (a GPU, or
-the host's memory), concatenated over the split's sequences: frames (N, 3, H, W) uint8, each frame step's
-relative-pose targets and flow, and each sequence's K. A batch then travels as a few small index arrays,
-built on the host from the same window rows and in the same order as the host loader's items
-(:class:`lossvo.data.datamodules.WindowDataset`), and is gathered on the device with one indexing
-operation per entry: the same values as the host loader's batch, without a copy of frames or flow per step.
+"""Windows gathered on the training device from a split's arrays copied there once: a batch travels as a
+few index arrays (built from the rows of :class:`lossvo.data.windows.WindowDataset`) and is gathered with
+one indexing operation per entry, giving the host loader's batch.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence, Sized
-from typing import Any
 
 import numpy as np
 import torch
@@ -27,17 +21,7 @@ def _offsets(lengths: Sequence[int]) -> np.ndarray:
 
 
 class ResidentWindows:
-    """A window dataset's arrays on one device, and the gather of any batch of its windows.
-
-    Args:
-        index: (M, 4) int64 window rows ``(sequence, start, stop, step)`` (a ``WindowDataset``'s ``index``).
-        frames: (N_i, 3, H, W) uint8 per sequence (memory maps are read once, a sequence at a time).
-        targets: frame step -> (N_i - step, 4, 4) float32 relative poses per sequence.
-        intrinsics: (3, 3) float32 K per sequence.
-        metric: () bool per sequence, whether its platform gives metric scale a cue.
-        flow: frame step -> (N_i - step, 2, H, W) float16 flow per sequence; None without flow.
-        device: where the arrays are kept and batches gathered.
-    """
+    """A :class:`lossvo.data.windows.WindowDataset`'s arrays on one device, and the gather of its batches."""
 
     def __init__(
         self,
@@ -68,12 +52,8 @@ class ResidentWindows:
         return len(self.index)
 
     def index_batch(self, windows: Sequence[int]) -> dict[str, Tensor]:
-        """The index arrays of a batch of windows (on the host), all of one length L.
-
-        Returns:
-            ``frame_index`` (B, L), ``target_index`` (B, L-1) and ``flow_index`` (B, L-1) int64 rows of the
-            concatenated arrays (no flow index without flow), ``camera`` (B,) int64 sequence numbers.
-        """
+        """The index arrays of a batch of windows of one length L: ``frame_index`` (B, L), ``target_index``
+        and ``flow_index`` (B, L-1) int64 rows of the concatenated arrays, ``camera`` (B,) sequences."""
         seq, start, stop, step = self.index[np.asarray(windows, dtype=np.int64)].T
         lengths = (stop - start - 1) // step + 1
         if np.any(lengths != lengths[0]):
@@ -91,10 +71,7 @@ class ResidentWindows:
         return batch
 
     def gather(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
-        """The batch of windows an index batch names, as the host loader gives it: ``frames`` (B, L, 3, H, W)
-        uint8, ``targets`` (B, L-1, 4, 4) float32, ``K`` (B, 3, 3) float32, ``metric`` (B,) bool and, with
-        flow, ``flow`` (B, L-1, 2, H, W) float16, on the device (the index arrays may be on the host or the
-        device)."""
+        """The batch of windows an index batch names, on the device, as the host loader gives it."""
         sequence = batch["camera"].to(self.device, non_blocking=True)
         out = {
             "frames": _take(self.frames, batch["frame_index"]),
@@ -114,33 +91,28 @@ def _take(array: Tensor, index: Tensor) -> Tensor:
 
 
 def _table_offsets(blocks: Sequence[Sequence[Sized]]) -> np.ndarray:
-    """(steps, sequences) start of each array in the concatenation of ``blocks`` (per step, per sequence)."""
+    """(steps, sequences) start of each array in the concatenation of ``blocks``."""
     return _offsets([len(a) for arrays in blocks for a in arrays]).reshape(len(blocks), -1)
 
 
 def _stacked(arrays: Sequence[np.ndarray], device: torch.device) -> Tensor:
-    """The arrays (N_i, ...) concatenated along their first axis into one tensor on ``device``, filled one
-    array at a time (the host never holds more than one array's copy)."""
+    """The arrays (N_i, ...) concatenated into one tensor on ``device``, copied one array at a time."""
     total = sum(len(a) for a in arrays)
-    out = torch.empty((total, *arrays[0].shape[1:]), dtype=_torch_dtype(arrays[0].dtype), device=device)
+    dtype = torch.from_numpy(np.zeros(0, dtype=arrays[0].dtype)).dtype
+    out = torch.empty((total, *arrays[0].shape[1:]), dtype=dtype, device=device)
     for start, array in zip(_offsets([len(a) for a in arrays]), arrays, strict=True):
         out[start : start + len(array)].copy_(torch.from_numpy(np.array(array)))
     return out
 
 
-def _torch_dtype(dtype: np.dtype) -> torch.dtype:
-    return torch.from_numpy(np.zeros(0, dtype=dtype)).dtype
-
-
 def resident_bytes(frames: Sequence[np.ndarray], flow: dict[int, list[np.ndarray]] | None) -> int:
     """Bytes the frames and flow arrays take once resident (targets and K are comparatively nothing)."""
     arrays = [*frames, *(f for fields in (flow or {}).values() for f in fields)]
-    return int(sum(np.prod(a.shape, dtype=np.int64) * a.dtype.itemsize for a in arrays))
+    return int(sum(a.nbytes for a in arrays))
 
 
 class IndexBatches(Dataset):
-    """The loader's side of resident windows: a batch of window indices (from a batch sampler) becomes its
-    index batch (:meth:`ResidentWindows.index_batch`), tagged with the split it belongs to."""
+    """The loader's side of resident windows: window indices -> their index batch, tagged with its split."""
 
     def __init__(self, windows: ResidentWindows, split: str) -> None:
         self.windows, self.split = windows, split
@@ -153,8 +125,3 @@ class IndexBatches(Dataset):
 
     def __getitems__(self, indices: list[int]) -> dict[str, Tensor | str]:
         return {"split": self.split, **self.windows.index_batch(indices)}
-
-
-def as_is(batch: Any) -> Any:
-    """The DataLoader's collate function for :class:`IndexBatches`: the batch is built already."""
-    return batch

@@ -1,14 +1,6 @@
-"""What a data module is built from: the datasets it reads (:class:`Source`), its splits, frames, windows,
-flow and loader settings, each a small dataclass checked where it is made.
-
-The dataclasses are also the ``data`` config group's schema (:class:`Data`, stored in Hydra's ConfigStore
-as ``data/shared/schema``): they hold every default, the YAML files only what differs, and Hydra checks
-the types when it composes a config. ``data.<spec>.<key>`` in a config is the field ``key`` of the spec
-(``data.windows.seq_len``); every ``of`` classmethod takes a mapping (Hydra's, or a checkpoint's data
-description, whose missing keys take :data:`DESCRIBED`'s values) and raises
-:class:`~lossvo.console.UserError` naming the full key of the first entry it refuses; ``__post_init__``
-checks what a type cannot say (ranges, choices). :func:`current` turns the data description of an earlier
-checkpoint into these specs' form (:func:`nested` the flat one).
+"""The data specs (sources, splits, frames, windows, flow, loader): dataclasses that are also the ``data``
+config group's schema (:class:`Data`), and the conversion of earlier checkpoints' data descriptions
+(:func:`current`). Each ``of`` raises UserError naming the full key it refuses; docs/data.md has the rest.
 """
 
 from __future__ import annotations
@@ -46,10 +38,7 @@ _S = TypeVar("_S")
 
 
 def _fields(cls: type, value: Any, where: str) -> dict[str, Any]:
-    """``value`` as a dict of ``cls``'s fields; UserError naming ``where`` for a non-mapping or the first
-    unknown key."""
-    if isinstance(value, cls):
-        return {f.name: getattr(value, f.name) for f in dataclasses.fields(cls)}
+    """``value`` as a dict of ``cls``'s fields; UserError for a non-mapping or an unknown key."""
     names = [f.name for f in dataclasses.fields(cls)]
     if value is not None and not isinstance(value, Mapping):
         one = isinstance(value, str | int | float)
@@ -67,21 +56,17 @@ def _known(value: Mapping[str, Any], names: Seq[str], where: str) -> dict[str, A
 
 
 def _check(where: str, key: str, value: Any, fits: bool, expected: str) -> None:
-    """UserError ``<where>.<key>: expected <expected>, got <value>`` unless ``fits``."""
     if not fits:
         raise UserError(f"{where}.{key}: expected {expected}, got {value!r}")
 
 
 def _require(spec: object, key: str, fits: Callable[[Any], bool], expected: str) -> None:
-    """:func:`_check` of the field ``key`` of ``spec`` (``data.<its class, lower case>.<key>``): what its
-    type cannot say (a range, a choice)."""
     value = getattr(spec, key)
     _check(f"data.{type(spec).__name__.lower()}", key, value, fits(value), expected)
 
 
 def _camera(value: Any, key: str) -> tuple[np.ndarray, np.ndarray] | None:
-    """``{K: 3x3, distortion: [4, 5, 8, 12 or 14 numbers]}`` (distortion optional: zeros) as arrays, or None;
-    UserError naming ``key`` otherwise."""
+    """``{K: 3x3, distortion: [4, 5, 8, 12 or 14 numbers]}`` (distortion optional) as arrays, or None."""
     if value is None:
         return None
     if not isinstance(value, Mapping) or set(value) - {"K", "distortion"} or "K" not in value:
@@ -104,14 +89,7 @@ def _camera(value: Any, key: str) -> tuple[np.ndarray, np.ndarray] | None:
 
 @dataclass(frozen=True)
 class Render:
-    """How the synthetic dataset is rendered (:func:`lossvo.data.synthetic.ensure_dataset`): frames per
-    sequence (``frame_counts``: one count or name -> count; None: the generator's), the resolution written
-    (None: the layout's, times ``render_scale``), the generator's ``seed``, route families added or changed
-    and sequences driving other families (:func:`lossvo.data.synthetic.routes.route_spec`), the layout it is
-    written in (``render_layout``: its platform, camera and clock, :mod:`lossvo.data.synthetic.layouts`; the
-    run names its sequences by their two digits all the same) and, in the KITTI layout, ranges each
-    sequence's camera is drawn from (``cameras``: :class:`lossvo.data.synthetic.camera.CameraRange`; None:
-    KITTI's camera)."""
+    """How the synthetic dataset is rendered (:func:`lossvo.data.synthetic.ensure_dataset`; None: default)."""
 
     frame_counts: int | dict[str, int] | None = None
     render_height: int | None = None
@@ -126,18 +104,9 @@ class Render:
 
 @dataclass(frozen=True)
 class Source:
-    """One dataset a data module reads.
-
-    Attributes:
-        layout: :data:`lossvo.data.layouts.LAYOUTS`, or ``synthetic`` (rendered in the KITTI layout into
-            ``root`` on first use, as ``render`` says).
-        root: the dataset's folder (for KITTI the one holding ``sequences/`` or ``dataset/``); the
-            synthetic dataset's default is ``<frames.cache_dir>/synthetic`` (``synthetic-<name>`` for a
-            source of another name).
-        keep_every: keep every n-th frame of each sequence, in every split (matches frame rates).
-        camera: K (3, 3) pixels and OpenCV distortion replacing the reader's camera; None: the reader's.
-        render: the synthetic dataset's rendering; None for the other layouts.
-    """
+    """One dataset a data module reads: a layout of :data:`lossvo.data.layouts.LAYOUTS` or ``synthetic``
+    (rendered into ``root`` on first use, as ``render`` says); ``camera``: K (3, 3) pixels and OpenCV
+    distortion replacing the reader's (None: the reader's)."""
 
     layout: str
     root: Path
@@ -151,16 +120,13 @@ class Source:
         return self.render.render_layout if self.render is not None else self.layout
 
     def file_name(self, name: str) -> str:
-        """The name the reader knows a sequence by: a rendered sequence's two digits in its layout's naming
-        (:func:`lossvo.data.synthetic.layouts.sequence_name`), any other as it is."""
+        """The name the reader knows a sequence by (a rendered one's in its layout's naming)."""
         return synthetic_layouts.sequence_name(self.reader, name) if self.render is not None else name
 
     @classmethod
     def of(cls, value: Any, where: str, default_root: Path) -> Source:
-        """A source from its config ``{layout, root, keep_every, camera}`` (and, for ``synthetic``, the
-        fields of :class:`Render`); a synthetic one without a root is rendered into ``default_root``."""
-        if isinstance(value, Source):
-            return value
+        """A source from its config (a synthetic one's with :class:`Render`'s fields; without a root it is
+        rendered into ``default_root``)."""
         if not isinstance(value, Mapping):
             raise UserError(f"{where}: expected {{layout: ..., root: ...}}, got {value!r}")
         layout = value.get("layout")
@@ -174,12 +140,6 @@ class Source:
         every = value.get("keep_every", 1)
         _check(where, "keep_every", every, is_integer(every, 1), "an integer >= 1 (frames)")
         render = _render(value, where) if render_keys else None
-        if render is not None and render.frame_counts is not None:
-            counts = render.frame_counts
-            fits = is_integer(counts, 2) or (
-                isinstance(counts, Mapping) and all(is_integer(v, 2) for v in counts.values())
-            )
-            _check(where, "frame_counts", counts, fits, "an integer >= 2 or {sequence: frames}")
         folder = Path(str(root)).expanduser() if root is not None else default_root
         return cls(str(layout), folder, int(every), _camera(value.get("camera"), f"{where}.camera"), render)
 
@@ -198,7 +158,6 @@ class Source:
 
 
 def _render(value: Mapping[str, Any], where: str) -> Render:
-    """A synthetic source's :class:`Render` from its config; UserError naming the key otherwise."""
     fields = {f.name: plain(value[f.name]) for f in dataclasses.fields(Render) if f.name in value}
     layout = fields.get("render_layout", "kitti")
     layouts.check_layout(layout, f"{where}.render_layout")
@@ -207,12 +166,15 @@ def _render(value: Mapping[str, Any], where: str) -> Render:
     if fields.get("cameras") is not None:
         check_cameras(layout, fields["cameras"], f"{where}.cameras")
         fields["cameras"] = CameraRange.of(fields["cameras"], f"{where}.cameras")
+    counts = fields.get("frame_counts")
+    many = isinstance(counts, Mapping) and all(is_integer(v, 2) for v in counts.values())
+    fits = counts is None or is_integer(counts, 2) or many
+    _check(where, "frame_counts", counts, fits, "an integer >= 2 or {sequence: frames}")
     return Render(**fields)
 
 
 def plain(value: Any) -> Any:
-    """A config value as plain Python containers (dicts and lists; OmegaConf's are converted by Hydra
-    already): what a checkpoint may hold."""
+    """A config value as plain dicts and lists: what a checkpoint may hold."""
     if isinstance(value, Mapping):
         return {str(k): plain(v) for k, v in value.items()}
     if isinstance(value, Seq) and not isinstance(value, str):
@@ -221,9 +183,8 @@ def plain(value: Any) -> Any:
 
 
 def sources_of(value: Any, cache_dir: Path) -> dict[str, Source]:
-    """``data.sources``: name -> :class:`Source`, at least one; names without ``/``. A synthetic source
-    without a root is rendered into ``<cache_dir>/synthetic`` (the one named ``synthetic``) or
-    ``<cache_dir>/synthetic-<name>``."""
+    """``data.sources``: name -> :class:`Source`; a synthetic one without a root is rendered into
+    ``<cache_dir>/synthetic`` (named ``synthetic``) or ``<cache_dir>/synthetic-<name>``."""
     if not isinstance(value, Mapping) or not value:
         raise UserError(f"data.sources: expected a mapping of names to datasets, got {value!r}")
     sources = {}
@@ -235,26 +196,25 @@ def sources_of(value: Any, cache_dir: Path) -> dict[str, Source]:
     return sources
 
 
-def _built(cls: type[_S], value: Any, where: str, described: Mapping[str, Any]) -> _S:
-    """The spec ``cls`` from its mapping: the keys it lacks take ``described``'s values, OmegaConf checks
-    the types against the dataclass and ``__post_init__`` the rest; UserError naming the full key (under
-    ``where``) otherwise."""
-    if isinstance(value, cls):
-        return value
-    given = _fields(cls, value, where)
-    try:
-        merged = OmegaConf.merge(OmegaConf.structured(cls), described, given)
-        return cls(**OmegaConf.to_container(merged, resolve=True))  # type: ignore[arg-type]
-    except OmegaConfBaseException as e:
-        raise UserError(f"{where}.{typed_value_message(e)}") from None
+class _Spec:
+    """A spec ``data.<its class, lower case>`` built from a mapping by :meth:`of`."""
+
+    @classmethod
+    def of(cls: type[_S], value: Any) -> _S:
+        """The spec from its mapping, the keys it lacks taking :data:`DESCRIBED`'s values."""
+        name = cls.__name__.lower()
+        given = _fields(cls, value, f"data.{name}")
+        try:
+            merged = OmegaConf.merge(OmegaConf.structured(cls), DESCRIBED[name], given)
+            return cls(**OmegaConf.to_container(merged, resolve=True))  # type: ignore[arg-type]
+        except OmegaConfBaseException as e:
+            raise UserError(f"data.{name}.{typed_value_message(e)}") from None
 
 
 @dataclass
 class Splits:
-    """Sequence names of each split, as the run names them: a sequence's own name with one source,
-    ``<source>/<sequence>`` with several. ``unseen``: sequences of motion unlike the training split's,
-    evaluated beside the test ones. A value may be ``["00", "07"]``, ``"00,07"``, ``[0, 7]`` or ``7``
-    (typed ``Any`` for that); each becomes a tuple of names (``7`` is ``"07"``)."""
+    """Sequence names of each split (``<source>/<sequence>`` with several sources). A value may be
+    ``["00", "07"]``, ``"00,07"``, ``[0, 7]`` or ``7`` (typed ``Any`` for that), each a tuple of names."""
 
     train: Any = field(default_factory=list)
     val: Any = field(default_factory=list)
@@ -274,17 +234,11 @@ class Splits:
         """From ``{train: [...], ...}``."""
         return cls(**_fields(cls, value, "data.splits"))
 
-    def as_dict(self) -> dict[str, tuple[str, ...]]:
-        return {key: getattr(self, key) for key in SPLITS}
-
 
 @dataclass
-class Frames:
-    """The cached frames: (height, width) pixels the network sees (area interpolation); ``crop`` cuts each
-    frame's centred window of that aspect ratio first (K follows); ``normalization`` ``dataset`` (per-channel
-    mean/std of the training sequences) or ``flownet`` (x/255 - 0.5); ``statistics`` ``{mean: [3], std: [3]}``
-    given instead of computed (a trained network's); ``cache_dir`` None: ``$LOSSVO_CACHE`` or
-    ``~/.cache/lossvo``."""
+class Frames(_Spec):
+    """The cached frames: (height, width) pixels, cropped to that aspect ratio first with ``crop``;
+    ``statistics`` ``{mean: [3], std: [3]}`` given instead of computed; ``cache_dir`` None: the default."""
 
     height: int = 160
     width: int = 208
@@ -300,13 +254,9 @@ class Frames:
         _require(self, "normalization", lambda v: v in NORMALIZATIONS, one_of)
         self.statistics = _statistics(self.statistics)
 
-    @classmethod
-    def of(cls, value: Any) -> Frames:
-        return _built(cls, value, "data.frames", DESCRIBED["frames"])
-
 
 def _statistics(value: Any) -> dict[str, list[float]] | None:
-    """``{"mean": [3], "std": [3 > 0]}`` as lists of floats, or None; UserError naming the key otherwise."""
+    """``{"mean": [3], "std": [3 > 0]}`` as lists of floats, or None."""
     if value is None:
         return None
     try:
@@ -321,14 +271,10 @@ def _statistics(value: Any) -> dict[str, list[float]] | None:
 
 
 @dataclass
-class Windows:
-    """Training windows: ``seq_len`` frames (``seq_len - 1`` pairs), a start at every frame, at
-    each of ``frame_steps`` (every s-th frame: faster motion; repeats dropped); ``per_epoch`` windows drawn
-    afresh each epoch (None: all); ``batch_size`` windows a batch. With several sources, each source's
-    windows are drawn in proportion to their number. Validation and evaluation tile consecutive frames.
-    ``seq_len``, ``per_epoch`` and ``batch_size`` default to the network's where its config declares them
-    (``reads:``, e.g. model=flowvo): interpolations that a composed config resolves, so that a ``Windows``
-    made directly names all three."""
+class Windows(_Spec):
+    """Training windows: ``seq_len`` frames at each of ``frame_steps``, ``per_epoch`` drawn afresh each
+    epoch (None: all). Three defaults are the network's ``reads:`` where it declares them (interpolations
+    that a composed config resolves, so that a ``Windows`` made directly names them)."""
 
     seq_len: int = SI("${oc.select:reads.seq_len,6}")
     frame_steps: list[int] = field(default_factory=lambda: [1])
@@ -338,26 +284,15 @@ class Windows:
     def __post_init__(self) -> None:
         _require(self, "seq_len", lambda v: is_integer(v, 2), "an integer >= 2 frames")
         _require(self, "batch_size", lambda v: is_integer(v, 1), "an integer >= 1")
-        _require(
-            self,
-            "per_epoch",
-            lambda v: v is None or is_integer(v, 1),
-            "null or an integer >= 1",
-        )
+        _require(self, "per_epoch", lambda v: v is None or is_integer(v, 1), "null or an integer >= 1")
         steps = "a list of integers >= 1 like [1, 2]"
         _require(self, "frame_steps", lambda v: bool(v) and all(is_integer(s, 1) for s in v), steps)
         self.frame_steps = list(dict.fromkeys(self.frame_steps))
 
-    @classmethod
-    def of(cls, value: Any) -> Windows:
-        return _built(cls, value, "data.windows", DESCRIBED["windows"])
-
 
 @dataclass
-class Flow:
-    """``data.flow``: the optical flow cached beside the frames (:class:`lossvo.data.flow.FlowSetting`,
-    which checks the values): ``method`` dis | none (the network's where its config declares one) and
-    ``scale``: the flow is computed on the source images at ``scale`` times (height, width), then resized."""
+class Flow(_Spec):
+    """``data.flow``: the flow cached beside the frames, checked by :class:`lossvo.data.flow.FlowSetting`."""
 
     method: str = SI("${oc.select:reads.flow,none}")
     scale: float = 1.5
@@ -365,18 +300,14 @@ class Flow:
 
 def flow_of(value: Any) -> FlowSetting:
     """``data.flow`` ``{method, scale}`` as a :class:`lossvo.data.flow.FlowSetting`."""
-    if isinstance(value, FlowSetting):
-        return value
-    flow = _built(Flow, value, "data.flow", DESCRIBED["flow"])
+    flow = Flow.of(value)
     return FlowSetting(flow.method, flow.scale)
 
 
 @dataclass
-class Loader:
-    """Where batches are assembled: ``num_workers`` and ``pin_memory`` of the host loader; ``on_device``
-    ``auto`` (gathered on an accelerator where the splits' arrays fit ``device_budget_gb`` GiB), ``true``
-    (on the training device whenever they fit, a CPU included) or ``false`` (the host loader); typed
-    ``Any`` (a bool or ``auto``)."""
+class Loader(_Spec):
+    """Where batches are assembled: the host loader's settings; ``on_device`` ``auto``, ``true`` or
+    ``false`` (typed ``Any``), :mod:`lossvo.data.resident` within ``device_budget_gb`` GiB."""
 
     num_workers: int = 2
     pin_memory: bool = False
@@ -389,18 +320,12 @@ class Loader:
         _require(self, "device_budget_gb", lambda v: is_number(v) and v >= 0, "a number of GiB >= 0")
         self.device_budget_gb = float(self.device_budget_gb)
 
-    @classmethod
-    def of(cls, value: Any) -> Loader:
-        return _built(cls, value, "data.loader", DESCRIBED["loader"])
-
 
 @dataclass
 class Data:
-    """The ``data`` config group's schema: :class:`lossvo.data.datamodules.VODataModule`'s arguments.
-    ``sources`` (name -> :class:`Source`'s config, whose keys depend on its layout) and ``transforms``
-    (batch transforms, each with its ``_target_``) are checked by the data module. Each spec's default is
-    OmegaConf's typed node of its defaults, built without calling the dataclass (whose defaults may be
-    interpolations)."""
+    """The ``data`` config group's schema: :class:`lossvo.data.datamodules.VODataModule`'s arguments
+    (``sources`` and ``transforms`` are checked by the data module). Each spec's default is a typed node
+    built without calling the dataclass, whose defaults may be interpolations."""
 
     _target_: str = "lossvo.data.datamodules.VODataModule"
     splits: Splits = field(default_factory=functools.partial(OmegaConf.structured, Splits))
@@ -421,9 +346,8 @@ DESCRIBED: dict[str, dict[str, Any]] = {
     "flow": {"method": "none", "scale": 1.0},
     "loader": {"num_workers": 2, "pin_memory": False, "on_device": "auto", "device_budget_gb": 8.0},
 }  # fmt: skip
-"""The values a spec built from a mapping (:meth:`Frames.of`, ...) takes for a key the mapping lacks: the
-ones a checkpoint whose data description lacks the key was trained with. A composed config has every key
-(the dataclasses' defaults where its files set none)."""
+"""The values a spec built from a mapping takes for a key it lacks: those a checkpoint whose data
+description lacks the key was trained with."""
 
 
 RENDER_KEYS = ("render_height", "render_width", "seed", "route_families", "route_mixes")
@@ -441,10 +365,9 @@ MOVED: dict[str, str] = {
     "frames": "sources.synthetic.frame_counts",
     "datasets": "sources",
 }
-"""Each data key of the flat form (every argument at the top) -> the key of the specs' form holding it."""
+"""Each data key of the flat form -> the key of the specs' form holding it."""
 WITHDRAWN: dict[str, Any] = {"windows.shares": None, "windows.stride": None, "flow.preset": "medium"}
-"""Keys of earlier versions' data descriptions that this version does not have -> the one value it reads
-(another is refused), or None: any (how training windows were drawn, which evaluation does not use)."""
+"""Keys of earlier data descriptions this version does not have -> the one value it reads, or None: any."""
 
 
 def new_key(flat: str) -> str | None:
@@ -454,9 +377,8 @@ def new_key(flat: str) -> str | None:
 
 
 def nested(flat: Mapping[str, Any]) -> dict[str, Any]:
-    """A data config or description in the flat form (:data:`MOVED`; ``datasets`` for several) in the
-    specs' form; one already nested (it has ``sources``) as it is. Keys of neither form (the description's
-    ``statistics``, ``dataset_root``, ``intrinsics``) stay at the top."""
+    """A data config or description in the flat form (:data:`MOVED`) in the specs' form; keys of neither
+    form stay at the top."""
     if "sources" in flat:
         return dict(flat)
     out: dict[str, Any] = {"_target_": "lossvo.data.datamodules.VODataModule"}
@@ -483,9 +405,8 @@ def nested(flat: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def current(description: Mapping[str, Any]) -> dict[str, Any]:
-    """A checkpoint's data description as this version's specs take it: in their form (:func:`nested`),
-    without the keys this version does not have (:data:`WITHDRAWN`); UserError naming a key whose value
-    this version does not compute."""
+    """A checkpoint's data description in the specs' form, without :data:`WITHDRAWN` keys; UserError for
+    a value this version does not compute."""
     out = nested(description)
     for path, only in WITHDRAWN.items():
         spec, key = path.split(".")
@@ -496,20 +417,11 @@ def current(description: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-SPECS: dict[str, type] = {
-    "splits": Splits,
-    "frames": Frames,
-    "windows": Windows,
-    "flow": Flow,
-    "loader": Loader,
-}
-"""The specs of :class:`Data` by key."""
+SPECS: dict[str, type] = {spec.__name__.lower(): spec for spec in (Splits, Frames, Windows, Flow, Loader)}
 
 
 def check_overrides(overrides: Seq[str]) -> None:
-    """UserError for a command-line override of a data key of the flat form (``data.root=...``), naming
-    the key that holds it now (``data.sources.<name>.root``). ``data.frames`` and ``data.flow`` are
-    specs of both forms: :func:`check_spec_values` names their keys."""
+    """UserError for a command-line override of a flat-form data key, naming the key that holds it now."""
     for line in overrides:
         key = line.lstrip("+~").split("=", 1)[0]
         flat = key.removeprefix("data.")
@@ -519,25 +431,18 @@ def check_overrides(overrides: Seq[str]) -> None:
                 raise UserError(f"{key}: not a data key; the setting is data.{new} (docs/data.md lists them)")
 
 
-def check_spec_values(overrides: Seq[str]) -> None:
-    """UserError for a command-line override giving a spec a value that is no mapping (``data.flow=dis``),
-    naming the spec's keys (Hydra would name only the schema's type)."""
-    for line in overrides:
-        key, _, value = line.lstrip("+~").partition("=")
-        spec = SPECS.get(key.removeprefix("data.")) if key.startswith("data.") else None
-        if spec is not None and value not in ("", "null") and not value.startswith(("{", "$")):
-            _fields(spec, value, key)
-
-
 def refusing_flat_keys(main: Callable[[], _R]) -> Callable[[], _R]:
-    """A Hydra entry point that refuses a flat-form data override (:func:`check_overrides`) and a spec
-    given a value that is no mapping (:func:`check_spec_values`) before Hydra composes the config (which
-    would call it a key the config lacks, or name the schema's type)."""
+    """A Hydra entry point that refuses, before Hydra composes the config, a flat-form data override
+    (:func:`check_overrides`) and a spec given a value that is no mapping (``data.flow=dis``)."""
 
     @functools.wraps(main)
     def wrapped() -> _R:
         check_overrides(sys.argv[1:])
-        check_spec_values(sys.argv[1:])
+        for line in sys.argv[1:]:
+            key, _, value = line.lstrip("+~").partition("=")
+            spec = SPECS.get(key.removeprefix("data.")) if key.startswith("data.") else None
+            if spec is not None and value not in ("", "null") and not value.startswith(("{", "$")):
+                _fields(spec, value, key)
         return main()
 
     return wrapped

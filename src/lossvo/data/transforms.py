@@ -1,15 +1,7 @@
-"""Batch transforms: the training augmentations, each a small class applied to a batch on its device.
-
-A transform maps ``(inputs, targets, generator) -> (inputs, targets)``, where ``inputs`` holds ``frames``
-(B, L, 3, H, W) uint8, ``K`` (B, 3, 3) pixels and optionally ``flow`` (B, L-1, 2, H, W) pixels, and
-``targets`` is (B, L-1, 4, 4), the relative poses ``inv(T_w_k) @ T_w_{k+1}``. Random draws come from
-``generator`` (a CPU generator; None: torch's global one), one draw per window, so that a window's pairs
-stay consistent. ``data.transforms`` lists them in the order they apply
-(:class:`lossvo.data.datamodules.VODataModule`).
-
-The mirror of a world seen through a camera is the conjugation by the reflection of the camera's x axis,
-S = diag(-1, 1, 1, 1): :func:`mirror_poses` (targets, and predictions at inference), :func:`mirror_inputs`
-(frames, flow and K).
+"""Batch transforms, the training augmentations: ``(inputs, targets, generator) -> (inputs, targets)`` on a
+batch's device, ``inputs`` holding ``frames`` (B, L, 3, H, W) uint8, ``K`` (B, 3, 3) pixels and optionally
+``flow`` (B, L-1, 2, H, W) pixels, ``targets`` (B, L-1, 4, 4) relative poses. Random draws come from
+``generator`` (CPU; None: the global one), one a window. docs/data.md has the rest.
 """
 
 from __future__ import annotations
@@ -30,28 +22,14 @@ Inputs = dict[str, torch.Tensor]
 
 
 def mirror_poses(poses: torch.Tensor) -> torch.Tensor:
-    """Relative poses as the mirrored world shows them: ``S @ T @ S`` with S = diag(-1, 1, 1, 1) (sideways
-    translation, yaw and roll change sign); its own inverse.
-
-    Args:
-        poses: (..., 4, 4).
-    Returns:
-        (..., 4, 4).
-    """
+    """(..., 4, 4) relative poses as the mirrored world shows them: ``S @ T @ S``, S = diag(-1, 1, 1, 1)."""
     sign = torch.tensor([-1.0, 1.0, 1.0, 1.0], dtype=poses.dtype).to(poses.device, non_blocking=True)
     return poses * (sign[:, None] * sign)
 
 
 def mirror_inputs(inputs: Inputs) -> Inputs:
-    """Inputs as the mirrored world looks through the mirrored camera: frames flipped left to right, the
-    flow mirrored (:func:`lossvo.data.flow.mirror_flow`) and K's principal point mirrored
-    (:func:`lossvo.geometry.camera.mirrored_intrinsics`, cx -> W - 1 - cx).
-
-    Args:
-        inputs: ``frames`` (..., 3, H, W), optionally ``flow`` (..., 2, H, W) and ``K`` (..., 3, 3).
-    Returns:
-        the same entries, mirrored (other entries as they are).
-    """
+    """Inputs as the mirrored world looks through the mirrored camera: ``frames`` (..., 3, H, W) flipped
+    left to right, optionally ``flow`` (..., 2, H, W) and K's principal point mirrored."""
     mirrored = {**inputs, "frames": inputs["frames"].flip(-1)}
     if "flow" in inputs:
         mirrored["flow"] = optical_flow.mirror_flow(inputs["flow"])
@@ -70,21 +48,19 @@ def _draw(p: float, size: int, generator: torch.Generator | None) -> torch.Tenso
     return torch.rand(size, generator=generator) < p
 
 
-def _check_probability(name: str, p: Any) -> None:
-    if not (is_number(p) and 0.0 <= p <= 1.0):
-        raise UserError(f"data.transforms: {name}.p: expected a probability in [0, 1], got {p!r}")
+def _check(where: str, value: Any, high: float, what: str) -> None:
+    if not (is_number(value) and 0.0 <= value <= high):
+        raise UserError(f"data.transforms: {where}: expected {what} in [0, {high:g}], got {value!r}")
 
 
 @dataclass(frozen=True)
 class Mirror:
-    """Mirror a window left to right with probability ``p``: its inputs by :func:`mirror_inputs` (frames,
-    flow, K's principal point), its targets by :func:`mirror_poses`. Exact for the mirrored world seen
-    through the mirrored camera: left and right turns in equal numbers."""
+    """Mirror a window left to right with probability ``p`` (:func:`mirror_inputs`, :func:`mirror_poses`)."""
 
     p: float
 
     def __post_init__(self) -> None:
-        _check_probability("Mirror", self.p)
+        _check("Mirror.p", self.p, 1.0, "a probability")
 
     def __call__(
         self, inputs: Inputs, targets: torch.Tensor, generator: torch.Generator | None = None
@@ -99,21 +75,15 @@ class Mirror:
 
 @dataclass(frozen=True)
 class Roll:
-    """Turn the cameras of a window about their optical axes, with probability ``p``: each frame after the
-    first by its own angle drawn from U[-``max_rad``, ``max_rad``] (radians), so that every pair gains a
-    roll the data may lack (:func:`rolled_windows`). A turn about the camera's centre moves every pixel by
-    a map that depends on K alone, not on depth, so frames and flow follow exactly (the flow of later
-    pairs is resampled, bilinear, the border extended)."""
+    """Turn the cameras of a window about their optical axes with probability ``p``, each frame after the
+    first by its own angle drawn from U[-``max_rad``, ``max_rad``] radians (:func:`rolled_windows`)."""
 
     p: float
     max_rad: float
 
     def __post_init__(self) -> None:
-        _check_probability("Roll", self.p)
-        if not (is_number(self.max_rad) and 0.0 <= self.max_rad <= 0.5):
-            raise UserError(
-                f"data.transforms: Roll.max_rad: expected radians in [0, 0.5], got {self.max_rad!r}"
-            )
+        _check("Roll.p", self.p, 1.0, "a probability")
+        _check("Roll.max_rad", self.max_rad, 0.5, "radians")
 
     def __call__(
         self, inputs: Inputs, targets: torch.Tensor, generator: torch.Generator | None = None
@@ -126,14 +96,8 @@ class Roll:
 
 
 def roll_poses(poses: torch.Tensor, angles: torch.Tensor) -> torch.Tensor:
-    """Relative poses between cameras each turned about its optical axis: ``Rz(a_k)^T T_k Rz(a_k+1)``, where
-    ``T_w_j`` becomes ``T_w_j Rz(a_j)``.
-
-    Args:
-        poses: (B, P, 4, 4) ``inv(T_w_k) @ T_w_{k+1}``; angles: (B, P + 1) radians, one a frame.
-    Returns:
-        (B, P, 4, 4).
-    """
+    """(B, P, 4, 4) relative poses between cameras each turned about its optical axis by ``angles``
+    (B, P + 1) radians: ``Rz(a_k)^T T_k Rz(a_k+1)``."""
     cos, sin = angles.cos(), angles.sin()
     turn = torch.zeros(*angles.shape, 4, 4, dtype=poses.dtype, device=poses.device)
     turn[..., 0, 0], turn[..., 0, 1], turn[..., 1, 0], turn[..., 1, 1] = cos, -sin, sin, cos
@@ -142,15 +106,8 @@ def roll_poses(poses: torch.Tensor, angles: torch.Tensor) -> torch.Tensor:
 
 
 def _turn(K: torch.Tensor, pixels: torch.Tensor, angles: torch.Tensor) -> torch.Tensor:
-    """Where pixels of a camera turned by ``angles`` about its optical axis lie in the unturned camera's
-    frame: ``K Rz(a) K^-1 p`` (an affine map: the turn keeps depth).
-
-    Args:
-        K: (B, 3, 3) pixels; pixels: (B, T, H, W, 2) coordinates (x, y), pixel centres at integers;
-            angles: (B, T) radians.
-    Returns:
-        (B, T, H, W, 2).
-    """
+    """Where ``pixels`` (B, T, H, W, 2) (x, y) of a camera turned by ``angles`` (B, T) about its optical
+    axis lie in the unturned camera's frame: ``K Rz(a) K^-1 p`` (the turn keeps depth)."""
     fx, fy, cx, cy = (K[:, i, j, None, None, None] for i, j in ((0, 0), (1, 1), (0, 2), (1, 2)))
     u, v = (pixels[..., 0] - cx) / fx, (pixels[..., 1] - cy) / fy
     cos, sin = angles.cos()[..., None, None], angles.sin()[..., None, None]
@@ -171,25 +128,13 @@ def _sample(x: torch.Tensor, pixels: torch.Tensor) -> torch.Tensor:
 def rolled_windows(
     inputs: Inputs, targets: torch.Tensor, angles: torch.Tensor
 ) -> tuple[Inputs, torch.Tensor]:
-    """Windows seen by cameras each turned about its optical axis (:class:`Roll`): frame j by
-    ``angles[:, j]``. Frame j becomes ``I(K Rz(a_j) K^-1 p)``; pair k's flow, at pixel p of the turned
-    frame k, the turned frame k+1's pixel of the old match minus p; targets by :func:`roll_poses`.
-
-    Args:
-        inputs: ``frames`` (B, L, C, H, W), ``K`` (B, 3, 3) pixels, optionally ``flow`` (B, L-1, 2, H, W)
-            pixels; targets: (B, L-1, 4, 4); angles: (B, L) radians.
-    Returns:
-        the same entries, turned (other entries as they are), and the targets.
-    """
+    """Windows seen by cameras each turned about its optical axis, frame j by ``angles[:, j]`` ((B, L)
+    radians): frames resampled, flow matched anew, targets by :func:`roll_poses`."""
     frames, K = inputs["frames"], inputs["K"].float()
     (B, L), (H, W) = frames.shape[:2], frames.shape[-2:]
     angles = angles.to(torch.float32)
-    ys, xs = torch.meshgrid(
-        torch.arange(H, dtype=K.dtype, device=K.device),
-        torch.arange(W, dtype=K.dtype, device=K.device),
-        indexing="ij",
-    )
-    grid = torch.stack((xs, ys), dim=-1)  # (H, W, 2) pixel coordinates
+    xs, ys = (torch.arange(n, dtype=K.dtype, device=K.device) for n in (W, H))
+    grid = torch.stack(torch.meshgrid(xs, ys, indexing="xy"), dim=-1)  # (H, W, 2) pixel coordinates
     source = _turn(K, grid.expand(B, L, H, W, 2), angles)
     turned = _sample(frames, source)
     out = dict(inputs)
@@ -203,7 +148,6 @@ def rolled_windows(
 
 
 TRANSFORMS = (Mirror, Roll)
-"""The batch transforms, in the order the configs list them."""
 
 Transform = Mirror | Roll
 
@@ -216,13 +160,12 @@ def spec(transform: Any) -> dict[str, Any]:
 LEGACY_TRANSFORMS = ("standstill", "zoom", "mirror", "reverse", "augment")
 """Augmentation arguments of checkpoints written before batch transforms (``mirror``: a Mirror's p)."""
 WITHDRAWN = tuple(f"{__name__}.{name}" for name in ("Standstill", "Zoom", "Reverse", "Jitter"))
-"""The ``_target_`` of batch transforms that earlier checkpoints may list and this version does not have."""
+"""The ``_target_`` of batch transforms earlier checkpoints may list and this version does not have."""
 
 
 def upgrade_description(data: Any) -> Any:
-    """A checkpoint's data description with the transforms this version has: an earlier ``mirror``
-    argument as a :class:`Mirror` (where > 0), :data:`WITHDRAWN` ones left out (they changed training
-    batches only; evaluation applies none); ``data`` itself where nothing changes."""
+    """A checkpoint's data description with the transforms this version has (``data`` itself where
+    nothing changes): ``mirror`` as a :class:`Mirror`, :data:`WITHDRAWN` ones left out."""
     if not isinstance(data, Mapping):
         return data
     listed = data.get("transforms")

@@ -1,13 +1,10 @@
-"""How sequences are cut into windows of frames: the one rule for validation, testing and whole-sequence
-inference (:func:`tile`), the training windows (:func:`training_starts`), the dataset of windows of cached
-frames (:class:`WindowDataset`), each epoch's order (:class:`EpochShuffle`) and batches of windows of one
-length (:class:`SameLengthBatches`).
-
-A window of ``L`` frames holds ``L - 1`` consecutive frame pairs.
+"""How sequences are cut into windows of frames (tiles for validation, testing and inference; training
+windows), the dataset of windows of cached frames, each epoch's order and batches of one length.
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
@@ -19,17 +16,10 @@ from lossvo.data.kitti import relative_targets
 
 
 def tile(n_frames: int, seq_len: int, gap: np.ndarray | None = None) -> np.ndarray:
-    """Windows covering every consecutive frame pair of a sequence exactly once.
+    """(M, 2) int64 ``[start, stop)`` windows covering every consecutive frame pair exactly once.
 
-    Windows of ``seq_len`` frames overlap by one frame (starts 0, seq_len-1, 2 (seq_len-1), ...); the last
-    one is shorter where needed (at least 2 frames). With ``gap``, no window spans a gap: each stretch
-    between gaps is tiled on its own and a pair across a gap is a window of its own (2 frames).
-
-    Args:
-        n_frames: frames in the sequence (>= 2); seq_len: frames per window (>= 2).
-        gap: (n_frames - 1,) bool, the pairs that span a gap (:func:`gaps`); None: none does.
-    Returns:
-        (M, 2) int64 ``[start, stop)`` frame ranges, in order.
+    Windows of ``seq_len`` frames overlap by one frame, the last one shorter where needed. ``gap``:
+    (n_frames - 1,) bool, the pairs that span a gap: each stretch is tiled on its own, a gap's pair alone.
     """
     if n_frames < 2:
         raise ValueError(f"a sequence needs at least 2 frames for one relative pose, got {n_frames}")
@@ -45,24 +35,16 @@ def tile(n_frames: int, seq_len: int, gap: np.ndarray | None = None) -> np.ndarr
 
 
 def _stretch(first: int, stop: int, seq_len: int) -> np.ndarray:
-    """(M, 2) windows tiling frames [first, stop) (none when fewer than 2 frames)."""
     starts = np.arange(first, stop - 1, seq_len - 1, dtype=np.int64)
     return np.stack((starts, np.minimum(starts + seq_len, stop)), axis=1).reshape(-1, 2)
 
 
 GAP_FACTOR = 1.5
-"""A pair of consecutive frames further apart in time than GAP_FACTOR times the sequence's median frame
-interval spans a gap (frames the reader dropped, e.g. where the ground truth has none)."""
+"""A pair further apart than GAP_FACTOR times the sequence's median frame interval spans a gap."""
 
 
 def gaps(times: np.ndarray) -> np.ndarray:
-    """Which consecutive pairs of a sequence span a gap (:data:`GAP_FACTOR`).
-
-    Args:
-        times: (N,) timestamps in seconds, increasing.
-    Returns:
-        (N - 1,) bool.
-    """
+    """(N - 1,) bool: which consecutive pairs of (N,) timestamps (s) span a gap (:data:`GAP_FACTOR`)."""
     interval = np.diff(np.asarray(times, dtype=np.float64))
     if interval.size == 0:
         return np.zeros(0, dtype=bool)
@@ -70,14 +52,8 @@ def gaps(times: np.ndarray) -> np.ndarray:
 
 
 def training_starts(n_frames: int, seq_len: int, step: int = 1, gap: np.ndarray | None = None) -> np.ndarray:
-    """First frames of the full training windows of a sequence: every frame, each window taking every
-    ``step``-th frame (it spans ``step (seq_len - 1) + 1`` frames), none spanning a gap.
-
-    Args:
-        gap: (n_frames - 1,) bool, the consecutive pairs that span a gap (:func:`gaps`); None: none does.
-    Returns:
-        (M,) int64 start frames (empty when the sequence is shorter than one window).
-    """
+    """(M,) int64 first frames of a sequence's training windows of every ``step``-th frame, none spanning
+    a gap (``gap``: as :func:`tile`'s)."""
     span = step * (seq_len - 1) + 1
     starts = np.arange(max(n_frames - span + 1, 0), dtype=np.int64)
     if gap is None or not np.any(gap):
@@ -87,15 +63,8 @@ def training_starts(n_frames: int, seq_len: int, step: int = 1, gap: np.ndarray 
 
 
 class SameLengthBatches(BatchSampler):
-    """Batches of at most ``batch_size`` windows of one length, in the order of ``sampler``: the
-    windows of :func:`tile` are all ``seq_len`` frames but a sequence's last, so they cannot all be
-    stacked into one tensor.
-
-    Args:
-        sampler: indices of the windows (e.g. a ``SequentialSampler``; Lightning swaps in a
-            ``DistributedSampler`` under DDP). batch_size: windows per batch. drop_last: as BatchSampler.
-        lengths: frames of each window, by index.
-    """
+    """Batches of at most ``batch_size`` windows of one length (``lengths``: frames of each window), in
+    the order of ``sampler``: a sequence's last tile may be shorter than the others."""
 
     def __init__(
         self, sampler: Sampler[int], batch_size: int, drop_last: bool = False, lengths: Sequence[int] = ()
@@ -121,31 +90,12 @@ class SameLengthBatches(BatchSampler):
 
 
 class WindowDataset(Dataset):
-    """Windows of cached frames with their relative-pose targets.
+    """Windows of cached frames with their relative-pose targets, as rows ``(sequence, start, stop, step)``
+    of :attr:`index`: training windows at each frame step of ``steps``, or tiles (``tiled``).
 
-    Items are dicts: ``frames`` (L, 3, H, W) uint8, ``targets`` (L - 1, 4, 4) float32, ``K`` (3, 3)
-    float32, ``metric`` () bool (whether the sequence's platform gives metric scale a cue) and, with flow,
-    ``flow`` (L - 1, 2, H, W) float16: a window costs one memory copy. Training
-    windows (:func:`lossvo.data.training_starts`) have ``seq_len`` frames, start at every
-    frame and exist at each frame step s of ``steps``: every s-th frame, with targets ``inv(T_w_k) @
-    T_w_{k+s}`` computed from the poses in float64 (s = 2 doubles the speeds and rotations the network
-    sees). Tiled windows (``tiled=True``, validation and test) follow :func:`tile`:
-    every consecutive pair exactly once, the last window of a sequence possibly shorter. Conversion to
-    float, normalisation and augmentation happen per batch on the training device
-    (:meth:`lossvo.data.datamodules.VODataModule.on_after_batch_transfer`), which moves 4x fewer bytes.
-    The memory maps are opened lazily in each process (a pickled memmap would be copied whole into every
-    DataLoader worker).
-
-    Args:
-        cache_files: one cached frame array per sequence; poses: (N_i, 4, 4) T_w_c per sequence.
-        seq_len: frames per window; steps: frame steps of the training windows (1: consecutive); tiled:
-            tile the sequences instead (steps unused).
-        intrinsics: (3, 3) K of each sequence's cached frames (None: the identity).
-        flow_files: step -> one cached flow array per sequence (:mod:`lossvo.data.flow`), for every step
-            used; None: no flow.
-        times: (N_i,) timestamps (s) per sequence: training windows never span a gap in them
-            (:func:`gaps`); None: no gaps.
-        metric: per sequence, whether its platform gives metric scale a cue (None: every one does).
+    Items: ``frames`` (L, 3, H, W) uint8, ``targets`` (L - 1, 4, 4) float32, ``K`` (3, 3) float32,
+    ``metric`` () bool and, with ``flow_files`` (step -> one file per sequence), ``flow`` (L - 1, 2, H, W)
+    float16. The memory maps are opened lazily in each process (a pickled one would be copied whole).
     """
 
     def __init__(
@@ -156,7 +106,6 @@ class WindowDataset(Dataset):
     ) -> None:  # fmt: skip
         self.cache_files = cache_files
         self.flow_files = flow_files
-        self.seq_len = seq_len
         Ks = intrinsics if intrinsics is not None else [np.eye(3)] * len(poses)
         self.intrinsics = [torch.from_numpy(np.asarray(K, dtype=np.float32)) for K in Ks]
         flags = [True] * len(poses) if metric is None else list(metric)
@@ -168,26 +117,22 @@ class WindowDataset(Dataset):
         lengths = [len(p) for p in poses]
         gap = [gaps(t) for t in times] if times is not None else [None] * len(poses)
         rows = [
-            self._tiles(i, n, seq_len, gap[i]) if tiled else self._training(i, n, seq_len, s, gap[i])
-            for s in steps for i, n in enumerate(lengths) if n >= 2
-        ]  # fmt: skip
+            self._rows(i, n, seq_len, s, gap[i], tiled)
+            for s in steps
+            for i, n in enumerate(lengths)
+            if n >= 2
+        ]
         self.index = np.concatenate(rows) if rows else np.zeros((0, 4), dtype=np.int64)
-        self._frames: list[np.ndarray] | None = None
-        self._flow: dict[int, list[np.ndarray]] | None = None
 
     @staticmethod
-    def _training(seq: int, n: int, seq_len: int, step: int, gap: np.ndarray | None) -> np.ndarray:
-        """(M, 4) rows (sequence, start, stop, step) of a sequence's training windows at one step."""
-        starts = training_starts(n, seq_len, step, gap)
-        stops = starts + step * (seq_len - 1) + 1
+    def _rows(seq: int, n: int, seq_len: int, step: int, gap: np.ndarray | None, tiled: bool) -> np.ndarray:
+        """(M, 4) rows (sequence, start, stop, step) of a sequence's windows (tiles: step 1)."""
+        if tiled:
+            starts, stops = tile(n, seq_len, gap).T
+        else:
+            starts = training_starts(n, seq_len, step, gap)
+            stops = starts + step * (seq_len - 1) + 1
         return np.stack((np.full_like(starts, seq), starts, stops, np.full_like(starts, step)), axis=1)
-
-    @staticmethod
-    def _tiles(seq: int, n: int, seq_len: int, gap: np.ndarray | None) -> np.ndarray:
-        """(M, 4) rows (sequence, start, stop, 1) of the windows tiling a sequence."""
-        ranges = tile(n, seq_len, gap)
-        ones = np.ones(len(ranges), dtype=np.int64)
-        return np.stack((seq * ones, ranges[:, 0], ranges[:, 1], ones), axis=1)
 
     @property
     def lengths(self) -> np.ndarray:
@@ -195,23 +140,19 @@ class WindowDataset(Dataset):
         return (self.index[:, 2] - self.index[:, 1] - 1) // self.index[:, 3] + 1
 
     def __getstate__(self) -> dict:
-        return {**self.__dict__, "_frames": None, "_flow": None}
+        return {k: v for k, v in self.__dict__.items() if k not in ("frames", "flow")}  # opened lazily
 
-    @property
+    @functools.cached_property
     def frames(self) -> list[np.ndarray]:
-        if self._frames is None:
-            self._frames = [np.load(f, mmap_mode="r") for f in self.cache_files]
-        return self._frames
+        return [np.load(f, mmap_mode="r") for f in self.cache_files]
+
+    @functools.cached_property
+    def flow(self) -> dict[int, list[np.ndarray]]:
+        files = self.flow_files or {}
+        return {step: [np.load(f, mmap_mode="r") for f in paths] for step, paths in files.items()}
 
     def __len__(self) -> int:
         return len(self.index)
-
-    @property
-    def flow(self) -> dict[int, list[np.ndarray]]:
-        if self._flow is None:
-            files = self.flow_files or {}
-            self._flow = {step: [np.load(f, mmap_mode="r") for f in paths] for step, paths in files.items()}
-        return self._flow
 
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
         seq, start, stop, step = (int(v) for v in self.index[i])
@@ -228,11 +169,7 @@ class WindowDataset(Dataset):
 
 class EpochShuffle(Sampler[int]):
     """``count`` of ``n`` indices without replacement in a random order that depends on ``seed`` and the
-    epoch only (Lightning calls :meth:`set_epoch` before every training epoch).
-
-    Args:
-        n: dataset size; count: indices per epoch (<= n); seed: the run's seed.
-    """
+    epoch only (Lightning calls :meth:`set_epoch` before every training epoch)."""
 
     def __init__(self, n: int, count: int, seed: int) -> None:
         self.n, self.count, self.seed, self.epoch = n, count, seed, 0
@@ -240,13 +177,10 @@ class EpochShuffle(Sampler[int]):
     def set_epoch(self, epoch: int) -> None:
         self.epoch = epoch
 
-    def generator(self) -> torch.Generator:
-        """The epoch's own random stream: a function of the seed and the epoch only."""
-        state = np.random.SeedSequence([self.seed % 2**63, self.epoch]).generate_state(2, dtype=np.uint32)
-        return torch.Generator().manual_seed(int(state[0]) << 32 | int(state[1]))
-
     def __iter__(self) -> Iterator[int]:
-        return iter(torch.randperm(self.n, generator=self.generator())[: self.count].tolist())
+        state = np.random.SeedSequence([self.seed % 2**63, self.epoch]).generate_state(2, dtype=np.uint32)
+        generator = torch.Generator().manual_seed(int(state[0]) << 32 | int(state[1]))  # the epoch's own
+        return iter(torch.randperm(self.n, generator=generator)[: self.count].tolist())
 
     def __len__(self) -> int:
         return self.count
