@@ -593,8 +593,13 @@ def write_metrics(folder: Path, table: MetricsTable) -> None:
 def append_metrics(folder: Path, header: Sequence[str], rows: Sequence[Mapping[str, Any]]) -> None:
     """Append logged rows to the folder's ``metrics.csv`` under ``header``; new columns first rewrite the
     file whole, atomically."""
-    held = read_metrics(folder)
-    if held.header != tuple(header) or not (folder / METRICS).is_file():
-        write_metrics(folder, MetricsTable(tuple(header), held.rows))
-    with (folder / METRICS).open("a", newline="") as f:
+    path = folder / METRICS
+    if path.is_file():
+        with path.open(newline="") as f:
+            held = next(csv.reader(f), [])
+        if held != list(header):
+            write_metrics(folder, MetricsTable(tuple(header), read_metrics(folder).rows))
+    else:
+        write_metrics(folder, MetricsTable(tuple(header)))
+    with path.open("a", newline="") as f:
         csv.DictWriter(f, fieldnames=header).writerows(rows)
