@@ -24,7 +24,7 @@ import time
 import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime
 from pathlib import Path
 from statistics import median
@@ -148,15 +148,6 @@ def seed_warning(seeds: Sequence[int], losses: Sequence[str] = LOSSES, alpha: fl
         f"warning: {seeds_}: no claim can be decided: the smallest two-sided p of an exact Wilcoxon test "
         f"over n seeds is {smallest}, not below {alpha:g}; {needed} seeds are needed"
     )
-
-
-def gpu_jobs_at_once(jobs: int, job_gib: float, requested: int | None) -> int:
-    """Jobs at once on this machine's GPU: ``requested``, or as many as fit, no more than ``jobs``;
-    ``UserError`` when they do not fit."""
-    free, job_bytes = gpu_jobs.free_memory(), int(job_gib * gpu_jobs.GIB)
-    at_once = requested or min(jobs, gpu_jobs.jobs_that_fit(free, job_bytes, joblib.cpu_count()))
-    gpu_jobs.check_jobs_fit(at_once, max(at_once, 1), free, job_bytes)
-    return at_once
 
 
 # -- what a job does, from its composed config -------------------------------------------------------
@@ -531,19 +522,24 @@ def sweep_dir_of(args: argparse.Namespace) -> Path:
 
 
 def plan_study(args: argparse.Namespace, cuda: bool, job_gib: float, sweep_dir: Path) -> Plan:
-    """The :class:`Plan` of the parsed command line, on the GPU where ``cuda``."""
-    jobs = len(args.seeds) * (len(args.models) + len(args.experiments)) * len(args.losses)
-    at_once = gpu_jobs_at_once(jobs, job_gib, args.jobs) if cuda else args.jobs or CPU_JOBS
-    return Plan(
+    """The :class:`Plan` of the parsed command line; on the GPU where ``cuda``, ``--jobs`` or as many jobs
+    at once as fit its free memory (``UserError`` when they do not fit)."""
+    plan = Plan(
         tuple(args.seeds),
         tuple(args.models),
         tuple(args.losses),
         tuple(args.overrides),
         sweep_dir,
         gpu=cuda,
-        at_once=at_once,
+        at_once=args.jobs or CPU_JOBS,
         experiments=tuple(args.experiments),
     )
+    if not cuda:
+        return plan
+    free, job_bytes = gpu_jobs.free_memory(), int(job_gib * gpu_jobs.GIB)
+    at_once = args.jobs or min(plan.jobs, gpu_jobs.jobs_that_fit(free, job_bytes, joblib.cpu_count()))
+    gpu_jobs.check_jobs_fit(at_once, max(at_once, 1), free, job_bytes)
+    return replace(plan, at_once=at_once)
 
 
 # -- the experiments on the architectures' data ----------------------------------------------------

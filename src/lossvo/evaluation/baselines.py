@@ -203,8 +203,7 @@ def _band(size: int, fractions: tuple[float, float]) -> slice:
 
 def _median_per_pair(values: np.ndarray) -> np.ndarray:
     """(N, ...) -> (N,) float64 median of each pair's values."""
-    flat = values.reshape(values.shape[0], int(np.prod(values.shape[1:])))
-    return np.median(flat.astype(np.float64), axis=1)
+    return np.median(values.reshape(len(values), -1).astype(np.float64), axis=1)
 
 
 def flow_yaw(flow: np.ndarray, K: np.ndarray) -> np.ndarray:

@@ -558,16 +558,6 @@ class MetricsTable:
         return curves
 
 
-def _complete(row: Sequence[str], header: Sequence[str]) -> dict[str, str]:
-    """A row as a dict; UserError for a row cut short, ValueError for a value that is not a number."""
-    if len(row) != len(header):
-        raise UserError(f"{len(row)} fields, header has {len(header)}")
-    for value in row:
-        if value.strip():
-            float(value)
-    return dict(zip(header, row, strict=True))
-
-
 def read_metrics(folder: Path) -> MetricsTable:
     """The folder's ``metrics.csv`` (empty where there is none), up to a row cut short or corrupt (a process
     killed mid-write); JobFolderError where the file cannot be read or is not CSV."""
@@ -580,11 +570,15 @@ def read_metrics(folder: Path) -> MetricsTable:
         raise JobFolderError(path, f"not CSV ({e})") from None
     rows, damage = [], None
     for number, line in enumerate(lines, start=2):
-        try:
-            rows.append(_complete(line, header))
-        except (UserError, ValueError) as e:  # ValueError: float() of a value that is not a number
+        try:  # a row cut short, or a value float() refuses
+            if len(line) != len(header):
+                raise ValueError(f"{len(line)} fields, header has {len(header)}")
+            for value in filter(str.strip, line):
+                float(value)
+        except ValueError as e:
             damage = f"line {number} is truncated or corrupt ({e}): later rows ignored"
             break
+        rows.append(dict(zip(header, line, strict=True)))
     return MetricsTable(tuple(header), tuple(rows), damage)
 
 
