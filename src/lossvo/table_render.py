@@ -10,15 +10,8 @@ import re
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 
-LATEX_SPECIALS = {
+LATEX_SPECIALS = {ch: f"\\{ch}" for ch in "&%$#_{}"} | {
     "\\": r"\textbackslash{}",
-    "&": r"\&",
-    "%": r"\%",
-    "$": r"\$",
-    "#": r"\#",
-    "_": r"\_",
-    "{": r"\{",
-    "}": r"\}",
     "~": r"\textasciitilde{}",
     "^": r"\textasciicircum{}",
 }
@@ -63,7 +56,7 @@ def csv_text(table: Rows) -> str:
 
 def latex_escape(text: str) -> str:
     """``text`` with LaTeX's special characters escaped (:data:`LATEX_SPECIALS`)."""
-    return "".join(LATEX_SPECIALS.get(ch, ch) for ch in text)
+    return text.translate(str.maketrans(LATEX_SPECIALS))
 
 
 def latex_cell(text: object) -> str:

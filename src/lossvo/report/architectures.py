@@ -270,7 +270,7 @@ def agreement_markdown(agreement: Agreement) -> str:
 def rankings_csv_rows(agreement: Agreement) -> Rows:
     """``tables/rankings.csv``: per quantity, architecture and rank (1 = lowest), full precision."""
     rows: list[list[object]] = [
-        [r.quantity, r.architecture, k, t, repr(c.mean) if c.n else "", repr(c.std) if c.n > 1 else "", c.n]
+        [r.quantity, r.architecture, k, t, *c.csv()]
         for r in agreement.rankings
         for k, (t, c) in enumerate(r.entries, start=1)
     ]

@@ -95,6 +95,10 @@ class Cell:
         std = float(np.std(finite, ddof=1)) if finite.size > 1 else math.nan
         return cls(float(np.mean(finite)), std, int(finite.size))
 
+    def csv(self) -> list[object]:
+        """Mean and std at full precision (empty where undefined), and n."""
+        return [repr(self.mean) if self.n else "", repr(self.std) if self.n > 1 else "", self.n]
+
 
 @dataclass
 class Table:
@@ -174,11 +178,8 @@ def table_csv(table: Table) -> str:
     header = ["sequence", *(f"{m}{part}" for m in metrics for part in ("", " std", " n")), "note"]
     rows: list[list[object]] = []
     for row, cells in zip(table.rows, table.cells, strict=True):
-        values: list[object] = [row]
-        for col in cells:
-            for cell in col:
-                values += [repr(cell.mean) if cell.n else "", repr(cell.std) if cell.n > 1 else "", cell.n]
-        rows.append([*values, table.notes.get(row, "")])
+        values = [x for col in cells for cell in col for x in cell.csv()]
+        rows.append([row, *values, table.notes.get(row, "")])
     return table_render.csv_text(Rows(header, rows))
 
 
