@@ -195,13 +195,12 @@ AGREEMENT_TEXT = (
 )
 
 
-def _ranking_text(ranking: Ranking) -> str:
-    return " < ".join(f"{t} ({mean_std_text(cell)})" for t, cell in ranking.entries) or "none"
-
-
 def ranking_rows(agreement: Agreement) -> Rows:
     """Per quantity and architecture, the configurations lowest first."""
-    rows: list[list[object]] = [[r.quantity, r.architecture, _ranking_text(r)] for r in agreement.rankings]
+    rows: list[list[object]] = [
+        [r.quantity, r.architecture, " < ".join(f"{t} ({mean_std_text(c)})" for t, c in r.entries) or "none"]
+        for r in agreement.rankings
+    ]
     return Rows(["quantity", "architecture", "ranking (lowest first; mean ± std over seeds)"], rows)
 
 

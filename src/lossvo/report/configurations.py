@@ -266,9 +266,9 @@ def job_selection(config: Any) -> Selection:
     return Selection(str(monitor), str(mode))
 
 
-def selection_text(selection: Selection) -> str:
-    """``"`val/score` (min)"``."""
-    return f"`{selection.monitor}` ({selection.mode})"
+def selections_text(jobs: Sequence[Job]) -> str:
+    """The jobs' selection metrics, each once: ``"`val/score` (min)"``."""
+    return ", ".join(sorted({f"`{s.monitor}` ({s.mode})" for s in (job_selection(j.config) for j in jobs)}))
 
 
 def selection_identity(job: Job) -> tuple[Any, ...]:
@@ -287,10 +287,7 @@ def selection_warning(columns: Sequence[Column]) -> str | None:
     networks = [c for c in columns if c.kind == NETWORK and c.jobs]
     if len({selection_identity(j) for c in networks for j in c.jobs}) < 2:
         return None
-    per_config = "; ".join(
-        f"{c.label}: {', '.join(sorted({selection_text(job_selection(j.config)) for j in c.jobs}))}"
-        for c in networks
-    )
+    per_config = "; ".join(f"{c.label}: {selections_text(c.jobs)}" for c in networks)
     monitors = {job_selection(j.config).monitor for c in networks for j in c.jobs}
     why = (
         "each by its own loss value, which differs between losses and weights"
@@ -328,7 +325,7 @@ def configuration_row(column: Column) -> list[str]:
         ", ".join(sorted({short(w.k) for w in ws})),
         short(first.gain),
         weight_text(ws),
-        ", ".join(sorted({selection_text(job_selection(j.config)) for j in column.jobs})),
+        selections_text(column.jobs),
         str(len(column.jobs)),
     ]
 
