@@ -113,10 +113,10 @@ class Contents:
 
 def jobs_rows(jobs: Sequence[Job], by_architecture: bool = False) -> Rows:
     """Every job: folder, configuration, seed, status, whether it is in the tables (or why not), notes."""
-    rows: list[list[object]] = [
-        [f"`{job.path.name}`", job.label or "?", job.seed, job.status, used, "; ".join(job.notes)]
-        for job, used in zip(jobs, ("yes" if j.skip is None else f"no: {j.skip}" for j in jobs), strict=True)
-    ]
+    rows: list[list[object]] = []
+    for j in jobs:
+        used = "yes" if j.skip is None else f"no: {j.skip}"
+        rows.append([f"`{j.path.name}`", j.label or "?", j.seed, j.status, used, "; ".join(j.notes)])
     table = Rows(["job", "configuration", "seed", "status", "in tables", "notes"], rows)
     return with_architecture(table, [job.architecture for job in jobs], by_architecture)
 

@@ -13,7 +13,7 @@ import pandas as pd
 from lossvo import table_render
 from lossvo.report.frame import Column, metric_matrix, results_frame
 from lossvo.report.jobs import APE_ROT, APE_TRANS, KITTI_R, KITTI_T, RPE_ROT, RPE_TRANS
-from lossvo.table_render import Rows, prepend_column
+from lossvo.table_render import Rows
 
 NETWORK, BASELINE = "network", "baseline"
 MEAN_ROW = "mean"
@@ -24,7 +24,8 @@ def with_architecture(table: Rows, architectures: Sequence[str | None], by_archi
     """``table`` with an ``architecture`` column first where ``by_architecture``."""
     if not by_architecture:
         return table
-    return prepend_column(table, "architecture", [a or UNKNOWN_ARCHITECTURE for a in architectures])
+    rows = [[a or UNKNOWN_ARCHITECTURE, *row] for a, row in zip(architectures, table.rows, strict=True)]
+    return Rows(["architecture", *table.header], rows)
 
 
 @dataclass(frozen=True)
