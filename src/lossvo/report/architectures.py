@@ -120,14 +120,10 @@ def keyed(
 
 
 def common_held_out(a: Sequence[tuple[Column, set[str]]], b: Sequence[tuple[Column, set[str]]]) -> list[str]:
-    """The keys that both groups of :func:`keyed` columns have and none trained on."""
-
-    def keys(group: Sequence[tuple[Column, set[str]]]) -> list[str]:
-        return list(dict.fromkeys(k for c, _ in group for r in c.results for k in r))
-
+    """The keys that both groups of :func:`keyed` columns have and none trained on, in ``a``'s order."""
     trained = {k for _, t in (*a, *b) for k in t}
-    theirs = set(keys(b))
-    return [k for k in keys(a) if k in theirs and k not in trained]
+    theirs = {k for c, _ in b for r in c.results for k in r}
+    return [k for k in dict.fromkeys(k for c, _ in a for r in c.results for k in r) if k in theirs - trained]
 
 
 def sequence_name(key: str) -> str:

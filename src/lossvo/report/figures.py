@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -62,6 +62,8 @@ def _spans_decades(ax: Axes, ratio: float = 20.0) -> bool:
 def plot_curves(columns: Sequence[Column], path: Path) -> bool:
     """Per-epoch curves per configuration (mean ± std over seeds), a panel per :data:`CURVE_PANELS` entry;
     False if no job has curves."""
+    from matplotlib.ticker import MaxNLocator
+
     rows = -(-len(CURVE_PANELS) // CURVE_COLUMNS)
     fig = new_figure(4.2 * CURVE_COLUMNS, 3.4 * rows)
     axes = fig.subplots(rows, CURVE_COLUMNS, squeeze=False).ravel()
@@ -72,7 +74,13 @@ def plot_curves(columns: Sequence[Column], path: Path) -> bool:
     for column, color in zip(columns, colors(len(columns)), strict=True):
         for ax, (_, key, _) in zip(axes, CURVE_PANELS, strict=True):
             drawn |= _draw_bands(ax, column, key, color)
-    _format_panels(axes)
+    for ax, (title, _, log_scale) in zip(axes, CURVE_PANELS, strict=True):
+        ax.set_title(title)
+        ax.set_xlabel("epoch")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.grid(True, alpha=0.3)
+        if log_scale and _spans_decades(ax):
+            ax.set_yscale("log")
     if drawn:
         axes[-1].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
         save_png(fig, path)
@@ -92,19 +100,6 @@ def _draw_bands(ax: Axes, column: Column, key: str, color: Any) -> bool:
             ax.fill_between(epochs + 1, mean - std, mean + std, color=color, alpha=0.15, lw=0)
         drawn = True
     return drawn
-
-
-def _format_panels(axes: Iterable[Axes]) -> None:
-    """Titles, integer epoch ticks, grids and log scales of the curve panels."""
-    from matplotlib.ticker import MaxNLocator
-
-    for ax, (title, _, log_scale) in zip(axes, CURVE_PANELS, strict=True):
-        ax.set_title(title)
-        ax.set_xlabel("epoch")
-        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-        ax.grid(True, alpha=0.3)
-        if log_scale and _spans_decades(ax):
-            ax.set_yscale("log")
 
 
 BASELINE_STYLES = {
