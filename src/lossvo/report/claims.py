@@ -4,6 +4,7 @@ lowest errors" on the held-out sequences and (b) "it converges fastest" (the las
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -406,7 +407,8 @@ def answer_rows(items: Sequence[Claim], claimed_loss: str = CLAIMED_LOSS) -> Row
 
 
 def claims_markdown(items: Sequence[Claim], by_architecture: bool = False) -> str:
-    """The rule and every claim; with ``by_architecture`` a subsection per architecture."""
+    """The rule and every claim; with ``by_architecture`` a subsection per architecture (``items`` grouped by
+    architecture, as :func:`claims_by_architecture` gives them)."""
     first = items[0] if items else Claim("", "")
     answer = answer_rows(items, first.claimed_loss)
     head = [claims_rule(first.margin, first.claimed_loss)]
@@ -415,13 +417,8 @@ def claims_markdown(items: Sequence[Claim], by_architecture: bool = False) -> st
     if not by_architecture:
         return "\n\n".join([*head, *(claim_markdown(c) for c in items)])
     parts = [*head, BY_ARCHITECTURE_TEXT.format(loss=loss_word(first.claimed_loss))]
-    for architecture in dict.fromkeys(c.architecture or UNKNOWN_ARCHITECTURE for c in items):
-        parts.append(f"### Architecture `{architecture}`")
-        parts += [
-            claim_markdown(c, "####")
-            for c in items
-            if (c.architecture or UNKNOWN_ARCHITECTURE) == architecture
-        ]
+    for architecture, claims in itertools.groupby(items, lambda c: c.architecture or UNKNOWN_ARCHITECTURE):
+        parts += [f"### Architecture `{architecture}`", *(claim_markdown(c, "####") for c in claims)]
     return "\n\n".join(parts)
 
 
