@@ -50,7 +50,7 @@ def csv_text(table: Rows) -> str:
 
 def latex_escape(text: str) -> str:
     """``text`` with LaTeX's special characters escaped (:data:`LATEX_SPECIALS`)."""
-    return text.translate(str.maketrans(LATEX_SPECIALS))
+    return "".join(LATEX_SPECIALS.get(ch, ch) for ch in text)
 
 
 def latex_cell(text: object) -> str:

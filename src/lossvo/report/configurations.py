@@ -90,21 +90,15 @@ def network_columns(jobs: Sequence[Job]) -> list[Column]:
     for job in jobs:
         if job.included:
             columns.setdefault(job.label, Column(job.label, NETWORK, [], [])).jobs.append(job)
+    several_data = len({j.data for j in jobs if j.included}) > 1  # different data: compared within each
     for column in columns.values():
         column.jobs.sort(key=lambda j: (_seed_order(j.seed), job_number(j.path)))
         column.replicates = [f"{REPLICATE_KEY}={j.seed}" for j in column.jobs]
         column.results = [j.included_results.scored() for j in column.jobs]
-        column.architecture = column_architecture(column.jobs)
-    if len({j.data for c in columns.values() for j in c.jobs}) > 1:  # different data: compared within each
-        for column in columns.values():
-            data = " + ".join(sorted({str(j.data) for j in column.jobs}))
-            column.architecture = f"{column.architecture} on {DATA_KEY}={data}"
+        architecture = " + ".join(sorted({j.architecture or UNKNOWN_ARCHITECTURE for j in column.jobs}))
+        data = " + ".join(sorted({str(j.data) for j in column.jobs}))
+        column.architecture = f"{architecture} on {DATA_KEY}={data}" if several_data else architecture
     return list(columns.values())
-
-
-def column_architecture(jobs: Sequence[Job]) -> str:
-    """The architecture of a configuration's jobs (``flowvo``); several joined by ``" + "``."""
-    return " + ".join(sorted({j.architecture or UNKNOWN_ARCHITECTURE for j in jobs})) or UNKNOWN_ARCHITECTURE
 
 
 def architecture_groups(columns: Sequence[Column]) -> dict[str, list[Column]]:

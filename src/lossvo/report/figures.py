@@ -182,7 +182,7 @@ def plot_forest(claims: Sequence[Claim], columns: Sequence[Column], path: Path) 
     ratios = {"height_ratios": [n_top, max(n_bottom, 1)]}
     axes = fig.subplots(2, len(CLAIM_ERRORS), squeeze=False, gridspec_kw=ratios)
     for col, (quantity, _) in enumerate(CLAIM_ERRORS):
-        _forest_column(axes[:, col], blocks, quantity, show=col == 0)
+        _forest_column(axes[0][col], axes[1][col], blocks, quantity, show=col == 0)
     margin = f"{100 * tested[0].margin:g} %"
     fig.suptitle(
         "Held-out error per seed (dots) with the mean and its 95 % interval; below, "
@@ -216,13 +216,13 @@ def _dots_and_interval(ax: Axes, values: np.ndarray, y: float, confidence: float
 
 
 def _forest_column(
-    axes: Sequence[Axes],
+    top: Axes,
+    bottom: Axes,
     blocks: Sequence[tuple[Claim, list[tuple[str, SeedValues]]]],
     quantity: str,
     show: bool,
 ) -> None:
     """One quantity's column: the values per seed above, the relative differences to the claimed one below."""
-    top, bottom = axes
     labels: tuple[list[str], list[str]] = ([], [])
     for claim, rows in blocks:
         ours = rows[0][1][quantity]
