@@ -151,10 +151,9 @@ def across_baselines(
     training data, and a note for each without."""
     by_key: dict[tuple[str, str], list[Results]] = {}
     for e in evaluations:
-        data = e.results.data
-        evaluated = dataset_name(data.layout, data.root)
-        if evaluated != dataset_name(data.train_layout, data.train_root) and e.results.overall.scores:
-            by_key.setdefault((evaluated, ", ".join(e.results.overall.sequences)), []).append(e.results)
+        _, trained, evaluated, names = _key(e.job, e.results)
+        if evaluated != trained and e.results.overall.scores:
+            by_key.setdefault((evaluated, names), []).append(e.results)
     single = [e.results.data for e in evaluations if e.results.data.train_layout != MULTI_LAYOUT]
     out, notes = {}, []
     for (evaluated, names), results in sorted(by_key.items()):
