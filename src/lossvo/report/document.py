@@ -311,22 +311,12 @@ def write_tables(c: Contents, folder: Path) -> None:
             write_text_atomic(folder / name, table_render.csv_text(content))
 
 
-def ground_truth_note(missing: dict[str, str]) -> list[str]:
-    """One note on the sequences drawn without ground truth, grouped by reason."""
-    if not missing:
-        return []
-    by_reason: dict[str, list[str]] = {}
-    for s, reason in missing.items():
-        by_reason.setdefault(reason, []).append(s)
-    reasons = "; ".join(f"{', '.join(names)}: {reason}" for reason, names in by_reason.items())
-    return [f"trajectory figures without ground truth ({reasons})."]
-
-
 def write_figures(c: Contents, folder: Path, gt: dict[str, np.ndarray], missing: dict[str, str]) -> Figures:
     """Every figure, with the ground truth ``gt`` or the reason it is ``missing`` per sequence
     (:func:`lossvo.report.jobs.ground_truth`); the forest plot of the claims."""
     figures = Figures()
-    for (architecture, group), table in zip(_groups(c.networks).items(), c.tables, strict=False):  # Table I's
+    groups = _groups(c.networks).items()
+    for (architecture, group), table in zip(groups, c.tables, strict=False):  # Table I's first
         suffix = f"_{architecture_file_name(architecture)}" if architecture else ""
         if group and plot_curves(group, folder / f"curves{suffix}.png"):
             figures.paths.append(folder / f"curves{suffix}.png")
@@ -335,7 +325,12 @@ def write_figures(c: Contents, folder: Path, gt: dict[str, np.ndarray], missing:
             figures.paths.append(folder / f"ape_trans_rmse{suffix}.png")
     if plot_forest(c.claims, c.networks, folder / "forest.png"):
         figures.paths.append(folder / "forest.png")
-    figures.notes += ground_truth_note(missing)
+    if missing:  # one note, the sequences grouped by reason
+        reasons = (
+            f"{', '.join(s for s in missing if missing[s] == r)}: {r}"
+            for r in dict.fromkeys(missing.values())
+        )
+        figures.notes.append(f"trajectory figures without ground truth ({'; '.join(reasons)}).")
     for s in c.sequences:
         extra = {k: v for k, v in c.base.trajectories.get(s, {}).items() if not k.startswith("zero")}
         path = folder / f"trajectory_{file_stem(s)}.png"
