@@ -19,6 +19,8 @@ from lossvo.evaluation.metrics import AlignMode
 from lossvo.report.jobs import Job
 from lossvo.table_render import Rows
 
+TRAINING_KEYS = ("train_root", "train", "train_layout", "train_keep_every", "train_sources")
+"""The fields of a :class:`DataRecord` that say what its network trained on."""
 EVALUATIONS = "evaluations"
 """The folder of a sweep that holds evaluations of its checkpoints on other data."""
 ACROSS_TITLE = "Across datasets: trained on X, evaluated on Y"
@@ -149,10 +151,9 @@ def across_baselines(
     training data, and a note for each without."""
     by_key: dict[tuple[str, str], list[Results]] = {}
     for e in evaluations:
-        data = e.results.data
-        evaluated = dataset_name(data.layout, data.root)
-        if evaluated != dataset_name(data.train_layout, data.train_root) and e.results.overall.scores:
-            by_key.setdefault((evaluated, ", ".join(e.results.overall.sequences)), []).append(e.results)
+        _, trained, evaluated, names = _key(e.job, e.results)
+        if evaluated != trained and e.results.overall.scores:
+            by_key.setdefault((evaluated, names), []).append(e.results)
     single = [e.results.data for e in evaluations if e.results.data.train_layout != MULTI_LAYOUT]
     out, notes = {}, []
     for (evaluated, names), results in sorted(by_key.items()):
@@ -163,7 +164,7 @@ def across_baselines(
             )
             continue
         first = results[0]
-        data = with_training(first.data, training)
+        data = replace(first.data, **{key: getattr(training, key) for key in TRAINING_KEYS})
         sequences = first.overall.sequences
         try:
             align = cast("AlignMode", first.align)
@@ -185,12 +186,6 @@ def baseline_training(results: Sequence[Results], single: Sequence[DataRecord]) 
     own = [r.data for r in results if r.data.train_layout != MULTI_LAYOUT]
     several = [r.data for r in results if r.data.train_layout == MULTI_LAYOUT and r.data.train_sources]
     return next(iter([*own, *single, *several]), None)
-
-
-def with_training(data: DataRecord, training: DataRecord) -> DataRecord:
-    """``data``'s evaluated dataset with ``training``'s training split."""
-    keys = ("train_root", "train", "train_layout", "train_keep_every", "train_sources")
-    return replace(data, **{key: getattr(training, key) for key in keys})
 
 
 def pooled_rmses(results: Sequence[baselines.BaselineResult], delta: int) -> Rmses:

@@ -98,24 +98,17 @@ def run_baselines(jobs: Sequence[Job], sequences: Sequence[str], cache_dir: Path
         except Exception as e:  # missing data, a damaged sequence: the report goes on without these baselines
             where = "" if len(groups) == 1 else f" ({job.path.name}'s data)"
             run.notes.append(f"baselines skipped{where}: {type(e).__name__}: {first_line(e)}")
-    if results:
-        _fill(run, results, [s for s in sequences if s in results])
-    run.seconds = time.perf_counter() - start
-    return run
-
-
-def _fill(
-    run: BaselineRun, results: dict[str, dict[str, baselines.BaselineResult]], sequences: Sequence[str]
-) -> None:
-    """A run's columns, trajectories, failures and frame counts from the baselines' results."""
-    for name in baselines.NAMES:
-        per_sequence = {s: results[s][name].scores for s in sequences}
+    done = [s for s in sequences if s in results]
+    for name in baselines.NAMES if results else ():
+        per_sequence = {s: results[s][name].scores for s in done}
         run.columns.append(Column(name, BASELINE, ["deterministic"], [per_sequence]))
-    for s in sequences:
+    for s in done:
         run.trajectories[s] = {name: results[s][name].trajectory for name in baselines.NAMES}
         run.failures[s] = results[s][baselines.ORB].failures
         run.frames[s] = len(results[s][baselines.ZERO].trajectory)
-    run.cached = sum(results[s][baselines.ZERO].cached for s in sequences)
+    run.cached = sum(results[s][baselines.ZERO].cached for s in done)
+    run.seconds = time.perf_counter() - start
+    return run
 
 
 BASELINES_TEXT = [

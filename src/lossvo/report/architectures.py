@@ -120,14 +120,10 @@ def keyed(
 
 
 def common_held_out(a: Sequence[tuple[Column, set[str]]], b: Sequence[tuple[Column, set[str]]]) -> list[str]:
-    """The keys that both groups of :func:`keyed` columns have and none trained on."""
-
-    def keys(group: Sequence[tuple[Column, set[str]]]) -> list[str]:
-        return list(dict.fromkeys(k for c, _ in group for r in c.results for k in r))
-
+    """The keys that both groups of :func:`keyed` columns have and none trained on, in ``a``'s order."""
     trained = {k for _, t in (*a, *b) for k in t}
-    theirs = set(keys(b))
-    return [k for k in keys(a) if k in theirs and k not in trained]
+    theirs = {k for c, _ in b for r in c.results for k in r}
+    return [k for k in dict.fromkeys(k for c, _ in a for r in c.results for k in r) if k in theirs - trained]
 
 
 def sequence_name(key: str) -> str:
@@ -195,13 +191,12 @@ AGREEMENT_TEXT = (
 )
 
 
-def _ranking_text(ranking: Ranking) -> str:
-    return " < ".join(f"{t} ({mean_std_text(cell)})" for t, cell in ranking.entries) or "none"
-
-
 def ranking_rows(agreement: Agreement) -> Rows:
     """Per quantity and architecture, the configurations lowest first."""
-    rows: list[list[object]] = [[r.quantity, r.architecture, _ranking_text(r)] for r in agreement.rankings]
+    rows: list[list[object]] = [
+        [r.quantity, r.architecture, " < ".join(f"{t} ({mean_std_text(c)})" for t, c in r.entries) or "none"]
+        for r in agreement.rankings
+    ]
     return Rows(["quantity", "architecture", "ranking (lowest first; mean ± std over seeds)"], rows)
 
 
@@ -270,7 +265,7 @@ def agreement_markdown(agreement: Agreement) -> str:
 def rankings_csv_rows(agreement: Agreement) -> Rows:
     """``tables/rankings.csv``: per quantity, architecture and rank (1 = lowest), full precision."""
     rows: list[list[object]] = [
-        [r.quantity, r.architecture, k, t, repr(c.mean) if c.n else "", repr(c.std) if c.n > 1 else "", c.n]
+        [r.quantity, r.architecture, k, t, *c.csv()]
         for r in agreement.rankings
         for k, (t, c) in enumerate(r.entries, start=1)
     ]

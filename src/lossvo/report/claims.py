@@ -4,8 +4,9 @@ lowest errors" on the held-out sequences and (b) "it converges fastest" (the las
 
 from __future__ import annotations
 
+import itertools
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -301,17 +302,16 @@ def claims_rule(margin: float = statistics.MARGIN, claimed_loss: str = CLAIMED_L
     return " ".join(parts)
 
 
+def _cell_text(quantity: str, cell: Cell) -> str:
+    return epoch_text(cell) if quantity == EPOCHS else mean_std_text(cell)
+
+
 def _measured_rows(claim: Claim) -> Rows:
     quantities = list(next(iter(claim.measured.values())))
-    fmt_cell = epoch_text if quantities == [EPOCHS] else mean_std_text
     rows: list[list[object]] = [
-        [label, *(fmt_cell(cells[q]) for q in quantities)] for label, cells in claim.measured.items()
+        [label, *(_cell_text(q, cells[q]) for q in quantities)] for label, cells in claim.measured.items()
     ]
     return Rows(["configuration", *quantities], rows)
-
-
-def _number(quantity: str) -> Callable[[float], str]:
-    return (lambda x: f"{x:.2f}" if math.isfinite(x) else "n/a") if quantity == EPOCHS else fmt
 
 
 def relative_interval_text(t: PairedTest) -> str:
@@ -344,7 +344,7 @@ def _tests_rows(claim: Claim) -> Rows:
               "seeds for equivalence", "verdict"]  # fmt: skip
     rows: list[list[object]] = []
     for q, t, decision in _comparisons(claim):
-        number = _number(q.quantity)
+        number = (lambda x: f"{x:.2f}" if math.isfinite(x) else "n/a") if q.quantity == EPOCHS else fmt
         ci = f"[{number(t.ci_low)}, {number(t.ci_high)}]" if t.n > 1 else "n/a"
         ps = [fmt(x, 3) for x in (t.p_value, t.holm_p, t.tost_p)]
         numbers = [number(t.mean_diff), ci, relative_interval_text(t), *ps, *_needed(t)]
@@ -394,8 +394,9 @@ def answer_rows(items: Sequence[Claim], claimed_loss: str = CLAIMED_LOSS) -> Row
     rows: list[list[object]] = []
     for c in items:
         for q, t, decision in _comparisons(c):
-            text = epoch_text if q.quantity == EPOCHS else mean_std_text
-            ours, theirs = (text(c.measured[label][q.quantity]) for label in (c.configuration, t.versus))
+            ours, theirs = (
+                _cell_text(q.quantity, c.measured[x][q.quantity]) for x in (c.configuration, t.versus)
+            )
             needed = " / ".join(_needed(t)) if decision == statistics.CANNOT_DECIDE else ""
             verdict = statistics.verdict_text(decision, c.margin)
             row = [q.quantity, ours, t.versus, theirs, relative_interval_text(t), t.n, verdict, needed]
@@ -406,7 +407,8 @@ def answer_rows(items: Sequence[Claim], claimed_loss: str = CLAIMED_LOSS) -> Row
 
 
 def claims_markdown(items: Sequence[Claim], by_architecture: bool = False) -> str:
-    """The rule and every claim; with ``by_architecture`` a subsection per architecture."""
+    """The rule and every claim; with ``by_architecture`` a subsection per architecture (``items`` grouped by
+    architecture, as :func:`claims_by_architecture` gives them)."""
     first = items[0] if items else Claim("", "")
     answer = answer_rows(items, first.claimed_loss)
     head = [claims_rule(first.margin, first.claimed_loss)]
@@ -415,13 +417,8 @@ def claims_markdown(items: Sequence[Claim], by_architecture: bool = False) -> st
     if not by_architecture:
         return "\n\n".join([*head, *(claim_markdown(c) for c in items)])
     parts = [*head, BY_ARCHITECTURE_TEXT.format(loss=loss_word(first.claimed_loss))]
-    for architecture in dict.fromkeys(c.architecture or UNKNOWN_ARCHITECTURE for c in items):
-        parts.append(f"### Architecture `{architecture}`")
-        parts += [
-            claim_markdown(c, "####")
-            for c in items
-            if (c.architecture or UNKNOWN_ARCHITECTURE) == architecture
-        ]
+    for architecture, claims in itertools.groupby(items, lambda c: c.architecture or UNKNOWN_ARCHITECTURE):
+        parts += [f"### Architecture `{architecture}`", *(claim_markdown(c, "####") for c in claims)]
     return "\n\n".join(parts)
 
 

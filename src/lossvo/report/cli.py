@@ -86,13 +86,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)
     start = time.perf_counter()
     sweep = latest_sweep(args.sweep_dir) if args.latest else args.sweep_dir
-    job_dirs(sweep)  # a folder that is no sweep is refused first
+    jobs = [load_job(p) for p in job_dirs(sweep)]  # a folder that is no sweep is refused first
     check_writable(args.out if args.out is not None else sweep / "report", args.out is not None)
     path = make_report(
         sweep, args.out, not args.no_baselines, not args.no_figures, args.jobs, args.margin, args.claimed_loss
     )
     log.info("report written in %.1f s", time.perf_counter() - start)
-    jobs = [load_job(p) for p in job_dirs(sweep)]
     for job in jobs:
         if not job.included:
             log.warning("left out %s: %s", job.path.name, job.skip)

@@ -90,21 +90,15 @@ def network_columns(jobs: Sequence[Job]) -> list[Column]:
     for job in jobs:
         if job.included:
             columns.setdefault(job.label, Column(job.label, NETWORK, [], [])).jobs.append(job)
+    several_data = len({j.data for j in jobs if j.included}) > 1  # different data: compared within each
     for column in columns.values():
         column.jobs.sort(key=lambda j: (_seed_order(j.seed), job_number(j.path)))
         column.replicates = [f"{REPLICATE_KEY}={j.seed}" for j in column.jobs]
         column.results = [j.included_results.scored() for j in column.jobs]
-        column.architecture = column_architecture(column.jobs)
-    if len({j.data for c in columns.values() for j in c.jobs}) > 1:  # different data: compared within each
-        for column in columns.values():
-            data = " + ".join(sorted({str(j.data) for j in column.jobs}))
-            column.architecture = f"{column.architecture} on {DATA_KEY}={data}"
+        architecture = " + ".join(sorted({j.architecture or UNKNOWN_ARCHITECTURE for j in column.jobs}))
+        data = " + ".join(sorted({str(j.data) for j in column.jobs}))
+        column.architecture = f"{architecture} on {DATA_KEY}={data}" if several_data else architecture
     return list(columns.values())
-
-
-def column_architecture(jobs: Sequence[Job]) -> str:
-    """The architecture of a configuration's jobs (``flowvo``); several joined by ``" + "``."""
-    return " + ".join(sorted({j.architecture or UNKNOWN_ARCHITECTURE for j in jobs})) or UNKNOWN_ARCHITECTURE
 
 
 def architecture_groups(columns: Sequence[Column]) -> dict[str, list[Column]]:
@@ -266,9 +260,9 @@ def job_selection(config: Any) -> Selection:
     return Selection(str(monitor), str(mode))
 
 
-def selection_text(selection: Selection) -> str:
-    """``"`val/score` (min)"``."""
-    return f"`{selection.monitor}` ({selection.mode})"
+def selections_text(jobs: Sequence[Job]) -> str:
+    """The jobs' selection metrics, each once: ``"`val/score` (min)"``."""
+    return ", ".join(sorted({f"`{s.monitor}` ({s.mode})" for s in (job_selection(j.config) for j in jobs)}))
 
 
 def selection_identity(job: Job) -> tuple[Any, ...]:
@@ -287,10 +281,7 @@ def selection_warning(columns: Sequence[Column]) -> str | None:
     networks = [c for c in columns if c.kind == NETWORK and c.jobs]
     if len({selection_identity(j) for c in networks for j in c.jobs}) < 2:
         return None
-    per_config = "; ".join(
-        f"{c.label}: {', '.join(sorted({selection_text(job_selection(j.config)) for j in c.jobs}))}"
-        for c in networks
-    )
+    per_config = "; ".join(f"{c.label}: {selections_text(c.jobs)}" for c in networks)
     monitors = {job_selection(j.config).monitor for c in networks for j in c.jobs}
     why = (
         "each by its own loss value, which differs between losses and weights"
@@ -328,7 +319,7 @@ def configuration_row(column: Column) -> list[str]:
         ", ".join(sorted({short(w.k) for w in ws})),
         short(first.gain),
         weight_text(ws),
-        ", ".join(sorted({selection_text(job_selection(j.config)) for j in column.jobs})),
+        selections_text(column.jobs),
         str(len(column.jobs)),
     ]
 

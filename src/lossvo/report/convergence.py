@@ -109,9 +109,8 @@ def convergence_csv_rows(items: Sequence[Convergence], by_architecture: bool = F
     for c in items:
         for r, m, e, n in zip(c.replicates, c.metrics, c.epochs, c.logged, strict=True):
             rows.append([c.label, r, m, "" if e is None else e, n])
-        cell, metric = c.cell(), ",".join(sorted(set(c.metrics)))
-        rows.append([c.label, "mean", metric, repr(cell.mean) if cell.n else "", ""])
-        rows.append([c.label, "std", metric, repr(cell.std) if cell.n > 1 else "", ""])
+        metric, (mean, std, _) = ",".join(sorted(set(c.metrics))), c.cell().csv()
+        rows += [[c.label, "mean", metric, mean, ""], [c.label, "std", metric, std, ""]]
         architectures += [c.architecture] * (len(c.replicates) + 2)
     table = Rows(["configuration", "seed", "metric", "epoch", "epochs_logged"], rows)
     return with_architecture(table, architectures, by_architecture)

@@ -35,7 +35,6 @@ from lossvo.report.jobs import Job, code_versions_note, ground_truth, job_dirs, 
 from lossvo.report.speed import SPEED_TEXT, SPEED_TITLE, speed_rows
 from lossvo.report.statistics import ALPHA, MARGIN
 from lossvo.report.tables import (
-    NETWORK,
     TABLES,
     Column,
     Table,
@@ -54,37 +53,6 @@ log = logging.getLogger("lossvo")
 UNSEEN_NOTE = "unseen motion"
 TABLE_FILES = ("pairwise.csv", "configurations.csv", "convergence.csv", "claims.csv")
 ARCHITECTURE_FILES = ("rankings.csv", "interaction.csv")
-
-
-@dataclass
-class Study:
-    """What a report measures besides the tables: the network columns, their convergence, the claims, the
-    sequences of unseen motion and, across architectures, whether they rank the losses alike."""
-
-    networks: list[Column]
-    convergence: list[Convergence]
-    claims: list[Claim]
-    unseen: list[str] = field(default_factory=list)
-    by_architecture: bool = False
-    agreement: architectures.Agreement | None = None
-
-
-def analyse(
-    networks: Sequence[Column],
-    sequences: Sequence[str],
-    margin: float = MARGIN,
-    evaluations: Sequence[across_datasets.Evaluation] = (),
-    claimed_loss: str = CLAIMED_LOSS,
-) -> Study:
-    """The :class:`Study` of the network columns on the evaluated ``sequences``."""
-    items = convergence(networks)
-    marked = {s for c in networks for j in c.jobs for s in j.included_results.unseen()}
-    unseen = [s for s in sequences if s in marked]
-    by = varies_architecture(networks)
-    claims_of = claims.claims_by_architecture if by else claims.study_claims
-    found = claims_of(networks, items, sequences, margin, claimed_loss)
-    agreement = architectures.architecture_agreement(networks, sequences, evaluations) if by else None
-    return Study(list(networks), items, found, unseen, by, agreement)
 
 
 def build_tables(
@@ -120,18 +88,40 @@ class Figures:
     notes: list[str] = field(default_factory=list)
 
 
+@dataclass
+class Contents:
+    """Everything report.md shows: besides the tables, the network columns' convergence and claims, the
+    sequences of unseen motion and, across architectures, whether they rank the losses alike."""
+
+    jobs: list[Job]
+    networks: list[Column]
+    sequences: list[str]
+    unseen: list[str]
+    by_architecture: bool
+    convergence: list[Convergence]
+    claims: list[Claim]
+    agreement: architectures.Agreement | None
+    base: BaselineRun
+    baselines_on: bool
+    tables: list[Table] = field(default_factory=list)
+    comparisons: list[Comparison] = field(default_factory=list)
+    figures: Figures | None = None
+    speed: Rows | None = None
+    across: Rows | None = None
+    across_notes: list[str] = field(default_factory=list)
+
+
 def jobs_rows(jobs: Sequence[Job], by_architecture: bool = False) -> Rows:
     """Every job: folder, configuration, seed, status, whether it is in the tables (or why not), notes."""
-    rows: list[list[object]] = [
-        [f"`{job.path.name}`", job.label or "?", job.seed, job.status, used, "; ".join(job.notes)]
-        for job, used in zip(jobs, ("yes" if j.skip is None else f"no: {j.skip}" for j in jobs), strict=True)
-    ]
+    rows: list[list[object]] = []
+    for j in jobs:
+        used = "yes" if j.skip is None else f"no: {j.skip}"
+        rows.append([f"`{j.path.name}`", j.label or "?", j.seed, j.status, used, "; ".join(j.notes)])
     table = Rows(["job", "configuration", "seed", "status", "in tables", "notes"], rows)
     return with_architecture(table, [job.architecture for job in jobs], by_architecture)
 
 
-def seeds_text(columns: Sequence[Column]) -> str:
-    networks = [c for c in columns if c.kind == NETWORK]
+def seeds_text(networks: Sequence[Column]) -> str:
     counts = ", ".join(f"{c.label}: n = {len(c.replicates)} ({', '.join(c.replicates)})" for c in networks)
     if any(len(c.replicates) > 1 for c in networks):
         return (
@@ -154,20 +144,25 @@ def figures_markdown(figures: Figures | None, out: Path) -> str:
     return "\n\n".join([*lines, *(f"*Note:* {note}" for note in figures.notes)])
 
 
-def header_lines(sweep: Path, jobs: Sequence[Job], study: Study) -> list[str]:
+def section(title: str, *blocks: str) -> list[str]:
+    """A ``## title`` section of report.md, its blocks separated by blank lines."""
+    return ["", f"## {title}", *(line for block in blocks for line in ("", block))]
+
+
+def header_lines(sweep: Path, c: Contents) -> list[str]:
     """The title, the job count and the warnings."""
-    included = sum(j.included for j in jobs)
+    included = sum(j.included for j in c.jobs)
     lines = [
         f"# Sweep report: `{sweep}`",
         "",
         f"Generated {time.strftime('%Y-%m-%d %H:%M:%S')} by `python -m lossvo.report`. "
-        f"{len(jobs)} job(s): {included} included, {len(jobs) - included} skipped (see *Jobs*).",
+        f"{len(c.jobs)} job(s): {included} included, {len(c.jobs) - included} skipped (see *Jobs*).",
     ]
-    if study.by_architecture:
-        groups = architecture_groups(study.networks)
+    if c.by_architecture:
+        groups = architecture_groups(c.networks)
         names = ", ".join(f"`{a}` ({sum(len(c.jobs) for c in g)} jobs)" for a, g in groups.items())
         lines += ["", ARCHITECTURES_TEXT.format(names=names)]
-    warnings = [selection_warning(study.networks), code_versions_note(jobs), machines_note(jobs)]
+    warnings = [selection_warning(c.networks), code_versions_note(c.jobs), machines_note(c.jobs)]
     return lines + [x for w in warnings if w for x in ("", w)]
 
 
@@ -189,13 +184,6 @@ CONFIGURATIONS_TEXT = (
 )
 
 
-def configurations_lines(study: Study) -> list[str]:
-    if not study.networks:
-        return []
-    table = table_render.markdown(configuration_rows(study.networks, study.by_architecture))
-    return ["", "## Configurations", "", CONFIGURATIONS_TEXT, "", table]
-
-
 def tables_lines(c: Contents) -> list[str]:
     """What the tables show, then Tables I-III."""
     included = [j for j in c.jobs if j.included]
@@ -204,8 +192,8 @@ def tables_lines(c: Contents) -> list[str]:
     align, delta, _ = against_baselines.evaluation_settings(included)
     unseen = (
         f" Rows marked ({UNSEEN_NOTE}) are sequences of route families never used for training "
-        f"(`{against_baselines.UNSEEN_KEY}`): {', '.join(c.study.unseen)}."
-        if c.study.unseen
+        f"(`{against_baselines.UNSEEN_KEY}`): {', '.join(c.unseen)}."
+        if c.unseen
         else ""
     )
     lines = [
@@ -215,12 +203,12 @@ def tables_lines(c: Contents) -> list[str]:
         "between jobs; **bold**: the lowest value of the row over all columns, baselines "
         "included, so a winning baseline shows."
         + unseen
-        + (PER_ARCHITECTURE_TEXT if c.study.by_architecture else ""),
+        + (PER_ARCHITECTURE_TEXT if c.by_architecture else ""),
         "",
-        seeds_text(c.study.networks),
+        seeds_text(c.networks),
     ]
     for table in c.tables:
-        lines += ["", f"## {table.spec.title}", "", table_render.markdown(table_rows(table))]
+        lines += section(table.spec.title, table_render.markdown(table_rows(table)))
         if table.mean_over != table.rows[:-1]:
             mean_over = ", ".join(table.mean_over) or "none"
             lines += ["", f"Mean over the sequences with a value in every column: {mean_over}."]
@@ -246,32 +234,17 @@ PAIRWISE_BY_ARCHITECTURE_TEXT = (
 )
 
 
-def pairwise_lines(comparisons: Sequence[Comparison], by_architecture: bool = False) -> list[str]:
-    text = "Fewer than two configurations with results: nothing to compare."
-    if comparisons:
-        table = table_render.markdown(comparison.comparison_rows(comparisons, by_architecture))
-        text = PAIRWISE_TEXT + (PAIRWISE_BY_ARCHITECTURE_TEXT if by_architecture else "") + "\n\n" + table
-    return ["", "## Pairwise comparison", "", text]
-
-
 def baseline_lines(c: Contents) -> list[str]:
     """The *Baselines* section, each job against the mean motion and on unseen motion."""
-    lines = ["", "## Baselines", "", against_baselines.baselines_markdown(c.base, c.baselines_on)]
+    lines = section("Baselines", against_baselines.baselines_markdown(c.base, c.baselines_on))
     if not (c.baselines_on and any(j.included for j in c.jobs)):
         return lines
-    networks, by, unseen = c.study.networks, c.study.by_architecture, c.study.unseen
-    learning = against_baselines.learning_markdown(networks, c.base, by)
-    lines += ["", "## Against the mean motion, per job", "", learning]
-    if unseen:
-        lines += ["", "## Unseen motion", "", against_baselines.unseen_markdown(networks, c.base, unseen, by)]
+    learning = against_baselines.learning_markdown(c.networks, c.base, c.by_architecture)
+    lines += section("Against the mean motion, per job", learning)
+    if c.unseen:
+        unseen = against_baselines.unseen_markdown(c.networks, c.base, c.unseen, c.by_architecture)
+        lines += section("Unseen motion", unseen)
     return lines
-
-
-def files_lines(tables: Sequence[Table], by_architecture: bool = False) -> list[str]:
-    files = [f"`tables/{t.spec.key}.{ext}`" for t in tables for ext in ("csv", "tex")]
-    names = [*TABLE_FILES, *(ARCHITECTURE_FILES if by_architecture else ())]
-    files += [f"`tables/{name}`" for name in names]
-    return ["", "## Files", "", f"Tables as CSV and LaTeX (booktabs): {', '.join(files)}."]
 
 
 DAMAGED_CURVES_TEXT = (
@@ -280,51 +253,39 @@ DAMAGED_CURVES_TEXT = (
 )
 
 
-@dataclass
-class Contents:
-    """Everything report.md shows."""
-
-    jobs: list[Job]
-    sequences: list[str]
-    tables: list[Table]
-    comparisons: list[Comparison]
-    base: BaselineRun
-    baselines_on: bool
-    figures: Figures | None
-    study: Study
-    speed: Rows | None = None
-    across: Rows | None = None
-    across_notes: list[str] = field(default_factory=list)
-
-
 def render_report(sweep: Path, out: Path, c: Contents) -> str:
     """The text of report.md (``c.figures`` None: not drawn)."""
-    by = c.study.by_architecture
-    lines = header_lines(sweep, c.jobs, c.study) + configurations_lines(c.study) + tables_lines(c)
-    lines += pairwise_lines(c.comparisons, by)
-    if c.study.convergence:
-        lines += ["", "## Convergence", "", convergence_markdown(c.study.convergence, by)]
+    by = c.by_architecture
+    lines = header_lines(sweep, c)
+    if c.networks:
+        configurations = table_render.markdown(configuration_rows(c.networks, by))
+        lines += section("Configurations", CONFIGURATIONS_TEXT, configurations)
+    lines += tables_lines(c)
+    pairwise = "Fewer than two configurations with results: nothing to compare."
+    if c.comparisons:
+        table = table_render.markdown(comparison.comparison_rows(c.comparisons, by))
+        pairwise = PAIRWISE_TEXT + (PAIRWISE_BY_ARCHITECTURE_TEXT if by else "") + "\n\n" + table
+    lines += section("Pairwise comparison", pairwise)
+    if c.convergence:
+        lines += section("Convergence", convergence_markdown(c.convergence, by))
     lines += baseline_lines(c)
-    lines += ["", "## Jobs", "", table_render.markdown(jobs_rows(c.jobs, by)), "", DAMAGED_CURVES_TEXT]
-    lines += files_lines(c.tables, by)
-    lines += ["", "## Figures", "", figures_markdown(c.figures, out)]
-    if c.study.agreement is not None:
-        agreement = architectures.agreement_markdown(c.study.agreement)
-        lines += ["", "## Architectures: does the loss ranking agree?", "", agreement]
+    lines += section("Jobs", table_render.markdown(jobs_rows(c.jobs, by)), DAMAGED_CURVES_TEXT)
+    files = [f"`tables/{t.spec.key}.{ext}`" for t in c.tables for ext in ("csv", "tex")]
+    files += [f"`tables/{name}`" for name in (*TABLE_FILES, *(ARCHITECTURE_FILES if by else ()))]
+    lines += section("Files", f"Tables as CSV and LaTeX (booktabs): {', '.join(files)}.")
+    lines += section("Figures", figures_markdown(c.figures, out))
+    if c.agreement is not None:
+        agreement = architectures.agreement_markdown(c.agreement)
+        lines += section("Architectures: does the loss ranking agree?", agreement)
     if c.speed is not None and c.speed.rows:
-        lines += ["", f"## {SPEED_TITLE}", "", SPEED_TEXT, "", table_render.markdown(c.speed)]
-    lines += across_lines(c.across, c.across_notes)
-    lines += ["", "## The study's claims", "", claims.claims_markdown(c.study.claims, by)]
+        lines += section(SPEED_TITLE, SPEED_TEXT, table_render.markdown(c.speed))
+    unused = ["", *(f"- {note}" for note in c.across_notes)] if c.across_notes else []
+    if c.across is not None and any(row[1] != row[2] for row in c.across.rows):
+        across = table_render.markdown(c.across)
+        lines += section(across_datasets.ACROSS_TITLE, across_datasets.ACROSS_TEXT, across)
+    lines += unused
+    lines += section("The study's claims", claims.claims_markdown(c.claims, by))
     return "\n".join(lines) + "\n"
-
-
-def across_lines(table: Rows | None, notes: Sequence[str]) -> list[str]:
-    """The section "Across datasets" where the sweep's checkpoints were evaluated on other data."""
-    unused = ["", *(f"- {note}" for note in notes)] if notes else []
-    if table is None or not any(row[1] != row[2] for row in table.rows):
-        return unused
-    title = across_datasets.ACROSS_TITLE
-    return ["", f"## {title}", "", across_datasets.ACROSS_TEXT, "", table_render.markdown(table), *unused]
 
 
 def write_tables(c: Contents, folder: Path) -> None:
@@ -333,62 +294,47 @@ def write_tables(c: Contents, folder: Path) -> None:
     for table in c.tables:
         write_text_atomic(folder / f"{table.spec.key}.csv", table_csv(table))
         write_text_atomic(folder / f"{table.spec.key}.tex", table_latex(table))
-    study, by = c.study, c.study.by_architecture
+    by = c.by_architecture
     files = {
         "pairwise.csv": comparison.comparison_csv_rows(c.comparisons, by),
-        "configurations.csv": configuration_rows(study.networks, by, csv=True),
-        "convergence.csv": convergence_csv_rows(study.convergence, by),
-        "claims.csv": claims.claims_csv_rows(study.claims, by),
+        "configurations.csv": configuration_rows(c.networks, by, csv=True),
+        "convergence.csv": convergence_csv_rows(c.convergence, by),
+        "claims.csv": claims.claims_csv_rows(c.claims, by),
         "speed.csv": c.speed,
         "across_datasets.csv": c.across,
     }
-    if study.agreement is not None:
-        files["rankings.csv"] = architectures.rankings_csv_rows(study.agreement)
-        files["interaction.csv"] = architectures.interaction_csv_rows(study.agreement)
+    if c.agreement is not None:
+        files["rankings.csv"] = architectures.rankings_csv_rows(c.agreement)
+        files["interaction.csv"] = architectures.interaction_csv_rows(c.agreement)
     for name, content in files.items():
         if content is not None:
             write_text_atomic(folder / name, table_render.csv_text(content))
 
 
-def ground_truth_note(missing: dict[str, str]) -> list[str]:
-    """One note on the sequences drawn without ground truth, grouped by reason."""
-    if not missing:
-        return []
-    by_reason: dict[str, list[str]] = {}
-    for s, reason in missing.items():
-        by_reason.setdefault(reason, []).append(s)
-    reasons = "; ".join(f"{', '.join(names)}: {reason}" for reason, names in by_reason.items())
-    return [f"trajectory figures without ground truth ({reasons})."]
-
-
-def write_figures(
-    networks: Sequence[Column],
-    tables: Sequence[Table],
-    base: BaselineRun,
-    sequences: Sequence[str],
-    folder: Path,
-    gt: dict[str, np.ndarray],
-    missing: dict[str, str],
-    found: Sequence[Claim] = (),
-) -> Figures:
+def write_figures(c: Contents, folder: Path, gt: dict[str, np.ndarray], missing: dict[str, str]) -> Figures:
     """Every figure, with the ground truth ``gt`` or the reason it is ``missing`` per sequence
-    (:func:`lossvo.report.jobs.ground_truth`); the forest plot of the claims ``found``."""
+    (:func:`lossvo.report.jobs.ground_truth`); the forest plot of the claims."""
     figures = Figures()
-    groups = _groups(networks)
-    for (architecture, group), table in zip(groups.items(), tables, strict=False):  # Table I's first
+    groups = _groups(c.networks).items()
+    for (architecture, group), table in zip(groups, c.tables, strict=False):  # Table I's first
         suffix = f"_{architecture_file_name(architecture)}" if architecture else ""
         if group and plot_curves(group, folder / f"curves{suffix}.png"):
             figures.paths.append(folder / f"curves{suffix}.png")
         if table.columns:
             plot_ape_bars(table, folder / f"ape_trans_rmse{suffix}.png")
             figures.paths.append(folder / f"ape_trans_rmse{suffix}.png")
-    if plot_forest(found, networks, folder / "forest.png"):
+    if plot_forest(c.claims, c.networks, folder / "forest.png"):
         figures.paths.append(folder / "forest.png")
-    figures.notes += ground_truth_note(missing)
-    for s in sequences:
-        extra = {k: v for k, v in base.trajectories.get(s, {}).items() if not k.startswith("zero")}
+    if missing:  # one note, the sequences grouped by reason
+        reasons = (
+            f"{', '.join(s for s in missing if missing[s] == r)}: {r}"
+            for r in dict.fromkeys(missing.values())
+        )
+        figures.notes.append(f"trajectory figures without ground truth ({'; '.join(reasons)}).")
+    for s in c.sequences:
+        extra = {k: v for k, v in c.base.trajectories.get(s, {}).items() if not k.startswith("zero")}
         path = folder / f"trajectory_{file_stem(s)}.png"
-        plot_trajectories(s, networks, gt.get(s), extra, path)
+        plot_trajectories(s, c.networks, gt.get(s), extra, path)
         figures.paths.append(path)
     return figures
 
@@ -419,22 +365,27 @@ def make_report(
     if with_baselines and included and sequences:
         base = run_baselines(included, sequences, out / "cache", cores)
     evaluations, unused = across_datasets.find_evaluations(sweep, included)
-    study = analyse(networks, sequences, margin, evaluations, claimed_loss)
-    tables = build_tables(networks, base.columns, sequences, dict.fromkeys(study.unseen, UNSEEN_NOTE))
-    comparisons = comparison.compare(networks, study.by_architecture)
+    items = convergence(networks)
+    marked = {s for c in networks for j in c.jobs for s in j.included_results.unseen()}
+    by = varies_architecture(networks)
+    found = (claims.claims_by_architecture if by else claims.study_claims)(
+        networks, items, sequences, margin, claimed_loss
+    )
+    agreement = architectures.architecture_agreement(networks, sequences, evaluations) if by else None
+    unseen = [s for s in sequences if s in marked]
+    c = Contents(jobs, networks, sequences, unseen, by, items, found, agreement, base, with_baselines)
+    c.tables = build_tables(networks, base.columns, sequences, dict.fromkeys(unseen, UNSEEN_NOTE))
+    c.comparisons = comparison.compare(networks, by)
     gt, missing = ground_truth(included, sequences)
-    figures = None
     if with_figures:
-        figures = write_figures(networks, tables, base, sequences, out / "figures", gt, missing, study.claims)
-    speed = speed_rows(networks, gt, sequences) if included else None
-    across_notes = [f"evaluation not used: {note}" for note in unused]
+        c.figures = write_figures(c, out / "figures", gt, missing)
+    c.speed = speed_rows(networks, gt, sequences) if included else None
+    c.across_notes = [f"evaluation not used: {note}" for note in unused]
     across_base: dict[tuple[str, str], dict[str, across_datasets.Rmses]] = {}
     if with_baselines and evaluations:
         across_base, base_notes = across_datasets.across_baselines(evaluations, out / "cache", cores)
-        across_notes += base_notes
-    across = across_datasets.across_rows(included, evaluations, across_base) if evaluations else None
-    found = (tables, comparisons, base, with_baselines, figures, study, speed, across, across_notes)
-    contents = Contents(jobs, sequences, *found)
-    write_tables(contents, out / "tables")
-    write_text_atomic(out / "report.md", render_report(sweep, out, contents))
+        c.across_notes += base_notes
+    c.across = across_datasets.across_rows(included, evaluations, across_base) if evaluations else None
+    write_tables(c, out / "tables")
+    write_text_atomic(out / "report.md", render_report(sweep, out, c))
     return out / "report.md"

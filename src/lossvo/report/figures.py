@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -62,6 +62,8 @@ def _spans_decades(ax: Axes, ratio: float = 20.0) -> bool:
 def plot_curves(columns: Sequence[Column], path: Path) -> bool:
     """Per-epoch curves per configuration (mean ± std over seeds), a panel per :data:`CURVE_PANELS` entry;
     False if no job has curves."""
+    from matplotlib.ticker import MaxNLocator
+
     rows = -(-len(CURVE_PANELS) // CURVE_COLUMNS)
     fig = new_figure(4.2 * CURVE_COLUMNS, 3.4 * rows)
     axes = fig.subplots(rows, CURVE_COLUMNS, squeeze=False).ravel()
@@ -72,7 +74,13 @@ def plot_curves(columns: Sequence[Column], path: Path) -> bool:
     for column, color in zip(columns, colors(len(columns)), strict=True):
         for ax, (_, key, _) in zip(axes, CURVE_PANELS, strict=True):
             drawn |= _draw_bands(ax, column, key, color)
-    _format_panels(axes)
+    for ax, (title, _, log_scale) in zip(axes, CURVE_PANELS, strict=True):
+        ax.set_title(title)
+        ax.set_xlabel("epoch")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.grid(True, alpha=0.3)
+        if log_scale and _spans_decades(ax):
+            ax.set_yscale("log")
     if drawn:
         axes[-1].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
         save_png(fig, path)
@@ -92,19 +100,6 @@ def _draw_bands(ax: Axes, column: Column, key: str, color: Any) -> bool:
             ax.fill_between(epochs + 1, mean - std, mean + std, color=color, alpha=0.15, lw=0)
         drawn = True
     return drawn
-
-
-def _format_panels(axes: Iterable[Axes]) -> None:
-    """Titles, integer epoch ticks, grids and log scales of the curve panels."""
-    from matplotlib.ticker import MaxNLocator
-
-    for ax, (title, _, log_scale) in zip(axes, CURVE_PANELS, strict=True):
-        ax.set_title(title)
-        ax.set_xlabel("epoch")
-        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-        ax.grid(True, alpha=0.3)
-        if log_scale and _spans_decades(ax):
-            ax.set_yscale("log")
 
 
 BASELINE_STYLES = {
@@ -187,8 +182,7 @@ def plot_forest(claims: Sequence[Claim], columns: Sequence[Column], path: Path) 
     ratios = {"height_ratios": [n_top, max(n_bottom, 1)]}
     axes = fig.subplots(2, len(CLAIM_ERRORS), squeeze=False, gridspec_kw=ratios)
     for col, (quantity, _) in enumerate(CLAIM_ERRORS):
-        _forest_values(axes[0][col], blocks, quantity, show_labels=col == 0)
-        _forest_relative(axes[1][col], blocks, quantity, show_labels=col == 0)
+        _forest_column(axes[0][col], axes[1][col], blocks, quantity, show=col == 0)
     margin = f"{100 * tested[0].margin:g} %"
     fig.suptitle(
         "Held-out error per seed (dots) with the mean and its 95 % interval; below, "
@@ -221,39 +215,37 @@ def _dots_and_interval(ax: Axes, values: np.ndarray, y: float, confidence: float
     ax.scatter([values.mean()], [y - 0.25], marker="D", s=28, color=color, edgecolor="black", lw=0.5)
 
 
-def _forest_values(
-    ax: Axes, blocks: Sequence[tuple[Claim, list[tuple[str, SeedValues]]]], quantity: str, show_labels: bool
+def _forest_column(
+    top: Axes,
+    bottom: Axes,
+    blocks: Sequence[tuple[Claim, list[tuple[str, SeedValues]]]],
+    quantity: str,
+    show: bool,
 ) -> None:
-    labels: list[str] = []
-    for claim, rows in blocks:
-        for (label, values), color in zip(rows, colors(len(rows)), strict=True):
-            _dots_and_interval(ax, np.array(list(values[quantity].values())), -len(labels), 0.95, color)
-            labels.append(_row_label(claim, label))
-    _rows_axis(ax, labels, show_labels)
-    ax.set_title(quantity)
-
-
-def _forest_relative(
-    ax: Axes, blocks: Sequence[tuple[Claim, list[tuple[str, SeedValues]]]], quantity: str, show_labels: bool
-) -> None:
-    labels: list[str] = []
-    margin = 100 * blocks[0][0].margin
+    """One quantity's column: the values per seed above, the relative differences to the claimed one below."""
+    labels: tuple[list[str], list[str]] = ([], [])
     for claim, rows in blocks:
         ours = rows[0][1][quantity]
         decisions = next(q.decisions for q in claim.quantities if q.quantity == quantity)
-        for (label, values), decision, color in zip(rows[1:], decisions, colors(len(rows))[1:], strict=True):
-            theirs = values[quantity]
-            seeds = [s for s in ours if s in theirs]
-            pairs = np.array([[ours[s], theirs[s]] for s in seeds]).reshape(-1, 2)
+        for i, ((label, values), color) in enumerate(zip(rows, colors(len(rows)), strict=True)):
+            _dots_and_interval(top, np.array(list(values[quantity].values())), -len(labels[0]), 0.95, color)
+            labels[0].append(_row_label(claim, label))
+            if i == 0:
+                continue
+            seeds = [s for s in ours if s in values[quantity]]
+            pairs = np.array([[ours[s], values[quantity][s]] for s in seeds]).reshape(-1, 2)
             r = 100 * statistics.relative_differences(pairs[:, 0], pairs[:, 1])
-            y = -len(labels)
-            _dots_and_interval(ax, r, y, 1 - 2 * statistics.ALPHA, color)
+            y = -len(labels[1])
+            _dots_and_interval(bottom, r, y, 1 - 2 * statistics.ALPHA, color)
             box = {"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.8}
-            where = (0.99, y + 0.3)
-            ax.annotate(decision.removesuffix(" at this n"), where, xycoords=("axes fraction", "data"),
-                        fontsize=7, ha="right", va="center", bbox=box)  # fmt: skip
-            labels.append(_row_label(claim, f"{claim.configuration} vs {label}"))
-    ax.axvspan(-margin, margin, color="tab:green", alpha=0.12, lw=0)
-    ax.axvline(0.0, color="0.4", lw=0.8)
-    _rows_axis(ax, labels, show_labels)
-    ax.set_xlabel("relative difference (%)")
+            bottom.annotate(decisions[i - 1].removesuffix(" at this n"), (0.99, y + 0.3),
+                            xycoords=("axes fraction", "data"), fontsize=7, ha="right", va="center",
+                            bbox=box)  # fmt: skip
+            labels[1].append(_row_label(claim, f"{claim.configuration} vs {label}"))
+    _rows_axis(top, labels[0], show)
+    top.set_title(quantity)
+    margin = 100 * blocks[0][0].margin
+    bottom.axvspan(-margin, margin, color="tab:green", alpha=0.12, lw=0)
+    bottom.axvline(0.0, color="0.4", lw=0.8)
+    _rows_axis(bottom, labels[1], show)
+    bottom.set_xlabel("relative difference (%)")

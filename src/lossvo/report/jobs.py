@@ -314,10 +314,7 @@ def config_value(config: Any, key: str, default: Any = None) -> Any:
 
 def config_sequences(jobs: Iterable[Job], key: str) -> list[str]:
     """The sequence names listed at ``key`` (``data.splits.val``) in the jobs' configs, first seen first."""
-    names: list[str] = []
-    for job in jobs:
-        names.extend(n for n in sequence_names(config_value(job.config, key, [])) if n not in names)
-    return names
+    return list(dict.fromkeys(n for job in jobs for n in sequence_names(config_value(job.config, key, []))))
 
 
 def check_on_disk(data: DataRecord, job: Job) -> None:

@@ -13,7 +13,7 @@ import pandas as pd
 from lossvo import table_render
 from lossvo.report.frame import Column, metric_matrix, results_frame
 from lossvo.report.jobs import APE_ROT, APE_TRANS, KITTI_R, KITTI_T, RPE_ROT, RPE_TRANS
-from lossvo.table_render import Rows, prepend_column
+from lossvo.table_render import Rows
 
 NETWORK, BASELINE = "network", "baseline"
 MEAN_ROW = "mean"
@@ -24,7 +24,8 @@ def with_architecture(table: Rows, architectures: Sequence[str | None], by_archi
     """``table`` with an ``architecture`` column first where ``by_architecture``."""
     if not by_architecture:
         return table
-    return prepend_column(table, "architecture", [a or UNKNOWN_ARCHITECTURE for a in architectures])
+    rows = [[a or UNKNOWN_ARCHITECTURE, *row] for a, row in zip(architectures, table.rows, strict=True)]
+    return Rows(["architecture", *table.header], rows)
 
 
 @dataclass(frozen=True)
@@ -94,6 +95,10 @@ class Cell:
             return cls(math.nan, math.nan, 0)
         std = float(np.std(finite, ddof=1)) if finite.size > 1 else math.nan
         return cls(float(np.mean(finite)), std, int(finite.size))
+
+    def csv(self) -> list[object]:
+        """Mean and std at full precision (empty where undefined), and n."""
+        return [repr(self.mean) if self.n else "", repr(self.std) if self.n > 1 else "", self.n]
 
 
 @dataclass
@@ -174,11 +179,8 @@ def table_csv(table: Table) -> str:
     header = ["sequence", *(f"{m}{part}" for m in metrics for part in ("", " std", " n")), "note"]
     rows: list[list[object]] = []
     for row, cells in zip(table.rows, table.cells, strict=True):
-        values: list[object] = [row]
-        for col in cells:
-            for cell in col:
-                values += [repr(cell.mean) if cell.n else "", repr(cell.std) if cell.n > 1 else "", cell.n]
-        rows.append([*values, table.notes.get(row, "")])
+        values = [x for col in cells for cell in col for x in cell.csv()]
+        rows.append([row, *values, table.notes.get(row, "")])
     return table_render.csv_text(Rows(header, rows))
 
 
