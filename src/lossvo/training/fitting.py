@@ -174,15 +174,9 @@ def evaluate_after_fit(
     mirror_average: bool = True,
 ) -> None:
     """Evaluate the best checkpoint (else the last weights) on the test sequences into ``out_dir``."""
+    monitored = [c for c in trainer.checkpoint_callbacks if isinstance(c, ModelCheckpoint) and c.monitor]
     best = next(
-        (
-            c.best_model_path
-            for c in trainer.checkpoint_callbacks
-            if isinstance(c, ModelCheckpoint)
-            and c.monitor
-            and c.best_model_path
-            and Path(c.best_model_path).is_file()
-        ),
+        (c.best_model_path for c in monitored if c.best_model_path and Path(c.best_model_path).is_file()),
         None,
     )
     device = trainer.strategy.root_device  # Lightning moves the module back to the CPU after fit

@@ -158,11 +158,8 @@ class Run:
     def start(self, resumed: Mapping[str, Any] | None = None, threads: int | None = None) -> None:
         """Claim the folder; ``resumed``: where a resumed run continues (``{"epoch": N, ...}``)."""
         self.threads = threads
-        self.history.append(
-            event("resumed", code=code_version(), machine=machine(), **resumed)
-            if resumed is not None
-            else event("started", code=code_version(), machine=machine())
-        )
+        name = "started" if resumed is None else "resumed"
+        self.history.append(event(name, code=code_version(), machine=machine(), **(resumed or {})))
         if _first_process():
             save_config(self.out_dir, self.cfg)
             if resumed is not None:
