@@ -259,12 +259,7 @@ def _interrupted(run: Run, stop: InterruptedRun) -> None:
         stopped = {"signal": stop.signal_name, "epoch": stop.epoch, "stage": stage}
         run.history.append(event("stopped", **stopped))
         run.write("interrupted", **stopped, resume_from=str(last) if last.is_file() else None)
-    log.error(
-        "%s: interrupted by %s during %s; run the same command to resume",
-        run.label,
-        stop.signal_name,
-        stop.stage,
-    )
+    log.error("%s: interrupted by %s; run the same command to resume", run.label, stop)  # "SIGINT during ..."
 
 
 @contextmanager
