@@ -123,8 +123,9 @@ class TrialSeededTPESampler(BaseSampler):
 
     def _of(self, trial: FrozenTrial) -> TPESampler:
         if trial.number not in self._samplers:
-            words = None if self._seed is None else np.random.SeedSequence([self._seed, trial.number])
-            seed = None if words is None else int(words.generate_state(1)[0])
+            seed = self._seed
+            if seed is not None:  # SeedSequence([seed, k])'s first word
+                seed = int(np.random.SeedSequence([seed, trial.number]).generate_state(1)[0])
             self._samplers[trial.number] = TPESampler(seed=seed, **self._tpe)
         return self._samplers[trial.number]
 
