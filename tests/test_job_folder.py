@@ -22,7 +22,7 @@ from lossvo.evaluation.job_folder import (
     write_status,
 )
 from lossvo.report.jobs import load_job
-from lossvo.training.metrics_log import AppendingWriter, continue_history
+from lossvo.training.loggers import AppendingWriter, continue_history
 
 
 def test_a_status_reads_back_as_written(tmp_path: Path) -> None:

@@ -51,6 +51,11 @@ SCALARS: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
     ("resume", lambda v: isinstance(v, bool), "true or false"),
     ("evaluate", lambda v: isinstance(v, bool), "true or false"),
     ("mirror_average", lambda v: isinstance(v, bool), "true or false"),
+    (
+        "scheduler.T_max",
+        lambda v: is_integer(v, 1),
+        "an integer >= 1 (the cosine schedule's length in epochs, trainer.max_epochs by default)",
+    ),
 )
 """(key, test, what is expected) of the scalar settings checked; a key the config lacks is skipped."""
 
@@ -88,14 +93,6 @@ def check_train_config(cfg: DictConfig, machine: bool = True) -> None:
         value = _select(resolved, key)
         if value is not _ABSENT and not test(value):
             raise UserError(f"{key}: expected {expected}, got {value!r}")
-    scheduler = resolved.get("scheduler") or {}
-    if str(scheduler.get("_target_", "")).endswith("CosineAnnealingLR"):
-        t_max = scheduler.get("T_max")
-        if not is_integer(t_max, 1):
-            raise UserError(
-                f"scheduler.T_max: expected an integer >= 1 (the cosine schedule's length in "
-                f"epochs, trainer.max_epochs by default), got {t_max!r}"
-            )
     _check_flow(resolved)
     check_source_roots(resolved.get("data"))
     check_devices(_select(resolved, "trainer.devices"), _select(resolved, "trainer.strategy"))

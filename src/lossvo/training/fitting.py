@@ -22,9 +22,10 @@ from lossvo.evaluation.checkpoints import load_network
 from lossvo.evaluation.job_folder import RESULTS
 from lossvo.evaluation.results import evaluate_run
 from lossvo.models import load_flownet
-from lossvo.training import checkpoints, metrics_log, slurm
+from lossvo.training import checkpoints, slurm
 from lossvo.training.config_checks import resolved_config
 from lossvo.training.lifecycle import Run
+from lossvo.training.loggers import continue_history
 from lossvo.training.module import VOModule
 from lossvo.training.selection import SCORE_KEY
 from lossvo.training.stopping import SIGNALS, InterruptedRun
@@ -129,9 +130,7 @@ def train(cfg: DictConfig, run: Run) -> dict[str, float]:
     resumed = _resume_point(trainer, str(ckpt_path), epoch, step) if ckpt_path else None
     run.start(resumed, threads=torch.get_num_threads())
     log.info("%s: %s%s", run.label, run.out_dir, f" (resuming from {ckpt_path})" if ckpt_path else "")
-    metrics_log.continue_history(
-        run.out_dir, Path(ckpt_path).parent.parent if ckpt_path else run.out_dir, epoch, step
-    )
+    continue_history(run.out_dir, Path(ckpt_path).parent.parent if ckpt_path else run.out_dir, epoch, step)
     for logger in trainer.loggers:
         logger.log_hyperparams(resolved_config(cfg))
     try:
@@ -174,15 +173,9 @@ def evaluate_after_fit(
     mirror_average: bool = True,
 ) -> None:
     """Evaluate the best checkpoint (else the last weights) on the test sequences into ``out_dir``."""
+    monitored = [c for c in trainer.checkpoint_callbacks if isinstance(c, ModelCheckpoint) and c.monitor]
     best = next(
-        (
-            c.best_model_path
-            for c in trainer.checkpoint_callbacks
-            if isinstance(c, ModelCheckpoint)
-            and c.monitor
-            and c.best_model_path
-            and Path(c.best_model_path).is_file()
-        ),
+        (c.best_model_path for c in monitored if c.best_model_path and Path(c.best_model_path).is_file()),
         None,
     )
     device = trainer.strategy.root_device  # Lightning moves the module back to the CPU after fit

@@ -158,11 +158,8 @@ class Run:
     def start(self, resumed: Mapping[str, Any] | None = None, threads: int | None = None) -> None:
         """Claim the folder; ``resumed``: where a resumed run continues (``{"epoch": N, ...}``)."""
         self.threads = threads
-        self.history.append(
-            event("resumed", code=code_version(), machine=machine(), **resumed)
-            if resumed is not None
-            else event("started", code=code_version(), machine=machine())
-        )
+        name = "started" if resumed is None else "resumed"
+        self.history.append(event(name, code=code_version(), machine=machine(), **(resumed or {})))
         if _first_process():
             save_config(self.out_dir, self.cfg)
             if resumed is not None:
@@ -262,12 +259,7 @@ def _interrupted(run: Run, stop: InterruptedRun) -> None:
         stopped = {"signal": stop.signal_name, "epoch": stop.epoch, "stage": stage}
         run.history.append(event("stopped", **stopped))
         run.write("interrupted", **stopped, resume_from=str(last) if last.is_file() else None)
-    log.error(
-        "%s: interrupted by %s during %s; run the same command to resume",
-        run.label,
-        stop.signal_name,
-        stop.stage,
-    )
+    log.error("%s: interrupted by %s; run the same command to resume", run.label, stop)  # "SIGINT during ..."
 
 
 @contextmanager

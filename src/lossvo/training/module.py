@@ -4,7 +4,9 @@ hyperparameters, so ``VOModule.load_from_checkpoint(path)`` needs no Hydra). Log
 
 from __future__ import annotations
 
+import logging
 import math
+import random
 from collections.abc import Mapping
 from typing import Any
 
@@ -13,13 +15,12 @@ import numpy as np
 import torch
 from hydra.utils import instantiate
 from torch import Tensor
+from torch.optim.lr_scheduler import CosineAnnealingLR
 
 from lossvo import models
 from lossvo.evaluation.checkpoints import Description, describe
 from lossvo.evaluation.trajectories import scale_steps
 from lossvo.losses import PoseLoss
-from lossvo.training import random_streams
-from lossvo.training.schedules import extend_cosine
 from lossvo.training.selection import SCORE_KEY, SelectionScore
 from lossvo.training.step import (
     StepRecord,
@@ -31,6 +32,55 @@ from lossvo.training.step import (
     optimizer_options,
     step_row,
 )
+
+log = logging.getLogger("lossvo")
+
+
+def collect_rng() -> dict[str, Any]:
+    """The random streams (Python, NumPy, torch CPU and CUDA) as ``weights_only`` checkpoint primitives,
+    so that a resumed run draws what an uninterrupted one would (Lightning does not)."""
+    version, internal, gauss = random.getstate()
+    kind, keys, pos, has_gauss, cached = np.random.get_state(legacy=True)  # noqa: NPY002 (the global stream)
+    return {
+        "python": [version, list(internal), gauss],
+        "numpy": [kind, torch.from_numpy(np.asarray(keys, dtype=np.int64)), pos, has_gauss, cached],
+        "torch": torch.get_rng_state(),
+        "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else [],
+    }
+
+
+def restore_rng(states: dict[str, Any]) -> None:
+    """Set the streams to ``states`` (from :func:`collect_rng`); CUDA only where the devices match."""
+    version, internal, gauss = states["python"]
+    random.setstate((version, tuple(internal), gauss))
+    kind, keys, pos, has_gauss, cached = states["numpy"]
+    np.random.set_state((kind, np.asarray(keys, dtype=np.uint32), pos, has_gauss, cached))  # noqa: NPY002
+    torch.set_rng_state(states["torch"])
+    cuda = states.get("cuda") or []
+    if cuda and torch.cuda.is_available() and len(cuda) == torch.cuda.device_count():
+        torch.cuda.set_rng_state_all(cuda)
+
+
+def extend_cosine(scheduler: Any, t_max: Any) -> None:
+    """Give a restored ``CosineAnnealingLR`` the configured length ``t_max`` (epochs): an N-epoch schedule
+    extended to M continues as if it had been M epochs from the start."""
+    if not isinstance(scheduler, CosineAnnealingLR) or not isinstance(t_max, int) or t_max == scheduler.T_max:
+        return
+    old = scheduler.T_max
+    scheduler.T_max = t_max
+    # The chained update multiplies the current rate, which is eta_min at the end of the old schedule:
+    # restart from the closed form at the current epoch.
+    lrs = scheduler._get_closed_form_lr()
+    for group, lr in zip(scheduler.optimizer.param_groups, lrs, strict=True):
+        group["lr"] = lr
+    scheduler._last_lr = list(lrs)
+    log.info(
+        "cosine schedule extended from %d to %d epochs: learning rate %s at epoch %d",
+        old,
+        t_max,
+        ", ".join(f"{lr:.3g}" for lr in lrs),
+        scheduler.last_epoch,
+    )
 
 
 class NonFiniteLossError(FloatingPointError):
@@ -84,7 +134,7 @@ class VOModule(L.LightningModule):
         datamodule = getattr(self.trainer, "datamodule", None)
         description = getattr(datamodule, "description", None)
         describe(checkpoint, description() if callable(description) else self.data)
-        checkpoint["rng"] = random_streams.collect()
+        checkpoint["rng"] = collect_rng()
 
     def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         self.data = Description.of(checkpoint).data
@@ -98,7 +148,7 @@ class VOModule(L.LightningModule):
     def on_train_start(self) -> None:
         """On resuming: the checkpoint's random streams, and a cosine schedule that grew continued."""
         if self._resumed_rng:
-            random_streams.restore(self._resumed_rng)
+            restore_rng(self._resumed_rng)
             self._resumed_rng = None
         for config in self.trainer.lr_scheduler_configs:
             extend_cosine(config.scheduler, (self.hparams["scheduler"] or {}).get("T_max"))
@@ -142,11 +192,10 @@ class VOModule(L.LightningModule):
     def _last_step(self, batch_idx: int) -> bool:
         """Whether this is the epoch's last training step."""
         trainer = self.trainer
-        max_steps = trainer.max_steps if trainer.max_steps is not None else -1
         return (
             trainer.is_last_batch
             or batch_idx + 1 >= trainer.num_training_batches
-            or (max_steps > 0 and self.global_step + 1 >= max_steps)
+            or (trainer.max_steps > 0 and self.global_step + 1 >= trainer.max_steps)
         )
 
     def _close_epoch(self) -> None:

@@ -33,16 +33,6 @@ def identity_of(target: str) -> ListConfig:
     return ListConfig(weighting.loss_class(target)(k=1.0).identity_output().tolist())
 
 
-def matched_k(target: str, c: Any, squared: bool = True) -> float | None:
-    """``weighting=matched``'s k for a loss class."""
-    return weighting.preset_k(target, "matched", c, squared)
-
-
-def paper_k(target: str) -> float | None:
-    """``weighting=paper``'s k for a loss class."""
-    return weighting.preset_k(target, "paper")
-
-
 def path_safe(text: str) -> str:
     """A folder name from overrides, e.g. ``loss-euler+seed-0``, pasteable unquoted into an override; a
     longer one than :data:`MAX_NAME` keeps its beginning and ends in ``-h`` and 10 hex digits of a hash."""
@@ -112,8 +102,9 @@ def sqlite_storage(path: str) -> str:
 
 
 RESOLVERS: dict[str, Callable[..., Any]] = {
-    f.__name__: f
-    for f in (dim_of, identity_of, matched_k, paper_k, path_safe, job_name, sqlite_storage, sweep_group)
+    **{f.__name__: f for f in (dim_of, identity_of, path_safe, job_name, sqlite_storage, sweep_group)},
+    "matched_k": lambda target, c, squared=True: weighting.preset_k(target, "matched", c, squared),
+    "paper_k": lambda target: weighting.preset_k(target, "paper"),
 }
 
 

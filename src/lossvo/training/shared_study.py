@@ -112,13 +112,6 @@ def fail_stale_trials(study: Study, grace_period: float) -> list[int]:
     return failed
 
 
-def _seed_of(seed: int | None, number: int) -> int | None:
-    """Trial ``number``'s sampler seed: ``SeedSequence([seed, number])``'s first word."""
-    if seed is None:
-        return None
-    return int(np.random.SeedSequence([seed, number]).generate_state(1)[0])
-
-
 class TrialSeededTPESampler(BaseSampler):
     """Optuna's TPE sampler drawing trial number k from one seeded with ``SeedSequence([seed, k])``: the same
     for a trial number, different across the study's trials, workers and restarts (docs/sweep.md)."""
@@ -130,7 +123,10 @@ class TrialSeededTPESampler(BaseSampler):
 
     def _of(self, trial: FrozenTrial) -> TPESampler:
         if trial.number not in self._samplers:
-            self._samplers[trial.number] = TPESampler(seed=_seed_of(self._seed, trial.number), **self._tpe)
+            seed = self._seed
+            if seed is not None:  # SeedSequence([seed, k])'s first word
+                seed = int(np.random.SeedSequence([seed, trial.number]).generate_state(1)[0])
+            self._samplers[trial.number] = TPESampler(seed=seed, **self._tpe)
         return self._samplers[trial.number]
 
     def reseed_rng(self) -> None:
@@ -179,17 +175,19 @@ def difference(recorded: dict[str, Any], wanted: dict[str, Any]) -> str | None:
     """How the search ``wanted`` differs from the search a study ``recorded`` (one line); None: alike."""
     if recorded["directions"] != wanted["directions"]:
         return f"its direction is {', '.join(recorded['directions'])}, not {', '.join(wanted['directions'])}"
-    old, new = recorded["space"], wanted["space"]
-    names = sorted(name for name in old.keys() | new.keys() if old.get(name) != new.get(name))
+    spaces = recorded["space"], wanted["space"]
+    names = _changed(*spaces)
     if names:
-        return (
-            f"it searches {_space_text(old, [n for n in names if n in old])}, "
-            f"not {_space_text(new, [n for n in names if n in new])}"
-        )
-    old, new = recorded["fixed"], wanted["fixed"]
-    names = sorted(name for name in old.keys() | new.keys() if old.get(name) != new.get(name))
-    shown = [" ".join(f"{n}={d[n]}" if n in d else f"no {n}" for n in names) for d in (old, new)]
+        shown = [_space_text(d, [n for n in names if n in d]) for d in spaces]
+        return f"it searches {shown[0]}, not {shown[1]}"
+    fixed = recorded["fixed"], wanted["fixed"]
+    names = _changed(*fixed)
+    shown = [" ".join(f"{n}={d[n]}" if n in d else f"no {n}" for n in names) for d in fixed]
     return f"it runs with {shown[0]}, not {shown[1]}" if names else None
+
+
+def _changed(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
+    return sorted(name for name in old.keys() | new.keys() if old.get(name) != new.get(name))
 
 
 def check_study(url: str, name: str, wanted: dict[str, Any], storage: BaseStorage | None = None) -> None:
