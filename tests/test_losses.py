@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from lossvo import geometry as g
 from lossvo.console import UserError
+from lossvo.data import specs  # noqa: F401  (stores the data schema the composed config's defaults name)
 from lossvo.losses import (
     ChordalLoss,
     EulerLoss,
