@@ -122,32 +122,22 @@ def associate(
     gt_times = np.asarray(gt_times, dtype=np.float64)
     if np.any(np.diff(gt_times) <= 0):
         raise UserError("gt_times must be strictly increasing")
-    frames, stamps = _candidates(frame_times, gt_times, max_difference)
-    order = np.lexsort((stamps, frames, np.abs(frame_times[frames] - gt_times[stamps])))
+    lo = np.searchsorted(gt_times, frame_times - max_difference) - 1  # a stamp of margin each side
+    hi = np.searchsorted(gt_times, frame_times + max_difference, side="right") + 1
+    candidates = sorted(
+        (abs(frame_times[i] - gt_times[j]), i, j)
+        for i in range(len(frame_times))
+        for j in range(max(lo[i], 0), min(hi[i], len(gt_times)))
+        if abs(frame_times[i] - gt_times[j]) < max_difference
+    )
     pairs: dict[int, int] = {}
     taken: set[int] = set()
-    for i, j in zip(frames[order].tolist(), stamps[order].tolist(), strict=True):
+    for _, i, j in candidates:
         if i not in pairs and j not in taken:
             pairs[i] = j
             taken.add(j)
     index = np.array(sorted(pairs.items()), dtype=np.int64).reshape(-1, 2)
     return index[:, 0], index[:, 1]
-
-
-def _candidates(
-    frame_times: np.ndarray, gt_times: np.ndarray, max_difference: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """(P,) frame and (P,) ground-truth indices of every pair less than ``max_difference`` apart, by
-    ``searchsorted`` with one stamp of margin each side (so that rounding in ``t ± max_difference`` loses
-    none), then the exact test."""
-    lo = np.maximum(np.searchsorted(gt_times, frame_times - max_difference, side="left") - 1, 0)
-    hi = np.minimum(np.searchsorted(gt_times, frame_times + max_difference, side="right") + 1, len(gt_times))
-    counts = np.maximum(hi - lo, 0)
-    frames = np.repeat(np.arange(len(frame_times)), counts)
-    offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    stamps = np.repeat(lo, counts) + offsets
-    close = np.abs(frame_times[frames] - gt_times[stamps]) < max_difference
-    return frames[close].astype(np.int64), stamps[close].astype(np.int64)
 
 
 def camera(

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from lossvo.console import UserError
 from lossvo.data import tartanair, tum
-from lossvo.data.layouts import LAYOUTS, check_layout
+from lossvo.data.layouts import LAYOUTS, check_layout, dataset_root, load_sequence
 from lossvo.data.synthetic import platforms, routes
 from lossvo.data.synthetic.png import write_png
 from lossvo.data.synthetic.render import Renderer
@@ -50,21 +50,6 @@ NAMES = {
     "mimir": "SyntheticTown/auv0/track{1}",
 }
 """Each layout's name of a town sequence, formatted with its two digits and its number."""
-FILES = {
-    "kitti": ("image_2/*.png", ("calib.txt", "times.txt")),
-    "tum": ("rgb/*.png", ("rgb.txt", "groundtruth.txt")),
-    "euroc": (
-        "mav0/cam0/data/*.png",
-        ("mav0/cam0/data.csv", "mav0/cam0/sensor.yaml", "mav0/state_groundtruth_estimate0/data.csv"),
-    ),
-    "tartanair": ("image_left/*_left.png", ("pose_left.txt",)),
-    "mimir": (
-        "rgb/cam0/data/*.png",
-        ("rgb/cam0/data.csv", "rgb/cam0/sensor.yaml", "pose_groundtruth/data.csv"),
-    ),
-}
-"""Each layout's (glob of a sequence folder's frames, its other files)."""
-
 EUROC_K = np.array([[458.654, 0.0, 367.215], [0.0, 457.296, 248.375], [0.0, 0.0, 1.0]])
 """EuRoC cam0's intrinsics at 752x480 (its sensor.yaml)."""
 EUROC_DISTORTION = np.array([-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05])
@@ -136,11 +121,12 @@ def sequence_paths(layout: str, sequence: str) -> list[str]:
 
 
 def sequence_complete(root: Path, layout: str, sequence: str, n_frames: int) -> bool:
-    """Whether root holds a layout's sequence with its files and n_frames frames."""
-    folder, *others = (root / p for p in sequence_paths(layout, sequence))
-    frames, files = FILES[layout]
-    required = [folder / f for f in files] + others
-    return all(p.is_file() for p in required) and sum(1 for _ in folder.glob(frames)) == n_frames
+    """Whether root holds a layout's sequence that its reader reads, with ground truth and n_frames frames."""
+    try:
+        seq = load_sequence(layout, dataset_root(layout, root), sequence_name(layout, sequence))
+    except UserError:
+        return False
+    return len(seq.images) + seq.dropped == n_frames
 
 
 def scaled_size(size: tuple[int, int], scale: float) -> tuple[int, int]:
@@ -206,19 +192,16 @@ def clock(layout: str, n_frames: int, rng: np.random.Generator) -> Clock:
     return Clock(frames, groundtruth, tick, int(first))
 
 
-def _quaternions(T: np.ndarray) -> np.ndarray:
-    """(N, 4) unit quaternions (x, y, z, w), w >= 0, of the rotations of poses T (N, 4, 4)."""
+def _pose_rows(T: np.ndarray, sep: str, wxyz: bool = False, *columns: np.ndarray) -> list[str]:
+    """Per pose of T (M, 4, 4): its position, unit quaternion (x, y, z, w; w first where wxyz), w >= 0,
+    and the further columns (M, C), as numbers of 10 significant digits joined by sep."""
     q = Rotation.from_matrix(T[:, :3, :3]).as_quat()
-    return q * np.where(q[:, 3:] < 0, -1.0, 1.0)
-
-
-def _rows(values: np.ndarray, sep: str) -> list[str]:
-    """Each row of values (N, C) as numbers of 10 significant digits joined by sep."""
+    q *= np.where(q[:, 3:] < 0, -1.0, 1.0)
+    values = np.concatenate([T[:, :3, 3], q[:, [3, 0, 1, 2]] if wxyz else q, *columns], 1)
     return [sep.join(f"{v:.10g}" for v in row) for row in values]
 
 
 def _lines(stamps: list[str] | np.ndarray, values: list[str], sep: str) -> str:
-
     return "".join(f"{s}{sep}{v}\n" for s, v in zip(stamps, values, strict=True))
 
 
@@ -235,10 +218,10 @@ def write_tum(folder: Path, name: str, c: Clock, gt: np.ndarray) -> list[Path]:
     header = f"# file: '{name}.bag'\n# timestamp "
     stamps = [_tum_stamp(us, 6) for us in c.frames]
     (folder / "rgb.txt").write_text(f"# color images\n{header}filename\n" + _lines(stamps, frames, " "))
-    values = _rows(np.concatenate([gt[:, :3, 3], _quaternions(gt)], 1), " ")
     stamps = [_tum_stamp(us, 4) for us in c.groundtruth]
     (folder / "groundtruth.txt").write_text(
-        f"# ground truth trajectory\n{header}tx ty tz qx qy qz qw\n" + _lines(stamps, values, " ")
+        f"# ground truth trajectory\n{header}tx ty tz qx qy qz qw\n"
+        + _lines(stamps, _pose_rows(gt, " "), " ")
     )
     return [folder / f for f in frames]
 
@@ -252,12 +235,10 @@ def _asl_frames(camera_dir: Path, c: Clock) -> list[Path]:
 
 
 def _asl_groundtruth(path: Path, header: str, c: Clock, T: np.ndarray, *columns: np.ndarray) -> None:
-    """An ASL ground-truth data.csv: per stamp of c.groundtruth, the position and quaternion (w, x, y, z)
-    of T (M, 4, 4), then the further columns (M, C)."""
-    q = _quaternions(T)[:, [3, 0, 1, 2]]
+    """An ASL ground-truth data.csv: per stamp of c.groundtruth, T (M, 4, 4) (quaternion w first), then
+    the further columns (M, C)."""
     path.parent.mkdir(parents=True)
-    values = _rows(np.concatenate([T[:, :3, 3], q, *columns], 1), ",")
-    path.write_text(header + _lines(c.groundtruth, values, ","))
+    path.write_text(header + _lines(c.groundtruth, _pose_rows(T, ",", True, *columns), ","))
 
 
 def _euroc_sensor_yaml(K: np.ndarray, size: tuple[int, int], rate: float) -> str:
@@ -295,8 +276,7 @@ def write_euroc(
 def write_tartanair(folder: Path, c: Clock, T_ned: np.ndarray) -> list[Path]:
     """pose_left.txt (NED poses T_ned (N, 4, 4), one a frame); returns the frame paths."""
     (folder / tartanair.IMAGES).mkdir(parents=True)
-    values = _rows(np.concatenate([T_ned[:, :3, 3], _quaternions(T_ned)], 1), " ")
-    (folder / tartanair.POSES).write_text("\n".join(values) + "\n")
+    (folder / tartanair.POSES).write_text("".join(f"{v}\n" for v in _pose_rows(T_ned, " ")))
     return [folder / tartanair.IMAGES / f"{k:06d}_left.png" for k in c.frames]
 
 
