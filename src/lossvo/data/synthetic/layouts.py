@@ -72,6 +72,10 @@ MIMIR_PITCH = math.radians(15)
 """The camera looks this far down (the README's front camera)."""
 MIMIR_OFFSET = (0.45, -0.06, 0.0)
 """Metres: the camera in the body frame (x forward, y right, z down)."""
+MIMIR_T_BS = np.eye(4)
+"""(4, 4) the camera in the NED body frame: pitched down by MIMIR_PITCH, at MIMIR_OFFSET."""
+MIMIR_T_BS[:3, :3] = Rotation.from_euler("y", -MIMIR_PITCH).as_matrix()
+MIMIR_T_BS[:3, 3] = MIMIR_OFFSET
 
 TUM_START_US = 1_305_031_102_175_304
 """Microseconds: the first frame's nominal stamp (that of freiburg1_xyz)."""
@@ -98,14 +102,6 @@ P4[:3, :3] = tartanair.NED_TO_CAMERA
 def ned(T: np.ndarray) -> np.ndarray:
     """Poses (..., 4, 4) in the town's axes -> NED axes (the inverse of tartanair.ned_to_camera)."""
     return P4.T @ T @ P4
-
-
-def mimir_T_BS() -> np.ndarray:
-    """(4, 4) the camera in the NED body frame: pitched down by MIMIR_PITCH, at MIMIR_OFFSET."""
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_euler("y", -MIMIR_PITCH).as_matrix()
-    T[:3, 3] = MIMIR_OFFSET
-    return T
 
 
 def sequence_name(layout: str, sequence: str) -> str:
@@ -149,7 +145,7 @@ def camera(layout: str, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
 
 def mount(layout: str) -> np.ndarray:
     """(4, 4) the camera in the platform's frame, town axes (identity but for MIMIR's pitched camera)."""
-    return P4 @ mimir_T_BS() @ P4.T if layout == "mimir" else np.eye(4)
+    return P4 @ MIMIR_T_BS @ P4.T if layout == "mimir" else np.eye(4)
 
 
 @dataclass(frozen=True)
@@ -214,9 +210,9 @@ def _tum_stamp(us: int, decimals: int) -> str:
 def write_tum(folder: Path, name: str, c: Clock, gt: np.ndarray) -> list[Path]:
     """rgb.txt and groundtruth.txt (gt: (M, 4, 4) T_w_c at c.groundtruth); returns the frame paths."""
     (folder / "rgb").mkdir(parents=True)
-    frames = [f"rgb/{_tum_stamp(us, 6)}.png" for us in c.frames]
-    header = f"# file: '{name}.bag'\n# timestamp "
     stamps = [_tum_stamp(us, 6) for us in c.frames]
+    frames = [f"rgb/{s}.png" for s in stamps]
+    header = f"# file: '{name}.bag'\n# timestamp "
     (folder / "rgb.txt").write_text(f"# color images\n{header}filename\n" + _lines(stamps, frames, " "))
     stamps = [_tum_stamp(us, 4) for us in c.groundtruth]
     (folder / "groundtruth.txt").write_text(
@@ -226,33 +222,19 @@ def write_tum(folder: Path, name: str, c: Clock, gt: np.ndarray) -> list[Path]:
     return [folder / f for f in frames]
 
 
-def _asl_frames(camera_dir: Path, c: Clock) -> list[Path]:
-    """cam0/data.csv of an ASL camera; returns the frame paths (data/<ns>.png) to render into."""
+def _write_asl(
+    camera_dir: Path, sensor: str, gt_path: Path, header: str, c: Clock, T: np.ndarray, *columns: np.ndarray
+) -> list[Path]:
+    """An ASL camera's data.csv and sensor.yaml (text sensor), and a ground-truth data.csv: per stamp of
+    c.groundtruth, T (M, 4, 4) (quaternion w first), then the further columns (M, C); returns the frame
+    paths (data/<ns>.png) to render into."""
     (camera_dir / "data").mkdir(parents=True)
     names = [f"{ns}.png" for ns in c.frames]
     (camera_dir / "data.csv").write_text("#timestamp [ns],filename\n" + _lines(c.frames, names, ","))
+    (camera_dir / "sensor.yaml").write_text(sensor)
+    gt_path.parent.mkdir(parents=True)
+    gt_path.write_text(header + _lines(c.groundtruth, _pose_rows(T, ",", True, *columns), ","))
     return [camera_dir / "data" / name for name in names]
-
-
-def _asl_groundtruth(path: Path, header: str, c: Clock, T: np.ndarray, *columns: np.ndarray) -> None:
-    """An ASL ground-truth data.csv: per stamp of c.groundtruth, T (M, 4, 4) (quaternion w first), then
-    the further columns (M, C)."""
-    path.parent.mkdir(parents=True)
-    path.write_text(header + _lines(c.groundtruth, _pose_rows(T, ",", True, *columns), ","))
-
-
-def _euroc_sensor_yaml(K: np.ndarray, size: tuple[int, int], rate: float) -> str:
-    """EuRoC's cam0 sensor.yaml for intrinsics K (3, 3) of frames of size (H, W)."""
-    T = ", ".join(repr(float(v)) for v in orthonormal(EUROC_T_BS).ravel())
-    intrinsics = ", ".join(repr(float(v)) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
-    distortion = ", ".join(repr(float(v)) for v in EUROC_DISTORTION)
-    return (
-        "# General sensor definitions.\nsensor_type: camera\ncomment: synthetic VI-Sensor cam0\n\n"
-        f"# Sensor extrinsics wrt. the body-frame.\nT_BS:\n  cols: 4\n  rows: 4\n  data: [{T}]\n\n"
-        f"# Camera specific definitions.\nrate_hz: {rate:g}\nresolution: [{size[1]}, {size[0]}]\n"
-        f"camera_model: pinhole\nintrinsics: [{intrinsics}] #fu, fv, cu, cv\n"
-        f"distortion_model: radial-tangential\ndistortion_coefficients: [{distortion}]\n"
-    )
 
 
 def write_euroc(
@@ -260,8 +242,17 @@ def write_euroc(
 ) -> list[Path]:
     """mav0/cam0/{data.csv, sensor.yaml} and mav0/state_groundtruth_estimate0/data.csv (body poses T_w_b
     (M, 4, 4) and velocities (M, 3) m/s at c.groundtruth); returns the frame paths."""
-    frames = _asl_frames(folder / "mav0" / "cam0", c)
-    (folder / "mav0" / "cam0" / "sensor.yaml").write_text(_euroc_sensor_yaml(K, size, SPECS["euroc"].rate_hz))
+    T = ", ".join(repr(float(v)) for v in orthonormal(EUROC_T_BS).ravel())
+    intrinsics = ", ".join(repr(float(v)) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
+    distortion = ", ".join(repr(float(v)) for v in EUROC_DISTORTION)
+    sensor = (
+        "# General sensor definitions.\nsensor_type: camera\ncomment: synthetic VI-Sensor cam0\n\n"
+        f"# Sensor extrinsics wrt. the body-frame.\nT_BS:\n  cols: 4\n  rows: 4\n  data: [{T}]\n\n"
+        f"# Camera specific definitions.\nrate_hz: {SPECS['euroc'].rate_hz:g}\n"
+        f"resolution: [{size[1]}, {size[0]}]\ncamera_model: pinhole\n"
+        f"intrinsics: [{intrinsics}] #fu, fv, cu, cv\ndistortion_model: radial-tangential\n"
+        f"distortion_coefficients: [{distortion}]\n"
+    )
     header = (
         "#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z [], "
         "v_RS_R_x [m s^-1], v_RS_R_y [m s^-1], v_RS_R_z [m s^-1], b_w_RS_S_x [rad s^-1], "
@@ -269,8 +260,8 @@ def write_euroc(
         "b_a_RS_S_z [m s^-2]\n"
     )
     biases = np.broadcast_to(EUROC_BIASES, (len(T_w_b), 6))
-    _asl_groundtruth(folder / "mav0/state_groundtruth_estimate0/data.csv", header, c, T_w_b, velocity, biases)
-    return frames
+    gt_path = folder / "mav0/state_groundtruth_estimate0/data.csv"
+    return _write_asl(folder / "mav0/cam0", sensor, gt_path, header, c, T_w_b, velocity, biases)
 
 
 def write_tartanair(folder: Path, c: Clock, T_ned: np.ndarray) -> list[Path]:
@@ -285,12 +276,10 @@ def write_mimir(
 ) -> list[Path]:
     """rgb/cam0/{data.csv, sensor.yaml (JSON)} and pose_groundtruth/data.csv (NED body poses T_w_b (M, 4, 4)
     at c.groundtruth); returns the frame paths."""
-    camera_dir = folder / "rgb" / "cam0"
-    frames = _asl_frames(camera_dir, c)
     sensor = {
         "sensor_type": "camera",
         "comment": "synthetic front camera",
-        "T_BS": mimir_T_BS().tolist(),
+        "T_BS": MIMIR_T_BS.tolist(),
         "rate_hz": SPECS["mimir"].rate_hz,
         "resolution": [size[1], size[0]],
         "camera_model": "pinhole",
@@ -298,10 +287,9 @@ def write_mimir(
         "distortion_model": "radial-tangential",
         "distortion_coefficients": [0.0] * 5,
     }
-    (camera_dir / "sensor.yaml").write_text(json.dumps(sensor, indent=2) + "\n")
     header = "#timestamp [ns],tx [m],ty [m],tz [m],qw,qx,qy,qz\n"
-    _asl_groundtruth(folder / "pose_groundtruth/data.csv", header, c, T_w_b)
-    return frames
+    text = json.dumps(sensor, indent=2) + "\n"
+    return _write_asl(folder / "rgb/cam0", text, folder / "pose_groundtruth/data.csv", header, c, T_w_b)
 
 
 def _streams(layout: str, sequence: str, seed: int) -> np.random.Generator:
