@@ -67,6 +67,20 @@ def text_lines(
     return [(i, line) for i, line in rows if not (comments and line.lstrip().startswith("#"))]
 
 
+def number_rows(
+    path: Path, what: str, columns: int, expected: str, finite: str | None = None, comments: bool = True
+) -> tuple[list[int], np.ndarray]:
+    """The line numbers and (M, columns) float64 numbers of a text file's whitespace-separated lines; an
+    error ``<path>:<line>: expected <expected>, got <n> fields`` at a line of another count."""
+    rows = [(i, line.split()) for i, line in text_lines(path, what, comments)]
+    values = []
+    for i, fields in rows:
+        if len(fields) != columns:
+            raise DatasetFormatError(f"{where(path, i)}: expected {expected}, got {len(fields)} fields")
+        values.append(finite_numbers(path, i, fields, expected, finite))
+    return [i for i, _ in rows], np.array(values, dtype=np.float64).reshape(-1, columns)
+
+
 def listed_frames(list_path: Path, folder: Path, names: list[str]) -> list[Path]:
     """``folder / name`` for each name of a frame list; an error at the list's line of the first missing."""
     paths = [folder / name for name in names]

@@ -19,6 +19,7 @@ from lossvo.data.sequence import (
     finite_numbers,
     has_ground_truth,
     listed_frames,
+    number_rows,
     png_size,
     quaternion_poses,
     text_lines,
@@ -88,17 +89,9 @@ def read_groundtruth(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """A TUM trajectory (``groundtruth.txt``: '#' comments, then ``timestamp tx ty tz qx qy qz qw`` lines):
     (M,) float64 seconds, strictly increasing, and (M, 4, 4) float64 T_w_c (quaternions normalised)."""
     path = Path(path)
-    rows = [(i, line.split()) for i, line in text_lines(path, "ground truth", comments=True)]
-    if not rows:
+    lines, table = number_rows(path, "ground truth", 8, "8 numbers 'timestamp tx ty tz qx qy qz qw'")
+    if not lines:
         raise DatasetFormatError(f"{path}: no poses (expected lines 'timestamp tx ty tz qx qy qz qw')")
-    expected = "8 numbers 'timestamp tx ty tz qx qy qz qw'"
-    values = []
-    for i, fields in rows:
-        if len(fields) != 8:
-            raise DatasetFormatError(f"{where(path, i)}: expected {expected}, got {len(fields)} fields")
-        values.append(finite_numbers(path, i, fields, expected))
-    table = np.array(values, dtype=np.float64)
-    lines = [i for i, _ in rows]
     _check_increasing(path, table[:, 0], lines)
     poses = quaternion_poses(
         path, lines, table[:, 1:4], table[:, 4:8], "(qx qy qz qw)", QUATERNION_NORM_TOLERANCE

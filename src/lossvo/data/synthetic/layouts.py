@@ -172,9 +172,8 @@ def clock(layout: str, n_frames: int, rng: np.random.Generator) -> Clock:
     if layout == "tartanair":
         return Clock(k.astype(np.int64), np.zeros(0, np.int64), 1.0 / spec.rate_hz, 0)
     assert spec.groundtruth_hz is not None
-    tick = 1e-6 if layout == "tum" else 1e-9
+    tick, start = (1e-6, TUM_START_US) if layout == "tum" else (1e-9, ASL_START_NS)
     per_s = round(1 / tick)
-    start = ASL_START_NS if layout != "tum" else TUM_START_US
     frames = start + np.round(k * per_s / spec.rate_hz).astype(np.int64)
     gt_step = round(per_s / spec.groundtruth_hz)
     if layout == "tum":
