@@ -185,7 +185,6 @@ def camera_poses(
         (K, 4, 4) float64 T_w_c of the frames kept, and their (N,) bool mask: the frames within the ground
         truth's span, between rows at most ``max_gap`` s apart.
     """
-    gt_ns, ns = np.asarray(gt_ns, dtype=np.int64), np.asarray(ns, dtype=np.int64)
     index = np.clip(np.searchsorted(gt_ns, ns, side="right") - 1, 0, len(gt_ns) - 2)
     spacing = gt_ns[index + 1] - gt_ns[index]
     keep = (ns >= gt_ns[0]) & (ns <= gt_ns[-1]) & (spacing <= max_gap * _NS_PER_S)

@@ -131,16 +131,13 @@ def scaled_size(size: tuple[int, int], scale: float) -> tuple[int, int]:
 
 
 def camera(layout: str, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """K (3, 3) and distortion (5,) of a layout's frames of size (H, W), as its reader returns them."""
+    """K (3, 3) and distortion (5,) of a layout's frames of size (H, W), as its reader returns them (KITTI's:
+    lossvo.data.synthetic.camera)."""
     if layout == "tum":
         return tum.camera(sequence_name("tum", "00"), size=size)
-    if layout == "euroc":
-        return resized_intrinsics(EUROC_K, SPECS["euroc"].size, size), np.append(EUROC_DISTORTION, 0.0)
-    if layout == "tartanair":
-        return resized_intrinsics(tartanair.K, tartanair.SIZE, size), np.zeros(5)
-    if layout == "mimir":
-        return resized_intrinsics(MIMIR_K, SPECS["mimir"].size, size), np.zeros(5)
-    raise UserError(f"layout {layout!r}: no camera here (kitti: lossvo.data.synthetic.camera)")
+    K = {"euroc": EUROC_K, "tartanair": tartanair.K, "mimir": MIMIR_K}[layout]
+    distortion = np.append(EUROC_DISTORTION, 0.0) if layout == "euroc" else np.zeros(5)
+    return resized_intrinsics(K, SPECS[layout].size, size), distortion
 
 
 def mount(layout: str) -> np.ndarray:
