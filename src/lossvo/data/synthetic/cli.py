@@ -19,6 +19,17 @@ DESCRIPTION = (
 )
 
 
+def _seed(text: str) -> int:
+    """``--seed``: an integer >= 0 (numpy's generators take no negative seed)."""
+    try:
+        seed = int(text)
+    except ValueError:
+        seed = -1
+    if seed < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return seed
+
+
 def _parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="python -m lossvo.data.synthetic", description=DESCRIPTION)
     p.add_argument("--out", type=Path, required=True, help="dataset root to write")
@@ -44,7 +55,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--height", type=int, help="pixels (default: the layout's, kitti 160, times --scale)")
     p.add_argument("--width", type=int, help="pixels (default: the layout's, kitti 512, times --scale)")
 
-    p.add_argument("--seed", type=int, default=0, help="an integer >= 0; same seed, same bytes (default: 0)")
+    p.add_argument(
+        "--seed", type=_seed, default=0, help="an integer >= 0; same seed, same bytes (default: 0)"
+    )
     p.add_argument(
         "--workers", type=int, help="processes (default: one per core; one below 10 million pixels in all)"
     )
@@ -87,8 +100,6 @@ def main(argv: list[str] | None = None) -> int:
     try:
         counts = writer.resolve_frames(args.sequences, args.frames, prefix="--")
         height, width = writer.frame_size(args.layout, args.height, args.width, args.scale, prefix="--")
-        if args.seed < 0:  # numpy's generators take no negative seed
-            raise UserError(f"--seed: must be >= 0, got {args.seed}")
         if args.workers is not None and args.workers < 1:
             raise UserError(f"--workers: must be >= 1, got {args.workers}")
         spec = routes.route_spec(mixes=dict(parse_mix(m) for m in args.mix))
