@@ -16,7 +16,6 @@ from lossvo.data import euroc
 from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
-    check_choices,
     check_rigid,
     find_sequences,
     load_mapping,
@@ -81,8 +80,7 @@ def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.nda
     4 given are padded with 0), T_BS (4, 4) the camera's pose in the body frame (body axes for both), size
     (H, W) from ``resolution``."""
     path = Path(path)
-    data = load_mapping(path, "T_BS, resolution and intrinsics")
-    check_choices(path, data, euroc.CHOICES)
+    data = load_mapping(path, "T_BS, resolution and intrinsics", euroc.CHOICES)
     K = yaml_array(
         path, data, "intrinsics", (3, 3), "a 3x3 list [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels"
     )

@@ -160,9 +160,10 @@ def sequence_names(value: str | int | Iterable[object] | None) -> list[str]:
     return list(dict.fromkeys(name for name in split_names(value) if name))
 
 
-def load_mapping(path: Path, what: str) -> dict[str, Any]:
-    """The mapping in a YAML (or JSON) file holding ``what``; an OpenCV ``%YAML:1.0`` first line is skipped
-    (PyYAML rejects it), line numbers kept."""
+def load_mapping(path: Path, what: str, choices: dict[str, str]) -> dict[str, Any]:
+    """The mapping in a YAML (or JSON) file holding ``what``, an error naming a key of ``choices`` (the
+    values read) that holds another value; an OpenCV ``%YAML:1.0`` first line is skipped (PyYAML rejects
+    it), line numbers kept."""
     try:
         lines = path.read_text().splitlines()
     except OSError as e:
@@ -178,14 +179,10 @@ def load_mapping(path: Path, what: str) -> dict[str, Any]:
         raise DatasetFormatError(f"{where(path, line)}: not valid YAML/JSON ({problem})") from None
     if not isinstance(data, dict):
         raise DatasetFormatError(f"{path}: expected a YAML mapping with {what}")
-    return data
-
-
-def check_choices(path: Path, data: dict[str, Any], choices: dict[str, str]) -> None:
-    """An error naming the key where a calibration file gives another value than ``choices``' (those read)."""
     for key, expected in choices.items():
         if key in data and data[key] != expected:
             raise DatasetFormatError(f"{path}: key '{key}': expected {expected!r}, got {data[key]!r}")
+    return data
 
 
 def yaml_array(
