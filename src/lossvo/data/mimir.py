@@ -31,6 +31,7 @@ CAMERA = "cam0"
 GROUND_TRUTH = "pose_groundtruth"
 GROUND_TRUTH_COLUMNS = 8
 """At least: timestamp [ns], position x y z [m], orientation q w x y z (the study's loader's order)."""
+_COLUMNS = "'timestamp, tx, ty, tz, qw, qx, qy, qz'"
 SHAPES = ("<env>/auv0/<track>", "<env>/<track>/auv0")
 """The two orders of a track's folders (the README's, the study's)."""
 
@@ -48,22 +49,18 @@ def _groundtruth_rows(path: Path) -> list[tuple[int, list[str]]]:
         if not rows and text.lower().startswith("timestamp"):
             continue
         fields = [field.strip() for field in text.split(",")]
-        count = len(rows[0][1]) if rows else GROUND_TRUTH_COLUMNS
-        if len(fields) < GROUND_TRUTH_COLUMNS or (rows and len(fields) != count):
-            expected = (
-                f"{count} comma-separated columns like line {rows[0][0]}"
-                if rows
-                else (
-                    f"at least {GROUND_TRUTH_COLUMNS} comma-separated columns "
-                    "'timestamp, tx, ty, tz, qw, qx, qy, qz'"
-                )
-            )
-            raise DatasetFormatError(f"{where(path, i)}: expected {expected}, got {len(fields)}")
-        rows.append((i, fields))
+        if rows and len(fields) != len(rows[0][1]):
+            expected = f"{len(rows[0][1])} comma-separated columns like line {rows[0][0]}"
+        elif len(fields) < GROUND_TRUTH_COLUMNS:
+            expected = f"at least {GROUND_TRUTH_COLUMNS} comma-separated columns {_COLUMNS}"
+        else:
+            rows.append((i, fields))
+            continue
+        raise DatasetFormatError(f"{where(path, i)}: expected {expected}, got {len(fields)}")
     if len(rows) < 2:
         raise DatasetFormatError(
-            f"{path}: {len(rows)} ground-truth rows (expected at least 2 lines "
-            "'timestamp, tx, ty, tz, qw, qx, qy, qz' to interpolate between)"
+            f"{path}: {len(rows)} ground-truth rows (expected at least 2 lines {_COLUMNS} "
+            "to interpolate between)"
         )
     return rows
 
