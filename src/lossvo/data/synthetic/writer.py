@@ -239,6 +239,6 @@ def ensure_dataset(
     cameras: CameraRange | None = None,
 ) -> Path:
     """Root as a Path, holding the requested sequences: rendered by :func:`generate` (same parameters)
-    unless its manifest lists them all with these parameters and their files are present."""
+    unless its manifest lists them all with these parameters and its reader reads them whole."""
     options = (height, width, seed, progress, workers, spec, layout, scale, cameras)
     return generate(root, sequences, frames, *options, reuse=True)
