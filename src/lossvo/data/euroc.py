@@ -18,7 +18,6 @@ from scipy.spatial.transform import Rotation
 from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
-    check_choices,
     check_rigid,
     find_sequences,
     finite_numbers,
@@ -149,8 +148,7 @@ def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.nda
     """A camera's ``sensor.yaml``: K (3, 3) from ``intrinsics: [fu, fv, cu, cv]`` (pixels), distortion (4,)
     (k1, k2, p1, p2), T_BS (4, 4) the camera's pose in the body frame, size (H, W) from ``resolution``."""
     path = Path(path)
-    data = load_mapping(path, "T_BS, resolution and intrinsics")
-    check_choices(path, data, CHOICES)
+    data = load_mapping(path, "T_BS, resolution and intrinsics", CHOICES)
     fu, fv, cu, cv = yaml_array(path, data, "intrinsics", (4,), "[fu, fv, cu, cv] in pixels")
     if fu <= 0 or fv <= 0:
         raise DatasetFormatError(f"{path}: key 'intrinsics': expected positive focal lengths, got {fu}, {fv}")
@@ -185,7 +183,6 @@ def camera_poses(
         (K, 4, 4) float64 T_w_c of the frames kept, and their (N,) bool mask: the frames within the ground
         truth's span, between rows at most ``max_gap`` s apart.
     """
-    gt_ns, ns = np.asarray(gt_ns, dtype=np.int64), np.asarray(ns, dtype=np.int64)
     index = np.clip(np.searchsorted(gt_ns, ns, side="right") - 1, 0, len(gt_ns) - 2)
     spacing = gt_ns[index + 1] - gt_ns[index]
     keep = (ns >= gt_ns[0]) & (ns <= gt_ns[-1]) & (spacing <= max_gap * _NS_PER_S)

@@ -16,7 +16,6 @@ from lossvo.data import euroc
 from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
-    check_choices,
     check_rigid,
     find_sequences,
     load_mapping,
@@ -32,6 +31,7 @@ CAMERA = "cam0"
 GROUND_TRUTH = "pose_groundtruth"
 GROUND_TRUTH_COLUMNS = 8
 """At least: timestamp [ns], position x y z [m], orientation q w x y z (the study's loader's order)."""
+_COLUMNS = "'timestamp, tx, ty, tz, qw, qx, qy, qz'"
 SHAPES = ("<env>/auv0/<track>", "<env>/<track>/auv0")
 """The two orders of a track's folders (the README's, the study's)."""
 
@@ -49,22 +49,18 @@ def _groundtruth_rows(path: Path) -> list[tuple[int, list[str]]]:
         if not rows and text.lower().startswith("timestamp"):
             continue
         fields = [field.strip() for field in text.split(",")]
-        count = len(rows[0][1]) if rows else GROUND_TRUTH_COLUMNS
-        if len(fields) < GROUND_TRUTH_COLUMNS or (rows and len(fields) != count):
-            expected = (
-                f"{count} comma-separated columns like line {rows[0][0]}"
-                if rows
-                else (
-                    f"at least {GROUND_TRUTH_COLUMNS} comma-separated columns "
-                    "'timestamp, tx, ty, tz, qw, qx, qy, qz'"
-                )
-            )
-            raise DatasetFormatError(f"{where(path, i)}: expected {expected}, got {len(fields)}")
-        rows.append((i, fields))
+        if rows and len(fields) != len(rows[0][1]):
+            expected = f"{len(rows[0][1])} comma-separated columns like line {rows[0][0]}"
+        elif len(fields) < GROUND_TRUTH_COLUMNS:
+            expected = f"at least {GROUND_TRUTH_COLUMNS} comma-separated columns {_COLUMNS}"
+        else:
+            rows.append((i, fields))
+            continue
+        raise DatasetFormatError(f"{where(path, i)}: expected {expected}, got {len(fields)}")
     if len(rows) < 2:
         raise DatasetFormatError(
-            f"{path}: {len(rows)} ground-truth rows (expected at least 2 lines "
-            "'timestamp, tx, ty, tz, qw, qx, qy, qz' to interpolate between)"
+            f"{path}: {len(rows)} ground-truth rows (expected at least 2 lines {_COLUMNS} "
+            "to interpolate between)"
         )
     return rows
 
@@ -81,8 +77,7 @@ def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.nda
     4 given are padded with 0), T_BS (4, 4) the camera's pose in the body frame (body axes for both), size
     (H, W) from ``resolution``."""
     path = Path(path)
-    data = load_mapping(path, "T_BS, resolution and intrinsics")
-    check_choices(path, data, euroc.CHOICES)
+    data = load_mapping(path, "T_BS, resolution and intrinsics", euroc.CHOICES)
     K = yaml_array(
         path, data, "intrinsics", (3, 3), "a 3x3 list [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels"
     )

@@ -66,12 +66,8 @@ def split_statistics(
 
 def read_motion(root: Path, names: Sequence[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """{sequence: (speed, rotation)} of the sequences under root that have a poses file."""
-    motion = {}
-    for name in names:
-        path = kitti.pose_path(root, name)
-        if path.is_file():
-            motion[name] = frame_motion(kitti.read_poses(path))
-    return motion
+    paths = {name: kitti.pose_path(root, name) for name in names}
+    return {name: frame_motion(kitti.read_poses(path)) for name, path in paths.items() if path.is_file()}
 
 
 def read_layout_motion(

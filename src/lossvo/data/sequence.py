@@ -67,6 +67,20 @@ def text_lines(
     return [(i, line) for i, line in rows if not (comments and line.lstrip().startswith("#"))]
 
 
+def number_rows(
+    path: Path, what: str, columns: int, expected: str, finite: str | None = None, comments: bool = True
+) -> tuple[list[int], np.ndarray]:
+    """The line numbers and (M, columns) float64 numbers of a text file's whitespace-separated lines; an
+    error ``<path>:<line>: expected <expected>, got <n> fields`` at a line of another count."""
+    rows = [(i, line.split()) for i, line in text_lines(path, what, comments)]
+    values = []
+    for i, fields in rows:
+        if len(fields) != columns:
+            raise DatasetFormatError(f"{where(path, i)}: expected {expected}, got {len(fields)} fields")
+        values.append(finite_numbers(path, i, fields, expected, finite))
+    return [i for i, _ in rows], np.array(values, dtype=np.float64).reshape(-1, columns)
+
+
 def listed_frames(list_path: Path, folder: Path, names: list[str]) -> list[Path]:
     """``folder / name`` for each name of a frame list; an error at the list's line of the first missing."""
     paths = [folder / name for name in names]
@@ -146,9 +160,10 @@ def sequence_names(value: str | int | Iterable[object] | None) -> list[str]:
     return list(dict.fromkeys(name for name in split_names(value) if name))
 
 
-def load_mapping(path: Path, what: str) -> dict[str, Any]:
-    """The mapping in a YAML (or JSON) file holding ``what``; an OpenCV ``%YAML:1.0`` first line is skipped
-    (PyYAML rejects it), line numbers kept."""
+def load_mapping(path: Path, what: str, choices: dict[str, str]) -> dict[str, Any]:
+    """The mapping in a YAML (or JSON) file holding ``what``, an error naming a key of ``choices`` (the
+    values read) that holds another value; an OpenCV ``%YAML:1.0`` first line is skipped (PyYAML rejects
+    it), line numbers kept."""
     try:
         lines = path.read_text().splitlines()
     except OSError as e:
@@ -164,14 +179,10 @@ def load_mapping(path: Path, what: str) -> dict[str, Any]:
         raise DatasetFormatError(f"{where(path, line)}: not valid YAML/JSON ({problem})") from None
     if not isinstance(data, dict):
         raise DatasetFormatError(f"{path}: expected a YAML mapping with {what}")
-    return data
-
-
-def check_choices(path: Path, data: dict[str, Any], choices: dict[str, str]) -> None:
-    """An error naming the key where a calibration file gives another value than ``choices``' (those read)."""
     for key, expected in choices.items():
         if key in data and data[key] != expected:
             raise DatasetFormatError(f"{path}: key '{key}': expected {expected!r}, got {data[key]!r}")
+    return data
 
 
 def yaml_array(

@@ -16,13 +16,11 @@ from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
     find_sequences,
-    finite_numbers,
     has_ground_truth,
+    number_rows,
     png_size,
     quaternion_poses,
     sequence_folder,
-    text_lines,
-    where,
 )
 from lossvo.geometry.camera import resized_intrinsics
 
@@ -59,20 +57,11 @@ def read_poses(path: str | os.PathLike) -> np.ndarray:
     """``pose_left.txt`` (a line ``tx ty tz qx qy qz qw`` a frame, NED): (N, 4, 4) float64 T_w_c in
     lossvo's axes, quaternions normalised."""
     path = Path(path)
-    rows = text_lines(path, "poses")
-    if not rows:
+    lines, table = number_rows(path, "poses", 7, "7 numbers 'tx ty tz qx qy qz qw'", "finite numbers", False)
+    if not lines:
         raise DatasetFormatError(
             f"{path}: empty pose file (expected one line 'tx ty tz qx qy qz qw' a frame)"
         )
-    expected = "7 numbers 'tx ty tz qx qy qz qw'"
-    values = []
-    for i, line in rows:
-        fields = line.split()
-        if len(fields) != 7:
-            raise DatasetFormatError(f"{where(path, i)}: expected {expected}, got {len(fields)} fields")
-        values.append(finite_numbers(path, i, fields, expected, "finite numbers"))
-    table = np.array(values, dtype=np.float64)
-    lines = [i for i, _ in rows]
     poses = quaternion_poses(path, lines, table[:, :3], table[:, 3:], "(qx qy qz qw)", QUATERNION_TOLERANCE)
     return ned_to_camera(poses)
 

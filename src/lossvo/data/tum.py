@@ -19,6 +19,7 @@ from lossvo.data.sequence import (
     finite_numbers,
     has_ground_truth,
     listed_frames,
+    number_rows,
     png_size,
     quaternion_poses,
     text_lines,
@@ -88,17 +89,9 @@ def read_groundtruth(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """A TUM trajectory (``groundtruth.txt``: '#' comments, then ``timestamp tx ty tz qx qy qz qw`` lines):
     (M,) float64 seconds, strictly increasing, and (M, 4, 4) float64 T_w_c (quaternions normalised)."""
     path = Path(path)
-    rows = [(i, line.split()) for i, line in text_lines(path, "ground truth", comments=True)]
-    if not rows:
+    lines, table = number_rows(path, "ground truth", 8, "8 numbers 'timestamp tx ty tz qx qy qz qw'")
+    if not lines:
         raise DatasetFormatError(f"{path}: no poses (expected lines 'timestamp tx ty tz qx qy qz qw')")
-    expected = "8 numbers 'timestamp tx ty tz qx qy qz qw'"
-    values = []
-    for i, fields in rows:
-        if len(fields) != 8:
-            raise DatasetFormatError(f"{where(path, i)}: expected {expected}, got {len(fields)} fields")
-        values.append(finite_numbers(path, i, fields, expected))
-    table = np.array(values, dtype=np.float64)
-    lines = [i for i, _ in rows]
     _check_increasing(path, table[:, 0], lines)
     poses = quaternion_poses(
         path, lines, table[:, 1:4], table[:, 4:8], "(qx qy qz qw)", QUATERNION_NORM_TOLERANCE
@@ -122,32 +115,22 @@ def associate(
     gt_times = np.asarray(gt_times, dtype=np.float64)
     if np.any(np.diff(gt_times) <= 0):
         raise UserError("gt_times must be strictly increasing")
-    frames, stamps = _candidates(frame_times, gt_times, max_difference)
-    order = np.lexsort((stamps, frames, np.abs(frame_times[frames] - gt_times[stamps])))
+    lo = np.searchsorted(gt_times, frame_times - max_difference) - 1  # a stamp of margin each side
+    hi = np.searchsorted(gt_times, frame_times + max_difference, side="right") + 1
+    candidates = sorted(
+        (abs(frame_times[i] - gt_times[j]), i, j)
+        for i in range(len(frame_times))
+        for j in range(max(lo[i], 0), min(hi[i], len(gt_times)))
+        if abs(frame_times[i] - gt_times[j]) < max_difference
+    )
     pairs: dict[int, int] = {}
     taken: set[int] = set()
-    for i, j in zip(frames[order].tolist(), stamps[order].tolist(), strict=True):
+    for _, i, j in candidates:
         if i not in pairs and j not in taken:
             pairs[i] = j
             taken.add(j)
     index = np.array(sorted(pairs.items()), dtype=np.int64).reshape(-1, 2)
     return index[:, 0], index[:, 1]
-
-
-def _candidates(
-    frame_times: np.ndarray, gt_times: np.ndarray, max_difference: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """(P,) frame and (P,) ground-truth indices of every pair less than ``max_difference`` apart, by
-    ``searchsorted`` with one stamp of margin each side (so that rounding in ``t ± max_difference`` loses
-    none), then the exact test."""
-    lo = np.maximum(np.searchsorted(gt_times, frame_times - max_difference, side="left") - 1, 0)
-    hi = np.minimum(np.searchsorted(gt_times, frame_times + max_difference, side="right") + 1, len(gt_times))
-    counts = np.maximum(hi - lo, 0)
-    frames = np.repeat(np.arange(len(frame_times)), counts)
-    offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    stamps = np.repeat(lo, counts) + offsets
-    close = np.abs(frame_times[frames] - gt_times[stamps]) < max_difference
-    return frames[close].astype(np.int64), stamps[close].astype(np.int64)
 
 
 def camera(

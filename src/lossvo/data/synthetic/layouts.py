@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from lossvo.console import UserError
 from lossvo.data import tartanair, tum
-from lossvo.data.layouts import LAYOUTS, check_layout
+from lossvo.data.layouts import LAYOUTS, check_layout, dataset_root, load_sequence
 from lossvo.data.synthetic import platforms, routes
 from lossvo.data.synthetic.png import write_png
 from lossvo.data.synthetic.render import Renderer
@@ -50,21 +50,6 @@ NAMES = {
     "mimir": "SyntheticTown/auv0/track{1}",
 }
 """Each layout's name of a town sequence, formatted with its two digits and its number."""
-FILES = {
-    "kitti": ("image_2/*.png", ("calib.txt", "times.txt")),
-    "tum": ("rgb/*.png", ("rgb.txt", "groundtruth.txt")),
-    "euroc": (
-        "mav0/cam0/data/*.png",
-        ("mav0/cam0/data.csv", "mav0/cam0/sensor.yaml", "mav0/state_groundtruth_estimate0/data.csv"),
-    ),
-    "tartanair": ("image_left/*_left.png", ("pose_left.txt",)),
-    "mimir": (
-        "rgb/cam0/data/*.png",
-        ("rgb/cam0/data.csv", "rgb/cam0/sensor.yaml", "pose_groundtruth/data.csv"),
-    ),
-}
-"""Each layout's (glob of a sequence folder's frames, its other files)."""
-
 EUROC_K = np.array([[458.654, 0.0, 367.215], [0.0, 457.296, 248.375], [0.0, 0.0, 1.0]])
 """EuRoC cam0's intrinsics at 752x480 (its sensor.yaml)."""
 EUROC_DISTORTION = np.array([-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05])
@@ -87,6 +72,10 @@ MIMIR_PITCH = math.radians(15)
 """The camera looks this far down (the README's front camera)."""
 MIMIR_OFFSET = (0.45, -0.06, 0.0)
 """Metres: the camera in the body frame (x forward, y right, z down)."""
+MIMIR_T_BS = np.eye(4)
+"""(4, 4) the camera in the NED body frame: pitched down by MIMIR_PITCH, at MIMIR_OFFSET."""
+MIMIR_T_BS[:3, :3] = Rotation.from_euler("y", -MIMIR_PITCH).as_matrix()
+MIMIR_T_BS[:3, 3] = MIMIR_OFFSET
 
 TUM_START_US = 1_305_031_102_175_304
 """Microseconds: the first frame's nominal stamp (that of freiburg1_xyz)."""
@@ -115,14 +104,6 @@ def ned(T: np.ndarray) -> np.ndarray:
     return P4.T @ T @ P4
 
 
-def mimir_T_BS() -> np.ndarray:
-    """(4, 4) the camera in the NED body frame: pitched down by MIMIR_PITCH, at MIMIR_OFFSET."""
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_euler("y", -MIMIR_PITCH).as_matrix()
-    T[:3, 3] = MIMIR_OFFSET
-    return T
-
-
 def sequence_name(layout: str, sequence: str) -> str:
     """The name a layout's reader knows a town sequence by ("00" -> "rgbd_dataset_freiburg1_synthetic_00")."""
     return NAMES[check_layout(layout)].format(sequence, int(sequence))
@@ -136,11 +117,12 @@ def sequence_paths(layout: str, sequence: str) -> list[str]:
 
 
 def sequence_complete(root: Path, layout: str, sequence: str, n_frames: int) -> bool:
-    """Whether root holds a layout's sequence with its files and n_frames frames."""
-    folder, *others = (root / p for p in sequence_paths(layout, sequence))
-    frames, files = FILES[layout]
-    required = [folder / f for f in files] + others
-    return all(p.is_file() for p in required) and sum(1 for _ in folder.glob(frames)) == n_frames
+    """Whether root holds a layout's sequence that its reader reads, with ground truth and n_frames frames."""
+    try:
+        seq = load_sequence(layout, dataset_root(layout, root), sequence_name(layout, sequence))
+    except UserError:
+        return False
+    return len(seq.images) + seq.dropped == n_frames
 
 
 def scaled_size(size: tuple[int, int], scale: float) -> tuple[int, int]:
@@ -149,21 +131,18 @@ def scaled_size(size: tuple[int, int], scale: float) -> tuple[int, int]:
 
 
 def camera(layout: str, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """K (3, 3) and distortion (5,) of a layout's frames of size (H, W), as its reader returns them."""
+    """K (3, 3) and distortion (5,) of a layout's frames of size (H, W), as its reader returns them (KITTI's:
+    lossvo.data.synthetic.camera)."""
     if layout == "tum":
         return tum.camera(sequence_name("tum", "00"), size=size)
-    if layout == "euroc":
-        return resized_intrinsics(EUROC_K, SPECS["euroc"].size, size), np.append(EUROC_DISTORTION, 0.0)
-    if layout == "tartanair":
-        return resized_intrinsics(tartanair.K, tartanair.SIZE, size), np.zeros(5)
-    if layout == "mimir":
-        return resized_intrinsics(MIMIR_K, SPECS["mimir"].size, size), np.zeros(5)
-    raise UserError(f"layout {layout!r}: no camera here (kitti: lossvo.data.synthetic.camera)")
+    K = {"euroc": EUROC_K, "tartanair": tartanair.K, "mimir": MIMIR_K}[layout]
+    distortion = np.append(EUROC_DISTORTION, 0.0) if layout == "euroc" else np.zeros(5)
+    return resized_intrinsics(K, SPECS[layout].size, size), distortion
 
 
 def mount(layout: str) -> np.ndarray:
     """(4, 4) the camera in the platform's frame, town axes (identity but for MIMIR's pitched camera)."""
-    return P4 @ mimir_T_BS() @ P4.T if layout == "mimir" else np.eye(4)
+    return P4 @ MIMIR_T_BS @ P4.T if layout == "mimir" else np.eye(4)
 
 
 @dataclass(frozen=True)
@@ -190,9 +169,8 @@ def clock(layout: str, n_frames: int, rng: np.random.Generator) -> Clock:
     if layout == "tartanair":
         return Clock(k.astype(np.int64), np.zeros(0, np.int64), 1.0 / spec.rate_hz, 0)
     assert spec.groundtruth_hz is not None
-    tick = 1e-6 if layout == "tum" else 1e-9
+    tick, start = (1e-6, TUM_START_US) if layout == "tum" else (1e-9, ASL_START_NS)
     per_s = round(1 / tick)
-    start = ASL_START_NS if layout != "tum" else TUM_START_US
     frames = start + np.round(k * per_s / spec.rate_hz).astype(np.int64)
     gt_step = round(per_s / spec.groundtruth_hz)
     if layout == "tum":
@@ -206,19 +184,16 @@ def clock(layout: str, n_frames: int, rng: np.random.Generator) -> Clock:
     return Clock(frames, groundtruth, tick, int(first))
 
 
-def _quaternions(T: np.ndarray) -> np.ndarray:
-    """(N, 4) unit quaternions (x, y, z, w), w >= 0, of the rotations of poses T (N, 4, 4)."""
+def _pose_rows(T: np.ndarray, sep: str, wxyz: bool = False, *columns: np.ndarray) -> list[str]:
+    """Per pose of T (M, 4, 4): its position, unit quaternion (x, y, z, w; w first where wxyz), w >= 0,
+    and the further columns (M, C), as numbers of 10 significant digits joined by sep."""
     q = Rotation.from_matrix(T[:, :3, :3]).as_quat()
-    return q * np.where(q[:, 3:] < 0, -1.0, 1.0)
-
-
-def _rows(values: np.ndarray, sep: str) -> list[str]:
-    """Each row of values (N, C) as numbers of 10 significant digits joined by sep."""
+    q *= np.where(q[:, 3:] < 0, -1.0, 1.0)
+    values = np.concatenate([T[:, :3, 3], q[:, [3, 0, 1, 2]] if wxyz else q, *columns], 1)
     return [sep.join(f"{v:.10g}" for v in row) for row in values]
 
 
 def _lines(stamps: list[str] | np.ndarray, values: list[str], sep: str) -> str:
-
     return "".join(f"{s}{sep}{v}\n" for s, v in zip(stamps, values, strict=True))
 
 
@@ -231,47 +206,31 @@ def _tum_stamp(us: int, decimals: int) -> str:
 def write_tum(folder: Path, name: str, c: Clock, gt: np.ndarray) -> list[Path]:
     """rgb.txt and groundtruth.txt (gt: (M, 4, 4) T_w_c at c.groundtruth); returns the frame paths."""
     (folder / "rgb").mkdir(parents=True)
-    frames = [f"rgb/{_tum_stamp(us, 6)}.png" for us in c.frames]
-    header = f"# file: '{name}.bag'\n# timestamp "
     stamps = [_tum_stamp(us, 6) for us in c.frames]
+    frames = [f"rgb/{s}.png" for s in stamps]
+    header = f"# file: '{name}.bag'\n# timestamp "
     (folder / "rgb.txt").write_text(f"# color images\n{header}filename\n" + _lines(stamps, frames, " "))
-    values = _rows(np.concatenate([gt[:, :3, 3], _quaternions(gt)], 1), " ")
     stamps = [_tum_stamp(us, 4) for us in c.groundtruth]
     (folder / "groundtruth.txt").write_text(
-        f"# ground truth trajectory\n{header}tx ty tz qx qy qz qw\n" + _lines(stamps, values, " ")
+        f"# ground truth trajectory\n{header}tx ty tz qx qy qz qw\n"
+        + _lines(stamps, _pose_rows(gt, " "), " ")
     )
     return [folder / f for f in frames]
 
 
-def _asl_frames(camera_dir: Path, c: Clock) -> list[Path]:
-    """cam0/data.csv of an ASL camera; returns the frame paths (data/<ns>.png) to render into."""
+def _write_asl(
+    camera_dir: Path, sensor: str, gt_path: Path, header: str, c: Clock, T: np.ndarray, *columns: np.ndarray
+) -> list[Path]:
+    """An ASL camera's data.csv and sensor.yaml (text sensor), and a ground-truth data.csv: per stamp of
+    c.groundtruth, T (M, 4, 4) (quaternion w first), then the further columns (M, C); returns the frame
+    paths (data/<ns>.png) to render into."""
     (camera_dir / "data").mkdir(parents=True)
     names = [f"{ns}.png" for ns in c.frames]
     (camera_dir / "data.csv").write_text("#timestamp [ns],filename\n" + _lines(c.frames, names, ","))
+    (camera_dir / "sensor.yaml").write_text(sensor)
+    gt_path.parent.mkdir(parents=True)
+    gt_path.write_text(header + _lines(c.groundtruth, _pose_rows(T, ",", True, *columns), ","))
     return [camera_dir / "data" / name for name in names]
-
-
-def _asl_groundtruth(path: Path, header: str, c: Clock, T: np.ndarray, *columns: np.ndarray) -> None:
-    """An ASL ground-truth data.csv: per stamp of c.groundtruth, the position and quaternion (w, x, y, z)
-    of T (M, 4, 4), then the further columns (M, C)."""
-    q = _quaternions(T)[:, [3, 0, 1, 2]]
-    path.parent.mkdir(parents=True)
-    values = _rows(np.concatenate([T[:, :3, 3], q, *columns], 1), ",")
-    path.write_text(header + _lines(c.groundtruth, values, ","))
-
-
-def _euroc_sensor_yaml(K: np.ndarray, size: tuple[int, int], rate: float) -> str:
-    """EuRoC's cam0 sensor.yaml for intrinsics K (3, 3) of frames of size (H, W)."""
-    T = ", ".join(repr(float(v)) for v in orthonormal(EUROC_T_BS).ravel())
-    intrinsics = ", ".join(repr(float(v)) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
-    distortion = ", ".join(repr(float(v)) for v in EUROC_DISTORTION)
-    return (
-        "# General sensor definitions.\nsensor_type: camera\ncomment: synthetic VI-Sensor cam0\n\n"
-        f"# Sensor extrinsics wrt. the body-frame.\nT_BS:\n  cols: 4\n  rows: 4\n  data: [{T}]\n\n"
-        f"# Camera specific definitions.\nrate_hz: {rate:g}\nresolution: [{size[1]}, {size[0]}]\n"
-        f"camera_model: pinhole\nintrinsics: [{intrinsics}] #fu, fv, cu, cv\n"
-        f"distortion_model: radial-tangential\ndistortion_coefficients: [{distortion}]\n"
-    )
 
 
 def write_euroc(
@@ -279,8 +238,17 @@ def write_euroc(
 ) -> list[Path]:
     """mav0/cam0/{data.csv, sensor.yaml} and mav0/state_groundtruth_estimate0/data.csv (body poses T_w_b
     (M, 4, 4) and velocities (M, 3) m/s at c.groundtruth); returns the frame paths."""
-    frames = _asl_frames(folder / "mav0" / "cam0", c)
-    (folder / "mav0" / "cam0" / "sensor.yaml").write_text(_euroc_sensor_yaml(K, size, SPECS["euroc"].rate_hz))
+    T = ", ".join(repr(float(v)) for v in orthonormal(EUROC_T_BS).ravel())
+    intrinsics = ", ".join(repr(float(v)) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
+    distortion = ", ".join(repr(float(v)) for v in EUROC_DISTORTION)
+    sensor = (
+        "# General sensor definitions.\nsensor_type: camera\ncomment: synthetic VI-Sensor cam0\n\n"
+        f"# Sensor extrinsics wrt. the body-frame.\nT_BS:\n  cols: 4\n  rows: 4\n  data: [{T}]\n\n"
+        f"# Camera specific definitions.\nrate_hz: {SPECS['euroc'].rate_hz:g}\n"
+        f"resolution: [{size[1]}, {size[0]}]\ncamera_model: pinhole\n"
+        f"intrinsics: [{intrinsics}] #fu, fv, cu, cv\ndistortion_model: radial-tangential\n"
+        f"distortion_coefficients: [{distortion}]\n"
+    )
     header = (
         "#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z [], "
         "v_RS_R_x [m s^-1], v_RS_R_y [m s^-1], v_RS_R_z [m s^-1], b_w_RS_S_x [rad s^-1], "
@@ -288,15 +256,14 @@ def write_euroc(
         "b_a_RS_S_z [m s^-2]\n"
     )
     biases = np.broadcast_to(EUROC_BIASES, (len(T_w_b), 6))
-    _asl_groundtruth(folder / "mav0/state_groundtruth_estimate0/data.csv", header, c, T_w_b, velocity, biases)
-    return frames
+    gt_path = folder / "mav0/state_groundtruth_estimate0/data.csv"
+    return _write_asl(folder / "mav0/cam0", sensor, gt_path, header, c, T_w_b, velocity, biases)
 
 
 def write_tartanair(folder: Path, c: Clock, T_ned: np.ndarray) -> list[Path]:
     """pose_left.txt (NED poses T_ned (N, 4, 4), one a frame); returns the frame paths."""
     (folder / tartanair.IMAGES).mkdir(parents=True)
-    values = _rows(np.concatenate([T_ned[:, :3, 3], _quaternions(T_ned)], 1), " ")
-    (folder / tartanair.POSES).write_text("\n".join(values) + "\n")
+    (folder / tartanair.POSES).write_text("".join(f"{v}\n" for v in _pose_rows(T_ned, " ")))
     return [folder / tartanair.IMAGES / f"{k:06d}_left.png" for k in c.frames]
 
 
@@ -305,12 +272,10 @@ def write_mimir(
 ) -> list[Path]:
     """rgb/cam0/{data.csv, sensor.yaml (JSON)} and pose_groundtruth/data.csv (NED body poses T_w_b (M, 4, 4)
     at c.groundtruth); returns the frame paths."""
-    camera_dir = folder / "rgb" / "cam0"
-    frames = _asl_frames(camera_dir, c)
     sensor = {
         "sensor_type": "camera",
         "comment": "synthetic front camera",
-        "T_BS": mimir_T_BS().tolist(),
+        "T_BS": MIMIR_T_BS.tolist(),
         "rate_hz": SPECS["mimir"].rate_hz,
         "resolution": [size[1], size[0]],
         "camera_model": "pinhole",
@@ -318,10 +283,9 @@ def write_mimir(
         "distortion_model": "radial-tangential",
         "distortion_coefficients": [0.0] * 5,
     }
-    (camera_dir / "sensor.yaml").write_text(json.dumps(sensor, indent=2) + "\n")
     header = "#timestamp [ns],tx [m],ty [m],tz [m],qw,qx,qy,qz\n"
-    _asl_groundtruth(folder / "pose_groundtruth/data.csv", header, c, T_w_b)
-    return frames
+    text = json.dumps(sensor, indent=2) + "\n"
+    return _write_asl(folder / "rgb/cam0", text, folder / "pose_groundtruth/data.csv", header, c, T_w_b)
 
 
 def _streams(layout: str, sequence: str, seed: int) -> np.random.Generator:

@@ -195,27 +195,27 @@ def generate(
     layout: str = "kitti",
     scale: float = 1.0,
     cameras: CameraRange | None = None,
+    reuse: bool = False,
 ) -> Path:
     """Render the synthetic dataset into out (new, empty or a render of lossvo's) in a layout; returns out.
 
     frames: None (DEFAULT_FRAMES), one count for all, or a mapping; height, width: by default the layout's
     size times scale; spec: route families and mixes; cameras: ranges each sequence's camera is drawn from
-    (KITTI layout only). Sequences already in out rendered with the same parameters are kept.
+    (KITTI layout only). Sequences already in out rendered with the same parameters are kept; with reuse,
+    nothing is rendered when they include all the requested ones.
     """
-    counts = resolve_frames(sequences, frames)
+    out, counts = Path(out), resolve_frames(sequences, frames)
     height, width = frame_size(layout, height, width, scale)
     check_cameras(layout, cameras)
     r = Rendering(height, width, seed, spec, layout, cameras)
-    return _generate(Path(out), counts, r, progress, workers)
-
-
-def _generate(out: Path, counts: dict[str, int], r: Rendering, progress: bool, workers: int | None) -> Path:
-    """:func:`generate` of checked arguments: the manifest removed first and written last."""
+    shared = r.header()
+    present = manifest.complete_sequences(out, shared)
+    if reuse and all(present.get(s) == n for s, n in counts.items()):
+        return out
     manifest.check_ours(out)
     out.mkdir(parents=True, exist_ok=True)
     (out / manifest.RENDERING).touch()
-    shared = r.header()
-    kept = {s: n for s, n in manifest.complete_sequences(out, shared).items() if s not in counts}
+    kept = {s: n for s, n in present.items() if s not in counts}
     (out / manifest.MANIFEST).unlink(missing_ok=True)
     _render_all(out, counts, r, progress, workers)
     entries = {**shared, "frames": dict(sorted({**kept, **counts}.items()))}
@@ -239,13 +239,6 @@ def ensure_dataset(
     cameras: CameraRange | None = None,
 ) -> Path:
     """Root as a Path, holding the requested sequences: rendered by :func:`generate` (same parameters)
-    unless its manifest lists them all with these parameters and their files are present."""
-    root = Path(root)
-    counts = resolve_frames(sequences, frames)
-    height, width = frame_size(layout, height, width, scale)
-    check_cameras(layout, cameras)
-    r = Rendering(height, width, seed, spec, layout, cameras)
-    present = manifest.complete_sequences(root, r.header())
-    if all(present.get(s) == n for s, n in counts.items()):
-        return root
-    return _generate(root, counts, r, progress, workers)
+    unless its manifest lists them all with these parameters and its reader reads them whole."""
+    options = (height, width, seed, progress, workers, spec, layout, scale, cameras)
+    return generate(root, sequences, frames, *options, reuse=True)
