@@ -19,6 +19,7 @@ import logging
 import os
 from collections.abc import Mapping
 from collections.abc import Sequence as Seq
+from itertools import chain
 from pathlib import Path
 from typing import Any
 
@@ -96,7 +97,6 @@ class VODataModule(L.LightningDataModule):
         self.mean: np.ndarray | None = None  # per-channel statistics, set by setup
         self.std: np.ndarray | None = None
         self.datasets: dict[str, WindowDataset] = {}
-        self._cameras: dict[str, np.ndarray] = {}  # K of each sequence's cached frames (intrinsics)
 
     @property
     def seq_len(self) -> int:
@@ -137,11 +137,6 @@ class VODataModule(L.LightningDataModule):
         key, _, local = name.partition("/")
         return key, local
 
-    def source_of(self, name: str) -> tuple[specs.Source, str]:
-        """The dataset a sequence is read from and the sequence's name there."""
-        key, local = self._split_name(name)
-        return self.sources[key], local
-
     def _render(self) -> None:
         """Render each synthetic source's sequences that are not on disk yet, under a lock."""
         for key, source in self.sources.items():
@@ -173,9 +168,10 @@ class VODataModule(L.LightningDataModule):
         only test sequences may lack poses."""
         self._render()
         labelled = set(self.splits["train"]) | set(self.splits["val"]) | set(self.splits["unseen"])
-        self.sequences, self._cameras = {}, {}
+        self.sequences = {}
         for name in self.all_names:
-            source, local = self.source_of(name)
+            key, local = self._split_name(name)
+            source = self.sources[key]
             root = layouts.dataset_root(source.reader, source.root)
             try:
                 seq = layouts.load_sequence(
@@ -191,7 +187,7 @@ class VODataModule(L.LightningDataModule):
     def _name_unknown(self, name: str, source: specs.Source, root: Path, error: Exception) -> None:
         """UserError naming the split and the sequences the dataset has, where ``name`` is not one of them."""
         found = layouts.list_sequences(source.reader, root)
-        if source.file_name(self.source_of(name)[1]) in found:
+        if source.file_name(self._split_name(name)[1]) in found:
             return
         split = next(k for k, names in self.splits.items() if name in names)
         raise UserError(
@@ -201,7 +197,7 @@ class VODataModule(L.LightningDataModule):
 
     def cache_path(self, name: str | None = None) -> Path:
         """The frame-cache folder of sequence ``name``'s dataset (None: of the only dataset)."""
-        source = next(iter(self.sources.values())) if name is None else self.source_of(name)[0]
+        source = self.sources[next(iter(self.sources)) if name is None else self._split_name(name)[0]]
         root = layouts.dataset_root(source.reader, source.root).resolve()
         folder = frame_cache.cache_folder(self.cache_dir, root, self.frames.height, self.frames.width)
         suffix = f"-every{source.keep_every}" if source.keep_every > 1 else ""
@@ -230,21 +226,11 @@ class VODataModule(L.LightningDataModule):
         if not self.flow.enabled:
             return
         for n, steps in self.flow_steps().items():
-            seq, folder = self.sequences[n], self.cache_path(n)
+            seq, source = self.sequences[n], self._manifest(n)["source"]
             undistort = frame_cache.undistortion(seq)
             for step in steps:
-                source = self._manifest(n)["source"]
-                optical_flow.ensure_flow(
-                    folder,
-                    seq.name,
-                    frames[n],
-                    source,
-                    step,
-                    self.flow,
-                    seq.images,
-                    undistort=undistort,
-                    crop=self.frames.crop,
-                )
+                args = (self.cache_path(n), seq.name, frames[n], source, step, self.flow, seq.images)
+                optical_flow.ensure_flow(*args, undistort=undistort, crop=self.frames.crop)
 
     def _stats(self, frames: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """Per-channel mean/std: given, FlowNet's, or of the training sequences (cached with the frames)."""
@@ -336,15 +322,13 @@ class VODataModule(L.LightningDataModule):
 
     def intrinsics(self, name: str) -> np.ndarray:
         """(3, 3) float64 K of a sequence's cached frames (pixels); after :meth:`setup`."""
-        if name not in self._cameras:
-            size = (self.frames.height, self.frames.width)
-            source = tuple(self._manifest(name)["source_size_hw"])
-            K = frame_cache.source_intrinsics(self.sequences[name])
-            if self.frames.crop:
-                box = frame_cache.centre_crop(source, size)
-                K, source = frame_cache.cropped_intrinsics(K, box), box[2:]
-            self._cameras[name] = camera.resized_intrinsics(K, source, size)
-        return self._cameras[name].copy()
+        size = (self.frames.height, self.frames.width)
+        source = tuple(self._manifest(name)["source_size_hw"])
+        K = frame_cache.source_intrinsics(self.sequences[name])
+        if self.frames.crop:
+            box = frame_cache.centre_crop(source, size)
+            K, source = frame_cache.cropped_intrinsics(K, box), box[2:]
+        return camera.resized_intrinsics(K, source, size)
 
     def resident_windows(self, split: str) -> resident.ResidentWindows | None:
         """The split's windows kept on the training device, or None (the host loader); decided once."""
@@ -358,7 +342,8 @@ class VODataModule(L.LightningDataModule):
     def _make_resident(self, device: torch.device) -> dict[str, resident.ResidentWindows]:
         """The training and validation splits' windows on ``device`` where the settings allow; a log line."""
         splits = [s for s in ("train", "val") if s in self.datasets]
-        size = sum(resident.resident_bytes(*self._arrays(s)) for s in splits) / resident.GIB
+        data = [self.datasets[s] for s in splits]
+        size = sum(a.nbytes for d in data for a in [*d.frames, *chain(*d.flow.values())]) / 2**30
         setting = f"data.loader.on_device={str(self.loader.on_device).lower()}"
         reason = None
         if self.loader.on_device is False:
@@ -380,38 +365,30 @@ class VODataModule(L.LightningDataModule):
         )
         return {s: self._resident_split(s, device) for s in splits}
 
-    def _arrays(self, split: str) -> tuple[list[np.ndarray], dict[int, list[np.ndarray]] | None]:
-        """The split's frames and flow arrays (memory maps), per sequence."""
-        dataset = self.datasets[split]
-        return dataset.frames, (dataset.flow if dataset.flow_files is not None else None)
-
     def _resident_split(self, split: str, device: torch.device) -> resident.ResidentWindows:
         data = self.datasets[split]
-        frames, flow = self._arrays(split)
+        flow = data.flow or None  # {} without flow
         return resident.ResidentWindows(
-            data.index, frames, data.targets, data.intrinsics, data.metric, flow, device
+            data.index, data.frames, data.targets, data.intrinsics, data.metric, flow, device
         )
 
-    def _host_loader(self, split: str, **sampling: Any) -> DataLoader:
-        """The host loader of the split's windows; ``sampling``: DataLoader's sampler arguments."""
+    def _loader(self, split: str, batches: BatchSampler) -> DataLoader:
+        """The split's windows in the given batches: from the host loader, or as index batches of windows
+        kept on the device (gathered by :meth:`on_after_batch_transfer`)."""
+        windows = self.resident_windows(split)
+        if windows is not None:
+            return DataLoader(
+                resident.IndexBatches(windows, split),
+                batch_sampler=batches,
+                collate_fn=default_convert,  # the batch is built already
+                generator=_own_stream(),
+            )
         return DataLoader(
             self.datasets[split],
+            batch_sampler=batches,
             num_workers=self.loader.num_workers,
             pin_memory=self.loader.pin_memory,
             persistent_workers=self.loader.num_workers > 0,
-            generator=_own_stream(),
-            **sampling,
-        )
-
-    def _batches(self, split: str, batches: BatchSampler) -> DataLoader:
-        """The split's windows in the given batches: from the host loader, or as index batches."""
-        windows = self.resident_windows(split)
-        if windows is None:
-            return self._host_loader(split, batch_sampler=batches)
-        return DataLoader(
-            resident.IndexBatches(windows, split),
-            batch_sampler=batches,
-            collate_fn=default_convert,  # the batch is built already
             generator=_own_stream(),
         )
 
@@ -421,7 +398,7 @@ class VODataModule(L.LightningDataModule):
         batches = windows.SameLengthBatches(
             SequentialSampler(dataset), self.windows.batch_size, lengths=dataset.lengths.tolist()
         )
-        return self._batches(split, batches)
+        return self._loader(split, batches)
 
     def train_dataloader(self) -> DataLoader:
         """Shuffled training windows (a fresh subset each epoch with ``per_epoch``), in an order that depends
@@ -429,9 +406,7 @@ class VODataModule(L.LightningDataModule):
         dataset = self.datasets["train"]
         count = min(self.windows.per_epoch or len(dataset), len(dataset))
         order = EpochShuffle(len(dataset), count, torch.initial_seed())
-        if self.resident_windows("train") is None:
-            return self._host_loader("train", sampler=order, batch_size=self.windows.batch_size)
-        return self._batches("train", BatchSampler(order, self.windows.batch_size, drop_last=False))
+        return self._loader("train", BatchSampler(order, self.windows.batch_size, drop_last=False))
 
     def val_dataloader(self) -> DataLoader:
         return self._tiled_loader("val")
@@ -487,7 +462,7 @@ class VODataModule(L.LightningDataModule):
 
     def sequence_layout(self, name: str) -> str:
         """The layout one sequence is read in (a synthetic source's: the layout it is rendered in)."""
-        return self.source_of(name)[0].reader
+        return self.sources[self._split_name(name)[0]].reader
 
     def metric_scale(self, name: str) -> bool:
         """Whether one sequence's platform gives metric scale a cue (:data:`layouts.METRIC_SCALE_LAYOUTS`)."""

@@ -57,18 +57,15 @@ def _gray(frame: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(np.ascontiguousarray(frame.transpose(1, 2, 0)), cv2.COLOR_RGB2GRAY)
 
 
-class _Estimator:
+class _Estimator(threading.local):
     """One flow estimator per thread (OpenCV's DIS object keeps state between calls)."""
 
-    def __init__(self) -> None:
-        self.local = threading.local()
+    def __init__(self) -> None:  # in each thread that uses it
+        self.dis = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
 
     def __call__(self, first: np.ndarray, second: np.ndarray) -> np.ndarray:
         """(2, H, W) float32 flow from ``first`` to ``second``, both (H, W) uint8 grey."""
-        dis = getattr(self.local, "dis", None)
-        if dis is None:
-            dis = self.local.dis = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-        flow = dis.calc(first, second, None)  # type: ignore[call-overload]  # None: OpenCV allocates it
+        flow = self.dis.calc(first, second, None)  # type: ignore[call-overload]  # None: OpenCV allocates it
         return flow.transpose(2, 0, 1)
 
 

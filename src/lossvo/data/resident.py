@@ -12,8 +12,6 @@ import torch
 from torch import Tensor
 from torch.utils.data import Dataset
 
-GIB = 1024**3
-
 
 def _offsets(lengths: Sequence[int]) -> np.ndarray:
     """(n,) start of each of ``n`` consecutive blocks of the given lengths."""
@@ -105,12 +103,6 @@ def _stacked(arrays: Sequence[np.ndarray], device: torch.device) -> Tensor:
     return out
 
 
-def resident_bytes(frames: Sequence[np.ndarray], flow: dict[int, list[np.ndarray]] | None) -> int:
-    """Bytes the frames and flow arrays take once resident (targets and K are comparatively nothing)."""
-    arrays = [*frames, *(f for fields in (flow or {}).values() for f in fields)]
-    return int(sum(a.nbytes for a in arrays))
-
-
 class IndexBatches(Dataset):
     """The loader's side of resident windows: window indices -> their index batch, tagged with its split."""
 
@@ -119,9 +111,6 @@ class IndexBatches(Dataset):
 
     def __len__(self) -> int:
         return len(self.windows)
-
-    def __getitem__(self, i: int) -> dict[str, Tensor | str]:
-        return self.__getitems__([i])
 
     def __getitems__(self, indices: list[int]) -> dict[str, Tensor | str]:
         return {"split": self.split, **self.windows.index_batch(indices)}

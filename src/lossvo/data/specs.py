@@ -205,14 +205,14 @@ class _Spec:
         name = cls.__name__.lower()
         given = _fields(cls, value, f"data.{name}")
         try:
-            merged = OmegaConf.merge(OmegaConf.structured(cls), DESCRIBED[name], given)
+            merged = OmegaConf.merge(OmegaConf.structured(cls), DESCRIBED.get(name, {}), given)
             return cls(**OmegaConf.to_container(merged, resolve=True))  # type: ignore[arg-type]
         except OmegaConfBaseException as e:
             raise UserError(f"data.{name}.{typed_value_message(e)}") from None
 
 
 @dataclass
-class Splits:
+class Splits(_Spec):
     """Sequence names of each split (``<source>/<sequence>`` with several sources). A value may be
     ``["00", "07"]``, ``"00,07"``, ``[0, 7]`` or ``7`` (typed ``Any`` for that), each a tuple of names."""
 
@@ -228,11 +228,6 @@ class Splits:
             if "" in names:
                 raise UserError(f"data.splits.{key}: empty sequence name in {given!r}")
             setattr(self, key, names)
-
-    @classmethod
-    def of(cls, value: Any) -> Splits:
-        """From ``{train: [...], ...}``."""
-        return cls(**_fields(cls, value, "data.splits"))
 
 
 @dataclass

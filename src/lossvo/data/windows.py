@@ -84,9 +84,7 @@ class SameLengthBatches(BatchSampler):
             yield from (batch for batch in open_batches.values() if batch)
 
     def __len__(self) -> int:
-        counts = np.bincount([self.lengths[i] for i in self.sampler]) if self.lengths else np.zeros(0)
-        full, rest = np.divmod(counts, self.batch_size)
-        return int(full.sum() + (0 if self.drop_last else np.count_nonzero(rest)))
+        return sum(1 for _ in self)
 
 
 class WindowDataset(Dataset):
@@ -99,23 +97,20 @@ class WindowDataset(Dataset):
     """
 
     def __init__(
-        self, cache_files: list[Path], poses: list[np.ndarray], seq_len: int,
-        steps: Sequence[int] = (1,), tiled: bool = False, intrinsics: list[np.ndarray] | None = None,
-        flow_files: dict[int, list[Path]] | None = None, times: list[np.ndarray] | None = None,
-        metric: Sequence[bool] | None = None,
+        self, cache_files: list[Path], poses: list[np.ndarray], seq_len: int, steps: Sequence[int],
+        tiled: bool, intrinsics: list[np.ndarray], flow_files: dict[int, list[Path]] | None,
+        times: list[np.ndarray], metric: Sequence[bool],
     ) -> None:  # fmt: skip
         self.cache_files = cache_files
         self.flow_files = flow_files
-        Ks = intrinsics if intrinsics is not None else [np.eye(3)] * len(poses)
-        self.intrinsics = [torch.from_numpy(np.asarray(K, dtype=np.float32)) for K in Ks]
-        flags = [True] * len(poses) if metric is None else list(metric)
-        self.metric = [torch.tensor(bool(flag)) for flag in flags]
+        self.intrinsics = [torch.from_numpy(np.asarray(K, dtype=np.float32)) for K in intrinsics]
+        self.metric = [torch.tensor(bool(flag)) for flag in metric]
         steps = (1,) if tiled else tuple(steps)
         self.targets = {
             s: [torch.from_numpy(relative_targets(p, s).astype(np.float32)) for p in poses] for s in steps
         }
         lengths = [len(p) for p in poses]
-        gap = [gaps(t) for t in times] if times is not None else [None] * len(poses)
+        gap = [gaps(t) for t in times]
         rows = [
             self._rows(i, n, seq_len, s, gap[i], tiled)
             for s in steps
