@@ -93,6 +93,7 @@ class VODataModule(L.LightningDataModule):
             raise UserError("data.splits.train: expected at least one training sequence")
         self._check_names()
         self.resident: dict[str, resident.ResidentWindows] | None = None  # by split, once decided
+        self._device: torch.device | None = None  # where resident windows are kept
         self.sequences: dict[str, Sequence] = {}
         self.mean: np.ndarray | None = None  # per-channel statistics, set by setup
         self.std: np.ndarray | None = None
@@ -113,8 +114,7 @@ class VODataModule(L.LightningDataModule):
                         f"data.splits.{split}: {name!r} names no source (expected "
                         f"<source>/<sequence> with a source of {', '.join(self.sources)})"
                     )
-                render = self.sources[key].render
-                counts = render.frame_counts if render is not None else None
+                counts = getattr(self.sources[key].render, "frame_counts", None)
                 if isinstance(counts, Mapping) and local not in counts:
                     raise UserError(
                         f"data.splits.{split}: sequence {name!r} not found (available: "
@@ -140,12 +140,9 @@ class VODataModule(L.LightningDataModule):
     def _render(self) -> None:
         """Render each synthetic source's sequences that are not on disk yet, under a lock."""
         for key, source in self.sources.items():
-            if source.render is None:
-                continue
             names = [local for n in self.all_names for k, local in [self._split_name(n)] if k == key]
-            if not names:  # a source no split reads
+            if (render := source.render) is None or not names:  # not rendered, or read by no split
                 continue
-            render = source.render
             source.root.mkdir(parents=True, exist_ok=True)
             with FileLock(source.root.parent / f".{source.root.name}.lock"):
                 synthetic.ensure_dataset(
@@ -178,22 +175,17 @@ class VODataModule(L.LightningDataModule):
                     source.reader, root, source.file_name(local), require_poses=name in labelled
                 )
             except DatasetFormatError as e:
-                self._name_unknown(name, source, root, e)
+                found = layouts.list_sequences(source.reader, root)
+                if source.file_name(local) not in found:
+                    split = next(k for k, names in self.splits.items() if name in names)
+                    raise UserError(
+                        f"data.splits.{split}: no sequence {name!r} in {root} ({source.reader} layout; "
+                        f"it has {', '.join(found) or 'none'})"
+                    ) from e
                 raise
             if source.camera is not None:
                 seq = dataclasses.replace(seq, K=source.camera[0], distortion=source.camera[1])
             self.sequences[name] = seq.every(source.keep_every)
-
-    def _name_unknown(self, name: str, source: specs.Source, root: Path, error: Exception) -> None:
-        """UserError naming the split and the sequences the dataset has, where ``name`` is not one of them."""
-        found = layouts.list_sequences(source.reader, root)
-        if source.file_name(self._split_name(name)[1]) in found:
-            return
-        split = next(k for k, names in self.splits.items() if name in names)
-        raise UserError(
-            f"data.splits.{split}: no sequence {name!r} in {root} ({source.reader} layout; it has "
-            f"{', '.join(found) or 'none'})"
-        ) from error
 
     def cache_path(self, name: str | None = None) -> Path:
         """The frame-cache folder of sequence ``name``'s dataset (None: of the only dataset)."""
@@ -239,22 +231,18 @@ class VODataModule(L.LightningDataModule):
             return np.asarray(given["mean"], dtype=np.float64), np.asarray(given["std"], dtype=np.float64)
         if self.frames.normalization == "flownet":
             return np.full(3, 0.5), np.ones(3)  # (x/255 - 0.5) / 1
-        key = hashlib.sha1(",".join(self.splits["train"]).encode()).hexdigest()[:10]
-        path = self.cache_path(self.splits["train"][0]) / f"stats-{key}.json"  # beside the frames
-        sources = {n: self._manifest(n)["source"] for n in self.splits["train"]}
+        train = self.splits["train"]
+        key = hashlib.sha1(",".join(train).encode()).hexdigest()[:10]
+        path = self.cache_path(train[0]) / f"stats-{key}.json"  # beside the frames
+        sources = {n: self._manifest(n)["source"] for n in train}
         try:
             saved = json.loads(path.read_text())
             if saved["sources"] == sources:
                 return np.array(saved["mean"]), np.array(saved["std"])
         except (OSError, ValueError, KeyError):
             pass
-        mean, std = frame_cache.channel_stats([frames[n] for n in self.splits["train"]])
-        record = {
-            "train": self.splits["train"],
-            "sources": sources,
-            "mean": mean.tolist(),
-            "std": std.tolist(),
-        }
+        mean, std = frame_cache.channel_stats([frames[n] for n in train])
+        record = {"train": train, "sources": sources, "mean": mean.tolist(), "std": std.tolist()}
         write_text_atomic(path, json.dumps(record))
         return mean, std
 
@@ -301,14 +289,12 @@ class VODataModule(L.LightningDataModule):
         if self.mean is not None and self.std is not None:
             stats = {"mean": self.mean.tolist(), "std": self.std.tolist()}
         cameras = {n: self.intrinsics(n).tolist() for n in self.splits["train"]} if self.datasets else None
+        settings = ("frames", "windows", "flow", "loader")  # the specs' fields
         return {
             "_target_": f"{type(self).__module__}.{type(self).__qualname__}",
             "sources": sources,
             "splits": {k: list(v) for k, v in self.splits.items()},
-            "frames": specs.plain(dataclasses.asdict(self.frames)),
-            "windows": specs.plain(dataclasses.asdict(self.windows)),
-            "flow": dataclasses.asdict(self.flow),
-            "loader": dataclasses.asdict(self.loader),
+            **{k: specs.plain(dataclasses.asdict(getattr(self, k))) for k in settings},
             "transforms": [batch_transforms.spec(t) for t in self.transforms],
             "statistics": stats,
             "dataset_root": str(self.dataset_root()),
@@ -331,18 +317,21 @@ class VODataModule(L.LightningDataModule):
         return camera.resized_intrinsics(K, source, size)
 
     def resident_windows(self, split: str) -> resident.ResidentWindows | None:
-        """The split's windows kept on the training device, or None (the host loader); decided once."""
+        """The split's windows kept on the training device, or None (the host loader): the device decided
+        once, each split's arrays copied there when first asked for."""
         if self.resident is None:
             strategy = getattr(self.trainer, "strategy", None)  # none: the CPU
-            self.resident = self._make_resident(getattr(strategy, "root_device", torch.device("cpu")))
-        if self.resident and split not in self.resident:  # the test split, asked for later
-            self.resident[split] = self._resident_split(split, next(iter(self.resident.values())).device)
+            self._device = self._resident_device(getattr(strategy, "root_device", torch.device("cpu")))
+            self.resident = {}
+        if self._device is not None and split not in self.resident:
+            data = self.datasets[split]
+            arrays = (data.index, data.frames, data.targets, data.intrinsics, data.metric, data.flow or None)
+            self.resident[split] = resident.ResidentWindows(*arrays, self._device)
         return self.resident.get(split)
 
-    def _make_resident(self, device: torch.device) -> dict[str, resident.ResidentWindows]:
-        """The training and validation splits' windows on ``device`` where the settings allow; a log line."""
-        splits = [s for s in ("train", "val") if s in self.datasets]
-        data = [self.datasets[s] for s in splits]
+    def _resident_device(self, device: torch.device) -> torch.device | None:
+        """``device`` where the settings allow keeping windows there (None: the host loader); a log line."""
+        data = [self.datasets[s] for s in ("train", "val") if s in self.datasets]
         size = sum(a.nbytes for d in data for a in [*d.frames, *chain(*d.flow.values())]) / 2**30
         setting = f"data.loader.on_device={str(self.loader.on_device).lower()}"
         reason = None
@@ -356,21 +345,14 @@ class VODataModule(L.LightningDataModule):
             reason = f"the arrays exceed data.loader.device_budget_gb={self.loader.device_budget_gb:g}"
         if reason is not None:
             log.info("data: batches from the host loader (%s; %.2f GiB of frames and flow)", reason, size)
-            return {}
+            return None
         log.info(
             "data: batches gathered on %s from %.2f GiB of frames and flow kept there (%s)",
             device,
             size,
             setting,
         )
-        return {s: self._resident_split(s, device) for s in splits}
-
-    def _resident_split(self, split: str, device: torch.device) -> resident.ResidentWindows:
-        data = self.datasets[split]
-        flow = data.flow or None  # {} without flow
-        return resident.ResidentWindows(
-            data.index, data.frames, data.targets, data.intrinsics, data.metric, flow, device
-        )
+        return device
 
     def _loader(self, split: str, batches: BatchSampler) -> DataLoader:
         """The split's windows in the given batches: from the host loader, or as index batches of windows

@@ -156,15 +156,13 @@ def ensure_frames(folder: Path, seq: Sequence, height: int, width: int, crop: bo
 
 def channel_stats(frames: list[np.ndarray], chunk: int = 256) -> tuple[np.ndarray, np.ndarray]:
     """(3,) mean and (3,) std of uint8 (N_i, 3, H, W) frames in [0, 1] units, ``chunk`` frames at a time."""
-    total = np.zeros(3)
-    total_sq = np.zeros(3)
-    count = 0
+    total, total_sq, count = np.zeros(3), np.zeros(3), 0
     for array in frames:
         for start in range(0, len(array), chunk):
             block = np.asarray(array[start : start + chunk], dtype=np.float64) / 255.0
             total += block.sum(axis=(0, 2, 3))
             total_sq += np.square(block).sum(axis=(0, 2, 3))
-            count += block.shape[0] * block.shape[2] * block.shape[3]
+            count += block.size // 3
     mean = total / count
     std = np.sqrt(np.maximum(total_sq / count - mean**2, 0.0))
     return mean, np.maximum(std, 1e-6)

@@ -5,17 +5,12 @@ one indexing operation per entry, giving the host loader's batch.
 
 from __future__ import annotations
 
-from collections.abc import Sequence, Sized
+from collections.abc import Sequence
 
 import numpy as np
 import torch
 from torch import Tensor
 from torch.utils.data import Dataset
-
-
-def _offsets(lengths: Sequence[int]) -> np.ndarray:
-    """(n,) start of each of ``n`` consecutive blocks of the given lengths."""
-    return np.concatenate(([0], np.cumsum(lengths)[:-1])).astype(np.int64)
 
 
 class ResidentWindows:
@@ -33,18 +28,17 @@ class ResidentWindows:
     ) -> None:
         self.index = index
         self.device = device
-        self.frame_start = _offsets([len(f) for f in frames])
-        self.frames = _stacked(frames, device)
+        self.frames, self.frame_start = _stacked(frames, device)
         steps = sorted(targets)
         self.step_row = {step: row for row, step in enumerate(steps)}  # rows of the (step, sequence) tables
-        self.target_start = _table_offsets([targets[s] for s in steps])
-        self.targets = torch.cat([t for s in steps for t in targets[s]]).to(device)
+        self.targets, starts = _stacked([t for s in steps for t in targets[s]], device)
+        self.target_start = starts.reshape(len(steps), -1)
         self.K = torch.stack(list(intrinsics)).to(device)
         self.metric = torch.stack(list(metric)).to(device)
         self.flow: Tensor | None = None
         if flow is not None:  # the same steps as the targets': each step's pairs have their flow
-            self.flow = _stacked([f for s in steps for f in flow[s]], device)
-            self.flow_start = _table_offsets([flow[s] for s in steps])
+            self.flow, starts = _stacked([f for s in steps for f in flow[s]], device)
+            self.flow_start = starts.reshape(len(steps), -1)
 
     def __len__(self) -> int:
         return len(self.index)
@@ -88,19 +82,15 @@ def _take(array: Tensor, index: Tensor) -> Tensor:
     return array.index_select(0, index.flatten()).unflatten(0, tuple(index.shape))
 
 
-def _table_offsets(blocks: Sequence[Sequence[Sized]]) -> np.ndarray:
-    """(steps, sequences) start of each array in the concatenation of ``blocks``."""
-    return _offsets([len(a) for arrays in blocks for a in arrays]).reshape(len(blocks), -1)
-
-
-def _stacked(arrays: Sequence[np.ndarray], device: torch.device) -> Tensor:
-    """The arrays (N_i, ...) concatenated into one tensor on ``device``, copied one array at a time."""
-    total = sum(len(a) for a in arrays)
-    dtype = torch.from_numpy(np.zeros(0, dtype=arrays[0].dtype)).dtype
-    out = torch.empty((total, *arrays[0].shape[1:]), dtype=dtype, device=device)
-    for start, array in zip(_offsets([len(a) for a in arrays]), arrays, strict=True):
-        out[start : start + len(array)].copy_(torch.from_numpy(np.array(array)))
-    return out
+def _stacked(arrays: Sequence[np.ndarray | Tensor], device: torch.device) -> tuple[Tensor, np.ndarray]:
+    """The arrays (N_i, ...) concatenated into one tensor on ``device``, copied one array at a time, and
+    (n,) the start of each there."""
+    starts = np.concatenate(([0], np.cumsum([len(a) for a in arrays])[:-1])).astype(np.int64)
+    first = torch.as_tensor(np.asarray(arrays[0][:0]))
+    out = torch.empty((sum(len(a) for a in arrays), *first.shape[1:]), dtype=first.dtype, device=device)
+    for start, array in zip(starts, arrays, strict=True):
+        out[start : start + len(array)].copy_(torch.as_tensor(np.array(array)))
+    return out, starts
 
 
 class IndexBatches(Dataset):

@@ -78,12 +78,10 @@ def _camera(value: Any, key: str) -> tuple[np.ndarray, np.ndarray] | None:
         distortion = np.asarray(value.get("distortion") or np.zeros(5), dtype=np.float64)
     except (TypeError, ValueError):
         K, distortion = np.zeros(0), np.zeros(0)
-    if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise UserError(f"{key}.K: expected a 3x3 matrix of pixels with fx, fy > 0, got {value['K']!r}")
-    if distortion.shape not in ((4,), (5,), (8,), (12,), (14,)) or not np.isfinite(distortion).all():
-        raise UserError(
-            f"{key}.distortion: expected 4, 5, 8, 12 or 14 numbers, got {value.get('distortion')!r}"
-        )
+    fits = K.shape == (3, 3) and np.isfinite(K).all() and K[0, 0] > 0 and K[1, 1] > 0
+    _check(key, "K", value["K"], fits, "a 3x3 matrix of pixels with fx, fy > 0")
+    fits = distortion.shape in ((4,), (5,), (8,), (12,), (14,)) and np.isfinite(distortion).all()
+    _check(key, "distortion", value.get("distortion"), fits, "4, 5, 8, 12 or 14 numbers")
     return K, distortion
 
 
@@ -146,11 +144,7 @@ class Source:
     def config(self) -> dict[str, Any]:
         """The source as its config (primitives): what :meth:`of` takes."""
         out: dict[str, Any] = {"layout": self.layout, "root": str(self.root), "keep_every": self.keep_every}
-        out["camera"] = (
-            None
-            if self.camera is None
-            else {"K": self.camera[0].tolist(), "distortion": self.camera[1].tolist()}
-        )
+        out["camera"] = self.camera and {"K": self.camera[0].tolist(), "distortion": self.camera[1].tolist()}
         if self.render is not None:
             out.update(dataclasses.asdict(self.render))
             out["cameras"] = None if self.render.cameras is None else self.render.cameras.manifest()
@@ -247,22 +241,15 @@ class Frames(_Spec):
             _require(self, key, lambda v: is_integer(v, 16), "an integer >= 16 pixels")
         one_of = f"one of {', '.join(NORMALIZATIONS)}"
         _require(self, "normalization", lambda v: v in NORMALIZATIONS, one_of)
-        self.statistics = _statistics(self.statistics)
-
-
-def _statistics(value: Any) -> dict[str, list[float]] | None:
-    """``{"mean": [3], "std": [3 > 0]}`` as lists of floats, or None."""
-    if value is None:
-        return None
-    try:
-        mean, std = (np.asarray(value[key], dtype=np.float64) for key in ("mean", "std"))
-    except (KeyError, TypeError, ValueError):
-        mean = std = np.zeros(0)
-    if mean.shape != (3,) or std.shape != (3,) or not np.all(std > 0) or not np.isfinite(mean).all():
-        raise UserError(
-            f"data.frames.statistics: expected {{mean: [3 floats], std: [3 floats > 0]}}, got {value!r}"
-        )
-    return {"mean": mean.tolist(), "std": std.tolist()}
+        if self.statistics is None:
+            return
+        try:
+            mean, std = (np.asarray(self.statistics[key], dtype=np.float64) for key in ("mean", "std"))
+        except (KeyError, TypeError, ValueError):
+            mean = std = np.zeros(0)
+        fits = mean.shape == std.shape == (3,) and np.all(std > 0) and np.isfinite(mean).all()
+        _require(self, "statistics", lambda _: fits, "{mean: [3 floats], std: [3 floats > 0]}")
+        self.statistics = {"mean": mean.tolist(), "std": std.tolist()}
 
 
 @dataclass
