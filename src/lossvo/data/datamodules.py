@@ -27,7 +27,7 @@ import lightning as L
 import numpy as np
 import torch
 from filelock import FileLock
-from torch.utils.data import BatchSampler, DataLoader, SequentialSampler, default_convert
+from torch.utils.data import BatchSampler, DataLoader, SequentialSampler
 
 from lossvo.atomic import write_text_atomic
 from lossvo.console import UserError
@@ -44,12 +44,6 @@ log = logging.getLogger("lossvo")
 PAPER_TRAIN = ("00", "02", "03", "04", "05", "06", "08")
 PAPER_VAL = ("07", "09")
 PAPER_TEST = ("00", "01", "02", "03", "04", "05", "06", "07", "08", "09", "10")
-
-
-def _own_stream() -> torch.Generator:
-    """A generator for a DataLoader's worker seeds, seeded with the run's seed (the global stream is the
-    network's dropout's)."""
-    return torch.Generator().manual_seed(torch.initial_seed())
 
 
 def _transforms(value: Any) -> tuple[batch_transforms.Transform, ...]:
@@ -143,6 +137,7 @@ class VODataModule(L.LightningDataModule):
             names = [local for n in self.all_names for k, local in [self._split_name(n)] if k == key]
             if (render := source.render) is None or not names:  # not rendered, or read by no split
                 continue
+            spec = routes.route_spec(render.route_families, render.route_mixes, prefix=f"data.sources.{key}.")
             source.root.mkdir(parents=True, exist_ok=True)
             with FileLock(source.root.parent / f".{source.root.name}.lock"):
                 synthetic.ensure_dataset(
@@ -152,9 +147,7 @@ class VODataModule(L.LightningDataModule):
                     height=render.render_height,
                     width=render.render_width,
                     seed=render.seed,
-                    spec=routes.route_spec(
-                        render.route_families, render.route_mixes, prefix=f"data.sources.{key}."
-                    ),
+                    spec=spec,
                     layout=render.render_layout,
                     scale=render.render_scale,
                     cameras=render.cameras,
@@ -226,8 +219,7 @@ class VODataModule(L.LightningDataModule):
 
     def _stats(self, frames: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """Per-channel mean/std: given, FlowNet's, or of the training sequences (cached with the frames)."""
-        if self.frames.statistics is not None:
-            given = self.frames.statistics
+        if (given := self.frames.statistics) is not None:
             return np.asarray(given["mean"], dtype=np.float64), np.asarray(given["std"], dtype=np.float64)
         if self.frames.normalization == "flownet":
             return np.full(3, 0.5), np.ones(3)  # (x/255 - 0.5) / 1
@@ -266,7 +258,7 @@ class VODataModule(L.LightningDataModule):
                 [self._frame_files(n)[0] for n, _ in labelled],
                 [p for _, p in labelled],
                 self.seq_len,
-                self.windows.frame_steps,
+                steps,
                 tiled=split != "train",
                 intrinsics=[self.intrinsics(n) for n, _ in labelled],
                 flow_files=flow_files if self.flow.enabled else None,
@@ -357,13 +349,14 @@ class VODataModule(L.LightningDataModule):
     def _loader(self, split: str, batches: BatchSampler) -> DataLoader:
         """The split's windows in the given batches: from the host loader, or as index batches of windows
         kept on the device (gathered by :meth:`on_after_batch_transfer`)."""
+        generator = torch.Generator().manual_seed(torch.initial_seed())  # not the global one: dropout's
         windows = self.resident_windows(split)
-        if windows is not None:
+        if windows is not None:  # window indices -> their index batch, tagged with its split
             return DataLoader(
-                resident.IndexBatches(windows, split),
+                range(len(self.datasets[split])),  # type: ignore[arg-type]  # indices serve as a dataset
                 batch_sampler=batches,
-                collate_fn=default_convert,  # the batch is built already
-                generator=_own_stream(),
+                collate_fn=lambda indices: {"split": split, **windows.index_batch(indices)},
+                generator=generator,
             )
         return DataLoader(
             self.datasets[split],
@@ -371,7 +364,7 @@ class VODataModule(L.LightningDataModule):
             num_workers=self.loader.num_workers,
             pin_memory=self.loader.pin_memory,
             persistent_workers=self.loader.num_workers > 0,
-            generator=_own_stream(),
+            generator=generator,
         )
 
     def _tiled_loader(self, split: str) -> DataLoader:

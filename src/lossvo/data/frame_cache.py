@@ -100,8 +100,7 @@ def centre_crop(size_hw: tuple[int, int], target_hw: tuple[int, int]) -> tuple[i
 def cropped_intrinsics(K: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
     """(3, 3) K of the window ``box`` = (y0, x0, h, w) of a frame: the principal point moved by (x0, y0)."""
     out = np.array(K, dtype=np.float64)
-    out[0, 2] -= box[1]
-    out[1, 2] -= box[0]
+    out[:2, 2] -= (box[1], box[0])
     return out
 
 

@@ -10,7 +10,6 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 from torch import Tensor
-from torch.utils.data import Dataset
 
 
 class ResidentWindows:
@@ -39,9 +38,6 @@ class ResidentWindows:
         if flow is not None:  # the same steps as the targets': each step's pairs have their flow
             self.flow, starts = _stacked([f for s in steps for f in flow[s]], device)
             self.flow_start = starts.reshape(len(steps), -1)
-
-    def __len__(self) -> int:
-        return len(self.index)
 
     def index_batch(self, windows: Sequence[int]) -> dict[str, Tensor]:
         """The index arrays of a batch of windows of one length L: ``frame_index`` (B, L), ``target_index``
@@ -91,16 +87,3 @@ def _stacked(arrays: Sequence[np.ndarray | Tensor], device: torch.device) -> tup
     for start, array in zip(starts, arrays, strict=True):
         out[start : start + len(array)].copy_(torch.as_tensor(np.array(array)))
     return out, starts
-
-
-class IndexBatches(Dataset):
-    """The loader's side of resident windows: window indices -> their index batch, tagged with its split."""
-
-    def __init__(self, windows: ResidentWindows, split: str) -> None:
-        self.windows, self.split = windows, split
-
-    def __len__(self) -> int:
-        return len(self.windows)
-
-    def __getitems__(self, indices: list[int]) -> dict[str, Tensor | str]:
-        return {"split": self.split, **self.windows.index_batch(indices)}

@@ -78,9 +78,9 @@ def _camera(value: Any, key: str) -> tuple[np.ndarray, np.ndarray] | None:
         distortion = np.asarray(value.get("distortion") or np.zeros(5), dtype=np.float64)
     except (TypeError, ValueError):
         K, distortion = np.zeros(0), np.zeros(0)
-    fits = K.shape == (3, 3) and np.isfinite(K).all() and K[0, 0] > 0 and K[1, 1] > 0
+    fits = bool(K.shape == (3, 3) and np.isfinite(K).all() and K[0, 0] > 0 and K[1, 1] > 0)
     _check(key, "K", value["K"], fits, "a 3x3 matrix of pixels with fx, fy > 0")
-    fits = distortion.shape in ((4,), (5,), (8,), (12,), (14,)) and np.isfinite(distortion).all()
+    fits = bool(distortion.shape in ((4,), (5,), (8,), (12,), (14,)) and np.isfinite(distortion).all())
     _check(key, "distortion", value.get("distortion"), fits, "4, 5, 8, 12 or 14 numbers")
     return K, distortion
 
@@ -247,7 +247,7 @@ class Frames(_Spec):
             mean, std = (np.asarray(self.statistics[key], dtype=np.float64) for key in ("mean", "std"))
         except (KeyError, TypeError, ValueError):
             mean = std = np.zeros(0)
-        fits = mean.shape == std.shape == (3,) and np.all(std > 0) and np.isfinite(mean).all()
+        fits = bool(mean.shape == std.shape == (3,) and np.all(std > 0) and np.isfinite(mean).all())
         _require(self, "statistics", lambda _: fits, "{mean: [3 floats], std: [3 floats > 0]}")
         self.statistics = {"mean": mean.tolist(), "std": std.tolist()}
 
@@ -282,8 +282,7 @@ class Flow(_Spec):
 
 def flow_of(value: Any) -> FlowSetting:
     """``data.flow`` ``{method, scale}`` as a :class:`lossvo.data.flow.FlowSetting`."""
-    flow = Flow.of(value)
-    return FlowSetting(flow.method, flow.scale)
+    return FlowSetting(**dataclasses.asdict(Flow.of(value)))
 
 
 @dataclass
@@ -407,10 +406,8 @@ def check_overrides(overrides: Seq[str]) -> None:
     for line in overrides:
         key = line.lstrip("+~").split("=", 1)[0]
         flat = key.removeprefix("data.")
-        if key.startswith("data.") and "." not in flat and flat not in SPECS:
-            new = new_key(flat)
-            if new is not None:
-                raise UserError(f"{key}: not a data key; the setting is data.{new} (docs/data.md lists them)")
+        if key.startswith("data.") and "." not in flat and flat not in SPECS and (new := new_key(flat)):
+            raise UserError(f"{key}: not a data key; the setting is data.{new} (docs/data.md lists them)")
 
 
 def refusing_flat_keys(main: Callable[[], _R]) -> Callable[[], _R]:
