@@ -146,13 +146,12 @@ def test_windows_per_epoch_draws_a_fresh_subset(tiny_kitti: Path, tmp_path: Path
     loader = dm.train_dataloader()
     epochs = []
     for epoch in (0, 1, 0):  # Lightning sets the sampler's epoch before each training epoch
-        loader.batch_sampler.sampler.set_epoch(epoch)
+        loader.sampler.set_epoch(epoch)
         epochs.append(torch.cat([batch["targets"] for batch in loader]))
     assert [len(e) for e in epochs] == [6, 6, 6]
     assert not torch.equal(epochs[0], epochs[1])
     assert torch.equal(epochs[0], epochs[2])  # the order depends on the seed and the epoch only
-    every = make_dm(tiny_kitti, tmp_path, windows_per_epoch=1000).train_dataloader()
-    assert len(every.batch_sampler.sampler) == 14
+    assert len(make_dm(tiny_kitti, tmp_path, windows_per_epoch=1000).train_dataloader().sampler) == 14
 
 
 def test_transforms_only_when_asked_and_only_in_training(tiny_kitti: Path, tmp_path: Path) -> None:

@@ -19,7 +19,6 @@ import logging
 import os
 from collections.abc import Mapping
 from collections.abc import Sequence as Seq
-from itertools import chain
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +26,7 @@ import lightning as L
 import numpy as np
 import torch
 from filelock import FileLock
-from torch.utils.data import BatchSampler, DataLoader, SequentialSampler
+from torch.utils.data import DataLoader, SequentialSampler
 
 from lossvo.atomic import write_text_atomic
 from lossvo.console import UserError
@@ -75,8 +74,7 @@ class VODataModule(L.LightningDataModule):
     ) -> None:
         super().__init__()
         self.frames = specs.Frames.of(frames)
-        cache = self.frames.cache_dir
-        self.cache_dir = Path(cache).expanduser() if cache else frame_cache.default_cache_dir()
+        self.cache_dir = Path(self.frames.cache_dir or frame_cache.default_cache_dir()).expanduser()
         self.sources = specs.sources_of(sources, self.cache_dir)
         self.splits: dict[str, tuple[str, ...]] = dataclasses.asdict(specs.Splits.of(splits))
         self.windows = specs.Windows.of(windows)
@@ -312,8 +310,7 @@ class VODataModule(L.LightningDataModule):
         """The split's windows kept on the training device, or None (the host loader): the device decided
         once, each split's arrays copied there when first asked for."""
         if self.resident is None:
-            strategy = getattr(self.trainer, "strategy", None)  # none: the CPU
-            self._device = self._resident_device(getattr(strategy, "root_device", torch.device("cpu")))
+            self._device = self._resident_device()
             self.resident = {}
         if self._device is not None and split not in self.resident:
             data = self.datasets[split]
@@ -321,10 +318,11 @@ class VODataModule(L.LightningDataModule):
             self.resident[split] = resident.ResidentWindows(*arrays, self._device)
         return self.resident.get(split)
 
-    def _resident_device(self, device: torch.device) -> torch.device | None:
-        """``device`` where the settings allow keeping windows there (None: the host loader); a log line."""
+    def _resident_device(self) -> torch.device | None:
+        """The training device where the settings allow keeping windows there, else None; a log line."""
+        device = getattr(getattr(self.trainer, "strategy", None), "root_device", torch.device("cpu"))
         data = [self.datasets[s] for s in ("train", "val") if s in self.datasets]
-        size = sum(a.nbytes for d in data for a in [*d.frames, *chain(*d.flow.values())]) / 2**30
+        size = sum(a.nbytes for d in data for arrays in [d.frames, *d.flow.values()] for a in arrays) / 2**30
         setting = f"data.loader.on_device={str(self.loader.on_device).lower()}"
         reason = None
         if self.loader.on_device is False:
@@ -346,42 +344,41 @@ class VODataModule(L.LightningDataModule):
         )
         return device
 
-    def _loader(self, split: str, batches: BatchSampler) -> DataLoader:
-        """The split's windows in the given batches: from the host loader, or as index batches of windows
-        kept on the device (gathered by :meth:`on_after_batch_transfer`)."""
+    def _loader(self, split: str, **sampling: Any) -> DataLoader:
+        """The split's windows (``sampling``: DataLoader's sampler arguments): from the host loader, or as
+        index batches of windows kept on the device (gathered by :meth:`on_after_batch_transfer`)."""
         generator = torch.Generator().manual_seed(torch.initial_seed())  # not the global one: dropout's
         windows = self.resident_windows(split)
         if windows is not None:  # window indices -> their index batch, tagged with its split
             return DataLoader(
                 range(len(self.datasets[split])),  # type: ignore[arg-type]  # indices serve as a dataset
-                batch_sampler=batches,
                 collate_fn=lambda indices: {"split": split, **windows.index_batch(indices)},
                 generator=generator,
+                **sampling,
             )
         return DataLoader(
             self.datasets[split],
-            batch_sampler=batches,
             num_workers=self.loader.num_workers,
             pin_memory=self.loader.pin_memory,
             persistent_workers=self.loader.num_workers > 0,
             generator=generator,
+            **sampling,
         )
 
     def _tiled_loader(self, split: str) -> DataLoader:
         """Validation or test windows in order, batched by length (a sequence's last may be shorter)."""
-        dataset = self.datasets[split]
-        batches = windows.SameLengthBatches(
-            SequentialSampler(dataset), self.windows.batch_size, lengths=dataset.lengths.tolist()
-        )
-        return self._loader(split, batches)
+        lengths = self.datasets[split].lengths.tolist()
+        batches = windows.SameLengthBatches(SequentialSampler(lengths), self.windows.batch_size, lengths)
+        return self._loader(split, batch_sampler=batches)
 
     def train_dataloader(self) -> DataLoader:
         """Shuffled training windows (a fresh subset each epoch with ``per_epoch``), in an order that depends
-        on the run's seed, the epoch and the data alone (:class:`EpochShuffle`)."""
+        on the run's seed, the epoch and the data alone (:class:`EpochShuffle`); the sampler, not a batch
+        sampler's, so that Lightning wraps it for several processes."""
         dataset = self.datasets["train"]
         count = min(self.windows.per_epoch or len(dataset), len(dataset))
         order = EpochShuffle(len(dataset), count, torch.initial_seed())
-        return self._loader("train", BatchSampler(order, self.windows.batch_size, drop_last=False))
+        return self._loader("train", sampler=order, batch_size=self.windows.batch_size)
 
     def val_dataloader(self) -> DataLoader:
         return self._tiled_loader("val")

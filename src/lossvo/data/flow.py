@@ -108,8 +108,6 @@ def ensure_flow(
     one frame step, computed first where missing or stale (``frames_source``: the frame cache's record of
     them). ``images``, ``undistort``, ``crop``: the source images, read again where ``setting.scale > 1``.
     :data:`CHUNK` pairs at a time on :data:`WORKERS` threads (OpenCV releases the GIL)."""
-    if not setting.enabled:
-        raise UserError("data.flow.method: none computes no flow")
     n, _, height, width = frames.shape
     if setting.scale != 1 and len(images) != n:
         raise UserError(
@@ -125,11 +123,10 @@ def ensure_flow(
 
     def fill(out: np.ndarray) -> dict:
         estimate = _Estimator()
-        desc = f"flow {name} (step {step}, {setting.key})"
-        disable = None if progress else True  # None: shown on a terminal only
+        desc = f"flow {name} (step {step}, {setting.key})"  # shown on a terminal only (disable=None)
         with (
             ThreadPoolExecutor(WORKERS) as pool,
-            tqdm(None, desc, len(out), leave=False, disable=disable, unit="pair") as bar,
+            tqdm(None, desc, len(out), leave=False, disable=None if progress else True, unit="pair") as bar,
         ):
             for lo in range(0, len(out), CHUNK):
                 hi = min(lo + CHUNK, len(out))

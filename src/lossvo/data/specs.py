@@ -239,8 +239,7 @@ class Frames(_Spec):
     def __post_init__(self) -> None:
         for key in ("height", "width"):
             _require(self, key, lambda v: is_integer(v, 16), "an integer >= 16 pixels")
-        one_of = f"one of {', '.join(NORMALIZATIONS)}"
-        _require(self, "normalization", lambda v: v in NORMALIZATIONS, one_of)
+        _require(self, "normalization", lambda v: v in NORMALIZATIONS, f"one of {', '.join(NORMALIZATIONS)}")
         if self.statistics is None:
             return
         try:

@@ -25,9 +25,8 @@ def tile(n_frames: int, seq_len: int, gap: np.ndarray | None = None) -> np.ndarr
         raise ValueError(f"a sequence needs at least 2 frames for one relative pose, got {n_frames}")
     if seq_len < 2:
         raise ValueError(f"seq_len must be >= 2 frames, got {seq_len}")
-    cuts = np.flatnonzero(gap) if gap is not None else np.zeros(0, dtype=np.int64)
-    pieces, first = [], 0
-    for k in cuts.tolist():  # a few gaps a sequence: the stretches between them, then the gap's own pair
+    pieces, first = [], 0  # a few gaps a sequence: the stretches between them, then the gap's own pair
+    for k in np.flatnonzero([] if gap is None else gap).tolist():
         pieces += [_stretch(first, k + 1, seq_len), np.array([[k, k + 2]], dtype=np.int64)]
         first = k + 1
     pieces.append(_stretch(first, n_frames, seq_len))
