@@ -30,7 +30,7 @@ class ResidentWindows:
         self.frames, self.frame_start = _stacked(frames, device)
         steps = sorted(targets)
         self.step_row = {step: row for row, step in enumerate(steps)}  # rows of the (step, sequence) tables
-        self.targets, starts = _stacked([t for s in steps for t in targets[s]], device)
+        self.targets, starts = _stacked([t.numpy() for s in steps for t in targets[s]], device)
         self.target_start = starts.reshape(len(steps), -1)
         self.K = torch.stack(list(intrinsics)).to(device)
         self.metric = torch.stack(list(metric)).to(device)
@@ -78,12 +78,12 @@ def _take(array: Tensor, index: Tensor) -> Tensor:
     return array.index_select(0, index.flatten()).unflatten(0, tuple(index.shape))
 
 
-def _stacked(arrays: Sequence[np.ndarray | Tensor], device: torch.device) -> tuple[Tensor, np.ndarray]:
+def _stacked(arrays: Sequence[np.ndarray], device: torch.device) -> tuple[Tensor, np.ndarray]:
     """The arrays (N_i, ...) concatenated into one tensor on ``device``, copied one array at a time, and
     (n,) the start of each there."""
     starts = np.concatenate(([0], np.cumsum([len(a) for a in arrays])[:-1])).astype(np.int64)
-    first = torch.as_tensor(np.asarray(arrays[0][:0]))
-    out = torch.empty((sum(len(a) for a in arrays), *first.shape[1:]), dtype=first.dtype, device=device)
+    dtype = torch.from_numpy(np.zeros(0, dtype=arrays[0].dtype)).dtype
+    out = torch.empty((sum(len(a) for a in arrays), *arrays[0].shape[1:]), dtype=dtype, device=device)
     for start, array in zip(starts, arrays, strict=True):
-        out[start : start + len(array)].copy_(torch.as_tensor(np.array(array)))
+        out[start : start + len(array)].copy_(torch.from_numpy(np.array(array)))
     return out, starts
