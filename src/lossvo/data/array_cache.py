@@ -43,38 +43,32 @@ def open_array(
     return array
 
 
-def build_array(
-    data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type, fill: Fill
-) -> np.ndarray:
-    """Write the array ``fill`` computes into ``data`` (through a temporary file), then its manifest."""
-    manifest = data.with_suffix(".json")
-    manifest.unlink(missing_ok=True)  # the manifest marks a complete array; none while writing
-    tmp = data.with_name(f".{data.name}.{os.getpid()}.tmp")
-    start = time.perf_counter()
-    out = np.lib.format.open_memmap(tmp, mode="w+", dtype=dtype, shape=shape)
-    try:
-        found = fill(out)
-        out.flush()
-        del out
-        os.replace(tmp, data)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    write_text_atomic(manifest, json.dumps({**expected, "shape": list(shape), **found}))
-    log.info("cache %s: built in %.1f s", data, time.perf_counter() - start)
-    return np.load(data, mmap_mode="r")
-
-
 def ensure_array(
     data: Path, expected: dict[str, Any], shape: tuple[int, ...], dtype: np.dtype | type, fill: Fill
 ) -> np.ndarray:
-    """The array in ``data``, built first where it is missing, incomplete or stale (once, under a lock)."""
+    """The array in ``data``, built first where it is missing, incomplete or stale (once, under a lock):
+    ``fill`` writes it into a temporary file, then the manifest is written."""
     array = open_array(data, expected, shape, dtype)
     if array is not None:
         return array
     data.parent.mkdir(parents=True, exist_ok=True)
     with FileLock(data.parent / f".{data.stem}.lock"):
         array = open_array(data, expected, shape, dtype, say=False)  # another job may have built it
-        if array is None:
-            array = build_array(data, expected, shape, dtype, fill)
-    return array
+        if array is not None:
+            return array
+        manifest = data.with_suffix(".json")
+        manifest.unlink(missing_ok=True)  # the manifest marks a complete array; none while writing
+        tmp = data.with_name(f".{data.name}.{os.getpid()}.tmp")
+        start = time.perf_counter()
+        out = np.lib.format.open_memmap(tmp, mode="w+", dtype=dtype, shape=shape)
+        try:
+            found = fill(out)
+            out.flush()
+            del out
+            os.replace(tmp, data)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+        write_text_atomic(manifest, json.dumps({**expected, "shape": list(shape), **found}))
+        log.info("cache %s: built in %.1f s", data, time.perf_counter() - start)
+        return np.load(data, mmap_mode="r")

@@ -26,7 +26,7 @@ import lightning as L
 import numpy as np
 import torch
 from filelock import FileLock
-from torch.utils.data import BatchSampler, DataLoader, SequentialSampler, default_convert
+from torch.utils.data import DataLoader, SequentialSampler
 
 from lossvo.atomic import write_text_atomic
 from lossvo.console import UserError
@@ -43,12 +43,6 @@ log = logging.getLogger("lossvo")
 PAPER_TRAIN = ("00", "02", "03", "04", "05", "06", "08")
 PAPER_VAL = ("07", "09")
 PAPER_TEST = ("00", "01", "02", "03", "04", "05", "06", "07", "08", "09", "10")
-
-
-def _own_stream() -> torch.Generator:
-    """A generator for a DataLoader's worker seeds, seeded with the run's seed (the global stream is the
-    network's dropout's)."""
-    return torch.Generator().manual_seed(torch.initial_seed())
 
 
 def _transforms(value: Any) -> tuple[batch_transforms.Transform, ...]:
@@ -80,8 +74,7 @@ class VODataModule(L.LightningDataModule):
     ) -> None:
         super().__init__()
         self.frames = specs.Frames.of(frames)
-        cache = self.frames.cache_dir
-        self.cache_dir = Path(cache).expanduser() if cache else frame_cache.default_cache_dir()
+        self.cache_dir = Path(self.frames.cache_dir or frame_cache.default_cache_dir()).expanduser()
         self.sources = specs.sources_of(sources, self.cache_dir)
         self.splits: dict[str, tuple[str, ...]] = dataclasses.asdict(specs.Splits.of(splits))
         self.windows = specs.Windows.of(windows)
@@ -92,11 +85,11 @@ class VODataModule(L.LightningDataModule):
             raise UserError("data.splits.train: expected at least one training sequence")
         self._check_names()
         self.resident: dict[str, resident.ResidentWindows] | None = None  # by split, once decided
+        self._device: torch.device | None = None  # where resident windows are kept
         self.sequences: dict[str, Sequence] = {}
         self.mean: np.ndarray | None = None  # per-channel statistics, set by setup
         self.std: np.ndarray | None = None
         self.datasets: dict[str, WindowDataset] = {}
-        self._cameras: dict[str, np.ndarray] = {}  # K of each sequence's cached frames (intrinsics)
 
     @property
     def seq_len(self) -> int:
@@ -113,8 +106,7 @@ class VODataModule(L.LightningDataModule):
                         f"data.splits.{split}: {name!r} names no source (expected "
                         f"<source>/<sequence> with a source of {', '.join(self.sources)})"
                     )
-                render = self.sources[key].render
-                counts = render.frame_counts if render is not None else None
+                counts = getattr(self.sources[key].render, "frame_counts", None)
                 if isinstance(counts, Mapping) and local not in counts:
                     raise UserError(
                         f"data.splits.{split}: sequence {name!r} not found (available: "
@@ -137,20 +129,13 @@ class VODataModule(L.LightningDataModule):
         key, _, local = name.partition("/")
         return key, local
 
-    def source_of(self, name: str) -> tuple[specs.Source, str]:
-        """The dataset a sequence is read from and the sequence's name there."""
-        key, local = self._split_name(name)
-        return self.sources[key], local
-
     def _render(self) -> None:
         """Render each synthetic source's sequences that are not on disk yet, under a lock."""
         for key, source in self.sources.items():
-            if source.render is None:
-                continue
             names = [local for n in self.all_names for k, local in [self._split_name(n)] if k == key]
-            if not names:  # a source no split reads
+            if (render := source.render) is None or not names:  # not rendered, or read by no split
                 continue
-            render = source.render
+            spec = routes.route_spec(render.route_families, render.route_mixes, prefix=f"data.sources.{key}.")
             source.root.mkdir(parents=True, exist_ok=True)
             with FileLock(source.root.parent / f".{source.root.name}.lock"):
                 synthetic.ensure_dataset(
@@ -160,9 +145,7 @@ class VODataModule(L.LightningDataModule):
                     height=render.render_height,
                     width=render.render_width,
                     seed=render.seed,
-                    spec=routes.route_spec(
-                        render.route_families, render.route_mixes, prefix=f"data.sources.{key}."
-                    ),
+                    spec=spec,
                     layout=render.render_layout,
                     scale=render.render_scale,
                     cameras=render.cameras,
@@ -173,35 +156,31 @@ class VODataModule(L.LightningDataModule):
         only test sequences may lack poses."""
         self._render()
         labelled = set(self.splits["train"]) | set(self.splits["val"]) | set(self.splits["unseen"])
-        self.sequences, self._cameras = {}, {}
+        self.sequences = {}
         for name in self.all_names:
-            source, local = self.source_of(name)
+            key, local = self._split_name(name)
+            source = self.sources[key]
             root = layouts.dataset_root(source.reader, source.root)
             try:
                 seq = layouts.load_sequence(
                     source.reader, root, source.file_name(local), require_poses=name in labelled
                 )
             except DatasetFormatError as e:
-                self._name_unknown(name, source, root, e)
+                found = layouts.list_sequences(source.reader, root)
+                if source.file_name(local) not in found:
+                    split = next(k for k, names in self.splits.items() if name in names)
+                    raise UserError(
+                        f"data.splits.{split}: no sequence {name!r} in {root} ({source.reader} layout; "
+                        f"it has {', '.join(found) or 'none'})"
+                    ) from e
                 raise
             if source.camera is not None:
                 seq = dataclasses.replace(seq, K=source.camera[0], distortion=source.camera[1])
             self.sequences[name] = seq.every(source.keep_every)
 
-    def _name_unknown(self, name: str, source: specs.Source, root: Path, error: Exception) -> None:
-        """UserError naming the split and the sequences the dataset has, where ``name`` is not one of them."""
-        found = layouts.list_sequences(source.reader, root)
-        if source.file_name(self.source_of(name)[1]) in found:
-            return
-        split = next(k for k, names in self.splits.items() if name in names)
-        raise UserError(
-            f"data.splits.{split}: no sequence {name!r} in {root} ({source.reader} layout; it has "
-            f"{', '.join(found) or 'none'})"
-        ) from error
-
     def cache_path(self, name: str | None = None) -> Path:
         """The frame-cache folder of sequence ``name``'s dataset (None: of the only dataset)."""
-        source = next(iter(self.sources.values())) if name is None else self.source_of(name)[0]
+        source = self.sources[next(iter(self.sources)) if name is None else self._split_name(name)[0]]
         root = layouts.dataset_root(source.reader, source.root).resolve()
         folder = frame_cache.cache_folder(self.cache_dir, root, self.frames.height, self.frames.width)
         suffix = f"-every{source.keep_every}" if source.keep_every > 1 else ""
@@ -230,45 +209,30 @@ class VODataModule(L.LightningDataModule):
         if not self.flow.enabled:
             return
         for n, steps in self.flow_steps().items():
-            seq, folder = self.sequences[n], self.cache_path(n)
+            seq, source = self.sequences[n], self._manifest(n)["source"]
             undistort = frame_cache.undistortion(seq)
             for step in steps:
-                source = self._manifest(n)["source"]
-                optical_flow.ensure_flow(
-                    folder,
-                    seq.name,
-                    frames[n],
-                    source,
-                    step,
-                    self.flow,
-                    seq.images,
-                    undistort=undistort,
-                    crop=self.frames.crop,
-                )
+                args = (self.cache_path(n), seq.name, frames[n], source, step, self.flow, seq.images)
+                optical_flow.ensure_flow(*args, undistort=undistort, crop=self.frames.crop)
 
     def _stats(self, frames: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """Per-channel mean/std: given, FlowNet's, or of the training sequences (cached with the frames)."""
-        if self.frames.statistics is not None:
-            given = self.frames.statistics
+        if (given := self.frames.statistics) is not None:
             return np.asarray(given["mean"], dtype=np.float64), np.asarray(given["std"], dtype=np.float64)
         if self.frames.normalization == "flownet":
             return np.full(3, 0.5), np.ones(3)  # (x/255 - 0.5) / 1
-        key = hashlib.sha1(",".join(self.splits["train"]).encode()).hexdigest()[:10]
-        path = self.cache_path(self.splits["train"][0]) / f"stats-{key}.json"  # beside the frames
-        sources = {n: self._manifest(n)["source"] for n in self.splits["train"]}
+        train = self.splits["train"]
+        key = hashlib.sha1(",".join(train).encode()).hexdigest()[:10]
+        path = self.cache_path(train[0]) / f"stats-{key}.json"  # beside the frames
+        sources = {n: self._manifest(n)["source"] for n in train}
         try:
             saved = json.loads(path.read_text())
             if saved["sources"] == sources:
                 return np.array(saved["mean"]), np.array(saved["std"])
         except (OSError, ValueError, KeyError):
             pass
-        mean, std = frame_cache.channel_stats([frames[n] for n in self.splits["train"]])
-        record = {
-            "train": self.splits["train"],
-            "sources": sources,
-            "mean": mean.tolist(),
-            "std": std.tolist(),
-        }
+        mean, std = frame_cache.channel_stats([frames[n] for n in train])
+        record = {"train": train, "sources": sources, "mean": mean.tolist(), "std": std.tolist()}
         write_text_atomic(path, json.dumps(record))
         return mean, std
 
@@ -292,7 +256,7 @@ class VODataModule(L.LightningDataModule):
                 [self._frame_files(n)[0] for n, _ in labelled],
                 [p for _, p in labelled],
                 self.seq_len,
-                self.windows.frame_steps,
+                steps,
                 tiled=split != "train",
                 intrinsics=[self.intrinsics(n) for n, _ in labelled],
                 flow_files=flow_files if self.flow.enabled else None,
@@ -315,14 +279,12 @@ class VODataModule(L.LightningDataModule):
         if self.mean is not None and self.std is not None:
             stats = {"mean": self.mean.tolist(), "std": self.std.tolist()}
         cameras = {n: self.intrinsics(n).tolist() for n in self.splits["train"]} if self.datasets else None
+        settings = ("frames", "windows", "flow", "loader")  # the specs' fields
         return {
             "_target_": f"{type(self).__module__}.{type(self).__qualname__}",
             "sources": sources,
             "splits": {k: list(v) for k, v in self.splits.items()},
-            "frames": specs.plain(dataclasses.asdict(self.frames)),
-            "windows": specs.plain(dataclasses.asdict(self.windows)),
-            "flow": dataclasses.asdict(self.flow),
-            "loader": dataclasses.asdict(self.loader),
+            **{k: specs.plain(dataclasses.asdict(getattr(self, k))) for k in settings},
             "transforms": [batch_transforms.spec(t) for t in self.transforms],
             "statistics": stats,
             "dataset_root": str(self.dataset_root()),
@@ -336,29 +298,31 @@ class VODataModule(L.LightningDataModule):
 
     def intrinsics(self, name: str) -> np.ndarray:
         """(3, 3) float64 K of a sequence's cached frames (pixels); after :meth:`setup`."""
-        if name not in self._cameras:
-            size = (self.frames.height, self.frames.width)
-            source = tuple(self._manifest(name)["source_size_hw"])
-            K = frame_cache.source_intrinsics(self.sequences[name])
-            if self.frames.crop:
-                box = frame_cache.centre_crop(source, size)
-                K, source = frame_cache.cropped_intrinsics(K, box), box[2:]
-            self._cameras[name] = camera.resized_intrinsics(K, source, size)
-        return self._cameras[name].copy()
+        size = (self.frames.height, self.frames.width)
+        source = tuple(self._manifest(name)["source_size_hw"])
+        K = frame_cache.source_intrinsics(self.sequences[name])
+        if self.frames.crop:
+            box = frame_cache.centre_crop(source, size)
+            K, source = frame_cache.cropped_intrinsics(K, box), box[2:]
+        return camera.resized_intrinsics(K, source, size)
 
     def resident_windows(self, split: str) -> resident.ResidentWindows | None:
-        """The split's windows kept on the training device, or None (the host loader); decided once."""
+        """The split's windows kept on the training device, or None (the host loader): the device decided
+        once, each split's arrays copied there when first asked for."""
         if self.resident is None:
-            strategy = getattr(self.trainer, "strategy", None)  # none: the CPU
-            self.resident = self._make_resident(getattr(strategy, "root_device", torch.device("cpu")))
-        if self.resident and split not in self.resident:  # the test split, asked for later
-            self.resident[split] = self._resident_split(split, next(iter(self.resident.values())).device)
+            self._device = self._resident_device()
+            self.resident = {}
+        if self._device is not None and split not in self.resident:
+            data = self.datasets[split]
+            arrays = (data.index, data.frames, data.targets, data.intrinsics, data.metric, data.flow or None)
+            self.resident[split] = resident.ResidentWindows(*arrays, self._device)
         return self.resident.get(split)
 
-    def _make_resident(self, device: torch.device) -> dict[str, resident.ResidentWindows]:
-        """The training and validation splits' windows on ``device`` where the settings allow; a log line."""
-        splits = [s for s in ("train", "val") if s in self.datasets]
-        size = sum(resident.resident_bytes(*self._arrays(s)) for s in splits) / resident.GIB
+    def _resident_device(self) -> torch.device | None:
+        """The training device where the settings allow keeping windows there, else None; a log line."""
+        device = getattr(getattr(self.trainer, "strategy", None), "root_device", torch.device("cpu"))
+        data = [self.datasets[s] for s in ("train", "val") if s in self.datasets]
+        size = sum(a.nbytes for d in data for arrays in [d.frames, *d.flow.values()] for a in arrays) / 2**30
         setting = f"data.loader.on_device={str(self.loader.on_device).lower()}"
         reason = None
         if self.loader.on_device is False:
@@ -371,67 +335,50 @@ class VODataModule(L.LightningDataModule):
             reason = f"the arrays exceed data.loader.device_budget_gb={self.loader.device_budget_gb:g}"
         if reason is not None:
             log.info("data: batches from the host loader (%s; %.2f GiB of frames and flow)", reason, size)
-            return {}
+            return None
         log.info(
             "data: batches gathered on %s from %.2f GiB of frames and flow kept there (%s)",
             device,
             size,
             setting,
         )
-        return {s: self._resident_split(s, device) for s in splits}
+        return device
 
-    def _arrays(self, split: str) -> tuple[list[np.ndarray], dict[int, list[np.ndarray]] | None]:
-        """The split's frames and flow arrays (memory maps), per sequence."""
-        dataset = self.datasets[split]
-        return dataset.frames, (dataset.flow if dataset.flow_files is not None else None)
-
-    def _resident_split(self, split: str, device: torch.device) -> resident.ResidentWindows:
-        data = self.datasets[split]
-        frames, flow = self._arrays(split)
-        return resident.ResidentWindows(
-            data.index, frames, data.targets, data.intrinsics, data.metric, flow, device
-        )
-
-    def _host_loader(self, split: str, **sampling: Any) -> DataLoader:
-        """The host loader of the split's windows; ``sampling``: DataLoader's sampler arguments."""
+    def _loader(self, split: str, **sampling: Any) -> DataLoader:
+        """The split's windows (``sampling``: DataLoader's sampler arguments): from the host loader, or as
+        index batches of windows kept on the device (gathered by :meth:`on_after_batch_transfer`)."""
+        generator = torch.Generator().manual_seed(torch.initial_seed())  # not the global one: dropout's
+        windows = self.resident_windows(split)
+        if windows is not None:  # window indices -> their index batch, tagged with its split
+            return DataLoader(
+                range(len(self.datasets[split])),  # type: ignore[arg-type]  # indices serve as a dataset
+                collate_fn=lambda indices: {"split": split, **windows.index_batch(indices)},
+                generator=generator,
+                **sampling,
+            )
         return DataLoader(
             self.datasets[split],
             num_workers=self.loader.num_workers,
             pin_memory=self.loader.pin_memory,
             persistent_workers=self.loader.num_workers > 0,
-            generator=_own_stream(),
+            generator=generator,
             **sampling,
-        )
-
-    def _batches(self, split: str, batches: BatchSampler) -> DataLoader:
-        """The split's windows in the given batches: from the host loader, or as index batches."""
-        windows = self.resident_windows(split)
-        if windows is None:
-            return self._host_loader(split, batch_sampler=batches)
-        return DataLoader(
-            resident.IndexBatches(windows, split),
-            batch_sampler=batches,
-            collate_fn=default_convert,  # the batch is built already
-            generator=_own_stream(),
         )
 
     def _tiled_loader(self, split: str) -> DataLoader:
         """Validation or test windows in order, batched by length (a sequence's last may be shorter)."""
-        dataset = self.datasets[split]
-        batches = windows.SameLengthBatches(
-            SequentialSampler(dataset), self.windows.batch_size, lengths=dataset.lengths.tolist()
-        )
-        return self._batches(split, batches)
+        lengths = self.datasets[split].lengths.tolist()
+        batches = windows.SameLengthBatches(SequentialSampler(lengths), self.windows.batch_size, lengths)
+        return self._loader(split, batch_sampler=batches)
 
     def train_dataloader(self) -> DataLoader:
         """Shuffled training windows (a fresh subset each epoch with ``per_epoch``), in an order that depends
-        on the run's seed, the epoch and the data alone (:class:`EpochShuffle`)."""
+        on the run's seed, the epoch and the data alone (:class:`EpochShuffle`); the sampler, not a batch
+        sampler's, so that Lightning wraps it for several processes."""
         dataset = self.datasets["train"]
         count = min(self.windows.per_epoch or len(dataset), len(dataset))
         order = EpochShuffle(len(dataset), count, torch.initial_seed())
-        if self.resident_windows("train") is None:
-            return self._host_loader("train", sampler=order, batch_size=self.windows.batch_size)
-        return self._batches("train", BatchSampler(order, self.windows.batch_size, drop_last=False))
+        return self._loader("train", sampler=order, batch_size=self.windows.batch_size)
 
     def val_dataloader(self) -> DataLoader:
         return self._tiled_loader("val")
@@ -487,7 +434,7 @@ class VODataModule(L.LightningDataModule):
 
     def sequence_layout(self, name: str) -> str:
         """The layout one sequence is read in (a synthetic source's: the layout it is rendered in)."""
-        return self.source_of(name)[0].reader
+        return self.sources[self._split_name(name)[0]].reader
 
     def metric_scale(self, name: str) -> bool:
         """Whether one sequence's platform gives metric scale a cue (:data:`layouts.METRIC_SCALE_LAYOUTS`)."""

@@ -57,18 +57,15 @@ def _gray(frame: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(np.ascontiguousarray(frame.transpose(1, 2, 0)), cv2.COLOR_RGB2GRAY)
 
 
-class _Estimator:
+class _Estimator(threading.local):
     """One flow estimator per thread (OpenCV's DIS object keeps state between calls)."""
 
-    def __init__(self) -> None:
-        self.local = threading.local()
+    def __init__(self) -> None:  # in each thread that uses it
+        self.dis = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
 
     def __call__(self, first: np.ndarray, second: np.ndarray) -> np.ndarray:
         """(2, H, W) float32 flow from ``first`` to ``second``, both (H, W) uint8 grey."""
-        dis = getattr(self.local, "dis", None)
-        if dis is None:
-            dis = self.local.dis = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-        flow = dis.calc(first, second, None)  # type: ignore[call-overload]  # None: OpenCV allocates it
+        flow = self.dis.calc(first, second, None)  # type: ignore[call-overload]  # None: OpenCV allocates it
         return flow.transpose(2, 0, 1)
 
 
@@ -111,8 +108,6 @@ def ensure_flow(
     one frame step, computed first where missing or stale (``frames_source``: the frame cache's record of
     them). ``images``, ``undistort``, ``crop``: the source images, read again where ``setting.scale > 1``.
     :data:`CHUNK` pairs at a time on :data:`WORKERS` threads (OpenCV releases the GIL)."""
-    if not setting.enabled:
-        raise UserError("data.flow.method: none computes no flow")
     n, _, height, width = frames.shape
     if setting.scale != 1 and len(images) != n:
         raise UserError(
@@ -128,11 +123,10 @@ def ensure_flow(
 
     def fill(out: np.ndarray) -> dict:
         estimate = _Estimator()
-        desc = f"flow {name} (step {step}, {setting.key})"
-        disable = None if progress else True  # None: shown on a terminal only
+        desc = f"flow {name} (step {step}, {setting.key})"  # shown on a terminal only (disable=None)
         with (
             ThreadPoolExecutor(WORKERS) as pool,
-            tqdm(None, desc, len(out), leave=False, disable=disable, unit="pair") as bar,
+            tqdm(None, desc, len(out), leave=False, disable=None if progress else True, unit="pair") as bar,
         ):
             for lo in range(0, len(out), CHUNK):
                 hi = min(lo + CHUNK, len(out))

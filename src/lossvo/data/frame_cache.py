@@ -100,8 +100,7 @@ def centre_crop(size_hw: tuple[int, int], target_hw: tuple[int, int]) -> tuple[i
 def cropped_intrinsics(K: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
     """(3, 3) K of the window ``box`` = (y0, x0, h, w) of a frame: the principal point moved by (x0, y0)."""
     out = np.array(K, dtype=np.float64)
-    out[0, 2] -= box[1]
-    out[1, 2] -= box[0]
+    out[:2, 2] -= (box[1], box[0])
     return out
 
 
@@ -156,15 +155,13 @@ def ensure_frames(folder: Path, seq: Sequence, height: int, width: int, crop: bo
 
 def channel_stats(frames: list[np.ndarray], chunk: int = 256) -> tuple[np.ndarray, np.ndarray]:
     """(3,) mean and (3,) std of uint8 (N_i, 3, H, W) frames in [0, 1] units, ``chunk`` frames at a time."""
-    total = np.zeros(3)
-    total_sq = np.zeros(3)
-    count = 0
+    total, total_sq, count = np.zeros(3), np.zeros(3), 0
     for array in frames:
         for start in range(0, len(array), chunk):
             block = np.asarray(array[start : start + chunk], dtype=np.float64) / 255.0
             total += block.sum(axis=(0, 2, 3))
             total_sq += np.square(block).sum(axis=(0, 2, 3))
-            count += block.shape[0] * block.shape[2] * block.shape[3]
+            count += block.size // 3
     mean = total / count
     std = np.sqrt(np.maximum(total_sq / count - mean**2, 0.0))
     return mean, np.maximum(std, 1e-6)

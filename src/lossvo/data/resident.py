@@ -5,19 +5,11 @@ one indexing operation per entry, giving the host loader's batch.
 
 from __future__ import annotations
 
-from collections.abc import Sequence, Sized
+from collections.abc import Sequence
 
 import numpy as np
 import torch
 from torch import Tensor
-from torch.utils.data import Dataset
-
-GIB = 1024**3
-
-
-def _offsets(lengths: Sequence[int]) -> np.ndarray:
-    """(n,) start of each of ``n`` consecutive blocks of the given lengths."""
-    return np.concatenate(([0], np.cumsum(lengths)[:-1])).astype(np.int64)
 
 
 class ResidentWindows:
@@ -35,21 +27,17 @@ class ResidentWindows:
     ) -> None:
         self.index = index
         self.device = device
-        self.frame_start = _offsets([len(f) for f in frames])
-        self.frames = _stacked(frames, device)
+        self.frames, self.frame_start = _stacked(frames, device)
         steps = sorted(targets)
         self.step_row = {step: row for row, step in enumerate(steps)}  # rows of the (step, sequence) tables
-        self.target_start = _table_offsets([targets[s] for s in steps])
-        self.targets = torch.cat([t for s in steps for t in targets[s]]).to(device)
+        self.targets, starts = _stacked([t.numpy() for s in steps for t in targets[s]], device)
+        self.target_start = starts.reshape(len(steps), -1)
         self.K = torch.stack(list(intrinsics)).to(device)
         self.metric = torch.stack(list(metric)).to(device)
         self.flow: Tensor | None = None
         if flow is not None:  # the same steps as the targets': each step's pairs have their flow
-            self.flow = _stacked([f for s in steps for f in flow[s]], device)
-            self.flow_start = _table_offsets([flow[s] for s in steps])
-
-    def __len__(self) -> int:
-        return len(self.index)
+            self.flow, starts = _stacked([f for s in steps for f in flow[s]], device)
+            self.flow_start = starts.reshape(len(steps), -1)
 
     def index_batch(self, windows: Sequence[int]) -> dict[str, Tensor]:
         """The index arrays of a batch of windows of one length L: ``frame_index`` (B, L), ``target_index``
@@ -90,38 +78,12 @@ def _take(array: Tensor, index: Tensor) -> Tensor:
     return array.index_select(0, index.flatten()).unflatten(0, tuple(index.shape))
 
 
-def _table_offsets(blocks: Sequence[Sequence[Sized]]) -> np.ndarray:
-    """(steps, sequences) start of each array in the concatenation of ``blocks``."""
-    return _offsets([len(a) for arrays in blocks for a in arrays]).reshape(len(blocks), -1)
-
-
-def _stacked(arrays: Sequence[np.ndarray], device: torch.device) -> Tensor:
-    """The arrays (N_i, ...) concatenated into one tensor on ``device``, copied one array at a time."""
-    total = sum(len(a) for a in arrays)
+def _stacked(arrays: Sequence[np.ndarray], device: torch.device) -> tuple[Tensor, np.ndarray]:
+    """The arrays (N_i, ...) concatenated into one tensor on ``device``, copied one array at a time, and
+    (n,) the start of each there."""
+    starts = np.concatenate(([0], np.cumsum([len(a) for a in arrays])[:-1])).astype(np.int64)
     dtype = torch.from_numpy(np.zeros(0, dtype=arrays[0].dtype)).dtype
-    out = torch.empty((total, *arrays[0].shape[1:]), dtype=dtype, device=device)
-    for start, array in zip(_offsets([len(a) for a in arrays]), arrays, strict=True):
+    out = torch.empty((sum(len(a) for a in arrays), *arrays[0].shape[1:]), dtype=dtype, device=device)
+    for start, array in zip(starts, arrays, strict=True):
         out[start : start + len(array)].copy_(torch.from_numpy(np.array(array)))
-    return out
-
-
-def resident_bytes(frames: Sequence[np.ndarray], flow: dict[int, list[np.ndarray]] | None) -> int:
-    """Bytes the frames and flow arrays take once resident (targets and K are comparatively nothing)."""
-    arrays = [*frames, *(f for fields in (flow or {}).values() for f in fields)]
-    return int(sum(a.nbytes for a in arrays))
-
-
-class IndexBatches(Dataset):
-    """The loader's side of resident windows: window indices -> their index batch, tagged with its split."""
-
-    def __init__(self, windows: ResidentWindows, split: str) -> None:
-        self.windows, self.split = windows, split
-
-    def __len__(self) -> int:
-        return len(self.windows)
-
-    def __getitem__(self, i: int) -> dict[str, Tensor | str]:
-        return self.__getitems__([i])
-
-    def __getitems__(self, indices: list[int]) -> dict[str, Tensor | str]:
-        return {"split": self.split, **self.windows.index_batch(indices)}
+    return out, starts

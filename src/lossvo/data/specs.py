@@ -78,12 +78,10 @@ def _camera(value: Any, key: str) -> tuple[np.ndarray, np.ndarray] | None:
         distortion = np.asarray(value.get("distortion") or np.zeros(5), dtype=np.float64)
     except (TypeError, ValueError):
         K, distortion = np.zeros(0), np.zeros(0)
-    if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise UserError(f"{key}.K: expected a 3x3 matrix of pixels with fx, fy > 0, got {value['K']!r}")
-    if distortion.shape not in ((4,), (5,), (8,), (12,), (14,)) or not np.isfinite(distortion).all():
-        raise UserError(
-            f"{key}.distortion: expected 4, 5, 8, 12 or 14 numbers, got {value.get('distortion')!r}"
-        )
+    fits = bool(K.shape == (3, 3) and np.isfinite(K).all() and K[0, 0] > 0 and K[1, 1] > 0)
+    _check(key, "K", value["K"], fits, "a 3x3 matrix of pixels with fx, fy > 0")
+    fits = bool(distortion.shape in ((4,), (5,), (8,), (12,), (14,)) and np.isfinite(distortion).all())
+    _check(key, "distortion", value.get("distortion"), fits, "4, 5, 8, 12 or 14 numbers")
     return K, distortion
 
 
@@ -146,11 +144,7 @@ class Source:
     def config(self) -> dict[str, Any]:
         """The source as its config (primitives): what :meth:`of` takes."""
         out: dict[str, Any] = {"layout": self.layout, "root": str(self.root), "keep_every": self.keep_every}
-        out["camera"] = (
-            None
-            if self.camera is None
-            else {"K": self.camera[0].tolist(), "distortion": self.camera[1].tolist()}
-        )
+        out["camera"] = self.camera and {"K": self.camera[0].tolist(), "distortion": self.camera[1].tolist()}
         if self.render is not None:
             out.update(dataclasses.asdict(self.render))
             out["cameras"] = None if self.render.cameras is None else self.render.cameras.manifest()
@@ -205,14 +199,14 @@ class _Spec:
         name = cls.__name__.lower()
         given = _fields(cls, value, f"data.{name}")
         try:
-            merged = OmegaConf.merge(OmegaConf.structured(cls), DESCRIBED[name], given)
+            merged = OmegaConf.merge(OmegaConf.structured(cls), DESCRIBED.get(name, {}), given)
             return cls(**OmegaConf.to_container(merged, resolve=True))  # type: ignore[arg-type]
         except OmegaConfBaseException as e:
             raise UserError(f"data.{name}.{typed_value_message(e)}") from None
 
 
 @dataclass
-class Splits:
+class Splits(_Spec):
     """Sequence names of each split (``<source>/<sequence>`` with several sources). A value may be
     ``["00", "07"]``, ``"00,07"``, ``[0, 7]`` or ``7`` (typed ``Any`` for that), each a tuple of names."""
 
@@ -228,11 +222,6 @@ class Splits:
             if "" in names:
                 raise UserError(f"data.splits.{key}: empty sequence name in {given!r}")
             setattr(self, key, names)
-
-    @classmethod
-    def of(cls, value: Any) -> Splits:
-        """From ``{train: [...], ...}``."""
-        return cls(**_fields(cls, value, "data.splits"))
 
 
 @dataclass
@@ -250,24 +239,16 @@ class Frames(_Spec):
     def __post_init__(self) -> None:
         for key in ("height", "width"):
             _require(self, key, lambda v: is_integer(v, 16), "an integer >= 16 pixels")
-        one_of = f"one of {', '.join(NORMALIZATIONS)}"
-        _require(self, "normalization", lambda v: v in NORMALIZATIONS, one_of)
-        self.statistics = _statistics(self.statistics)
-
-
-def _statistics(value: Any) -> dict[str, list[float]] | None:
-    """``{"mean": [3], "std": [3 > 0]}`` as lists of floats, or None."""
-    if value is None:
-        return None
-    try:
-        mean, std = (np.asarray(value[key], dtype=np.float64) for key in ("mean", "std"))
-    except (KeyError, TypeError, ValueError):
-        mean = std = np.zeros(0)
-    if mean.shape != (3,) or std.shape != (3,) or not np.all(std > 0) or not np.isfinite(mean).all():
-        raise UserError(
-            f"data.frames.statistics: expected {{mean: [3 floats], std: [3 floats > 0]}}, got {value!r}"
-        )
-    return {"mean": mean.tolist(), "std": std.tolist()}
+        _require(self, "normalization", lambda v: v in NORMALIZATIONS, f"one of {', '.join(NORMALIZATIONS)}")
+        if self.statistics is None:
+            return
+        try:
+            mean, std = (np.asarray(self.statistics[key], dtype=np.float64) for key in ("mean", "std"))
+        except (KeyError, TypeError, ValueError):
+            mean = std = np.zeros(0)
+        fits = bool(mean.shape == std.shape == (3,) and np.all(std > 0) and np.isfinite(mean).all())
+        _require(self, "statistics", lambda _: fits, "{mean: [3 floats], std: [3 floats > 0]}")
+        self.statistics = {"mean": mean.tolist(), "std": std.tolist()}
 
 
 @dataclass
@@ -300,8 +281,7 @@ class Flow(_Spec):
 
 def flow_of(value: Any) -> FlowSetting:
     """``data.flow`` ``{method, scale}`` as a :class:`lossvo.data.flow.FlowSetting`."""
-    flow = Flow.of(value)
-    return FlowSetting(flow.method, flow.scale)
+    return FlowSetting(**dataclasses.asdict(Flow.of(value)))
 
 
 @dataclass
@@ -425,10 +405,8 @@ def check_overrides(overrides: Seq[str]) -> None:
     for line in overrides:
         key = line.lstrip("+~").split("=", 1)[0]
         flat = key.removeprefix("data.")
-        if key.startswith("data.") and "." not in flat and flat not in SPECS:
-            new = new_key(flat)
-            if new is not None:
-                raise UserError(f"{key}: not a data key; the setting is data.{new} (docs/data.md lists them)")
+        if key.startswith("data.") and "." not in flat and flat not in SPECS and (new := new_key(flat)):
+            raise UserError(f"{key}: not a data key; the setting is data.{new} (docs/data.md lists them)")
 
 
 def refusing_flat_keys(main: Callable[[], _R]) -> Callable[[], _R]:

@@ -43,11 +43,6 @@ def _where(which: torch.Tensor, new: torch.Tensor, old: torch.Tensor) -> torch.T
     return torch.where(which.view(-1, *[1] * (old.dim() - 1)), new, old)
 
 
-def _draw(p: float, size: int, generator: torch.Generator | None) -> torch.Tensor:
-    """(size,) bool on the CPU, each True with probability ``p``."""
-    return torch.rand(size, generator=generator) < p
-
-
 def _check(where: str, value: Any, high: float, what: str) -> None:
     if not (is_number(value) and 0.0 <= value <= high):
         raise UserError(f"data.transforms: {where}: expected {what} in [0, {high:g}], got {value!r}")
@@ -65,7 +60,7 @@ class Mirror:
     def __call__(
         self, inputs: Inputs, targets: torch.Tensor, generator: torch.Generator | None = None
     ) -> tuple[Inputs, torch.Tensor]:
-        which = _draw(self.p, inputs["frames"].shape[0], generator).to(targets.device, non_blocking=True)
+        which = (torch.rand(inputs["frames"].shape[0], generator=generator) < self.p).to(targets.device)
         mirrored = mirror_inputs(inputs)
         out = {
             k: _where(which, mirrored[k], v) if k in ("frames", "flow", "K") else v for k, v in inputs.items()
@@ -89,7 +84,7 @@ class Roll:
         self, inputs: Inputs, targets: torch.Tensor, generator: torch.Generator | None = None
     ) -> tuple[Inputs, torch.Tensor]:
         B, L = inputs["frames"].shape[:2]
-        which = _draw(self.p, B, generator)
+        which = torch.rand(B, generator=generator) < self.p
         draw = (2.0 * torch.rand(B, L - 1, generator=generator) - 1.0) * self.max_rad * which[:, None]
         angles = torch.cat((torch.zeros(B, 1), draw), 1).to(targets.device, non_blocking=True)
         return rolled_windows(inputs, targets, angles)

@@ -25,9 +25,8 @@ def tile(n_frames: int, seq_len: int, gap: np.ndarray | None = None) -> np.ndarr
         raise ValueError(f"a sequence needs at least 2 frames for one relative pose, got {n_frames}")
     if seq_len < 2:
         raise ValueError(f"seq_len must be >= 2 frames, got {seq_len}")
-    cuts = np.flatnonzero(gap) if gap is not None else np.zeros(0, dtype=np.int64)
-    pieces, first = [], 0
-    for k in cuts.tolist():  # a few gaps a sequence: the stretches between them, then the gap's own pair
+    pieces, first = [], 0  # a few gaps a sequence: the stretches between them, then the gap's own pair
+    for k in np.flatnonzero([] if gap is None else gap).tolist():
         pieces += [_stretch(first, k + 1, seq_len), np.array([[k, k + 2]], dtype=np.int64)]
         first = k + 1
     pieces.append(_stretch(first, n_frames, seq_len))
@@ -66,10 +65,8 @@ class SameLengthBatches(BatchSampler):
     """Batches of at most ``batch_size`` windows of one length (``lengths``: frames of each window), in
     the order of ``sampler``: a sequence's last tile may be shorter than the others."""
 
-    def __init__(
-        self, sampler: Sampler[int], batch_size: int, drop_last: bool = False, lengths: Sequence[int] = ()
-    ) -> None:
-        super().__init__(sampler, batch_size, drop_last)
+    def __init__(self, sampler: Sampler[int], batch_size: int, lengths: Sequence[int]) -> None:
+        super().__init__(sampler, batch_size, drop_last=False)
         self.lengths = list(lengths)
 
     def __iter__(self) -> Iterator[list[int]]:
@@ -80,18 +77,15 @@ class SameLengthBatches(BatchSampler):
             if len(batch) == self.batch_size:
                 yield batch
                 open_batches[self.lengths[index]] = []
-        if not self.drop_last:
-            yield from (batch for batch in open_batches.values() if batch)
+        yield from (batch for batch in open_batches.values() if batch)
 
     def __len__(self) -> int:
-        counts = np.bincount([self.lengths[i] for i in self.sampler]) if self.lengths else np.zeros(0)
-        full, rest = np.divmod(counts, self.batch_size)
-        return int(full.sum() + (0 if self.drop_last else np.count_nonzero(rest)))
+        return sum(1 for _ in self)
 
 
 class WindowDataset(Dataset):
     """Windows of cached frames with their relative-pose targets, as rows ``(sequence, start, stop, step)``
-    of :attr:`index`: training windows at each frame step of ``steps``, or tiles (``tiled``).
+    of :attr:`index`: training windows at each frame step of ``steps``, or tiles (``tiled``, steps ``[1]``).
 
     Items: ``frames`` (L, 3, H, W) uint8, ``targets`` (L - 1, 4, 4) float32, ``K`` (3, 3) float32,
     ``metric`` () bool and, with ``flow_files`` (step -> one file per sequence), ``flow`` (L - 1, 2, H, W)
@@ -99,40 +93,30 @@ class WindowDataset(Dataset):
     """
 
     def __init__(
-        self, cache_files: list[Path], poses: list[np.ndarray], seq_len: int,
-        steps: Sequence[int] = (1,), tiled: bool = False, intrinsics: list[np.ndarray] | None = None,
-        flow_files: dict[int, list[Path]] | None = None, times: list[np.ndarray] | None = None,
-        metric: Sequence[bool] | None = None,
+        self, cache_files: list[Path], poses: list[np.ndarray], seq_len: int, steps: Sequence[int],
+        tiled: bool, intrinsics: list[np.ndarray], flow_files: dict[int, list[Path]] | None,
+        times: list[np.ndarray], metric: Sequence[bool],
     ) -> None:  # fmt: skip
         self.cache_files = cache_files
         self.flow_files = flow_files
-        Ks = intrinsics if intrinsics is not None else [np.eye(3)] * len(poses)
-        self.intrinsics = [torch.from_numpy(np.asarray(K, dtype=np.float32)) for K in Ks]
-        flags = [True] * len(poses) if metric is None else list(metric)
-        self.metric = [torch.tensor(bool(flag)) for flag in flags]
-        steps = (1,) if tiled else tuple(steps)
+        self.intrinsics = [torch.from_numpy(np.asarray(K, dtype=np.float32)) for K in intrinsics]
+        self.metric = [torch.tensor(bool(flag)) for flag in metric]
         self.targets = {
             s: [torch.from_numpy(relative_targets(p, s).astype(np.float32)) for p in poses] for s in steps
         }
-        lengths = [len(p) for p in poses]
-        gap = [gaps(t) for t in times] if times is not None else [None] * len(poses)
-        rows = [
-            self._rows(i, n, seq_len, s, gap[i], tiled)
-            for s in steps
-            for i, n in enumerate(lengths)
-            if n >= 2
-        ]
-        self.index = np.concatenate(rows) if rows else np.zeros((0, 4), dtype=np.int64)
-
-    @staticmethod
-    def _rows(seq: int, n: int, seq_len: int, step: int, gap: np.ndarray | None, tiled: bool) -> np.ndarray:
-        """(M, 4) rows (sequence, start, stop, step) of a sequence's windows (tiles: step 1)."""
-        if tiled:
-            starts, stops = tile(n, seq_len, gap).T
-        else:
-            starts = training_starts(n, seq_len, step, gap)
-            stops = starts + step * (seq_len - 1) + 1
-        return np.stack((np.full_like(starts, seq), starts, stops, np.full_like(starts, step)), axis=1)
+        sequences = [(len(p), gaps(t)) for p, t in zip(poses, times, strict=True)]
+        rows = [np.zeros((0, 4), dtype=np.int64)]  # (sequence, start, stop, step) of each window
+        for s in steps:
+            for seq, (n, gap) in enumerate(sequences):
+                if n < 2:
+                    continue
+                if tiled:
+                    starts, stops = tile(n, seq_len, gap).T
+                else:
+                    starts = training_starts(n, seq_len, s, gap)
+                    stops = starts + s * (seq_len - 1) + 1
+                rows.append(np.stack((np.full_like(starts, seq), starts, stops, np.full_like(starts, s)), 1))
+        self.index = np.concatenate(rows)
 
     @property
     def lengths(self) -> np.ndarray:
@@ -148,8 +132,7 @@ class WindowDataset(Dataset):
 
     @functools.cached_property
     def flow(self) -> dict[int, list[np.ndarray]]:
-        files = self.flow_files or {}
-        return {step: [np.load(f, mmap_mode="r") for f in paths] for step, paths in files.items()}
+        return {s: [np.load(f, mmap_mode="r") for f in paths] for s, paths in (self.flow_files or {}).items()}
 
     def __len__(self) -> int:
         return len(self.index)
