@@ -227,7 +227,7 @@ class Gathered:
 
     def __init__(self, windows: resident.ResidentWindows, batch_size: int, width: int) -> None:
         self.windows, self.batch_size, self.width = windows, batch_size, width
-        self.order = np.random.default_rng(1).permutation(len(windows))
+        self.order = np.random.default_rng(1).permutation(len(windows.index))
         self.position = 0
         self.scale = torch.full((3, 1, 1), 1 / (255 * 0.25), device=windows.device)  # std 0.25, mean 0.5
         self.shift = torch.full((3, 1, 1), 0.5 / 0.25, device=windows.device)

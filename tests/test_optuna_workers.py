@@ -202,6 +202,7 @@ def test_two_workers_share_one_study_without_duplicates(kind: str, request: pyte
     assert len(jobs) == 2 * TRIALS
     assert {json.loads((j / "status.json").read_text())["status"] for j in jobs} == {"completed"}
     assert "best_value" in (tmp_path / "sweep" / "optimization_results.yaml").read_text()
+    assert (tmp_path / "sweep" / "multirun.yaml").is_file()  # the sweep's marker, written before any job
 
 
 @pytest.mark.slow

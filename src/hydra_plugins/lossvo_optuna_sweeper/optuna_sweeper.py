@@ -117,6 +117,12 @@ class LossvoOptunaSweeper(Sweeper):
             f"Study {study.study_name} in {where}, sampler {type(study.sampler).__name__}, "
             f"directions {self.directions}"
         )
+        # The sweep's marker before any job, as Hydra's basic sweeper writes it: a worker started meanwhile
+        # finds the folder lossvo's (lossvo.output_folders) while a job folder has no config yet.
+        assert self.config is not None
+        sweep_dir = Path(str(self.config.hydra.sweep.dir))
+        sweep_dir.mkdir(parents=True, exist_ok=True)
+        OmegaConf.save(self.config, sweep_dir / "multirun.yaml")
         heartbeats = shared_study.Heartbeats(self.storage.heartbeat_interval)
         left = self.n_trials
         while left > 0:
