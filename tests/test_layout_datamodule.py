@@ -250,6 +250,20 @@ def test_a_camera_override_replaces_the_readers(tum_root: Path, tmp_path: Path) 
     np.testing.assert_allclose(dm.intrinsics(FR1), camera.resized_intrinsics(np.array(K), FRAME_HW, (24, 32)))
 
 
+def test_a_camera_override_reads_a_tum_sequence_whose_name_names_no_camera(tmp_path: Path) -> None:
+    """A TUM-layout recording of another camera: its name names no Freiburg set-up, so the reader alone
+    refuses it, and data.sources.tum.camera gives it its camera."""
+    name = "my_recording"
+    write_tum(tmp_path / "tum" / name, 100.0 + np.arange(12) / 30, 99.99 + np.arange(50) / 100)
+    settings = {"train": [name], "test": [name]}
+    with pytest.raises(UserError, match="unknown camera"):
+        datamodule(tmp_path / "tum", tmp_path / "cache", **settings).setup()
+    K = [[40.0, 0.0, 31.5], [0.0, 40.0, 23.5], [0.0, 0.0, 1.0]]
+    dm = datamodule(tmp_path / "tum", tmp_path / "cache", camera={"K": K}, **settings)
+    dm.setup()
+    np.testing.assert_array_equal(dm.sequences[name].K, K)
+
+
 @pytest.mark.parametrize(
     ("value", "message"),
     [

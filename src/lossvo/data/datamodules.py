@@ -163,7 +163,11 @@ class VODataModule(L.LightningDataModule):
             root = layouts.dataset_root(source.reader, source.root)
             try:
                 seq = layouts.load_sequence(
-                    source.reader, root, source.file_name(local), require_poses=name in labelled
+                    source.reader,
+                    root,
+                    source.file_name(local),
+                    require_poses=name in labelled,
+                    camera=source.camera,
                 )
             except DatasetFormatError as e:
                 found = layouts.list_sequences(source.reader, root)
@@ -174,8 +178,6 @@ class VODataModule(L.LightningDataModule):
                         f"it has {', '.join(found) or 'none'})"
                     ) from e
                 raise
-            if source.camera is not None:
-                seq = dataclasses.replace(seq, K=source.camera[0], distortion=source.camera[1])
             self.sequences[name] = seq.every(source.keep_every)
 
     def cache_path(self, name: str | None = None) -> Path:

@@ -4,9 +4,12 @@ its reader, a module returning :class:`lossvo.data.sequence.Sequence` (docs/data
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from pathlib import Path
 from types import ModuleType
+
+import numpy as np
 
 from lossvo.console import UserError
 from lossvo.data import euroc, kitti, mimir, tartanair, tum
@@ -42,9 +45,20 @@ def dataset_root(layout: str, root: str | os.PathLike) -> Path:
     return Path(root).expanduser()
 
 
-def load_sequence(layout: str, root: Path, name: str, require_poses: bool = True) -> Sequence:
-    """One sequence of the dataset at ``root`` (:func:`dataset_root`), read by its layout's reader."""
-    return READERS[check_layout(layout)].load_sequence(root, name, require_poses=require_poses)
+def load_sequence(
+    layout: str,
+    root: Path,
+    name: str,
+    require_poses: bool = True,
+    camera: tuple[np.ndarray, np.ndarray] | None = None,
+) -> Sequence:
+    """One sequence of the dataset at ``root`` (:func:`dataset_root`), read by its layout's reader;
+    ``camera`` (K (3, 3) pixels, distortion) replaces the reader's, and the TUM reader, which otherwise
+    takes the camera from the sequence's name, is given it."""
+    reader = READERS[check_layout(layout)]
+    given = {"K": camera[0], "distortion": camera[1]} if camera is not None and reader is tum else {}
+    seq = reader.load_sequence(root, name, require_poses=require_poses, **given)
+    return seq if camera is None else dataclasses.replace(seq, K=camera[0], distortion=camera[1])
 
 
 def list_sequences(layout: str, root: Path) -> list[str]:
