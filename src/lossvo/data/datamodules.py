@@ -87,6 +87,7 @@ class VODataModule(L.LightningDataModule):
         self.resident: dict[str, resident.ResidentWindows] | None = None  # by split, once decided
         self._device: torch.device | None = None  # where resident windows are kept
         self.sequences: dict[str, Sequence] = {}
+        self._manifests: dict[str, dict] = {}  # the frame caches' manifests, by sequence
         self.mean: np.ndarray | None = None  # per-channel statistics, set by setup
         self.std: np.ndarray | None = None
         self.datasets: dict[str, WindowDataset] = {}
@@ -156,7 +157,7 @@ class VODataModule(L.LightningDataModule):
         only test sequences may lack poses."""
         self._render()
         labelled = set(self.splits["train"]) | set(self.splits["val"]) | set(self.splits["unseen"])
-        self.sequences = {}
+        self.sequences, self._manifests = {}, {}
         for name in self.all_names:
             key, local = self._split_name(name)
             source = self.sources[key]
@@ -197,7 +198,9 @@ class VODataModule(L.LightningDataModule):
 
     def _manifest(self, name: str) -> dict:
         """The manifest of sequence ``name``'s cached frames: what they were built from."""
-        return json.loads(self._frame_files(name)[1].read_text())
+        if name not in self._manifests:  # read once per load_metadata: K and the sources ask for it often
+            self._manifests[name] = json.loads(self._frame_files(name)[1].read_text())
+        return self._manifests[name]
 
     def prepare_data(self) -> None:
         """Check the dataset, then build what is missing or stale: frames, statistics and flow."""

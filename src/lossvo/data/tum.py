@@ -115,22 +115,39 @@ def associate(
     gt_times = np.asarray(gt_times, dtype=np.float64)
     if np.any(np.diff(gt_times) <= 0):
         raise UserError("gt_times must be strictly increasing")
-    lo = np.searchsorted(gt_times, frame_times - max_difference) - 1  # a stamp of margin each side
-    hi = np.searchsorted(gt_times, frame_times + max_difference, side="right") + 1
-    candidates = sorted(
-        (abs(frame_times[i] - gt_times[j]), i, j)
-        for i in range(len(frame_times))
-        for j in range(max(lo[i], 0), min(hi[i], len(gt_times)))
-        if abs(frame_times[i] - gt_times[j]) < max_difference
-    )
-    pairs: dict[int, int] = {}
-    taken: set[int] = set()
-    for _, i, j in candidates:
-        if i not in pairs and j not in taken:
-            pairs[i] = j
-            taken.add(j)
-    index = np.array(sorted(pairs.items()), dtype=np.int64).reshape(-1, 2)
-    return index[:, 0], index[:, 1]
+    frames, stamps = _candidates(frame_times, gt_times, max_difference)
+    order = np.lexsort((stamps, frames, np.abs(frame_times[frames] - gt_times[stamps])))
+    frames, stamps = frames[order], stamps[order]
+    chosen_frames, chosen_stamps = [], []
+    while frames.size:  # rounds of pairs first for both their frame and their stamp: the greedy takes them
+        first_of_frame = np.zeros(frames.size, bool)
+        first_of_frame[np.unique(frames, return_index=True)[1]] = True
+        first_of_stamp = np.zeros(stamps.size, bool)
+        first_of_stamp[np.unique(stamps, return_index=True)[1]] = True
+        take = first_of_frame & first_of_stamp
+        chosen_frames.append(frames[take])
+        chosen_stamps.append(stamps[take])
+        keep = ~np.isin(frames, frames[take]) & ~np.isin(stamps, stamps[take])
+        frames, stamps = frames[keep], stamps[keep]
+    frame_index = np.concatenate([np.zeros(0, np.int64), *chosen_frames])
+    gt_index = np.concatenate([np.zeros(0, np.int64), *chosen_stamps])
+    by_frame = np.argsort(frame_index, kind="stable")
+    return frame_index[by_frame], gt_index[by_frame]
+
+
+def _candidates(
+    frame_times: np.ndarray, gt_times: np.ndarray, max_difference: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(P,) int64 frame and ground-truth indices of every pair less than ``max_difference`` apart: by
+    ``searchsorted`` with a stamp of margin each side, then the exact test."""
+    lo = np.maximum(np.searchsorted(gt_times, frame_times - max_difference, side="left") - 1, 0)
+    hi = np.minimum(np.searchsorted(gt_times, frame_times + max_difference, side="right") + 1, len(gt_times))
+    counts = np.maximum(hi - lo, 0)
+    frames = np.repeat(np.arange(len(frame_times)), counts)
+    offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    stamps = np.repeat(lo, counts) + offsets
+    close = np.abs(frame_times[frames] - gt_times[stamps]) < max_difference
+    return frames[close].astype(np.int64), stamps[close].astype(np.int64)
 
 
 def camera(

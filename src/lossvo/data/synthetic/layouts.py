@@ -13,9 +13,8 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from lossvo.console import UserError
-from lossvo.data import tartanair, tum
-from lossvo.data.layouts import LAYOUTS, check_layout, dataset_root, load_sequence
+from lossvo.data import kitti, tartanair, tum
+from lossvo.data.layouts import LAYOUTS, check_layout
 from lossvo.data.synthetic import platforms, routes
 from lossvo.data.synthetic.png import write_png
 from lossvo.data.synthetic.render import Renderer
@@ -116,13 +115,30 @@ def sequence_paths(layout: str, sequence: str) -> list[str]:
     return [sequence_name(layout, sequence)]
 
 
+FILES = {
+    "kitti": ("image_2/*.png", ("calib.txt", "times.txt")),
+    "tum": ("rgb/*.png", ("rgb.txt", "groundtruth.txt")),
+    "euroc": (
+        "mav0/cam0/data/*.png",
+        ("mav0/cam0/data.csv", "mav0/cam0/sensor.yaml", "mav0/state_groundtruth_estimate0/data.csv"),
+    ),
+    "tartanair": ("image_left/*_left.png", ("pose_left.txt",)),
+    "mimir": (
+        "rgb/cam0/data/*.png",
+        ("rgb/cam0/data.csv", "rgb/cam0/sensor.yaml", "pose_groundtruth/data.csv"),
+    ),
+}
+"""Each layout's frames (a glob) and other files in a sequence's folder, as a rendering writes them."""
+
+
 def sequence_complete(root: Path, layout: str, sequence: str, n_frames: int) -> bool:
-    """Whether root holds a layout's sequence that its reader reads, with ground truth and n_frames frames."""
-    try:
-        seq = load_sequence(layout, dataset_root(layout, root), sequence_name(layout, sequence))
-    except UserError:
-        return False
-    return len(seq.images) + seq.dropped == n_frames
+    """Whether root holds a layout's sequence with its files (KITTI's poses too) and n_frames frames: a
+    check of presence, not of content, so that reusing a rendered dataset costs no parsing."""
+    kitti_layout = layout == "kitti"
+    folder = root / "sequences" / sequence if kitti_layout else root / sequence_name(layout, sequence)
+    frames, files = FILES[layout]
+    required = [folder / f for f in files] + ([kitti.pose_path(root, sequence)] if kitti_layout else [])
+    return all(p.is_file() for p in required) and sum(1 for _ in folder.glob(frames)) == n_frames
 
 
 def scaled_size(size: tuple[int, int], scale: float) -> tuple[int, int]:

@@ -58,7 +58,7 @@ def read_manifest(root: Path) -> dict | None:
 
 
 def complete_sequences(root: Path, shared: dict) -> dict[str, int]:
-    """{sequence: frames} of the sequences its layout's reader reads whole, in a dataset under root whose
+    """{sequence: frames} of the sequences whose files are all there, in a dataset under root whose
     manifest has the entries shared (:meth:`Rendering.header`); {} for any other root."""
     manifest = read_manifest(root)
     if manifest is None or any(manifest.get(k) != shared.get(k) for k in {*shared, "layout", "cameras"}):
