@@ -17,7 +17,6 @@ from omegaconf import DictConfig
 from lossvo import eval as lossvo_eval
 from lossvo import train
 from lossvo.data.datamodules import VODataModule
-from lossvo.data.specs import nested
 from lossvo.training import fitting, lifecycle
 
 DEVICES = [
@@ -28,11 +27,26 @@ DEVICES = [
 ]
 
 
-def data_module(root: str | Path, layout: str = "kitti", **flat: object) -> VODataModule:
-    """A data module of one dataset, from keyword arguments of the flat form (``height=32``, ``train=[...]``,
-    ``on_device=False``: :func:`lossvo.data.specs.nested` puts each into its spec)."""
-    config = nested({"layout": layout, "root": str(root), **flat})
-    config.pop("_target_")
+SPEC_OF = {
+    **dict.fromkeys(("train", "val", "test", "unseen"), "splits"),
+    **dict.fromkeys(("height", "width", "crop", "normalization", "statistics", "cache_dir"), "frames"),
+    **dict.fromkeys(("seq_len", "frame_steps", "batch_size", "per_epoch"), "windows"),
+    **dict.fromkeys(("num_workers", "pin_memory", "on_device", "device_budget_gb"), "loader"),
+    **dict.fromkeys(("method", "scale"), "flow"),
+}
+"""The spec of each keyword of :func:`data_module`; any other keyword is the source's."""
+RENAMED = {"windows_per_epoch": "per_epoch", "flow": "method", "flow_scale": "scale"}
+RENAMED["frames"] = "frame_counts"
+
+
+def data_module(root: str | Path, layout: str = "kitti", **keys: object) -> VODataModule:
+    """A data module of one dataset named ``layout``, each keyword (``height=32``, ``train=[...]``,
+    ``on_device=False``, the synthetic source's ``frames=6``) put into its spec."""
+    config: dict[str, dict] = {"sources": {layout: {"layout": layout, "root": str(root)}}}
+    for key, value in keys.items():
+        key = RENAMED.get(key, key)
+        spec = config["sources"][layout] if key not in SPEC_OF else config.setdefault(SPEC_OF[key], {})
+        spec[key] = value
     return VODataModule(**config)
 
 

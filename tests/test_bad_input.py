@@ -118,7 +118,7 @@ def places(tiny_kitti: Path, euler_checkpoint: Path, other_study: str, tmp_path:
     (tmp_path / "job_without_config" / "0_loss-euler").mkdir(parents=True)
     (tmp_path / "one_job_sweep" / "0_loss-euler" / ".hydra").mkdir(parents=True)
     (tmp_path / "one_job_sweep" / "0_loss-euler" / ".hydra" / "config.yaml").write_text("seed: 0\n")
-    torch.save({"hyper_parameters": {"model": {}, "loss": {}}, "state_dict": {}, "schema_version": 2},
+    torch.save({"hyper_parameters": {"model": {}, "loss": {}}, "state_dict": {}, "schema_version": 3},
                tmp_path / "newer_checkpoint")  # fmt: skip
     (tmp_path / "newer_run").mkdir()
     (tmp_path / "newer_run" / "status.json").write_text('{"schema_version": 2, "status": "completed"}\n')

@@ -207,39 +207,23 @@ def test_a_flat_description_of_an_earlier_version_reads_as_specs() -> None:
     )
 
 
-def test_a_network_argument_withdrawn_since_reads_at_the_value_this_version_builds(tmp_path: Path) -> None:
-    """An earlier FlowVO's ``intrinsics_layer: true`` is left out of its config; ``false`` (a network this
-    version cannot build) is refused in one line naming the file and the key."""
-    model = {"_target_": "lossvo.models.FlowVO", "out_dim": 6, "intrinsics_layer": True}
-    content = {"hyper_parameters": {"model": model, "loss": {}}}
-    assert checkpoints.Description.of(content).model == {"_target_": "lossvo.models.FlowVO", "out_dim": 6}
-    assert model["intrinsics_layer"] is True  # the checkpoint's own config as it was
-    saved: dict = {
-        "hyper_parameters": {"model": {**model, "intrinsics_layer": False}, "loss": {}},
-        "state_dict": {},
-    }
-    torch.save(saved, tmp_path / "flow-alone.ckpt")
-    with pytest.raises(
-        checkpoints.CheckpointError,
-        match=r"flow-alone\.ckpt: model\.intrinsics_layer=False: this version has True only$",
-    ):
-        checkpoints.load_network(tmp_path / "flow-alone.ckpt")
-
-
 def test_a_checkpoint_of_another_schema_version_is_one_line(tmp_path: Path) -> None:
-    """A checkpoint records its schema_version as it is saved; one without it reads as this version, one
-    of another version is refused in one line naming the file, its version and the supported one."""
+    """A checkpoint records its schema_version as it is saved; one without it (written before checkpoints
+    recorded it) or of another version is refused in one line naming the file, its version and the
+    supported one."""
     saved: dict = {}
     checkpoints.describe(saved, None)
-    assert saved["schema_version"] == checkpoints.SCHEMA_VERSION == 1
-    path = tmp_path / "newer.ckpt"
+    assert saved["schema_version"] == checkpoints.SCHEMA_VERSION == 2
+    path = tmp_path / "other.ckpt"
     content = {"hyper_parameters": {"model": {}, "loss": {}}, "state_dict": {}}
-    torch.save(content, path)
-    assert checkpoints.read(path)["hyper_parameters"] == content["hyper_parameters"]
     torch.save({**content, "schema_version": 2}, path)
-    with pytest.raises(checkpoints.CheckpointError) as caught:
-        checkpoints.read(path)
-    assert str(caught.value) == f"{path}: checkpoint schema_version 2 is not supported (supported: 1)"
+    assert checkpoints.read(path)["hyper_parameters"] == content["hyper_parameters"]
+    again = "(supported: 2); train the network again with this version"
+    for version, found in ((None, "without schema_version"), (1, "schema_version 1 is not supported")):
+        torch.save(content if version is None else {**content, "schema_version": version}, path)
+        with pytest.raises(checkpoints.CheckpointError) as caught:
+            checkpoints.read(path)
+        assert str(caught.value) == f"{path}: checkpoint {found} {again}"
 
 
 def test_foreign_files_are_one_line(tmp_path: Path) -> None:

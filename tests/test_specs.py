@@ -1,5 +1,5 @@
 """lossvo.data.specs: specs built from the mappings Hydra passes, one line naming the full key for bad
-input, and the flat descriptions of earlier checkpoints read in the specs' form."""
+input."""
 
 from __future__ import annotations
 
@@ -7,26 +7,21 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import torch
 from hydra import compose, initialize_config_dir
 from hydra.errors import HydraException
 from omegaconf import OmegaConf
 
 from lossvo.console import UserError, user_message
 from lossvo.data import specs
-from lossvo.data.datamodules import VODataModule
 from lossvo.data.flow import FlowSetting
-from lossvo.evaluation.checkpoints import Description
 from lossvo.train import CONFIG_DIR
-
-FIXTURES = Path(__file__).resolve().parent / "data"
 
 
 def test_specs_take_defaults_and_freeze_lists() -> None:
     windows = specs.Windows.of({"seq_len": 3, "frame_steps": [1, 2, 1]})
     assert windows == specs.Windows(seq_len=3, frame_steps=(1, 2), per_epoch=None, batch_size=8)
-    assert specs.Frames.of(None) == specs.Frames(**specs.DESCRIBED["frames"])
-    assert specs.flow_of({"method": "dis"}) == FlowSetting("dis", 1.0)
+    assert specs.Frames.of(None) == specs.Frames()
+    assert specs.flow_of({"method": "dis"}) == FlowSetting("dis", 1.5)
     assert specs.Loader.of({"on_device": False}) == specs.Loader(on_device=False)
 
 
@@ -112,114 +107,16 @@ def test_bad_sources_name_the_full_key(value: Any, message: str, tmp_path: Path)
     assert str(caught.value).startswith(message)
 
 
-def test_a_flat_kitti_description_reads_as_specs() -> None:
-    flat = {"_target_": "lossvo.data.datamodules.KittiDataModule", "root": "/k", "train": ["00"],
-            "test": ["02"], "height": 32, "width": 96, "seq_len": 3, "windows_per_epoch": 4, "flow": "dis",
-            "flow_preset": "fast", "num_workers": 0, "statistics": {"mean": [0.5] * 3, "std": [0.2] * 3},
-            "transforms": []}  # fmt: skip
-    assert specs.nested(flat) == {
-        "_target_": "lossvo.data.datamodules.VODataModule",
-        "sources": {"kitti": {"layout": "kitti", "root": "/k"}},
-        "splits": {"train": ["00"], "test": ["02"]},
-        "frames": {"height": 32, "width": 96},
-        "windows": {"seq_len": 3, "per_epoch": 4},
-        "flow": {"method": "dis", "preset": "fast"},
-        "loader": {"num_workers": 0},
-        "statistics": {"mean": [0.5] * 3, "std": [0.2] * 3},
-        "transforms": [],
-    }
-    assert specs.nested(specs.nested(flat)) == specs.nested(flat)
-
-
-def test_flat_synthetic_and_several_dataset_descriptions_read_as_specs() -> None:
-    synthetic = {"_target_": "lossvo.data.datamodules.SyntheticDataModule", "root": None, "frames": {"00": 6},
-                 "render_height": 48, "seed": 1, "train": ["00"]}  # fmt: skip
-    assert specs.nested(synthetic)["sources"] == {
-        "synthetic": {
-            "layout": "synthetic",
-            "root": None,
-            "frame_counts": {"00": 6},
-            "render_height": 48,
-            "seed": 1,
-        }
-    }
-    datasets = {
-        "kitti": {"layout": "kitti", "root": "/k", "train": ["00"]},
-        "tum": {"layout": "tum", "root": "/t", "keep_every": 3, "test": ["x"]},
-    }
-    several = {"_target_": "lossvo.data.datamodules.MultiDataModule", "height": 32, "datasets": datasets}
-    made = specs.nested(several)
-    assert made["sources"] == {"kitti": {"layout": "kitti", "root": "/k"},
-                               "tum": {"layout": "tum", "root": "/t", "keep_every": 3}}  # fmt: skip
-    assert made["splits"] == {"train": ["kitti/00"], "val": [], "test": ["tum/x"], "unseen": []}
-
-
-def test_a_description_with_withdrawn_keys_reads_without_them() -> None:
-    """``windows.shares`` and ``windows.stride`` (how earlier versions drew training windows) are left out
-    whatever their value, ``flow.preset`` where it is the medium one this version computes; the keys
-    themselves are refused in a config."""
-    recorded = {
-        "sources": {"a": {"layout": "kitti"}},
-        "windows": {"seq_len": 3, "stride": 2, "shares": {"a": 0.5}},
-        "flow": {"method": "dis", "preset": "medium", "scale": 1.5},
-    }
-    assert specs.current(recorded) == {
-        "sources": {"a": {"layout": "kitti"}},
-        "windows": {"seq_len": 3},
-        "flow": {"method": "dis", "scale": 1.5},
-    }
-    assert recorded["windows"]["shares"] == {"a": 0.5}  # the checkpoint's own description as it was
-    for key in ("shares", "stride"):
-        with pytest.raises(UserError, match=rf"^data\.windows\.{key}: unknown key"):
-            specs.Windows.of({"seq_len": 3, key: 1})
-    fast = {**recorded, "flow": {"method": "dis", "preset": "fast"}}
-    with pytest.raises(UserError, match=r"^data\.flow\.preset='fast': this version has medium only$"):
-        specs.current(fast)
-
-
-@pytest.mark.parametrize("fixture", ["checkpoint_35d7877.ckpt", "checkpoint_805664b.ckpt"])
-def test_an_earlier_checkpoints_description_builds_a_data_module(fixture: str, tmp_path: Path) -> None:
-    data = Description.of(torch.load(FIXTURES / fixture, weights_only=True)).data
-    assert data is not None and set(data["sources"]) == {"kitti"}
-    arguments = {k: v for k, v in data.items() if k in ("sources", "splits", "frames", "windows", "flow")}
-    module = VODataModule(**arguments)
-    assert module.windows.seq_len == 3 and module.sources["kitti"].layout == "kitti"
-
-
-@pytest.mark.parametrize(
-    ("flat", "new"),
-    [("root", "sources.NAME.root"), ("seq_len", "windows.seq_len"), ("flow_preset", None), ("stride", None),
-     ("windows_per_epoch", "windows.per_epoch"), ("route_mixes", "sources.synthetic.route_mixes"),
-     ("datasets", "sources"), ("test", "splits.test"), ("nope", None)],
-)  # fmt: skip
-def test_new_key(flat: str, new: str | None) -> None:
-    assert specs.new_key(flat) == new
-
-
-def test_a_flat_override_is_refused_naming_its_new_key() -> None:
-    with pytest.raises(
-        UserError, match=r"^data\.seq_len: not a data key; the setting is data\.windows\.seq_len"
-    ):
-        specs.check_overrides(["loss=euler", "data.seq_len=3"])
-    with pytest.raises(UserError, match=r"^data\.root: .* data\.sources\.NAME\.root"):
-        specs.check_overrides(["+data.root=/k"])
-    specs.check_overrides(
-        ["data.windows.seq_len=3", "data.flow=dis", "data.sources.kitti.root=/k", "seq_len=3"]
-    )
-
-
-def test_a_mapping_without_a_key_takes_the_described_default_a_composed_config_the_schemas() -> None:
-    """A checkpoint's description without a key was trained with :data:`specs.DESCRIBED`'s value; a
-    composed config takes the dataclass's default, which the shipped configs run with."""
-    assert (specs.Frames.of({}).height, specs.Windows.of({}).seq_len, specs.flow_of({}).scale) == (
-        184,
-        7,
-        1.0,
-    )
+def test_a_mapping_without_a_key_takes_the_schemas_default() -> None:
+    """A spec built from a mapping and a composed config take the same defaults: the dataclass's."""
+    built = (specs.Frames.of({}).height, specs.Windows.of({}).seq_len, specs.flow_of({}).scale)
     frames, flow = specs.Frames(), OmegaConf.structured(specs.Data).flow
-    assert (frames.height, frames.width, flow.scale) == (160, 208, 1.5)
+    assert built == (frames.height, 6, flow.scale) == (160, 6, 1.5)
     windows = OmegaConf.structured(specs.Data).windows
     assert OmegaConf.to_container(windows)["seq_len"] == "${oc.select:reads.seq_len,6}"
+    for key in ("shares", "stride"):  # keys of earlier versions
+        with pytest.raises(UserError, match=rf"^data\.windows\.{key}: unknown key"):
+            specs.Windows.of({"seq_len": 3, key: 1})
 
 
 SCHEMA_TYPES = [

@@ -74,23 +74,6 @@ def test_a_transform_round_trips_through_its_config() -> None:
         assert instantiate(T.spec(transform)) == transform
 
 
-def test_earlier_augmentation_arguments_read_as_the_transforms_this_version_has() -> None:
-    """``mirror`` becomes a Mirror; the arguments of transforms this version does not have are left out."""
-    old = {"_target_": "x", "seq_len": 3, "augment": True, "reverse": 0.0, "standstill": 0.2, "mirror": 0.5,
-           "zoom": 1.0}  # fmt: skip
-    new = T.upgrade_description(old)
-    assert new == {"_target_": "x", "seq_len": 3, "transforms": [T.spec(T.Mirror(0.5))]}
-    assert T.upgrade_description(new) is new and T.upgrade_description(None) is None
-    assert T.upgrade_description({"zoom": 1.2, "mirror": 0.0}) == {"transforms": []}
-
-
-def test_listed_transforms_this_version_does_not_have_are_left_out() -> None:
-    roll = T.spec(T.Roll(0.5, 0.01))
-    listed = [{"_target_": "lossvo.data.transforms.Zoom", "factor": 1.5}, roll,
-              {"_target_": "lossvo.data.transforms.Jitter"}]  # fmt: skip
-    assert T.upgrade_description({"seq_len": 3, "transforms": listed}) == {"seq_len": 3, "transforms": [roll]}
-
-
 def roll_matrix(angle: float) -> torch.Tensor:
     """(4, 4) float64 Rz(angle): a turn about the camera's optical axis."""
     c, s = float(np.cos(angle)), float(np.sin(angle))

@@ -36,7 +36,7 @@ from lossvo.console import (
     user_message,
 )
 from lossvo.data.sequence import sequence_names
-from lossvo.data.specs import refusing_flat_keys
+from lossvo.data.specs import refusing_scalar_specs
 from lossvo.evaluation import checkpoints
 from lossvo.evaluation.job_folder import Results
 from lossvo.evaluation.metrics import ALIGN_MODES, is_rpe_delta
@@ -139,7 +139,7 @@ def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
 
 @one_line_errors
 @output_folders.leaving_as_found
-@refusing_flat_keys
+@refusing_scalar_specs
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="eval")
 def main(cfg: DictConfig) -> None:
     """Evaluate ``cfg.ckpt_path`` into this Hydra job's folder; bad input leaves no output folder behind."""

@@ -21,7 +21,7 @@ from omegaconf import DictConfig
 
 from lossvo import output_folders
 from lossvo.console import one_line_errors, quiet_lightning
-from lossvo.data.specs import refusing_flat_keys
+from lossvo.data.specs import refusing_scalar_specs
 from lossvo.processes import restore_start_method
 from lossvo.training import fitting, lifecycle, resolvers
 
@@ -35,7 +35,7 @@ CONFIG_DIR = str(Path(__file__).resolve().parent / "conf")
 @one_line_errors
 @output_folders.leaving_as_found
 @resolvers.names_swept_jobs
-@refusing_flat_keys
+@refusing_scalar_specs
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")
 def main(cfg: DictConfig) -> float | None:
     """Train in this Hydra job's folder; returns ``cfg.optimized_metric`` for hyperparameter sweepers."""

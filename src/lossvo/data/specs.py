@@ -1,6 +1,6 @@
 """The data specs (sources, splits, frames, windows, flow, loader): dataclasses that are also the ``data``
-config group's schema (:class:`Data`), and the conversion of earlier checkpoints' data descriptions
-(:func:`current`). Each ``of`` raises UserError naming the full key it refuses; docs/data.md has the rest.
+config group's schema (:class:`Data`). Each ``of`` raises UserError naming the full key it refuses;
+docs/data.md has the rest.
 """
 
 from __future__ import annotations
@@ -195,11 +195,11 @@ class _Spec:
 
     @classmethod
     def of(cls: type[_S], value: Any) -> _S:
-        """The spec from its mapping, the keys it lacks taking :data:`DESCRIBED`'s values."""
+        """The spec from its mapping, the keys it lacks taking their defaults."""
         name = cls.__name__.lower()
         given = _fields(cls, value, f"data.{name}")
         try:
-            merged = OmegaConf.merge(OmegaConf.structured(cls), DESCRIBED.get(name, {}), given)
+            merged = OmegaConf.merge(OmegaConf.structured(cls), given)
             return cls(**OmegaConf.to_container(merged, resolve=True))  # type: ignore[arg-type]
         except OmegaConfBaseException as e:
             raise UserError(f"data.{name}.{typed_value_message(e)}") from None
@@ -319,103 +319,15 @@ class Data:
 
 ConfigStore.instance().store(group="data/shared", name="schema", node=Data)
 
-DESCRIBED: dict[str, dict[str, Any]] = {
-    "frames": {"height": 184, "width": 608, "crop": False, "normalization": "dataset", "statistics": None,
-               "cache_dir": None},
-    "windows": {"seq_len": 7, "frame_steps": [1], "per_epoch": None, "batch_size": 8},
-    "flow": {"method": "none", "scale": 1.0},
-    "loader": {"num_workers": 2, "pin_memory": False, "on_device": "auto", "device_budget_gb": 8.0},
-}  # fmt: skip
-"""The values a spec built from a mapping takes for a key it lacks: those a checkpoint whose data
-description lacks the key was trained with."""
-
-
-RENDER_KEYS = ("render_height", "render_width", "seed", "route_families", "route_mixes")
-MOVED: dict[str, str] = {
-    **{key: f"splits.{key}" for key in SPLITS},
-    **{key: f"frames.{key}" for key in ("height", "width", "crop", "normalization", "cache_dir")},
-    **{key: f"windows.{key}" for key in ("seq_len", "stride", "frame_steps", "batch_size")},
-    **{key: f"loader.{key}" for key in ("num_workers", "pin_memory", "on_device", "device_budget_gb")},
-    **{key: f"sources.NAME.{key}" for key in SOURCE_KEYS},
-    **{key: f"sources.synthetic.{key}" for key in RENDER_KEYS},
-    "windows_per_epoch": "windows.per_epoch",
-    "flow": "flow.method",
-    "flow_preset": "flow.preset",
-    "flow_scale": "flow.scale",
-    "frames": "sources.synthetic.frame_counts",
-    "datasets": "sources",
-}
-"""Each data key of the flat form -> the key of the specs' form holding it."""
-WITHDRAWN: dict[str, Any] = {"windows.shares": None, "windows.stride": None, "flow.preset": "medium"}
-"""Keys of earlier data descriptions this version does not have -> the one value it reads, or None: any."""
-
-
-def new_key(flat: str) -> str | None:
-    """The key that replaced a flat data key (``test`` -> ``splits.test``), or None for none."""
-    new = MOVED.get(flat)
-    return None if new in WITHDRAWN else new
-
-
-def nested(flat: Mapping[str, Any]) -> dict[str, Any]:
-    """A data config or description in the flat form (:data:`MOVED`) in the specs' form; keys of neither
-    form stay at the top."""
-    if "sources" in flat:
-        return dict(flat)
-    out: dict[str, Any] = {"_target_": "lossvo.data.datamodules.VODataModule"}
-    source: dict[str, Any] = {}
-    for key, value in flat.items():
-        spec, _, name = MOVED.get(key, "").partition(".")
-        if spec == "sources" and name:
-            source[name.rpartition(".")[2]] = value
-        elif name:
-            out.setdefault(spec, {})[name] = value
-        elif key not in ("_target_", "datasets"):
-            out[key] = value
-    if "datasets" in flat:
-        datasets = flat["datasets"] or {}
-        out["sources"] = {k: {s: v for s, v in e.items() if s in SOURCE_KEYS} for k, e in datasets.items()}
-        splits = out.setdefault("splits", {})
-        for split in SPLITS:  # the datasets' own splits, as the run names them
-            named = [f"{k}/{n}" for k, e in datasets.items() for n in split_names(e.get(split) or [])]
-            splits[split] = splits.get(split) or named
-        return out
-    synthetic = str(flat.get("_target_", "")).endswith("SyntheticDataModule")
-    layout = SYNTHETIC if synthetic else source.get("layout", "kitti")
-    return out | {"sources": {layout: {**source, "layout": layout}}}
-
-
-def current(description: Mapping[str, Any]) -> dict[str, Any]:
-    """A checkpoint's data description in the specs' form, without :data:`WITHDRAWN` keys; UserError for
-    a value this version does not compute."""
-    out = nested(description)
-    for path, only in WITHDRAWN.items():
-        spec, key = path.split(".")
-        if isinstance(out.get(spec), Mapping) and key in out[spec]:
-            if only is not None and out[spec][key] != only:
-                raise UserError(f"data.{path}={out[spec][key]!r}: this version has {only} only")
-            out[spec] = {k: v for k, v in out[spec].items() if k != key}
-    return out
-
-
 SPECS: dict[str, type] = {spec.__name__.lower(): spec for spec in (Splits, Frames, Windows, Flow, Loader)}
 
 
-def check_overrides(overrides: Seq[str]) -> None:
-    """UserError for a command-line override of a flat-form data key, naming the key that holds it now."""
-    for line in overrides:
-        key = line.lstrip("+~").split("=", 1)[0]
-        flat = key.removeprefix("data.")
-        if key.startswith("data.") and "." not in flat and flat not in SPECS and (new := new_key(flat)):
-            raise UserError(f"{key}: not a data key; the setting is data.{new} (docs/data.md lists them)")
-
-
-def refusing_flat_keys(main: Callable[[], _R]) -> Callable[[], _R]:
-    """A Hydra entry point that refuses, before Hydra composes the config, a flat-form data override
-    (:func:`check_overrides`) and a spec given a value that is no mapping (``data.flow=dis``)."""
+def refusing_scalar_specs(main: Callable[[], _R]) -> Callable[[], _R]:
+    """A Hydra entry point that refuses, before Hydra composes the config, a spec given a value that is no
+    mapping (``data.flow=dis``), naming the key to set instead."""
 
     @functools.wraps(main)
     def wrapped() -> _R:
-        check_overrides(sys.argv[1:])
         for line in sys.argv[1:]:
             key, _, value = line.lstrip("+~").partition("=")
             spec = SPECS.get(key.removeprefix("data.")) if key.startswith("data.") else None

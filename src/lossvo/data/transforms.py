@@ -6,7 +6,6 @@ batch's device, ``inputs`` holding ``frames`` (B, L, 3, H, W) uint8, ``K`` (B, 3
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -150,24 +149,3 @@ Transform = Mirror | Roll
 def spec(transform: Any) -> dict[str, Any]:
     """A transform as a config a checkpoint can hold: ``{"_target_": class path, **fields}``."""
     return {"_target_": f"{type(transform).__module__}.{type(transform).__qualname__}", **vars(transform)}
-
-
-LEGACY_TRANSFORMS = ("standstill", "zoom", "mirror", "reverse", "augment")
-"""Augmentation arguments of checkpoints written before batch transforms (``mirror``: a Mirror's p)."""
-WITHDRAWN = tuple(f"{__name__}.{name}" for name in ("Standstill", "Zoom", "Reverse", "Jitter"))
-"""The ``_target_`` of batch transforms earlier checkpoints may list and this version does not have."""
-
-
-def upgrade_description(data: Any) -> Any:
-    """A checkpoint's data description with the transforms this version has (``data`` itself where
-    nothing changes): ``mirror`` as a :class:`Mirror`, :data:`WITHDRAWN` ones left out."""
-    if not isinstance(data, Mapping):
-        return data
-    listed = data.get("transforms")
-    if any(key in data for key in LEGACY_TRANSFORMS):
-        listed = [spec(Mirror(mirror))] if (mirror := data.get("mirror") or 0.0) > 0 else []
-    elif isinstance(listed, list):
-        listed = [t for t in listed if not (isinstance(t, Mapping) and t.get("_target_") in WITHDRAWN)]
-    if listed == data.get("transforms"):
-        return data
-    return {**{k: v for k, v in data.items() if k not in LEGACY_TRANSFORMS}, "transforms": listed}

@@ -18,8 +18,6 @@ from torch import Tensor, nn
 from lossvo import models
 from lossvo.checks import is_integer
 from lossvo.console import UserError, first_line
-from lossvo.data.specs import current
-from lossvo.data.transforms import upgrade_description
 from lossvo.losses import PoseLoss
 
 TRAINED_WITH = (
@@ -32,12 +30,8 @@ TRAINED_WITH = (
 )
 """Data settings a trained network depends on: evaluation takes them from its checkpoint."""
 
-SCHEMA_VERSION = 1
-"""The version of a lossvo checkpoint's own entries (a checkpoint without ``schema_version`` is read as
-this one, its ``data`` upgraded: :func:`lossvo.data.transforms.upgrade_description`)."""
-
-MODEL_WITHDRAWN = {"intrinsics_layer": True}
-"""Network arguments of earlier versions that this one does not have -> the one value it builds."""
+SCHEMA_VERSION = 2
+"""The version of a lossvo checkpoint's own entries and of its ``data`` description."""
 
 RECORD_ONLY = ("statistics", "dataset_root", "intrinsics")
 """Entries of a checkpoint's ``data`` that are not datamodule arguments."""
@@ -63,16 +57,9 @@ class Description:
 
     @classmethod
     def of(cls, content: Mapping[str, Any]) -> Description:
-        """The description in a checkpoint's content (:func:`read`); UserError naming a withdrawn setting."""
-        hparams, threads = content["hyper_parameters"], content.get("threads")
-        model = dict(hparams["model"])
-        for key, only in MODEL_WITHDRAWN.items():
-            if model.get(key, only) != only:
-                raise UserError(f"model.{key}={model[key]!r}: this version has {only} only")
-            model.pop(key, None)
-        data = upgrade_description(content.get("data"))  # a checkpoint of an earlier version too
-        data = current(data) if isinstance(data, Mapping) else None
-        return cls(model, hparams["loss"], data if isinstance(data, dict) else None,
+        """The description in a checkpoint's content (:func:`read`)."""
+        hparams, threads, data = content["hyper_parameters"], content.get("threads"), content.get("data")
+        return cls(dict(hparams["model"]), hparams["loss"], data if isinstance(data, dict) else None,
                    threads if is_integer(threads) else None, int(content.get("epoch", 0)),
                    int(content.get("global_step", 0)))  # fmt: skip
 
@@ -123,20 +110,18 @@ def read(path: str | os.PathLike) -> dict[str, Any]:
     if not complete:
         raise CheckpointError(f"{path}: cannot load as a lossvo checkpoint (no lossvo network, loss and "
                               f"weights in it)")  # fmt: skip
-    version = content.get("schema_version", SCHEMA_VERSION)
+    version = content.get("schema_version")
     if version != SCHEMA_VERSION:
-        raise CheckpointError(f"{path}: checkpoint schema_version {version!r} is not supported "
-                              f"(supported: {SCHEMA_VERSION})")  # fmt: skip
+        found = f"schema_version {version!r} is not supported" if version else "without schema_version"
+        raise CheckpointError(f"{path}: checkpoint {found} (supported: {SCHEMA_VERSION}); train the network "
+                              "again with this version")  # fmt: skip
     return content
 
 
 def load_network(path: str | os.PathLike, device: str | torch.device = "cpu") -> TrainedNetwork:
     """The network of a checkpoint, with its loss and its training record, on ``device``."""
     content = read(path)
-    try:
-        described = Description.of(content)
-    except UserError as e:
-        raise CheckpointError(f"{path}: {e}") from None
+    described = Description.of(content)
     try:
         network = TrainedNetwork(instantiate(described.model), instantiate(described.loss),
                                  described.data, described.threads)  # fmt: skip

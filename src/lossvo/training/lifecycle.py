@@ -32,9 +32,7 @@ from lossvo.console import (
     user_error_line,
     user_message,
 )
-from lossvo.data.specs import WITHDRAWN
 from lossvo.evaluation import job_folder
-from lossvo.evaluation.checkpoints import MODEL_WITHDRAWN
 from lossvo.evaluation.job_folder import LAST_CHECKPOINT, METRICS, STATUS, Event, Status
 from lossvo.machine import machine
 from lossvo.training import gpu_jobs
@@ -52,11 +50,6 @@ RUN_KEYS = ("data", "model", "loss", "weighting", "selection", "seed", "optimize
 
 NOT_DEFINING = ("data.frames.cache_dir", "data.loader.num_workers")
 """Keys under :data:`RUN_KEYS` that say where the data lies or how it is loaded (so do the sources' roots)."""
-
-WITHDRAWN_KEYS = {f"data.{k}": v for k, v in WITHDRAWN.items()} | {
-    f"model.{k}": v for k, v in MODEL_WITHDRAWN.items()
-}
-"""Keys an earlier version recorded -> the value this one runs (None: any)."""
 
 
 def _first_process() -> bool:
@@ -100,11 +93,8 @@ def killed(out_dir: Path) -> Event:
 
 
 def config_drift(recorded: DictConfig | ListConfig, requested: DictConfig) -> list[str]:
-    """The run-defining keys whose values differ between two configs (withdrawn keys at ours do not)."""
+    """The run-defining keys whose values differ between two configs."""
     theirs, ours = _defining(recorded), _defining(requested)
-    for key, only in WITHDRAWN_KEYS.items():
-        if key not in ours and key in theirs and only in (None, theirs[key]):
-            del theirs[key]
     return sorted(k for k in theirs.keys() | ours.keys() if theirs.get(k) != ours.get(k))
 
 
