@@ -41,10 +41,13 @@ RENAMED["frames"] = "frame_counts"
 
 def data_module(root: str | Path, layout: str = "kitti", **keys: object) -> VODataModule:
     """A data module of one dataset named ``layout``, each keyword (``height=32``, ``train=[...]``,
-    ``on_device=False``, the synthetic source's ``frames=6``) put into its spec."""
+    ``on_device=False``, the synthetic source's ``frames=6``) put into its spec; ``transforms`` as given."""
     config: dict[str, dict] = {"sources": {layout: {"layout": layout, "root": str(root)}}}
     for key, value in keys.items():
         key = RENAMED.get(key, key)
+        if key == "transforms":
+            config[key] = value  # type: ignore[assignment]
+            continue
         spec = config["sources"][layout] if key not in SPEC_OF else config.setdefault(SPEC_OF[key], {})
         spec[key] = value
     return VODataModule(**config)

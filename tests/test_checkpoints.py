@@ -190,23 +190,6 @@ def test_evaluation_data_keeps_the_flow_the_network_read() -> None:
     assert "flow" not in checkpoints.evaluation_data(RECORDED, None, {})  # a network from before flow existed
 
 
-def test_a_flat_description_of_an_earlier_version_reads_as_specs() -> None:
-    content = {
-        "hyper_parameters": {"model": {}, "loss": {}},
-        "data": {"_target_": "lossvo.data.datamodules.KittiDataModule", "root": "/k", "seq_len": 3,
-                 "flow": "dis", "mirror": 0.5, "statistics": {"mean": [0.5] * 3, "std": [1.0] * 3}},
-    }  # fmt: skip
-    data = checkpoints.Description.of(content).data
-    assert data is not None
-    assert data["sources"] == {"kitti": {"layout": "kitti", "root": "/k"}} and data["windows"] == {
-        "seq_len": 3
-    }
-    assert data["flow"] == {"method": "dis"} and data["transforms"][0]["p"] == 0.5
-    assert (
-        checkpoints.lookup(data, "windows.seq_len") == 3 and checkpoints.lookup(data, "frames.height") is None
-    )
-
-
 def test_a_checkpoint_of_another_schema_version_is_one_line(tmp_path: Path) -> None:
     """A checkpoint records its schema_version as it is saved; one without it (written before checkpoints
     recorded it) or of another version is refused in one line naming the file, its version and the

@@ -40,9 +40,9 @@ def test_an_earlier_checkpoint_is_refused_in_one_line_before_any_work(
 def current(content: dict[str, Any], data: dict[str, Any]) -> dict[str, Any]:
     """The fixture's content with this version's ``schema_version`` and the data description ``data``
     (frames, windows and statistics of the fixture's)."""
-    old = content["data"]
-    described = {"frames": {"height": 64, "width": 96}, "windows": {"seq_len": 3}, "transforms": [],
-                 "statistics": old["statistics"], **data}  # fmt: skip
+    described = {"_target_": "lossvo.data.datamodules.VODataModule", "frames": {"height": 64, "width": 96},
+                 "windows": {"seq_len": 3}, "transforms": []}  # fmt: skip
+    described |= {"statistics": content["data"]["statistics"], **data}
     return {**content, "schema_version": checkpoints.SCHEMA_VERSION, "data": described}
 
 
