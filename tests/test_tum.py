@@ -404,7 +404,7 @@ def raises_one_line(call: object, *fragments: str) -> str:
         ("1.0\n", 1, "expected 2 fields"),
         ("# c\n# c\n1.0 a.png\nabc b.png\n", 4, "'abc'"),
         ("1.0 a.png\ninf b.png\n", 2, "expected a timestamp"),
-        ("1.0 a.png\n2.0 b.png\n1.5 c.png\n", 3, "not after"),
+        ("1.0 a.png\n2.0 b.png\n1.5 c.png\n", 3, "does not follow"),
         ("1.0 a.png\n1.0 b.png\n", 2, "strictly increasing"),
     ],
 )
@@ -431,7 +431,7 @@ GOOD = "1.0 0 0 0 0 0 0 1"
         (f"{GOOD} 5\n", 1, "got 9 fields"),
         (f"{GOOD}\n2.0 0 0 x 0 0 0 1\n", 2, "'x'"),
         (f"{GOOD}\n2.0 0 0 nan 0 0 0 1\n", 2, "expected 8 numbers"),
-        (f"{GOOD}\n0.5 0 0 0 0 0 0 1\n", 2, "not after"),
+        (f"{GOOD}\n0.5 0 0 0 0 0 0 1\n", 2, "does not follow"),
         (f"{GOOD}\n{GOOD}\n", 2, "strictly increasing"),
         (f"{GOOD}\n2.0 0 0 0 0 0 0 2\n", 2, "unit quaternion"),
         (f"{GOOD}\n2.0 0 0 0 0 0 0 0\n", 2, "norm 0"),
@@ -470,7 +470,9 @@ def test_missing_sequence_names_the_ones_found(tiny_tum: Path) -> None:
 def test_missing_rgb_list(tiny_tum: Path) -> None:
     path = tiny_tum / FR1 / "rgb.txt"
     path.unlink()
-    raises_one_line(lambda: tum.load_sequence(tiny_tum, FR1), str(path), "no frame list")
+    raises_one_line(
+        lambda: tum.load_sequence(tiny_tum, FR1), str(path), "not found", "expected ROOT/<sequence>/rgb.txt"
+    )
 
 
 def test_missing_groundtruth(tiny_tum: Path) -> None:

@@ -13,6 +13,7 @@ The loaders carry frames as uint8; ``on_after_batch_transfer`` normalises them o
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import logging
@@ -84,8 +85,7 @@ class VODataModule(L.LightningDataModule):
         if not self.splits["train"] and self.frames.statistics is None:
             raise UserError("data.splits.train: expected at least one training sequence")
         self._check_names()
-        self.resident: dict[str, resident.ResidentWindows] | None = None  # by split, once decided
-        self._device: torch.device | None = None  # where resident windows are kept
+        self.resident: dict[str, resident.ResidentWindows] = {}  # by split, on the resident device
         self.sequences: dict[str, Sequence] = {}
         self._manifests: dict[str, dict] = {}  # the frame caches' manifests, by sequence
         self.mean: np.ndarray | None = None  # per-channel statistics, set by setup
@@ -314,15 +314,13 @@ class VODataModule(L.LightningDataModule):
     def resident_windows(self, split: str) -> resident.ResidentWindows | None:
         """The split's windows kept on the training device, or None (the host loader): the device decided
         once, each split's arrays copied there when first asked for."""
-        if self.resident is None:
-            self._device = self._resident_device()
-            self.resident = {}
-        if self._device is not None and split not in self.resident:
+        if self._resident_device is not None and split not in self.resident:
             data = self.datasets[split]
             arrays = (data.index, data.frames, data.targets, data.intrinsics, data.metric, data.flow or None)
-            self.resident[split] = resident.ResidentWindows(*arrays, self._device)
+            self.resident[split] = resident.ResidentWindows(*arrays, self._resident_device)
         return self.resident.get(split)
 
+    @functools.cached_property
     def _resident_device(self) -> torch.device | None:
         """The training device where the settings allow keeping windows there, else None; a log line."""
         device = getattr(getattr(self.trainer, "strategy", None), "root_device", torch.device("cpu"))

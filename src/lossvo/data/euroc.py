@@ -18,6 +18,7 @@ from scipy.spatial.transform import Rotation
 from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
+    check_increasing,
     check_rigid,
     find_sequences,
     finite_numbers,
@@ -81,13 +82,7 @@ def parse_stamps(path: Path, rows: list[tuple[int, list[str]]]) -> np.ndarray:
                 f"{where(path, i)}: expected a timestamp in integer nanoseconds, got {fields[0]!r}"
             )
     ns = np.array([int(fields[0]) for _, fields in rows], dtype=np.int64)
-    bad = np.flatnonzero(np.diff(ns) <= 0)
-    if bad.size:
-        k = bad[0] + 1
-        raise DatasetFormatError(
-            f"{where(path, rows[k][0])}: timestamp {ns[k]} ns does not follow {ns[k - 1]} ns on line "
-            f"{rows[k - 1][0]} (expected strictly increasing timestamps)"
-        )
+    check_increasing(path, [i for i, _ in rows], ns, " ns")
     bad = np.flatnonzero(np.diff(ns_to_seconds(ns)) <= 0)
     if bad.size:
         k = bad[0] + 1

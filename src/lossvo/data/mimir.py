@@ -73,9 +73,9 @@ def read_groundtruth(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
 
 
 def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]:
-    """A camera's ``sensor.yaml``: K (3, 3) ``intrinsics`` in pixels, distortion (5,) (k1, k2, p1, p2, k3;
-    4 given are padded with 0), T_BS (4, 4) the camera's pose in the body frame (body axes for both), size
-    (H, W) from ``resolution``."""
+    """A camera's ``sensor.yaml``: K (3, 3) ``intrinsics`` in pixels, distortion (4,) or (5,) (k1, k2, p1,
+    p2[, k3]), T_BS (4, 4) the camera's pose in the body frame (body axes for both), size (H, W) from
+    ``resolution``."""
     path = Path(path)
     data = load_mapping(path, "T_BS, resolution and intrinsics", euroc.CHOICES)
     K = yaml_array(
@@ -86,12 +86,9 @@ def read_sensor(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.nda
             f"{path}: key 'intrinsics': expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, "
             f"got {data['intrinsics']!r}"
         )
-    if len(data.get("distortion_coefficients") or []) == 4:
-        distortion = np.append(
-            yaml_array(path, data, "distortion_coefficients", (4,), "[k1, k2, p1, p2]"), 0.0
-        )
-    else:
-        distortion = yaml_array(path, data, "distortion_coefficients", (5,), "[k1, k2, p1, p2, k3]")
+    n = 4 if len(data.get("distortion_coefficients") or []) == 4 else 5
+    names = ", ".join(["k1", "k2", "p1", "p2", "k3"][:n])
+    distortion = yaml_array(path, data, "distortion_coefficients", (n,), f"[{names}]")
     size = yaml_resolution(path, data)
     T_BS = yaml_array(path, data, "T_BS", (4, 4), "a 4x4 list, the camera's pose in the body frame")
     check_rigid(path, T_BS, "T_BS")

@@ -81,6 +81,18 @@ def number_rows(
     return [i for i, _ in rows], np.array(values, dtype=np.float64).reshape(-1, columns)
 
 
+def check_increasing(path: Path, lines: list[int], stamps: np.ndarray, unit: str = "") -> None:
+    """An error at the first of ``lines`` whose stamp (of (M,) ``stamps``, in ``unit``) does not follow the
+    previous line's."""
+    bad = np.flatnonzero(np.diff(stamps) <= 0)
+    if bad.size:
+        k = bad[0] + 1
+        raise DatasetFormatError(
+            f"{where(path, lines[k])}: timestamp {stamps[k]}{unit} does not follow {stamps[k - 1]}{unit} on "
+            f"line {lines[k - 1]} (expected strictly increasing timestamps)"
+        )
+
+
 def listed_frames(list_path: Path, folder: Path, names: list[str]) -> list[Path]:
     """``folder / name`` for each name of a frame list; an error at the list's line of the first missing."""
     paths = [folder / name for name in names]

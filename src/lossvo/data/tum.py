@@ -14,7 +14,7 @@ from lossvo.console import UserError
 from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
-    existing_root,
+    check_increasing,
     find_sequences,
     finite_numbers,
     has_ground_truth,
@@ -22,6 +22,7 @@ from lossvo.data.sequence import (
     number_rows,
     png_size,
     quaternion_poses,
+    sequence_folder,
     text_lines,
     where,
 )
@@ -55,16 +56,6 @@ CAMERAS: dict[str, tuple[tuple[float, float, float, float], tuple[float, float, 
 _CAMERA_IN_NAME = re.compile(r"(?:^|[^a-z0-9])(?:freiburg|fr)([123])(?![0-9])", re.IGNORECASE)
 
 
-def _check_increasing(path: Path, times: np.ndarray, line_numbers: list[int]) -> None:
-    bad = np.flatnonzero(np.diff(times) <= 0)
-    if bad.size:
-        k = bad[0] + 1
-        raise DatasetFormatError(
-            f"{where(path, line_numbers[k])}: timestamp {times[k]!r} is not after the previous line's "
-            f"{times[k - 1]!r} (expected strictly increasing timestamps)"
-        )
-
-
 def read_rgb_list(path: str | os.PathLike) -> tuple[np.ndarray, list[str]]:
     """A frame list (``rgb.txt``: '#' comments, then ``timestamp filename`` lines): (N,) float64 seconds,
     strictly increasing, and the N file names relative to the sequence folder."""
@@ -81,7 +72,7 @@ def read_rgb_list(path: str | os.PathLike) -> tuple[np.ndarray, list[str]]:
         times.append(finite_numbers(path, i, fields[:1], "a timestamp in seconds")[0])
         names.append(fields[1])
     stamps = np.array(times, dtype=np.float64)
-    _check_increasing(path, stamps, [i for i, _ in rows])
+    check_increasing(path, [i for i, _ in rows], stamps)
     return stamps, names
 
 
@@ -92,7 +83,7 @@ def read_groundtruth(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     lines, table = number_rows(path, "ground truth", 8, "8 numbers 'timestamp tx ty tz qx qy qz qw'")
     if not lines:
         raise DatasetFormatError(f"{path}: no poses (expected lines 'timestamp tx ty tz qx qy qz qw')")
-    _check_increasing(path, table[:, 0], lines)
+    check_increasing(path, lines, table[:, 0])
     poses = quaternion_poses(
         path, lines, table[:, 1:4], table[:, 4:8], "(qx qy qz qw)", QUATERNION_NORM_TOLERANCE
     )
@@ -196,15 +187,8 @@ def load_sequence(
     (:func:`associate`) are left out and counted in ``dropped``; without a ground-truth file and
     ``require_poses`` every frame is kept and ``poses`` is None. ``K``, ``distortion``: see :func:`camera`.
     """
-    folder = existing_root(root, f"ROOT/<sequence>/{RGB_LIST}") / name
-    if not folder.is_dir():
-        found = ", ".join(list_sequences(root)) or "none"
-        raise DatasetFormatError(f"{folder}: sequence {name!r} not found (found: {found})")
+    folder = sequence_folder(root, name, RGB_LIST, "<sequence>")
     rgb_path = folder / RGB_LIST
-    if not rgb_path.is_file():
-        raise DatasetFormatError(
-            f"{rgb_path}: no frame list for sequence {name!r} (expected lines 'timestamp rgb/<stamp>.png')"
-        )
     times, names = read_rgb_list(rgb_path)
     images = listed_frames(rgb_path, folder, names)
     size = png_size(images[0])
