@@ -56,8 +56,10 @@ class CameraRange:
                             f"got {list(ranges['principal'])}")  # fmt: skip
         return cls(**ranges)
 
-    def draw(self, height: int, width: int, rng: np.random.Generator) -> np.ndarray:
-        """(3, 3) float64 K of a frame of (height, width) pixels, drawn from the ranges."""
+    def draw(self, height: int, width: int, seed: int, sequence: str) -> np.ndarray:
+        """(3, 3) float64 K of a sequence's frames of (height, width) pixels, drawn from the ranges with a
+        stream of its own (the town and the route do not change with the ranges)."""
+        rng = np.random.default_rng(np.random.SeedSequence([seed, int(sequence), 7919]))
         focal, cx, cy, aspect = (
             rng.uniform(*r) for r in (self.focal, self.principal, self.principal, self.aspect)
         )
@@ -78,13 +80,6 @@ def _range(value: Any, key: str) -> tuple[float, float]:
     if not (math.isfinite(low) and math.isfinite(high)) or low > high:
         raise UserError(f"{key}: expected a range [low, high] with low <= high, got {value!r}")
     return low, high
-
-
-def drawn_intrinsics(cameras: CameraRange, height: int, width: int, seed: int, sequence: str) -> np.ndarray:
-    """(3, 3) K of a sequence's camera drawn from ``cameras``, from a stream of its own (the town and the
-    route do not change with the ranges)."""
-    rng = np.random.default_rng(np.random.SeedSequence([seed, int(sequence), 7919]))
-    return cameras.draw(height, width, rng)
 
 
 def calib_text(K: np.ndarray) -> str:
