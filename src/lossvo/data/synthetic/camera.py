@@ -86,10 +86,6 @@ def calib_text(K: np.ndarray) -> str:
     """KITTI calib.txt content for intrinsics K (3, 3): P0..P3 = K [I | t_i] (the rendered camera is 2,
     the others at KITTI's offsets) and Tr, KITTI's nominal velodyne-to-camera axis swap."""
     offsets = {"P0": -0.06, "P1": -0.60, "P2": 0.0, "P3": -0.533}
-    lines = []
-    for name, tx in offsets.items():
-        P = K @ np.hstack([np.eye(3), [[tx], [0.0], [0.0]]])
-        lines.append(f"{name}: " + " ".join(f"{v:.12e}" for v in P.ravel()))
-    velo_to_cam = np.array([[0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, -0.08], [1.0, 0.0, 0.0, -0.27]])
-    lines.append("Tr: " + " ".join(f"{v:.12e}" for v in velo_to_cam.ravel()))
-    return "\n".join(lines) + "\n"
+    rows = {name: K @ np.hstack([np.eye(3), [[tx], [0.0], [0.0]]]) for name, tx in offsets.items()}
+    rows["Tr"] = np.array([[0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, -0.08], [1.0, 0.0, 0.0, -0.27]])
+    return "".join(f"{name}: " + " ".join(f"{v:.12e}" for v in P.ravel()) + "\n" for name, P in rows.items())
