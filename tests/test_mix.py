@@ -15,7 +15,7 @@ from lossvo.console import UserError
 from lossvo.data import kitti, specs
 from lossvo.data.datamodules import VODataModule
 from lossvo.data.synthetic import manifest
-from lossvo.data.synthetic.camera import CameraRange, drawn_intrinsics
+from lossvo.data.synthetic.camera import CameraRange
 from lossvo.train import CONFIG_DIR
 
 CAMERAS = {"focal": [0.5, 0.8], "principal": [0.4, 0.6], "aspect": [0.9, 1.1]}
@@ -23,14 +23,12 @@ CAMERAS = {"focal": [0.5, 0.8], "principal": [0.4, 0.6], "aspect": [0.9, 1.1]}
 
 def test_drawn_cameras_lie_in_their_ranges_and_depend_on_seed_and_sequence() -> None:
     cameras = CameraRange.of(CAMERAS, "cameras")
-    Ks = np.stack(
-        [drawn_intrinsics(cameras, 100, 300, seed, s) for seed in (0, 1) for s in ("00", "01", "02")]
-    )
+    Ks = np.stack([cameras.draw(100, 300, seed, s) for seed in (0, 1) for s in ("00", "01", "02")])
     fx, fy, cx, cy = Ks[:, 0, 0], Ks[:, 1, 1], Ks[:, 0, 2], Ks[:, 1, 2]
     assert np.all((fx >= 0.5 * 300) & (fx <= 0.8 * 300)) and np.all((fy / fx >= 0.9) & (fy / fx <= 1.1))
     assert np.all((cx >= 0.4 * 300) & (cx <= 0.6 * 300)) and np.all((cy >= 40) & (cy <= 60))
     assert len({round(float(f), 6) for f in fx}) == 6  # another camera for every seed and sequence
-    np.testing.assert_array_equal(drawn_intrinsics(cameras, 100, 300, 0, "01"), Ks[1])
+    np.testing.assert_array_equal(cameras.draw(100, 300, 0, "01"), Ks[1])
 
 
 BAD_CAMERAS: list[tuple[Any, str]] = [

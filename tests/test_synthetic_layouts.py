@@ -66,7 +66,7 @@ def test_sequence_names() -> None:
 def test_reader_reads_what_was_rendered(roots: dict[str, Path], layout: str) -> None:
     seq = read(roots[layout], layout)
     spec = layouts.SPECS[layout]
-    size = layouts.scaled_size(spec.size, SCALE)
+    size = writer.frame_size(layout, scale=SCALE)
     K, distortion = layouts.camera(layout, size)
     assert len(seq.images) == FRAMES[layout] and seq.dropped == 0
     assert seq.size == size and cv2.imread(str(seq.images[0]), cv2.IMREAD_UNCHANGED).shape[:2] == size
@@ -333,7 +333,7 @@ def test_ensure_dataset_reuses_complete_sequences(tmp_path: Path) -> None:
     writer.ensure_dataset(tmp_path, **params)
     assert image.stat().st_mtime_ns == stamp
     writer.ensure_dataset(tmp_path, **{**params, "scale": 0.25})  # another size: rendered again
-    assert cv2.imread(str(image)).shape[:2] == layouts.scaled_size(layouts.SPECS["mimir"].size, 0.25)
+    assert cv2.imread(str(image)).shape[:2] == writer.frame_size("mimir", scale=0.25)
 
 
 def test_tum_stamps_never_fall_on_the_groundtruth() -> None:

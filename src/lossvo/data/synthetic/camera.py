@@ -56,8 +56,10 @@ class CameraRange:
                             f"got {list(ranges['principal'])}")  # fmt: skip
         return cls(**ranges)
 
-    def draw(self, height: int, width: int, rng: np.random.Generator) -> np.ndarray:
-        """(3, 3) float64 K of a frame of (height, width) pixels, drawn from the ranges."""
+    def draw(self, height: int, width: int, seed: int, sequence: str) -> np.ndarray:
+        """(3, 3) float64 K of a sequence's frames of (height, width) pixels, drawn from the ranges with a
+        stream of its own (the town and the route do not change with the ranges)."""
+        rng = np.random.default_rng(np.random.SeedSequence([seed, int(sequence), 7919]))
         focal, cx, cy, aspect = (
             rng.uniform(*r) for r in (self.focal, self.principal, self.principal, self.aspect)
         )
@@ -80,21 +82,10 @@ def _range(value: Any, key: str) -> tuple[float, float]:
     return low, high
 
 
-def drawn_intrinsics(cameras: CameraRange, height: int, width: int, seed: int, sequence: str) -> np.ndarray:
-    """(3, 3) K of a sequence's camera drawn from ``cameras``, from a stream of its own (the town and the
-    route do not change with the ranges)."""
-    rng = np.random.default_rng(np.random.SeedSequence([seed, int(sequence), 7919]))
-    return cameras.draw(height, width, rng)
-
-
 def calib_text(K: np.ndarray) -> str:
     """KITTI calib.txt content for intrinsics K (3, 3): P0..P3 = K [I | t_i] (the rendered camera is 2,
     the others at KITTI's offsets) and Tr, KITTI's nominal velodyne-to-camera axis swap."""
     offsets = {"P0": -0.06, "P1": -0.60, "P2": 0.0, "P3": -0.533}
-    lines = []
-    for name, tx in offsets.items():
-        P = K @ np.hstack([np.eye(3), [[tx], [0.0], [0.0]]])
-        lines.append(f"{name}: " + " ".join(f"{v:.12e}" for v in P.ravel()))
-    velo_to_cam = np.array([[0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, -0.08], [1.0, 0.0, 0.0, -0.27]])
-    lines.append("Tr: " + " ".join(f"{v:.12e}" for v in velo_to_cam.ravel()))
-    return "\n".join(lines) + "\n"
+    rows = {name: K @ np.hstack([np.eye(3), [[tx], [0.0], [0.0]]]) for name, tx in offsets.items()}
+    rows["Tr"] = np.array([[0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, -0.08], [1.0, 0.0, 0.0, -0.27]])
+    return "".join(f"{name}: " + " ".join(f"{v:.12e}" for v in P.ravel()) + "\n" for name, P in rows.items())

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from lossvo.data import kitti, tartanair, tum
+from lossvo.data import tartanair, tum
 from lossvo.data.layouts import LAYOUTS, check_layout
 from lossvo.data.synthetic import platforms, routes
 from lossvo.data.synthetic.png import write_png
@@ -41,14 +41,24 @@ SPECS = {
     "mimir": Layout((540, 720), 10.0, 100.0, platforms.PLATFORMS["auv"]),
 }
 
-NAMES = {
-    "kitti": "{0}",
-    "tum": "rgbd_dataset_freiburg1_synthetic_{0}",
-    "euroc": "synthetic_{0}",
-    "tartanair": "synthetic/Easy/P{1:03d}",
-    "mimir": "SyntheticTown/auv0/track{1}",
+FILES = {
+    "kitti": ("{0}", "image_2/*.png", ("calib.txt", "times.txt")),
+    "tum": ("rgbd_dataset_freiburg1_synthetic_{0}", "rgb/*.png", ("rgb.txt", "groundtruth.txt")),
+    "euroc": (
+        "synthetic_{0}",
+        "mav0/cam0/data/*.png",
+        ("mav0/cam0/data.csv", "mav0/cam0/sensor.yaml", "mav0/state_groundtruth_estimate0/data.csv"),
+    ),
+    "tartanair": ("synthetic/Easy/P{1:03d}", "image_left/*_left.png", ("pose_left.txt",)),
+    "mimir": (
+        "SyntheticTown/auv0/track{1}",
+        "rgb/cam0/data/*.png",
+        ("rgb/cam0/data.csv", "rgb/cam0/sensor.yaml", "pose_groundtruth/data.csv"),
+    ),
 }
-"""Each layout's name of a town sequence, formatted with its two digits and its number."""
+"""Each layout's name of a town sequence (formatted with its two digits and its number), and the frames (a
+glob) and other files in the sequence's folder, as a rendering writes them."""
+
 EUROC_K = np.array([[458.654, 0.0, 367.215], [0.0, 457.296, 248.375], [0.0, 0.0, 1.0]])
 """EuRoC cam0's intrinsics at 752x480 (its sensor.yaml)."""
 EUROC_DISTORTION = np.array([-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05])
@@ -64,17 +74,23 @@ EUROC_T_BS = np.array(
 """EuRoC cam0's pose in the body (IMU) frame (its sensor.yaml), orthonormalised before use."""
 EUROC_BIASES = (-0.002229, 0.020700, 0.076350, -0.012492, 0.547666, 0.068904)
 """Gyroscope (rad/s) and accelerometer (m/s^2) biases of every ground-truth row (V1_01's first)."""
+EUROC_HEADER = (
+    "#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z [], "
+    "v_RS_R_x [m s^-1], v_RS_R_y [m s^-1], v_RS_R_z [m s^-1], b_w_RS_S_x [rad s^-1], "
+    "b_w_RS_S_y [rad s^-1], b_w_RS_S_z [rad s^-1], b_a_RS_S_x [m s^-2], b_a_RS_S_y [m s^-2], "
+    "b_a_RS_S_z [m s^-2]\n"
+)
+"""The header line of the ground truth data.csv of EuRoC (its columns)."""
 
 MIMIR_K = np.array([[360.0, 0.0, 360.0], [0.0, 360.0, 270.0], [0.0, 0.0, 1.0]])
 """A 90-degree pinhole (AirSim's default) at 720x540, without distortion."""
-MIMIR_PITCH = math.radians(15)
-"""The camera looks this far down (the README's front camera)."""
-MIMIR_OFFSET = (0.45, -0.06, 0.0)
-"""Metres: the camera in the body frame (x forward, y right, z down)."""
 MIMIR_T_BS = np.eye(4)
-"""(4, 4) the camera in the NED body frame: pitched down by MIMIR_PITCH, at MIMIR_OFFSET."""
-MIMIR_T_BS[:3, :3] = Rotation.from_euler("y", -MIMIR_PITCH).as_matrix()
-MIMIR_T_BS[:3, 3] = MIMIR_OFFSET
+"""(4, 4) the camera in the NED body frame (x forward, y right, z down): pitched down by 15 degrees (the
+README's front camera), at (0.45, -0.06, 0.0) m."""
+MIMIR_T_BS[:3, :3] = Rotation.from_euler("y", -math.radians(15)).as_matrix()
+MIMIR_T_BS[:3, 3] = (0.45, -0.06, 0.0)
+MIMIR_HEADER = "#timestamp [ns],tx [m],ty [m],tz [m],qw,qx,qy,qz\n"
+"""The header line of the ground truth data.csv of MIMIR."""
 
 TUM_START_US = 1_305_031_102_175_304
 """Microseconds: the first frame's nominal stamp (that of freiburg1_xyz)."""
@@ -105,7 +121,7 @@ def ned(T: np.ndarray) -> np.ndarray:
 
 def sequence_name(layout: str, sequence: str) -> str:
     """The name a layout's reader knows a town sequence by ("00" -> "rgbd_dataset_freiburg1_synthetic_00")."""
-    return NAMES[check_layout(layout)].format(sequence, int(sequence))
+    return FILES[check_layout(layout)][0].format(sequence, int(sequence))
 
 
 def sequence_paths(layout: str, sequence: str) -> list[str]:
@@ -115,35 +131,13 @@ def sequence_paths(layout: str, sequence: str) -> list[str]:
     return [sequence_name(layout, sequence)]
 
 
-FILES = {
-    "kitti": ("image_2/*.png", ("calib.txt", "times.txt")),
-    "tum": ("rgb/*.png", ("rgb.txt", "groundtruth.txt")),
-    "euroc": (
-        "mav0/cam0/data/*.png",
-        ("mav0/cam0/data.csv", "mav0/cam0/sensor.yaml", "mav0/state_groundtruth_estimate0/data.csv"),
-    ),
-    "tartanair": ("image_left/*_left.png", ("pose_left.txt",)),
-    "mimir": (
-        "rgb/cam0/data/*.png",
-        ("rgb/cam0/data.csv", "rgb/cam0/sensor.yaml", "pose_groundtruth/data.csv"),
-    ),
-}
-"""Each layout's frames (a glob) and other files in a sequence's folder, as a rendering writes them."""
-
-
 def sequence_complete(root: Path, layout: str, sequence: str, n_frames: int) -> bool:
     """Whether root holds a layout's sequence with its files (KITTI's poses too) and n_frames frames: a
     check of presence, not of content, so that reusing a rendered dataset costs no parsing."""
-    kitti_layout = layout == "kitti"
-    folder = root / "sequences" / sequence if kitti_layout else root / sequence_name(layout, sequence)
-    frames, files = FILES[layout]
-    required = [folder / f for f in files] + ([kitti.pose_path(root, sequence)] if kitti_layout else [])
+    folder, *others = (root / path for path in sequence_paths(layout, sequence))
+    _, frames, files = FILES[layout]
+    required = [folder / f for f in files] + others
     return all(p.is_file() for p in required) and sum(1 for _ in folder.glob(frames)) == n_frames
-
-
-def scaled_size(size: tuple[int, int], scale: float) -> tuple[int, int]:
-    """(H, W) pixels of size (H, W) scaled by scale, rounded."""
-    return round(size[0] * scale), round(size[1] * scale)
 
 
 def camera(layout: str, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -219,45 +213,33 @@ def _tum_stamp(us: int, decimals: int) -> str:
     return f"{sec}.{rest:06d}" if decimals == 6 else f"{sec}.{rest // 100:04d}"
 
 
-def write_tum(folder: Path, name: str, c: Clock, gt: np.ndarray) -> list[Path]:
-    """rgb.txt and groundtruth.txt (gt: (M, 4, 4) T_w_c at c.groundtruth); returns the frame paths."""
-    (folder / "rgb").mkdir(parents=True)
+def tum_texts(name: str, c: Clock, gt: np.ndarray) -> tuple[list[str], str, str]:
+    """Frame names, rgb.txt and groundtruth.txt of the TUM sequence name (gt: (M, 4, 4) T_w_c at
+    c.groundtruth)."""
     stamps = [_tum_stamp(us, 6) for us in c.frames]
-    frames = [f"rgb/{s}.png" for s in stamps]
     header = f"# file: '{name}.bag'\n# timestamp "
-    (folder / "rgb.txt").write_text(f"# color images\n{header}filename\n" + _lines(stamps, frames, " "))
-    stamps = [_tum_stamp(us, 4) for us in c.groundtruth]
-    (folder / "groundtruth.txt").write_text(
-        f"# ground truth trajectory\n{header}tx ty tz qx qy qz qw\n"
-        + _lines(stamps, _pose_rows(gt, " "), " ")
-    )
-    return [folder / f for f in frames]
+    rgb = f"# color images\n{header}filename\n" + _lines(stamps, [f"rgb/{s}.png" for s in stamps], " ")
+    gt_stamps = [_tum_stamp(us, 4) for us in c.groundtruth]
+    gt_header = f"# ground truth trajectory\n{header}tx ty tz qx qy qz qw\n"
+    return [f"{s}.png" for s in stamps], rgb, gt_header + _lines(gt_stamps, _pose_rows(gt, " "), " ")
 
 
-def _write_asl(
-    camera_dir: Path, sensor: str, gt_path: Path, header: str, c: Clock, T: np.ndarray, *columns: np.ndarray
-) -> list[Path]:
-    """An ASL camera's data.csv and sensor.yaml (text sensor), and a ground-truth data.csv: per stamp of
-    c.groundtruth, T (M, 4, 4) (quaternion w first), then the further columns (M, C); returns the frame
-    paths (data/<ns>.png) to render into."""
-    (camera_dir / "data").mkdir(parents=True)
+def asl_texts(
+    c: Clock, sensor: str, header: str, T: np.ndarray, *columns: np.ndarray
+) -> tuple[list[str], str, str, str]:
+    """Frame names, an ASL camera's data.csv and sensor.yaml (sensor), and a ground-truth data.csv: header,
+    then per stamp of c.groundtruth T (M, 4, 4) (quaternion w first) and the further columns (M, C)."""
     names = [f"{ns}.png" for ns in c.frames]
-    (camera_dir / "data.csv").write_text("#timestamp [ns],filename\n" + _lines(c.frames, names, ","))
-    (camera_dir / "sensor.yaml").write_text(sensor)
-    gt_path.parent.mkdir(parents=True)
-    gt_path.write_text(header + _lines(c.groundtruth, _pose_rows(T, ",", True, *columns), ","))
-    return [camera_dir / "data" / name for name in names]
+    frames = "#timestamp [ns],filename\n" + _lines(c.frames, names, ",")
+    return names, frames, sensor, header + _lines(c.groundtruth, _pose_rows(T, ",", True, *columns), ",")
 
 
-def write_euroc(
-    folder: Path, K: np.ndarray, size: tuple[int, int], c: Clock, T_w_b: np.ndarray, velocity: np.ndarray
-) -> list[Path]:
-    """mav0/cam0/{data.csv, sensor.yaml} and mav0/state_groundtruth_estimate0/data.csv (body poses T_w_b
-    (M, 4, 4) and velocities (M, 3) m/s at c.groundtruth); returns the frame paths."""
+def euroc_sensor(K: np.ndarray, size: tuple[int, int]) -> str:
+    """EuRoC cam0's sensor.yaml for intrinsics K (3, 3) of frames of size (H, W)."""
     T = ", ".join(repr(float(v)) for v in orthonormal(EUROC_T_BS).ravel())
     intrinsics = ", ".join(repr(float(v)) for v in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
     distortion = ", ".join(repr(float(v)) for v in EUROC_DISTORTION)
-    sensor = (
+    return (
         "# General sensor definitions.\nsensor_type: camera\ncomment: synthetic VI-Sensor cam0\n\n"
         f"# Sensor extrinsics wrt. the body-frame.\nT_BS:\n  cols: 4\n  rows: 4\n  data: [{T}]\n\n"
         f"# Camera specific definitions.\nrate_hz: {SPECS['euroc'].rate_hz:g}\n"
@@ -265,29 +247,10 @@ def write_euroc(
         f"intrinsics: [{intrinsics}] #fu, fv, cu, cv\ndistortion_model: radial-tangential\n"
         f"distortion_coefficients: [{distortion}]\n"
     )
-    header = (
-        "#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z [], "
-        "v_RS_R_x [m s^-1], v_RS_R_y [m s^-1], v_RS_R_z [m s^-1], b_w_RS_S_x [rad s^-1], "
-        "b_w_RS_S_y [rad s^-1], b_w_RS_S_z [rad s^-1], b_a_RS_S_x [m s^-2], b_a_RS_S_y [m s^-2], "
-        "b_a_RS_S_z [m s^-2]\n"
-    )
-    biases = np.broadcast_to(EUROC_BIASES, (len(T_w_b), 6))
-    gt_path = folder / "mav0/state_groundtruth_estimate0/data.csv"
-    return _write_asl(folder / "mav0/cam0", sensor, gt_path, header, c, T_w_b, velocity, biases)
 
 
-def write_tartanair(folder: Path, c: Clock, T_ned: np.ndarray) -> list[Path]:
-    """pose_left.txt (NED poses T_ned (N, 4, 4), one a frame); returns the frame paths."""
-    (folder / tartanair.IMAGES).mkdir(parents=True)
-    (folder / tartanair.POSES).write_text("".join(f"{v}\n" for v in _pose_rows(T_ned, " ")))
-    return [folder / tartanair.IMAGES / f"{k:06d}_left.png" for k in c.frames]
-
-
-def write_mimir(
-    folder: Path, K: np.ndarray, size: tuple[int, int], c: Clock, T_w_b: np.ndarray
-) -> list[Path]:
-    """rgb/cam0/{data.csv, sensor.yaml (JSON)} and pose_groundtruth/data.csv (NED body poses T_w_b (M, 4, 4)
-    at c.groundtruth); returns the frame paths."""
+def mimir_sensor(K: np.ndarray, size: tuple[int, int]) -> str:
+    """MIMIR's rgb/cam0/sensor.yaml (JSON) for intrinsics K (3, 3) of frames of size (H, W)."""
     sensor = {
         "sensor_type": "camera",
         "comment": "synthetic front camera",
@@ -299,9 +262,18 @@ def write_mimir(
         "distortion_model": "radial-tangential",
         "distortion_coefficients": [0.0] * 5,
     }
-    header = "#timestamp [ns],tx [m],ty [m],tz [m],qw,qx,qy,qz\n"
-    text = json.dumps(sensor, indent=2) + "\n"
-    return _write_asl(folder / "rgb/cam0", text, folder / "pose_groundtruth/data.csv", header, c, T_w_b)
+    return json.dumps(sensor, indent=2) + "\n"
+
+
+def write_files(folder: Path, layout: str, frames: list[str], *texts: str) -> list[Path]:
+    """Write a layout's files (:data:`FILES`, in its order) with texts into folder; returns the paths of
+    its frames, named frames."""
+    _, images, files = FILES[layout]
+    for name, text in zip(files, texts, strict=True):
+        (folder / name).parent.mkdir(parents=True, exist_ok=True)
+        (folder / name).write_text(text)
+    (folder / images).parent.mkdir(parents=True, exist_ok=True)
+    return [(folder / images).parent / name for name in frames]
 
 
 def _streams(layout: str, sequence: str, seed: int) -> np.random.Generator:
@@ -320,7 +292,7 @@ def route_frames(sequence: str, distance: float, seed: int, spec: routes.RouteSp
 
 
 def render_sequence(
-    folder: Path,
+    root: Path,
     layout: str,
     sequence: str,
     n_frames: int,
@@ -328,7 +300,7 @@ def render_sequence(
     seed: int,
     spec: routes.RouteSpec = routes.DEFAULT_SPEC,
 ) -> None:
-    """Render one town sequence in a layout into folder (the sequence's own folder, created)."""
+    """Render one town sequence in a layout under the dataset root (its folder :func:`sequence_name`)."""
     lay, rng = SPECS[layout], _streams(layout, sequence, seed)
     c = clock(layout, n_frames, rng)
     t_frames, t_gt = c.seconds(c.frames), c.seconds(c.groundtruth)
@@ -337,18 +309,21 @@ def render_sequence(
     route, world, noise = scene(sequence, n_route, seed, spec)
     motion = platforms.trajectory(route, lay.platform, rng)
     K, distortion = camera(layout, size)
-    folder.mkdir(parents=True)
     if layout == "tum":
-        paths = write_tum(folder, sequence_name(layout, sequence), c, motion.poses(t_gt))
+        frames, *texts = tum_texts(sequence_name(layout, sequence), c, motion.poses(t_gt))
     elif layout == "euroc":
         T_SB = np.linalg.inv(orthonormal(EUROC_T_BS))  # body poses, velocities by central differences
         ahead, behind = motion.poses(t_gt + 5e-4) @ T_SB, motion.poses(t_gt - 5e-4) @ T_SB
         velocity = (ahead[:, :3, 3] - behind[:, :3, 3]) / 1e-3
-        paths = write_euroc(folder, K, size, c, motion.poses(t_gt) @ T_SB, velocity)
+        biases = np.broadcast_to(EUROC_BIASES, (len(t_gt), 6))
+        T_w_b = motion.poses(t_gt) @ T_SB
+        frames, *texts = asl_texts(c, euroc_sensor(K, size), EUROC_HEADER, T_w_b, velocity, biases)
     elif layout == "tartanair":
-        paths = write_tartanair(folder, c, ned(motion.poses(t_frames)))
+        frames = [f"{k:06d}_left.png" for k in c.frames]
+        texts = ["".join(f"{v}\n" for v in _pose_rows(ned(motion.poses(t_frames)), " "))]
     else:
-        paths = write_mimir(folder, K, size, c, ned(motion.poses(t_gt)))
+        frames, *texts = asl_texts(c, mimir_sensor(K, size), MIMIR_HEADER, ned(motion.poses(t_gt)))
+    paths = write_files(root / sequence_name(layout, sequence), layout, frames, *texts)
     renderer = Renderer(world, K, *size, distortion=distortion)
     for path, T in zip(paths, motion.poses(t_frames) @ mount(layout), strict=True):
         image = renderer.render(T, noise)

@@ -29,11 +29,7 @@ MIN_POLE_PIXELS = 0.3
 """Poles narrower than this on screen (pixels) are not drawn."""
 
 _RECT_EDGES = np.array([[0, 1], [1, 2], [2, 3], [3, 0]])
-_BOX_EDGES = np.array(
-    [[i, (i + 1) % 4] for i in range(4)]
-    + [[4 + i, 4 + (i + 1) % 4] for i in range(4)]
-    + [[i, i + 4] for i in range(4)]
-)
+_BOX_EDGES = np.concatenate([_RECT_EDGES, _RECT_EDGES + 4, [[i, i + 4] for i in range(4)]])
 
 
 @dataclass

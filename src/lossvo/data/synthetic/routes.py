@@ -220,14 +220,11 @@ def route_spec(
         values: dict[str, Any] = {  # config values; Family's own checks validate them
             k: tuple(v) if isinstance(v, list | tuple) else v for k, v in params.items()
         }
-        if name in table:
-            table[name] = dataclasses.replace(table[name], **values)
-            continue
-        missing = [k for k in REQUIRED if k not in values]
+        base = dataclasses.asdict(table[name]) if name in table else {"name": str(name)}
+        missing = [k for k in REQUIRED if k not in {**base, **values}]
         if missing:
             raise UserError(f"{where}: a new family needs {', '.join(missing)}")
-
-        table[name] = Family(name=str(name), **values)
+        table[name] = Family(**{**base, **values})
     chosen = dict(MIXES)
     for sequence, mix in (mixes or {}).items():
         key = sequence_name(sequence)
@@ -246,10 +243,6 @@ class Plan:
     target: np.ndarray
     family: np.ndarray
     events: list[tuple[int, int, str, float]]
-
-
-def _uniform(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
-    return float(rng.uniform(*bounds))
 
 
 def _turn_sign(rng: np.random.Generator, heading: float) -> float:
@@ -273,21 +266,21 @@ def plan_route(
         if total >= stretch_end:
             family = families[names[int(rng.choice(len(names), p=p))]]
             stretch_end = total + STRETCH
-        cruise = _uniform(rng, family.cruise)
-        frames = max(1, round(_uniform(rng, family.straight) / cruise))
+        cruise = rng.uniform(*family.cruise)
+        frames = max(1, round(rng.uniform(*family.straight) / cruise))
         speeds.append(np.full(frames, cruise))
         driven += [family.name] * frames
         total += frames
         u = rng.random()
         if u < family.turn:
-            angle = math.radians(_uniform(rng, family.turn_angle)) * _turn_sign(rng, heading)
-            speed = min(cruise, _uniform(rng, family.turn_speed))
-            frames = max(4, round(_uniform(rng, family.turn_radius) * abs(angle) / speed))
+            angle = math.radians(rng.uniform(*family.turn_angle)) * _turn_sign(rng, heading)
+            speed = min(cruise, rng.uniform(*family.turn_speed))
+            frames = max(4, round(rng.uniform(*family.turn_radius) * abs(angle) / speed))
             events.append((total, total + frames, "turn", angle))
             heading += angle
         elif u < family.turn + family.lane_change:
             speed = cruise
-            frames = max(10, round(_uniform(rng, (30.0, 70.0)) / speed))
+            frames = max(10, round(rng.uniform(30.0, 70.0) / speed))
             events.append((total, total + frames, "lane", LANE_WIDTH * (1.0 if rng.random() < 0.5 else -1.0)))
         elif u < family.turn + family.lane_change + family.stop:
             speed, frames = 0.0, int(rng.integers(family.stop_frames[0], family.stop_frames[1] + 1))

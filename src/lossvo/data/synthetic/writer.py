@@ -4,12 +4,14 @@ temporary folder and moved into place whole, sequences in parallel processes, th
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import math
 import multiprocessing
 import os
 import shutil
+import tempfile
 import time
 from collections.abc import Iterable, Mapping
 from concurrent.futures import ProcessPoolExecutor
@@ -21,7 +23,7 @@ from lossvo.atomic import write_text_atomic
 from lossvo.console import UserError
 from lossvo.data import kitti, pose_files
 from lossvo.data.synthetic import layouts, manifest, routes
-from lossvo.data.synthetic.camera import CameraRange, calib_text, drawn_intrinsics, intrinsics
+from lossvo.data.synthetic.camera import CameraRange, calib_text, intrinsics
 from lossvo.data.synthetic.manifest import Rendering
 from lossvo.data.synthetic.png import write_png
 from lossvo.data.synthetic.render import Renderer
@@ -74,19 +76,13 @@ def render_kitti(root: Path, sequence: str, n_frames: int, r: Rendering) -> None
     """Render one sequence in the KITTI layout under root: sequences/NN/{image_2, calib.txt, times.txt}
     and poses/NN.txt, seen by KITTI's camera or, with ``r.cameras``, one drawn from those ranges."""
     poses, world, noise = scene(sequence, n_frames, r.seed, r.spec)
-    K = (
-        intrinsics(r.height, r.width)
-        if r.cameras is None
-        else drawn_intrinsics(r.cameras, r.height, r.width, r.seed, sequence)
-    )
-    folder = root / "sequences" / sequence
-    (folder / "image_2").mkdir(parents=True)
-    (folder / "calib.txt").write_text(calib_text(K))
-    (folder / "times.txt").write_text("".join(f"{k / 10.0:e}\n" for k in range(n_frames)))  # KITTI's 10 Hz
-
+    K = r.cameras.draw(r.height, r.width, r.seed, sequence) if r.cameras else intrinsics(r.height, r.width)
+    times = "".join(f"{k / 10.0:e}\n" for k in range(n_frames))  # KITTI's 10 Hz
+    frames = [f"{k:06d}.png" for k in range(n_frames)]
+    paths = layouts.write_files(root / "sequences" / sequence, "kitti", frames, calib_text(K), times)
     renderer = Renderer(world, K, r.height, r.width)
-    for k, T in enumerate(poses):
-        write_png(folder / "image_2" / f"{k:06d}.png", renderer.render(T, noise))
+    for path, T in zip(paths, poses, strict=True):
+        write_png(path, renderer.render(T, noise))
     kitti.pose_path(root, sequence).parent.mkdir()
     pose_files.write_poses(kitti.pose_path(root, sequence), poses)
 
@@ -94,20 +90,16 @@ def render_kitti(root: Path, sequence: str, n_frames: int, r: Rendering) -> None
 def write_sequence(out: Path, sequence: str, n_frames: int, r: Rendering) -> float:
     """Render one sequence into the dataset root out, atomically; returns the seconds it took."""
     start = time.perf_counter()
-    tmp = out / f".tmp-{r.layout}-{sequence}-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    try:
+    with tempfile.TemporaryDirectory(prefix=f".tmp-{r.layout}-{sequence}-", dir=out) as name:
+        tmp = Path(name)
         if r.layout == "kitti":
             render_kitti(tmp, sequence, n_frames, r)
         else:
-            folder = tmp / layouts.sequence_name(r.layout, sequence)
-            layouts.render_sequence(folder, r.layout, sequence, n_frames, (r.height, r.width), r.seed, r.spec)
+            layouts.render_sequence(tmp, r.layout, sequence, n_frames, (r.height, r.width), r.seed, r.spec)
         for path in layouts.sequence_paths(r.layout, sequence):
             (out / path).parent.mkdir(parents=True, exist_ok=True)
             shutil.rmtree(out / path, ignore_errors=True)
             os.replace(tmp / path, out / path)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     return time.perf_counter() - start
 
 
@@ -133,10 +125,8 @@ def _render_all(out: Path, counts: dict[str, int], r: Rendering, progress: bool,
         context = multiprocessing.get_context("spawn")  # fork is unsafe in threaded (torch) parents
         pool = ProcessPoolExecutor(workers, mp_context=context, initializer=cv2.setNumThreads, initargs=(1,))
     try:
-        jobs = [(out, s, n, r) for s, n in counts.items()]
-        results = (
-            pool.map(write_sequence, *zip(*jobs, strict=True)) if pool else (write_sequence(*j) for j in jobs)
-        )
+        render = functools.partial(write_sequence, out, r=r)
+        results = (pool.map if pool else map)(render, counts, counts.values())
         for (s, n), seconds in zip(counts.items(), results, strict=True):
             if progress:
                 log.info(
@@ -168,7 +158,7 @@ def frame_size(
     default = (DEFAULT_HEIGHT, DEFAULT_WIDTH) if layout == "kitti" else layouts.SPECS[layout].size
     if not (isinstance(scale, int | float) and math.isfinite(scale) and scale > 0):
         raise UserError(f"{prefix}scale: must be a number > 0, got {scale!r}")
-    scaled = layouts.scaled_size(default, scale)
+    scaled = round(default[0] * scale), round(default[1] * scale)
     size = (scaled[0] if height is None else height, scaled[1] if width is None else width)
     for name, value, given in (("height", size[0], height), ("width", size[1], width)):
         if not MIN_SIZE <= value <= MAX_SIZE:
@@ -224,21 +214,6 @@ def generate(
     return out
 
 
-def ensure_dataset(
-    root: str | Path,
-    sequences: Iterable[str] = SEQUENCES,
-    frames: int | Mapping[str, int] | None = None,
-    height: int | None = None,
-    width: int | None = None,
-    seed: int = 0,
-    progress: bool = True,
-    workers: int | None = None,
-    spec: routes.RouteSpec = routes.DEFAULT_SPEC,
-    layout: str = "kitti",
-    scale: float = 1.0,
-    cameras: CameraRange | None = None,
-) -> Path:
-    """Root as a Path, holding the requested sequences: rendered by :func:`generate` (same parameters)
-    unless its manifest lists them all with these parameters and its reader reads them whole."""
-    options = (height, width, seed, progress, workers, spec, layout, scale, cameras)
-    return generate(root, sequences, frames, *options, reuse=True)
+ensure_dataset = functools.partial(generate, reuse=True)
+"""Root as a Path, holding the requested sequences: :func:`generate` (same parameters) with reuse, which
+renders nothing when the manifest lists them all with these parameters and their files are there."""
