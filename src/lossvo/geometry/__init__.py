@@ -15,7 +15,6 @@ from lossvo.geometry.distances import (
 from lossvo.geometry.maps import (
     EULER_CONVENTION,
     check_shape,
-    compose,
     consecutive_relative_poses,
     euler_to_matrix,
     hat,
@@ -25,7 +24,6 @@ from lossvo.geometry.maps import (
     matrix_to_sixd,
     orthonormalize,
     pose_inverse,
-    quat_canonical,
     quat_normalize,
     quat_to_matrix,
     relative_pose,
@@ -44,7 +42,6 @@ from lossvo.geometry.maps import (
 __all__ = [
     "EULER_CONVENTION",
     "check_shape",
-    "compose",
     "consecutive_relative_poses",
     "euler_distance",
     "euler_to_matrix",
@@ -55,7 +52,6 @@ __all__ = [
     "matrix_to_sixd",
     "orthonormalize",
     "pose_inverse",
-    "quat_canonical",
     "quat_distance",
     "quat_distance_squared",
     "quat_normalize",
