@@ -269,8 +269,12 @@ class ChordalLoss(_ChordalTerm):
     output the se(3) vector ``xi = (rho, omega)``, the translation ``t^ = V(omega) rho``, not rho."""
 
     dim = 6
-    decode_rt = staticmethod(g.se3_exp_rt)
-    encode = staticmethod(g.se3_log)
+
+    def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
+        return g.se3_exp_rt(pred)
+
+    def encode(self, pose: Tensor) -> Tensor:
+        return g.se3_log(pose)
 
 
 class GeodesicLoss(PoseLoss):
