@@ -253,7 +253,10 @@ def make_pose(R: Tensor, t: Tensor) -> Tensor:
     """Poses ``[[R, t], [0, 1]]`` (..., 4, 4) from R (..., 3, 3) and t (..., 3)."""
     check_shape(R, (3, 3), "R")
     check_shape(t, (3,), "t")
-    return roma.Rigid(R, t).to_homogeneous()
+    top = torch.cat((R, t[..., None]), dim=-1)
+    bottom = torch.zeros_like(top[..., :1, :])
+    bottom[..., 0, 3] = 1.0
+    return torch.cat((top, bottom), dim=-2)
 
 
 def pose_inverse(T: Tensor) -> Tensor:
