@@ -228,12 +228,9 @@ def _lightning_misconfiguration(error: BaseException) -> bool:
     return module is not None and isinstance(error, module.MisconfigurationException)
 
 
-def _config_mismatch(error: InstantiationException, cause: TypeError) -> bool:
+def _config_mismatch(target: str, cause: TypeError) -> bool:
     """Whether Hydra's ``_target_`` was called with keys its signature lacks or without ones it needs."""
-    target = re.search(r"target '([^']*)'", str(error))
-    if target is None:
-        return False
-    name = re.escape(target.group(1).rsplit(".", 1)[-1])
+    name = re.escape(target.rsplit(".", 1)[-1])
     mismatch = (
         r"(got an unexpected keyword argument|missing \d+ required (keyword-only |positional )?argument)"
     )
@@ -247,10 +244,10 @@ def _instantiation_message(error: InstantiationException, folder: object) -> str
     if isinstance(cause, OSError):
         return user_message(cause, folder)
     key = found.group(1).strip() if (found := re.search(r"^full_key:(.*)$", text, re.MULTILINE)) else ""
+    target = match.group(1) if (match := re.search(r"target '([^']*)'", text)) else "?"
     if isinstance(cause, ImportError) and "Error locating target" in text:
-        target = match.group(1) if (match := re.search(r"target '([^']*)'", text)) else "?"
         return f"{key}._target_: cannot import {target!r} ({first_line(cause.__cause__ or cause)})"
-    mismatch = isinstance(cause, TypeError) and _config_mismatch(error, cause)
+    mismatch = isinstance(cause, TypeError) and _config_mismatch(target, cause)
     if cause is None or not (mismatch or user_message(cause, folder)):
         return None
     reason = one_line(cause)

@@ -6,6 +6,7 @@ pair ``trans_term + k * rot_term`` averaged over batch and time. Formulas and we
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import roma
 import torch
@@ -36,8 +37,8 @@ class PoseLoss(nn.Module):
     """Base class: shape checks, the shared translation term, the weighting, the yardsticks.
 
     Output ``[t (3), rotation (dim - 3)]`` unless a subclass overrides :meth:`decode_rt` and :meth:`encode`;
-    subclasses set ``dim``, ``small_angle_gain`` and ``paper_k`` and implement :meth:`to_matrix`,
-    :meth:`from_matrix` and :meth:`rotation_term`. The loss runs in float32 (float64 for a float64
+    subclasses set ``dim``, ``small_angle_gain``, ``paper_k``, :attr:`to_matrix` and :attr:`from_matrix`
+    and implement :meth:`rotation_term`. The loss runs in float32 (float64 for a float64
     prediction) with autocast off.
 
     Args:
@@ -51,6 +52,10 @@ class PoseLoss(nn.Module):
     """Rotation term ~ gain * theta^2 for a small rotation error theta (radians)."""
     paper_k: float
     """The study's weight for this loss (or for the study's loss with the same rotation distance)."""
+    to_matrix: Callable[[Tensor], Tensor]
+    """Rotations (..., 3, 3) of the output's rotation part (..., dim - 3)."""
+    from_matrix: Callable[[Tensor], Tensor]
+    """The output's rotation part (..., dim - 3) that decodes to ``R`` (..., 3, 3)."""
 
     def __init__(
         self, k: float | None = None, learned: dict[str, float] | None = None, translation: str = "metric"
@@ -83,14 +88,6 @@ class PoseLoss(nn.Module):
         return self.encode(torch.eye(4, dtype=torch.float64)).float()
 
     # -- parameterisation -------------------------------------------------------------------------
-
-    def to_matrix(self, rot: Tensor) -> Tensor:
-        """Rotations (..., 3, 3) of the output's rotation part (..., dim - 3)."""
-        raise NotImplementedError
-
-    def from_matrix(self, R: Tensor) -> Tensor:
-        """The output's rotation part (..., dim - 3) that decodes to ``R`` (..., 3, 3)."""
-        raise NotImplementedError
 
     def decode_rt(self, pred: Tensor) -> tuple[Tensor, Tensor]:
         """Rotation (..., 3, 3) and translation (..., 3, metres) encoded by ``pred`` (..., dim)."""
@@ -216,12 +213,8 @@ class EulerLoss(PoseLoss):
     dim = 6
     small_angle_gain = 1.0  # |dphi|^2 = theta^2 at zero pitch
     paper_k = 100.0
-
-    def to_matrix(self, rot: Tensor) -> Tensor:
-        return g.euler_to_matrix(rot)
-
-    def from_matrix(self, R: Tensor) -> Tensor:
-        return g.matrix_to_euler(R)
+    to_matrix = staticmethod(g.euler_to_matrix)
+    from_matrix = staticmethod(g.matrix_to_euler)
 
     def rotation_term(self, pred: Tensor, R: Tensor, R_target: Tensor) -> Tensor:
         return (pred[..., 3:] - g.matrix_to_euler(R_target)).square().sum(-1)
@@ -235,6 +228,7 @@ class QuaternionLoss(PoseLoss):
     dim = 7
     small_angle_gain = 0.25  # |q - q^|^2 = 2 - 2 cos(theta / 2) = theta^2 / 4 + O(theta^4)
     paper_k = 14.0
+    from_matrix = staticmethod(g.matrix_to_quat)
 
     def __init__(
         self,
@@ -249,11 +243,9 @@ class QuaternionLoss(PoseLoss):
         self.squared = squared
         super().__init__(k, learned, translation)
 
-    def to_matrix(self, rot: Tensor) -> Tensor:
+    @staticmethod
+    def to_matrix(rot: Tensor) -> Tensor:
         return g.quat_to_matrix(g.quat_normalize(rot))
-
-    def from_matrix(self, R: Tensor) -> Tensor:
-        return g.matrix_to_quat(R)
 
     def rotation_term(self, pred: Tensor, R: Tensor, R_target: Tensor) -> Tensor:
         q, q_target = g.quat_normalize(pred[..., 3:]), g.matrix_to_quat(R_target)
@@ -292,12 +284,8 @@ class GeodesicLoss(PoseLoss):
     dim = 6
     small_angle_gain = 1.0
     paper_k = 100.0
-
-    def to_matrix(self, rot: Tensor) -> Tensor:
-        return g.so3_exp(rot)
-
-    def from_matrix(self, R: Tensor) -> Tensor:
-        return g.so3_log(R)
+    to_matrix = staticmethod(g.so3_exp)
+    from_matrix = staticmethod(g.so3_log)
 
     def rotation_term(self, pred: Tensor, R: Tensor, R_target: Tensor) -> Tensor:
         return g.so3_geodesic_distance(R, R_target).square()
@@ -307,12 +295,8 @@ class SixDLoss(_ChordalTerm):
     """6-D rotation (two columns, Gram-Schmidt; Zhou et al. 2019) + chordal; output ``[t (3), c1, c2]``."""
 
     dim = 9
-
-    def to_matrix(self, rot: Tensor) -> Tensor:
-        return g.sixd_to_matrix(rot)
-
-    def from_matrix(self, R: Tensor) -> Tensor:
-        return g.matrix_to_sixd(R)
+    to_matrix = staticmethod(g.sixd_to_matrix)
+    from_matrix = staticmethod(g.matrix_to_sixd)
 
 
 class SVDLoss(_ChordalTerm):

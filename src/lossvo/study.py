@@ -172,10 +172,9 @@ def check_configurations(models: Sequence[str], experiments: Sequence[str]) -> N
     for group, names in (("model", models), ("experiment", experiments)):
         known = sorted(p.stem for p in (Path(CONFIG_DIR) / group).glob("*.yaml"))
         unknown = [name for name in names if name not in known]
-        if unknown:
-            flag = "models" if group == "model" else "experiments"
+        if unknown:  # the option is the group's plural
             raise UserError(
-                f"--{flag}: no {group} config {unknown[0]!r} (expected some of {', '.join(known)})"
+                f"--{group}s: no {group} config {unknown[0]!r} (expected some of {', '.join(known)})"
             )
 
 

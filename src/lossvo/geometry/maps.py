@@ -180,12 +180,6 @@ def matrix_to_euler(R: Tensor) -> Tensor:
     return roma.rotmat_to_euler(EULER_CONVENTION, R)
 
 
-def quat_canonical(q: Tensor) -> Tensor:
-    """The sign of each quaternion ``(w, x, y, z)`` that has ``w >= 0``, (..., 4) -> (..., 4)."""
-    check_shape(q, (4,), "q")
-    return torch.where(q[..., :1] < 0, -q, q)
-
-
 def quat_normalize(q: Tensor, eps: float = 1e-8) -> Tensor:
     """Unit quaternions from raw outputs of any norm, (..., 4) -> (..., 4); the identity (with zero
     gradient) where ``|q| < eps``: a zero output carries no rotation. NaN stays NaN."""
@@ -205,7 +199,8 @@ def quat_to_matrix(q: Tensor) -> Tensor:
 def matrix_to_quat(R: Tensor) -> Tensor:
     """Rotation matrices to canonical unit quaternions ``(w, x, y, z)``, (..., 3, 3) -> (..., 4)."""
     check_shape(R, (3, 3), "R")
-    return quat_canonical(roma.quat_xyzw_to_wxyz(roma.rotmat_to_unitquat(R)))
+    q = roma.quat_xyzw_to_wxyz(roma.rotmat_to_unitquat(R))
+    return torch.where(q[..., :1] < 0, -q, q)
 
 
 def sixd_to_matrix(x: Tensor, eps: float = 1e-12) -> Tensor:
@@ -269,13 +264,6 @@ def pose_inverse(T: Tensor) -> Tensor:
     check_shape(T, (4, 4), "T")
     Rt = T[..., :3, :3].transpose(-1, -2)
     return make_pose(Rt, -(Rt @ T[..., :3, 3:])[..., 0])
-
-
-def compose(T_a: Tensor, T_b: Tensor) -> Tensor:
-    """``T_a @ T_b`` (apply T_b, then T_a) of (..., 4, 4) poses, broadcasting leading dimensions."""
-    check_shape(T_a, (4, 4), "T_a")
-    check_shape(T_b, (4, 4), "T_b")
-    return T_a @ T_b
 
 
 def relative_pose(T_a: Tensor, T_b: Tensor) -> Tensor:

@@ -36,7 +36,6 @@ FLOWNETS_ENCODER: tuple[tuple[str, int, int, int, int], ...] = (
 )
 TOTAL_STRIDE = 64
 """Product of the encoder's strides: conv6 features are (ceil(H / 64), ceil(W / 64))."""
-MIN_SIZE = TOTAL_STRIDE
 
 
 def _conv_block(c_in: int, c_out: int, kernel: int, stride: int, batch_norm: bool, p: float) -> nn.Sequential:
@@ -91,8 +90,8 @@ class DeepVO(nn.Module):
         super().__init__()
         why = f" so that conv6 (stride {TOTAL_STRIDE}) has at least 1 {{}}"
         self.out_dim = check_int("out_dim", out_dim, 1)
-        self.height = check_int("height", height, MIN_SIZE, why.format("row"))
-        self.width = check_int("width", width, MIN_SIZE, why.format("column"))
+        self.height = check_int("height", height, TOTAL_STRIDE, why.format("row"))
+        self.width = check_int("width", width, TOTAL_STRIDE, why.format("column"))
         self.width_mult = check_float("width_mult", width_mult, 0.0, 16.0, False, "a number in (0, 16]")
         self.hidden_size = check_int("hidden_size", hidden_size, 1)
         self.lstm_layers = check_int("lstm_layers", lstm_layers, 1)
@@ -146,16 +145,14 @@ class DeepVO(nn.Module):
         return max(1, round(c * self.width_mult))
 
     @torch.no_grad()
-    def reset_parameters(self, seed: int | None = None) -> None:
+    def reset_parameters(self, seed: int) -> None:
         """Initialise every layer: encoder and LSTM from a generator seeded with ``seed``, the head from
-        ``seed + 1`` (None: one draw from the global stream), so every head size gets the same backbone.
+        ``seed + 1``, so every head size gets the same backbone.
 
         Convs Kaiming normal (LeakyReLU(0.1), fan-in); LSTM Xavier-uniform input and orthogonal recurrent
         weights per gate, forget-gate ``bias_hh`` 1; head weights normal with std 1e-3 and bias
         ``head_bias`` (an all-zero output is degenerate for the quaternion and 6-D decodings).
         """
-        if seed is None:
-            seed = int(torch.randint(0, 2**62, ()))
         backbone = torch.Generator().manual_seed(seed)
         head = torch.Generator().manual_seed(seed + 1)
         for m in self.encoder.modules():
@@ -164,9 +161,7 @@ class DeepVO(nn.Module):
                 if m.bias is not None:
                     nn.init.zeros_(m.bias)
             elif isinstance(m, nn.BatchNorm2d):
-                m.reset_running_stats()
-                nn.init.ones_(m.weight)
-                nn.init.zeros_(m.bias)
+                m.reset_parameters()  # running stats, weight 1, bias 0
         n = self.hidden_size
         for name, param in self.lstm.named_parameters():
             if name.startswith("weight_ih"):
@@ -193,13 +188,7 @@ class DeepVO(nn.Module):
         if not isinstance(frames, Tensor):
             raise ValueError(f"DeepVO expects frames as a tensor of shape {expected}, got {type(frames)}")
         shape = tuple(frames.shape)
-        if (
-            frames.dim() != 5
-            or shape[1] < 2
-            or shape[2] != 3
-            or shape[3:] != (self.height, self.width)
-            or shape[0] < 1
-        ):
+        if len(shape) != 5 or shape[0] < 1 or shape[1] < 2 or shape[2:] != (3, self.height, self.width):
             raise ValueError(f"DeepVO expects frames of shape {expected}, got {shape}")
         if not frames.is_floating_point():
             raise ValueError(f"DeepVO expects normalised floating-point frames, got dtype {frames.dtype}")

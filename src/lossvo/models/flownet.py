@@ -99,7 +99,6 @@ def load_flownet(model: nn.Module, path: str | Path) -> LoadReport:
     report = LoadReport(loaded=loaded, missing=missing, unexpected=unexpected, mismatched=mismatched)
 
     if not any(not k.endswith("num_batches_tracked") for k in loaded):  # a counter is not a match
-        loaded = []
         if mismatched:
             raise UserError(
                 f"FlowNet checkpoint {path}: nothing matches the encoder -- all {len(mismatched)} tensors "

@@ -146,23 +146,19 @@ class FlowVO(nn.Module):
         self.rotation_head = Head(features, self.hidden, self.out_dim - TRANSLATION_DIM, p, slope)
 
     @torch.no_grad()
-    def reset_parameters(self, seed: int | None = None) -> None:
+    def reset_parameters(self, seed: int) -> None:
         """Initialise every layer: the encoder and translation head (the same for every loss) from a
-        generator seeded with ``seed``, the rotation head from one seeded with ``seed + 1`` (None: one draw
-        from the global stream). Convs Kaiming normal (ReLU, fan-out); BatchNorm weight 1, bias 0, the last
-        of each residual branch 0 (every stage starts as its shortcut); head layers Kaiming uniform (for the
-        hidden units' slope), the last normal with std 1e-3 and the loss's identity output as bias."""
-        if seed is None:
-            seed = int(torch.randint(0, 2**62, ()))
+        generator seeded with ``seed``, the rotation head from one seeded with ``seed + 1``. Convs Kaiming
+        normal (ReLU, fan-out); BatchNorm weight 1, bias 0, the last of each residual branch 0 (every stage
+        starts as its shortcut); head layers Kaiming uniform (for the hidden units' slope), the last normal
+        with std 1e-3 and the loss's identity output as bias."""
         backbone = torch.Generator().manual_seed(seed)
         rotation = torch.Generator().manual_seed(seed + 1)
         for m in (*self.stem.modules(), *self.stages.modules()):
             if isinstance(m, nn.Conv2d):
                 nn.init.kaiming_normal_(m.weight, mode="fan_out", nonlinearity="relu", generator=backbone)
             elif isinstance(m, nn.BatchNorm2d):
-                m.reset_running_stats()
-                nn.init.ones_(m.weight)
-                nn.init.zeros_(m.bias)
+                m.reset_parameters()  # running stats, weight 1, bias 0
         for stage in self.stages.modules():
             if isinstance(stage, Residual):
                 nn.init.zeros_(stage.branch_norm.weight)  # each stage starts as its shortcut
