@@ -327,9 +327,8 @@ def configuration_row(column: Column) -> list[str]:
 def configuration_rows(columns: Sequence[Column], by_architecture: bool = False, csv: bool = False) -> Rows:
     """The configurations table; ``csv``: CSV headers, backticks dropped."""
     networks = [c for c in columns if c.kind == NETWORK]
-    rows: list[list[object]] = [
-        [v.replace("`", "") if csv else v for v in configuration_row(c)] for c in networks
+    rows = [
+        [c.architecture, *(v.replace("`", "") if csv else v for v in configuration_row(c))] for c in networks
     ]
     header = [h.removesuffix(" k·gain").replace(" ", "_") if csv else h for h in CONFIGURATION_HEADER]
-    table = Rows(header, rows)
-    return with_architecture(table, [c.architecture for c in networks], by_architecture)
+    return with_architecture(header, rows, by_architecture)

@@ -116,9 +116,11 @@ def jobs_rows(jobs: Sequence[Job], by_architecture: bool = False) -> Rows:
     rows: list[list[object]] = []
     for j in jobs:
         used = "yes" if j.skip is None else f"no: {j.skip}"
-        rows.append([f"`{j.path.name}`", j.label or "?", j.seed, j.status, used, "; ".join(j.notes)])
-    table = Rows(["job", "configuration", "seed", "status", "in tables", "notes"], rows)
-    return with_architecture(table, [job.architecture for job in jobs], by_architecture)
+        rows.append(
+            [j.architecture, f"`{j.path.name}`", j.label or "?", j.seed, j.status, used, "; ".join(j.notes)]
+        )
+    header = ["job", "configuration", "seed", "status", "in tables", "notes"]
+    return with_architecture(header, rows, by_architecture)
 
 
 def seeds_text(networks: Sequence[Column]) -> str:
