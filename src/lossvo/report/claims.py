@@ -126,7 +126,7 @@ def quantity_tests(
     """One quantity's tests as one Holm family, each with its decision, and their verdict."""
     family = statistics.corrected(tests)
     decisions = [statistics.decide(t) for t in family]
-    return QuantityTests(quantity, family, statistics.combine(decisions), list(secondary), decisions)
+    return QuantityTests(quantity, family, statistics.verdict(tests), list(secondary), decisions)
 
 
 def undecidable(n: int, comparisons: int) -> str | None:
@@ -203,8 +203,8 @@ def study_claims(
     margin: float = statistics.MARGIN,
     claimed_loss: str = CLAIMED_LOSS,
 ) -> list[Claim]:
-    """Claims (a) and (b) for every configuration of ``claimed_loss`` against all others; an untested
-    claim says why."""
+    """Claims (a) and (b) for every configuration of ``claimed_loss`` against all others, (a) on the
+    :func:`heldout_sequences` of ``sequences``; an untested claim says why."""
     networks = [c for c in columns if c.kind == NETWORK]
     claimed = [c for c in networks if is_claimed(c, claimed_loss)]
     others = [c for c in networks if not is_claimed(c, claimed_loss)]
@@ -213,8 +213,7 @@ def study_claims(
     if not claimed:
         reason = f"the sweep has no {word} configuration (no job with loss._target_ {claimed_loss})"
         return [Claim(s, "", untested=reason, claimed_loss=claimed_loss) for s in statements]
-    train = training_sequences(networks)
-    heldout = [s for s in sequences if s not in train]
+    heldout = heldout_sequences(networks, sequences)
     by_label = {c.label: c for c in items}
     out = []
     for column in claimed:
@@ -240,13 +239,12 @@ def claims_by_architecture(
     margin: float = statistics.MARGIN,
     claimed_loss: str = CLAIMED_LOSS,
 ) -> list[Claim]:
-    """:func:`study_claims` within each architecture, on the sequences it evaluated."""
+    """:func:`study_claims` within each architecture (on the sequences it evaluated)."""
     out = []
     for architecture, group in architecture_groups(columns).items():
         labels = {c.label for c in group}
-        own = evaluated_sequences(group, sequences)
         kept = [i for i in items if i.label in labels]
-        for claim in study_claims(group, kept, own, margin, claimed_loss):
+        for claim in study_claims(group, kept, sequences, margin, claimed_loss):
             claim.architecture = architecture
             out.append(claim)
     return out

@@ -65,9 +65,8 @@ def compare(columns: Sequence[Column], by_architecture: bool = False) -> list[Co
     :data:`COMPARED`, Holm over the pairs of one metric."""
     networks = [c for c in columns if c.kind == NETWORK]
     sequences = evaluated_sequences(networks)
-    groups = architecture_groups(networks).values() if by_architecture else [networks]
     out = []
-    for group in groups:
+    for group in architecture_groups(networks, by_architecture).values():
         found = []
         for a, b in combinations(group, 2):
             for metric, path in COMPARED:

@@ -65,12 +65,8 @@ def build_tables(
     return [
         build_table(_architecture_spec(spec, architecture), [*group, *baselines], sequences, notes, frame)
         for spec in TABLES
-        for architecture, group in _groups(networks).items()
+        for architecture, group in architecture_groups(networks, varies_architecture(networks)).items()
     ]
-
-
-def _groups(networks: Sequence[Column]) -> dict[str, list[Column]]:
-    return architecture_groups(networks) if varies_architecture(networks) else {"": list(networks)}
 
 
 def _architecture_spec(spec: TableSpec, architecture: str) -> TableSpec:
@@ -317,7 +313,7 @@ def write_figures(c: Contents, folder: Path, gt: dict[str, np.ndarray], missing:
     """Every figure, with the ground truth ``gt`` or the reason it is ``missing`` per sequence
     (:func:`lossvo.report.jobs.ground_truth`); the forest plot of the claims."""
     figures = Figures()
-    groups = _groups(c.networks).items()
+    groups = architecture_groups(c.networks, c.by_architecture).items()
     for (architecture, group), table in zip(groups, c.tables, strict=False):  # Table I's first
         suffix = f"_{architecture_file_name(architecture)}" if architecture else ""
         if group and plot_curves(group, folder / f"curves{suffix}.png"):
