@@ -64,8 +64,7 @@ def data_groups(
     groups: dict[str, tuple[Job, set[str]]] = {}
     for job in jobs:
         key = json.dumps(job.included_results.data.identity(), sort_keys=True)
-        _, evaluated = groups.setdefault(key, (job, set()))
-        evaluated.update(job.included_results.sequences)
+        groups.setdefault(key, (job, set()))[1].update(job.included_results.sequences)
     taken: set[str] = set()
     shared: set[str] = set()
     result = []
