@@ -29,7 +29,6 @@ from lossvo.report.jobs import (
     metric_value,
 )
 from lossvo.report.tables import BASELINE, UNKNOWN_ARCHITECTURE, Column, fmt, with_architecture
-from lossvo.table_render import Rows
 
 UNSEEN_KEY = "data.splits.unseen"
 UNSEEN_ROTATION_BAR = 0.30
@@ -65,8 +64,7 @@ def data_groups(
     groups: dict[str, tuple[Job, set[str]]] = {}
     for job in jobs:
         key = json.dumps(job.included_results.data.identity(), sort_keys=True)
-        _, evaluated = groups.setdefault(key, (job, set()))
-        evaluated.update(job.included_results.sequences)
+        groups.setdefault(key, (job, set()))[1].update(job.included_results.sequences)
     taken: set[str] = set()
     shared: set[str] = set()
     result = []
@@ -188,15 +186,12 @@ def learning_markdown(networks: Sequence[Column], base: BaselineRun, by_architec
         for job, results in zip(column.jobs, column.results, strict=True):
             mean = mean_motion.results[0]
             cells = [_below(results.get(s), mean.get(s), p) for s in sequences for _, p in LEARNING_METRICS]
-            rows.append([column.label, str(job.seed), *cells])
+            rows.append([column.architecture, column.label, str(job.seed), *cells])
     text = (
         "How far each job's RPE RMSE lies below the mean-motion baseline's on the validation sequences "
         "(1 − network / baseline; negative: worse than predicting the training set's mean motion)."
     )
-    table = with_architecture(
-        Rows(header, rows), [c.architecture for c in networks for _ in c.jobs], by_architecture
-    )
-    return "\n".join([text, "", table_render.markdown(table)])
+    return "\n".join([text, "", table_render.markdown(with_architecture(header, rows, by_architecture))])
 
 
 UNSEEN_HEADER = ("RPE rot [rad]", "vs zero motion", "RPE trans [m]", "vs own mean motion", "both met")
@@ -235,19 +230,13 @@ def unseen_markdown(
     passed: dict[str, list[bool]] = {}
     for column in networks:
         for job, results in zip(column.jobs, column.results, strict=True):
-            checks = [
-                unseen_cells(results.get(s), zero.results[0].get(s), own.results[0].get(s)) for s in unseen
-            ]
-            rows += [
-                [column.label, job.seed, s, *cells] for s, (cells, _) in zip(unseen, checks, strict=True)
-            ]
-            passed.setdefault(column.architecture or UNKNOWN_ARCHITECTURE, []).append(
-                all(met for _, met in checks)
-            )
-    architectures = [c.architecture for c in networks for _ in c.jobs for _ in unseen]
-    table = with_architecture(
-        Rows(["configuration", "seed", "sequence", *UNSEEN_HEADER], rows), architectures, by_architecture
-    )
+            every = True
+            for s in unseen:
+                cells, ok = unseen_cells(results.get(s), zero.results[0].get(s), own.results[0].get(s))
+                rows.append([column.architecture, column.label, job.seed, s, *cells])
+                every &= ok
+            passed.setdefault(column.architecture or UNKNOWN_ARCHITECTURE, []).append(every)
+    table = with_architecture(["configuration", "seed", "sequence", *UNSEEN_HEADER], rows, by_architecture)
     if by_architecture:
         counts = "; ".join(f"{a}: {sum(met)} of {len(met)}" for a, met in passed.items())
         summary = f"Jobs that meet both on every unseen sequence, per architecture: {counts}."

@@ -71,24 +71,39 @@ def rank(quantity: str, architecture: str, scores: dict[str, dict[str, float]]) 
     return Ranking(quantity, architecture, [(t, cells[t]) for t in order])
 
 
+NO_COMMON = (
+    "no sequence of one dataset that both evaluated and neither trained on (evaluate one's checkpoints on "
+    "the other's data into <sweep>/evaluations/<data>/<job>: python -m lossvo.eval ckpt_path=... data=... "
+    "hydra.run.dir=...)"
+)
+
+
 def interaction(
-    quantity: str, pair: tuple[Ranking, Ranking], scores: tuple[dict[str, dict[str, float]], ...]
+    quantity: str,
+    pair: tuple[Ranking, Ranking],
+    scores: tuple[dict[str, dict[str, float]], ...],
+    keys: Sequence[str],
 ) -> Interaction:
-    """The interaction test of architectures A, B from their rankings and {treatment: {seed: score}}."""
+    """The interaction test of architectures A, B from their rankings and {treatment: {seed: score}}, a
+    seed's score its mean over the :func:`keyed` sequences ``keys``."""
     (a, b), (sa, sb) = pair, scores
+    names = (a.architecture, b.architecture)
+    if not keys:
+        return Interaction(quantity, names, [], [], False, None, UNTESTED, NO_COMMON)
     common = [t for t in a.order(list(sa)) if t in sb]
     seeds = [r for r in sa[common[0]] if all(r in s[t] for s in (sa, sb) for t in common)] if common else []
-    names = (a.architecture, b.architecture)
-    same = a.order(common) == b.order(common)
+    same, sequences = a.order(common) == b.order(common), [sequence_name(k) for k in keys]
+    why = None
     if len(common) < 2:
         why = "fewer than two configurations in both architectures (nothing to rank)"
-        return Interaction(quantity, names, common, seeds, same, None, UNTESTED, why)
-    if not seeds:
+    elif not seeds:
         why = "no seed with a score in every configuration of both architectures"
-        return Interaction(quantity, names, common, seeds, same, None, UNTESTED, why)
+    if why is not None:
+        return Interaction(quantity, names, common, seeds, same, None, UNTESTED, why, sequences)
     d = np.array([[sb[t][r] - sa[t][r] for r in seeds] for t in common])  # (L, S): B - A
     test = statistics.interaction_test(d)
-    return Interaction(quantity, names, common, seeds, same, test, statistics.interaction_verdict(test))
+    verdict = statistics.interaction_verdict(test)
+    return Interaction(quantity, names, common, seeds, same, test, verdict, sequences=sequences)
 
 
 KEY_SEPARATOR = "|"
@@ -132,13 +147,6 @@ def sequence_name(key: str) -> str:
     return f"{name} ({Path(root).name})"
 
 
-NO_COMMON = (
-    "no sequence of one dataset that both evaluated and neither trained on (evaluate one's checkpoints on "
-    "the other's data into <sweep>/evaluations/<data>/<job>: python -m lossvo.eval ckpt_path=... data=... "
-    "hydra.run.dir=...)"
-)
-
-
 def architecture_agreement(
     networks: Sequence[Column], sequences: Sequence[str], evaluations: Sequence[Evaluation] = ()
 ) -> Agreement:
@@ -160,17 +168,10 @@ def architecture_agreement(
         rankings = {architecture: rank(quantity, architecture, s) for architecture, s in scores.items()}
         out.rankings += rankings.values()
         for (x, y), common in pairs.items():
-            if not common:
-                out.interactions.append(
-                    Interaction(quantity, (x, y), [], [], False, None, UNTESTED, NO_COMMON)
-                )
-                continue
             pair_scores = tuple(
                 {names[c.label]: seed_scores(c, path, common) for c, _ in keyed_groups[a]} for a in (x, y)
             )
-            found = interaction(quantity, (rankings[x], rankings[y]), pair_scores)
-            found.sequences = [sequence_name(k) for k in common]
-            out.interactions.append(found)
+            out.interactions.append(interaction(quantity, (rankings[x], rankings[y]), pair_scores, common))
     return out
 
 

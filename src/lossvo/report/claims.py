@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -105,17 +105,12 @@ def heldout_sequences(columns: Sequence[Column], sequences: Sequence[str]) -> li
 
 
 def seed_test(
-    claimed: Column,
-    other: Column,
-    path: Sequence[str],
-    sequences: Sequence[str],
-    margin: float = statistics.MARGIN,
+    versus: str, claimed: Mapping[str, float], other: Mapping[str, float], margin: float = statistics.MARGIN
 ) -> PairedTest:
-    """The paired test against ``other`` of each seed's mean over ``sequences`` of one metric."""
-    a, b = seed_scores(claimed, path, sequences), seed_scores(other, path, sequences)
-    seeds = [r for r in claimed.replicates if r in a and r in b]
-    x, y = (np.array([v[r] for r in seeds], dtype=np.float64) for v in (a, b))
-    return statistics.paired_test(other.label, x, y, margin)
+    """The paired test of per-seed values ``{seed: value}`` against ``versus``'s, on the seeds both have."""
+    seeds = [r for r in claimed if r in other]
+    x, y = (np.array([v[r] for r in seeds], dtype=np.float64) for v in (claimed, other))
+    return statistics.paired_test(versus, x, y, margin)
 
 
 def cells_test(claimed: Column, other: Column, path: Sequence[str], sequences: Sequence[str]) -> PairedTest:
@@ -153,10 +148,13 @@ def undecidable(n: int, comparisons: int) -> str | None:
     )
 
 
-def undecidable_sentences(claim: Claim) -> list[str]:
-    """:func:`undecidable` for every n among the claim's undecided tests, each sentence once."""
+def decided(claim: Claim) -> Claim:
+    """``claim`` with its verdict, its quantities' combined, and :func:`undecidable` for every n among its
+    undecided tests, each sentence once."""
+    claim.verdict = statistics.combine([q.verdict for q in claim.quantities])
     undecided = (undecidable(t.n, len(q.tests)) for q, t, d in _comparisons(claim) if d == CANNOT_DECIDE)
-    return list(dict.fromkeys(x for x in undecided if x))
+    claim.undecidable = list(dict.fromkeys(x for x in undecided if x))
+    return claim
 
 
 def error_claim(
@@ -169,24 +167,15 @@ def error_claim(
     """Claim (a) on each metric of :data:`CLAIM_ERRORS`, each seed's mean over the ``heldout`` sequences."""
     scope = f"On the sequences outside the training split: {', '.join(heldout)}."
     claim = Claim(CLAIM_A.format(loss=loss_word(claimed_loss)), claimed.label, scope, margin, list(heldout))
-    for column in (claimed, *others):
-        claim.measured[column.label] = {
-            q: Cell.of(list(seed_scores(column, p, heldout).values())) for q, p in CLAIM_ERRORS
-        }
+    columns = (claimed, *others)
     for quantity, path in CLAIM_ERRORS:
-        tests = [seed_test(claimed, other, path, heldout, margin) for other in others]
+        ours, *theirs = scores = [seed_scores(c, path, heldout) for c in columns]
+        for column, values in zip(columns, scores, strict=True):
+            claim.measured.setdefault(column.label, {})[quantity] = Cell.of(list(values.values()))
+        tests = [seed_test(o.label, ours, s, margin) for o, s in zip(others, theirs, strict=True)]
         cells = [cells_test(claimed, other, path, heldout) for other in others]
         claim.quantities.append(quantity_tests(quantity, tests, cells))
-    claim.verdict = statistics.combine([q.verdict for q in claim.quantities])
-    claim.undecidable = undecidable_sentences(claim)
-    return claim
-
-
-def epoch_test(claimed: Convergence, other: Convergence, margin: float = statistics.MARGIN) -> PairedTest:
-    """Convergence epochs against ``other``'s, paired by seed (seeds where either has none left out)."""
-    pairs = [(claimed.epoch_of(r), other.epoch_of(r)) for r in claimed.replicates]
-    x, y = (np.array([p[i] for p in pairs if None not in p], dtype=np.float64) for i in (0, 1))
-    return statistics.paired_test(other.label, x, y, margin)
+    return decided(claim)
 
 
 def convergence_claim(
@@ -196,17 +185,15 @@ def convergence_claim(
     claim = Claim(CLAIM_B, claimed.label, "Paired by seed, on the epochs of *Convergence*.", margin)
     for c in (claimed, *others):
         claim.measured[c.label] = {EPOCHS: c.cell()}
-    tests = [epoch_test(claimed, other, margin) for other in others]
+    tests = [seed_test(o.label, claimed.seed_epochs, o.seed_epochs, margin) for o in others]
     claim.quantities.append(quantity_tests(EPOCHS, tests))
-    claim.verdict = claim.quantities[0].verdict
-    claim.undecidable = undecidable_sentences(claim)
     metrics = {m for c in (claimed, *others) for m in c.metrics}
     if metrics != {SCORE}:
         claim.notes.append(
             f"Not every job logged `{SCORE}`: epochs are measured on {', '.join(sorted(metrics))}, curves "
             "that are not on one scale across losses."
         )
-    return claim
+    return decided(claim)
 
 
 def study_claims(
@@ -216,8 +203,8 @@ def study_claims(
     margin: float = statistics.MARGIN,
     claimed_loss: str = CLAIMED_LOSS,
 ) -> list[Claim]:
-    """Claims (a) and (b) for every configuration of ``claimed_loss`` against all others; an untested
-    claim says why."""
+    """Claims (a) and (b) for every configuration of ``claimed_loss`` against all others, (a) on the
+    :func:`heldout_sequences` of ``sequences``; an untested claim says why."""
     networks = [c for c in columns if c.kind == NETWORK]
     claimed = [c for c in networks if is_claimed(c, claimed_loss)]
     others = [c for c in networks if not is_claimed(c, claimed_loss)]
@@ -226,8 +213,7 @@ def study_claims(
     if not claimed:
         reason = f"the sweep has no {word} configuration (no job with loss._target_ {claimed_loss})"
         return [Claim(s, "", untested=reason, claimed_loss=claimed_loss) for s in statements]
-    train = training_sequences(networks)
-    heldout = [s for s in sequences if s not in train]
+    heldout = heldout_sequences(networks, sequences)
     by_label = {c.label: c for c in items}
     out = []
     for column in claimed:
@@ -253,13 +239,12 @@ def claims_by_architecture(
     margin: float = statistics.MARGIN,
     claimed_loss: str = CLAIMED_LOSS,
 ) -> list[Claim]:
-    """:func:`study_claims` within each architecture, on the sequences it evaluated."""
+    """:func:`study_claims` within each architecture (on the sequences it evaluated)."""
     out = []
     for architecture, group in architecture_groups(columns).items():
         labels = {c.label for c in group}
-        own = evaluated_sequences(group, sequences)
         kept = [i for i in items if i.label in labels]
-        for claim in study_claims(group, kept, own, margin, claimed_loss):
+        for claim in study_claims(group, kept, sequences, margin, claimed_loss):
             claim.architecture = architecture
             out.append(claim)
     return out
@@ -442,17 +427,14 @@ def _test_numbers(t: PairedTest, cells: PairedTest | None) -> list[object]:
 def claims_csv_rows(items: Sequence[Claim], by_architecture: bool = False) -> Rows:
     """``tables/claims.csv``: a row per paired test, then an ``all`` row per claim."""
     rows: list[list[object]] = []
-    architectures: list[str | None] = []
     blank = [""] * (len(CLAIMS_HEADER) - 4)
     for c in items:
-        start = len(rows)
+        claim = [c.architecture, c.statement, c.configuration]
         if c.untested:
-            rows.append([c.statement, c.configuration, *blank, "cannot be tested", c.untested])
-        else:
-            for q, t, decision in _comparisons(c):
-                numbers = _test_numbers(t, next((s for s in q.secondary if s.versus == t.versus), None))
-                rows.append([c.statement, c.configuration, t.versus, q.quantity, *numbers, decision, ""])
-            note = " ".join([*c.undecidable, *c.notes])
-            rows.append([c.statement, c.configuration, "all", "all", *blank[2:], c.verdict, note])
-        architectures += [c.architecture] * (len(rows) - start)
-    return with_architecture(Rows(CLAIMS_HEADER, rows), architectures, by_architecture)
+            rows.append([*claim, *blank, "cannot be tested", c.untested])
+            continue
+        for q, t, decision in _comparisons(c):
+            numbers = _test_numbers(t, next((s for s in q.secondary if s.versus == t.versus), None))
+            rows.append([*claim, t.versus, q.quantity, *numbers, decision, ""])
+        rows.append([*claim, "all", "all", *blank[2:], c.verdict, " ".join([*c.undecidable, *c.notes])])
+    return with_architecture(CLAIMS_HEADER, rows, by_architecture)

@@ -65,9 +65,8 @@ def compare(columns: Sequence[Column], by_architecture: bool = False) -> list[Co
     :data:`COMPARED`, Holm over the pairs of one metric."""
     networks = [c for c in columns if c.kind == NETWORK]
     sequences = evaluated_sequences(networks)
-    groups = architecture_groups(networks).values() if by_architecture else [networks]
     out = []
-    for group in groups:
+    for group in architecture_groups(networks, by_architecture).values():
         found = []
         for a, b in combinations(group, 2):
             for metric, path in COMPARED:
@@ -91,8 +90,8 @@ def comparison_rows(comparisons: Sequence[Comparison], by_architecture: bool = F
     for c in comparisons:
         t = c.test
         numbers = [fmt(t.mean_diff), f"{t.lower}/{t.n}", fmt(t.p_value, 3), fmt(t.holm_p, 3)]
-        rows.append([c.a, c.b, c.metric, t.n, *numbers, c.verdict])
-    return with_architecture(Rows(header, rows), [c.architecture for c in comparisons], by_architecture)
+        rows.append([c.architecture, c.a, c.b, c.metric, t.n, *numbers, c.verdict])
+    return with_architecture(header, rows, by_architecture)
 
 
 def comparison_csv_rows(comparisons: Sequence[Comparison], by_architecture: bool = False) -> Rows:
@@ -103,5 +102,6 @@ def comparison_csv_rows(comparisons: Sequence[Comparison], by_architecture: bool
     for c in comparisons:
         t = c.test
         effect = [*map(repr, (t.mean_diff, t.ci_low, t.ci_high)), t.lower, repr(t.p_value), t.method]
-        rows.append([c.a, c.b, c.metric, t.n, ";".join(c.sequences), *effect, repr(t.holm_p), c.verdict])
-    return with_architecture(Rows(header, rows), [c.architecture for c in comparisons], by_architecture)
+        what = [c.architecture, c.a, c.b, c.metric, t.n, ";".join(c.sequences)]
+        rows.append([*what, *effect, repr(t.holm_p), c.verdict])
+    return with_architecture(header, rows, by_architecture)

@@ -77,10 +77,12 @@ def label_jobs(jobs: Sequence[Job]) -> None:
     the seed varies."""
     keys = varying_keys(jobs)
     for job in jobs:
-        names = [f"{k}={job.overrides[k]}" for k in keys if k in job.overrides]
-        if not keys:
-            names = [f"{k}={v}" for k, v in job.overrides.items() if k != REPLICATE_KEY]
-        job.label = ",".join(names) or "defaults"
+        job.label = override_label(job.overrides, keys or [k for k in job.overrides if k != REPLICATE_KEY])
+
+
+def override_label(overrides: dict[str, str], keys: Sequence[str]) -> str:
+    """The ``keys`` that ``overrides`` has as ``key=value`` joined by commas (``defaults`` for none)."""
+    return ",".join(f"{k}={overrides[k]}" for k in keys if k in overrides) or "defaults"
 
 
 def network_columns(jobs: Sequence[Job]) -> list[Column]:
@@ -101,12 +103,13 @@ def network_columns(jobs: Sequence[Job]) -> list[Column]:
     return list(columns.values())
 
 
-def architecture_groups(columns: Sequence[Column]) -> dict[str, list[Column]]:
-    """The network columns by architecture, first seen first."""
+def architecture_groups(columns: Sequence[Column], by_architecture: bool = True) -> dict[str, list[Column]]:
+    """The network columns by architecture, first seen first; all under ``""`` unless ``by_architecture``."""
     groups: dict[str, list[Column]] = {}
     for column in columns:
         if column.kind == NETWORK:
-            groups.setdefault(column.architecture or UNKNOWN_ARCHITECTURE, []).append(column)
+            architecture = (column.architecture or UNKNOWN_ARCHITECTURE) if by_architecture else ""
+            groups.setdefault(architecture, []).append(column)
     return groups
 
 
@@ -129,11 +132,7 @@ def treatments(columns: Sequence[Column]) -> dict[str, str]:
     within = overrides.groupby([choices[g] for g in GROUPS], dropna=False).nunique(dropna=False)
     one_per_group = set(within.columns[(within == 1).all()]) if len(within) > 1 else set()
     keys = [k for k in varying_keys(jobs) if k not in {*GROUPS, *one_per_group}]
-    out = {}
-    for column in networks:
-        overrides = column.jobs[0].overrides
-        out[column.label] = ",".join(f"{k}={overrides[k]}" for k in keys if k in overrides) or "defaults"
-    return out
+    return {c.label: override_label(c.jobs[0].overrides, keys) for c in networks}
 
 
 def _seed_order(seed: Any) -> tuple[int, float, str]:
@@ -327,9 +326,8 @@ def configuration_row(column: Column) -> list[str]:
 def configuration_rows(columns: Sequence[Column], by_architecture: bool = False, csv: bool = False) -> Rows:
     """The configurations table; ``csv``: CSV headers, backticks dropped."""
     networks = [c for c in columns if c.kind == NETWORK]
-    rows: list[list[object]] = [
-        [v.replace("`", "") if csv else v for v in configuration_row(c)] for c in networks
+    rows = [
+        [c.architecture, *(v.replace("`", "") if csv else v for v in configuration_row(c))] for c in networks
     ]
     header = [h.removesuffix(" k·gain").replace(" ", "_") if csv else h for h in CONFIGURATION_HEADER]
-    table = Rows(header, rows)
-    return with_architecture(table, [c.architecture for c in networks], by_architecture)
+    return with_architecture(header, rows, by_architecture)

@@ -29,8 +29,10 @@ class Convergence:
     def cell(self) -> Cell:
         return Cell.of(self.epochs)
 
-    def epoch_of(self, replicate: str) -> int | None:
-        return self.epochs[self.replicates.index(replicate)] if replicate in self.replicates else None
+    @property
+    def seed_epochs(self) -> dict[str, int]:
+        """``{replicate: epoch}`` of the seeds with a convergence epoch."""
+        return {r: e for r, e in zip(self.replicates, self.epochs, strict=True) if e is not None}
 
 
 def job_convergence(job: Job) -> tuple[str, int | None, int]:
@@ -96,21 +98,18 @@ def convergence_rows(items: Sequence[Convergence], by_architecture: bool = False
         pairs = zip(c.replicates, c.epochs, strict=True)
         per_seed = ", ".join(f"{r}: {e if e is not None else 'n/a'}" for r, e in pairs)
         logged = ", ".join(map(str, sorted(set(c.logged))))
-        rows.append(
-            [c.label, ", ".join(sorted(set(c.metrics))), c.cell().n, epoch_text(c.cell()), per_seed, logged]
-        )
-    return with_architecture(Rows(header, rows), [c.architecture for c in items], by_architecture)
+        metrics = ", ".join(sorted(set(c.metrics)))
+        rows.append([c.architecture, c.label, metrics, c.cell().n, epoch_text(c.cell()), per_seed, logged])
+    return with_architecture(header, rows, by_architecture)
 
 
 def convergence_csv_rows(items: Sequence[Convergence], by_architecture: bool = False) -> Rows:
     """``tables/convergence.csv``: a row per configuration and seed, then its ``mean`` and ``std`` rows."""
     rows: list[list[object]] = []
-    architectures: list[str | None] = []
     for c in items:
         for r, m, e, n in zip(c.replicates, c.metrics, c.epochs, c.logged, strict=True):
-            rows.append([c.label, r, m, "" if e is None else e, n])
+            rows.append([c.architecture, c.label, r, m, "" if e is None else e, n])
         metric, (mean, std, _) = ",".join(sorted(set(c.metrics))), c.cell().csv()
-        rows += [[c.label, "mean", metric, mean, ""], [c.label, "std", metric, std, ""]]
-        architectures += [c.architecture] * (len(c.replicates) + 2)
-    table = Rows(["configuration", "seed", "metric", "epoch", "epochs_logged"], rows)
-    return with_architecture(table, architectures, by_architecture)
+        rows += [[c.architecture, c.label, part, metric, x, ""] for part, x in (("mean", mean), ("std", std))]
+    header = ["configuration", "seed", "metric", "epoch", "epochs_logged"]
+    return with_architecture(header, rows, by_architecture)

@@ -65,12 +65,8 @@ def build_tables(
     return [
         build_table(_architecture_spec(spec, architecture), [*group, *baselines], sequences, notes, frame)
         for spec in TABLES
-        for architecture, group in _groups(networks).items()
+        for architecture, group in architecture_groups(networks, varies_architecture(networks)).items()
     ]
-
-
-def _groups(networks: Sequence[Column]) -> dict[str, list[Column]]:
-    return architecture_groups(networks) if varies_architecture(networks) else {"": list(networks)}
 
 
 def _architecture_spec(spec: TableSpec, architecture: str) -> TableSpec:
@@ -116,9 +112,11 @@ def jobs_rows(jobs: Sequence[Job], by_architecture: bool = False) -> Rows:
     rows: list[list[object]] = []
     for j in jobs:
         used = "yes" if j.skip is None else f"no: {j.skip}"
-        rows.append([f"`{j.path.name}`", j.label or "?", j.seed, j.status, used, "; ".join(j.notes)])
-    table = Rows(["job", "configuration", "seed", "status", "in tables", "notes"], rows)
-    return with_architecture(table, [job.architecture for job in jobs], by_architecture)
+        rows.append(
+            [j.architecture, f"`{j.path.name}`", j.label or "?", j.seed, j.status, used, "; ".join(j.notes)]
+        )
+    header = ["job", "configuration", "seed", "status", "in tables", "notes"]
+    return with_architecture(header, rows, by_architecture)
 
 
 def seeds_text(networks: Sequence[Column]) -> str:
@@ -315,7 +313,7 @@ def write_figures(c: Contents, folder: Path, gt: dict[str, np.ndarray], missing:
     """Every figure, with the ground truth ``gt`` or the reason it is ``missing`` per sequence
     (:func:`lossvo.report.jobs.ground_truth`); the forest plot of the claims."""
     figures = Figures()
-    groups = _groups(c.networks).items()
+    groups = architecture_groups(c.networks, c.by_architecture).items()
     for (architecture, group), table in zip(groups, c.tables, strict=False):  # Table I's first
         suffix = f"_{architecture_file_name(architecture)}" if architecture else ""
         if group and plot_curves(group, folder / f"curves{suffix}.png"):

@@ -54,11 +54,13 @@ def speed_rows(networks: Sequence[Column], gt: Mapping[str, np.ndarray], sequenc
     outside = [s for s in sequences if s in gt and s not in training_sequences(networks)]
     header = ["configuration", "sequence"]
     header += [f"{name}: {what}" for name in STRETCHES for what in ("true [m]", "predicted / true")]
-    columns = [c for c in networks if c.kind == NETWORK]
-    rows = Rows(header, [[c.label, s, *_cells(c, s, gt[s])] for c in columns for s in outside])
-    return with_architecture(
-        rows, [c.architecture for c in columns for _ in outside], varies_architecture(networks)
-    )
+    rows = [
+        [c.architecture, c.label, s, *_cells(c, s, gt[s])]
+        for c in networks
+        if c.kind == NETWORK
+        for s in outside
+    ]
+    return with_architecture(header, rows, varies_architecture(networks))
 
 
 def _cells(column: Column, sequence: str, gt: np.ndarray) -> list[str]:

@@ -20,12 +20,12 @@ MEAN_ROW = "mean"
 UNKNOWN_ARCHITECTURE = "?"
 
 
-def with_architecture(table: Rows, architectures: Sequence[str | None], by_architecture: bool) -> Rows:
-    """``table`` with an ``architecture`` column first where ``by_architecture``."""
-    if not by_architecture:
-        return table
-    rows = [[a or UNKNOWN_ARCHITECTURE, *row] for a, row in zip(architectures, table.rows, strict=True)]
-    return Rows(["architecture", *table.header], rows)
+def with_architecture(header: Sequence[str], rows: Sequence[Sequence[object]], by_architecture: bool) -> Rows:
+    """A table of ``rows``, each led by its architecture (None: unknown): an ``architecture`` column first
+    where ``by_architecture``, else without it."""
+    if by_architecture:
+        return Rows(["architecture", *header], [[a or UNKNOWN_ARCHITECTURE, *row] for a, *row in rows])
+    return Rows(header, [row[1:] for row in rows])
 
 
 @dataclass(frozen=True)
@@ -131,11 +131,10 @@ def build_table(
     means = [d[:, common].mean(axis=1) if common else np.full(len(d), np.nan) for d in data]
     by_row = [[d[:, s] for d in data] for s in range(len(sequences))] + [means]  # [row][column * k + metric]
     cells = [[[Cell.of(v) for v in row[c * k : (c + 1) * k]] for c in range(len(columns))] for row in by_row]
-    for row in cells:  # bold: the minimum mean of each row and metric, over all columns
-        for m in range(k):
-            row_means = np.array([column[m].mean for column in row])
-            for column, mean in zip(row, row_means, strict=True):
-                column[m].best = bool(np.isfinite(row_means).any() and mean == np.nanmin(row_means))
+    shown = np.array([[[cell.mean for cell in col] for col in row] for row in cells])  # (rows, columns, k)
+    best = shown == np.fmin.reduce(shown, axis=1, keepdims=True)  # each row and metric's minimum, NaN left
+    for cell, bold in zip((cell for row in cells for col in row for cell in col), best.ravel(), strict=True):
+        cell.best = bool(bold)
     notes = {s: n for s, n in (notes or {}).items() if s in sequences}
     return Table(spec, list(columns), [*sequences, MEAN_ROW], cells, [sequences[j] for j in common], notes)
 
