@@ -57,12 +57,12 @@ NUMBERS = "an object of numbers"
     [
         ('{"status": "running"', "invalid JSON (Expecting ',' delimiter at line 1)"),
         ('["running"]', "expected an object, got list"),
-        ('{"status": "done"}', f"expected 'status' to be one of {STATES}, got 'done'"),
+        ('{"status": "done"}', f"status: expected one of {STATES}, got 'done'"),
         ('{"status": "completed", "metrics": {"a": "b"}}', f"metrics: expected {NUMBERS}, got {{'a': 'b'}}"),
-        ('{"status": "running", "history": [{"time": "now"}]}', "history[0]: expected an 'event'"),
+        ('{"status": "running", "history": [{"time": "now"}]}', "history[0].event is missing"),
         (
             '{"status": "running", "history": [{"event": "x", "epoch": true}]}',
-            "history[0]: epoch: expected an integer or null, got True",
+            "history[0].epoch: expected an integer or null, got True",
         ),
         ('{"schema_version": 2, "status": "running"}', "schema_version 2 is not supported (supported: 1)"),
         (

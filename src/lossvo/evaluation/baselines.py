@@ -64,8 +64,6 @@ YAW_ROWS, YAW_COLUMNS = (0.0, 0.5), (0.0, 1.0)
 half, mostly far away, where the translation moves pixels least."""
 ROAD_ROWS, ROAD_COLUMNS = (0.75, 1.0), (1 / 3, 2 / 3)
 """The road just ahead (fractions of the height and width): the bottom quarter, the middle third."""
-FLOW_CHUNK = 32
-"""Frame pairs whose flow fields are held at once."""
 
 
 @dataclass
@@ -172,28 +170,20 @@ def orb_essential(
     """
     points, descriptors, shape = orb_features(images)
     threshold = RANSAC_THRESHOLD_PX if shape[1] < 640 else 1.0
-    estimates = []
     if distortion is not None and np.any(distortion):
         points = [cv2.undistortPoints(p.reshape(-1, 1, 2), K, distortion, P=K).reshape(-1, 2) for p in points]
+    motion, failed = [np.asarray(fallback, dtype=np.float64)], []
     following = signed_bits(descriptors[0])
     for k in range(len(points) - 1):  # OpenCV's solvers take one pair at a time
         previous, following = following, signed_bits(descriptors[k + 1])
         i, j = mutual_matches(previous, following)
-        estimates.append(pair_motion(points[k][i], points[k + 1][j], K, threshold))
-    failed = np.array([e is None for e in estimates], dtype=bool)
-    unit = np.stack([np.eye(4) if e is None else e for e in estimates]) if estimates else np.zeros((0, 4, 4))
-    motion = _fill_forward(unit, failed, np.asarray(fallback, dtype=np.float64))
+        estimate = pair_motion(points[k][i], points[k + 1][j], K, threshold)
+        failed.append(estimate is None)
+        motion.append(motion[-1] if estimate is None else estimate)
+    relative = np.stack(motion)[1:]
     lengths = torch.from_numpy(np.asarray(step_lengths, dtype=np.float64))
-    motion[:, :3, 3] = geometry.scale_to_length(torch.from_numpy(motion[:, :3, 3]), lengths).numpy()
-    return motion, failed
-
-
-def _fill_forward(poses: np.ndarray, failed: np.ndarray, first: np.ndarray) -> np.ndarray:
-    """Each failed entry of (M, 4, 4) poses takes the last good one before it (``first`` if none)."""
-    good = np.where(failed, -1, np.arange(len(poses)))
-    last_good = np.maximum.accumulate(good) if len(good) else good
-    table = np.concatenate((first[None], poses))
-    return table[last_good + 1]
+    relative[:, :3, 3] = geometry.scale_to_length(torch.from_numpy(relative[:, :3, 3]), lengths).numpy()
+    return relative, np.array(failed, dtype=bool)
 
 
 def _band(size: int, fractions: tuple[float, float]) -> slice:
@@ -257,33 +247,27 @@ def flow_size(source_hw: tuple[int, int]) -> tuple[int, int]:
 def flow_features(
     images: Sequence[Path], K: np.ndarray, undistort: Undistortion | None = None
 ) -> FlowFeatures:
-    """The flow features of N frames with (3, 3) intrinsics ``K`` (``undistort``'s where given), their flow
-    held :data:`FLOW_CHUNK` pairs at a time; KittiFormatError for a frame unreadable or of another size."""
+    """The flow features of N frames with (3, 3) intrinsics ``K`` (``undistort``'s where given), one pair's
+    flow held at a time; KittiFormatError for a frame unreadable or of another size."""
     if len(images) < 2:
         return FlowFeatures(np.zeros(0), np.zeros(0))
     check_png(images[0])
     source = png_size(images[0])
     size = flow_size(source)
     K_flow = camera.resized_intrinsics(K if undistort is None else undistort.K, source, size)
-    yaw: list[np.ndarray] = []
-    road: list[np.ndarray] = []
-    fields: list[np.ndarray] = []
+    yaw, road = np.zeros(len(images) - 1), np.zeros(len(images) - 1)
     previous, _ = read_frame(images[0], *size, undistort)
-    for i, path in enumerate(images[1:], start=1):
+    for i, path in enumerate(images[1:]):
         frame, shape = read_frame(path, *size, undistort)
         if shape != source:
             raise KittiFormatError(
                 f"{path}: {shape[0]}x{shape[1]} pixels, expected {source[0]}x{source[1]} "
                 "(the size of the sequence's first frame)"
             )
-        fields.append(pair_flow(previous, frame, FLOW_SETTING))
+        flow = pair_flow(previous, frame, FLOW_SETTING)[None]
+        yaw[i], road[i] = flow_yaw(flow, K_flow)[0], road_speed_feature(flow)[0]
         previous = frame
-        if len(fields) == FLOW_CHUNK or i == len(images) - 1:
-            chunk = np.stack(fields)
-            yaw.append(flow_yaw(chunk, K_flow))
-            road.append(road_speed_feature(chunk))
-            fields = []
-    return FlowFeatures(np.concatenate(yaw), np.concatenate(road))
+    return FlowFeatures(yaw, road)
 
 
 @dataclass(frozen=True)

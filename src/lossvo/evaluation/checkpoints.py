@@ -174,10 +174,8 @@ def evaluation_data(
     base = dict(selected) if selected is not None else {
         k: v for k, v in recorded.items() if k not in RECORD_ONLY
     }  # fmt: skip
-    for key, value in explicit.items():
+    trained = {key: lookup(recorded, key) for key in TRAINED_WITH if lookup(recorded, key) is not None}
+    fixed = trained | {"splits.train": [], "splits.val": [], "frames.statistics": recorded["statistics"]}
+    for key, value in [*explicit.items(), *fixed.items()]:
         base = _with(base, key, value)
-    for key in TRAINED_WITH:
-        if lookup(recorded, key) is not None:
-            base = _with(base, key, lookup(recorded, key))
-    base = _with(_with(base, "splits.train", []), "splits.val", [])
-    return _with(base, "frames.statistics", recorded["statistics"])
+    return base

@@ -122,12 +122,8 @@ def _tensor(array: np.ndarray | Tensor) -> Tensor:
 
 def _load(inputs: Inputs, start: int, stop: int, device: torch.device) -> dict[str, Tensor]:
     """Frames [start, stop) of a sequence with their pairs' flow (start .. stop - 2) and K, on ``device``."""
-    loaded = {"frames": _tensor(inputs["frames"][start:stop])}
-    if "flow" in inputs:
-        loaded["flow"] = _tensor(inputs["flow"][start : stop - 1])
-    if "K" in inputs:
-        loaded["K"] = _tensor(inputs["K"])
-    return {name: value.to(device) for name, value in loaded.items()}
+    parts = {"frames": slice(start, stop), "flow": slice(start, stop - 1), "K": slice(None)}
+    return {name: _tensor(inputs[name][part]).to(device) for name, part in parts.items() if name in inputs}
 
 
 def _windows(chunk: dict[str, Tensor], starts: list[int], length: int) -> dict[str, Tensor]:

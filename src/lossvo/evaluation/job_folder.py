@@ -15,7 +15,7 @@ import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import MISSING, Field, dataclass, field, fields
 from pathlib import Path
-from typing import Any, TypeVar, get_args, get_origin, get_type_hints
+from typing import Annotated, Any, TypeVar, get_args, get_origin, get_type_hints
 
 import numpy as np
 
@@ -31,7 +31,8 @@ LAST_CHECKPOINT = Path("checkpoints") / "last.ckpt"
 """Paths of a job folder's files, relative to the folder."""
 
 STATES = ("running", "completed", "failed", "interrupted")
-"""What ``status.json`` says of a run."""
+State = Annotated[str, f"one of {', '.join(STATES)}", STATES.__contains__]
+"""What ``status.json`` says of a run (:class:`Record`'s type of it)."""
 
 STATUS_SCHEMA_VERSION = 1
 """The version of ``status.json`` (a file without ``schema_version`` is read as this one)."""
@@ -41,6 +42,9 @@ TRANSLATION_METRIC = "metric"
 TRANSLATION_SCALED = "direction (scaled to the ground-truth step length)"
 TRANSLATIONS = {"metric": TRANSLATION_METRIC, "direction": TRANSLATION_SCALED, "cue": TRANSLATION_METRIC}
 """``Results.translation`` for each ``loss.translation`` (:data:`lossvo.losses.TRANSLATIONS`)."""
+TRANSLATED = (TRANSLATION_METRIC, TRANSLATION_SCALED)
+Translation = Annotated[str, " or ".join(map(repr, TRANSLATED)), TRANSLATED.__contains__]
+"""``Results.translation``: its values, and :class:`Record`'s type of it."""
 MULTI_LAYOUT = "multi"
 """The layout recorded for data of several datasets (each in :attr:`DataRecord.sources`)."""
 
@@ -97,14 +101,23 @@ _SCALARS: dict[Any, tuple[str, Callable[[Any], bool]]] = {
 
 def _value(kind: Any, value: Any, where: str, nullable: bool = False) -> Any:
     """``value`` read as ``kind``: a :class:`Record`, ``X | None``, ``list[X]``, ``tuple[X, ...]``,
-    ``dict[str, X]``, ``str``, ``bool``, ``int`` or ``float`` (an integer read as a float)."""
-    args = get_args(kind)
+    ``dict[str, X]``, ``str``, ``bool``, ``int``, ``float`` (an integer read as a float) or
+    ``Annotated[X, what, *checks]`` (``what`` the message says it must be, ``checks`` of a value not null)."""
+    origin, args = get_origin(kind), get_args(kind)
+    if origin is Annotated:
+        what, *checks = kind.__metadata__
+        try:
+            read = _value(args[0], value, where)
+        except _MalformedError:
+            raise _fail(where, what, value) from None
+        if value is not None and not all(check(value) for check in checks):
+            raise _fail(where, what, value)
+        return read
     if type(None) in args:
         inner = next(a for a in args if a is not type(None))
         return None if value is None else _value(inner, value, where, nullable=True)
     if isinstance(kind, type) and issubclass(kind, Record):
         return kind.from_json(value, where)
-    origin = get_origin(kind)
     if origin in (list, tuple):
         if not isinstance(value, list):
             raise _fail(where, "a list", value, nullable)
@@ -122,35 +135,36 @@ def _optional(f: Field) -> bool:
     return not f.metadata.get("required") and (f.default is not MISSING or f.default_factory is not MISSING)
 
 
-class Record:
-    """A frozen dataclass read from and written to a JSON object (:meth:`from_json`, :meth:`to_json`).
+def _check_version(obj: dict[str, Any], supported: int, missing: int | None = None, hint: str = "") -> None:
+    """Refuse an object whose ``schema_version`` (``missing`` where it has none) is not ``supported``."""
+    version = obj.get("schema_version", missing)
+    if version != supported:
+        found = "no schema_version" if version is None else f"schema_version {version!r} is not supported"
+        raise _MalformedError(f"{found} (supported: {supported}){hint}")
 
-    A field's metadata may give ``key`` (its JSON key), ``what`` it must be (for the error message),
-    ``fits`` (a check beyond its type), ``required`` (the key must be there despite a default) and
-    ``inline`` (a record whose keys are the enclosing object's own, present where that holds this key).
+
+class Record:
+    """A frozen dataclass read from and written to a JSON object (:meth:`from_json`, :meth:`to_json`),
+    checked against its type annotations (:func:`_value`).
+
+    A field's metadata may give ``key`` (its JSON key), ``required`` (the key must be there despite a
+    default) and ``inline`` (a record whose keys are the enclosing object's own, present where that holds
+    this key). The JSON keys are in field order (keyword-only fields keep their place).
     """
 
     @classmethod
     def from_json(cls: type[R], obj: Any, where: str = "") -> R:
         """The record in the JSON object ``obj`` at key path ``where`` (other keys ignored); ValueError
         naming the key path of a key missing or a value that does not fit."""
-        obj, values, types = _object(obj, where), {}, get_type_hints(cls)
+        obj, values, types = _object(obj, where), {}, get_type_hints(cls, include_extras=True)
         for f in fields(cls):  # type: ignore[arg-type]
-            name, what, fits = f.metadata.get("key", f.name), f.metadata.get("what"), f.metadata.get("fits")
-            at, kind = _path(where, name), types[f.name]
+            name = f.metadata.get("key", f.name)
             if "inline" in f.metadata:
-                values[f.name] = _value(kind, obj, where) if f.metadata["inline"] in obj else None
-            elif name not in obj and not _optional(f):
-                raise _MalformedError(f"{at} is missing")
+                values[f.name] = _value(types[f.name], obj, where) if f.metadata["inline"] in obj else None
             elif name in obj:
-                try:
-                    values[f.name] = _value(kind, obj[name], at)
-                except _MalformedError:
-                    if what is None:
-                        raise
-                    raise _fail(at, what, obj[name]) from None
-                if fits is not None and obj[name] is not None and not fits(obj[name]):
-                    raise _fail(at, str(what), obj[name])
+                values[f.name] = _value(types[f.name], obj[name], _path(where, name))
+            elif not _optional(f):
+                raise _MalformedError(f"{_path(where, name)} is missing")
         return cls(**values)
 
     def to_json(self) -> dict[str, Any]:
@@ -165,9 +179,9 @@ class Record:
         return out
 
 
-NAMES = {"what": "a list of sequence names"}
+Names = Annotated[list[str], "a list of sequence names"]
 REQUIRED = {"required": True}
-"""Field metadata (:class:`Record`): a list of sequence names; a key that must be in the file."""
+"""For :class:`Record`: the type of a list of sequence names; the metadata of a key that must be there."""
 
 
 def _json(value: Any) -> Any:
@@ -214,15 +228,6 @@ class Event(Record):
     def to_json(self) -> dict[str, Any]:
         return {"event": self.event, "time": self.time} | super().to_json()
 
-    @classmethod
-    def from_json(cls, obj: Any, where: str = "") -> Event:
-        if isinstance(obj, dict) and obj.get("event") is None:
-            raise _MalformedError(f"{where}: expected an 'event'")
-        try:
-            return super().from_json(obj)
-        except _MalformedError as e:
-            raise _MalformedError(f"{where}: {e}") from None
-
 
 @dataclass(frozen=True)
 class Status(Record):
@@ -230,10 +235,10 @@ class Status(Record):
     ``history`` (oldest first), a completed run's last ``metrics``, and what stopped a failed or
     interrupted run (``resume_from``: its ``last.ckpt``, None where there is none)."""
 
-    state: str = field(metadata={"key": "status"})
+    state: State = field(metadata={"key": "status"})
     history: tuple[Event, ...] = ()
     threads: int | None = None
-    metrics: dict[str, float] | None = field(default=None, metadata={"what": "an object of numbers"})
+    metrics: Annotated[dict[str, float] | None, "an object of numbers"] = None
     error: str | None = None
     signal: str | None = None
     epoch: int | None = None
@@ -255,14 +260,7 @@ class Status(Record):
 
     @classmethod
     def from_json(cls, obj: Any, where: str = "") -> Status:
-        version = _object(obj, where).get("schema_version", STATUS_SCHEMA_VERSION)
-        if version != STATUS_SCHEMA_VERSION:
-            raise _MalformedError(
-                f"schema_version {version!r} is not supported (supported: {STATUS_SCHEMA_VERSION})"
-            )
-        state = obj.get("status")
-        if state not in STATES:
-            raise _MalformedError(f"expected 'status' to be one of {', '.join(STATES)}, got {state!r}")
+        _check_version(_object(obj, where), STATUS_SCHEMA_VERSION, STATUS_SCHEMA_VERSION)
         return super().from_json({**obj, "history": obj.get("history") or []}, where)
 
 
@@ -347,9 +345,7 @@ class SequenceResult(_ScoredOrNoted):
     unseen: bool
     scores: Scores | None = field(default=None, metadata={"inline": "ape"})
     note: str | None = None
-    K: list[list[float]] | None = field(
-        default=None, metadata={"what": "a 3x3 matrix (pixels) or null", "fits": _is_3x3}
-    )
+    K: Annotated[list[list[float]] | None, "a 3x3 matrix (pixels) or null", _is_3x3] = None
     rate_hz: float | None = None
     rate_from: str | None = None
     metric_scale: bool | None = None
@@ -364,7 +360,7 @@ class SequenceResult(_ScoredOrNoted):
 class Overall(_ScoredOrNoted):
     """Scores pooled over the evaluated ``sequences`` with ground truth (None, with a ``note``, without)."""
 
-    sequences: list[str] = field(metadata=NAMES)
+    sequences: Names
     scores: Scores | None = field(default=None, metadata={"inline": "ape"})
     note: str | None = None
 
@@ -402,10 +398,10 @@ class DataRecord(Record):
 
     kind: str | None
     root: str
-    test: list[str] = field(metadata=NAMES)
-    unseen: list[str] = field(metadata=NAMES)
+    test: Names
+    unseen: Names
     train_root: str | None
-    train: list[str] = field(metadata=NAMES)
+    train: Names
     height: int | None = field(default=None, metadata=REQUIRED)
     width: int | None = field(default=None, metadata=REQUIRED)
     seq_len: int | None = field(default=None, metadata=REQUIRED)
@@ -429,35 +425,28 @@ class DataRecord(Record):
         return {key: value for key, value in super().to_json().items() if key not in SOURCE_FIELDS or value}
 
 
-_TRANSLATION = {
-    "required": True,
-    "what": " or ".join(repr(v) for v in TRANSLATIONS.values()),
-    "fits": lambda value: value in TRANSLATIONS.values(),
-}
 TIDY_COLUMNS = ("sequence", "metric", "part", "statistic", "value")
 """The columns of ``results.csv`` (:meth:`Results.tidy_rows`)."""
-RESULTS_KEYS = ("schema_version", "checkpoint", "loss", "align", "delta", "seq_len", "carry_state",
-                "mirror_average", "translation", "threads", "data", "sequences", "overall")  # fmt: skip
-"""The keys of ``results.json``, in the file's order."""
 
 
 @dataclass(frozen=True)
 class Results(Record):
-    """The content of a run's ``results.json`` (``checkpoint`` None: the last weights of a fit)."""
+    """The content of a run's ``results.json`` (``checkpoint`` None: the last weights of a fit); the
+    keyword-only fields are in the file's order among the others."""
 
+    schema_version: int = field(default=SCHEMA_VERSION, kw_only=True)
     checkpoint: str | None
     loss: LossRecord
     align: str
     delta: int
     seq_len: int
     carry_state: bool
+    mirror_average: bool = field(default=False, kw_only=True)
+    translation: Translation = field(default=TRANSLATION_METRIC, kw_only=True, metadata=REQUIRED)
+    threads: int | None = field(default=None, kw_only=True, metadata=REQUIRED)
     data: DataRecord
     sequences: dict[str, SequenceResult]
     overall: Overall
-    threads: int | None = field(default=None, metadata=REQUIRED)
-    translation: str = field(default=TRANSLATION_METRIC, metadata=_TRANSLATION)
-    mirror_average: bool = False
-    schema_version: int = SCHEMA_VERSION
 
     def scored(self) -> dict[str, Scores]:
         """The sequences with ground truth and their scores, in order."""
@@ -467,19 +456,10 @@ class Results(Record):
         """The unseen-motion sequences: those flagged and those the data record lists."""
         return {name for name, s in self.sequences.items() if s.unseen} | set(self.data.unseen)
 
-    def to_json(self) -> dict[str, Any]:
-        out = super().to_json()
-        return {key: out[key] for key in RESULTS_KEYS}
-
     @classmethod
     def from_json(cls, obj: Any, where: str = "") -> Results:
-        version = _object(obj, where).get("schema_version")
-        if version != SCHEMA_VERSION:
-            found = "no schema_version" if version is None else f"schema_version {version!r} is not supported"
-            raise _MalformedError(
-                f"{found} (supported: {SCHEMA_VERSION}); evaluate the checkpoint again "
-                "(python -m lossvo.eval ckpt_path=...)"
-            )
+        again = "; evaluate the checkpoint again (python -m lossvo.eval ckpt_path=...)"
+        _check_version(_object(obj, where), SCHEMA_VERSION, hint=again)
         return super().from_json(obj, where)
 
     def tidy_rows(self) -> list[tuple[str, str, str, str, float | None]]:
@@ -488,16 +468,12 @@ class Results(Record):
         pooled = {"overall": self.overall.scores} if self.overall.scores is not None else {}
         rows: list[tuple[str, str, str, str, float | None]] = []
         for name, scores in {**self.scored(), **pooled}.items():
-            for metric, errors in (
-                ("ape", scores.ape),
-                ("rpe", scores.rpe),
-                ("rpe_scaled", scores.rpe_scaled),
-            ):
-                for part, stats in (("trans", errors.trans), ("rot_rad", errors.rot_rad)) if errors else ():
-                    rows += [(name, metric, part, f.name, getattr(stats, f.name)) for f in fields(stats)]
-            kitti = scores.kitti
-            rows += [(name, "kitti", "t_err_pct", "mean", kitti.t_err_pct),
-                     (name, "kitti", "r_err_deg_per_100m", "mean", kitti.r_err_deg_per_100m)]  # fmt: skip
+            errors = scores.to_json()  # ape, rpe, kitti, then rpe_scaled where recorded
+            kitti = errors.pop("kitti")
+            for metric, parts in errors.items():
+                for part, stats in parts.items():
+                    rows += [(name, metric, part, stat, value) for stat, value in stats.items()]
+            rows += [(name, "kitti", key, "mean", kitti[key]) for key in ("t_err_pct", "r_err_deg_per_100m")]
         return rows
 
     def write(self, path: str | os.PathLike) -> None:

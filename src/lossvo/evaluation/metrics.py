@@ -7,7 +7,8 @@ Float64, vectorised, on the input's device. Poses are (N, 4, 4) camera-to-world 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from functools import partial
 from typing import Any, Literal
 
 import numpy as np
@@ -263,8 +264,8 @@ def _kitti_summary(t_sum: float, r_sum: float, count: int) -> dict[str, float | 
 
 
 class _PoseErrorMetric(Metric):
-    """Per-pose (or per-pair) translation and rotation errors of every update, concatenated across
-    processes; ``compute`` is :func:`pose_statistics` over them all."""
+    """Per-pose (or per-pair) translation and rotation ``errors(est, ref)`` of every update, concatenated
+    across processes; ``compute`` is :func:`pose_statistics` over them all."""
 
     is_differentiable = False
     higher_is_better = False
@@ -272,17 +273,15 @@ class _PoseErrorMetric(Metric):
     trans: list[Tensor]  # states (add_state), which nn.Module's __getattr__ would type Tensor | Module
     rot: list[Tensor]
 
-    def __init__(self, **kwargs: Any) -> None:
+    def __init__(self, errors: Callable[[Tensor, Tensor], tuple[Tensor, Tensor]], **kwargs: Any) -> None:
         super().__init__(**kwargs)
+        self.errors = errors
         self.add_state("trans", default=[], dist_reduce_fx="cat")
         self.add_state("rot", default=[], dist_reduce_fx="cat")
 
-    def _errors(self, est: Tensor, ref: Tensor) -> tuple[Tensor, Tensor]:
-        raise NotImplementedError
-
     def update(self, est: Tensor, ref: Tensor) -> None:
         """Add one sequence: est, ref (N, 4, 4) whole trajectories (poses, not batches of windows)."""
-        trans, rot = self._errors(est, ref)
+        trans, rot = self.errors(est, ref)
         self.trans.append(trans)
         self.rot.append(rot)
 
@@ -295,11 +294,7 @@ class APE(_PoseErrorMetric):
 
     def __init__(self, align: AlignMode = "none", **kwargs: Any) -> None:
         check_align(align)
-        super().__init__(**kwargs)
-        self.align = align
-
-    def _errors(self, est: Tensor, ref: Tensor) -> tuple[Tensor, Tensor]:
-        return ape_errors(est, ref, self.align)
+        super().__init__(partial(ape_errors, align=align), **kwargs)
 
 
 class RPE(_PoseErrorMetric):
@@ -315,11 +310,8 @@ class RPE(_PoseErrorMetric):
     ) -> None:
         check_rpe_settings(delta, delta_unit, pairs_from)
         check_align(align)
-        super().__init__(**kwargs)
-        self.delta, self.align, self.delta_unit, self.pairs_from = delta, align, delta_unit, pairs_from
-
-    def _errors(self, est: Tensor, ref: Tensor) -> tuple[Tensor, Tensor]:
-        return rpe_errors(est, ref, self.delta, self.align, self.delta_unit, self.pairs_from)
+        errors = partial(rpe_errors, delta=delta, align=align, delta_unit=delta_unit, pairs_from=pairs_from)
+        super().__init__(errors, **kwargs)
 
 
 class KittiOdometryError(Metric):
