@@ -119,7 +119,9 @@ def instantiate_checked(config: Any, key: str | None = None, **kwargs: Any) -> A
     except InstantiationException as e:
         if key is not None and isinstance(e.__cause__, ValueError):
             raise UserError(f"{key}: {one_line(e.__cause__)}") from e.__cause__
-        raise e.__cause__ if isinstance(e.__cause__, UserError) else e from None
+        if isinstance(e.__cause__, UserError):
+            raise e.__cause__ from None
+        raise
 
 
 def check_data(cfg: DictConfig) -> None:
