@@ -19,8 +19,8 @@ from lossvo import folder_lock
 
 def test_a_held_lock_is_seen_named_and_refused_to_another_taker(tmp_path: Path) -> None:
     assert folder_lock.in_use(tmp_path) is None  # no lock file: cannot tell
-    with folder_lock.held(tmp_path, ", SLURM job 7") as held:
-        assert held.guarded and held.path == tmp_path / "run.lock"
+    with folder_lock.held(tmp_path, ", SLURM job 7") as guarded:
+        assert guarded and (tmp_path / "run.lock").is_file()
         assert folder_lock.in_use(tmp_path) is True
         holder = folder_lock.holder(tmp_path)
         assert holder.startswith(f"pid {os.getpid()} on ") and holder.endswith(", SLURM job 7")
@@ -60,8 +60,8 @@ def test_a_file_system_without_locks_runs_unguarded_with_a_warning(
         raise OSError(errno.ENOLCK, "No locks available")
 
     monkeypatch.setattr(fcntl, "flock", no_locks)
-    with caplog.at_level(logging.WARNING, logger="lossvo"), folder_lock.held(tmp_path) as held:
-        assert not held.guarded
+    with caplog.at_level(logging.WARNING, logger="lossvo"), folder_lock.held(tmp_path) as guarded:
+        assert not guarded
         assert folder_lock.in_use(tmp_path) is None
     (record,) = caplog.records
     assert record.getMessage() == (

@@ -9,16 +9,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-
-def _umask() -> int:
-    """The process's umask (reading it means setting it; it is set straight back)."""
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-UMASK = _umask()
-"""Read once at import, before any thread could create files meanwhile."""
+UMASK = os.umask(0o022)  # the umask, read once at import (before threads): reading it sets it, so set it back
+os.umask(UMASK)
 
 
 @contextmanager

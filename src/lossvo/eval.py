@@ -12,7 +12,7 @@ The checkpoint's training data is evaluated unless ``data=...`` or ``data.KEY=..
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, cast
 
@@ -20,8 +20,6 @@ import hydra
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
-from hydra.errors import InstantiationException
-from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from lossvo import output_folders
@@ -46,12 +44,22 @@ from lossvo.training.config_checks import (
     check_added_keys,
     check_checkpoint_path,
     check_source_roots,
+    check_values,
+    instantiate_checked,
     resolved_config,
 )
 
 log = logging.getLogger("lossvo")
 
 CONFIG_DIR = str(Path(__file__).resolve().parent / "conf")
+
+SCALARS: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
+    ("align", lambda v: v in ALIGN_MODES, f"one of {', '.join(ALIGN_MODES)}"),
+    ("delta", is_rpe_delta, "an integer >= 1 (frames)"),
+    ("carry_state", lambda v: isinstance(v, bool), "true or false"),
+    ("mirror_average", lambda v: isinstance(v, bool), "true or false"),
+)
+"""(key, test, what is expected) of the scalar settings checked (:func:`check_values`)."""
 
 
 def check_config(cfg: Any) -> None:
@@ -62,9 +70,7 @@ def check_config(cfg: Any) -> None:
     check_added_keys(cfg, list(HydraConfig.get().overrides.task), "eval")
     check_checkpoint_path(Path(str(cfg.ckpt_path)))
     check_source_roots(cfg.get("data"))
-    missing = sorted(OmegaConf.missing_keys(cfg))
-    if missing:
-        raise UserError(f"{missing[0]}: a value is required: add {missing[0]}=... to the command line")
+    check_values(cfg, SCALARS)
     device = cfg.get("device", "auto")
     if device != "auto":
         try:
@@ -73,27 +79,14 @@ def check_config(cfg: Any) -> None:
             raise UserError(f"device: expected auto, cpu, cuda or cuda:N, got {device!r}") from None
         if kind == "cuda" and not torch.cuda.is_available():
             raise UserError(f"device: {device!r}, but CUDA is not available here (expected auto or cpu)")
-    if cfg.get("align", "none") not in ALIGN_MODES:
-        raise UserError(f"align: expected one of {', '.join(ALIGN_MODES)}, got {cfg.get('align')!r}")
-    delta = cfg.get("delta", 1)
-    if not is_rpe_delta(delta):
-        raise UserError(f"delta: expected an integer >= 1 (frames), got {delta!r}")
-    for key in ("carry_state", "mirror_average"):
-        if not isinstance(cfg.get(key, False), bool):
-            raise UserError(f"{key}: expected true or false, got {cfg.get(key)!r}")
 
 
 def data_overrides(overrides: Sequence[str]) -> tuple[bool, list[str]]:
     """From command-line overrides: whether a data config was chosen (``data=kitti``) and the data keys
     set, dotted below ``data`` (``data.frames.cache_dir=...`` gives ``frames.cache_dir``)."""
-    chosen, keys = False, []
-    for override in OverridesParser.create().parse_overrides(list(overrides)):
-        key = override.key_or_group
-        if key == "data":
-            chosen = True
-        elif key.startswith("data."):
-            keys.append(key.removeprefix("data."))
-    return chosen, list(dict.fromkeys(keys))
+    keys = [o.key_or_group for o in OverridesParser.create().parse_overrides(list(overrides))]
+    data = [key.removeprefix("data.") for key in keys if key.startswith("data.")]
+    return "data" in keys, list(dict.fromkeys(data))
 
 
 def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
@@ -107,12 +100,7 @@ def run(cfg: Any, out_dir: Path, overrides: Sequence[str] = ()) -> Results:
     recorded = checkpoints.recorded_data(cfg.ckpt_path, network)
     explicit = {k: checkpoints.lookup(given, k) for k in keys}
     data_cfg = checkpoints.evaluation_data(recorded, given if chosen else None, explicit)
-    try:
-        datamodule = instantiate(data_cfg, _convert_="all")
-    except InstantiationException as e:  # a bad data setting: the constructor's own one-line UserError
-        if isinstance(e.__cause__, UserError):
-            raise e.__cause__ from None
-        raise
+    datamodule = instantiate_checked(data_cfg, _convert_="all")
     datamodule.prepare_data()
     datamodule.setup("test")
     sequences = sequence_names(cfg.sequences if cfg.get("sequences") else datamodule.evaluated)

@@ -13,7 +13,6 @@ import os
 import socket
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -28,18 +27,11 @@ class FolderInUseError(UserError):
     """Another live process holds the folder's lock."""
 
 
-@dataclass
-class Held:
-    """The lock as this process took it. ``guarded``: False where the file system refused the lock."""
-
-    path: Path
-    guarded: bool
-
-
 @contextmanager
-def held(folder: Path, details: str = "") -> Iterator[Held]:
+def held(folder: Path, details: str = "") -> Iterator[bool]:
     """Hold ``folder/run.lock`` while the block runs (:class:`FolderInUseError` where another process
-    holds it); the file names the holder: pid, host, start time and ``details`` (e.g. the SLURM job)."""
+    holds it), giving whether it guards the folder (False where the file system has no locks); the file
+    names the holder: pid, host, start time and ``details`` (e.g. the SLURM job)."""
     path = folder / LOCK
     fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
     try:
@@ -53,7 +45,7 @@ def held(folder: Path, details: str = "") -> Iterator[Held]:
                 )
             except OSError as e:  # a full disk: name the file
                 raise OSError(e.errno, e.strerror, str(path)) from None
-        yield Held(path, guarded)
+        yield guarded
     finally:
         os.close(fd)
 

@@ -25,21 +25,17 @@ SWEEP_MARKERS = ("multirun.yaml", "optuna.db", ".submitit")
 """Entries of a sweep folder of lossvo's besides job folders (Hydra's, Optuna's, the SLURM launcher's)."""
 
 _EXISTED: dict[str, bool] = {}
-"""The output folders that existed before this process's run began, each with whether it was empty."""
-
-
-def _key(folder: Path) -> str:
-    return os.path.realpath(folder)
+"""The output folders that existed before this process's run began (real paths) -> whether each was empty."""
 
 
 def existed(folder: Path) -> bool:
     """Whether ``folder`` existed before this process's run began (:class:`OutputFolderCheck`)."""
-    return _key(folder) in _EXISTED
+    return os.path.realpath(folder) in _EXISTED
 
 
 def was_empty(folder: Path) -> bool:
     """Whether ``folder`` did not exist, or was empty, before this process's run began."""
-    return _EXISTED.get(_key(folder), True)
+    return _EXISTED.get(os.path.realpath(folder), True)
 
 
 def _is_ours(folder: Path, sweep: bool) -> bool:
@@ -61,8 +57,8 @@ def check_output_folder(folder: Path, key: str, sweep: bool = False) -> None:
         )
     if not folder.is_dir():
         return
-    _EXISTED[_key(folder)] = not any(folder.iterdir())
-    if not _EXISTED[_key(folder)] and not _is_ours(folder, sweep):
+    empty = _EXISTED[os.path.realpath(folder)] = not any(folder.iterdir())
+    if not empty and not _is_ours(folder, sweep):
         raise UserError(
             f"{key}: {folder} holds files that lossvo did not write (no {what} of lossvo's in it): give a "
             f"new folder, or a {what} folder of lossvo's to resume"

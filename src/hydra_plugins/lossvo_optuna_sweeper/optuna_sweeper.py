@@ -58,11 +58,6 @@ def _items(value: Any) -> list[Any]:
     return list(value) if isinstance(value, (list, tuple, ListConfig)) else [value]
 
 
-def directions_of(direction: Any) -> list[str]:
-    """The sweeper's ``direction`` (one name, or a list) as a list of names."""
-    return [str(item).lower() for item in _items(direction)]
-
-
 def values_of(returned: Any, n: int) -> list[float]:
     """A job's return value as ``n`` numbers (anything ``float`` takes, not a bool), or UserError."""
     items = _items(returned)
@@ -88,7 +83,7 @@ class LossvoOptunaSweeper(Sweeper):
         sampler: Any,
         params: Optional[DictConfig],  # noqa: UP045
     ) -> None:
-        self.directions = directions_of(direction)
+        self.directions = [str(item).lower() for item in _items(direction)]  # one name, or a list
         self.study_name = study_name
         self.storage = storage
         self.n_trials = n_trials
@@ -143,7 +138,7 @@ class LossvoOptunaSweeper(Sweeper):
                 )
                 raise failed[0]
             left -= len(trials)
-        self._write_results(study)
+        self._write_results(study, sweep_dir)
 
     def _open(self, space: dict[str, Any], fixed: dict[str, str]) -> Any:
         """The study, its search checked against the one recorded under its name (UserError)."""
@@ -184,8 +179,8 @@ class LossvoOptunaSweeper(Sweeper):
         study.tell(trial, values, skip_if_finished=True)  # failed meanwhile as stale: stays failed
         return None
 
-    def _write_results(self, study: Any) -> None:
-        """``optimization_results.yaml`` in the sweep folder: the best trial, or the Pareto front."""
+    def _write_results(self, study: Any, sweep_dir: Path) -> None:
+        """``optimization_results.yaml`` in ``sweep_dir``: the best trial, or the Pareto front."""
         from optuna.trial import TrialState
 
         results: dict[str, Any] = {"name": "optuna"}
@@ -200,7 +195,4 @@ class LossvoOptunaSweeper(Sweeper):
         else:
             results["solutions"] = [{"params": t.params, "values": t.values} for t in study.best_trials]
             log.info(f"Number of Pareto solutions: {len(results['solutions'])}")
-        assert self.config is not None
-        folder = Path(str(self.config.hydra.sweep.dir))
-        folder.mkdir(parents=True, exist_ok=True)
-        OmegaConf.save(OmegaConf.create(results), folder / "optimization_results.yaml")
+        OmegaConf.save(OmegaConf.create(results), sweep_dir / "optimization_results.yaml")

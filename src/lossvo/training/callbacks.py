@@ -15,6 +15,7 @@ from lightning.pytorch.callbacks import Callback, RichProgressBar
 
 from lossvo.checks import is_integer
 from lossvo.console import UserError
+from lossvo.data.datamodules import VODataModule
 from lossvo.evaluation.results import PooledScores, predict_and_score
 
 log = logging.getLogger("lossvo")
@@ -61,7 +62,7 @@ def progress() -> Callback | None:
 class TrajectoryValidation(Callback):
     """Every ``every_n_epochs`` epochs, integrate the validation sequences and log their pooled trajectory
     errors (APE unaligned, RPE over one frame, KITTI's where a 100 m segment exists: docs/training.md).
-    A datamodule without whole sequences (a benchmark's) is skipped."""
+    A datamodule other than lossvo's (a benchmark's) is skipped."""
 
     def __init__(self, every_n_epochs: int = 1, mirror_average: bool = False) -> None:
         if not is_integer(every_n_epochs, 1):
@@ -69,11 +70,6 @@ class TrajectoryValidation(Callback):
         if not isinstance(mirror_average, bool):
             raise UserError(f"mirror_average: expected true or false, got {mirror_average!r}")
         self.every_n_epochs, self.mirror_average = every_n_epochs, mirror_average
-
-    @staticmethod
-    def _usable(datamodule: object) -> bool:
-        needed = ("sequence_inputs", "sequence_poses", "prepare", "seq_len", "splits")
-        return datamodule is not None and all(hasattr(datamodule, name) for name in needed)
 
     @staticmethod
     def _share(
@@ -88,9 +84,8 @@ class TrajectoryValidation(Callback):
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if trainer.sanity_checking or (trainer.current_epoch + 1) % self.every_n_epochs:
             return
-        # Lightning's data connector sets Trainer.datamodule without declaring it; used duck-typed here.
-        datamodule = trainer.datamodule  # type: ignore[attr-defined]
-        if not self._usable(datamodule) or not datamodule.splits.get("val"):
+        datamodule = trainer.datamodule  # type: ignore[attr-defined]  # set by Lightning, undeclared
+        if not isinstance(datamodule, VODataModule) or not datamodule.splits.get("val"):
             return
         pooled = PooledScores()  # no alignment, RPE over 1 frame
         names, device = self._share(list(datamodule.splits["val"]), trainer, pl_module)

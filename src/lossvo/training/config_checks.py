@@ -7,7 +7,7 @@ from __future__ import annotations
 import difflib
 import math
 import re
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, cast
 
@@ -64,15 +64,6 @@ CUDA_ACCELERATORS = ("gpu", "cuda")
 """``trainer.accelerator`` values that train on a CUDA GPU."""
 
 
-def _select(config: Mapping[str, Any], key: str) -> Any:
-    node: Any = config
-    for part in key.split("."):
-        if not isinstance(node, Mapping) or part not in node:
-            return _ABSENT
-        node = node[part]
-    return node
-
-
 def resolved_config(cfg: DictConfig) -> dict[str, Any]:
     """The config as plain containers, resolved; UserError naming the key of one that does not resolve."""
     try:
@@ -85,22 +76,16 @@ def check_train_config(cfg: DictConfig, machine: bool = True) -> None:
     """UserError (one line) for a config that would fail under way; ``machine=False``: no GPU checks."""
     if cfg.get("weighting") is not None:
         weighting.check_config(cfg.weighting, cfg.loss)
-    resolved = resolved_config(cfg)
-    missing = sorted(OmegaConf.missing_keys(cfg))
-    if missing:
-        raise UserError(f"{missing[0]}: a value is required: add {missing[0]}=... to the command line")
-    for key, test, expected in SCALARS:
-        value = _select(resolved, key)
-        if value is not _ABSENT and not test(value):
-            raise UserError(f"{key}: expected {expected}, got {value!r}")
-    _check_flow(resolved)
-    check_source_roots(resolved.get("data"))
-    check_devices(_select(resolved, "trainer.devices"), _select(resolved, "trainer.strategy"))
-    accelerator = _select(resolved, "trainer.accelerator")
+    resolved_config(cfg)
+    check_values(cfg, SCALARS)
+    _check_flow(cfg)
+    check_source_roots(cfg.get("data"))
+    check_devices(_select(cfg, "trainer.devices"), _select(cfg, "trainer.strategy"))
+    accelerator = _select(cfg, "trainer.accelerator")
     if machine and accelerator in CUDA_ACCELERATORS:
         choice = HydraConfig.get().runtime.choices.get("trainer") if HydraConfig.initialized() else None
         check_accelerator(accelerator, torch.cuda.is_available(), choice)
-    ckpt_path = resolved.get("ckpt_path")
+    ckpt_path = cfg.get("ckpt_path")
     if ckpt_path is not None:
         check_checkpoint_path(Path(str(ckpt_path)).expanduser())
         if not Path(str(ckpt_path)).expanduser().is_file():
@@ -108,14 +93,41 @@ def check_train_config(cfg: DictConfig, machine: bool = True) -> None:
     check_data(cfg)
 
 
+def check_values(cfg: DictConfig, scalars: Sequence[tuple[str, Callable[[Any], bool], str]]) -> None:
+    """UserError naming the first key without a value (``???``), else the first of ``scalars`` (key, test,
+    what is expected) the config holds that fails its test."""
+    missing = sorted(OmegaConf.missing_keys(cfg))
+    if missing:
+        raise UserError(f"{missing[0]}: a value is required: add {missing[0]}=... to the command line")
+    for key, test, expected in scalars:
+        value = _select(cfg, key)
+        if value is not _ABSENT and not test(value):
+            raise UserError(f"{key}: expected {expected}, got {value!r}")
+
+
+def _select(cfg: DictConfig, key: str) -> Any:
+    """The resolved value at a dotted ``key``, lists and mappings as plain containers; absent: _ABSENT."""
+    value = OmegaConf.select(cfg, key, default=_ABSENT)
+    return OmegaConf.to_container(value, resolve=True) if OmegaConf.is_config(value) else value
+
+
+def instantiate_checked(config: Any, key: str | None = None, **kwargs: Any) -> Any:
+    """Hydra's ``instantiate``; a constructor's UserError raised as it is, and with ``key`` its ValueError
+    as one line naming ``key`` (Lightning's Trainer refuses a value so)."""
+    try:
+        return instantiate(config, **kwargs)
+    except InstantiationException as e:
+        if key is not None and isinstance(e.__cause__, ValueError):
+            raise UserError(f"{key}: {one_line(e.__cause__)}") from e.__cause__
+        if isinstance(e.__cause__, UserError):
+            raise e.__cause__ from None
+        raise
+
+
 def check_data(cfg: DictConfig) -> None:
     """The data module's constructor's checks, without reading any data."""
-    if cfg.get("data") is None:
-        return
-    try:
-        instantiate(cfg.data, _convert_="all")
-    except InstantiationException as e:
-        raise e.__cause__ if isinstance(e.__cause__, UserError) else e from None
+    if cfg.get("data") is not None:
+        instantiate_checked(cfg.data, _convert_="all")
 
 
 def check_checkpoint_path(path: Path) -> None:
@@ -136,9 +148,9 @@ def check_source_roots(data: Any) -> None:
             raise UserError(f"data.sources.{name}.root: {root} is a file, expected the dataset's folder")
 
 
-def _check_flow(resolved: Mapping[str, Any]) -> None:
+def _check_flow(cfg: DictConfig) -> None:
     """A network that reads optical flow (its config names one: ``model.flow``) needs data with flow."""
-    needs, has = _select(resolved, "model.flow"), _select(resolved, "data.flow.method")
+    needs, has = _select(cfg, "model.flow"), _select(cfg, "data.flow.method")
     if needs is not _ABSENT and needs is not None and has in ("none", None):
         raise UserError(
             f"model.flow: the network reads optical flow ({needs}) but data.flow.method={has} caches "
@@ -184,14 +196,11 @@ def _added_keys(overrides: Sequence[str], allowed: Sequence[str]) -> list[tuple[
     return added
 
 
-def _leaves(node: Any, prefix: str = "") -> dict[str, str]:
-    """Each key's last part -> its dotted key, in a plain config."""
-    found: dict[str, str] = {}
+def dotted_keys(node: Any, prefix: str = "") -> Iterator[tuple[str, Any]]:
+    """(dotted key, value) of each key of a plain config, its mappings' keys included, each before its own."""
     for key, value in node.items() if isinstance(node, Mapping) else ():
-        dotted = f"{prefix}{key}"
-        found.setdefault(str(key), dotted)
-        found.update({k: v for k, v in _leaves(value, f"{dotted}.").items() if k not in found})
-    return found
+        yield f"{prefix}{key}", value
+        yield from dotted_keys(value, f"{prefix}{key}.")
 
 
 def check_added_keys(cfg: DictConfig, overrides: Sequence[str], config_name: str = "train") -> None:
@@ -207,7 +216,9 @@ def check_added_keys(cfg: DictConfig, overrides: Sequence[str], config_name: str
         if key in base:
             continue
         known = sorted(str(k) for k in base)
-        leaves = _leaves(OmegaConf.to_container(base, resolve=False))
+        leaves: dict[str, str] = {}  # each key's last part -> its first dotted key
+        for dotted, _ in dotted_keys(OmegaConf.to_container(base, resolve=False)):
+            leaves.setdefault(dotted.rsplit(".", 1)[-1], dotted)
         close = [leaves[k] for k in difflib.get_close_matches(key, list(leaves), n=3)]
         hint = f" (did you mean {' or '.join(close)}?)" if close else ""
         extra = f" (and +{allowed[0]}=..., which no config sets)" if allowed else ""

@@ -7,11 +7,10 @@ from __future__ import annotations
 import logging
 import warnings
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any
 
 import lightning as L
 import torch
-from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint, ProgressBar
 from lightning.pytorch.loggers import Logger, WandbLogger
@@ -23,7 +22,7 @@ from lossvo.evaluation.job_folder import RESULTS
 from lossvo.evaluation.results import evaluate_run
 from lossvo.models import load_flownet
 from lossvo.training import checkpoints, slurm
-from lossvo.training.config_checks import resolved_config
+from lossvo.training.config_checks import instantiate_checked, resolved_config
 from lossvo.training.lifecycle import Run
 from lossvo.training.loggers import continue_history
 from lossvo.training.module import VOModule
@@ -59,16 +58,6 @@ def _load_flownet(module: VOModule, path: str) -> None:
     log.info("FlowNetS initialisation: %s", report.summary())
 
 
-def _trainer(config: DictConfig, **kwargs: Any) -> L.Trainer:
-    """Lightning's Trainer; a value it refuses with ``ValueError`` is one line naming ``trainer``."""
-    try:
-        return cast("L.Trainer", instantiate(config, **kwargs))
-    except InstantiationException as e:
-        if isinstance(e.__cause__, ValueError):
-            raise UserError(f"trainer: {one_line(e.__cause__)}") from e.__cause__
-        raise
-
-
 def build(cfg: DictConfig) -> tuple[VODataModule, VOModule, L.Trainer]:
     """Data (set up for fitting), module and trainer from a composed config; nothing is trained yet."""
     if cfg.model.get("flownet"):
@@ -91,8 +80,9 @@ def build(cfg: DictConfig) -> tuple[VODataModule, VOModule, L.Trainer]:
     _sync_batchnorm_where_supported(cfg)
     callbacks: list[Callback] = _instantiate_group(cfg.get("callbacks"), "callbacks")
     loggers: list[Logger] = _instantiate_group(cfg.get("logger"), "logger")
-    trainer = _trainer(
+    trainer: L.Trainer = instantiate_checked(
         cfg.trainer,
+        "trainer",
         plugins=[checkpoints.AtomicCheckpointIO(), *slurm.lightning_environment()],
         callbacks=callbacks,
         logger=loggers or False,

@@ -36,7 +36,7 @@ from lossvo.evaluation import job_folder
 from lossvo.evaluation.job_folder import LAST_CHECKPOINT, METRICS, STATUS, Event, Status
 from lossvo.machine import machine
 from lossvo.training import gpu_jobs
-from lossvo.training.config_checks import check_added_keys, check_train_config
+from lossvo.training.config_checks import check_added_keys, check_train_config, dotted_keys
 from lossvo.training.slurm import slurm_job
 from lossvo.training.stopping import SIGNALS, InterruptedRun
 
@@ -63,12 +63,6 @@ def event(name: str, **details: Any) -> Event:
     return Event(name, now, **details, **slurm_job())
 
 
-def _flat(node: Any, prefix: str) -> dict[str, Any]:
-    if isinstance(node, Mapping):
-        return {k: v for key, value in node.items() for k, v in _flat(value, f"{prefix}.{key}").items()}
-    return {prefix: node}
-
-
 def _defining(cfg: DictConfig | ListConfig) -> dict[str, Any]:
     """The run-defining entries of a config as dotted keys, resolved where they resolve."""
     try:
@@ -76,11 +70,13 @@ def _defining(cfg: DictConfig | ListConfig) -> dict[str, Any]:
     except OmegaConfBaseException:
         container = OmegaConf.to_container(cfg, resolve=False)
     assert isinstance(container, dict)
-    flat = {k: v for key in RUN_KEYS for k, v in _flat(container.get(key), key).items()}
+    leaves = dotted_keys({key: container.get(key) for key in RUN_KEYS})
     return {
         k: v
-        for k, v in flat.items()
-        if not k.startswith(NOT_DEFINING) and not (k.startswith("data.sources.") and k.endswith(".root"))
+        for k, v in leaves
+        if not isinstance(v, Mapping)
+        and not k.startswith(NOT_DEFINING)
+        and not (k.startswith("data.sources.") and k.endswith(".root"))
     }
 
 
@@ -262,12 +258,11 @@ def _held(run: Run) -> Iterator[None]:
     details = f", SLURM job {job['slurm_job']}" if job else ""
     with ExitStack() as stack:
         try:
-            held = stack.enter_context(folder_lock.held(run.out_dir, details))
+            run.guarded = stack.enter_context(folder_lock.held(run.out_dir, details))
         except folder_lock.FolderInUseError as e:  # another process's folder: nothing of it goes
             _end(run, e, lambda *_: None)
         except OSError as e:  # a full or read-only disk before the run starts
             _end(run, e, lambda run, _: _remove_made(run))
-        run.guarded = held.guarded
         yield
 
 

@@ -18,6 +18,7 @@ from torch import Tensor
 from torch.optim.lr_scheduler import CosineAnnealingLR
 
 from lossvo import models
+from lossvo.data.datamodules import VODataModule
 from lossvo.evaluation.checkpoints import Description, describe
 from lossvo.evaluation.trajectories import scale_steps
 from lossvo.losses import PoseLoss
@@ -132,8 +133,7 @@ class VOModule(L.LightningModule):
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         """Record how the network is trained (its data description) and the random streams."""
         datamodule = getattr(self.trainer, "datamodule", None)
-        description = getattr(datamodule, "description", None)
-        describe(checkpoint, description() if callable(description) else self.data)
+        describe(checkpoint, datamodule.description() if isinstance(datamodule, VODataModule) else self.data)
         checkpoint["rng"] = collect_rng()
 
     def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:

@@ -77,16 +77,11 @@ def names_swept_jobs(main: Callable[[], Any]) -> Callable[[], Any]:
 def job_name(overrides: Sequence[str], swept: str = "", exclude: Sequence[str] = ()) -> str:
     """A sweep job's folder name from its overrides: the ``swept`` keys (comma-separated) first, then the
     others, each group sorted, without ``exclude``, through :func:`path_safe`."""
-    first = set(swept.split(",")) - {""}
-    lines = [
-        o.input_line or ""
-        for o in OverridesParser.create().parse_overrides(list(overrides))
-        if o.key_or_group not in exclude
-    ]
-    keys = {line: line.lstrip("+~").split("=", 1)[0].split("@", 1)[0] for line in lines}
-    ordered = sorted(line for line in lines if keys[line] in first)
-    ordered += sorted(line for line in lines if keys[line] not in first)
-    return path_safe(",".join(ordered))
+    lead = set(swept.split(",")) - {""}
+    parsed = OverridesParser.create().parse_overrides(list(overrides))
+    kept = [o for o in parsed if o.key_or_group not in exclude]
+    lines = sorted((o.key_or_group not in lead, o.input_line or "") for o in kept)  # the swept (False) first
+    return path_safe(",".join(line for _, line in lines))
 
 
 def sweep_group(mode: Any, sweep_dir: str) -> str | None:

@@ -39,30 +39,25 @@ def check_reachable() -> None:
         raise ClusterError(f"hydra/launcher: the SLURM controller does not answer (scontrol ping: {said})")
 
 
-def check_partition(partition: str | None) -> None:
-    """Every partition of ``hydra.launcher.partition`` (a comma list) exists."""
-    if not partition:
-        return
-    known = set(_query("sinfo", "-h", "-o", "%R").stdout.split())
-    missing = [name for name in partition.split(",") if name not in known]
-    if missing:
-        has = ", ".join(sorted(known)) or "none"
-        raise ClusterError(
-            f"hydra.launcher.partition={partition}: the cluster has no partition "
-            f"{missing[0]!r} (it has: {has})"
-        )
+LISTED = {
+    "partition": ("sinfo", "-h", "-o", "%R"),
+    "account": ("sacctmgr", "-n", "-P", "show", "account", "format=account"),
+}
+"""``hydra.launcher`` settings naming what the cluster has, each with the command listing the cluster's."""
 
 
-def check_account(account: str | None) -> None:
-    """``hydra.launcher.account`` exists (unchecked where ``sacctmgr`` fails: no accounting)."""
-    if not account:
+def check_listed(what: str, value: str | None) -> None:
+    """Every name of ``hydra.launcher.<what>`` (a comma list) is one the cluster lists (:data:`LISTED`);
+    unchecked where the listing fails (``sacctmgr`` without accounting)."""
+    if not value:
         return
-    listed = _query("sacctmgr", "-n", "-P", "show", "account", "format=account")
+    listed = _query(*LISTED[what])
     known = set(listed.stdout.split())
-    if listed.returncode == 0 and account not in known:
+    missing = [name for name in value.split(",") if name not in known]
+    if listed.returncode == 0 and missing:
         has = ", ".join(sorted(known)) or "none"
         raise ClusterError(
-            f"hydra.launcher.account={account}: the cluster has no account {account!r} (it has: {has})"
+            f"hydra.launcher.{what}={value}: the cluster has no {what} {missing[0]!r} (it has: {has})"
         )
 
 
@@ -90,8 +85,8 @@ class ClusterCheck(Callback):
         try:
             check_tasks(launcher, config.trainer)
             check_reachable()
-            check_partition(launcher.get("partition"))
-            check_account(launcher.get("account"))
+            for what in LISTED:
+                check_listed(what, launcher.get(what))
         except (ClusterError, OSError, subprocess.TimeoutExpired) as e:
             exit_in_one_line(e)
 

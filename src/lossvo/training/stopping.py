@@ -5,6 +5,7 @@ it raises :class:`InterruptedRun` at once. What a stopped run leaves: docs/train
 
 from __future__ import annotations
 
+import functools
 import signal
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -50,37 +51,29 @@ class StopSignals:
         if self._record(signum) and signal.getsignal(signal.SIGTERM) == self._on_sigterm:
             raise InterruptedRun("SIGTERM")
 
-    def _on_sigint(self, previous: Handler) -> Handler:
+    def _on_sigint(self, previous: Handler, signum: int, frame: Any) -> Any:
         """SIGINT: recorded, then the handler it had (Python's raises KeyboardInterrupt)."""
+        self._record(signum)
+        return previous(signum, frame)
 
-        def handler(signum: int, frame: Any) -> Any:
-            self._record(signum)
-            return previous(signum, frame)
-
-        return handler
-
-    def _on_requeue(self, submitit: Handler) -> Handler:
+    def _on_requeue(self, submitit: Handler, signum: int, frame: Any) -> None:
         """Submitit's requeue signal: its exit becomes an :class:`InterruptedRun` (other ranks go on)."""
-
-        def handler(signum: int, frame: Any) -> None:
-            first = self._record(signum)
-            try:
-                submitit(signum, frame)
-            except SystemExit:
-                raise InterruptedRun(self.first or signal.Signals(signum).name) from None
-            if first:
-                self.first = None
-
-        return handler
+        first = self._record(signum)
+        try:
+            submitit(signum, frame)
+        except SystemExit:
+            raise InterruptedRun(self.first or signal.Signals(signum).name) from None
+        if first:
+            self.first = None
 
     def _handlers(self) -> dict[signal.Signals, Handler]:
         handlers: dict[signal.Signals, Handler] = {signal.SIGTERM: self._on_sigterm}
         sigint = signal.getsignal(signal.SIGINT)
         if callable(sigint):  # a SIGINT ignored (a background job) stays ignored
-            handlers[signal.SIGINT] = self._on_sigint(sigint)
+            handlers[signal.SIGINT] = functools.partial(self._on_sigint, sigint)
         usr2 = signal.getsignal(signal.SIGUSR2)
         if callable(usr2) and "submitit" in getattr(usr2, "__module__", ""):
-            handlers[signal.SIGUSR2] = self._on_requeue(usr2)
+            handlers[signal.SIGUSR2] = functools.partial(self._on_requeue, usr2)
         return handlers
 
     @contextmanager
