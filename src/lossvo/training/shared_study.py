@@ -14,7 +14,7 @@ import numpy as np
 import optuna
 from optuna.distributions import BaseDistribution, distribution_to_json, json_to_distribution
 from optuna.exceptions import StorageInternalError, UpdateFinishedTrialError
-from optuna.samplers import TPESampler
+from optuna.samplers import BaseSampler, TPESampler
 from optuna.storages import BaseStorage, RDBStorage
 from optuna.storages.journal import JournalFileBackend, JournalStorage
 from optuna.study import Study, StudyDirection
@@ -112,25 +112,48 @@ def fail_stale_trials(study: Study, grace_period: float) -> list[int]:
     return failed
 
 
-class TrialSeededTPESampler(TPESampler):
-    """Optuna's TPE sampler drawing trial number k as one seeded with ``SeedSequence([seed, k])`` would: the
-    same for a trial number, different across the study's trials, workers and restarts (docs/sweep.md).
-    Each trial is sampled when it is asked for (the sweeper asks with its search space)."""
+class TrialSeededTPESampler(BaseSampler):
+    """Optuna's TPE sampler drawing trial number k from one seeded with ``SeedSequence([seed, k])``: the same
+    for a trial number, different across the study's trials, workers and restarts (docs/sweep.md)."""
 
     def __init__(self, seed: int | None = None, **tpe: Any) -> None:
-        super().__init__(seed=seed, **tpe)
         self._seed = seed
+        self._tpe = tpe
+        self._samplers: dict[int, TPESampler] = {}
+
+    def _of(self, trial: FrozenTrial) -> TPESampler:
+        if trial.number not in self._samplers:
+            seed = self._seed
+            if seed is not None:  # SeedSequence([seed, k])'s first word
+                seed = int(np.random.SeedSequence([seed, trial.number]).generate_state(1)[0])
+            self._samplers[trial.number] = TPESampler(seed=seed, **self._tpe)
+        return self._samplers[trial.number]
 
     def reseed_rng(self) -> None:
         self._seed = None
-        super().reseed_rng()
+        self._samplers.clear()
+
+    def infer_relative_search_space(self, study: Study, trial: FrozenTrial) -> dict[str, BaseDistribution]:
+        return self._of(trial).infer_relative_search_space(study, trial)
+
+    def sample_relative(
+        self, study: Study, trial: FrozenTrial, search_space: dict[str, BaseDistribution]
+    ) -> dict[str, Any]:
+        return self._of(trial).sample_relative(study, trial, search_space)
+
+    def sample_independent(
+        self, study: Study, trial: FrozenTrial, param_name: str, param_distribution: BaseDistribution
+    ) -> Any:
+        return self._of(trial).sample_independent(study, trial, param_name, param_distribution)
 
     def before_trial(self, study: Study, trial: FrozenTrial) -> None:
-        if self._seed is not None:  # SeedSequence([seed, k])'s first word, as TPESampler(seed=...) seeds
-            seed = int(np.random.SeedSequence([self._seed, trial.number]).generate_state(1)[0])
-            self._rng.rng.seed(seed)
-            self._random_sampler._rng.rng.seed(seed)
-        super().before_trial(study, trial)
+        self._of(trial).before_trial(study, trial)
+
+    def after_trial(
+        self, study: Study, trial: FrozenTrial, state: TrialState, values: Sequence[float] | None
+    ) -> None:
+        self._of(trial).after_trial(study, trial, state, values)
+        self._samplers.pop(trial.number, None)
 
 
 def search_of(
