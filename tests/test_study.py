@@ -311,18 +311,6 @@ def test_the_study_time_shares_the_jobs_out_but_is_no_shorter_than_its_longest()
     assert study.study_seconds([10.0, 100.0], 2) == 100.0
 
 
-def test_the_wall_times_ratio_is_to_the_lower_floor_measured_before_and_after_the_jobs() -> None:
-    def floor(seconds: float) -> study.Floor:
-        return study.Floor(1e12, 1e11, seconds, (5e10,), 2)
-
-    line = study.wall_line(3960.0, (floor(3540.0), floor(3300.0)))
-    assert line == (
-        "study: wall time 1.1 h, 1.20x its compute floor of 55 min "
-        "(the lower of 59 min and 55 min, measured before and after the jobs)"
-    )
-    assert study.wall_line(1800.0) == "study: wall time 30 min"
-
-
 def test_job_size_from_the_composed_config(tiny_kitti: Path, tmp_path: Path) -> None:
     """Two training sequences of 10 frames, windows of 3 frames, one at every frame: 8 each, 4 a batch: 4
     steps an epoch; 9 pairs validated (02) and evaluated (02), twice for trajectories (mirror averaging)."""

@@ -39,7 +39,6 @@ from lightning.pytorch.callbacks import Callback
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 from torch.utils.data import DataLoader, Dataset
-from torch.utils.flop_counter import FlopCounterMode
 
 from lossvo.console import OneLineParser, UserError, emit, one_line, one_line_main
 from lossvo.data import windows
@@ -224,54 +223,39 @@ def job_size(cfg: DictConfig) -> JobSize:
 
 @dataclass(frozen=True)
 class Calibration:
-    """One architecture's rates measured here: seconds and FLOPs (``FlopCounterMode``) of a training step
-    through Lightning and of a frame pair's inference pass."""
+    """One architecture's rates measured here: seconds of a training step through Lightning and of a frame
+    pair's inference pass."""
 
     step_s: float
     pair_s: float
-    step_flops: float = 0.0
-    pair_flops: float = 0.0
-
-    @property
-    def flops_per_s(self) -> float:
-        """The rate of the timed training steps, FLOP/s on the job's threads."""
-        return self.step_flops / self.step_s
 
 
 class _StepTimes(Callback):
-    """Wall time of each training batch, seconds, and the FLOPs of the first (counting slows it)."""
+    """Wall time of each training batch, seconds."""
 
     def __init__(self) -> None:
         self.seconds: list[float] = []
-        self.flops = 0
         self._start = 0.0
-        self._counter: FlopCounterMode | None = None
 
     def on_train_batch_start(self, *args: Any) -> None:
-        if not self.seconds:  # the first batch
-            self._counter = FlopCounterMode(display=False)
-            self._counter.__enter__()
         self._start = time.perf_counter()
 
     def on_train_batch_end(self, *args: Any) -> None:
         self.seconds.append(time.perf_counter() - self._start)
-        if self._counter is not None:
-            self._counter.__exit__(None, None, None)
-            self.flops, self._counter = self._counter.get_total_flops(), None
 
 
 def _container(node: Any) -> dict[str, Any]:
     return cast("dict[str, Any]", OmegaConf.to_container(node, resolve=True))
 
 
-def _module(cfg: DictConfig) -> VOModule:
+def job_module(cfg: DictConfig) -> VOModule:
     """The job's LightningModule, from its config (without FlowNet weights and without a schedule)."""
     model = _container(cfg.model)
     model.pop("flownet", None)
     return VOModule(model=model, loss=_container(cfg.loss), optimizer=_container(cfg.optimizer))
 
 
-def _batch(cfg: DictConfig, windows_: int, seq_len: int) -> dict[str, torch.Tensor]:
+def random_batch(cfg: DictConfig, windows_: int, seq_len: int) -> dict[str, torch.Tensor]:
     """A random batch of ``windows_`` windows of ``seq_len`` frames as the data module hands it over."""
     h, w = int(cfg.data.frames.height), int(cfg.data.frames.width)
     K = torch.tensor([[w, 0.0, w / 2], [0.0, w, h / 2], [0.0, 0.0, 1.0]])
@@ -296,11 +280,11 @@ def _quiet() -> Iterator[None]:
         logging.disable(previous)
 
 
-def time_training_step(cfg: DictConfig) -> tuple[float, float]:
-    """Median seconds of a training step on the CPU, through Lightning, on batches of the config's shape,
-    and the FLOPs of one step."""
+def time_training_step(cfg: DictConfig) -> float:
+    """Median seconds of a training step on the CPU, through Lightning, on batches of the config's shape."""
     windows = cfg.data.windows
-    batches = [_batch(cfg, int(windows.batch_size), int(windows.seq_len)) for _ in range(CALIBRATION_STEPS)]
+    size = (int(windows.batch_size), int(windows.seq_len))
+    batches = [random_batch(cfg, *size) for _ in range(CALIBRATION_STEPS)]
     timer = _StepTimes()
     with _quiet():
         trainer = L.Trainer(
@@ -315,24 +299,24 @@ def time_training_step(cfg: DictConfig) -> tuple[float, float]:
             enable_model_summary=False,
             callbacks=[timer],
         )
-        trainer.fit(_module(cfg), train_dataloaders=DataLoader(cast("Dataset", batches), batch_size=None))
-    return median(timer.seconds[2:]), float(timer.flops)
+        trainer.fit(job_module(cfg), train_dataloaders=DataLoader(cast("Dataset", batches), batch_size=None))
+    return median(timer.seconds[2:])
 
 
-def time_inference_pair(cfg: DictConfig, windows_per_pass: int = 32) -> tuple[float, float]:
-    """Seconds and FLOPs of a frame pair in an inference pass over ``windows_per_pass`` random windows
-    (:func:`lossvo.evaluation.inference.predict_sequence`); the FLOPs counted in a warm-up pass."""
-    seq_len = int(cfg.data.windows.seq_len)
-    frames = windows_per_pass * (seq_len - 1) + 1
-    batch = _batch(cfg, 1, frames)
-    inputs = {name: batch[name][0].numpy() for name in ("frames", "flow", "K")}
-    module = _module(cfg)
-    with FlopCounterMode(display=False) as counter:
-        predict_sequence(module, inputs, lambda loaded: loaded, seq_len)
+def inference_inputs(cfg: DictConfig, windows_per_pass: int = 32) -> dict[str, Any]:
+    """A random sequence of ``windows_per_pass`` windows as :func:`predict_sequence` reads it."""
+    batch = random_batch(cfg, 1, windows_per_pass * (int(cfg.data.windows.seq_len) - 1) + 1)
+    return {name: batch[name][0].numpy() for name in ("frames", "flow", "K")}
+
+
+def time_inference_pair(cfg: DictConfig) -> float:
+    """Seconds of a frame pair in an inference pass over random windows
+    (:func:`lossvo.evaluation.inference.predict_sequence`), after a warm-up pass."""
+    inputs, module, seq_len = inference_inputs(cfg), job_module(cfg), int(cfg.data.windows.seq_len)
+    predict_sequence(module, inputs, lambda loaded: loaded, seq_len)
     start = time.perf_counter()
     predict_sequence(module, inputs, lambda loaded: loaded, seq_len)
-    pairs = frames - 1
-    return (time.perf_counter() - start) / pairs, counter.get_total_flops() / pairs
+    return (time.perf_counter() - start) / (len(inputs["frames"]) - 1)
 
 
 def calibrate(cfg: DictConfig, threads: int) -> Calibration:
@@ -341,8 +325,7 @@ def calibrate(cfg: DictConfig, threads: int) -> Calibration:
     torch.set_num_threads(threads)
     L.seed_everything(0, verbose=False)
     try:
-        (step_s, step_flops), (pair_s, pair_flops) = time_training_step(cfg), time_inference_pair(cfg)
-        return Calibration(step_s, pair_s, step_flops, pair_flops)
+        return Calibration(time_training_step(cfg), time_inference_pair(cfg))
     finally:
         torch.set_num_threads(previous)
 
@@ -364,73 +347,24 @@ def _hours(seconds: float) -> str:
     return f"{seconds / 3600:.1f} h" if seconds >= 3600 else f"{seconds / 60:.0f} min"
 
 
-@dataclass(frozen=True)
-class Floor:
-    """A study's compute floor on the CPU: ``seconds`` for its FLOPs at the rate each architecture's timed
-    training steps reached on one core (``flops_per_core_s``), on all of ``cores`` (docs/sweep.md)."""
-
-    train_flops: float
-    infer_flops: float
-    seconds: float
-    flops_per_core_s: tuple[float, ...]
-    cores: int
-
-    def text(self) -> str:
-        rates = " / ".join(f"{r / 1e9:.1f}" for r in self.flops_per_core_s)
-        return (
-            f"compute floor {_hours(self.seconds)}: {(self.train_flops + self.infer_flops) / 1e12:.1f} TFLOP "
-            f"(training {self.train_flops / 1e12:.1f}, inference {self.infer_flops / 1e12:.1f}; "
-            "torch.utils.flop_counter) at the calibration steps' "
-            f"{rates} GFLOP/s a core x {self.cores} cores"
-        )
-
-
-def compute_floor(work: Sequence[tuple[JobSize, Calibration, int]], cores: int) -> Floor:
-    """The :class:`Floor` of ``(size, calibration, jobs)`` per configuration, the jobs sharing ``cores``."""
-    train = sum(jobs * size.steps * rate.step_flops for size, rate, jobs in work)
-    infer = sum(jobs * size.inferred_pairs * rate.pair_flops for size, rate, jobs in work)
-    seconds = sum(
-        jobs * (size.steps * rate.step_flops + size.inferred_pairs * rate.pair_flops) / rate.flops_per_s
-        for size, rate, jobs in work
-    )
-    return Floor(train, infer, seconds / cores, tuple(rate.flops_per_s for _, rate, _ in work), cores)
-
-
-def cpu_estimate(plan: Plan) -> tuple[str, Floor]:
-    """The study's one line on a CPU (its jobs, how many at once, about how long, what was measured) and
-    its :class:`Floor`."""
+def cpu_estimate(plan: Plan) -> str:
+    """The study's one line on a CPU: its jobs, how many at once, about how long, what was measured."""
     threads = max(joblib.cpu_count() // plan.at_once, 1)
-    job_s, measured, work = [], [], []
+    job_s, measured = [], []
     for configuration in plan.configurations:
         cfg = compose_job(configuration, plan.losses[0], plan.overrides)
         size, rate = job_size(cfg), calibrate(cfg, threads)
-        jobs = len(plan.seeds) * len(plan.losses)
-        job_s += [job_seconds(size, rate)] * jobs
-        work.append((size, rate, jobs))
+        job_s += [job_seconds(size, rate)] * len(plan.seeds) * len(plan.losses)
         measured.append(
             f"{configuration.split('=')[1]} {rate.step_s * 1e3:.0f} ms a step x {size.steps:,} steps + "
             f"{rate.pair_s * 1e3:.2f} ms a pair x {size.inferred_pairs:,} pairs"
         )
     total = _hours(study_seconds(job_s, plan.at_once))
     threads_a_job = f"{threads} thread{'s' * (threads > 1)} a job"
-    floor = compute_floor(work, min(joblib.cpu_count(), plan.at_once * threads))
-    line = (
+    return (
         f"study: {plan.jobs} jobs on the CPU ({plan.at_once} at once), about {total} here (measured on "
         f"{threads_a_job}: {'; '.join(measured)}; plus {JOB_OVERHEAD_S:g} s a job to start and finish; "
-        f"not counted: building a missing data cache, the report); {floor.text()}"
-    )
-    return line, floor
-
-
-def wall_line(seconds: float, floors: Sequence[Floor] = ()) -> str:
-    """The study's last line: its wall time and, on the CPU, its ratio to the lowest of ``floors``."""
-    if not floors:
-        return f"study: wall time {_hours(seconds)}"
-    low = min(floor.seconds for floor in floors)
-    measured = " and ".join(_hours(floor.seconds) for floor in floors)
-    return (
-        f"study: wall time {_hours(seconds)}, {seconds / low:.2f}x its compute floor of {_hours(low)} "
-        f"(the lower of {measured}, measured before and after the jobs)"
+        f"not counted: building a missing data cache, the report)"
     )
 
 
@@ -588,16 +522,15 @@ def job_environment(plan: Plan, environ: Mapping[str, str] = os.environ) -> dict
     return {**({} if plan.gpu else KEPT_MEMORY), **environ}
 
 
-def run(plan: Plan, floor: Floor | None = None) -> int:
-    """The sweeps, :func:`cross_evaluations`, the report (also after a failed job) and the wall line; the
+def run(plan: Plan) -> int:
+    """The sweeps, :func:`cross_evaluations`, the report (also after a failed job) and the wall time; the
     report's exit status where it fails, else the first failed command's."""
     start, env = time.perf_counter(), job_environment(plan)
     statuses = [subprocess.run(command, env=env).returncode for command in plan.sweep_commands()]
     statuses += [subprocess.run(command, env=env).returncode for command in cross_evaluations(plan)]
     status = next((s for s in statuses if s != 0), 0)
     report = subprocess.run(plan.report_command()).returncode
-    seconds = time.perf_counter() - start
-    emit(wall_line(seconds, (floor, cpu_estimate(plan)[1]) if floor else ()))
+    emit(f"study: wall time {_hours(time.perf_counter() - start)}")
     return report if report != 0 else status
 
 
@@ -614,13 +547,12 @@ def main(argv: list[str] | None = None) -> int:
         plan = plan_study(args, torch.cuda.is_available(), job_gib, sweep_dir)
     except OmegaConfBaseException as e:  # a study's override that does not resolve
         raise UserError(one_line(e)) from None
-    line, floor = (gpu_line(plan, job_gib), None) if plan.gpu else cpu_estimate(plan)
-    emit(line)
+    emit(gpu_line(plan, job_gib) if plan.gpu else cpu_estimate(plan))
     for command in plan.sweep_commands():
         emit(shlex.join(["python", *command[1:]]))
     if args.dry_run:
         return 0
-    return run(plan, floor)
+    return run(plan)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,54 @@
+"""The test suite's wall time at two checkouts, interleaved: the median ratio of the second to the first.
+
+Run: ``python benchmarks/suite_time.py BASE_DIR NEW_DIR --rounds 3``, each DIR a clone with its own ``.venv``
+(``make venv``). Each round runs ``make test``'s pytest (``-m "not cluster"``, its xdist workers) once in each
+checkout, in alternating order, on an otherwise idle machine; prints every run's seconds, pytest's counts,
+and the per-round ratios NEW / BASE with their median and spread. ruff and mypy, which ``make test`` runs
+beside the tests, are left out: they do not depend on the suite.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import statistics
+import subprocess
+import time
+from pathlib import Path
+
+COMMAND = [".venv/bin/python", "-m", "pytest", "-m", "not cluster", "-q", "-p", "no:cacheprovider"]
+
+
+def timed_suite(checkout: Path) -> tuple[float, str]:
+    """Seconds of one run of the suite in ``checkout`` and pytest's summary line; an error if it fails."""
+    start = time.perf_counter()
+    done = subprocess.run(COMMAND, cwd=checkout, capture_output=True, text=True)
+    seconds = time.perf_counter() - start
+    lines = done.stdout.strip().splitlines()
+    summary = re.sub(r"=+", "", lines[-1]).strip() if lines else ""
+    if done.returncode != 0:
+        raise SystemExit(f"{checkout}: the suite failed ({summary or done.stderr.strip()[-300:]})")
+    return seconds, summary
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("base", type=Path)
+    parser.add_argument("new", type=Path)
+    parser.add_argument("--rounds", type=int, default=3)
+    args = parser.parse_args()
+    ratios = []
+    for number in range(args.rounds):
+        order = (args.base, args.new) if number % 2 == 0 else (args.new, args.base)
+        seconds = {}
+        for checkout in order:
+            seconds[checkout], summary = timed_suite(checkout)
+            print(f"round {number + 1}: {checkout} {seconds[checkout]:.1f} s ({summary})", flush=True)
+        ratios.append(seconds[args.new] / seconds[args.base])
+    spread = f"{min(ratios):.3f}-{max(ratios):.3f}"
+    rounds = ", ".join(f"{r:.3f}" for r in ratios)
+    print(f"new / base: median {statistics.median(ratios):.3f} (rounds {rounds}; spread {spread})")
+
+
+if __name__ == "__main__":
+    main()
