@@ -161,7 +161,7 @@ def test_a_flow_scale_computes_on_the_source_images_at_that_scale(tiny_kitti, tm
     np.testing.assert_allclose(cached[3], expected, atol=0.01)
     assert fine.description()["flow"]["scale"] == 2
     sizes.clear()
-    coarse = make_dm(tiny_kitti, tmp_path, flow="dis")
+    coarse = make_dm(tiny_kitti, tmp_path, flow="dis", flow_scale=1)
     assert set(sizes) == {(32, 96)} and len(sizes) == 27
     assert not np.array_equal(np.load(flow.flow_file(coarse.cache_path(), "00", 1, coarse.flow)), cached)
     sizes.clear()
@@ -191,7 +191,7 @@ def test_a_datamodule_caches_the_flow_of_every_pair_it_uses_once(tiny_kitti, tmp
     from test_datamodules import make_dm  # the datamodule of those tests (the tiny dataset at 32x96)
 
     calls = _counted(monkeypatch)
-    dm = make_dm(tiny_kitti, tmp_path, flow="dis", frame_steps=[1, 2])
+    dm = make_dm(tiny_kitti, tmp_path, flow="dis", flow_scale=1, frame_steps=[1, 2])
     assert dm.flow_steps() == {"00": (1, 2), "01": (1, 2), "02": (1,)}
     assert len(calls) == 9 + 8 + 9 + 8 + 9  # 10 frames each: 9 pairs at step 1, 8 at step 2
     folder = dm.cache_path()
@@ -200,7 +200,7 @@ def test_a_datamodule_caches_the_flow_of_every_pair_it_uses_once(tiny_kitti, tmp
         "01.flow-dis-medium-s2.npy", "02.flow-dis-medium-s1.npy",
     ]  # fmt: skip
     assert dm.description()["flow"] == {"method": "dis", "scale": 1.0}
-    make_dm(tiny_kitti, tmp_path, flow="dis", frame_steps=[1, 2])
+    make_dm(tiny_kitti, tmp_path, flow="dis", flow_scale=1, frame_steps=[1, 2])
     assert len(calls) == 43  # another job of the sweep: read, not computed
     make_dm(tiny_kitti, tmp_path)  # data.flow.method=none (the default): no flow
     assert len(calls) == 43
