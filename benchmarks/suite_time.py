@@ -1,10 +1,12 @@
 """The test suite's wall time at two checkouts, interleaved: the median ratio of the second to the first.
 
 Run: ``python benchmarks/suite_time.py BASE_DIR NEW_DIR --rounds 3``, each DIR a clone with its own ``.venv``
-(``make venv``). Each round runs ``make test``'s pytest (``-m "not cluster"``, its xdist workers) once in each
-checkout, in alternating order, on an otherwise idle machine; prints every run's seconds, pytest's counts,
-and the per-round ratios NEW / BASE with their median and spread. ruff and mypy, which ``make test`` runs
-beside the tests, are left out: they do not depend on the suite.
+made there by ``make venv``: a copied venv's bytecode no longer matches its sources' times, and where
+``PYTHONDONTWRITEBYTECODE`` is set every import then compiles again (sqlalchemy's import 2.7x slower). Each
+round runs ``make test``'s pytest (``-m "not cluster"``, its xdist workers) once in each checkout, in
+alternating order, on an otherwise idle machine; prints every run's seconds, pytest's counts, and the
+per-round ratios NEW / BASE with their median and spread. ruff and mypy, which ``make test`` runs beside the
+tests, are left out: they do not depend on the suite.
 """
 
 from __future__ import annotations

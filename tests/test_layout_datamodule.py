@@ -256,7 +256,8 @@ def test_a_camera_override_reads_a_tum_sequence_whose_name_names_no_camera(tmp_p
     name = "my_recording"
     write_tum(tmp_path / "tum" / name, 100.0 + np.arange(12) / 30, 99.99 + np.arange(50) / 100)
     settings = {"train": [name], "test": [name]}
-    with pytest.raises(UserError, match="unknown camera"):
+    line = r"^data\.sources\.tum\.camera: sequence 'my_recording': unknown camera"
+    with pytest.raises(UserError, match=line):
         datamodule(tmp_path / "tum", tmp_path / "cache", **settings).setup()
     K = [[40.0, 0.0, 31.5], [0.0, 40.0, 23.5], [0.0, 0.0, 1.0]]
     dm = datamodule(tmp_path / "tum", tmp_path / "cache", camera={"K": K}, **settings)

@@ -10,6 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from lossvo import motion
+from test_layout_datamodule import write_tum
 
 
 def write_tartanair(root: Path, name: str, steps: np.ndarray, yaw_per_frame: float) -> None:
@@ -44,6 +45,15 @@ def test_the_table_of_a_tartanair_root(tmp_path: Path, capsys: pytest.CaptureFix
         "all (town/Hard/P001)",
         "town/Hard/P001",
     ]
+
+
+def test_a_tum_sequence_of_another_camera(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """The table reads poses only: a TUM sequence whose name names no Freiburg set-up needs no camera."""
+    write_tum(tmp_path / "my_recording", 100.0 + np.arange(12) / 30, 99.99 + np.arange(50) / 100)
+    assert motion.main([str(tmp_path), "--layout", "tum"]) == 0
+    rows = [line.split("|") for line in capsys.readouterr().out.splitlines()[2:]]
+    assert [row[1].strip() for row in rows] == ["all (my_recording)", "my_recording"]
+    assert float(rows[1][3]) == pytest.approx(0.1 / 30, abs=5e-4)  # 0.1 m/s at 30 Hz
 
 
 @pytest.mark.parametrize(

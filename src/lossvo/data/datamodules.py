@@ -34,7 +34,7 @@ from lossvo.console import UserError
 from lossvo.data import flow as optical_flow
 from lossvo.data import frame_cache, layouts, resident, specs, synthetic, windows
 from lossvo.data import transforms as batch_transforms
-from lossvo.data.sequence import DatasetFormatError, Sequence
+from lossvo.data.sequence import DatasetFormatError, Sequence, UnknownCameraError
 from lossvo.data.synthetic import routes
 from lossvo.data.windows import EpochShuffle, WindowDataset
 from lossvo.geometry import camera
@@ -170,6 +170,8 @@ class VODataModule(L.LightningDataModule):
                     require_poses=name in labelled,
                     camera=source.camera,
                 )
+            except UnknownCameraError as e:
+                raise UserError(f"data.sources.{key}.camera: {e}") from e
             except DatasetFormatError as e:
                 found = layouts.list_sequences(source.reader, root)
                 if source.file_name(local) not in found:

@@ -19,6 +19,9 @@ STANDING = 0.01
 """Metres per frame below which a pair counts as standing still."""
 _SPEED = ("mean", "RMS", "p5", "p50", "p95", "max")
 _ROTATION = ("mean", "RMS", "p50", "p95", "max")
+POSES_ONLY = (np.eye(3), np.zeros(5))
+"""The camera given to every reader here: the table reads poses only, and a TUM sequence whose name names no
+Freiburg set-up then needs no camera of its own."""
 COLUMNS = ("pairs", *(f"speed {c}" for c in _SPEED), "standing", *(f"rot {c}" for c in _ROTATION))
 """Table columns: speeds in m/frame, rotations in rad/frame, standing as a fraction of the pairs."""
 
@@ -76,5 +79,5 @@ def read_layout_motion(
     """{sequence: (speed, rotation)} of sequences read by the ``layout``'s reader
     (:mod:`lossvo.data.layouts`): every one found under ``root`` when ``names`` is empty."""
     chosen = list(names) or layouts.list_sequences(layout, root)
-    poses = {name: layouts.load_sequence(layout, root, name).poses for name in chosen}
+    poses = {name: layouts.load_sequence(layout, root, name, camera=POSES_ONLY).poses for name in chosen}
     return {name: frame_motion(p) for name, p in poses.items() if p is not None}

@@ -25,6 +25,10 @@ class DatasetFormatError(UserError):
     """A file or folder that does not follow a dataset's layout."""
 
 
+class UnknownCameraError(DatasetFormatError):
+    """A sequence whose camera its layout does not give: ``data.sources.<name>.camera`` gives it."""
+
+
 def where(path: Path, line: int | None = None) -> str:
     """``path`` or ``path:line`` (1-based) for an error message."""
     return f"{path}:{line}" if line is not None else str(path)

@@ -14,6 +14,7 @@ from lossvo.console import UserError
 from lossvo.data.sequence import (
     DatasetFormatError,
     Sequence,
+    UnknownCameraError,
     check_increasing,
     find_sequences,
     finite_numbers,
@@ -153,9 +154,9 @@ def camera(
     match = _CAMERA_IN_NAME.search(name)
     key = f"freiburg{match.group(1)}" if match else None
     if key is None and K is None:
-        raise DatasetFormatError(
+        raise UnknownCameraError(
             f"sequence {name!r}: unknown camera (the name contains none of freiburg1/2/3, fr1/2/3); "
-            "set K= (3x3 intrinsics in pixels) and distortion= (k1 k2 p1 p2 k3)"
+            "give its K (3x3 intrinsics in pixels) and distortion (k1 k2 p1 p2 k3)"
         )
     if K is None:
         fx, fy, cx, cy = CAMERAS[str(key)][0]
